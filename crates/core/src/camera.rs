@@ -1,0 +1,1 @@
+//! Pinhole camera with lens distortion. (Skeleton.)

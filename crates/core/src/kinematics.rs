@@ -1,0 +1,1 @@
+//! Gonioreflectometer kinematics. (Skeleton.)

@@ -1,0 +1,21 @@
+//! The core model of btfrig: no I/O, no async.
+//!
+//! Brief overview: [`direction::Direction`] is a direction on the hemisphere in the one
+//! convention of the project (see `docs/conventions.md`); [`sampling`] holds sets of
+//! directions (the Bonn 81 table, lists, dome layouts) with nearest-direction lookup and
+//! barycentric interpolation; [`kinematics`] turns a (light, view) pair into the poses of a
+//! gonioreflectometer and back; [`config::RigConfig`] is a rig described as data;
+//! [`camera`] is the pinhole-plus-distortion camera model shared by the simulator and the
+//! calibration; [`frame`] is a raw sensor frame with its full metadata.
+#![warn(missing_docs)]
+
+pub mod camera;
+pub mod config;
+pub mod direction;
+pub mod error;
+pub mod frame;
+pub mod kinematics;
+pub mod sampling;
+
+pub use direction::Direction;
+pub use error::ConfigError;
