@@ -1,0 +1,161 @@
+//! Low-level arguments as clap parses them. `main.rs` turns them into validated settings
+//! (a loaded rig, a material, directions) before any work starts.
+
+use clap::{Args, Parser, Subcommand};
+
+/// btfrig: runs the rigs that measure bidirectional texture functions.
+#[derive(Debug, Parser)]
+#[command(name = "btfrig", version, about, propagate_version = true)]
+pub struct Cli {
+    /// What to do.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// The subcommands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Run the embedded simulated gonioreflectometer: capture a handful of (light, view)
+    /// pairs through the device traits, and print what it did.
+    Demo(DemoArgs),
+    /// The simulated rig on its own.
+    #[command(subcommand)]
+    Sim(SimCommand),
+    /// Kinematics of a rig.
+    #[command(subcommand)]
+    Kinematics(KinematicsCommand),
+    /// Benchmarks that print time and error side by side.
+    #[command(subcommand)]
+    Bench(BenchCommand),
+}
+
+/// `btfrig demo`.
+#[derive(Debug, Args)]
+pub struct DemoArgs {
+    /// Rig config file (default: the embedded simulated gonioreflectometer).
+    #[arg(long)]
+    pub rig: Option<std::path::PathBuf>,
+    /// Material name (see `btfrig sim materials`) or a material TOML file.
+    #[arg(long)]
+    pub material: Option<String>,
+    /// Directory to write the captured frames into (default: a new `btfrig-demo-*` directory
+    /// under the system's temporary directory).
+    #[arg(long)]
+    pub out: Option<std::path::PathBuf>,
+    /// Print the summary as one JSON object.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `btfrig sim ...`.
+#[derive(Debug, Subcommand)]
+pub enum SimCommand {
+    /// Render one capture: the raw frame, a preview and the ground-truth texture.
+    Render(RenderArgs),
+    /// List the embedded materials.
+    Materials,
+}
+
+/// `btfrig sim render`.
+#[derive(Debug, Args)]
+pub struct RenderArgs {
+    /// Rig config file (default: the embedded simulated gonioreflectometer).
+    #[arg(long)]
+    pub rig: Option<std::path::PathBuf>,
+    /// Material name (see `btfrig sim materials`) or a material TOML file.
+    #[arg(long)]
+    pub material: Option<String>,
+    /// View direction in sample coordinates: THETA,PHI in degrees.
+    #[arg(long, value_name = "THETA,PHI")]
+    pub view: String,
+    /// Light direction in sample coordinates: THETA,PHI in degrees.
+    #[arg(long, value_name = "THETA,PHI")]
+    pub light: String,
+    /// Raw frame output: `.exr` (linear float DN) or `.png` (16-bit DN).
+    #[arg(long)]
+    pub out: std::path::PathBuf,
+    /// 8-bit sRGB demosaiced preview (`.png`).
+    #[arg(long)]
+    pub preview: Option<std::path::PathBuf>,
+    /// Ground-truth texture on the sample plane (`.exr`, linear sRGB).
+    #[arg(long)]
+    pub ground_truth: Option<std::path::PathBuf>,
+    /// Ground-truth texture size in texels (square).
+    #[arg(long, default_value_t = 256)]
+    pub texture_size: usize,
+    /// Exposure time in seconds (default: chosen so the white plate sits near 60% of full scale).
+    #[arg(long)]
+    pub exposure: Option<f64>,
+    /// Noise seed (default: the rig's seed).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Draw the nominal pose, without the robot's and rail's positioning error.
+    #[arg(long)]
+    pub nominal: bool,
+}
+
+/// `btfrig kinematics ...`.
+#[derive(Debug, Subcommand)]
+pub enum KinematicsCommand {
+    /// Classify every (light, view) pair of the Bonn 81 x 81 sampling: reachable, or
+    /// unreachable with a reason; check FK(IK(pair)) for each reachable one.
+    Check {
+        /// Rig config file (default: the embedded simulated gonioreflectometer).
+        #[arg(long)]
+        rig: Option<std::path::PathBuf>,
+        /// Print the result as JSON.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+/// `btfrig bench ...`.
+#[derive(Debug, Subcommand)]
+pub enum BenchCommand {
+    /// Render time of a full frame with and without the renderer's skips, side by side,
+    /// with the difference between the two images.
+    Render {
+        /// Rig config file (default: the embedded simulated gonioreflectometer).
+        #[arg(long)]
+        rig: Option<std::path::PathBuf>,
+        /// Material names to benchmark (default: all embedded materials).
+        #[arg(long)]
+        material: Vec<String>,
+        /// Texels per side of the sample's material grid.
+        #[arg(long, default_value_t = 256)]
+        texels: usize,
+        /// Timed repetitions per setting (the median is reported).
+        #[arg(long, default_value_t = 5)]
+        repeat: usize,
+    },
+}
+
+/// Parses `THETA,PHI` in degrees.
+pub fn parse_direction(field: &str, text: &str) -> Result<btfrig_core::Direction, String> {
+    let parts: Vec<&str> = text.split(',').map(str::trim).collect();
+    let bad = || format!("--{field} {text:?}: expected THETA,PHI in degrees, theta in [0, 90), phi any (e.g. 45,120)");
+    if parts.len() != 2 {
+        return Err(bad());
+    }
+    let theta: f64 = parts[0].parse().map_err(|_| bad())?;
+    let phi: f64 = parts[1].parse().map_err(|_| bad())?;
+    if !theta.is_finite() || !phi.is_finite() || !(0.0..90.0).contains(&theta) {
+        return Err(bad());
+    }
+    Ok(btfrig_core::Direction::from_degrees(theta, phi))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn directions_parse_and_reject() {
+        let d = parse_direction("view", "45, 120").unwrap();
+        assert!((d.theta.to_degrees() - 45.0).abs() < 1e-12);
+        for bad in ["", "45", "45,1,2", "90,0", "-1,0", "x,0", "nan,0"] {
+            let e = parse_direction("view", bad).unwrap_err();
+            assert!(e.contains("--view") && e.contains("[0, 90)"), "{e}");
+        }
+    }
+}
