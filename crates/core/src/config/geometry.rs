@@ -1,17 +1,232 @@
-//! The `[geometry]` section of a rig config. (Skeleton: its owner fills in the fields.)
+//! The `[geometry]` section of a rig config: where lamp, rail and robot are, and their
+//! limits. The frames and the arm model are described in `docs/kinematics.md`.
 
 use serde::{Deserialize, Serialize};
 
 use crate::error::ConfigError;
 
-/// The `[geometry]` section.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+/// The `[geometry]` section of a gonioreflectometer.
+///
+/// World frame: metres, origin at the nominal sample centre, `z` up. The lamp sits on the
+/// world `+x` axis; the camera rail is the horizontal circle around the origin, the camera at
+/// rail angle `r` sits at `rail_radius_m * (cos r, sin r, 0)`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct GonioGeometry {}
+pub struct GonioGeometry {
+    /// Distance from the sample centre to the lamp (point source), metres.
+    pub lamp_distance_m: f64,
+    /// Radius of the camera rail (distance from the sample centre to the camera's centre of
+    /// projection), metres.
+    pub rail_radius_m: f64,
+    /// Smallest rail angle (angle between lamp and camera seen from the sample), degrees.
+    pub rail_min_deg: f64,
+    /// Largest rail angle, degrees.
+    pub rail_max_deg: f64,
+    /// Smallest angle between lamp and camera, seen from the sample, at which the camera
+    /// body does not block the lamp, degrees.
+    pub min_lamp_camera_separation_deg: f64,
+    /// Lower limits of the robot joints `[pan, tilt, roll]`, degrees.
+    pub joint_min_deg: [f64; 3],
+    /// Upper limits of the robot joints `[pan, tilt, roll]`, degrees.
+    pub joint_max_deg: [f64; 3],
+    /// Whether a turntable sits between the robot flange and the sample (rotating it about
+    /// its normal). Inverse kinematics leaves it at 0; forward kinematics honours it.
+    #[serde(default)]
+    pub has_turntable: bool,
+    /// Side of the square holder plate the sample lies on, metres.
+    pub holder_plate_size_m: f64,
+    /// Thickness of the holder plate (sample surface to the back where the arm attaches), metres.
+    pub holder_plate_thickness_m: f64,
+    /// Length of the robot flange leaving the back of the plate along the sample's `-z`, metres.
+    pub arm_flange_length_m: f64,
+    /// Radius of the cylinders that model flange and forearm, metres.
+    pub arm_radius_m: f64,
+    /// World position of the robot shoulder, where the forearm from the flange ends, metres.
+    pub robot_shoulder_m: [f64; 3],
+}
+
+impl Default for GonioGeometry {
+    /// The default simulated Bonn-like rig (the values of `rig-configs/bonn-gonio-sim.toml`).
+    fn default() -> Self {
+        Self::bonn()
+    }
+}
 
 impl GonioGeometry {
+    /// The default simulated Bonn-like rig (the values of `rig-configs/bonn-gonio-sim.toml`).
+    pub const fn bonn() -> Self {
+        GonioGeometry {
+            lamp_distance_m: 2.0,
+            rail_radius_m: 1.2,
+            rail_min_deg: 5.0,
+            rail_max_deg: 175.0,
+            min_lamp_camera_separation_deg: 8.0,
+            joint_min_deg: [-120.0, -85.0, -185.0],
+            joint_max_deg: [120.0, 85.0, 185.0],
+            has_turntable: false,
+            holder_plate_size_m: 0.2,
+            holder_plate_thickness_m: 0.01,
+            arm_flange_length_m: 0.25,
+            arm_radius_m: 0.05,
+            robot_shoulder_m: [-0.6, -0.6, -0.8],
+        }
+    }
+
     /// Appends every out-of-range value of this section to `errors`.
     pub fn validate(&self, errors: &mut Vec<ConfigError>) {
-        let _ = errors;
+        let mut range = |field: &str, value: f64, lo: f64, hi: f64, allowed: &str| {
+            if !(value >= lo && value <= hi) {
+                errors.push(ConfigError::out_of_range(&format!("geometry.{field}"), value, allowed));
+            }
+        };
+        range("lamp_distance_m", self.lamp_distance_m, 0.1, 100.0, "0.1 ..= 100");
+        range("rail_radius_m", self.rail_radius_m, 0.1, 100.0, "0.1 ..= 100");
+        range("rail_min_deg", self.rail_min_deg, 0.0, 180.0, "0 ..= 180");
+        range("rail_max_deg", self.rail_max_deg, 0.0, 180.0, "0 ..= 180");
+        range(
+            "min_lamp_camera_separation_deg",
+            self.min_lamp_camera_separation_deg,
+            0.0,
+            90.0,
+            "0 ..= 90",
+        );
+        for k in 0..3 {
+            range(
+                &format!("joint_min_deg[{k}]"),
+                self.joint_min_deg[k],
+                -360.0,
+                360.0,
+                "-360 ..= 360",
+            );
+            range(
+                &format!("joint_max_deg[{k}]"),
+                self.joint_max_deg[k],
+                -360.0,
+                360.0,
+                "-360 ..= 360",
+            );
+        }
+        range(
+            "holder_plate_size_m",
+            self.holder_plate_size_m,
+            0.005,
+            1.0,
+            "0.005 ..= 1",
+        );
+        range(
+            "holder_plate_thickness_m",
+            self.holder_plate_thickness_m,
+            0.0,
+            0.1,
+            "0 ..= 0.1",
+        );
+        range("arm_flange_length_m", self.arm_flange_length_m, 0.0, 2.0, "0 ..= 2");
+        range("arm_radius_m", self.arm_radius_m, 0.001, 0.5, "0.001 ..= 0.5");
+        for k in 0..3 {
+            range(
+                &format!("robot_shoulder_m[{k}]"),
+                self.robot_shoulder_m[k],
+                -10.0,
+                10.0,
+                "-10 ..= 10",
+            );
+        }
+        // Relations between fields, reported with the field that would have to change.
+        if self.rail_min_deg >= self.rail_max_deg {
+            errors.push(ConfigError::out_of_range(
+                "geometry.rail_max_deg",
+                self.rail_max_deg,
+                &format!("> rail_min_deg = {}", self.rail_min_deg),
+            ));
+        }
+        for k in 0..3 {
+            if self.joint_min_deg[k] >= self.joint_max_deg[k] {
+                errors.push(ConfigError::out_of_range(
+                    &format!("geometry.joint_max_deg[{k}]"),
+                    self.joint_max_deg[k],
+                    &format!("> joint_min_deg[{k}] = {}", self.joint_min_deg[k]),
+                ));
+            }
+        }
+        let s = self.robot_shoulder_m;
+        let reach = self.holder_plate_thickness_m + self.arm_flange_length_m;
+        let shoulder_distance = (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt();
+        if shoulder_distance <= reach {
+            errors.push(ConfigError::out_of_range(
+                "geometry.robot_shoulder_m",
+                format!("{s:?} (distance {shoulder_distance:.3} m)"),
+                &format!("farther from the sample centre than plate thickness + flange length = {reach} m"),
+            ));
+        }
+        if self.arm_radius_m >= self.holder_plate_size_m / 2.0 {
+            errors.push(ConfigError::out_of_range(
+                "geometry.arm_radius_m",
+                self.arm_radius_m,
+                &format!(
+                    "< holder_plate_size_m / 2 = {} (the flange hides behind the plate)",
+                    self.holder_plate_size_m / 2.0
+                ),
+            ));
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const DEFAULT_RIG: &str = include_str!("../../../../rig-configs/bonn-gonio-sim.toml");
+
+    /// Parses only the `[geometry]` table: the other sections belong to other owners.
+    fn geometry_of(text: &str) -> GonioGeometry {
+        let table: toml::Table = toml::from_str(text).expect("valid TOML");
+        table["geometry"]
+            .clone()
+            .try_into()
+            .expect("a valid [geometry] section")
+    }
+
+    #[test]
+    fn default_rig_file_has_the_default_geometry_and_it_validates() {
+        let g = geometry_of(DEFAULT_RIG);
+        assert_eq!(g, GonioGeometry::bonn());
+        let mut errors = Vec::new();
+        g.validate(&mut errors);
+        assert!(errors.is_empty(), "{errors:?}");
+    }
+
+    #[test]
+    fn every_bad_value_is_reported_with_its_range() {
+        let g = GonioGeometry {
+            lamp_distance_m: -1.0,
+            rail_min_deg: 120.0,
+            rail_max_deg: 100.0,
+            joint_min_deg: [-120.0, f64::NAN, 10.0],
+            joint_max_deg: [120.0, 85.0, 0.0],
+            robot_shoulder_m: [0.1, 0.0, 0.0],
+            ..GonioGeometry::bonn()
+        };
+        let mut errors = Vec::new();
+        g.validate(&mut errors);
+        let text: Vec<String> = errors.iter().map(|e| e.to_string()).collect();
+        let has = |needle: &str| text.iter().any(|t| t.contains(needle));
+        assert!(
+            has("geometry.lamp_distance_m = -1 is out of range: allowed 0.1 ..= 100"),
+            "{text:#?}"
+        );
+        assert!(has("geometry.rail_max_deg = 100"), "{text:#?}");
+        assert!(has("geometry.joint_min_deg[1] = NaN"), "{text:#?}");
+        assert!(has("geometry.joint_max_deg[2] = 0"), "{text:#?}");
+        assert!(has("geometry.robot_shoulder_m"), "{text:#?}");
+        assert_eq!(errors.len(), 5, "{text:#?}");
+    }
+
+    #[test]
+    fn unknown_fields_are_rejected() {
+        let text = DEFAULT_RIG.replace("rail_radius_m", "rail_radius");
+        let table: toml::Table = toml::from_str(&text).expect("valid TOML");
+        let r: Result<GonioGeometry, _> = table["geometry"].clone().try_into();
+        let msg = r.unwrap_err().to_string();
+        assert!(msg.contains("rail_radius"), "{msg}");
     }
 }
