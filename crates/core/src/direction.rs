@@ -47,8 +47,9 @@ impl Direction {
     /// The direction of a (not necessarily unit, non-zero) vector in the sample frame.
     /// At the poles (`x = y = 0`) `phi` is 0 by definition.
     pub fn from_vector(v: &Vector3<f64>) -> Self {
-        let r = v.norm();
-        let theta = (v.z / r).clamp(-1.0, 1.0).acos();
+        // atan2 of (horizontal length, height): full precision near the pole, where
+        // acos(z / r) loses about half the digits.
+        let theta = v.x.hypot(v.y).atan2(v.z);
         let phi = if v.x == 0.0 && v.y == 0.0 { 0.0 } else { v.y.atan2(v.x) };
         Self::new(theta, phi)
     }
@@ -107,6 +108,13 @@ mod tests {
         let d = Direction::from_degrees(30.0, -30.0);
         assert!((d.phi.to_degrees() - 330.0).abs() < 1e-12);
         assert!(wrap_2pi(std::f64::consts::TAU) == 0.0);
+    }
+
+    #[test]
+    fn from_vector_is_precise_near_the_pole() {
+        let d = Direction::new(1e-9, 0.7);
+        let back = Direction::from_vector(&d.to_vector());
+        assert!((back.theta - 1e-9).abs() < 1e-20, "{back:?}");
     }
 
     #[test]

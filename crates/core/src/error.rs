@@ -8,7 +8,7 @@ pub enum ConfigError {
     /// The file is not valid TOML or does not match the schema (unknown field, wrong type).
     #[error("{path}: {message}")]
     Parse {
-        /// Where the text came from (file path or "<embedded NAME>").
+        /// Where the text came from (file path or `<embedded NAME>`).
         path: String,
         /// The parser's message, which names line, column and field.
         message: String,
