@@ -1,1 +1,23 @@
-fn main() {}
+//! The `btfrig` binary: argument handling and display only; the work is in the library crates.
+
+mod args;
+mod kinematics_cmd;
+mod rig;
+
+use args::{Cli, Command, KinematicsCommand};
+use clap::Parser;
+
+fn main() -> std::process::ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Kinematics(KinematicsCommand::Check { rig, json }) => kinematics_cmd::check(rig.as_deref(), json),
+        _ => Err(anyhow::anyhow!("this command is not built yet")),
+    };
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("btfrig: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
