@@ -101,12 +101,12 @@ impl TimingConfig {
     pub const fn bonn() -> Self {
         TimingConfig {
             robot: RobotTiming {
-                max_speed_deg_per_s: [30.0, 30.0, 45.0],
-                accel_deg_per_s2: [60.0, 60.0, 90.0],
-                settle_s: 0.5,
+                max_speed_deg_per_s: [60.0, 60.0, 90.0],
+                accel_deg_per_s2: [120.0, 120.0, 180.0],
+                settle_s: 0.3,
                 home_s: 20.0,
             },
-            rail: AxisTiming { max_speed_deg_per_s: 10.0, accel_deg_per_s2: 20.0, settle_s: 1.0, home_s: 30.0 },
+            rail: AxisTiming { max_speed_deg_per_s: 30.0, accel_deg_per_s2: 60.0, settle_s: 0.5, home_s: 30.0 },
             turntable: AxisTiming { max_speed_deg_per_s: 30.0, accel_deg_per_s2: 60.0, settle_s: 0.3, home_s: 10.0 },
             lamp: LampTiming { warm_up_s: 180.0, switch_s: 0.5, shutter_s: 0.2 },
             leds: LedTiming { switch_s: 0.005 },
@@ -114,7 +114,7 @@ impl TimingConfig {
                 command_s: 0.05,
                 trigger_latency_s: 0.1,
                 read_out_s: 0.6,
-                transfer_bytes_per_s: 2.2e6,
+                transfer_bytes_per_s: 2.4e6,
                 frame_bytes: Some(12_000_000),
             },
         }
@@ -221,8 +221,8 @@ mod tests {
     fn every_bad_value_is_reported_with_field_value_and_range() {
         let text = r#"
             [robot]
-            max_speed_deg_per_s = [30.0, -1.0, 45.0]
-            accel_deg_per_s2 = [60.0, 60.0, 90.0]
+            max_speed_deg_per_s = [60.0, -1.0, 90.0]
+            accel_deg_per_s2 = [120.0, 120.0, 180.0]
             settle_s = 0.5
             home_s = 20.0
             [camera]
