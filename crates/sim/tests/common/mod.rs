@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 use std::sync::Arc;
 
-use btfrig_core::config::devices::{DeviceEntry, DevicesConfig};
+use btfrig_core::config::devices::DevicesConfig;
 use btfrig_core::config::timing::TimingConfig;
 use btfrig_hw::{DeviceError, ErrorKind, TokioClock};
 use btfrig_sim::{FaultScenario, FlatFrameSource, SimRig};
@@ -23,27 +23,14 @@ pub fn source() -> Arc<FlatFrameSource> {
     Arc::new(FlatFrameSource::new(16, 12, 1000.0))
 }
 
-/// Devices all homed at start (so tests can move at once), plus options given as TOML.
+/// Devices all homed at start (so tests can move at once); each table in `extra` (TOML)
+/// replaces the default one of its device.
 pub fn devices(extra: &str) -> DevicesConfig {
-    let base = "[robot]\nkind = \"sim\"\nhomed_at_start = true\n[rail]\nkind = \"sim\"\nhomed_at_start = true\n";
-    let mut cfg: DevicesConfig = toml::from_str(base).unwrap();
-    let extra: DevicesConfig = toml::from_str(extra).unwrap();
-    let default = DeviceEntry::sim();
-    if extra.robot != default {
-        cfg.robot = extra.robot;
-    }
-    if extra.rail != default {
-        cfg.rail = extra.rail;
-    }
-    if extra.lamp != default {
-        cfg.lamp = extra.lamp;
-    }
-    if extra.camera != default {
-        cfg.camera = extra.camera;
-    }
-    cfg.turntable = extra.turntable;
-    cfg.led_array = extra.led_array;
-    cfg
+    let mut t: toml::Table =
+        toml::from_str("[robot]\nkind = \"sim\"\nhomed_at_start = true\n[rail]\nkind = \"sim\"\nhomed_at_start = true\n").unwrap();
+    let extra: toml::Table = toml::from_str(extra).unwrap();
+    t.extend(extra);
+    t.try_into().unwrap()
 }
 
 /// Must be called inside the (paused) runtime.
