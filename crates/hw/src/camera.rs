@@ -67,8 +67,9 @@ pub trait Camera: Device {
     }
 
     /// Exposes one frame and returns its sequence number once the exposure has ended and the
-    /// sensor has been read into the camera's buffer. Fails with [`ErrorKind::Busy`] while
-    /// an earlier frame still waits in the buffer.
+    /// sensor has been read into the camera's buffer. A frame still waiting unread in the
+    /// buffer is discarded (its sequence number is skipped), so that retrying a capture
+    /// whose read-out failed always starts afresh.
     async fn trigger(&mut self, timeout_s: f64) -> Result<u64, DeviceError>;
 
     /// Transfers the buffered frame to the host, with its metadata. Fails with

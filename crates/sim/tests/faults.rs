@@ -103,9 +103,12 @@ async fn device_errors_without_injection_have_the_right_kinds() {
     // Missing capability.
     assert_kind(&rig.lamp.set_intensity(0.8).await.unwrap_err(), ErrorKind::Unsupported, false);
     assert_kind(&rig.camera.set_exposure_s(100.0).await.unwrap_err(), ErrorKind::OutOfRange, false);
-    // Trigger twice without reading: the buffer is full.
-    rig.camera.trigger(30.0).await.unwrap();
-    assert_kind(&rig.camera.trigger(30.0).await.unwrap_err(), ErrorKind::Busy, true);
+    // Trigger twice without reading: the first frame is discarded, the second delivered.
+    let first = rig.camera.trigger(30.0).await.unwrap();
+    let second = rig.camera.trigger(30.0).await.unwrap();
+    assert_eq!(rig.camera.read_frame(30.0).await.unwrap().meta.sequence, second);
+    assert_eq!(second, first + 1);
+    assert_kind(&rig.camera.read_frame(30.0).await.unwrap_err(), ErrorKind::Other, false);
     // Lamp off: wait_ready cannot succeed.
     assert_kind(&rig.lamp.wait_ready(1.0).await.unwrap_err(), ErrorKind::Other, false);
 }
