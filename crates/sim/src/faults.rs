@@ -1,0 +1,375 @@
+//! Fault injection: scenarios read from `sim/faults/*.toml` and the per-device gate that
+//! applies them.
+//!
+//! Every device call (every async method of a device trait) counts as one call of that
+//! device, numbered from 1. A scenario can make chosen calls time out, take a device
+//! off-line from a call on (and bring it back after some calls), drop or corrupt frames,
+//! keep LEDs stuck, and make the lamp drift. Random faults draw from a ChaCha stream seeded
+//! from the rig seed and the device name, so the same seed and the same calls give the same
+//! faults. The format is documented in `docs/devices.md`.
+
+use btfrig_core::ConfigError;
+use btfrig_hw::{DeviceError, ErrorKind, SharedClock};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use crate::world::{FaultKind, SimWorld};
+
+/// A device of the rig, as named in fault scenarios and in `[devices]`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DeviceRole {
+    /// The robot orienting the sample.
+    Robot,
+    /// The camera rail.
+    Rail,
+    /// The turntable.
+    Turntable,
+    /// The lamp.
+    Lamp,
+    /// The LED array.
+    LedArray,
+    /// The camera.
+    Camera,
+}
+
+impl DeviceRole {
+    /// The name used in configs and error messages.
+    pub const fn as_str(self) -> &'static str {
+        match self {
+            DeviceRole::Robot => "robot",
+            DeviceRole::Rail => "rail",
+            DeviceRole::Turntable => "turntable",
+            DeviceRole::Lamp => "lamp",
+            DeviceRole::LedArray => "led_array",
+            DeviceRole::Camera => "camera",
+        }
+    }
+}
+
+/// A device times out on chosen calls, or on each call with a probability.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TimeoutFault {
+    /// Which device.
+    pub device: DeviceRole,
+    /// Call numbers (1-based) that time out.
+    #[serde(default)]
+    pub calls: Vec<u64>,
+    /// Probability that any other call times out, in `[0, 1]`.
+    #[serde(default)]
+    pub probability: f64,
+}
+
+/// A device loses its link at a call and possibly gets it back.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DisconnectFault {
+    /// Which device.
+    pub device: DeviceRole,
+    /// First call (1-based) that finds the device disconnected.
+    pub at_call: u64,
+    /// Number of calls that fail before the link is back; absent = never comes back.
+    #[serde(default)]
+    pub reconnect_after_calls: Option<u64>,
+}
+
+/// Frames lost or damaged on the way from camera to host.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FrameFault {
+    /// Read-out numbers (1-based count of `read_frame` calls) that are hit.
+    #[serde(default)]
+    pub frames: Vec<u64>,
+    /// Probability that any other read-out is hit, in `[0, 1]`.
+    #[serde(default)]
+    pub probability: f64,
+}
+
+/// State a stuck LED is stuck in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StuckState {
+    /// Always lit at full output.
+    On,
+    /// Never lit.
+    Off,
+}
+
+/// An LED that ignores its commands.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StuckLed {
+    /// Index of the LED in the array.
+    pub index: usize,
+    /// What it is stuck at.
+    pub state: StuckState,
+}
+
+/// A lamp whose output keeps changing: exponential warm-up plus slow linear drift. Output
+/// factor `t` seconds after switch-on:
+/// `1 - (1 - start_fraction) exp(-t / warm_up_tau_s) + drift_per_hour t / 3600`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LampDrift {
+    /// Output at switch-on relative to the settled output, in `[0, 1]`.
+    pub start_fraction: f64,
+    /// Time constant of the warm-up, seconds, > 0.
+    pub warm_up_tau_s: f64,
+    /// Change of the output per hour, fraction of the settled output (e.g. -0.01).
+    pub drift_per_hour: f64,
+}
+
+/// A fault scenario: the contents of one `sim/faults/*.toml` file.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FaultScenario {
+    /// What the scenario exercises.
+    #[serde(default)]
+    pub description: String,
+    /// Operation timeouts (`[[timeouts]]`).
+    #[serde(default)]
+    pub timeouts: Vec<TimeoutFault>,
+    /// Disconnects (`[[disconnects]]`).
+    #[serde(default)]
+    pub disconnects: Vec<DisconnectFault>,
+    /// Frames that never arrive (`[dropped_frames]`): the read-out times out.
+    #[serde(default)]
+    pub dropped_frames: FrameFault,
+    /// Frames that arrive damaged (`[corrupt_frames]`): bits flip on the link, the checksum
+    /// check fails.
+    #[serde(default)]
+    pub corrupt_frames: FrameFault,
+    /// LEDs stuck on or off (`[[stuck_leds]]`).
+    #[serde(default)]
+    pub stuck_leds: Vec<StuckLed>,
+    /// Lamp output drift (`[lamp_drift]`).
+    #[serde(default)]
+    pub lamp_drift: Option<LampDrift>,
+}
+
+impl FaultScenario {
+    /// No faults.
+    pub fn none() -> Self {
+        Self::default()
+    }
+
+    /// Parses and validates a scenario; `origin` names the file in errors.
+    pub fn from_toml(text: &str, origin: &str) -> Result<Self, ConfigError> {
+        let s: FaultScenario =
+            toml::from_str(text).map_err(|e| ConfigError::Parse { path: origin.to_string(), message: e.to_string() })?;
+        let mut errors = Vec::new();
+        s.validate(&mut errors);
+        ConfigError::from_list(errors)?;
+        Ok(s)
+    }
+
+    /// Appends every out-of-range value to `errors` (fields prefixed `faults.`).
+    pub fn validate(&self, errors: &mut Vec<ConfigError>) {
+        let prob = |errors: &mut Vec<ConfigError>, field: String, p: f64| {
+            if !(0.0..=1.0).contains(&p) {
+                errors.push(ConfigError::out_of_range(&field, p, "[0, 1]"));
+            }
+        };
+        let calls = |errors: &mut Vec<ConfigError>, field: String, list: &[u64]| {
+            if let Some(i) = list.iter().position(|&c| c == 0) {
+                errors.push(ConfigError::out_of_range(&format!("{field}[{i}]"), 0, "1.. (calls count from 1)"));
+            }
+        };
+        for (i, t) in self.timeouts.iter().enumerate() {
+            prob(errors, format!("faults.timeouts[{i}].probability"), t.probability);
+            calls(errors, format!("faults.timeouts[{i}].calls"), &t.calls);
+        }
+        for (i, d) in self.disconnects.iter().enumerate() {
+            if d.at_call == 0 {
+                errors.push(ConfigError::out_of_range(&format!("faults.disconnects[{i}].at_call"), 0, "1.."));
+            }
+            if d.reconnect_after_calls == Some(0) {
+                errors.push(ConfigError::out_of_range(
+                    &format!("faults.disconnects[{i}].reconnect_after_calls"),
+                    0,
+                    "1.. (omit for never)",
+                ));
+            }
+        }
+        for (name, f) in [("dropped_frames", &self.dropped_frames), ("corrupt_frames", &self.corrupt_frames)] {
+            prob(errors, format!("faults.{name}.probability"), f.probability);
+            calls(errors, format!("faults.{name}.frames"), &f.frames);
+        }
+        if let Some(d) = &self.lamp_drift {
+            if !(0.0..=1.0).contains(&d.start_fraction) {
+                errors.push(ConfigError::out_of_range("faults.lamp_drift.start_fraction", d.start_fraction, "[0, 1]"));
+            }
+            if !(d.warm_up_tau_s > 0.0 && d.warm_up_tau_s <= 86_400.0) {
+                errors.push(ConfigError::out_of_range("faults.lamp_drift.warm_up_tau_s", d.warm_up_tau_s, "(0, 86400] s"));
+            }
+            if !(-1.0..=1.0).contains(&d.drift_per_hour) {
+                errors.push(ConfigError::out_of_range("faults.lamp_drift.drift_per_hour", d.drift_per_hour, "[-1, 1] per hour"));
+            }
+        }
+    }
+
+    /// Checks the scenario against the devices a rig has: every named device exists and
+    /// every stuck LED index is below the LED count (0 when there is no LED array).
+    pub fn validate_for_rig(&self, present: &[DeviceRole], led_count: usize, errors: &mut Vec<ConfigError>) {
+        let allowed = present.iter().map(|r| r.as_str()).collect::<Vec<_>>().join(", ");
+        let mut need = |field: String, role: DeviceRole| {
+            if !present.contains(&role) {
+                errors.push(ConfigError::Unknown { field, value: role.as_str().into(), allowed: allowed.clone() });
+            }
+        };
+        for (i, t) in self.timeouts.iter().enumerate() {
+            need(format!("faults.timeouts[{i}].device"), t.device);
+        }
+        for (i, d) in self.disconnects.iter().enumerate() {
+            need(format!("faults.disconnects[{i}].device"), d.device);
+        }
+        for (i, s) in self.stuck_leds.iter().enumerate() {
+            if s.index >= led_count {
+                errors.push(ConfigError::out_of_range(
+                    &format!("faults.stuck_leds[{i}].index"),
+                    s.index,
+                    &format!("0..{led_count} (the rig's LED count)"),
+                ));
+            }
+        }
+    }
+}
+
+/// Derives an independent seed for `stream` of `name` from the rig seed (SplitMix64
+/// finaliser over a mix of the inputs) so each device and purpose gets its own stream.
+pub fn derive_seed(seed: u64, name: &str, stream: u64) -> u64 {
+    let mut h: u64 = seed ^ stream.wrapping_mul(0x9e37_79b9_7f4a_7c15);
+    for b in name.bytes() {
+        h = (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    let mut z = h.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+/// Timeout of calls that take no timeout argument (status queries, settings), seconds.
+pub const COMMAND_TIMEOUT_S: f64 = 5.0;
+
+/// Applies a scenario's call faults to one device: counts calls, answers disconnects and
+/// injected timeouts.
+#[derive(Debug)]
+pub(crate) struct FaultGate {
+    name: String,
+    calls: u64,
+    timeouts: Vec<TimeoutFault>,
+    disconnects: Vec<DisconnectFault>,
+    rng: ChaCha8Rng,
+    world: SimWorld,
+    clock: SharedClock,
+}
+
+impl FaultGate {
+    pub fn new(role: DeviceRole, scenario: &FaultScenario, seed: u64, world: SimWorld) -> Self {
+        let name = role.as_str();
+        FaultGate {
+            name: name.to_string(),
+            calls: 0,
+            timeouts: scenario.timeouts.iter().filter(|t| t.device == role).cloned().collect(),
+            disconnects: scenario.disconnects.iter().filter(|d| d.device == role).cloned().collect(),
+            rng: ChaCha8Rng::seed_from_u64(derive_seed(seed, name, 1)),
+            clock: world.clock().clone(),
+            world,
+        }
+    }
+
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// Starts call `op`: fails with `Disconnected` during an outage, or waits `timeout_s`
+    /// and fails with `Timeout` when a timeout is injected.
+    pub async fn begin(&mut self, op: &str, timeout_s: f64) -> Result<u64, DeviceError> {
+        self.calls += 1;
+        let n = self.calls;
+        for d in &self.disconnects {
+            let back = d.reconnect_after_calls.map(|k| d.at_call + k);
+            if n >= d.at_call && back.is_none_or(|b| n < b) {
+                self.world.log_fault(&self.name, n, FaultKind::Disconnected);
+                let when = match back {
+                    Some(b) => format!("link expected back at call {b}"),
+                    None => "link will not come back".to_string(),
+                };
+                return Err(DeviceError::new(
+                    &self.name,
+                    ErrorKind::Disconnected,
+                    format!("{op} (call {n}): device not answering since call {}; {when}", d.at_call),
+                ));
+            }
+        }
+        let mut hit = false;
+        for t in &self.timeouts {
+            // Draw only for probabilistic rules so a scenario without them uses no randomness.
+            hit |= t.calls.contains(&n) || (t.probability > 0.0 && self.rng.gen_bool(t.probability));
+        }
+        if hit {
+            self.world.log_fault(&self.name, n, FaultKind::Timeout);
+            self.clock.sleep_s(timeout_s).await;
+            return Err(DeviceError::new(
+                &self.name,
+                ErrorKind::Timeout,
+                format!("{op} (call {n}): no answer within {timeout_s} s"),
+            ));
+        }
+        Ok(n)
+    }
+}
+
+/// Decides which frame read-outs are dropped or corrupted.
+#[derive(Debug)]
+pub(crate) struct FrameFaults {
+    dropped: FrameFault,
+    corrupt: FrameFault,
+    rng: ChaCha8Rng,
+}
+
+/// What happens to one read-out.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum FrameFate {
+    Delivered,
+    Dropped,
+    Corrupted,
+}
+
+impl FrameFaults {
+    pub fn new(scenario: &FaultScenario, seed: u64) -> Self {
+        FrameFaults {
+            dropped: scenario.dropped_frames.clone(),
+            corrupt: scenario.corrupt_frames.clone(),
+            rng: ChaCha8Rng::seed_from_u64(derive_seed(seed, "camera-frames", 2)),
+        }
+    }
+
+    pub fn fate(&mut self, readout: u64) -> FrameFate {
+        let hit = |f: &FrameFault, rng: &mut ChaCha8Rng| {
+            f.frames.contains(&readout) || (f.probability > 0.0 && rng.gen_bool(f.probability))
+        };
+        if hit(&self.dropped, &mut self.rng) {
+            FrameFate::Dropped
+        } else if hit(&self.corrupt, &mut self.rng) {
+            FrameFate::Corrupted
+        } else {
+            FrameFate::Delivered
+        }
+    }
+
+    /// Flips `count` random bits below `bit_depth` in random samples: the values stay in
+    /// range and the length stays right, so only the checksum reveals the damage.
+    pub fn corrupt(&mut self, data: &mut [u16], bit_depth: u8, count: usize) {
+        if data.is_empty() {
+            return;
+        }
+        for _ in 0..count {
+            let i = self.rng.gen_range(0..data.len());
+            let bit = self.rng.gen_range(0..bit_depth.clamp(1, 16));
+            data[i] ^= 1 << bit;
+        }
+    }
+}
