@@ -1,0 +1,155 @@
+//! From a raw frame to something a person can look at: bilinear demosaicing to linear camera
+//! RGB, and an 8-bit sRGB preview (white balance, camera-to-output matrix, sRGB encoding).
+//!
+//! Bilinear: each missing channel at a photosite is the mean of the photosites of that
+//! channel in its 3x3 neighbourhood (2 or 4 of them on a Bayer mosaic; fewer at the border,
+//! where only neighbours inside the image count). Good enough for previews; calibration works
+//! on the raw mosaic.
+
+use btfrig_core::frame::RawFrame;
+use rayon::prelude::*;
+
+/// A linear camera-RGB image, row-major, one `[R, G, B]` per pixel.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CameraRgbImage {
+    /// Width in pixels.
+    pub width: usize,
+    /// Height in pixels.
+    pub height: usize,
+    /// Values as fractions of the white level above black: `(DN - black) / (white - black)`.
+    pub data: Vec<[f32; 3]>,
+}
+
+/// Bilinear demosaic of `raw` to linear camera RGB, scaled so that the white level is 1 and
+/// the black level 0 (values below black stay negative: noise is not clipped). A
+/// monochrome frame gives equal channels.
+pub fn demosaic_bilinear(raw: &RawFrame) -> CameraRgbImage {
+    let (w, h) = (raw.width, raw.height);
+    let black = f32::from(raw.meta.black_level);
+    let range = (f32::from(raw.meta.white_level) - black).max(1.0);
+    let norm = |v: u16| (f32::from(v) - black) / range;
+    let mut data = vec![[0.0f32; 3]; w * h];
+    let Some(bayer) = raw.meta.bayer else {
+        data.par_iter_mut().zip(&raw.data).for_each(|(o, &v)| *o = [norm(v); 3]);
+        return CameraRgbImage { width: w, height: h, data };
+    };
+    data.par_chunks_mut(w.max(1)).enumerate().for_each(|(y, row)| {
+        for (x, out) in row.iter_mut().enumerate() {
+            let mut sum = [0.0f32; 3];
+            let mut count = [0u32; 3];
+            for yy in y.saturating_sub(1)..=(y + 1).min(h - 1) {
+                for xx in x.saturating_sub(1)..=(x + 1).min(w - 1) {
+                    let c = bayer.channel_at(xx, yy);
+                    sum[c] += norm(raw.data[yy * w + xx]);
+                    count[c] += 1;
+                }
+            }
+            let own = bayer.channel_at(x, y);
+            for c in 0..3 {
+                out[c] = if c == own {
+                    norm(raw.data[y * w + x])
+                } else if count[c] > 0 {
+                    sum[c] / count[c] as f32
+                } else {
+                    0.0 // a 1-pixel-wide image lacks the channel entirely
+                };
+            }
+        }
+    });
+    CameraRgbImage { width: w, height: h, data }
+}
+
+/// An 8-bit sRGB preview, interleaved `RGBRGB...`, row-major: per pixel
+/// `srgb_encode(clamp(exposure · M · (wb ⊙ rgb), 0, 1))`, rounded. `wb` and `M` usually come
+/// from [`crate::colour::ColourSystem::colorchecker_matrix`].
+pub fn preview_srgb8(img: &CameraRgbImage, white_balance: [f64; 3], matrix: &[[f64; 3]; 3], exposure: f64) -> Vec<u8> {
+    // Fold white balance and exposure into one matrix.
+    let m: [[f32; 3]; 3] =
+        std::array::from_fn(|r| std::array::from_fn(|c| (matrix[r][c] * white_balance[c] * exposure) as f32));
+    // The sRGB curve through a 4096-entry table: previews need 8 bits, not powf per pixel.
+    const N: usize = 4096;
+    let lut: Vec<u8> = (0..N)
+        .map(|i| (crate::colour::srgb_encode(i as f64 / (N - 1) as f64) * 255.0).round() as u8)
+        .collect();
+    let mut out = vec![0u8; img.width * img.height * 3];
+    out.par_chunks_mut(3 * img.width.max(1)).zip(img.data.par_chunks(img.width.max(1))).for_each(|(o, row)| {
+        for (px, v) in o.chunks_exact_mut(3).zip(row) {
+            for r in 0..3 {
+                let lin = m[r][0] * v[0] + m[r][1] * v[1] + m[r][2] * v[2];
+                let idx = (lin.clamp(0.0, 1.0) * (N - 1) as f32).round() as usize;
+                px[r] = lut[idx];
+            }
+        }
+    });
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use btfrig_core::frame::{BayerPattern, FrameMeta};
+
+    fn frame(w: usize, h: usize, bayer: Option<BayerPattern>, f: impl Fn(usize, usize, usize) -> u16) -> RawFrame {
+        let data = (0..h)
+            .flat_map(|y| (0..w).map(move |x| (x, y)))
+            .map(|(x, y)| f(x, y, bayer.map_or(1, |b| b.channel_at(x, y))))
+            .collect();
+        RawFrame {
+            width: w,
+            height: h,
+            data,
+            meta: FrameMeta {
+                sequence: 0,
+                exposure_s: 0.01,
+                gain: 1.0,
+                f_number: None,
+                black_level: 100,
+                white_level: 1100,
+                bit_depth: 12,
+                bayer,
+                timestamp_s: 0.0,
+            },
+        }
+    }
+
+    #[test]
+    fn flat_colour_field_is_recovered_exactly_for_every_pattern() {
+        for p in [BayerPattern::Rggb, BayerPattern::Bggr, BayerPattern::Grbg, BayerPattern::Gbrg] {
+            let raw = frame(9, 7, Some(p), |_, _, c| [600, 350, 850][c]);
+            let img = demosaic_bilinear(&raw);
+            for v in &img.data {
+                assert_eq!(*v, [0.5, 0.25, 0.75], "{p:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn linear_ramp_is_interpolated_exactly_inside() {
+        // Bilinear interpolation reproduces a linear function away from the border.
+        let raw = frame(10, 10, Some(BayerPattern::Rggb), |x, y, _| (100 + 10 * x + 20 * y) as u16);
+        let img = demosaic_bilinear(&raw);
+        for y in 1..9 {
+            for x in 1..9 {
+                let expect = (10 * x + 20 * y) as f32 / 1000.0;
+                for c in 0..3 {
+                    assert!((img.data[y * 10 + x][c] - expect).abs() < 1e-6, "({x},{y}) c{c}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn mono_replicates_and_preview_encodes_srgb() {
+        let raw = frame(4, 3, None, |x, _, _| if x == 0 { 100 } else { 1100 });
+        let img = demosaic_bilinear(&raw);
+        assert_eq!(img.data[0], [0.0; 3]);
+        assert_eq!(img.data[1], [1.0; 3]);
+        let id = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        let p = preview_srgb8(&img, [1.0; 3], &id, 0.18);
+        assert_eq!(&p[0..3], &[0, 0, 0]);
+        // 0.18 linear -> 0.4614 encoded -> 118.
+        assert_eq!(&p[3..6], &[118, 118, 118]);
+        let p = preview_srgb8(&img, [1.0; 3], &id, 2.0);
+        assert_eq!(&p[3..6], &[255, 255, 255]); // clipped
+    }
+}
