@@ -34,8 +34,8 @@ async fn landing_error_statistics_match_config() {
         // The devices report the commanded position; only the world knows the truth.
         assert_eq!(reported, commanded.robot);
         assert_eq!(rail_reported, commanded.rail);
-        for j in 0..3 {
-            robot_err[j].push((truth.robot[j] - commanded.robot[j]).to_degrees());
+        for (j, err) in robot_err.iter_mut().enumerate() {
+            err.push((truth.robot[j] - commanded.robot[j]).to_degrees());
         }
         rail_err.push((truth.rail - commanded.rail).to_degrees());
     }
