@@ -26,7 +26,7 @@
 //! let cam = Pinhole { width: 64, height: 48, fx: 300.0, fy: 300.0, cx: 31.5, cy: 23.5 };
 //! let (img, stats) = r.render_with_stats(&pose, &cam, &RenderOptions::default());
 //! assert_eq!(img.data.len(), 64 * 48);
-//! assert!(stats.pixels_shaded > 0);
+//! assert!(stats.pixels_traced > 0);
 //! ```
 #![warn(missing_docs)]
 

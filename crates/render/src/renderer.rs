@@ -420,6 +420,33 @@ impl Renderer {
         self.shade_sample(x, y, &wo, &f.lamp, space, true, &mut st)
     }
 
+    /// Fraction of the sample's texel-centre surface points that get no direct light from a
+    /// lamp at `lamp` (sample frame): facing away from it or shadowed by the relief.
+    pub fn shadow_fraction(&self, lamp: &Point3<f64>) -> f64 {
+        let hf = &self.scene.material.height;
+        let n = hf.texels();
+        let half = self.scene.layout.sample_side_m / 2.0;
+        let texel = hf.texel_m();
+        let dark: usize = (0..n)
+            .into_par_iter()
+            .map(|j| {
+                let mut st = RenderStats::default();
+                let y = half - (j as f64 + 0.5) * texel;
+                (0..n)
+                    .filter(|&i| {
+                        let x = -half + (i as f64 + 0.5) * texel;
+                        let p = Vector3::new(x, y, hf.height(x, y));
+                        let lv = lamp.coords - p;
+                        let r = lv.norm();
+                        let wi = lv / r;
+                        hf.normal(x, y).dot(&wi) <= 0.0 || !self.lamp_visible(&p, &wi, r, true, &mut st)
+                    })
+                    .count()
+            })
+            .sum();
+        dark as f64 / (n * n) as f64
+    }
+
     /// Traces one ray from `o` along unit `d` (sample frame) in `space`; `skips` as in
     /// [`RenderOptions`]. The building block of frames and ground truth, public for tests.
     pub fn trace(&self, pose: &ScenePose, o: &Vector3<f64>, d: &Vector3<f64>, space: ColourSpace, skips: bool) -> ([f64; 3], Hit) {
