@@ -282,10 +282,18 @@ impl Renderer {
     pub(crate) fn intersect(&self, o: &Vector3<f64>, d: &Vector3<f64>, skips: bool, st: &mut RenderStats) -> Hit {
         let hf = &self.scene.material.height;
         let layout = &self.scene.layout;
+        // Where the ray meets the plate plane; beyond that point, if it lies outside the
+        // sample square, the plate has stopped the ray.
+        let t_plane = if d.z < 0.0 { -o.z / d.z } else { f64::INFINITY };
+        let t_end = if t_plane.is_finite() && !layout.in_sample(o.x + d.x * t_plane, o.y + d.y * t_plane) {
+            t_plane
+        } else {
+            f64::INFINITY
+        };
         if !(skips && hf.is_flat()) {
             let mut c = MarchCount::default();
             st.marches += 1;
-            let t = hf.first_hit(o, d, 0.0, f64::INFINITY, skips, &mut c);
+            let t = hf.first_hit(o, d, 0.0, t_end, skips, &mut c);
             st.march_cells += c.cells;
             st.march_patch_tests += c.patch_tests;
             if let Some(t) = t {
@@ -313,6 +321,10 @@ impl Renderer {
     /// Is the lamp at `lamp` visible from surface point `p` (direction `wi`, distance `r`)?
     fn lamp_visible(&self, p: &Vector3<f64>, wi: &Vector3<f64>, r: f64, skips: bool, st: &mut RenderStats) -> bool {
         let hf = &self.scene.material.height;
+        if wi.z <= 0.0 {
+            // A lamp at or below the plate plane is hidden by the plate itself.
+            return false;
+        }
         if skips {
             // Nothing can rise above a ray that climbs faster than the steepest surface slope.
             let horizontal = (wi.x * wi.x + wi.y * wi.y).sqrt();
