@@ -115,6 +115,15 @@ impl PlateLayout {
         x.abs() <= h && y.abs() <= h
     }
 
+    /// True if `(x, y)` lies within `margin` metres of a marker's outer square (where a
+    /// pixel may straddle a black/white edge).
+    pub fn near_marker(&self, x: f64, y: f64, margin: f64) -> bool {
+        self.markers.iter().any(|mk| {
+            let (tl, br) = (mk.corners_sample_m[0], mk.corners_sample_m[2]);
+            x >= tl.x - margin && x <= br.x + margin && y <= tl.y + margin && y >= br.y - margin
+        })
+    }
+
     /// The surface of the plate at `(x, y)` (the sample region is not checked here).
     pub fn surface_at(&self, x: f64, y: f64) -> PlateSurface {
         let half = self.side_m / 2.0;

@@ -86,11 +86,22 @@ pub struct RenderOptions {
     /// height range, and shadow rays that the surface's slope bound proves unoccluded.
     /// The image is the same either way (see `docs/renderer.md`).
     pub skips: bool,
+    /// Marker edges are hard: a pixel whose centre ray meets the plate near a marker is
+    /// integrated over its area with `marker_supersampling^2` rays (a box filter, like a
+    /// photosite), so corner positions are not quantised to pixel centres. 1 = off.
+    pub marker_supersampling: u32,
 }
 
 impl Default for RenderOptions {
     fn default() -> Self {
-        RenderOptions { skips: true }
+        RenderOptions { skips: true, marker_supersampling: 4 }
+    }
+}
+
+impl RenderOptions {
+    /// Default options with the skips switched `on` or off.
+    pub fn with_skips(on: bool) -> Self {
+        RenderOptions { skips: on, ..Default::default() }
     }
 }
 
@@ -225,7 +236,25 @@ impl Renderer {
                     let (fx, fy) = (x as f64, y as f64);
                     let d = frame.rot * rays.ray(fx, fy);
                     st.pixels_traced += 1;
-                    let v = self.radiance_along(&frame.origin, &d, &frame.lamp, ColourSpace::Camera, opts.skips, &mut st);
+                    let (mut v, hit) = self.radiance_and_hit(&frame.origin, &d, &frame.lamp, ColourSpace::Camera, opts.skips, &mut st);
+                    let ss = opts.marker_supersampling.max(1) as usize;
+                    if let Hit::Plate(p, _) = hit {
+                        if ss > 1 && self.scene.layout.near_marker(p.x, p.y, 0.002) {
+                            let mut acc = [0.0; 3];
+                            for sy in 0..ss {
+                                for sx in 0..ss {
+                                    let ox = (sx as f64 + 0.5) / ss as f64 - 0.5;
+                                    let oy = (sy as f64 + 0.5) / ss as f64 - 0.5;
+                                    let ds = frame.rot * rays.ray(fx + ox, fy + oy);
+                                    let (s, _) = self.radiance_and_hit(&frame.origin, &ds, &frame.lamp, ColourSpace::Camera, opts.skips, &mut st);
+                                    for c in 0..3 {
+                                        acc[c] += s[c];
+                                    }
+                                }
+                            }
+                            v = acc.map(|a| a / (ss * ss) as f64);
+                        }
+                    }
                     if v != [0.0; 3] {
                         let vig = rays.vignetting(fx, fy);
                         *px = v.map(|c| (c * vig) as f32);
@@ -354,7 +383,21 @@ impl Renderer {
         skips: bool,
         st: &mut RenderStats,
     ) -> [f64; 3] {
-        match self.intersect(o, d, skips, st) {
+        self.radiance_and_hit(o, d, lamp, space, skips, st).0
+    }
+
+    /// [`Self::radiance_along`] and the hit it shaded.
+    pub(crate) fn radiance_and_hit(
+        &self,
+        o: &Vector3<f64>,
+        d: &Vector3<f64>,
+        lamp: &Vector3<f64>,
+        space: ColourSpace,
+        skips: bool,
+        st: &mut RenderStats,
+    ) -> ([f64; 3], Hit) {
+        let hit = self.intersect(o, d, skips, st);
+        let v = match hit {
             Hit::None => [0.0; 3],
             Hit::Sample(p) => {
                 st.sample_hits += 1;
@@ -370,16 +413,14 @@ impl Renderer {
                 let r2 = lv.norm_squared();
                 let r = r2.sqrt();
                 let wi = lv / r;
-                if wi.z <= 0.0 || -d.z <= 0.0 {
-                    return [0.0; 3];
-                }
-                if !self.lamp_visible(&p.coords, &wi, r, skips, st) {
-                    return [0.0; 3];
+                if wi.z <= 0.0 || -d.z <= 0.0 || !self.lamp_visible(&p.coords, &wi, r, skips, st) {
+                    return ([0.0; 3], hit);
                 }
                 let k = self.lamp_scale * wi.z / r2;
                 albedo.map(|a| a * k)
             }
-        }
+        };
+        (v, hit)
     }
 
     /// Shades the sample surface point above `(x, y)` seen along `wo` (unit, towards the

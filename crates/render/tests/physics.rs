@@ -134,7 +134,7 @@ fn no_negative_or_nan_radiance_at_grazing_poses() {
         for (lt, lp, vt, vp) in [(80.0, 0.0, 75.0, 180.0), (89.0, 90.0, 60.0, 270.0), (85.0, 45.0, 85.0, 45.0), (0.0, 0.0, 88.0, 10.0), (75.0, 180.0, 80.0, 0.0), (60.0, 300.0, 89.5, 120.0)] {
             let pose = ScenePose::looking_at(Direction::from_degrees(lt, lp), Direction::from_degrees(vt, vp), 0.8, 1.2);
             for skips in [true, false] {
-                let img = r.render(&pose, &cam, &RenderOptions { skips });
+                let img = r.render(&pose, &cam, &RenderOptions::with_skips(skips));
                 for p in &img.data {
                     for c in p {
                         assert!(c.is_finite() && *c >= 0.0, "{name} {lt}/{lp} {vt}/{vp}: {c}");

@@ -36,8 +36,8 @@ fn skips_on_and_off_give_the_same_image() {
         let mut identical = true;
         for ((lt, lp), (vt, vp)) in poses {
             let pose = ScenePose::looking_at(Direction::from_degrees(lt, lp), Direction::from_degrees(vt, vp), 1.0, 1.5);
-            let (a, sa) = r.render_with_stats(&pose, &cam, &RenderOptions { skips: true });
-            let (b, sb) = r.render_with_stats(&pose, &cam, &RenderOptions { skips: false });
+            let (a, sa) = r.render_with_stats(&pose, &cam, &RenderOptions::with_skips(true));
+            let (b, sb) = r.render_with_stats(&pose, &cam, &RenderOptions::with_skips(false));
             let max = a.max_value().max(b.max_value());
             assert!(max > 0.0);
             for (p, q) in a.data.iter().zip(&b.data) {
