@@ -1,14 +1,54 @@
-//! The simulated camera's physics: spectral colour, the raw sensor, demosaicing.
+//! The physics of the simulated rig: what the camera sees of the sample holder plate, and
+//! the sensor that records it.
 //!
-//! Brief overview (camera/sensor/colour part): [`spectral`] holds the embedded published
-//! spectra (CIE observer, lamps, camera sensitivities, ColorChecker); [`colour::ColourSystem`]
-//! turns a reflectance spectrum into camera RGB and into the ground-truth output colour
-//! (linear sRGB, D65, adapted); [`sensor::SensorModel`] turns a [`sensor::RadianceImage`] of
+//! Brief overview: a [`scene::Scene`] is the holder plate ([`plate::PlateLayout`], with ArUco
+//! markers from [`markers`]) plus a material ([`material::Material`]: a
+//! [`heightfield::HeightField`] with spatially varying diffuse and glossy reflectance, see
+//! [`brdf`]) whose colours are resolved into camera-RGB and output-RGB triples. A
+//! [`renderer::Renderer`] traces one ray per pixel of a camera given as
+//! [`renderer::PixelRays`] for a [`btfrig_core::pose::ScenePose`] and returns a
+//! [`radiance::RadianceImage`] (camera-RGB signal rate per photosite); the sensor model turns
+//! that into a raw frame. [`ground_truth`] renders the true texture on the sample plane.
+//! The physics and the formulas are in `docs/renderer.md`, the material format in
+//! `docs/materials.md`.
+//!
+//! Camera, sensor and colour: [`spectral`] holds the embedded published spectra (CIE
+//! observer, lamps, camera sensitivities, ColorChecker); [`colour::ColourSystem`] turns a
+//! reflectance spectrum into camera RGB and into the ground-truth output colour (linear sRGB,
+//! D65, adapted); [`sensor::SensorModel`] turns a [`radiance::RadianceImage`] of
 //! photo-electron rates into a noisy [`btfrig_core::frame::RawFrame`]; [`demosaic`] makes
-//! previews from raw frames.
+//! previews from raw frames; [`rig_scene::RigScene`] assembles all of it from a rig config.
+//!
+//! ```
+//! use btfrig_core::{Direction, pose::ScenePose, config::plate::PlateConfig};
+//! use btfrig_render::{material::MaterialSpec, renderer::{Pinhole, Renderer, RenderOptions}};
+//!
+//! let spec = MaterialSpec::builtin("corduroy").unwrap();
+//! let flat = |name: &str| -> Result<([f64; 3], [f64; 3]), String> {
+//!     // A toy colour system: every spectrum is a grey "flat:x"; anything else is mid grey.
+//!     let x = name.strip_prefix("flat:").and_then(|v| v.parse().ok()).unwrap_or(0.5);
+//!     Ok(([x; 3], [x; 3]))
+//! };
+//! let r = Renderer::new(&PlateConfig::default(), &spec.with_texels(32), 1000.0, &flat).unwrap();
+//! let pose = ScenePose::looking_at(Direction::from_degrees(30.0, 0.0), Direction::from_degrees(0.0, 0.0), 1.5, 2.0);
+//! let cam = Pinhole { width: 64, height: 48, fx: 300.0, fy: 300.0, cx: 31.5, cy: 23.5 };
+//! let (img, stats) = r.render_with_stats(&pose, &cam, &RenderOptions::default());
+//! assert_eq!(img.data.len(), 64 * 48);
+//! assert!(stats.pixels_traced > 0);
+//! ```
 #![warn(missing_docs)]
 
+pub mod brdf;
 pub mod colour;
 pub mod demosaic;
+pub mod ground_truth;
+pub mod heightfield;
+pub mod markers;
+pub mod material;
+pub mod plate;
+pub mod radiance;
+pub mod renderer;
+pub mod rig_scene;
+pub mod scene;
 pub mod sensor;
 pub mod spectral;

@@ -34,25 +34,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 use rayon::prelude::*;
 
-/// Photo-electron rates reaching each photosite, one `[R, G, B]` triple per pixel, row-major:
-/// electrons per second that the photosite would collect if its colour filter were the
-/// channel's (the sensor picks the channel its Bayer pattern puts there).
-#[derive(Debug, Clone, PartialEq)]
-pub struct RadianceImage {
-    /// Width in pixels.
-    pub width: usize,
-    /// Height in pixels.
-    pub height: usize,
-    /// Row-major `width * height` rates, e-/s per channel.
-    pub data: Vec<[f32; 3]>,
-}
-
-impl RadianceImage {
-    /// An image with the same rate everywhere.
-    pub fn filled(width: usize, height: usize, rate: [f32; 3]) -> Self {
-        RadianceImage { width, height, data: vec![rate; width * height] }
-    }
-}
+pub use crate::radiance::RadianceImage;
 
 /// Errors of the sensor model: a bad configuration or capture setting.
 #[derive(Debug, thiserror::Error)]

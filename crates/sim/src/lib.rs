@@ -35,10 +35,12 @@ pub mod faults;
 pub mod frame_source;
 pub mod options;
 pub mod profile;
+pub mod rendered;
 pub mod rig;
 pub mod world;
 
 pub use faults::{DeviceRole, FaultScenario};
 pub use frame_source::{FlatFrameSource, FrameSource, SensorFormat};
+pub use rendered::RenderedFrameSource;
 pub use rig::{SimRig, FACTORIES};
 pub use world::{FaultEvent, FaultKind, SimWorld, TrueState};
