@@ -2,15 +2,20 @@
 
 mod args;
 mod kinematics_cmd;
+mod material;
 mod rig;
+mod session;
+mod sim_cmd;
 
-use args::{Cli, Command, KinematicsCommand};
+use args::{Cli, Command, KinematicsCommand, SimCommand};
 use clap::Parser;
 
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Kinematics(KinematicsCommand::Check { rig, json }) => kinematics_cmd::check(rig.as_deref(), json),
+        Command::Sim(SimCommand::Render(a)) => sim_cmd::render(&a),
+        Command::Sim(SimCommand::Materials) => sim_cmd::materials(),
         _ => Err(anyhow::anyhow!("this command is not built yet")),
     };
     match result {

@@ -235,6 +235,12 @@ impl RigScene {
         (fraction * full_scale_e / self.nominal_irradiance).clamp(min_s, max_s)
     }
 
+    /// Signal (DN above black) of a white Lambertian reflector facing the lamp at the
+    /// nominal sample centre, for an exposure and gain: the natural white point of previews.
+    pub fn white_signal_dn(&self, exposure_s: f64, gain: f64) -> f64 {
+        self.nominal_irradiance * exposure_s * self.sensor.dn_per_electron(gain)
+    }
+
     /// An 8-bit sRGB preview of a raw frame (bilinear demosaic, white balance for the lamp,
     /// the camera-to-sRGB matrix fitted on the ColorChecker), scaled so that a signal of
     /// `white_dn` above black maps to white.

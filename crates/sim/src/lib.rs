@@ -30,6 +30,7 @@
 //! ```
 #![warn(missing_docs)]
 
+pub mod capture;
 pub mod devices;
 pub mod faults;
 pub mod frame_source;
