@@ -1,6 +1,7 @@
 //! The `btfrig` binary: argument handling and display only; the work is in the library crates.
 
 mod args;
+mod demo_cmd;
 mod kinematics_cmd;
 mod material;
 mod rig;
@@ -14,6 +15,7 @@ fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Kinematics(KinematicsCommand::Check { rig, json }) => kinematics_cmd::check(rig.as_deref(), json),
+        Command::Demo(a) => demo_cmd::run(&a),
         Command::Sim(SimCommand::Render(a)) => sim_cmd::render(&a),
         Command::Sim(SimCommand::Materials) => sim_cmd::materials(),
         _ => Err(anyhow::anyhow!("this command is not built yet")),
