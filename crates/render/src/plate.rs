@@ -124,6 +124,26 @@ impl PlateLayout {
         })
     }
 
+    /// Distance (metres, along x or y) from `(x, y)` to the nearest module grid line of a
+    /// marker, or infinity when the point is more than `margin` away from every marker. A
+    /// pixel whose footprint radius is below this distance sees one module colour only.
+    pub fn marker_edge_distance(&self, x: f64, y: f64, margin: f64) -> f64 {
+        let m = self.dictionary.modules();
+        let module = self.marker_size_m / m as f64;
+        let mut best = f64::INFINITY;
+        for mk in &self.markers {
+            let (tl, br) = (mk.corners_sample_m[0], mk.corners_sample_m[2]);
+            if x >= tl.x - margin && x <= br.x + margin && y <= tl.y + margin && y >= br.y - margin {
+                let gx = ((x - tl.x) / module).round().clamp(0.0, m as f64);
+                let gy = ((tl.y - y) / module).round().clamp(0.0, m as f64);
+                let dx = (x - (tl.x + gx * module)).abs();
+                let dy = (y - (tl.y - gy * module)).abs();
+                best = best.min(dx.min(dy));
+            }
+        }
+        best
+    }
+
     /// The surface of the plate at `(x, y)` (the sample region is not checked here).
     pub fn surface_at(&self, x: f64, y: f64) -> PlateSurface {
         let half = self.side_m / 2.0;

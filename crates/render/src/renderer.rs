@@ -222,6 +222,7 @@ impl Renderer {
         let (w, h) = (rays.width(), rays.height());
         let frame = Frame::new(pose);
         let (x_range, y_range) = if opts.skips { self.footprint(&frame, rays) } else { ((0, w), (0, h)) };
+        let pixel_radius = if opts.marker_supersampling > 1 { self.plate_pixel_radius(&frame, rays) } else { 0.0 };
         let mut img = RadianceImage::black(w, h);
         let stats = img
             .data
@@ -239,7 +240,7 @@ impl Renderer {
                     let (mut v, hit) = self.radiance_and_hit(&frame.origin, &d, &frame.lamp, ColourSpace::Camera, opts.skips, &mut st);
                     let ss = opts.marker_supersampling.max(1) as usize;
                     if let Hit::Plate(p, _) = hit {
-                        if ss > 1 && self.scene.layout.near_marker(p.x, p.y, 0.002) {
+                        if ss > 1 && self.scene.layout.marker_edge_distance(p.x, p.y, pixel_radius) < pixel_radius {
                             let mut acc = [0.0; 3];
                             for sy in 0..ss {
                                 for sx in 0..ss {
@@ -305,6 +306,34 @@ impl Renderer {
         }
         let clampi = |v: f64, n: usize| v.clamp(0.0, n as f64) as usize;
         ((clampi((x0 - 2.0).floor(), w), clampi((x1 + 3.0).ceil(), w)), (clampi((y0 - 2.0).floor(), h), clampi((y1 + 3.0).ceil(), h)))
+    }
+
+    /// A bound on the radius (metres) of one pixel's footprint on the plate: the pixel's
+    /// half-diagonal divided by the smallest singular value of the plate-to-image Jacobian,
+    /// the largest over a 5 x 5 grid of plate points, with a 1.5 safety factor (the footprint
+    /// varies smoothly). Infinity if a point is behind the camera.
+    fn plate_pixel_radius(&self, frame: &Frame, rays: &impl PixelRays) -> f64 {
+        let inv = frame.rot.transpose();
+        let half = self.scene.layout.side_m / 2.0;
+        let e = 1e-4;
+        let proj = |x: f64, y: f64| rays.project(&(inv * (Vector3::new(x, y, 0.0) - frame.origin)));
+        let mut worst: f64 = 0.0;
+        for j in 0..5 {
+            for i in 0..5 {
+                let (x, y) = (-half + i as f64 * half / 2.0, -half + j as f64 * half / 2.0);
+                let (Some(p), Some(px), Some(py)) = (proj(x, y), proj(x + e, y), proj(x, y + e)) else {
+                    return f64::INFINITY;
+                };
+                let j2 = nalgebra::Matrix2::new(px[0] - p[0], py[0] - p[0], px[1] - p[1], py[1] - p[1]) / e;
+                let sv = j2.singular_values();
+                let smin = sv[0].min(sv[1]);
+                if !(smin > 0.0) {
+                    return f64::INFINITY;
+                }
+                worst = worst.max(std::f64::consts::FRAC_1_SQRT_2 / smin);
+            }
+        }
+        1.5 * worst
     }
 
     /// The first surface the ray `o + t d` (sample frame, `d` unit) meets.
