@@ -1,6 +1,7 @@
 //! The `btfrig` binary: argument handling and display only; the work is in the library crates.
 
 mod args;
+mod bench_cmd;
 mod demo_cmd;
 mod kinematics_cmd;
 mod material;
@@ -8,7 +9,7 @@ mod rig;
 mod session;
 mod sim_cmd;
 
-use args::{Cli, Command, KinematicsCommand, SimCommand};
+use args::{BenchCommand, Cli, Command, KinematicsCommand, SimCommand};
 use clap::Parser;
 
 fn main() -> std::process::ExitCode {
@@ -18,7 +19,9 @@ fn main() -> std::process::ExitCode {
         Command::Demo(a) => demo_cmd::run(&a),
         Command::Sim(SimCommand::Render(a)) => sim_cmd::render(&a),
         Command::Sim(SimCommand::Materials) => sim_cmd::materials(),
-        _ => Err(anyhow::anyhow!("this command is not built yet")),
+        Command::Bench(BenchCommand::Render { rig, material, texels, repeat }) => {
+            bench_cmd::render(rig.as_deref(), &material, texels, repeat)
+        }
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
