@@ -86,7 +86,8 @@ pub struct RenderArgs {
     /// Exposure time in seconds (default: chosen so the white plate sits near 60% of full scale).
     #[arg(long)]
     pub exposure: Option<f64>,
-    /// Noise seed (default: the rig's seed).
+    /// Seed of every random process of the simulated rig: sensor noise and the robot's and
+    /// rail's positioning error (default: the rig config's `[rig] seed`).
     #[arg(long)]
     pub seed: Option<u64>,
     /// Draw the nominal pose, without the robot's and rail's positioning error.

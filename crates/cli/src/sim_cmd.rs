@@ -41,9 +41,11 @@ pub fn render(args: &RenderArgs) -> anyhow::Result<()> {
         "--texture-size {}: allowed 1..=8192 texels",
         args.texture_size
     );
-    let cfg = crate::rig::load(args.rig.as_deref())?;
+    let mut cfg = crate::rig::load(args.rig.as_deref())?;
     let material = crate::material::load(args.material.as_deref())?;
+    // One seed drives every random process of the simulated rig: noise and positioning error.
     let seed = args.seed.unwrap_or(cfg.rig.seed);
+    cfg.rig.seed = seed;
 
     let rt = crate::session::virtual_time_runtime()?;
     let started = Instant::now();

@@ -1,0 +1,179 @@
+//! The `btfrig` binary as a person runs it: real processes, real files, real errors.
+//! Each test works in its own temporary directory under `target/`.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn btfrig() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_btfrig"))
+}
+
+/// A fresh, empty directory for one test.
+fn scratch(name: &str) -> PathBuf {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("cli-{name}"));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn run(cmd: &mut Command) -> Output {
+    cmd.output().expect("btfrig runs")
+}
+
+fn text(o: &Output) -> String {
+    format!("status {:?}\n--- stdout\n{}--- stderr\n{}", o.status, String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
+}
+
+fn ok(cmd: &mut Command) -> String {
+    let o = run(cmd);
+    assert!(o.status.success(), "{}", text(&o));
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+/// Runs a command that must fail, returns its stderr.
+fn fails(cmd: &mut Command) -> String {
+    let o = run(cmd);
+    assert!(!o.status.success(), "expected failure:\n{}", text(&o));
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn render(dir: &Path, name: &str, extra: &[&str]) -> PathBuf {
+    let out = dir.join(format!("{name}.exr"));
+    let mut cmd = btfrig();
+    cmd.args(["sim", "render", "--view", "45,0", "--light", "30,120", "--out"]).arg(&out).args(extra);
+    ok(&mut cmd);
+    out
+}
+
+#[test]
+fn sim_render_writes_raw_preview_and_ground_truth_that_read_back() {
+    let dir = scratch("render");
+    let (raw, preview, gt) = (dir.join("f.exr"), dir.join("f.png"), dir.join("t.exr"));
+    let stdout = ok(btfrig()
+        .args(["sim", "render", "--material", "leather", "--view", "60,90", "--light", "45,270", "--texture-size", "64"])
+        .arg("--out")
+        .arg(&raw)
+        .arg("--preview")
+        .arg(&preview)
+        .arg("--ground-truth")
+        .arg(&gt));
+    assert!(stdout.contains("true pose") && stdout.contains("achieved"), "{stdout}");
+    let frame = btfrig_imageio::read_raw_exr(&raw).unwrap();
+    assert_eq!((frame.width, frame.height), (1600, 1200));
+    assert_eq!(frame.meta.bit_depth, 14);
+    assert!(frame.data.iter().all(|&v| v <= frame.meta.white_level));
+    // The plate is lit: a good part of the frame is well above black.
+    let bright = frame.data.iter().filter(|&&v| v > frame.meta.black_level + 500).count();
+    assert!(bright > frame.data.len() / 20, "only {bright} bright photosites");
+    let (w, h, rgb) = btfrig_imageio::read_srgb8_png(&preview).unwrap();
+    assert_eq!((w, h, rgb.len()), (1600, 1200, 1600 * 1200 * 3));
+    let (tw, th, texels) = btfrig_imageio::read_rgb_exr(&gt).unwrap();
+    assert_eq!((tw, th), (64, 64));
+    assert!(texels.iter().flatten().all(|v| v.is_finite() && *v >= 0.0));
+    // Leather has albedo well below a white reflector: its radiance factor stays below 1
+    // almost everywhere (highlights aside) and above 0 where lit.
+    let mean_g = texels.iter().map(|p| f64::from(p[1])).sum::<f64>() / texels.len() as f64;
+    assert!(mean_g > 0.005 && mean_g < 1.0, "mean green radiance factor {mean_g}");
+}
+
+#[test]
+fn same_seed_gives_identical_frames_and_other_seeds_do_not() {
+    let dir = scratch("seeds");
+    let a = std::fs::read(render(&dir, "a", &["--seed", "7"])).unwrap();
+    let b = std::fs::read(render(&dir, "b", &["--seed", "7"])).unwrap();
+    let c = std::fs::read(render(&dir, "c", &["--seed", "8"])).unwrap();
+    assert!(a == b, "same seed, different frames");
+    assert!(a != c, "different seeds, identical frames");
+}
+
+#[test]
+fn bad_render_arguments_are_named_with_what_is_allowed() {
+    let dir = scratch("bad-render");
+    let out = dir.join("x.exr");
+    let base = |view: &str, material: &str, out: &Path| {
+        let mut c = btfrig();
+        c.args(["sim", "render", "--view", view, "--light", "30,0", "--material", material, "--out"]).arg(out);
+        c
+    };
+    let e = fails(&mut base("95,0", "corduroy", &out));
+    assert!(e.contains("--view") && e.contains("[0, 90)"), "{e}");
+    let e = fails(&mut base("30,0", "velvet", &out));
+    assert!(e.contains("velvet") && e.contains("corduroy") && e.contains("leather"), "{e}");
+    let e = fails(&mut base("30,0", "corduroy", &dir.join("x.jpg")));
+    assert!(e.contains("--out") && e.contains("exr, png"), "{e}");
+    let e = fails(&mut base("30,0", "corduroy", &dir.join("missing/x.exr")));
+    assert!(e.contains("does not exist"), "{e}");
+    // Light == view: the camera would block the lamp.
+    let e = fails(btfrig().args(["sim", "render", "--view", "30,30", "--light", "30,30", "--out"]).arg(&out));
+    assert!(e.contains("block the lamp"), "{e}");
+    assert!(!out.exists(), "a failed render must not write its output");
+}
+
+#[test]
+fn a_rig_config_with_a_typo_or_bad_values_is_rejected_with_the_field_named() {
+    let dir = scratch("bad-rig");
+    let good = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../../rig-configs/bonn-gonio-sim.toml")).unwrap();
+    let typo = dir.join("typo.toml");
+    std::fs::write(&typo, good.replace("rail_radius_m", "rail_radius")).unwrap();
+    let e = fails(btfrig().args(["kinematics", "check", "--rig"]).arg(&typo));
+    assert!(e.contains("rail_radius") && e.contains("typo.toml"), "{e}");
+    let bad = dir.join("bad.toml");
+    std::fs::write(&bad, good.replace("width_px = 1600", "width_px = 0").replace("bit_depth = 14", "bit_depth = 20")).unwrap();
+    let e = fails(btfrig().args(["kinematics", "check", "--rig"]).arg(&bad));
+    assert!(e.contains("width_px") && e.contains("bit_depth"), "both problems reported at once: {e}");
+}
+
+#[test]
+fn every_shipped_rig_config_loads_and_validates() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../rig-configs");
+    let mut n = 0;
+    for entry in std::fs::read_dir(&root).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "toml") {
+            let text = std::fs::read_to_string(&path).unwrap();
+            btfrig_core::config::RigConfig::from_toml(&text, &path.display().to_string())
+                .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            n += 1;
+        }
+    }
+    assert!(n >= 1);
+}
+
+#[test]
+fn kinematics_check_classifies_all_6561_bonn_pairs() {
+    let stdout = ok(btfrig().args(["kinematics", "check", "--json"]));
+    let v: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+    let reasons: u64 = v["unreachable"].as_object().unwrap().values().map(|n| n.as_u64().unwrap()).sum();
+    assert_eq!(v["pairs"], 6561);
+    assert_eq!(v["reachable"].as_u64().unwrap() + reasons, 6561);
+    assert_eq!(v["unreachable"]["camera blocks lamp"], 81, "exactly the light == view pairs");
+    assert!(v["max_roundtrip_error_rad"].as_f64().unwrap() < 1e-9);
+}
+
+#[test]
+fn demo_captures_through_the_devices_and_refuses_to_overwrite() {
+    let dir = scratch("demo");
+    let out = dir.join("run");
+    let stdout = ok(btfrig().args(["demo", "--json", "--out"]).arg(&out));
+    let v: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+    assert_eq!(v["captures"], 5);
+    assert_eq!(v["skipped"].as_array().unwrap().len(), 1);
+    assert!(v["skipped"][0]["reason"].as_str().unwrap().contains("block the lamp"));
+    // Simulated hardware time: warm-up and homing plus ~8 s per capture, on a virtual clock.
+    let hw = v["hardware_s"].as_f64().unwrap();
+    assert!(hw > 5.0 * 5.0 && hw < 600.0, "hardware_s {hw}");
+    for f in v["frames"].as_array().unwrap() {
+        let stem = f["file"].as_str().unwrap();
+        for suffix in ["raw.png", "preview.png", "truth.exr"] {
+            assert!(out.join(format!("{stem}.{suffix}")).is_file(), "{stem}.{suffix} missing");
+        }
+        let err = f["pose_error_deg"].as_array().unwrap();
+        // Positioning error is real (configured jitter) but small.
+        assert!(err.iter().all(|e| e.as_f64().unwrap() < 1.0), "{err:?}");
+    }
+    assert!(out.join("summary.json").is_file());
+    let before = std::fs::read(out.join("summary.json")).unwrap();
+    let e = fails(btfrig().args(["demo", "--out"]).arg(&out));
+    assert!(e.contains("not empty"), "{e}");
+    assert_eq!(before, std::fs::read(out.join("summary.json")).unwrap(), "nothing overwritten");
+}
