@@ -2,7 +2,7 @@
 
 use async_trait::async_trait;
 use btfrig_core::config::timing::AxisTiming;
-use btfrig_hw::{AxisLimits, Device, DeviceError, DeviceInfo, Health, MoveOptions, Rail, Turntable};
+use btfrig_hw::{AxisLimits, DeviceError, DeviceInfo, MoveOptions, Rail, Turntable};
 
 use super::motion::{AxisModel, Motion};
 use crate::faults::{DeviceRole, FaultGate, COMMAND_TIMEOUT_S};
@@ -75,21 +75,7 @@ impl SimAxis {
     }
 }
 
-#[async_trait]
-impl Device for SimAxis {
-    fn info(&self) -> &DeviceInfo {
-        &self.info
-    }
-
-    async fn health(&mut self) -> Result<Health, DeviceError> {
-        self.gate.begin("health", COMMAND_TIMEOUT_S).await?;
-        Ok(Health::Ok)
-    }
-
-    async fn reconnect(&mut self) -> Result<(), DeviceError> {
-        self.gate.begin("reconnect", COMMAND_TIMEOUT_S).await.map(|_| ())
-    }
-}
+impl_sim_device!(SimAxis);
 
 #[async_trait]
 impl Rail for SimAxis {

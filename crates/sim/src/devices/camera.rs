@@ -6,9 +6,8 @@ use async_trait::async_trait;
 use btfrig_core::config::timing::CameraTiming;
 use btfrig_core::frame::RawFrame;
 use btfrig_hw::{
-    frame_checksum, verify_frame, Camera, CameraCapabilities, CaptureSettings, Device, DeviceError, DeviceInfo, ErrorKind,
-    Health,
-};
+    frame_checksum, verify_frame, Camera, CameraCapabilities, CaptureSettings, DeviceError, DeviceInfo, ErrorKind,
+    };
 
 use crate::faults::{derive_seed, FaultGate, FrameFate, FrameFaults, COMMAND_TIMEOUT_S};
 use crate::options::SimCameraOptions;
@@ -115,21 +114,7 @@ impl SimCamera {
     }
 }
 
-#[async_trait]
-impl Device for SimCamera {
-    fn info(&self) -> &DeviceInfo {
-        &self.info
-    }
-
-    async fn health(&mut self) -> Result<Health, DeviceError> {
-        self.gate.begin("health", COMMAND_TIMEOUT_S).await?;
-        Ok(Health::Ok)
-    }
-
-    async fn reconnect(&mut self) -> Result<(), DeviceError> {
-        self.gate.begin("reconnect", COMMAND_TIMEOUT_S).await.map(|_| ())
-    }
-}
+impl_sim_device!(SimCamera);
 
 #[async_trait]
 impl Camera for SimCamera {

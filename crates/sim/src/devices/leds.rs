@@ -2,7 +2,7 @@
 
 use async_trait::async_trait;
 use btfrig_core::config::timing::LedTiming;
-use btfrig_hw::{Device, DeviceError, DeviceInfo, Health, LedArray, LedCapabilities, LedPattern};
+use btfrig_hw::{DeviceError, DeviceInfo, LedArray, LedCapabilities, LedPattern};
 
 use crate::faults::{FaultGate, COMMAND_TIMEOUT_S};
 use crate::options::SimLedOptions;
@@ -25,21 +25,7 @@ impl SimLedArray {
     }
 }
 
-#[async_trait]
-impl Device for SimLedArray {
-    fn info(&self) -> &DeviceInfo {
-        &self.info
-    }
-
-    async fn health(&mut self) -> Result<Health, DeviceError> {
-        self.gate.begin("health", COMMAND_TIMEOUT_S).await?;
-        Ok(Health::Ok)
-    }
-
-    async fn reconnect(&mut self) -> Result<(), DeviceError> {
-        self.gate.begin("reconnect", COMMAND_TIMEOUT_S).await.map(|_| ())
-    }
-}
+impl_sim_device!(SimLedArray);
 
 #[async_trait]
 impl LedArray for SimLedArray {

@@ -2,7 +2,7 @@
 
 use async_trait::async_trait;
 use btfrig_core::config::timing::RobotTiming;
-use btfrig_hw::{AxisLimits, Device, DeviceError, DeviceInfo, Health, MoveOptions, Robot};
+use btfrig_hw::{AxisLimits, DeviceError, DeviceInfo, MoveOptions, Robot};
 
 use super::motion::{AxisModel, Motion};
 use crate::faults::{FaultGate, COMMAND_TIMEOUT_S};
@@ -43,21 +43,7 @@ impl SimRobot {
     }
 }
 
-#[async_trait]
-impl Device for SimRobot {
-    fn info(&self) -> &DeviceInfo {
-        &self.info
-    }
-
-    async fn health(&mut self) -> Result<Health, DeviceError> {
-        self.gate.begin("health", COMMAND_TIMEOUT_S).await?;
-        Ok(Health::Ok)
-    }
-
-    async fn reconnect(&mut self) -> Result<(), DeviceError> {
-        self.gate.begin("reconnect", COMMAND_TIMEOUT_S).await.map(|_| ())
-    }
-}
+impl_sim_device!(SimRobot);
 
 #[async_trait]
 impl Robot for SimRobot {
