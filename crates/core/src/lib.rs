@@ -16,6 +16,7 @@ pub mod error;
 pub mod frame;
 pub mod kinematics;
 pub mod pose;
+pub mod profile;
 pub mod sampling;
 
 pub use direction::Direction;

@@ -35,10 +35,12 @@ pub mod devices;
 pub mod faults;
 pub mod frame_source;
 pub mod options;
-pub mod profile;
 pub mod rendered;
 pub mod rig;
 pub mod world;
+
+/// The trapezoidal move-time profile; it lives in `btfrig-core` so the planner shares it.
+pub use btfrig_core::profile;
 
 pub use faults::{DeviceRole, FaultScenario};
 pub use frame_source::{FlatFrameSource, FrameSource, SensorFormat};
