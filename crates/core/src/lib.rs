@@ -15,6 +15,7 @@ pub mod direction;
 pub mod error;
 pub mod frame;
 pub mod kinematics;
+pub mod plan;
 pub mod pose;
 pub mod sampling;
 
