@@ -529,3 +529,6 @@ impl<'de> Deserialize<'de> for PairsSpec {
         d.deserialize_any(V)
     }
 }
+
+#[cfg(test)]
+mod tests;

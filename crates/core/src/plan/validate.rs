@@ -709,11 +709,13 @@ fn resolve_texture(plan: &Plan, rig: Option<&RigConfig>, errors: &mut Vec<PlanEr
         (None, None) => None,
         (Some(r), side) => resolve_region(r, side, errors),
     };
-    (errors.len() == n_before).then(|| TextureSettings {
-        size: t.size as usize,
-        region: region.expect("no errors and a rig"),
-        filter: filter.expect("no errors"),
-    })
+    // Without a rig (already reported) the region cannot be put in metres.
+    match (region, filter) {
+        (Some(region), Some(filter)) if errors.len() == n_before => {
+            Some(TextureSettings { size: t.size as usize, region, filter })
+        }
+        _ => None,
+    }
 }
 
 fn resolve_region(r: &RegionSpec, side: Option<f64>, errors: &mut Vec<PlanError>) -> Option<Region> {
