@@ -636,7 +636,7 @@ fn check_duplicates(candidates: &[Candidate], errors: &mut Vec<PlanError>) {
     for j in 1..units.len() {
         if let Some(i) = (0..j).find(|&i| angle_between(&units[i], &units[j]) < DUPLICATE_TOLERANCE_RAD) {
             let (a, b) = (&candidates[i], &candidates[j]);
-            let first = if a.field == b.field { a.written.clone() } else { format!("{} {}", a.field, a.written) };
+            let first = if a.field == b.field { a.written.clone() } else { format!("{} = {}", a.field, a.written) };
             errors.push(PlanError::invalid(
                 &b.field,
                 &b.written,
