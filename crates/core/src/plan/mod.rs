@@ -35,7 +35,7 @@ use serde::{Deserialize, Serialize};
 
 pub use error::{PlanError, PlanErrors};
 pub use validate::{
-    ExistingDataset, ExposurePolicy, MaterialRef, OutputFormat, Outputs, PlanContext, Region, ResampleFilter,
+    CaptureList, ExistingDataset, ExposurePolicy, MaterialRef, OutputFormat, Outputs, PlanContext, Region, ResampleFilter,
     SkipReason, TextureSettings, UnreachablePair, ValidatedPlan,
 };
 

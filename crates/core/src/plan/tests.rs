@@ -24,9 +24,8 @@ fn every_shipped_plan_validates() {
             continue;
         }
         let text = std::fs::read_to_string(&path).unwrap();
-        let v = Plan::load_and_validate(&text, &path.display().to_string(), &ctx())
-            .unwrap_or_else(|e| panic!("{e}"));
-        let (captures, _) = v.capture_list();
+        let v = Plan::load_and_validate(&text, &path.display().to_string(), &ctx()).unwrap_or_else(|e| panic!("{e}"));
+        let captures = v.capture_list().captures;
         assert!(!captures.is_empty(), "{}", path.display());
         count += 1;
     }
@@ -67,7 +66,7 @@ fn bonn_full_requests_all_6561_pairs_and_reports_the_same_unreachable_count_as_k
     let gonio = Gonio::new(v.rig.geometry.clone()).unwrap();
     let report = gonio.report(&Sampling::bonn81(), &Sampling::bonn81());
     assert_eq!(v.unreachable.len(), report.total - report.reachable);
-    let (captures, skipped) = v.capture_list();
+    let CaptureList { captures, skipped } = v.capture_list();
     assert_eq!(captures.len(), report.reachable);
     assert_eq!(captures.len() + skipped.len(), 6561);
     // Light-major order: the full cross product in nested order.
@@ -76,7 +75,15 @@ fn bonn_full_requests_all_6561_pairs_and_reports_the_same_unreachable_count_as_k
     assert_eq!(v.pairs[81], (1, 0));
     // The whole sample square.
     let a = v.rig.plate.sample_side_m;
-    assert_eq!(v.texture.region, Region { x_min_m: -a / 2.0, x_max_m: a / 2.0, y_min_m: -a / 2.0, y_max_m: a / 2.0 });
+    assert_eq!(
+        v.texture.region,
+        Region {
+            x_min_m: -a / 2.0,
+            x_max_m: a / 2.0,
+            y_min_m: -a / 2.0,
+            y_max_m: a / 2.0
+        }
+    );
 }
 
 #[test]
@@ -88,7 +95,7 @@ fn demo_filters_and_caps() {
     assert_eq!(v.view.len(), 19);
     assert_eq!(v.light_source_indices, (0..19).collect::<Vec<_>>());
     assert_eq!(v.rig.rig.seed, 7, "the seed override is applied");
-    let (captures, skipped) = v.capture_list();
+    let CaptureList { captures, skipped } = v.capture_list();
     assert_eq!(captures.len(), 60);
     assert!(skipped.iter().any(|(_, r)| *r == SkipReason::MaxCaptures));
     // Central half: region side = sample side / 2, centred.
@@ -108,7 +115,13 @@ fn grazing_views_are_at_60_and_75_degrees() {
         assert!((t - 60.0).abs() < 1e-9 || (t - 75.0).abs() < 1e-9, "{t}");
     }
     assert_eq!(v.outputs.format, OutputFormat::ExrFloat);
-    assert_eq!(v.exposure, ExposurePolicy::Fixed { exposure_s: 0.2, gain: 1.0 });
+    assert_eq!(
+        v.exposure,
+        ExposurePolicy::Fixed {
+            exposure_s: 0.2,
+            gain: 1.0
+        }
+    );
 }
 
 #[test]
@@ -136,7 +149,11 @@ fn content_hash_ignores_comments_order_defaults_and_run_settings_but_not_content
     )
     .unwrap();
     assert_eq!(a.content_hash(), b.content_hash());
-    let c = Plan::from_toml("[sampling]\nlight = \"bonn81\"\nview = \"bonn81\"\n[texture]\nsize = 512\n", "c").unwrap();
+    let c = Plan::from_toml(
+        "[sampling]\nlight = \"bonn81\"\nview = \"bonn81\"\n[texture]\nsize = 512\n",
+        "c",
+    )
+    .unwrap();
     assert_ne!(a.content_hash(), c.content_hash());
     // Pinned: the hash is a file-format fact (datasets record it), so it must not drift.
     assert_eq!(fnv1a64(b""), 0xcbf2_9ce4_8422_2325);
@@ -148,9 +165,15 @@ fn existing_dataset_of_the_same_plan_resumes_and_of_another_is_refused() {
     let text = "[sampling]\nlight = \"bonn81\"\nview = \"bonn81\"\n";
     let plan = Plan::from_toml(text, "p").unwrap();
     let mut c = ctx();
-    c.existing_dataset = Some(ExistingDataset { plan_hash: plan.content_hash(), path: "out".into() });
+    c.existing_dataset = Some(ExistingDataset {
+        plan_hash: plan.content_hash(),
+        path: "out".into(),
+    });
     assert!(plan.validate(&c).unwrap().resume);
-    c.existing_dataset = Some(ExistingDataset { plan_hash: plan.content_hash() ^ 1, path: "out".into() });
+    c.existing_dataset = Some(ExistingDataset {
+        plan_hash: plan.content_hash() ^ 1,
+        path: "out".into(),
+    });
     let e = plan.validate(&c).unwrap_err();
     assert!(e.has_field("output"), "{e}");
     assert!(e.to_string().contains("already holds a dataset of another plan"), "{e}");
@@ -164,7 +187,7 @@ fn reciprocal_pairs_are_skipped_once_captured() {
     .unwrap();
     // Pairs in order: (L0=30/0, V0=30/90), (L0, V1=30/0), (L1=30/90, V0=30/90), (L1, V1=30/0).
     // (L1, V1) is the reciprocal of (L0, V0); same-direction pairs are unreachable.
-    let (captures, skipped) = v.capture_list();
+    let CaptureList { captures, skipped } = v.capture_list();
     assert_eq!(captures, vec![(0, 0)]);
     assert!(skipped.contains(&((1, 1), SkipReason::Reciprocal)), "{skipped:?}");
 }
@@ -187,4 +210,21 @@ fn rig_and_material_paths_resolve_against_the_plan_file() {
     c.rig = Some(crate::config::RigConfig::from_toml(BUILTIN_RIGS[0].1, "rig").unwrap());
     let v = plan.validate(&c).unwrap();
     assert_eq!(v.material, Some(MaterialRef::File("mats/wood.toml".into())));
+}
+
+#[test]
+fn dome_preset_with_theta_and_every_filters_keeps_the_expected_directions() {
+    let v = validate(
+        "[sampling]\nlight = { preset = \"dome1-151\", theta_min_deg = 45, every = 2 }\nview = \"dome1-151\"\n",
+    )
+    .unwrap();
+    // Dome-1 rings from theta 45 on: 18 + 18 + 24 + 24 + 24 = 108 directions, every 2nd: 54.
+    assert_eq!(v.light.len(), 54);
+    assert_eq!(v.view.len(), 151);
+    // Source indices: the first ring at 45 deg starts after 1+6+12+12+12 = 43 directions.
+    assert_eq!(&v.light_source_indices[..3], &[43, 45, 47]);
+    let full = Sampling::bonn_dome1();
+    for (k, &i) in v.light_source_indices.iter().enumerate() {
+        assert!(v.light.get(k).angle_to(full.get(i)) < 1e-12);
+    }
 }

@@ -7,8 +7,8 @@ use crate::kinematics::{Gonio, Unreachable, UnreachableKind};
 use crate::sampling::{Sampling, BONN81_RINGS, BONN_DOME1_RINGS, DUPLICATE_TOLERANCE_RAD};
 
 use super::{
-    is_path_like, ExposureSpec, OutputsSpec, PairsSpec, Plan, PlanError, PlanErrors, RegionSpec, RunSpec,
-    SamplingSpec, SamplingTable, SkipSpec, BUILTIN_FAULT_SCENARIOS, BUILTIN_MATERIAL_NAMES, BUILTIN_RIGS,
+    is_path_like, ExposureSpec, OutputsSpec, PairsSpec, Plan, PlanError, PlanErrors, RegionSpec, RunSpec, SamplingSpec,
+    SamplingTable, SkipSpec, BUILTIN_FAULT_SCENARIOS, BUILTIN_MATERIAL_NAMES, BUILTIN_RIGS,
 };
 
 /// Sampling presets a plan may name, with their directions' source.
@@ -232,13 +232,25 @@ pub struct ValidatedPlan {
     pub resume: bool,
 }
 
+/// Which requested pairs are captured and which are skipped, from [`ValidatedPlan::capture_list`].
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct CaptureList {
+    /// (light, view) pairs to capture, in plan order.
+    pub captures: Vec<(usize, usize)>,
+    /// Requested pairs left out, in plan order, with the reason.
+    pub skipped: Vec<((usize, usize), SkipReason)>,
+}
+
 impl ValidatedPlan {
     /// The pairs to capture, in plan order, and the skipped ones with their reasons.
     /// Unreachable pairs go first, then reciprocals of earlier captures, then everything
     /// beyond `max_captures`.
-    pub fn capture_list(&self) -> (Vec<(usize, usize)>, Vec<((usize, usize), SkipReason)>) {
-        let unreachable: std::collections::HashMap<(usize, usize), UnreachableKind> =
-            self.unreachable.iter().map(|u| ((u.light, u.view), u.reason.kind())).collect();
+    pub fn capture_list(&self) -> CaptureList {
+        let unreachable: std::collections::HashMap<(usize, usize), UnreachableKind> = self
+            .unreachable
+            .iter()
+            .map(|u| ((u.light, u.view), u.reason.kind()))
+            .collect();
         let mut captured_dirs: Vec<(Direction, Direction)> = Vec::new();
         let mut captures = Vec::new();
         let mut skipped = Vec::new();
@@ -264,7 +276,7 @@ impl ValidatedPlan {
             }
             captures.push(p);
         }
-        (captures, skipped)
+        CaptureList { captures, skipped }
     }
 }
 
@@ -285,7 +297,11 @@ impl Plan {
         let exposure = resolve_exposure(&self.exposure, rig.as_ref(), &mut errors);
         let outputs = resolve_outputs(&self.outputs, &mut errors);
         if self.skip.max_captures == Some(0) {
-            errors.push(PlanError::out_of_range("skip.max_captures", 0, ">= 1 (or leave it out for no cap)"));
+            errors.push(PlanError::out_of_range(
+                "skip.max_captures",
+                0,
+                ">= 1 (or leave it out for no cap)",
+            ));
         }
         let run = resolve_run(&self.run, ctx, rig.as_ref(), &mut errors);
         let plan_hash = self.content_hash();
@@ -309,11 +325,20 @@ impl Plan {
                 Ok(gonio) => {
                     for &(i, j) in pairs {
                         if let Err(reason) = gonio.ik(l.get(i), v.get(j)) {
-                            unreachable.push(UnreachablePair { light: i, view: j, reason });
+                            unreachable.push(UnreachablePair {
+                                light: i,
+                                view: j,
+                                reason,
+                            });
                         }
                     }
                 }
-                Err(e) => errors.push(PlanError::invalid("rig.config", &self.rig.config, e.to_string(), "a valid rig")),
+                Err(e) => errors.push(PlanError::invalid(
+                    "rig.config",
+                    &self.rig.config,
+                    e.to_string(),
+                    "a valid rig",
+                )),
             }
             if !unreachable.is_empty() && !self.skip.unreachable {
                 errors.push(PlanError::Unreachable {
@@ -344,10 +369,16 @@ impl Plan {
         }
 
         if !errors.is_empty() {
-            return Err(PlanErrors { origin: String::new(), errors });
+            return Err(PlanErrors {
+                origin: String::new(),
+                errors,
+            });
         }
-        let (rig, (light, light_source_indices), (view, view_source_indices)) =
-            (rig.expect("no errors"), light.expect("no errors"), view.expect("no errors"));
+        let (rig, (light, light_source_indices), (view, view_source_indices)) = (
+            rig.expect("no errors"),
+            light.expect("no errors"),
+            view.expect("no errors"),
+        );
         Ok(ValidatedPlan {
             name: self.name.clone(),
             plan_hash,
@@ -385,7 +416,9 @@ fn resolve_rig(plan: &Plan, ctx: &PlanContext, errors: &mut Vec<PlanError>) -> O
         Some(r.clone())
     } else if name.starts_with("builtin:") {
         match BUILTIN_RIGS.iter().find(|(n, _)| *n == name) {
-            Some((n, text)) => Some(RigConfig::from_toml(text, &format!("<embedded {n}>")).expect("embedded rig is valid")),
+            Some((n, text)) => {
+                Some(RigConfig::from_toml(text, &format!("<embedded {n}>")).expect("embedded rig is valid"))
+            }
             None => {
                 let known: Vec<String> = BUILTIN_RIGS.iter().map(|(n, _)| format!("{n:?}")).collect();
                 errors.push(PlanError::unknown(
@@ -461,7 +494,10 @@ struct Candidate {
 
 fn resolve_sampling(spec: &SamplingSpec, prefix: &str, errors: &mut Vec<PlanError>) -> Option<(Sampling, Vec<usize>)> {
     let table = match spec {
-        SamplingSpec::Preset(p) => SamplingTable { preset: Some(p.clone()), ..Default::default() },
+        SamplingSpec::Preset(p) => SamplingTable {
+            preset: Some(p.clone()),
+            ..Default::default()
+        },
         SamplingSpec::Table(t) => t.clone(),
     };
     let n_before = errors.len();
@@ -482,7 +518,11 @@ fn resolve_sampling(spec: &SamplingSpec, prefix: &str, errors: &mut Vec<PlanErro
             "dome1-151" | "bonn-dome1-151" => Some(Sampling::from_rings("dome1-151", &BONN_DOME1_RINGS)),
             _ => None,
         };
-        let field = if matches!(spec, SamplingSpec::Preset(_)) { prefix.to_string() } else { format!("{prefix}.preset") };
+        let field = if matches!(spec, SamplingSpec::Preset(_)) {
+            prefix.to_string()
+        } else {
+            format!("{prefix}.preset")
+        };
         match sampling {
             Some(s) => {
                 let s = s.expect("presets are valid");
@@ -491,7 +531,12 @@ fn resolve_sampling(spec: &SamplingSpec, prefix: &str, errors: &mut Vec<PlanErro
                     .directions()
                     .iter()
                     .enumerate()
-                    .map(|(i, d)| Candidate { dir: *d, source_index: i, field: field.clone(), written: String::new() })
+                    .map(|(i, d)| Candidate {
+                        dir: *d,
+                        source_index: i,
+                        field: field.clone(),
+                        written: String::new(),
+                    })
                     .collect();
             }
             None => errors.push(PlanError::unknown(field, p, PRESETS)),
@@ -499,7 +544,12 @@ fn resolve_sampling(spec: &SamplingSpec, prefix: &str, errors: &mut Vec<PlanErro
     } else if let Some(list) = &table.list {
         base_name = "list".into();
         if list.is_empty() {
-            errors.push(PlanError::invalid(format!("{prefix}.list"), "[]", "no directions", "at least one [theta, phi]"));
+            errors.push(PlanError::invalid(
+                format!("{prefix}.list"),
+                "[]",
+                "no directions",
+                "at least one [theta, phi]",
+            ));
         }
         for (i, [t, p]) in list.iter().copied().enumerate() {
             let field = format!("{prefix}.list[{i}]");
@@ -517,7 +567,12 @@ fn resolve_sampling(spec: &SamplingSpec, prefix: &str, errors: &mut Vec<PlanErro
     } else if let Some(rings) = &table.rings {
         base_name = "rings".into();
         if rings.is_empty() {
-            errors.push(PlanError::invalid(format!("{prefix}.rings"), "[]", "no rings", "at least one ring"));
+            errors.push(PlanError::invalid(
+                format!("{prefix}.rings"),
+                "[]",
+                "no rings",
+                "at least one ring",
+            ));
         }
         let mut k = 0;
         for (r, ring) in rings.iter().enumerate() {
@@ -525,11 +580,19 @@ fn resolve_sampling(spec: &SamplingSpec, prefix: &str, errors: &mut Vec<PlanErro
             let ok_t = check_theta(ring.theta_deg, &format!("{field}.theta_deg"), errors);
             let ok_c = (1..=360).contains(&ring.count);
             if !ok_c {
-                errors.push(PlanError::out_of_range(format!("{field}.count"), ring.count, "1..=360 (1 for theta_deg = 0)"));
+                errors.push(PlanError::out_of_range(
+                    format!("{field}.count"),
+                    ring.count,
+                    "1..=360 (1 for theta_deg = 0)",
+                ));
             }
             let ok_p = ring.phi_offset_deg.is_finite() && ring.phi_offset_deg.abs() <= 360.0;
             if !ok_p {
-                errors.push(PlanError::out_of_range(format!("{field}.phi_offset_deg"), ring.phi_offset_deg, "-360..=360 (degrees)"));
+                errors.push(PlanError::out_of_range(
+                    format!("{field}.phi_offset_deg"),
+                    ring.phi_offset_deg,
+                    "-360..=360 (degrees)",
+                ));
             }
             if ok_t && ok_c && ok_p {
                 for j in 0..ring.count {
@@ -552,13 +615,23 @@ fn resolve_sampling(spec: &SamplingSpec, prefix: &str, errors: &mut Vec<PlanErro
     // Filters.
     let mut name = base_name;
     let mut theta_range = [0.0f64, 90.0];
-    for (i, (key, v)) in [("theta_min_deg", table.theta_min_deg), ("theta_max_deg", table.theta_max_deg)].into_iter().enumerate() {
+    for (i, (key, v)) in [
+        ("theta_min_deg", table.theta_min_deg),
+        ("theta_max_deg", table.theta_max_deg),
+    ]
+    .into_iter()
+    .enumerate()
+    {
         if let Some(v) = v {
             if v.is_finite() && (0.0..=90.0).contains(&v) {
                 theta_range[i] = v;
                 name.push_str(&format!("[{key}={v}]"));
             } else {
-                errors.push(PlanError::out_of_range(format!("{prefix}.{key}"), v, "0..=90 (degrees)"));
+                errors.push(PlanError::out_of_range(
+                    format!("{prefix}.{key}"),
+                    v,
+                    "0..=90 (degrees)",
+                ));
             }
         }
     }
@@ -597,7 +670,10 @@ fn resolve_sampling(spec: &SamplingSpec, prefix: &str, errors: &mut Vec<PlanErro
         errors.push(PlanError::invalid(
             prefix,
             format!("{} directions", candidates.len()),
-            format!("the filters (theta {}..={} deg, every {every}) keep none", theta_range[0], theta_range[1]),
+            format!(
+                "the filters (theta {}..={} deg, every {every}) keep none",
+                theta_range[0], theta_range[1]
+            ),
             "filters that keep at least one direction",
         ));
         return None;
@@ -617,7 +693,11 @@ fn resolve_sampling(spec: &SamplingSpec, prefix: &str, errors: &mut Vec<PlanErro
 fn check_theta(t: f64, field: &str, errors: &mut Vec<PlanError>) -> bool {
     let ok = t.is_finite() && (0.0..90.0).contains(&t);
     if !ok {
-        errors.push(PlanError::out_of_range(field, t, "0 <= theta < 90 (degrees from the sample normal)"));
+        errors.push(PlanError::out_of_range(
+            field,
+            t,
+            "0 <= theta < 90 (degrees from the sample normal)",
+        ));
     }
     ok
 }
@@ -625,7 +705,11 @@ fn check_theta(t: f64, field: &str, errors: &mut Vec<PlanError>) -> bool {
 fn check_phi(p: f64, field: &str, errors: &mut Vec<PlanError>) -> bool {
     let ok = p.is_finite() && (-360.0..=360.0).contains(&p);
     if !ok {
-        errors.push(PlanError::out_of_range(field, p, "-360 <= phi <= 360 (degrees from the sample x axis)"));
+        errors.push(PlanError::out_of_range(
+            field,
+            p,
+            "-360 <= phi <= 360 (degrees from the sample x axis)",
+        ));
     }
     ok
 }
@@ -636,7 +720,11 @@ fn check_duplicates(candidates: &[Candidate], errors: &mut Vec<PlanError>) {
     for j in 1..units.len() {
         if let Some(i) = (0..j).find(|&i| angle_between(&units[i], &units[j]) < DUPLICATE_TOLERANCE_RAD) {
             let (a, b) = (&candidates[i], &candidates[j]);
-            let first = if a.field == b.field { a.written.clone() } else { format!("{} = {}", a.field, a.written) };
+            let first = if a.field == b.field {
+                a.written.clone()
+            } else {
+                format!("{} = {}", a.field, a.written)
+            };
             errors.push(PlanError::invalid(
                 &b.field,
                 &b.written,
@@ -669,7 +757,11 @@ fn resolve_pairs(spec: &PairsSpec, nl: usize, nv: usize, errors: &mut Vec<PlanEr
                     errors.push(PlanError::out_of_range(
                         field,
                         format!("[{l}, {v}]"),
-                        format!("light index 0..={}, view index 0..={} (indices into the filtered samplings)", nl - 1, nv - 1),
+                        format!(
+                            "light index 0..={}, view index 0..={} (indices into the filtered samplings)",
+                            nl - 1,
+                            nv - 1
+                        ),
                     ));
                     continue;
                 }
@@ -693,38 +785,57 @@ fn resolve_texture(plan: &Plan, rig: Option<&RigConfig>, errors: &mut Vec<PlanEr
     let t = &plan.texture;
     let n_before = errors.len();
     if !(8..=4096).contains(&t.size) {
-        errors.push(PlanError::out_of_range("texture.size", t.size, "8..=4096 texels per side (typical 256, 512, 800)"));
+        errors.push(PlanError::out_of_range(
+            "texture.size",
+            t.size,
+            "8..=4096 texels per side (typical 256, 512, 800)",
+        ));
     }
     let filter = match t.filter.as_str() {
         "bilinear" => Some(ResampleFilter::Bilinear),
         "supersample" => Some(ResampleFilter::Supersample),
         other => {
-            errors.push(PlanError::unknown("texture.filter", other, "\"bilinear\", \"supersample\""));
+            errors.push(PlanError::unknown(
+                "texture.filter",
+                other,
+                "\"bilinear\", \"supersample\"",
+            ));
             None
         }
     };
     let side = rig.map(|r| r.plate.sample_side_m);
     let region = match (&t.region, side) {
-        (None, Some(a)) => Some(Region { x_min_m: -a / 2.0, x_max_m: a / 2.0, y_min_m: -a / 2.0, y_max_m: a / 2.0 }),
+        (None, Some(a)) => Some(Region {
+            x_min_m: -a / 2.0,
+            x_max_m: a / 2.0,
+            y_min_m: -a / 2.0,
+            y_max_m: a / 2.0,
+        }),
         (None, None) => None,
         (Some(r), side) => resolve_region(r, side, errors),
     };
     // Without a rig (already reported) the region cannot be put in metres.
     match (region, filter) {
-        (Some(region), Some(filter)) if errors.len() == n_before => {
-            Some(TextureSettings { size: t.size as usize, region, filter })
-        }
+        (Some(region), Some(filter)) if errors.len() == n_before => Some(TextureSettings {
+            size: t.size as usize,
+            region,
+            filter,
+        }),
         _ => None,
     }
 }
 
 fn resolve_region(r: &RegionSpec, side: Option<f64>, errors: &mut Vec<PlanError>) -> Option<Region> {
-    let allowed_form = "either x_m = [lo, hi] and y_m = [lo, hi] (metres), or u = [lo, hi] and v = [lo, hi] (fractions)";
+    let allowed_form =
+        "either x_m = [lo, hi] and y_m = [lo, hi] (metres), or u = [lo, hi] and v = [lo, hi] (fractions)";
     let metric = (r.x_m, r.y_m);
     let fraction = (r.u, r.v);
     let n_before = errors.len();
     let check = |field: &str, range: [f64; 2], lo: f64, hi: f64, unit: &str, errors: &mut Vec<PlanError>| {
-        let ok = range.iter().all(|x| x.is_finite() && *x >= lo - 1e-12 && *x <= hi + 1e-12) && range[0] < range[1];
+        let ok = range
+            .iter()
+            .all(|x| x.is_finite() && *x >= lo - 1e-12 && *x <= hi + 1e-12)
+            && range[0] < range[1];
         if !ok {
             errors.push(PlanError::out_of_range(
                 field,
@@ -736,10 +847,19 @@ fn resolve_region(r: &RegionSpec, side: Option<f64>, errors: &mut Vec<PlanError>
     let region = match (metric, fraction) {
         ((Some(x), Some(y)), (None, None)) => {
             let h = side.map_or(f64::INFINITY, |a| a / 2.0);
-            let unit = if side.is_some() { "metres, within the sample square" } else { "metres" };
+            let unit = if side.is_some() {
+                "metres, within the sample square"
+            } else {
+                "metres"
+            };
             check("texture.region.x_m", x, -h, h, unit, errors);
             check("texture.region.y_m", y, -h, h, unit, errors);
-            Region { x_min_m: x[0], x_max_m: x[1], y_min_m: y[0], y_max_m: y[1] }
+            Region {
+                x_min_m: x[0],
+                x_max_m: x[1],
+                y_min_m: y[0],
+                y_max_m: y[1],
+            }
         }
         ((None, None), (Some(u), Some(v))) => {
             check("texture.region.u", u, 0.0, 1.0, "fractions of the sample side", errors);
@@ -754,11 +874,16 @@ fn resolve_region(r: &RegionSpec, side: Option<f64>, errors: &mut Vec<PlanError>
             }
         }
         _ => {
-            let given: Vec<&str> = [("x_m", r.x_m.is_some()), ("y_m", r.y_m.is_some()), ("u", r.u.is_some()), ("v", r.v.is_some())]
-                .iter()
-                .filter(|(_, g)| *g)
-                .map(|(n, _)| *n)
-                .collect();
+            let given: Vec<&str> = [
+                ("x_m", r.x_m.is_some()),
+                ("y_m", r.y_m.is_some()),
+                ("u", r.u.is_some()),
+                ("v", r.v.is_some()),
+            ]
+            .iter()
+            .filter(|(_, g)| *g)
+            .map(|(n, _)| *n)
+            .collect();
             errors.push(PlanError::invalid(
                 "texture.region",
                 format!("{{ {} }}", given.join(", ")),
@@ -787,7 +912,10 @@ fn resolve_region(r: &RegionSpec, side: Option<f64>, errors: &mut Vec<PlanError>
 /// Reads a `[lo, hi]` float pair from a device's options, if present and well formed.
 fn option_range(rig: &RigConfig, key: &str) -> Option<[f64; 2]> {
     let arr = rig.devices.camera.options.get(key)?.as_array()?;
-    let v: Vec<f64> = arr.iter().filter_map(|x| x.as_float().or_else(|| x.as_integer().map(|i| i as f64))).collect();
+    let v: Vec<f64> = arr
+        .iter()
+        .filter_map(|x| x.as_float().or_else(|| x.as_integer().map(|i| i as f64)))
+        .collect();
     (v.len() == 2).then(|| [v[0], v[1]])
 }
 
@@ -797,12 +925,18 @@ fn resolve_exposure(e: &ExposureSpec, rig: Option<&RigConfig>, errors: &mut Vec<
             if white_fraction.is_finite() && (0.05..=0.95).contains(&white_fraction) {
                 Some(ExposurePolicy::Auto { white_fraction })
             } else {
-                errors.push(PlanError::out_of_range("exposure.white_fraction", white_fraction, "0.05..=0.95 (fraction of full scale)"));
+                errors.push(PlanError::out_of_range(
+                    "exposure.white_fraction",
+                    white_fraction,
+                    "0.05..=0.95 (fraction of full scale)",
+                ));
                 None
             }
         }
         ExposureSpec::Fixed { exposure_s, gain } => {
-            let t_range = rig.and_then(|r| option_range(r, "exposure_range_s")).unwrap_or([1e-6, 3600.0]);
+            let t_range = rig
+                .and_then(|r| option_range(r, "exposure_range_s"))
+                .unwrap_or([1e-6, 3600.0]);
             let max_gain = rig.map_or(64.0, |r| r.sensor.max_analogue_gain);
             let g_range = rig
                 .and_then(|r| option_range(r, "gain_range"))
@@ -812,7 +946,10 @@ fn resolve_exposure(e: &ExposureSpec, rig: Option<&RigConfig>, errors: &mut Vec<
                 errors.push(PlanError::out_of_range(
                     "exposure.exposure_s",
                     exposure_s,
-                    format!("{} ..= {} seconds (the camera's exposure range)", t_range[0], t_range[1]),
+                    format!(
+                        "{} ..= {} seconds (the camera's exposure range)",
+                        t_range[0], t_range[1]
+                    ),
                 ));
                 ok = false;
             }
@@ -827,7 +964,11 @@ fn resolve_exposure(e: &ExposureSpec, rig: Option<&RigConfig>, errors: &mut Vec<
             ok.then_some(ExposurePolicy::Fixed { exposure_s, gain })
         }
         ExposureSpec::Bracket { .. } => {
-            errors.push(PlanError::unsupported("exposure.mode", "\"bracket\"", "\"auto\" or \"fixed\" (HDR bracketing comes later)"));
+            errors.push(PlanError::unsupported(
+                "exposure.mode",
+                "\"bracket\"",
+                "\"auto\" or \"fixed\" (HDR bracketing comes later)",
+            ));
             None
         }
     }
@@ -839,12 +980,20 @@ fn resolve_outputs(o: &OutputsSpec, errors: &mut Vec<PlanError>) -> Option<Outpu
         "exr-half" => Some(OutputFormat::ExrHalf),
         "exr-float" => Some(OutputFormat::ExrFloat),
         other => {
-            errors.push(PlanError::unknown("outputs.format", other, "\"exr-half\", \"exr-float\""));
+            errors.push(PlanError::unknown(
+                "outputs.format",
+                other,
+                "\"exr-half\", \"exr-float\"",
+            ));
             None
         }
     };
     if o.compressed_model {
-        errors.push(PlanError::unsupported("outputs.compressed_model", true, "false (compression comes in a later version)"));
+        errors.push(PlanError::unsupported(
+            "outputs.compressed_model",
+            true,
+            "false (compression comes in a later version)",
+        ));
     }
     if !o.textures && !o.raw_frames {
         errors.push(PlanError::invalid(
@@ -870,7 +1019,10 @@ fn resolve_run(r: &RunSpec, ctx: &PlanContext, rig: Option<&RigConfig>, errors: 
             errors.push(PlanError::unknown(
                 "run.fault_scenario",
                 f,
-                format!("{} (files in sim/faults/), or leave it out", ctx.known_faults.join(", ")),
+                format!(
+                    "{} (files in sim/faults/), or leave it out",
+                    ctx.known_faults.join(", ")
+                ),
             ));
         }
         if rig.is_some_and(|r| !is_simulated(r)) && stem != "none" {
@@ -887,11 +1039,22 @@ fn resolve_run(r: &RunSpec, ctx: &PlanContext, rig: Option<&RigConfig>, errors: 
         errors.push(PlanError::out_of_range("run.max_retries", r.max_retries, "0..=100"));
     }
     if !(r.backoff_s.is_finite() && (0.0..=600.0).contains(&r.backoff_s)) {
-        errors.push(PlanError::out_of_range("run.backoff_s", r.backoff_s, "0 ..= 600 seconds"));
+        errors.push(PlanError::out_of_range(
+            "run.backoff_s",
+            r.backoff_s,
+            "0 ..= 600 seconds",
+        ));
     }
-    for (key, v) in [("move_timeout_s", r.move_timeout_s), ("capture_timeout_s", r.capture_timeout_s)] {
+    for (key, v) in [
+        ("move_timeout_s", r.move_timeout_s),
+        ("capture_timeout_s", r.capture_timeout_s),
+    ] {
         if !(v.is_finite() && v > 0.0 && v <= 3600.0) {
-            errors.push(PlanError::out_of_range(format!("run.{key}"), v, "> 0 and <= 3600 seconds"));
+            errors.push(PlanError::out_of_range(
+                format!("run.{key}"),
+                v,
+                "> 0 and <= 3600 seconds",
+            ));
         }
     }
     out
