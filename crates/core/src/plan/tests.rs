@@ -1,0 +1,230 @@
+use super::*;
+use crate::kinematics::Gonio;
+use crate::sampling::Sampling;
+
+fn repo_dir(rel: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..").join(rel)
+}
+
+fn ctx() -> PlanContext {
+    PlanContext::with_builtin_names()
+}
+
+fn validate(text: &str) -> Result<ValidatedPlan, PlanErrors> {
+    Plan::load_and_validate(text, "<test>", &ctx())
+}
+
+/// STYLE habit 8: every shipped plan parses and validates against the embedded rig.
+#[test]
+fn every_shipped_plan_validates() {
+    let mut count = 0;
+    for entry in std::fs::read_dir(repo_dir("rig-configs/plans")).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_none_or(|e| e != "toml") {
+            continue;
+        }
+        let text = std::fs::read_to_string(&path).unwrap();
+        let v = Plan::load_and_validate(&text, &path.display().to_string(), &ctx()).unwrap_or_else(|e| panic!("{e}"));
+        let captures = v.capture_list().captures;
+        assert!(!captures.is_empty(), "{}", path.display());
+        count += 1;
+    }
+    assert!(count >= 3, "expected bonn-full, demo and grazing");
+}
+
+#[test]
+fn the_builtin_fault_scenarios_match_the_files() {
+    let mut stems: Vec<String> = std::fs::read_dir(repo_dir("sim/faults"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "toml"))
+        .map(|p| p.file_stem().unwrap().to_string_lossy().into_owned())
+        .collect();
+    stems.sort();
+    let mut builtin: Vec<String> = BUILTIN_FAULT_SCENARIOS.iter().map(|s| s.to_string()).collect();
+    builtin.sort();
+    assert_eq!(stems, builtin);
+    let mut mats: Vec<String> = std::fs::read_dir(repo_dir("sim/materials"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "toml"))
+        .map(|p| p.file_stem().unwrap().to_string_lossy().into_owned())
+        .collect();
+    mats.sort();
+    let mut builtin: Vec<String> = BUILTIN_MATERIAL_NAMES.iter().map(|s| s.to_string()).collect();
+    builtin.sort();
+    assert_eq!(mats, builtin);
+}
+
+#[test]
+fn bonn_full_requests_all_6561_pairs_and_reports_the_same_unreachable_count_as_kinematics() {
+    let text = std::fs::read_to_string(repo_dir("rig-configs/plans/bonn-full.toml")).unwrap();
+    let v = validate(&text).unwrap();
+    assert_eq!(v.pairs.len(), 6561);
+    assert_eq!(v.texture.size, 256);
+    // Cross-check against the kinematics' own report over the same samplings.
+    let gonio = Gonio::new(v.rig.geometry.clone()).unwrap();
+    let report = gonio.report(&Sampling::bonn81(), &Sampling::bonn81());
+    assert_eq!(v.unreachable.len(), report.total - report.reachable);
+    let CaptureList { captures, skipped } = v.capture_list();
+    assert_eq!(captures.len(), report.reachable);
+    assert_eq!(captures.len() + skipped.len(), 6561);
+    // Light-major order: the full cross product in nested order.
+    assert_eq!(v.pairs[0], (0, 0));
+    assert_eq!(v.pairs[1], (0, 1));
+    assert_eq!(v.pairs[81], (1, 0));
+    // The whole sample square.
+    let a = v.rig.plate.sample_side_m;
+    assert_eq!(
+        v.texture.region,
+        Region {
+            x_min_m: -a / 2.0,
+            x_max_m: a / 2.0,
+            y_min_m: -a / 2.0,
+            y_max_m: a / 2.0
+        }
+    );
+}
+
+#[test]
+fn demo_filters_and_caps() {
+    let text = std::fs::read_to_string(repo_dir("rig-configs/plans/demo.toml")).unwrap();
+    let v = validate(&text).unwrap();
+    // Bonn rings at theta 0, 15, 30: 1 + 6 + 12.
+    assert_eq!(v.light.len(), 19);
+    assert_eq!(v.view.len(), 19);
+    assert_eq!(v.light_source_indices, (0..19).collect::<Vec<_>>());
+    assert_eq!(v.rig.rig.seed, 7, "the seed override is applied");
+    let CaptureList { captures, skipped } = v.capture_list();
+    assert_eq!(captures.len(), 60);
+    assert!(skipped.iter().any(|(_, r)| *r == SkipReason::MaxCaptures));
+    // Central half: region side = sample side / 2, centred.
+    let a = v.rig.plate.sample_side_m;
+    let r = v.texture.region;
+    assert!((r.side_m() - a / 2.0).abs() < 1e-12);
+    assert!((r.x_min_m + a / 4.0).abs() < 1e-12 && (r.y_max_m - a / 4.0).abs() < 1e-12);
+}
+
+#[test]
+fn grazing_views_are_at_60_and_75_degrees() {
+    let text = std::fs::read_to_string(repo_dir("rig-configs/plans/grazing.toml")).unwrap();
+    let v = validate(&text).unwrap();
+    assert_eq!(v.view.len(), 44);
+    for d in v.view.directions() {
+        let t = d.theta.to_degrees();
+        assert!((t - 60.0).abs() < 1e-9 || (t - 75.0).abs() < 1e-9, "{t}");
+    }
+    assert_eq!(v.outputs.format, OutputFormat::ExrFloat);
+    assert_eq!(
+        v.exposure,
+        ExposurePolicy::Fixed {
+            exposure_s: 0.2,
+            gain: 1.0
+        }
+    );
+}
+
+#[test]
+fn region_fractions_follow_the_texture_axes() {
+    // u along +x from the left edge, v along -y from the top edge: the top-left quarter.
+    let v = validate(
+        "[sampling]\nlight = \"bonn81\"\nview = \"bonn81\"\n[texture]\nsize = 8\nregion = { u = [0.0, 0.5], v = [0.0, 0.5] }\n",
+    )
+    .unwrap();
+    let a = v.rig.plate.sample_side_m;
+    let r = v.texture.region;
+    assert_eq!((r.x_min_m, r.x_max_m), (-a / 2.0, 0.0));
+    assert_eq!((r.y_min_m, r.y_max_m), (0.0, a / 2.0));
+    // Texel (0, 0) centre sits half a texel in from the top-left corner.
+    let (x, y) = r.texel_centre(0, 0, 8);
+    assert!((x - (-a / 2.0 + a / 32.0)).abs() < 1e-15 && (y - (a / 2.0 - a / 32.0)).abs() < 1e-15);
+}
+
+#[test]
+fn content_hash_ignores_comments_order_defaults_and_run_settings_but_not_content() {
+    let a = Plan::from_toml("[sampling]\nlight = \"bonn81\"\nview = \"bonn81\"\n", "a").unwrap();
+    let b = Plan::from_toml(
+        "# a comment\n[texture]\nsize = 256\n[sampling]\nview = \"bonn81\"\nlight = \"bonn81\"\npairs = \"all\"\n[run]\nmax_retries = 9\n",
+        "b",
+    )
+    .unwrap();
+    assert_eq!(a.content_hash(), b.content_hash());
+    let c = Plan::from_toml(
+        "[sampling]\nlight = \"bonn81\"\nview = \"bonn81\"\n[texture]\nsize = 512\n",
+        "c",
+    )
+    .unwrap();
+    assert_ne!(a.content_hash(), c.content_hash());
+    // Pinned: the hash is a file-format fact (datasets record it), so it must not drift.
+    assert_eq!(fnv1a64(b""), 0xcbf2_9ce4_8422_2325);
+    assert_eq!(fnv1a64(b"a"), 0xaf63_dc4c_8601_ec8c);
+}
+
+#[test]
+fn existing_dataset_of_the_same_plan_resumes_and_of_another_is_refused() {
+    let text = "[sampling]\nlight = \"bonn81\"\nview = \"bonn81\"\n";
+    let plan = Plan::from_toml(text, "p").unwrap();
+    let mut c = ctx();
+    c.existing_dataset = Some(ExistingDataset {
+        plan_hash: plan.content_hash(),
+        path: "out".into(),
+    });
+    assert!(plan.validate(&c).unwrap().resume);
+    c.existing_dataset = Some(ExistingDataset {
+        plan_hash: plan.content_hash() ^ 1,
+        path: "out".into(),
+    });
+    let e = plan.validate(&c).unwrap_err();
+    assert!(e.has_field("output"), "{e}");
+    assert!(e.to_string().contains("already holds a dataset of another plan"), "{e}");
+}
+
+#[test]
+fn reciprocal_pairs_are_skipped_once_captured() {
+    let v = validate(
+        "[sampling]\nlight = { list = [[30, 0], [30, 90]] }\nview = { list = [[30, 90], [30, 0]] }\n[skip]\nreciprocal = true\n",
+    )
+    .unwrap();
+    // Pairs in order: (L0=30/0, V0=30/90), (L0, V1=30/0), (L1=30/90, V0=30/90), (L1, V1=30/0).
+    // (L1, V1) is the reciprocal of (L0, V0); same-direction pairs are unreachable.
+    let CaptureList { captures, skipped } = v.capture_list();
+    assert_eq!(captures, vec![(0, 0)]);
+    assert!(skipped.contains(&((1, 1), SkipReason::Reciprocal)), "{skipped:?}");
+}
+
+#[test]
+fn rig_and_material_paths_resolve_against_the_plan_file() {
+    let plan = Plan::from_toml(
+        "[rig]\nconfig = \"../my-rig.toml\"\nmaterial = \"mats/wood.toml\"\n[sampling]\nlight = \"bonn81\"\nview = \"bonn81\"\n",
+        "p",
+    )
+    .unwrap();
+    let p = Path::new("/x/plans/p.toml");
+    assert_eq!(plan.rig_config_path(p), Some(PathBuf::from("/x/plans/../my-rig.toml")));
+    assert_eq!(plan.material_path(p), Some(PathBuf::from("/x/plans/mats/wood.toml")));
+    // Not loaded by the caller: a clear error, not a silent default.
+    let e = plan.validate(&ctx()).unwrap_err();
+    assert!(e.has_field("rig.config"), "{e}");
+    // Loaded: fine.
+    let mut c = ctx();
+    c.rig = Some(crate::config::RigConfig::from_toml(BUILTIN_RIGS[0].1, "rig").unwrap());
+    let v = plan.validate(&c).unwrap();
+    assert_eq!(v.material, Some(MaterialRef::File("mats/wood.toml".into())));
+}
+
+#[test]
+fn dome_preset_with_theta_and_every_filters_keeps_the_expected_directions() {
+    let v = validate(
+        "[sampling]\nlight = { preset = \"dome1-151\", theta_min_deg = 45, every = 2 }\nview = \"dome1-151\"\n",
+    )
+    .unwrap();
+    // Dome-1 rings from theta 45 on: 18 + 18 + 24 + 24 + 24 = 108 directions, every 2nd: 54.
+    assert_eq!(v.light.len(), 54);
+    assert_eq!(v.view.len(), 151);
+    // Source indices: the first ring at 45 deg starts after 1+6+12+12+12 = 43 directions.
+    assert_eq!(&v.light_source_indices[..3], &[43, 45, 47]);
+    let full = Sampling::bonn_dome1();
+    for (k, &i) in v.light_source_indices.iter().enumerate() {
+        assert!(v.light.get(k).angle_to(full.get(i)) < 1e-12);
+    }
+}

@@ -1,0 +1,1061 @@
+//! Validation of a [`Plan`]: every problem is collected, then either a [`ValidatedPlan`]
+//! with everything resolved or [`PlanErrors`] listing them all.
+
+use crate::config::RigConfig;
+use crate::direction::{angle_between, Direction};
+use crate::kinematics::{Gonio, Unreachable, UnreachableKind};
+use crate::sampling::{Sampling, BONN81_RINGS, BONN_DOME1_RINGS, DUPLICATE_TOLERANCE_RAD};
+
+use super::{
+    is_path_like, ExposureSpec, OutputsSpec, PairsSpec, Plan, PlanError, PlanErrors, RegionSpec, RunSpec, SamplingSpec,
+    SamplingTable, SkipSpec, BUILTIN_FAULT_SCENARIOS, BUILTIN_MATERIAL_NAMES, BUILTIN_RIGS,
+};
+
+/// Sampling presets a plan may name, with their directions' source.
+const PRESETS: &str = "\"bonn81\", \"dome1-151\"";
+/// How many unreachable pairs an error message lists.
+const UNREACHABLE_EXAMPLES: usize = 5;
+
+/// What validation needs from outside the plan text; the caller gathers it (reading files,
+/// listing directories) so that validation itself does no I/O.
+#[derive(Debug, Clone, Default)]
+pub struct PlanContext {
+    /// The rig config the plan names, if the caller loaded it. Required when the plan names
+    /// a file; for `builtin:...` it may be `None` (the embedded text is parsed) or given.
+    pub rig: Option<RigConfig>,
+    /// Material names the simulator knows (usually [`BUILTIN_MATERIAL_NAMES`]).
+    pub known_materials: Vec<String>,
+    /// Fault scenario names (file stems of `sim/faults/*.toml`).
+    pub known_faults: Vec<String>,
+    /// What the output directory already holds: `None` if it is empty or does not exist.
+    pub existing_dataset: Option<ExistingDataset>,
+}
+
+impl PlanContext {
+    /// No rig loaded, the embedded material and fault scenario names, empty output directory.
+    pub fn with_builtin_names() -> Self {
+        PlanContext {
+            rig: None,
+            known_materials: BUILTIN_MATERIAL_NAMES.iter().map(|s| s.to_string()).collect(),
+            known_faults: BUILTIN_FAULT_SCENARIOS.iter().map(|s| s.to_string()).collect(),
+            existing_dataset: None,
+        }
+    }
+}
+
+/// A dataset found in the output directory.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ExistingDataset {
+    /// The [`Plan::content_hash`] recorded in its manifest.
+    pub plan_hash: u64,
+    /// The directory, for the message.
+    pub path: String,
+}
+
+/// The sample's material on a simulated rig.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum MaterialRef {
+    /// An embedded material, by name.
+    Builtin(String),
+    /// A material file as written in the plan (resolve it with [`Plan::material_path`]).
+    File(String),
+}
+
+/// Texture file format.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OutputFormat {
+    /// OpenEXR, 16-bit half floats, linear.
+    ExrHalf,
+    /// OpenEXR, 32-bit floats, linear.
+    ExrFloat,
+}
+
+impl OutputFormat {
+    /// The name as written in plans.
+    pub fn name(self) -> &'static str {
+        match self {
+            OutputFormat::ExrHalf => "exr-half",
+            OutputFormat::ExrFloat => "exr-float",
+        }
+    }
+}
+
+/// How a frame is resampled onto the texture grid.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ResampleFilter {
+    /// One bilinear lookup per texel centre.
+    Bilinear,
+    /// Several lookups spread over each texel's footprint, averaged.
+    Supersample,
+}
+
+/// A square region of the sample plane, sample-frame metres.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Region {
+    /// Smallest x, metres.
+    pub x_min_m: f64,
+    /// Largest x, metres.
+    pub x_max_m: f64,
+    /// Smallest y, metres.
+    pub y_min_m: f64,
+    /// Largest y, metres.
+    pub y_max_m: f64,
+}
+
+impl Region {
+    /// Side length, metres.
+    pub fn side_m(&self) -> f64 {
+        self.x_max_m - self.x_min_m
+    }
+
+    /// Sample-frame (x, y) of the centre of texel (u, v) of a `size` x `size` texture over
+    /// this region (u along +x, v along -y, as in `docs/conventions.md`).
+    pub fn texel_centre(&self, u: usize, v: usize, size: usize) -> (f64, f64) {
+        let s = size as f64;
+        let x = self.x_min_m + (u as f64 + 0.5) * (self.x_max_m - self.x_min_m) / s;
+        let y = self.y_max_m - (v as f64 + 0.5) * (self.y_max_m - self.y_min_m) / s;
+        (x, y)
+    }
+}
+
+/// Resolved texture settings.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TextureSettings {
+    /// Texels per side.
+    pub size: usize,
+    /// The rectified region of the sample.
+    pub region: Region,
+    /// Resampling filter.
+    pub filter: ResampleFilter,
+}
+
+/// Resolved exposure policy.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ExposurePolicy {
+    /// Per capture, so a white reference lands at this fraction of full scale.
+    Auto {
+        /// Target fraction of full scale.
+        white_fraction: f64,
+    },
+    /// The same exposure and gain for every capture.
+    Fixed {
+        /// Exposure time, seconds.
+        exposure_s: f64,
+        /// Analogue gain.
+        gain: f64,
+    },
+}
+
+/// Resolved outputs.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Outputs {
+    /// Keep raw frames.
+    pub raw_frames: bool,
+    /// Write rectified textures.
+    pub textures: bool,
+    /// Write previews.
+    pub preview: bool,
+    /// Texture file format.
+    pub format: OutputFormat,
+}
+
+/// A requested pair the rig cannot realise, with the reason from [`Gonio::ik`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct UnreachablePair {
+    /// Index into [`ValidatedPlan::light`].
+    pub light: usize,
+    /// Index into [`ValidatedPlan::view`].
+    pub view: usize,
+    /// Why.
+    pub reason: Unreachable,
+}
+
+/// Why a requested pair is not captured.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum SkipReason {
+    /// The rig cannot reach it (`skip.unreachable = true`).
+    Unreachable(UnreachableKind),
+    /// Its reciprocal is captured earlier (`skip.reciprocal = true`).
+    Reciprocal,
+    /// Beyond `skip.max_captures`.
+    MaxCaptures,
+}
+
+impl SkipReason {
+    /// A short stable label for reports, e.g. `unreachable:camera-blocks-lamp`.
+    pub fn label(self) -> String {
+        match self {
+            SkipReason::Unreachable(k) => format!("unreachable:{}", k.label()),
+            SkipReason::Reciprocal => "reciprocal".into(),
+            SkipReason::MaxCaptures => "max-captures".into(),
+        }
+    }
+}
+
+/// A plan with every reference resolved and every value checked.
+#[derive(Debug, Clone)]
+pub struct ValidatedPlan {
+    /// The plan's name (may be empty; the caller may substitute the file name).
+    pub name: String,
+    /// [`Plan::content_hash`] of the plan.
+    pub plan_hash: u64,
+    /// The rig config, with the plan's seed override applied.
+    pub rig: RigConfig,
+    /// The rig config as named in the plan (`builtin:...` or a path).
+    pub rig_source: String,
+    /// The material of a simulated rig, if the plan names one.
+    pub material: Option<MaterialRef>,
+    /// Light directions (after filters), in plan order.
+    pub light: Sampling,
+    /// View directions (after filters), in plan order.
+    pub view: Sampling,
+    /// For each light, its index in the unfiltered source (e.g. the Bonn 81 numbering).
+    pub light_source_indices: Vec<usize>,
+    /// For each view, its index in the unfiltered source.
+    pub view_source_indices: Vec<usize>,
+    /// Every requested (light, view) pair, in plan order (unreachable ones included).
+    pub pairs: Vec<(usize, usize)>,
+    /// The requested pairs the rig cannot realise (only when `skip.unreachable = true`;
+    /// otherwise they are validation errors).
+    pub unreachable: Vec<UnreachablePair>,
+    /// Texture settings.
+    pub texture: TextureSettings,
+    /// Exposure policy.
+    pub exposure: ExposurePolicy,
+    /// Outputs.
+    pub outputs: Outputs,
+    /// Skip settings as written.
+    pub skip: SkipSpec,
+    /// Run settings as written (`fault_scenario` without a `.toml` suffix).
+    pub run: RunSpec,
+    /// The output directory holds a dataset of this same plan: the run resumes it.
+    pub resume: bool,
+}
+
+/// Which requested pairs are captured and which are skipped, from [`ValidatedPlan::capture_list`].
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct CaptureList {
+    /// (light, view) pairs to capture, in plan order.
+    pub captures: Vec<(usize, usize)>,
+    /// Requested pairs left out, in plan order, with the reason.
+    pub skipped: Vec<((usize, usize), SkipReason)>,
+}
+
+impl ValidatedPlan {
+    /// The pairs to capture, in plan order, and the skipped ones with their reasons.
+    /// Unreachable pairs go first, then reciprocals of earlier captures, then everything
+    /// beyond `max_captures`.
+    pub fn capture_list(&self) -> CaptureList {
+        let unreachable: std::collections::HashMap<(usize, usize), UnreachableKind> = self
+            .unreachable
+            .iter()
+            .map(|u| ((u.light, u.view), u.reason.kind()))
+            .collect();
+        let mut captured_dirs: Vec<(Direction, Direction)> = Vec::new();
+        let mut captures = Vec::new();
+        let mut skipped = Vec::new();
+        for &p in &self.pairs {
+            if let Some(k) = unreachable.get(&p) {
+                skipped.push((p, SkipReason::Unreachable(*k)));
+                continue;
+            }
+            let (l, v) = (self.light.get(p.0), self.view.get(p.1));
+            if self.skip.reciprocal {
+                let same = |a: Direction, b: Direction| a.angle_to(b) < 1e-6;
+                if !same(l, v) && captured_dirs.iter().any(|(cl, cv)| same(*cl, v) && same(*cv, l)) {
+                    skipped.push((p, SkipReason::Reciprocal));
+                    continue;
+                }
+            }
+            if self.skip.max_captures.is_some_and(|m| captures.len() >= m) {
+                skipped.push((p, SkipReason::MaxCaptures));
+                continue;
+            }
+            if self.skip.reciprocal {
+                captured_dirs.push((l, v));
+            }
+            captures.push(p);
+        }
+        CaptureList { captures, skipped }
+    }
+}
+
+impl Plan {
+    /// Checks every value of the plan against `ctx` and reports **all** problems at once,
+    /// each naming the field, the bad value and what is allowed.
+    pub fn validate(&self, ctx: &PlanContext) -> Result<ValidatedPlan, PlanErrors> {
+        let mut errors: Vec<PlanError> = Vec::new();
+        let rig = resolve_rig(self, ctx, &mut errors);
+        let material = resolve_material(self, ctx, rig.as_ref(), &mut errors);
+        let light = resolve_sampling(&self.sampling.light, "sampling.light", &mut errors);
+        let view = resolve_sampling(&self.sampling.view, "sampling.view", &mut errors);
+        let pairs = match (&light, &view) {
+            (Some(l), Some(v)) => resolve_pairs(&self.sampling.pairs, l.0.len(), v.0.len(), &mut errors),
+            _ => None,
+        };
+        let texture = resolve_texture(self, rig.as_ref(), &mut errors);
+        let exposure = resolve_exposure(&self.exposure, rig.as_ref(), &mut errors);
+        let outputs = resolve_outputs(&self.outputs, &mut errors);
+        if self.skip.max_captures == Some(0) {
+            errors.push(PlanError::out_of_range(
+                "skip.max_captures",
+                0,
+                ">= 1 (or leave it out for no cap)",
+            ));
+        }
+        let run = resolve_run(&self.run, ctx, rig.as_ref(), &mut errors);
+        let plan_hash = self.content_hash();
+        let mut resume = false;
+        if let Some(existing) = &ctx.existing_dataset {
+            if existing.plan_hash == plan_hash {
+                resume = true;
+            } else {
+                errors.push(PlanError::OtherDataset {
+                    field: "output".into(),
+                    path: existing.path.clone(),
+                    found: existing.plan_hash,
+                    expected: plan_hash,
+                });
+            }
+        }
+
+        let mut unreachable = Vec::new();
+        if let (Some(rig), Some((l, _)), Some((v, _)), Some(pairs)) = (&rig, &light, &view, &pairs) {
+            match Gonio::new(rig.geometry.clone()) {
+                Ok(gonio) => {
+                    for &(i, j) in pairs {
+                        if let Err(reason) = gonio.ik(l.get(i), v.get(j)) {
+                            unreachable.push(UnreachablePair {
+                                light: i,
+                                view: j,
+                                reason,
+                            });
+                        }
+                    }
+                }
+                Err(e) => errors.push(PlanError::invalid(
+                    "rig.config",
+                    &self.rig.config,
+                    e.to_string(),
+                    "a valid rig",
+                )),
+            }
+            if !unreachable.is_empty() && !self.skip.unreachable {
+                errors.push(PlanError::Unreachable {
+                    field: "skip.unreachable".into(),
+                    count: unreachable.len(),
+                    total: pairs.len(),
+                    first: unreachable
+                        .iter()
+                        .take(UNREACHABLE_EXAMPLES)
+                        .map(|u| {
+                            let (lt, lp) = l.get(u.light).to_degrees();
+                            let (vt, vp) = v.get(u.view).to_degrees();
+                            format!(
+                                "(light {} ({lt:.1}, {lp:.1}), view {} ({vt:.1}, {vp:.1})): {}",
+                                u.light, u.view, u.reason
+                            )
+                        })
+                        .collect(),
+                });
+            } else if !pairs.is_empty() && unreachable.len() == pairs.len() {
+                errors.push(PlanError::invalid(
+                    "sampling",
+                    format!("{} pairs", pairs.len()),
+                    format!("the rig can reach none of them (first: {})", unreachable[0].reason),
+                    "at least one pair the rig can reach",
+                ));
+            }
+        }
+
+        if !errors.is_empty() {
+            return Err(PlanErrors {
+                origin: String::new(),
+                errors,
+            });
+        }
+        let (rig, (light, light_source_indices), (view, view_source_indices)) = (
+            rig.expect("no errors"),
+            light.expect("no errors"),
+            view.expect("no errors"),
+        );
+        Ok(ValidatedPlan {
+            name: self.name.clone(),
+            plan_hash,
+            rig,
+            rig_source: self.rig.config.clone(),
+            material,
+            light,
+            view,
+            light_source_indices,
+            view_source_indices,
+            pairs: pairs.expect("no errors"),
+            unreachable,
+            texture: texture.expect("no errors"),
+            exposure: exposure.expect("no errors"),
+            outputs: outputs.expect("no errors"),
+            skip: self.skip.clone(),
+            run,
+            resume,
+        })
+    }
+
+    /// [`Plan::from_toml`] then [`Plan::validate`], with `origin` in every error.
+    pub fn load_and_validate(text: &str, origin: &str, ctx: &PlanContext) -> Result<ValidatedPlan, PlanErrors> {
+        let plan = Plan::from_toml(text, origin)?;
+        plan.validate(ctx).map_err(|mut e| {
+            e.origin = origin.to_string();
+            e
+        })
+    }
+}
+
+fn resolve_rig(plan: &Plan, ctx: &PlanContext, errors: &mut Vec<PlanError>) -> Option<RigConfig> {
+    let name = plan.rig.config.as_str();
+    let mut rig = if let Some(r) = &ctx.rig {
+        Some(r.clone())
+    } else if name.starts_with("builtin:") {
+        match BUILTIN_RIGS.iter().find(|(n, _)| *n == name) {
+            Some((n, text)) => {
+                Some(RigConfig::from_toml(text, &format!("<embedded {n}>")).expect("embedded rig is valid"))
+            }
+            None => {
+                let known: Vec<String> = BUILTIN_RIGS.iter().map(|(n, _)| format!("{n:?}")).collect();
+                errors.push(PlanError::unknown(
+                    "rig.config",
+                    name,
+                    format!("{}, or a rig config file relative to the plan", known.join(", ")),
+                ));
+                None
+            }
+        }
+    } else {
+        errors.push(PlanError::invalid(
+            "rig.config",
+            format!("{name:?}"),
+            "this rig config file was not loaded by the caller",
+            "a readable rig config file relative to the plan, or \"builtin:bonn-gonio-sim\"",
+        ));
+        None
+    };
+    if let (Some(r), Some(seed)) = (rig.as_mut(), plan.rig.seed) {
+        r.rig.seed = seed;
+    }
+    rig
+}
+
+fn is_simulated(rig: &RigConfig) -> bool {
+    rig.devices.camera.kind == "sim"
+}
+
+fn resolve_material(
+    plan: &Plan,
+    ctx: &PlanContext,
+    rig: Option<&RigConfig>,
+    errors: &mut Vec<PlanError>,
+) -> Option<MaterialRef> {
+    let m = plan.rig.material.as_deref()?;
+    if rig.is_some_and(|r| !is_simulated(r)) {
+        errors.push(PlanError::invalid(
+            "rig.material",
+            format!("{m:?}"),
+            "a material only applies to a simulated rig (devices.camera.kind = \"sim\")",
+            "no material for a real rig",
+        ));
+    }
+    if is_path_like(m) {
+        if !m.ends_with(".toml") {
+            errors.push(PlanError::invalid(
+                "rig.material",
+                format!("{m:?}"),
+                "a material file must be TOML",
+                "a path ending in .toml, or a material name",
+            ));
+        }
+        return Some(MaterialRef::File(m.to_string()));
+    }
+    if !ctx.known_materials.iter().any(|k| k == m) {
+        errors.push(PlanError::unknown(
+            "rig.material",
+            m,
+            format!("{}, or a material file ending in .toml", ctx.known_materials.join(", ")),
+        ));
+    }
+    Some(MaterialRef::Builtin(m.to_string()))
+}
+
+/// One candidate direction with the field path it came from (for duplicate messages).
+struct Candidate {
+    dir: Direction,
+    source_index: usize,
+    field: String,
+    written: String,
+}
+
+fn resolve_sampling(spec: &SamplingSpec, prefix: &str, errors: &mut Vec<PlanError>) -> Option<(Sampling, Vec<usize>)> {
+    let table = match spec {
+        SamplingSpec::Preset(p) => SamplingTable {
+            preset: Some(p.clone()),
+            ..Default::default()
+        },
+        SamplingSpec::Table(t) => t.clone(),
+    };
+    let n_before = errors.len();
+    let sources = [table.preset.is_some(), table.list.is_some(), table.rings.is_some()];
+    let n_sources = sources.iter().filter(|s| **s).count();
+    let mut candidates: Vec<Candidate> = Vec::new();
+    let mut base_name = String::new();
+    if n_sources != 1 {
+        errors.push(PlanError::invalid(
+            prefix,
+            format!("{n_sources} sources"),
+            "give exactly one source of directions",
+            format!("one of preset ({PRESETS}), list = [[theta, phi], ...], rings = [{{ theta_deg, count, phi_offset_deg }}, ...]"),
+        ));
+    } else if let Some(p) = &table.preset {
+        let sampling = match p.as_str() {
+            "bonn81" => Some(Sampling::from_rings("bonn81", &BONN81_RINGS)),
+            "dome1-151" | "bonn-dome1-151" => Some(Sampling::from_rings("dome1-151", &BONN_DOME1_RINGS)),
+            _ => None,
+        };
+        let field = if matches!(spec, SamplingSpec::Preset(_)) {
+            prefix.to_string()
+        } else {
+            format!("{prefix}.preset")
+        };
+        match sampling {
+            Some(s) => {
+                let s = s.expect("presets are valid");
+                base_name = s.name().to_string();
+                candidates = s
+                    .directions()
+                    .iter()
+                    .enumerate()
+                    .map(|(i, d)| Candidate {
+                        dir: *d,
+                        source_index: i,
+                        field: field.clone(),
+                        written: String::new(),
+                    })
+                    .collect();
+            }
+            None => errors.push(PlanError::unknown(field, p, PRESETS)),
+        }
+    } else if let Some(list) = &table.list {
+        base_name = "list".into();
+        if list.is_empty() {
+            errors.push(PlanError::invalid(
+                format!("{prefix}.list"),
+                "[]",
+                "no directions",
+                "at least one [theta, phi]",
+            ));
+        }
+        for (i, [t, p]) in list.iter().copied().enumerate() {
+            let field = format!("{prefix}.list[{i}]");
+            let ok_t = check_theta(t, &format!("{field}.theta"), errors);
+            let ok_p = check_phi(p, &format!("{field}.phi"), errors);
+            if ok_t && ok_p {
+                candidates.push(Candidate {
+                    dir: Direction::from_degrees(t, p),
+                    source_index: i,
+                    field,
+                    written: format!("[{t}, {p}]"),
+                });
+            }
+        }
+    } else if let Some(rings) = &table.rings {
+        base_name = "rings".into();
+        if rings.is_empty() {
+            errors.push(PlanError::invalid(
+                format!("{prefix}.rings"),
+                "[]",
+                "no rings",
+                "at least one ring",
+            ));
+        }
+        let mut k = 0;
+        for (r, ring) in rings.iter().enumerate() {
+            let field = format!("{prefix}.rings[{r}]");
+            let ok_t = check_theta(ring.theta_deg, &format!("{field}.theta_deg"), errors);
+            let ok_c = (1..=360).contains(&ring.count);
+            if !ok_c {
+                errors.push(PlanError::out_of_range(
+                    format!("{field}.count"),
+                    ring.count,
+                    "1..=360 (1 for theta_deg = 0)",
+                ));
+            }
+            let ok_p = ring.phi_offset_deg.is_finite() && ring.phi_offset_deg.abs() <= 360.0;
+            if !ok_p {
+                errors.push(PlanError::out_of_range(
+                    format!("{field}.phi_offset_deg"),
+                    ring.phi_offset_deg,
+                    "-360..=360 (degrees)",
+                ));
+            }
+            if ok_t && ok_c && ok_p {
+                for j in 0..ring.count {
+                    let phi = ring.phi_offset_deg + j as f64 * 360.0 / ring.count as f64;
+                    candidates.push(Candidate {
+                        dir: Direction::from_degrees(ring.theta_deg, phi),
+                        source_index: k,
+                        field: field.clone(),
+                        written: format!("direction {j} ({}, {phi})", ring.theta_deg),
+                    });
+                    k += 1;
+                }
+            }
+        }
+    }
+    if errors.len() == n_before {
+        check_duplicates(&candidates, errors);
+    }
+
+    // Filters.
+    let mut name = base_name;
+    let mut theta_range = [0.0f64, 90.0];
+    for (i, (key, v)) in [
+        ("theta_min_deg", table.theta_min_deg),
+        ("theta_max_deg", table.theta_max_deg),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        if let Some(v) = v {
+            if v.is_finite() && (0.0..=90.0).contains(&v) {
+                theta_range[i] = v;
+                name.push_str(&format!("[{key}={v}]"));
+            } else {
+                errors.push(PlanError::out_of_range(
+                    format!("{prefix}.{key}"),
+                    v,
+                    "0..=90 (degrees)",
+                ));
+            }
+        }
+    }
+    if let (Some(lo), Some(hi)) = (table.theta_min_deg, table.theta_max_deg) {
+        if lo > hi {
+            errors.push(PlanError::invalid(
+                format!("{prefix}.theta_max_deg"),
+                hi,
+                format!("smaller than theta_min_deg = {lo}"),
+                "theta_max_deg >= theta_min_deg",
+            ));
+        }
+    }
+    let every = table.every.unwrap_or(1);
+    if !(1..=1000).contains(&every) {
+        errors.push(PlanError::out_of_range(format!("{prefix}.every"), every, "1..=1000"));
+    } else if every > 1 {
+        name.push_str(&format!("[every={every}]"));
+    }
+    if errors.len() != n_before || candidates.is_empty() {
+        return None;
+    }
+    // A small tolerance so that `theta_max_deg = 30` keeps a ring written as 30 degrees.
+    let tol = 1e-9;
+    let kept: Vec<&Candidate> = candidates
+        .iter()
+        .filter(|c| {
+            let t = c.dir.theta.to_degrees();
+            t >= theta_range[0] - tol && t <= theta_range[1] + tol
+        })
+        .collect::<Vec<_>>()
+        .into_iter()
+        .step_by(every)
+        .collect();
+    if kept.is_empty() {
+        errors.push(PlanError::invalid(
+            prefix,
+            format!("{} directions", candidates.len()),
+            format!(
+                "the filters (theta {}..={} deg, every {every}) keep none",
+                theta_range[0], theta_range[1]
+            ),
+            "filters that keep at least one direction",
+        ));
+        return None;
+    }
+    let dirs: Vec<Direction> = kept.iter().map(|c| c.dir).collect();
+    let indices: Vec<usize> = kept.iter().map(|c| c.source_index).collect();
+    match Sampling::from_list(&name, dirs) {
+        Ok(s) => Some((s, indices)),
+        Err(e) => {
+            // Unreachable after the checks above; reported rather than panicking.
+            errors.push(PlanError::invalid(prefix, &name, e.to_string(), "a valid sampling"));
+            None
+        }
+    }
+}
+
+fn check_theta(t: f64, field: &str, errors: &mut Vec<PlanError>) -> bool {
+    let ok = t.is_finite() && (0.0..90.0).contains(&t);
+    if !ok {
+        errors.push(PlanError::out_of_range(
+            field,
+            t,
+            "0 <= theta < 90 (degrees from the sample normal)",
+        ));
+    }
+    ok
+}
+
+fn check_phi(p: f64, field: &str, errors: &mut Vec<PlanError>) -> bool {
+    let ok = p.is_finite() && (-360.0..=360.0).contains(&p);
+    if !ok {
+        errors.push(PlanError::out_of_range(
+            field,
+            p,
+            "-360 <= phi <= 360 (degrees from the sample x axis)",
+        ));
+    }
+    ok
+}
+
+fn check_duplicates(candidates: &[Candidate], errors: &mut Vec<PlanError>) {
+    let units: Vec<_> = candidates.iter().map(|c| c.dir.to_vector()).collect();
+    // Quadratic, but plans have at most a few thousand directions and this runs once.
+    for j in 1..units.len() {
+        if let Some(i) = (0..j).find(|&i| angle_between(&units[i], &units[j]) < DUPLICATE_TOLERANCE_RAD) {
+            let (a, b) = (&candidates[i], &candidates[j]);
+            let first = if a.field == b.field {
+                a.written.clone()
+            } else {
+                format!("{} = {}", a.field, a.written)
+            };
+            errors.push(PlanError::invalid(
+                &b.field,
+                &b.written,
+                format!("the same direction as {first}"),
+                "distinct directions (at theta = 0 every phi is the same direction)",
+            ));
+        }
+    }
+}
+
+fn resolve_pairs(spec: &PairsSpec, nl: usize, nv: usize, errors: &mut Vec<PlanError>) -> Option<Vec<(usize, usize)>> {
+    let allowed_modes = "\"all\", or a list of [light_index, view_index]";
+    match spec {
+        PairsSpec::Mode(m) if m == "all" => Some((0..nl).flat_map(|l| (0..nv).map(move |v| (l, v))).collect()),
+        PairsSpec::Mode(m) => {
+            errors.push(PlanError::unknown("sampling.pairs", m, allowed_modes));
+            None
+        }
+        PairsSpec::List(list) => {
+            let n_before = errors.len();
+            if list.is_empty() {
+                errors.push(PlanError::invalid("sampling.pairs", "[]", "no pairs", allowed_modes));
+            }
+            let mut seen = std::collections::HashMap::new();
+            let mut out = Vec::with_capacity(list.len());
+            for (k, [l, v]) in list.iter().copied().enumerate() {
+                let field = format!("sampling.pairs[{k}]");
+                let ok = l >= 0 && (l as u64) < nl as u64 && v >= 0 && (v as u64) < nv as u64;
+                if !ok {
+                    errors.push(PlanError::out_of_range(
+                        field,
+                        format!("[{l}, {v}]"),
+                        format!(
+                            "light index 0..={}, view index 0..={} (indices into the filtered samplings)",
+                            nl - 1,
+                            nv - 1
+                        ),
+                    ));
+                    continue;
+                }
+                let p = (l as usize, v as usize);
+                if let Some(first) = seen.insert(p, k) {
+                    errors.push(PlanError::invalid(
+                        field,
+                        format!("[{l}, {v}]"),
+                        format!("the same pair as sampling.pairs[{first}]"),
+                        "each pair once",
+                    ));
+                }
+                out.push(p);
+            }
+            (errors.len() == n_before).then_some(out)
+        }
+    }
+}
+
+fn resolve_texture(plan: &Plan, rig: Option<&RigConfig>, errors: &mut Vec<PlanError>) -> Option<TextureSettings> {
+    let t = &plan.texture;
+    let n_before = errors.len();
+    if !(8..=4096).contains(&t.size) {
+        errors.push(PlanError::out_of_range(
+            "texture.size",
+            t.size,
+            "8..=4096 texels per side (typical 256, 512, 800)",
+        ));
+    }
+    let filter = match t.filter.as_str() {
+        "bilinear" => Some(ResampleFilter::Bilinear),
+        "supersample" => Some(ResampleFilter::Supersample),
+        other => {
+            errors.push(PlanError::unknown(
+                "texture.filter",
+                other,
+                "\"bilinear\", \"supersample\"",
+            ));
+            None
+        }
+    };
+    let side = rig.map(|r| r.plate.sample_side_m);
+    let region = match (&t.region, side) {
+        (None, Some(a)) => Some(Region {
+            x_min_m: -a / 2.0,
+            x_max_m: a / 2.0,
+            y_min_m: -a / 2.0,
+            y_max_m: a / 2.0,
+        }),
+        (None, None) => None,
+        (Some(r), side) => resolve_region(r, side, errors),
+    };
+    // Without a rig (already reported) the region cannot be put in metres.
+    match (region, filter) {
+        (Some(region), Some(filter)) if errors.len() == n_before => Some(TextureSettings {
+            size: t.size as usize,
+            region,
+            filter,
+        }),
+        _ => None,
+    }
+}
+
+fn resolve_region(r: &RegionSpec, side: Option<f64>, errors: &mut Vec<PlanError>) -> Option<Region> {
+    let allowed_form =
+        "either x_m = [lo, hi] and y_m = [lo, hi] (metres), or u = [lo, hi] and v = [lo, hi] (fractions)";
+    let metric = (r.x_m, r.y_m);
+    let fraction = (r.u, r.v);
+    let n_before = errors.len();
+    let check = |field: &str, range: [f64; 2], lo: f64, hi: f64, unit: &str, errors: &mut Vec<PlanError>| {
+        let ok = range
+            .iter()
+            .all(|x| x.is_finite() && *x >= lo - 1e-12 && *x <= hi + 1e-12)
+            && range[0] < range[1];
+        if !ok {
+            errors.push(PlanError::out_of_range(
+                field,
+                format!("[{}, {}]", range[0], range[1]),
+                format!("[lo, hi] with {lo} <= lo < hi <= {hi} ({unit})"),
+            ));
+        }
+    };
+    let region = match (metric, fraction) {
+        ((Some(x), Some(y)), (None, None)) => {
+            let h = side.map_or(f64::INFINITY, |a| a / 2.0);
+            let unit = if side.is_some() {
+                "metres, within the sample square"
+            } else {
+                "metres"
+            };
+            check("texture.region.x_m", x, -h, h, unit, errors);
+            check("texture.region.y_m", y, -h, h, unit, errors);
+            Region {
+                x_min_m: x[0],
+                x_max_m: x[1],
+                y_min_m: y[0],
+                y_max_m: y[1],
+            }
+        }
+        ((None, None), (Some(u), Some(v))) => {
+            check("texture.region.u", u, 0.0, 1.0, "fractions of the sample side", errors);
+            check("texture.region.v", v, 0.0, 1.0, "fractions of the sample side", errors);
+            let a = side.unwrap_or(1.0);
+            // u runs along +x from the left edge, v along -y from the top edge.
+            Region {
+                x_min_m: -a / 2.0 + u[0] * a,
+                x_max_m: -a / 2.0 + u[1] * a,
+                y_min_m: a / 2.0 - v[1] * a,
+                y_max_m: a / 2.0 - v[0] * a,
+            }
+        }
+        _ => {
+            let given: Vec<&str> = [
+                ("x_m", r.x_m.is_some()),
+                ("y_m", r.y_m.is_some()),
+                ("u", r.u.is_some()),
+                ("v", r.v.is_some()),
+            ]
+            .iter()
+            .filter(|(_, g)| *g)
+            .map(|(n, _)| *n)
+            .collect();
+            errors.push(PlanError::invalid(
+                "texture.region",
+                format!("{{ {} }}", given.join(", ")),
+                "incomplete or mixed region",
+                allowed_form,
+            ));
+            return None;
+        }
+    };
+    if errors.len() != n_before {
+        return None;
+    }
+    let (w, h) = (region.x_max_m - region.x_min_m, region.y_max_m - region.y_min_m);
+    if (w - h).abs() > 1e-6 * w.max(h) {
+        errors.push(PlanError::invalid(
+            "texture.region",
+            format!("{w} x {h} m"),
+            "the region is not square (textures are square)",
+            "equal extents along x and y",
+        ));
+        return None;
+    }
+    side.map(|_| region)
+}
+
+/// Reads a `[lo, hi]` float pair from a device's options, if present and well formed.
+fn option_range(rig: &RigConfig, key: &str) -> Option<[f64; 2]> {
+    let arr = rig.devices.camera.options.get(key)?.as_array()?;
+    let v: Vec<f64> = arr
+        .iter()
+        .filter_map(|x| x.as_float().or_else(|| x.as_integer().map(|i| i as f64)))
+        .collect();
+    (v.len() == 2).then(|| [v[0], v[1]])
+}
+
+fn resolve_exposure(e: &ExposureSpec, rig: Option<&RigConfig>, errors: &mut Vec<PlanError>) -> Option<ExposurePolicy> {
+    match *e {
+        ExposureSpec::Auto { white_fraction } => {
+            if white_fraction.is_finite() && (0.05..=0.95).contains(&white_fraction) {
+                Some(ExposurePolicy::Auto { white_fraction })
+            } else {
+                errors.push(PlanError::out_of_range(
+                    "exposure.white_fraction",
+                    white_fraction,
+                    "0.05..=0.95 (fraction of full scale)",
+                ));
+                None
+            }
+        }
+        ExposureSpec::Fixed { exposure_s, gain } => {
+            let t_range = rig
+                .and_then(|r| option_range(r, "exposure_range_s"))
+                .unwrap_or([1e-6, 3600.0]);
+            let max_gain = rig.map_or(64.0, |r| r.sensor.max_analogue_gain);
+            let g_range = rig
+                .and_then(|r| option_range(r, "gain_range"))
+                .map_or([1.0, max_gain], |[lo, hi]| [lo.max(1.0), hi.min(max_gain)]);
+            let mut ok = true;
+            if !(exposure_s.is_finite() && exposure_s >= t_range[0] && exposure_s <= t_range[1]) {
+                errors.push(PlanError::out_of_range(
+                    "exposure.exposure_s",
+                    exposure_s,
+                    format!(
+                        "{} ..= {} seconds (the camera's exposure range)",
+                        t_range[0], t_range[1]
+                    ),
+                ));
+                ok = false;
+            }
+            if !(gain.is_finite() && gain >= g_range[0] && gain <= g_range[1]) {
+                errors.push(PlanError::out_of_range(
+                    "exposure.gain",
+                    gain,
+                    format!("{} ..= {} (the camera's analogue gain range)", g_range[0], g_range[1]),
+                ));
+                ok = false;
+            }
+            ok.then_some(ExposurePolicy::Fixed { exposure_s, gain })
+        }
+        ExposureSpec::Bracket { .. } => {
+            errors.push(PlanError::unsupported(
+                "exposure.mode",
+                "\"bracket\"",
+                "\"auto\" or \"fixed\" (HDR bracketing comes later)",
+            ));
+            None
+        }
+    }
+}
+
+fn resolve_outputs(o: &OutputsSpec, errors: &mut Vec<PlanError>) -> Option<Outputs> {
+    let n_before = errors.len();
+    let format = match o.format.as_str() {
+        "exr-half" => Some(OutputFormat::ExrHalf),
+        "exr-float" => Some(OutputFormat::ExrFloat),
+        other => {
+            errors.push(PlanError::unknown(
+                "outputs.format",
+                other,
+                "\"exr-half\", \"exr-float\"",
+            ));
+            None
+        }
+    };
+    if o.compressed_model {
+        errors.push(PlanError::unsupported(
+            "outputs.compressed_model",
+            true,
+            "false (compression comes in a later version)",
+        ));
+    }
+    if !o.textures && !o.raw_frames {
+        errors.push(PlanError::invalid(
+            "outputs.textures",
+            false,
+            "with raw_frames = false as well, the run would write nothing",
+            "textures = true or raw_frames = true",
+        ));
+    }
+    (errors.len() == n_before).then(|| Outputs {
+        raw_frames: o.raw_frames,
+        textures: o.textures,
+        preview: o.preview,
+        format: format.expect("no errors"),
+    })
+}
+
+fn resolve_run(r: &RunSpec, ctx: &PlanContext, rig: Option<&RigConfig>, errors: &mut Vec<PlanError>) -> RunSpec {
+    let mut out = r.clone();
+    if let Some(f) = &r.fault_scenario {
+        let stem = f.strip_suffix(".toml").unwrap_or(f);
+        if !ctx.known_faults.iter().any(|k| k == stem) {
+            errors.push(PlanError::unknown(
+                "run.fault_scenario",
+                f,
+                format!(
+                    "{} (files in sim/faults/), or leave it out",
+                    ctx.known_faults.join(", ")
+                ),
+            ));
+        }
+        if rig.is_some_and(|r| !is_simulated(r)) && stem != "none" {
+            errors.push(PlanError::invalid(
+                "run.fault_scenario",
+                format!("{f:?}"),
+                "fault injection only applies to a simulated rig",
+                "no fault scenario for a real rig",
+            ));
+        }
+        out.fault_scenario = Some(stem.to_string());
+    }
+    if r.max_retries > 100 {
+        errors.push(PlanError::out_of_range("run.max_retries", r.max_retries, "0..=100"));
+    }
+    if !(r.backoff_s.is_finite() && (0.0..=600.0).contains(&r.backoff_s)) {
+        errors.push(PlanError::out_of_range(
+            "run.backoff_s",
+            r.backoff_s,
+            "0 ..= 600 seconds",
+        ));
+    }
+    for (key, v) in [
+        ("move_timeout_s", r.move_timeout_s),
+        ("capture_timeout_s", r.capture_timeout_s),
+    ] {
+        if !(v.is_finite() && v > 0.0 && v <= 3600.0) {
+            errors.push(PlanError::out_of_range(
+                format!("run.{key}"),
+                v,
+                "> 0 and <= 3600 seconds",
+            ));
+        }
+    }
+    out
+}
