@@ -190,6 +190,11 @@ impl MemStorage {
         self.lock().fail_after = Some(ops);
     }
 
+    /// Cancels a pending [`MemStorage::fail_after`] (the power stays on).
+    pub fn disarm(&self) {
+        self.lock().fail_after = None;
+    }
+
     /// Cuts the power: every name and every byte not made durable by `fsync` is lost. With
     /// `torn_keep = Some(k)`, the last append that was not fsync'd keeps its first `k` bytes
     /// (at most all of them), as a disk may persist part of a write. Returns what was kept of
