@@ -450,8 +450,7 @@ mod tests {
         let dir = TempDir::new("encode");
         let (w, h) = (5, 3);
         // Values exactly representable in half, and one that is not (1/3).
-        let data: Vec<[f32; 3]> =
-            (0..w * h).map(|i| [i as f32 * 0.25, 1.0 / 3.0, 1024.0 + i as f32 * 2.0]).collect();
+        let data: Vec<[f32; 3]> = (0..w * h).map(|i| [i as f32 * 0.25, 1.0 / 3.0, 1024.0 + i as f32 * 2.0]).collect();
         let path = dir.file("rgb.exr");
         write_rgb_exr(&path, w, h, &data).unwrap();
         let bytes = encode_rgb_exr(&path, w, h, &data, ExrPrecision::Float).unwrap();

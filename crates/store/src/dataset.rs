@@ -137,8 +137,11 @@ impl Dataset<FsStorage> {
     /// plan: [`StoreError::AlreadyExists`], resume it) or anything else
     /// ([`StoreError::NotEmpty`]). Never overwrites.
     pub fn create(dir: &Path, manifest: Manifest) -> Result<Self, StoreError> {
-        std::fs::create_dir_all(dir)
-            .map_err(|source| StoreError::Io { op: "create directory", path: dir.display().to_string(), source })?;
+        std::fs::create_dir_all(dir).map_err(|source| StoreError::Io {
+            op: "create directory",
+            path: dir.display().to_string(),
+            source,
+        })?;
         Self::create_in(FsStorage::new(dir), manifest)
     }
 
@@ -241,8 +244,11 @@ impl<S: Storage> Dataset<S> {
         }
         report.completed = state.done.keys().copied().collect();
         report.skipped = state.skipped.clone();
-        report.remaining =
-            expected.iter().filter(|s| !report.completed.contains(s) && !report.skipped.contains_key(s)).copied().collect();
+        report.remaining = expected
+            .iter()
+            .filter(|s| !report.completed.contains(s) && !report.skipped.contains_key(s))
+            .copied()
+            .collect();
         Ok((Dataset { storage, manifest, expected, journal: Mutex::new(journal) }, report))
     }
 
@@ -299,7 +305,13 @@ impl<S: Storage> Dataset<S> {
     /// Writes the rectified texture of `step` (`width x height` row-major linear RGB) as
     /// OpenEXR in the manifest's format to `textures/<stem>.exr`, durably, and returns its
     /// record for [`Dataset::commit_step`]. Retrying a step simply writes again.
-    pub fn write_texture(&self, step: StepId, texels: &[[f32; 3]], width: usize, height: usize) -> Result<FileRecord, StoreError> {
+    pub fn write_texture(
+        &self,
+        step: StepId,
+        texels: &[[f32; 3]],
+        width: usize,
+        height: usize,
+    ) -> Result<FileRecord, StoreError> {
         self.check_open(step, &self.journal())?;
         let path = format!("{TEXTURES_DIR}/{}.exr", step.stem());
         let spec = &self.manifest.texture;
@@ -335,13 +347,24 @@ impl<S: Storage> Dataset<S> {
     /// Journals `step` as done with the files it wrote (checked present with their sizes),
     /// the attempts it took and its timing. The record is fsync'd before this returns: from
     /// then on the step counts, and a resumed run will not repeat it.
-    pub fn commit_step(&self, step: StepId, files: Vec<FileRecord>, attempts: u32, timing: StepTiming) -> Result<(), StoreError> {
+    pub fn commit_step(
+        &self,
+        step: StepId,
+        files: Vec<FileRecord>,
+        attempts: u32,
+        timing: StepTiming,
+    ) -> Result<(), StoreError> {
         let mut journal = self.journal();
         self.check_open(step, &journal)?;
         for f in &files {
             let found = self.storage.size(&f.path).map_err(io_err(&self.storage, "stat", &f.path))?;
             if found != Some(f.size) {
-                return Err(StoreError::FileNotAsRecorded { path: self.storage.display(&f.path), step, expected: f.size, found });
+                return Err(StoreError::FileNotAsRecorded {
+                    path: self.storage.display(&f.path),
+                    step,
+                    expected: f.size,
+                    found,
+                });
             }
         }
         journal.append(&self.storage, Record::Step(StepRecord { step, files, attempts, timing }))
@@ -364,7 +387,12 @@ impl<S: Storage> Dataset<S> {
             let j = self.journal();
             let st = j.state();
             TimingSummary {
-                first_step_unix_s: st.done.values().map(|r| r.timing.started_unix_s).fold(f64::INFINITY, f64::min).min(now()),
+                first_step_unix_s: st
+                    .done
+                    .values()
+                    .map(|r| r.timing.started_unix_s)
+                    .fold(f64::INFINITY, f64::min)
+                    .min(now()),
                 finished_unix_s: now(),
                 wall_s: report.wall_s,
                 hardware_s: report.hardware_s,
@@ -586,7 +614,9 @@ pub enum Problem {
 impl std::fmt::Display for Problem {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            Problem::NotADataset { found } => write!(f, "not a btfrig dataset: no {MANIFEST_FILE} (found: {})", found.join(", ")),
+            Problem::NotADataset { found } => {
+                write!(f, "not a btfrig dataset: no {MANIFEST_FILE} (found: {})", found.join(", "))
+            }
             Problem::Manifest { reason } => write!(f, "{MANIFEST_FILE}: {reason}"),
             Problem::Journal { reason } => write!(f, "{JOURNAL_FILE}: {reason}"),
             Problem::TornJournalTail(t) => write!(f, "{JOURNAL_FILE}: {t}; resuming the run cuts it"),
@@ -599,7 +629,9 @@ impl std::fmt::Display for Problem {
                 write!(f, "{path}: content hash {found}, journaled {expected} for step {step}")
             }
             Problem::Orphan { path } => write!(f, "{path}: not named by any journal record"),
-            Problem::Incomplete { missing } => write!(f, "incomplete: {missing} expected step(s) neither done nor skipped"),
+            Problem::Incomplete { missing } => {
+                write!(f, "incomplete: {missing} expected step(s) neither done nor skipped")
+            }
             Problem::Report { reason } => write!(f, "{REPORT_FILE}: {reason}"),
         }
     }
@@ -697,7 +729,9 @@ pub fn verify_in<S: Storage + ?Sized>(s: &S) -> VerifyReport {
     };
     if let Some(found) = &replay.plan_hash {
         if *found != manifest.plan.hash {
-            r.problems.push(Problem::Journal { reason: format!("belongs to plan {found}, the manifest to {}", manifest.plan.hash) });
+            r.problems.push(Problem::Journal {
+                reason: format!("belongs to plan {found}, the manifest to {}", manifest.plan.hash),
+            });
         }
     }
     if let Some(t) = &replay.torn_tail {
@@ -730,7 +764,12 @@ pub fn verify_in<S: Storage + ?Sized>(s: &S) -> VerifyReport {
             }
             let found = content_hash(&bytes);
             if found != file.hash {
-                r.problems.push(Problem::WrongHash { step: *step, path: file.path.clone(), expected: file.hash.clone(), found });
+                r.problems.push(Problem::WrongHash {
+                    step: *step,
+                    path: file.path.clone(),
+                    expected: file.hash.clone(),
+                    found,
+                });
             }
         }
     }
@@ -744,7 +783,8 @@ pub fn verify_in<S: Storage + ?Sized>(s: &S) -> VerifyReport {
         r.skipped.insert(sk.step, sk.reason.clone());
     }
     r.done = replay.done.len();
-    r.missing = expected.iter().filter(|s| !replay.done.contains_key(s) && !replay.skipped.contains_key(s)).copied().collect();
+    r.missing =
+        expected.iter().filter(|s| !replay.done.contains_key(s) && !replay.skipped.contains_key(s)).copied().collect();
     if !r.missing.is_empty() {
         r.problems.push(Problem::Incomplete { missing: r.missing.len() });
     }

@@ -168,9 +168,8 @@ pub fn replay(path: &str, bytes: &[u8]) -> Result<Replay, StoreError> {
                     Bad::Invalid(m) => m,
                 };
                 // Damage, not a torn append, if any valid record starts at a later line.
-                let later = (off + 1..bytes.len())
-                    .filter(|&p| bytes[p - 1] == b'\n')
-                    .any(|p| parse_at(bytes, p).is_ok());
+                let later =
+                    (off + 1..bytes.len()).filter(|&p| bytes[p - 1] == b'\n').any(|p| parse_at(bytes, p).is_ok());
                 if later {
                     return Err(StoreError::JournalCorrupt { path: path.into(), offset: off as u64, reason });
                 }
@@ -243,7 +242,8 @@ impl Journal {
         path: &str,
         plan_hash: &str,
     ) -> Result<(Journal, Option<TornTail>), StoreError> {
-        let bytes = storage.read(path).map_err(|source| StoreError::Io { op: "read", path: storage.display(path), source })?;
+        let bytes =
+            storage.read(path).map_err(|source| StoreError::Io { op: "read", path: storage.display(path), source })?;
         let mut state = replay(&storage.display(path), &bytes)?;
         if state.valid_len == 0 {
             // Not even the header survived: nothing was journaled, start afresh.

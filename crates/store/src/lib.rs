@@ -47,8 +47,8 @@ pub use error::StoreError;
 pub use hash::{content_hash, sha256, HASH_PREFIX};
 pub use journal::TornTail;
 pub use manifest::{
-    plan_hash, rfc3339_utc, DirectionDeg, Manifest, PlanInfo, RigInfo, Samplings, SkippedStep, Software,
-    TextureFormat, TextureRegion, TextureSpec, TimingSummary, MANIFEST_SCHEMA_VERSION,
+    plan_hash, rfc3339_utc, DirectionDeg, Manifest, PlanInfo, RigInfo, Samplings, SkippedStep, Software, TextureFormat,
+    TextureRegion, TextureSpec, TimingSummary, MANIFEST_SCHEMA_VERSION,
 };
 pub use storage::{Entry, FsStorage, MemStorage, Storage, TornAppend};
 

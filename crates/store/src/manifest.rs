@@ -128,9 +128,10 @@ impl Samplings {
         let skipped: BTreeSet<StepId> = self.skipped.iter().map(|s| s.step).collect();
         let all: Box<dyn Iterator<Item = StepId>> = match &self.pairs {
             Some(p) => Box::new(p.iter().copied()),
-            None => Box::new((0..self.light.len() as u32).flat_map(|light| {
-                (0..self.view.len() as u32).map(move |view| StepId { light, view })
-            })),
+            None => Box::new(
+                (0..self.light.len() as u32)
+                    .flat_map(|light| (0..self.view.len() as u32).map(move |view| StepId { light, view })),
+            ),
         };
         all.filter(|s| !skipped.contains(s)).collect()
     }
@@ -198,11 +199,16 @@ pub fn plan_hash(plan_text: &str) -> String {
 impl Manifest {
     /// A manifest for a new run, created now, by this software version, without calibration
     /// or timing.
-    pub fn new(rig: RigInfo, plan_text: &str, samplings: Samplings, texture: TextureSpec, raw_frames: bool, seed: u64) -> Self {
-        let now = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map(|d| d.as_secs_f64())
-            .unwrap_or(0.0);
+    pub fn new(
+        rig: RigInfo,
+        plan_text: &str,
+        samplings: Samplings,
+        texture: TextureSpec,
+        raw_frames: bool,
+        seed: u64,
+    ) -> Self {
+        let now =
+            std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs_f64()).unwrap_or(0.0);
         Manifest {
             schema_version: MANIFEST_SCHEMA_VERSION,
             software: Software { name: "btfrig".into(), version: env!("CARGO_PKG_VERSION").into() },
@@ -226,7 +232,11 @@ impl Manifest {
             p.push(format!("schema_version {} (this build reads {MANIFEST_SCHEMA_VERSION})", self.schema_version));
         }
         if plan_hash(&self.plan.text) != self.plan.hash {
-            p.push(format!("plan.hash {} is not the hash of plan.text ({})", self.plan.hash, plan_hash(&self.plan.text)));
+            p.push(format!(
+                "plan.hash {} is not the hash of plan.text ({})",
+                self.plan.hash,
+                plan_hash(&self.plan.text)
+            ));
         }
         let (nl, nv) = (self.samplings.light.len() as u32, self.samplings.view.len() as u32);
         if nl == 0 || nv == 0 {
@@ -235,7 +245,10 @@ impl Manifest {
         for (name, list) in [("light", &self.samplings.light), ("view", &self.samplings.view)] {
             for (i, d) in list.iter().enumerate() {
                 if !(0.0..=90.0).contains(&d.theta_deg) || !d.phi_deg.is_finite() {
-                    p.push(format!("samplings.{name}[{i}]: theta {} deg, phi {} deg (theta in 0..=90)", d.theta_deg, d.phi_deg));
+                    p.push(format!(
+                        "samplings.{name}[{i}]: theta {} deg, phi {} deg (theta in 0..=90)",
+                        d.theta_deg, d.phi_deg
+                    ));
                 }
             }
         }

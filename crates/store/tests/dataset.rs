@@ -115,7 +115,8 @@ fn verify_passes_on_a_complete_dataset_and_info_reports_it() {
     assert_eq!(v.skipped.len(), 1);
     let i = info(tmp.path()).unwrap();
     assert_eq!((i.done, i.expected, i.files), (5, 5, 13));
-    assert_eq!(i.retries, 0 + 1 + 2 + 0 + 1);
+    // attempts are 1 + view: steps (0,0) (0,1) (0,2) (1,0) (1,1) -> retries 0+1+2+0+1.
+    assert_eq!(i.retries, 4);
     assert!(i.finished);
     let text = i.to_string();
     for want in ["test-rig", &plan_hash(PLAN), "2 light x 3 view", "5/5 done", "4x3 OpenEXR float", "finished"] {

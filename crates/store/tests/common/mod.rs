@@ -32,7 +32,8 @@ pub const H: usize = 3;
 /// 2 lights x 3 views, step (1, 2) skipped by the plan: 5 expected steps.
 pub fn manifest(plan: &str, format: TextureFormat, raw: bool) -> Manifest {
     let light = [Direction::from_degrees(0.0, 0.0), Direction::from_degrees(45.0, 90.0)];
-    let view = [Direction::from_degrees(0.0, 0.0), Direction::from_degrees(30.0, 0.0), Direction::from_degrees(60.0, 180.0)];
+    let view =
+        [Direction::from_degrees(0.0, 0.0), Direction::from_degrees(30.0, 0.0), Direction::from_degrees(60.0, 180.0)];
     let mut samplings = Samplings::full(&light, &view);
     samplings.skipped.push(SkippedStep { step: StepId { light: 1, view: 2 }, reason: "unreachable: test".into() });
     Manifest::new(
@@ -59,7 +60,7 @@ pub fn raw_frame(step: StepId) -> RawFrame {
     RawFrame {
         width: 6,
         height: 4,
-        data: (0..24).map(|i| (i * 1000 + step.view as u16 * 7) as u16).collect(),
+        data: (0..24u16).map(|i| i * 1000 + step.view as u16 * 7).collect(),
         meta: FrameMeta {
             sequence: u64::from(step.light) * 100 + u64::from(step.view),
             exposure_s: 0.01,
