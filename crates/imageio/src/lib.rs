@@ -136,6 +136,18 @@ pub fn read_raw_png(path: &Path, meta: FrameMeta) -> Result<RawFrame, ImageIoErr
 /// Writes the frame as single-channel OpenEXR (channel [`RAW_CHANNEL`], 32-bit float DN,
 /// lossless RLE compression) with its metadata as JSON in the attribute [`META_ATTRIBUTE`].
 pub fn write_raw_exr(path: &Path, frame: &RawFrame) -> Result<(), ImageIoError> {
+    raw_exr_image(path, frame)?.write().to_file(path).map_err(|e| exr_err(path, e))
+}
+
+/// Encodes the frame exactly as [`write_raw_exr`] would write it, into memory (for stores
+/// that write through their own storage layer). `name` only labels errors.
+pub fn encode_raw_exr(name: &Path, frame: &RawFrame) -> Result<Vec<u8>, ImageIoError> {
+    let mut out = std::io::Cursor::new(Vec::new());
+    raw_exr_image(name, frame)?.write().to_buffered(&mut out).map_err(|e| exr_err(name, e))?;
+    Ok(out.into_inner())
+}
+
+fn raw_exr_image(path: &Path, frame: &RawFrame) -> Result<Image<Layer<AnyChannels<FlatSamples>>>, ImageIoError> {
     check_len(path, frame.width, frame.height, frame.data.len())?;
     let samples: Vec<f32> = frame.data.iter().map(|&v| f32::from(v)).collect();
     let channel = AnyChannel::new(RAW_CHANNEL, FlatSamples::F32(samples));
@@ -149,7 +161,7 @@ pub fn write_raw_exr(path: &Path, frame: &RawFrame) -> Result<(), ImageIoError> 
         Encoding::FAST_LOSSLESS,
         AnyChannels::sort(SmallVec::from_vec(vec![channel])),
     );
-    Image::from_layer(layer).write().to_file(path).map_err(|e| exr_err(path, e))
+    Ok(Image::from_layer(layer))
 }
 
 type FlatLayer = Layer<AnyChannels<FlatSamples>>;
@@ -205,11 +217,50 @@ pub fn read_raw_exr(path: &Path) -> Result<RawFrame, ImageIoError> {
     Ok(RawFrame { width: w, height: h, data, meta })
 }
 
+/// Sample type of the channels of an RGB OpenEXR file.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ExrPrecision {
+    /// 16-bit half floats: half the size, relative precision 2^-11, largest value 65504.
+    Half,
+    /// 32-bit floats.
+    Float,
+}
+
 /// Writes a linear RGB float image as OpenEXR: float channels `R`, `G`, `B`, sRGB / Rec. 709
 /// primaries and D65 white in the chromaticities attribute, lossless compression.
 pub fn write_rgb_exr(path: &Path, width: usize, height: usize, data: &[[f32; 3]]) -> Result<(), ImageIoError> {
+    rgb_exr_image(path, width, height, data, ExrPrecision::Float)?.write().to_file(path).map_err(|e| exr_err(path, e))
+}
+
+/// Encodes a linear RGB image like [`write_rgb_exr`] into memory, with `precision` channels
+/// (half values are rounded to nearest). `name` only labels errors.
+pub fn encode_rgb_exr(
+    name: &Path,
+    width: usize,
+    height: usize,
+    data: &[[f32; 3]],
+    precision: ExrPrecision,
+) -> Result<Vec<u8>, ImageIoError> {
+    let mut out = std::io::Cursor::new(Vec::new());
+    rgb_exr_image(name, width, height, data, precision)?.write().to_buffered(&mut out).map_err(|e| exr_err(name, e))?;
+    Ok(out.into_inner())
+}
+
+fn rgb_exr_image(
+    path: &Path,
+    width: usize,
+    height: usize,
+    data: &[[f32; 3]],
+    precision: ExrPrecision,
+) -> Result<Image<Layer<AnyChannels<FlatSamples>>>, ImageIoError> {
     check_len(path, width, height, data.len())?;
-    let chan = |name: &str, i: usize| AnyChannel::new(name, FlatSamples::F32(data.iter().map(|p| p[i]).collect()));
+    let chan = |name: &str, i: usize| {
+        let samples = match precision {
+            ExrPrecision::Float => FlatSamples::F32(data.iter().map(|p| p[i]).collect()),
+            ExrPrecision::Half => FlatSamples::F16(data.iter().map(|p| exr::prelude::f16::from_f32(p[i])).collect()),
+        };
+        AnyChannel::new(name, samples)
+    };
     let layer = Layer::new(
         (width, height),
         LayerAttributes::named("rgb"),
@@ -223,7 +274,7 @@ pub fn write_rgb_exr(path: &Path, width: usize, height: usize, data: &[[f32; 3]]
         blue: exr::math::Vec2(0.15, 0.06),
         white: exr::math::Vec2(0.3127, 0.3290),
     });
-    image.write().to_file(path).map_err(|e| exr_err(path, e))
+    Ok(image)
 }
 
 /// Reads the `R`, `G`, `B` channels of an OpenEXR file as linear floats:
@@ -392,5 +443,35 @@ mod tests {
         let junk = dir.file("junk.exr");
         std::fs::write(&junk, b"not an exr").unwrap();
         assert!(read_raw_exr(&junk).unwrap_err().to_string().contains("junk.exr"));
+    }
+
+    #[test]
+    fn encoders_produce_the_files_the_writers_write_and_half_rounds_to_nearest() {
+        let dir = TempDir::new("encode");
+        let (w, h) = (5, 3);
+        // Values exactly representable in half, and one that is not (1/3).
+        let data: Vec<[f32; 3]> = (0..w * h).map(|i| [i as f32 * 0.25, 1.0 / 3.0, 1024.0 + i as f32 * 2.0]).collect();
+        let path = dir.file("rgb.exr");
+        write_rgb_exr(&path, w, h, &data).unwrap();
+        let bytes = encode_rgb_exr(&path, w, h, &data, ExrPrecision::Float).unwrap();
+        assert_eq!(std::fs::read(&path).unwrap(), bytes);
+        let frame = frame(7, 4);
+        let raw_path = dir.file("raw.exr");
+        write_raw_exr(&raw_path, &frame).unwrap();
+        assert_eq!(std::fs::read(&raw_path).unwrap(), encode_raw_exr(&raw_path, &frame).unwrap());
+
+        let half = encode_rgb_exr(&path, w, h, &data, ExrPrecision::Half).unwrap();
+        let half_path = dir.file("half.exr");
+        std::fs::write(&half_path, &half).unwrap();
+        let (hw, hh, back) = read_rgb_exr(&half_path).unwrap();
+        assert_eq!((hw, hh), (w, h));
+        for (a, b) in data.iter().zip(&back) {
+            assert_eq!(a[0], b[0]);
+            assert_eq!(a[2], b[2]);
+            // 1/3 in half: nearest of the 2^-12-spaced values in [0.25, 0.5).
+            assert!((b[1] - 1.0 / 3.0).abs() <= 2f32.powi(-13), "{}", b[1]);
+            assert_ne!(b[1], 1.0 / 3.0);
+        }
+        assert!(half.len() < bytes.len());
     }
 }

@@ -1,0 +1,127 @@
+//! The dataset store of btfrig: where a measurement run puts its results, crash-safely.
+//!
+//! Brief overview: a [`Dataset`] is a directory (layout and schemas in
+//! `docs/dataset-format.md`) with a [`Manifest`] (what is measured: rig, plan, samplings,
+//! texture format), the rectified textures (OpenEXR) and optional raw frames, an append-only
+//! [`journal`] and, when the run ends, a [`RunReport`]. The run engine writes a step's files
+//! ([`Dataset::write_texture`], [`Dataset::write_raw`]: temporary name, fsync, rename,
+//! directory fsync), then journals the step ([`Dataset::commit_step`]: append, fsync). Only
+//! a journaled step counts: [`Dataset::open_for_resume`] replays the journal, cuts a torn
+//! tail, deletes files no record names, and returns the completed steps so a restarted run
+//! repeats none and loses none. [`info`] and [`verify`] serve `btfrig dataset info|verify`.
+//! All I/O goes through the [`Storage`] trait: [`FsStorage`] for real, [`MemStorage`] in
+//! tests that cut the power at any operation.
+//!
+//! ```no_run
+//! # fn demo(manifest: btfrig_store::Manifest, texels: &[[f32; 3]]) -> Result<(), btfrig_store::StoreError> {
+//! use btfrig_store::{Dataset, StepId, StepTiming};
+//! let dir = std::path::Path::new("out/run1");
+//! let plan = manifest.plan.hash.clone();
+//! let ds = Dataset::create(dir, manifest)?;
+//! let step = StepId { light: 0, view: 3 };
+//! let file = ds.write_texture(step, texels, 256, 256)?;
+//! ds.commit_step(step, vec![file], 1, StepTiming::default())?;
+//! drop(ds);
+//! let (ds, resume) = Dataset::open_for_resume(dir, &plan)?;
+//! assert!(resume.completed.contains(&step));
+//! # Ok(()) }
+//! ```
+#![warn(missing_docs)]
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+
+mod dataset;
+mod error;
+mod hash;
+pub mod journal;
+mod manifest;
+mod storage;
+
+pub use dataset::{
+    info, info_in, verify, verify_in, Dataset, DatasetInfo, Problem, ResumeReport, VerifyReport, JOURNAL_FILE,
+    MANIFEST_FILE, RAW_DIR, REPORT_FILE, TEXTURES_DIR,
+};
+pub use error::StoreError;
+pub use hash::{content_hash, sha256, HASH_PREFIX};
+pub use journal::TornTail;
+pub use manifest::{
+    plan_hash, rfc3339_utc, DirectionDeg, Manifest, PlanInfo, RigInfo, Samplings, SkippedStep, Software, TextureFormat,
+    TextureRegion, TextureSpec, TimingSummary, MANIFEST_SCHEMA_VERSION,
+};
+pub use storage::{Entry, FsStorage, MemStorage, Storage, TornAppend};
+
+/// The stable key of a step: indices into the manifest's light and view samplings.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StepId {
+    /// Index into `samplings.light`.
+    pub light: u32,
+    /// Index into `samplings.view`.
+    pub view: u32,
+}
+
+impl StepId {
+    /// The file stem of this step's files: `l003_v017`.
+    pub fn stem(self) -> String {
+        format!("l{:03}_v{:03}", self.light, self.view)
+    }
+}
+
+impl std::fmt::Display for StepId {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "(light {}, view {})", self.light, self.view)
+    }
+}
+
+/// A file a step wrote: path relative to the dataset, size and content hash.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FileRecord {
+    /// Path relative to the dataset directory (`textures/l003_v017.exr`).
+    pub path: String,
+    /// Size, bytes.
+    pub size: u64,
+    /// Content hash ([`content_hash`]: `sha256:<hex>`).
+    pub hash: String,
+}
+
+/// Timing of one step, as journaled.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct StepTiming {
+    /// When the step started, Unix seconds (wall clock).
+    pub started_unix_s: f64,
+    /// Wall time from start to commit, seconds.
+    pub wall_s: f64,
+    /// Hardware time of the step (simulated rigs: virtual time), seconds, if known.
+    pub hardware_s: Option<f64>,
+    /// Seconds per pipeline stage for this step.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub stage_s: BTreeMap<String, f64>,
+}
+
+/// The run report (`report.json`), written by [`Dataset::finish`]. Unknown fields are kept
+/// in `extra` so later versions can add figures.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct RunReport {
+    /// Captures made (steps done).
+    pub captures: u64,
+    /// Wall time of the run, seconds (summed over resumed sessions by the caller).
+    pub wall_s: f64,
+    /// Hardware time (simulated rigs: virtual time), seconds.
+    pub hardware_s: Option<f64>,
+    /// Seconds per pipeline stage.
+    pub stage_s: BTreeMap<String, f64>,
+    /// Steps skipped, by reason.
+    pub skipped: BTreeMap<String, u64>,
+    /// Retries (attempts beyond the first).
+    pub retries: u64,
+    /// Warnings raised during the run.
+    pub warnings: Vec<String>,
+    /// Further figures (e.g. `texture_rel_rmse`).
+    #[serde(flatten)]
+    pub extra: BTreeMap<String, serde_json::Value>,
+}
