@@ -177,3 +177,28 @@ fn demo_captures_through_the_devices_and_refuses_to_overwrite() {
     assert!(e.contains("not empty"), "{e}");
     assert_eq!(before, std::fs::read(out.join("summary.json")).unwrap(), "nothing overwritten");
 }
+
+#[test]
+fn plan_check_and_show_on_the_shipped_plans_and_a_broken_one() {
+    let plans = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../rig-configs/plans");
+    let stdout = ok(btfrig().args(["plan", "check"]).arg(plans.join("bonn-full.toml")));
+    assert!(stdout.contains("6480 captures, 81 skipped"), "{stdout}");
+    let stdout = ok(btfrig().args(["plan", "show"]).arg(plans.join("bonn-full.toml")));
+    for needle in ["captures         6480", "naive order", "lower bound", "disk"] {
+        assert!(stdout.contains(needle), "{needle:?} missing:\n{stdout}");
+    }
+    let broken = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../crates/core/tests/bad-plans/many-errors.toml");
+    let e = fails(btfrig().args(["plan", "check"]).arg(&broken));
+    for field in ["rig.material", "sampling.view", "texture.size", "outputs.format", "run.backoff_s"] {
+        assert!(e.contains(field), "{field} not named:\n{e}");
+    }
+}
+
+#[test]
+fn dataset_verify_fails_on_a_directory_that_is_not_a_dataset() {
+    let dir = scratch("not-a-dataset");
+    std::fs::write(dir.join("notes.txt"), "hello").unwrap();
+    let o = run(btfrig().args(["dataset", "verify"]).arg(&dir));
+    assert!(!o.status.success(), "{}", text(&o));
+    assert!(text(&o).contains("problem"), "{}", text(&o));
+}

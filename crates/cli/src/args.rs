@@ -24,6 +24,12 @@ pub enum Command {
     /// Kinematics of a rig.
     #[command(subcommand)]
     Kinematics(KinematicsCommand),
+    /// Measurement plans: validate, and dry-run with time and disk estimates.
+    #[command(subcommand)]
+    Plan(PlanCommand),
+    /// Datasets on disk.
+    #[command(subcommand)]
+    Dataset(DatasetCommand),
     /// Benchmarks that print time and error side by side.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -107,6 +113,37 @@ pub enum KinematicsCommand {
         /// Print the result as JSON.
         #[arg(long)]
         json: bool,
+    },
+}
+
+/// `btfrig plan ...`.
+#[derive(Debug, Subcommand)]
+pub enum PlanCommand {
+    /// Validate a plan file: every problem at once, naming field, value and what is allowed.
+    Check {
+        /// The plan (TOML, see docs/plan-format.md).
+        file: std::path::PathBuf,
+    },
+    /// Dry run: captures, skips by reason, estimated hardware time (motion-optimised order,
+    /// naive order, lower bound) and disk space.
+    Show {
+        /// The plan (TOML, see docs/plan-format.md).
+        file: std::path::PathBuf,
+    },
+}
+
+/// `btfrig dataset ...`.
+#[derive(Debug, Subcommand)]
+pub enum DatasetCommand {
+    /// What a dataset holds: rig, plan, samplings, progress, size, timing.
+    Info {
+        /// The dataset directory.
+        dir: std::path::PathBuf,
+    },
+    /// Check every file's size and hash, completeness, and orphans; exit 1 on any problem.
+    Verify {
+        /// The dataset directory.
+        dir: std::path::PathBuf,
     },
 }
 

@@ -2,14 +2,16 @@
 
 mod args;
 mod bench_cmd;
+mod dataset_cmd;
 mod demo_cmd;
 mod kinematics_cmd;
 mod material;
+mod plan_cmd;
 mod rig;
 mod session;
 mod sim_cmd;
 
-use args::{BenchCommand, Cli, Command, KinematicsCommand, SimCommand};
+use args::{BenchCommand, Cli, Command, DatasetCommand, KinematicsCommand, PlanCommand, SimCommand};
 use clap::Parser;
 
 fn main() -> std::process::ExitCode {
@@ -19,6 +21,10 @@ fn main() -> std::process::ExitCode {
         Command::Demo(a) => demo_cmd::run(&a),
         Command::Sim(SimCommand::Render(a)) => sim_cmd::render(&a),
         Command::Sim(SimCommand::Materials) => sim_cmd::materials(),
+        Command::Plan(PlanCommand::Check { file }) => plan_cmd::check(&file),
+        Command::Plan(PlanCommand::Show { file }) => plan_cmd::show(&file),
+        Command::Dataset(DatasetCommand::Info { dir }) => dataset_cmd::info(&dir),
+        Command::Dataset(DatasetCommand::Verify { dir }) => dataset_cmd::verify(&dir),
         Command::Bench(BenchCommand::Render { rig, material, texels, repeat }) => {
             bench_cmd::render(rig.as_deref(), &material, texels, repeat)
         }
