@@ -15,7 +15,7 @@ use btfrig_core::pose::ScenePose;
 use nalgebra::Point3;
 use rayon::prelude::*;
 
-use crate::rectify::{check_geometry, sample_to_camera, Region, RectifyError, Texture};
+use crate::rectify::{check_geometry, sample_to_camera, RectifyError, Region, Texture};
 
 /// The parameters of the conversion from demosaiced image values to radiance factor.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -49,7 +49,11 @@ impl Radiometry {
         ];
         for (name, value) in positive {
             if !(value.is_finite() && value > 0.0) {
-                return Err(RectifyError::Radiometry { name, value, allowed: "finite and > 0" });
+                return Err(RectifyError::Radiometry {
+                    name,
+                    value,
+                    allowed: "finite and > 0",
+                });
             }
         }
         if !(self.dark_e_per_s.is_finite() && self.dark_e_per_s >= 0.0) {
@@ -62,11 +66,19 @@ impl Radiometry {
         for (i, v) in self.white_balance.iter().enumerate() {
             if !(v.is_finite() && *v > 0.0) {
                 const NAMES: [&str; 3] = ["white_balance[0]", "white_balance[1]", "white_balance[2]"];
-                return Err(RectifyError::Radiometry { name: NAMES[i], value: *v, allowed: "finite and > 0" });
+                return Err(RectifyError::Radiometry {
+                    name: NAMES[i],
+                    value: *v,
+                    allowed: "finite and > 0",
+                });
             }
         }
         if let Some(v) = self.matrix.iter().flatten().find(|v| !v.is_finite()) {
-            return Err(RectifyError::Radiometry { name: "matrix", value: *v, allowed: "finite entries" });
+            return Err(RectifyError::Radiometry {
+                name: "matrix",
+                value: *v,
+                allowed: "finite entries",
+            });
         }
         Ok(())
     }
@@ -87,7 +99,12 @@ impl Radiometry {
 /// The camera's relative illumination ([`CameraModel::vignetting`]) at the image position of
 /// every texel centre of a `size x size` grid over `region`, row-major like a texture; 0 for
 /// centres that do not project (those texels are 0 in the texture anyway).
-pub fn vignetting_map(camera: &CameraModel, pose: &ScenePose, region: Region, size: usize) -> Result<Vec<f32>, RectifyError> {
+pub fn vignetting_map(
+    camera: &CameraModel,
+    pose: &ScenePose,
+    region: Region,
+    size: usize,
+) -> Result<Vec<f32>, RectifyError> {
     check_geometry(&region, size)?;
     let to_cam = sample_to_camera(pose);
     let mut out = vec![0.0f32; size * size];
@@ -109,13 +126,23 @@ pub fn vignetting_map(camera: &CameraModel, pose: &ScenePose, region: Region, si
 pub fn to_radiance_factor(tex: &Texture, vignetting: &[f32], r: &Radiometry) -> Result<Texture, RectifyError> {
     r.validate()?;
     if vignetting.len() != tex.data.len() {
-        return Err(RectifyError::Mismatch { what: "vignetting map", got: vignetting.len(), expected: tex.data.len() });
+        return Err(RectifyError::Mismatch {
+            what: "vignetting map",
+            got: vignetting.len(),
+            expected: tex.data.len(),
+        });
     }
     let data = tex
         .data
         .par_iter()
         .zip(vignetting)
-        .map(|(v, &vig)| if vig > 0.0 { r.convert(*v, f64::from(vig)) } else { [0.0; 3] })
+        .map(|(v, &vig)| {
+            if vig > 0.0 {
+                r.convert(*v, f64::from(vig))
+            } else {
+                [0.0; 3]
+            }
+        })
         .collect();
     Ok(Texture { data, ..tex.clone() })
 }
@@ -149,7 +176,11 @@ mod tests {
         let bad = Radiometry { exposure_s: 0.0, ..r };
         assert_eq!(
             bad.validate(),
-            Err(RectifyError::Radiometry { name: "exposure_s", value: 0.0, allowed: "finite and > 0" })
+            Err(RectifyError::Radiometry {
+                name: "exposure_s",
+                value: 0.0,
+                allowed: "finite and > 0"
+            })
         );
     }
 }

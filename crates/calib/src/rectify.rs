@@ -38,7 +38,12 @@ impl Region {
     /// The centred square of side `side` metres (the sample region of a holder plate).
     pub fn centred_square(side: f64) -> Region {
         let h = side / 2.0;
-        Region { x_min: -h, x_max: h, y_min: -h, y_max: h }
+        Region {
+            x_min: -h,
+            x_max: h,
+            y_min: -h,
+            y_max: h,
+        }
     }
 
     /// Sample-plane position of the point at fractional texel coordinates `(col, row)` of a
@@ -51,7 +56,9 @@ impl Region {
     }
 
     fn is_valid(&self) -> bool {
-        [self.x_min, self.x_max, self.y_min, self.y_max].iter().all(|v| v.is_finite())
+        [self.x_min, self.x_max, self.y_min, self.y_max]
+            .iter()
+            .all(|v| v.is_finite())
             && self.x_max > self.x_min
             && self.y_max > self.y_min
     }
@@ -156,7 +163,11 @@ pub enum RectifyError {
 /// Checks the image against itself and the camera.
 fn check_image(img: &LinearImage, camera: &CameraModel) -> Result<(), RectifyError> {
     if img.data.len() != img.width * img.height {
-        return Err(RectifyError::ImageSize { width: img.width, height: img.height, len: img.data.len() });
+        return Err(RectifyError::ImageSize {
+            width: img.width,
+            height: img.height,
+            len: img.data.len(),
+        });
     }
     if (img.width, img.height) != (camera.width, camera.height) {
         return Err(RectifyError::CameraSize {
@@ -201,7 +212,12 @@ fn bilinear(img: &LinearImage, x: f64, y: f64) -> Option<[f32; 3]> {
     let y1 = (y0 + 1).min(h - 1);
     let fx = (xc - x0 as f64) as f32;
     let fy = (yc - y0 as f64) as f32;
-    let (a, b, c, d) = (img.data[y0 * w + x0], img.data[y0 * w + x1], img.data[y1 * w + x0], img.data[y1 * w + x1]);
+    let (a, b, c, d) = (
+        img.data[y0 * w + x0],
+        img.data[y0 * w + x1],
+        img.data[y1 * w + x0],
+        img.data[y1 * w + x1],
+    );
     Some(std::array::from_fn(|k| {
         let top = a[k] + (b[k] - a[k]) * fx;
         let bottom = c[k] + (d[k] - c[k]) * fx;
@@ -238,6 +254,24 @@ pub fn rectify(
         let p = to_cam.transform_point(&Point3::new(x, y, 0.0));
         camera.project(&p).map(|q| (q.x, q.y))
     };
+    // Image positions of the texel corners, shared by neighbouring texels: the sub-sample
+    // positions of the area filters are interpolated bilinearly between them (exact for an
+    // affine map; over one texel the perspective and distortion terms move a position by far
+    // less than 1e-3 px), which makes the filter cost n² lookups but only about one
+    // projection per texel.
+    let corners: Vec<Option<(f64, f64)>> = match filter {
+        Filter::Bilinear => Vec::new(),
+        _ => {
+            let n = size + 1;
+            let mut g = vec![None; n * n];
+            g.par_chunks_mut(n).enumerate().for_each(|(row, out)| {
+                for (col, q) in out.iter_mut().enumerate() {
+                    *q = project(col as f64, row as f64);
+                }
+            });
+            g
+        }
+    };
     let mut data = vec![[0.0f32; 3]; size * size];
     let outside: usize = data
         .par_chunks_mut(size)
@@ -251,42 +285,59 @@ pub fn rectify(
                     outside += 1;
                     continue;
                 }
-                let (nu, nv) = match filter {
-                    Filter::Bilinear => (1, 1),
-                    Filter::Supersample { n } => (n, n),
-                    Filter::Footprint { max } => footprint_counts(&project, c, r, max),
+                let quad = match filter {
+                    Filter::Bilinear => None,
+                    _ => {
+                        let at = |dc: usize, dr: usize| corners[(row + dr) * (size + 1) + col + dc];
+                        match (at(0, 0), at(1, 0), at(0, 1), at(1, 1)) {
+                            (Some(a), Some(b), Some(c), Some(d)) => Some([a, b, c, d]),
+                            _ => None,
+                        }
+                    }
+                };
+                let (nu, nv) = match (filter, quad) {
+                    (Filter::Bilinear, _) => (1, 1),
+                    (Filter::Supersample { n }, _) => (n, n),
+                    (Filter::Footprint { max }, Some(q)) => footprint_counts(&q, max),
+                    (Filter::Footprint { max }, None) => (max, max), // edge of the field: be safe
                 };
                 *px = if nu * nv == 1 {
                     centre.unwrap_or_default()
                 } else {
-                    box_average(img, &project, col as f64, row as f64, nu, nv).unwrap_or_default()
+                    box_average(img, &project, quad.as_ref(), col as f64, row as f64, nu, nv).unwrap_or_default()
                 };
             }
             outside
         })
         .sum();
-    Ok(Texture { width: size, height: size, region, data, texels_outside: outside })
+    Ok(Texture {
+        width: size,
+        height: size,
+        region,
+        data,
+        texels_outside: outside,
+    })
 }
 
-/// Sub-samples per texel axis from the texel's footprint in the image: the pixel length of
-/// the images of the texel's two centre lines (central differences of the projection, i.e. the
-/// columns of the local Jacobian), rounded up, clamped to `1..=max`.
-fn footprint_counts(project: &impl Fn(f64, f64) -> Option<(f64, f64)>, c: f64, r: f64, max: usize) -> (usize, usize) {
-    let len = |a: Option<(f64, f64)>, b: Option<(f64, f64)>| match (a, b) {
-        (Some(a), Some(b)) => (a.0 - b.0).hypot(a.1 - b.1),
-        _ => max as f64, // at the edge of the field: be safe
-    };
-    let lu = len(project(c + 0.5, r), project(c - 0.5, r));
-    let lv = len(project(c, r + 0.5), project(c, r - 0.5));
+/// Sub-samples per texel axis from the texel's footprint in the image: the pixel lengths of
+/// the images of the texel's two centre lines (the columns of the local Jacobian, from the
+/// projected corners `[top-left, top-right, bottom-left, bottom-right]`), rounded up, clamped
+/// to `1..=max`.
+fn footprint_counts(q: &[(f64, f64); 4], max: usize) -> (usize, usize) {
+    let [a, b, c, d] = *q;
+    let lu = ((b.0 - a.0 + d.0 - c.0) / 2.0).hypot((b.1 - a.1 + d.1 - c.1) / 2.0);
+    let lv = ((c.0 - a.0 + d.0 - b.0) / 2.0).hypot((c.1 - a.1 + d.1 - b.1) / 2.0);
     let n = |l: f64| (l.ceil() as usize).clamp(1, max);
     (n(lu), n(lv))
 }
 
 /// Mean of `nu x nv` bilinear lookups at the centres of a regular sub-grid of texel
-/// `(col, row)`; `None` when none of them lands in the image.
+/// `(col, row)`; `None` when none of them lands in the image. Sub-sample positions come
+/// from the projected corners `quad` when given, else from `project`.
 fn box_average(
     img: &LinearImage,
     project: &impl Fn(f64, f64) -> Option<(f64, f64)>,
+    quad: Option<&[(f64, f64); 4]>,
     col: f64,
     row: f64,
     nu: usize,
@@ -295,10 +346,17 @@ fn box_average(
     let mut sum = [0.0f32; 3];
     let mut count = 0u32;
     for j in 0..nv {
-        let r = row + (j as f64 + 0.5) / nv as f64;
+        let t = (j as f64 + 0.5) / nv as f64;
         for i in 0..nu {
-            let c = col + (i as f64 + 0.5) / nu as f64;
-            if let Some(v) = project(c, r).and_then(|(x, y)| bilinear(img, x, y)) {
+            let s = (i as f64 + 0.5) / nu as f64;
+            let pos = match quad {
+                Some(&[a, b, c, d]) => {
+                    let lerp = |p: (f64, f64), q: (f64, f64), w: f64| (p.0 + (q.0 - p.0) * w, p.1 + (q.1 - p.1) * w);
+                    Some(lerp(lerp(a, b, s), lerp(c, d, s), t))
+                }
+                None => project(col + s, row + t),
+            };
+            if let Some(v) = pos.and_then(|(x, y)| bilinear(img, x, y)) {
                 for k in 0..3 {
                     sum[k] += v[k];
                 }
@@ -315,8 +373,14 @@ mod tests {
     use btfrig_core::Direction;
 
     fn ramp(w: usize, h: usize) -> LinearImage {
-        let data = (0..h).flat_map(|y| (0..w).map(move |x| [x as f32, y as f32, 1.0])).collect();
-        LinearImage { width: w, height: h, data }
+        let data = (0..h)
+            .flat_map(|y| (0..w).map(move |x| [x as f32, y as f32, 1.0]))
+            .collect();
+        LinearImage {
+            width: w,
+            height: h,
+            data,
+        }
     }
 
     #[test]
@@ -338,18 +402,34 @@ mod tests {
         // coordinate, each texel must hold the x pixel coordinate of its centre (bilinear is
         // exact on a linear ramp; the box average of a linear function is its centre value).
         let cam = CameraModel::pinhole(200, 150, 1000.0).unwrap();
-        let pose = ScenePose::looking_at(Direction::from_degrees(30.0, 0.0), Direction::from_degrees(0.0, 0.0), 1.0, 2.0);
+        let pose = ScenePose::looking_at(
+            Direction::from_degrees(30.0, 0.0),
+            Direction::from_degrees(0.0, 0.0),
+            1.0,
+            2.0,
+        );
         let img = ramp(200, 150);
         let region = Region::centred_square(0.1);
-        for filter in [Filter::Bilinear, Filter::Supersample { n: 3 }, Filter::Footprint { max: 4 }] {
+        for filter in [
+            Filter::Bilinear,
+            Filter::Supersample { n: 3 },
+            Filter::Footprint { max: 4 },
+        ] {
             let t = rectify(&img, &cam, &pose, region, 16, filter).unwrap();
             assert_eq!(t.texels_outside, 0);
             for row in 0..16 {
                 for col in 0..16 {
                     let (x, y) = region.point(16, 16, col as f64 + 0.5, row as f64 + 0.5);
-                    let q = cam.project(&sample_to_camera(&pose).transform_point(&Point3::new(x, y, 0.0))).unwrap();
+                    let q = cam
+                        .project(&sample_to_camera(&pose).transform_point(&Point3::new(x, y, 0.0)))
+                        .unwrap();
                     let v = t.data[row * 16 + col];
-                    assert!((f64::from(v[0]) - q.x).abs() < 1e-3, "{filter:?} ({col},{row}) {} vs {}", v[0], q.x);
+                    assert!(
+                        (f64::from(v[0]) - q.x).abs() < 1e-3,
+                        "{filter:?} ({col},{row}) {} vs {}",
+                        v[0],
+                        q.x
+                    );
                     assert!((f64::from(v[1]) - q.y).abs() < 1e-3, "{filter:?} ({col},{row})");
                 }
             }
@@ -362,18 +442,37 @@ mod tests {
     #[test]
     fn bad_inputs_are_refused_with_their_values() {
         let cam = CameraModel::pinhole(20, 10, 100.0).unwrap();
-        let pose = ScenePose::looking_at(Direction::from_degrees(30.0, 0.0), Direction::from_degrees(0.0, 0.0), 1.0, 2.0);
+        let pose = ScenePose::looking_at(
+            Direction::from_degrees(30.0, 0.0),
+            Direction::from_degrees(0.0, 0.0),
+            1.0,
+            2.0,
+        );
         let img = ramp(20, 10);
         let r = Region::centred_square(0.1);
-        assert_eq!(rectify(&img, &cam, &pose, r, 0, Filter::Bilinear), Err(RectifyError::Size(0)));
+        assert_eq!(
+            rectify(&img, &cam, &pose, r, 0, Filter::Bilinear),
+            Err(RectifyError::Size(0))
+        );
         let f = Filter::Supersample { n: 0 };
         assert_eq!(rectify(&img, &cam, &pose, r, 8, f), Err(RectifyError::Filter(f)));
         let bad = Region { x_min: 0.1, ..r };
-        assert_eq!(rectify(&img, &cam, &pose, bad, 8, Filter::Bilinear), Err(RectifyError::Region(bad)));
+        assert_eq!(
+            rectify(&img, &cam, &pose, bad, 8, Filter::Bilinear),
+            Err(RectifyError::Region(bad))
+        );
         let small = ramp(10, 10);
-        assert!(matches!(rectify(&small, &cam, &pose, r, 8, Filter::Bilinear), Err(RectifyError::CameraSize { .. })));
+        assert!(matches!(
+            rectify(&small, &cam, &pose, r, 8, Filter::Bilinear),
+            Err(RectifyError::CameraSize { .. })
+        ));
         // A region far off to the side does not project into the image: all texels outside.
-        let off = Region { x_min: 5.0, x_max: 6.0, y_min: 5.0, y_max: 6.0 };
+        let off = Region {
+            x_min: 5.0,
+            x_max: 6.0,
+            y_min: 5.0,
+            y_max: 6.0,
+        };
         let t = rectify(&img, &cam, &pose, off, 4, Filter::Bilinear).unwrap();
         assert_eq!(t.texels_outside, 16);
         assert!(t.data.iter().all(|v| *v == [0.0; 3]));
