@@ -24,6 +24,7 @@ fn main() {
         Filter::Supersample { n: 4 },
         Filter::Footprint { max: 4 },
         Filter::Footprint { max: 8 },
+        Filter::Ewa,
     ];
     println!(
         "texture {size}x{size}; light theta 45 deg; rel_rmse vs point / box ground truth; clean = noise-free frame"

@@ -101,6 +101,11 @@ pub enum Filter {
         /// Upper bound of sub-samples per texel axis, `1..=16`.
         max: usize,
     },
+    /// Elliptical weighted average (after Heckbert): a Gaussian over the image pixels whose
+    /// covariance is the texel's box (variance 1/12 per texel axis) pushed through the local
+    /// Jacobian, plus a pixel reconstruction term (variance 1/4 px², so a texel smaller than a
+    /// pixel still averages its neighbourhood like bilinear). Pixels within 3 sigma count.
+    Ewa,
 }
 
 /// Why a rectification was refused.
@@ -241,7 +246,7 @@ pub fn rectify(
     check_image(img, camera)?;
     check_geometry(&region, size)?;
     match filter {
-        Filter::Bilinear => {}
+        Filter::Bilinear | Filter::Ewa => {}
         Filter::Supersample { n } | Filter::Footprint { max: n } => {
             if !(1..=16).contains(&n) {
                 return Err(RectifyError::Filter(filter));
@@ -300,7 +305,12 @@ pub fn rectify(
                     (Filter::Supersample { n }, _) => (n, n),
                     (Filter::Footprint { max }, Some(q)) => footprint_counts(&q, max),
                     (Filter::Footprint { max }, None) => (max, max), // edge of the field: be safe
+                    (Filter::Ewa, _) => (0, 0),
                 };
+                if filter == Filter::Ewa {
+                    *px = quad.as_ref().and_then(|q| ewa(img, q)).or(centre).unwrap_or_default();
+                    continue;
+                }
                 *px = if nu * nv == 1 {
                     centre.unwrap_or_default()
                 } else {
@@ -317,6 +327,50 @@ pub fn rectify(
         data,
         texels_outside: outside,
     })
+}
+
+/// The elliptical weighted average of the image over the texel with projected corners `q`
+/// (see [`Filter::Ewa`]); `None` when no pixel of the ellipse is in the image.
+fn ewa(img: &LinearImage, q: &[(f64, f64); 4]) -> Option<[f32; 3]> {
+    let [a, b, c, d] = *q;
+    let centre = ((a.0 + b.0 + c.0 + d.0) / 4.0, (a.1 + b.1 + c.1 + d.1) / 4.0);
+    // Jacobian columns (pixels per texel along u and v).
+    let ju = ((b.0 - a.0 + d.0 - c.0) / 2.0, (b.1 - a.1 + d.1 - c.1) / 2.0);
+    let jv = ((c.0 - a.0 + d.0 - b.0) / 2.0, (c.1 - a.1 + d.1 - b.1) / 2.0);
+    const PIXEL_VAR: f64 = 0.25;
+    let sxx = (ju.0 * ju.0 + jv.0 * jv.0) / 12.0 + PIXEL_VAR;
+    let syy = (ju.1 * ju.1 + jv.1 * jv.1) / 12.0 + PIXEL_VAR;
+    let sxy = (ju.0 * ju.1 + jv.0 * jv.1) / 12.0;
+    let det = sxx * syy - sxy * sxy;
+    // Inverse covariance, scaled by -1/2 for the exponent.
+    let (ixx, iyy, ixy) = (syy / det, sxx / det, -sxy / det);
+    let (hx, hy) = (3.0 * sxx.sqrt(), 3.0 * syy.sqrt());
+    let x0 = (centre.0 - hx).ceil().max(0.0) as usize;
+    let y0 = (centre.1 - hy).ceil().max(0.0) as usize;
+    let x1 = (centre.0 + hx).floor().min(img.width as f64 - 1.0);
+    let y1 = (centre.1 + hy).floor().min(img.height as f64 - 1.0);
+    if x1 < 0.0 || y1 < 0.0 {
+        return None;
+    }
+    let mut sum = [0.0f64; 3];
+    let mut wsum = 0.0f64;
+    for y in y0..=y1 as usize {
+        let dy = y as f64 - centre.1;
+        for x in x0..=x1 as usize {
+            let dx = x as f64 - centre.0;
+            let e = ixx * dx * dx + 2.0 * ixy * dx * dy + iyy * dy * dy;
+            if e > 9.0 {
+                continue;
+            }
+            let w = (-0.5 * e).exp();
+            let v = img.data[y * img.width + x];
+            for k in 0..3 {
+                sum[k] += w * f64::from(v[k]);
+            }
+            wsum += w;
+        }
+    }
+    (wsum > 0.0).then(|| sum.map(|s| (s / wsum) as f32))
 }
 
 /// Sub-samples per texel axis from the texel's footprint in the image: the pixel lengths of

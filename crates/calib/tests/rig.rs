@@ -102,12 +102,17 @@ fn area_filters_beat_bilinear_at_grazing_view() {
     let shot = shoot(&s, joints, 13);
     let gt_box = ground_truth_box(&s, &joints, 64, 4);
     let e = |f| err(&rectified(&s, &shot, &joints, 64, f), &gt_box).rel_rmse;
-    let (bil, ss, fp) = (
+    let (bil, ss, fp, ewa) = (
         e(Filter::Bilinear),
         e(Filter::Supersample { n: 4 }),
         e(Filter::Footprint { max: 8 }),
+        e(Filter::Ewa),
     );
-    println!("corduroy 75 deg, 64 texels, vs area ground truth: bilinear {bil:.4}, supersample 4 {ss:.4}, footprint 8 {fp:.4}");
+    println!(
+        "corduroy 75 deg, 64 texels, vs area ground truth: bilinear {bil:.4}, supersample 4 {ss:.4}, \
+         footprint 8 {fp:.4}, ewa {ewa:.4}"
+    );
+    assert!(ewa < 0.8 * bil, "ewa {ewa} vs bilinear {bil}");
     assert!(ss < 0.8 * bil, "supersample {ss} vs bilinear {bil}");
     assert!(fp < 0.8 * bil, "footprint {fp} vs bilinear {bil}");
 }
