@@ -6,23 +6,29 @@ use std::sync::Arc;
 
 use async_trait::async_trait;
 use btfrig_core::config::RigConfig;
+use btfrig_core::frame::RawFrame;
 use btfrig_core::kinematics::Gonio;
 use btfrig_core::sampling::Sampling;
 use btfrig_engine::{
     CapturedFrame, Devices, Engine, EngineSettings, EngineStep, Event, PauseReason, RunHandle, RunOutcome, RunState,
     StepKey,
 };
+use btfrig_hw::CaptureSettings;
 use btfrig_hw::{AxisLimits, Device, DeviceError, DeviceInfo, ErrorKind, MoveOptions, Rail, TokioClock};
 use btfrig_planner::{plan, PairSelection, PlanRequest, Schedule};
 use btfrig_sim::capture::prepare;
-use btfrig_sim::{FaultScenario, FlatFrameSource, SimRig, SimWorld};
+use btfrig_sim::{FaultScenario, FlatFrameSource, FrameSource, SensorFormat, SimRig, SimWorld, TrueState};
 use tokio::sync::{broadcast, mpsc};
 use tokio::task::JoinHandle;
 
 const EXPOSURE_S: f64 = 0.01;
 
 fn cfg() -> RigConfig {
-    RigConfig::from_toml(include_str!("../../../rig-configs/bonn-gonio-sim.toml"), "bonn-gonio-sim.toml").unwrap()
+    RigConfig::from_toml(
+        include_str!("../../../rig-configs/bonn-gonio-sim.toml"),
+        "bonn-gonio-sim.toml",
+    )
+    .unwrap()
 }
 
 fn schedule(cfg: &RigConfig, pairs: PairSelection) -> Schedule {
@@ -40,13 +46,62 @@ fn forty(cfg: &RigConfig) -> Schedule {
     s
 }
 
+/// A flat frame whose first three samples record the TRUE pose during the exposure (rail,
+/// pan + 180, tilt + 180; tenths of a degree), so a test can check that every delivered frame,
+/// recaptures included, was exposed at its own step's pose.
+struct PoseFrameSource(FlatFrameSource);
+
+impl FrameSource for PoseFrameSource {
+    fn format(&self) -> SensorFormat {
+        self.0.format()
+    }
+    fn render(&self, truth: &TrueState, settings: &CaptureSettings, seed: u64) -> RawFrame {
+        let mut f = self.0.render(truth, settings, seed);
+        let j = &truth.joints;
+        let enc = |deg: f64| (deg * 10.0).round().clamp(0.0, 4095.0) as u16;
+        f.data[0] = enc(j.rail.to_degrees());
+        f.data[1] = enc(j.robot[0].to_degrees() + 180.0);
+        f.data[2] = enc(j.robot[1].to_degrees() + 180.0);
+        f
+    }
+}
+
+/// The true (rail, pan, tilt) of a frame from [`PoseFrameSource`], degrees.
+fn pose_of(f: &RawFrame) -> [f64; 3] {
+    [
+        f.data[0] as f64 / 10.0,
+        f.data[1] as f64 / 10.0 - 180.0,
+        f.data[2] as f64 / 10.0 - 180.0,
+    ]
+}
+
 /// A homed rig with a warm lamp; the clock is read after preparation by the caller.
 async fn rig(cfg: &RigConfig, faults: &FaultScenario) -> (Devices, SimWorld) {
     let clock = TokioClock::shared();
-    let mut rig = SimRig::from_rig_config(cfg, faults, clock.clone(), Arc::new(FlatFrameSource::new(8, 6, 1000.0))).unwrap();
+    let mut rig = SimRig::from_rig_config(
+        cfg,
+        faults,
+        clock.clone(),
+        Arc::new(PoseFrameSource(FlatFrameSource::new(8, 6, 1000.0))),
+    )
+    .unwrap();
     prepare(&mut rig).await.unwrap();
-    let SimRig { world, robot, rail, camera, .. } = rig;
-    (Devices { robot, rail, camera, clock }, world)
+    let SimRig {
+        world,
+        robot,
+        rail,
+        camera,
+        ..
+    } = rig;
+    (
+        Devices {
+            robot,
+            rail,
+            camera,
+            clock,
+        },
+        world,
+    )
 }
 
 /// Collects every delivered frame until the engine drops its sender.
@@ -75,7 +130,12 @@ async fn next_matching(rx: &mut broadcast::Receiver<Event>, pred: impl Fn(&Event
 fn check_delivered(frames: &[CapturedFrame], steps: &[EngineStep]) -> HashSet<StepKey> {
     let mut keys = HashSet::new();
     for w in frames.windows(2) {
-        assert!(w[0].index < w[1].index, "out of order: {} then {}", w[0].index, w[1].index);
+        assert!(
+            w[0].index < w[1].index,
+            "out of order: {} then {}",
+            w[0].index,
+            w[1].index
+        );
     }
     for f in frames {
         assert!(keys.insert(f.key), "{} delivered twice", f.key);
@@ -85,8 +145,35 @@ fn check_delivered(frames: &[CapturedFrame], steps: &[EngineStep]) -> HashSet<St
         assert_eq!(f.frame.meta.exposure_s, EXPOSURE_S);
         assert!(f.attempts >= 1);
         let t = &f.times;
-        assert!(t.move_start_s <= t.move_end_s && t.move_end_s <= t.trigger_start_s, "{t:?}");
-        assert!(t.trigger_start_s < t.trigger_end_s && t.trigger_end_s < t.transfer_end_s, "{t:?}");
+        assert!(
+            t.move_start_s <= t.move_end_s && t.move_end_s <= t.trigger_start_s,
+            "{t:?}"
+        );
+        assert!(
+            t.trigger_start_s < t.trigger_end_s && t.trigger_end_s < t.transfer_end_s,
+            "{t:?}"
+        );
+        // The frame is the one of the recorded trigger, exposed at this step's pose (within
+        // the simulated positioning error, well under a degree).
+        let m = &f.frame.meta;
+        assert!(
+            t.trigger_start_s <= m.timestamp_s && m.timestamp_s <= t.trigger_end_s,
+            "{t:?} {}",
+            m.timestamp_s
+        );
+        let want = [
+            s.joints.rail.to_degrees(),
+            s.joints.robot[0].to_degrees(),
+            s.joints.robot[1].to_degrees(),
+        ];
+        for (got, want) in pose_of(&f.frame).iter().zip(want) {
+            assert!(
+                (got - want).abs() < 0.8,
+                "step {}: true pose {:?}, commanded {want}",
+                f.index,
+                pose_of(&f.frame)
+            );
+        }
     }
     keys
 }
@@ -97,8 +184,13 @@ async fn run_forty(overlap: bool) -> (RunOutcome, Vec<CapturedFrame>, Schedule) 
     let steps = EngineStep::from_schedule(&sched);
     let (devices, _world) = rig(&cfg, &FaultScenario::none()).await;
     let (tx, frames) = consumer(4);
-    let settings = EngineSettings { overlap, ..EngineSettings::default() };
-    let outcome = Engine::spawn(devices, steps.clone(), HashSet::new(), settings, tx).join().await;
+    let settings = EngineSettings {
+        overlap,
+        ..EngineSettings::default()
+    };
+    let outcome = Engine::spawn(devices, steps.clone(), HashSet::new(), settings, tx)
+        .join()
+        .await;
     let frames = frames.await.unwrap();
     assert_eq!(frames.len(), 40);
     let keys = check_delivered(&frames, &steps);
@@ -109,14 +201,18 @@ async fn run_forty(overlap: bool) -> (RunOutcome, Vec<CapturedFrame>, Schedule) 
 #[tokio::test(start_paused = true)]
 async fn forty_steps_delivered_once_in_order_and_overlap_matches_the_planner() {
     let (outcome, frames, sched) = run_forty(true).await;
-    let RunOutcome::Finished(sum) = outcome else { panic!("{outcome:?}") };
+    let RunOutcome::Finished(sum) = outcome else {
+        panic!("{outcome:?}")
+    };
     assert_eq!((sum.total, sum.captured, sum.skipped_done, sum.retries), (40, 40, 0, 0));
     assert!(frames.iter().all(|f| f.attempts == 1));
 
     let planned = sched.timing.hardware_s;
     let rel = (sum.hardware_s - planned).abs() / planned;
     let (seq_outcome, _, _) = run_forty(false).await;
-    let RunOutcome::Finished(seq) = seq_outcome else { panic!() };
+    let RunOutcome::Finished(seq) = seq_outcome else {
+        panic!()
+    };
     let seq_sum: f64 = {
         let model = btfrig_planner::TimingModel::new(&cfg().timing);
         let mut prev = sched.start.joints;
@@ -140,8 +236,17 @@ async fn forty_steps_delivered_once_in_order_and_overlap_matches_the_planner() {
     );
     assert!(rel < 0.02, "overlapped {} s vs planner {planned} s", sum.hardware_s);
     // The sequential engine run is the planner's step-by-step sum, and clearly slower.
-    assert!((seq.hardware_s - seq_sum).abs() / seq_sum < 0.02, "{} vs {seq_sum}", seq.hardware_s);
-    assert!(sum.hardware_s < 0.9 * seq.hardware_s, "{} vs {}", sum.hardware_s, seq.hardware_s);
+    assert!(
+        (seq.hardware_s - seq_sum).abs() / seq_sum < 0.02,
+        "{} vs {seq_sum}",
+        seq.hardware_s
+    );
+    assert!(
+        sum.hardware_s < 0.9 * seq.hardware_s,
+        "{} vs {}",
+        sum.hardware_s,
+        seq.hardware_s
+    );
 }
 
 #[tokio::test(start_paused = true)]
@@ -153,9 +258,13 @@ async fn flaky_rig_full_bonn_plan_completes_with_counted_retries_and_no_duplicat
     let (devices, world) = rig(&cfg, &flaky).await;
     let (tx, frames) = consumer(8);
     let wall = std::time::Instant::now();
-    let outcome = Engine::spawn(devices, steps.clone(), HashSet::new(), EngineSettings::default(), tx).join().await;
+    let outcome = Engine::spawn(devices, steps.clone(), HashSet::new(), EngineSettings::default(), tx)
+        .join()
+        .await;
     let frames = frames.await.unwrap();
-    let RunOutcome::Finished(sum) = outcome else { panic!("{outcome:?}") };
+    let RunOutcome::Finished(sum) = outcome else {
+        panic!("{outcome:?}")
+    };
     assert_eq!(frames.len(), steps.len());
     check_delivered(&frames, &steps);
     let faults = world.fault_log();
@@ -176,14 +285,27 @@ async fn flaky_rig_full_bonn_plan_completes_with_counted_retries_and_no_duplicat
     assert!(faults.iter().any(|f| f.kind == btfrig_sim::FaultKind::Disconnected));
     assert!(faults.iter().any(|f| f.kind == btfrig_sim::FaultKind::DroppedFrame));
     // Every retry answers an injected fault (a failed reconnect is a fault but no retry).
-    assert!(sum.retries as usize <= faults.len(), "{} retries, {} faults", sum.retries, faults.len());
-    assert_eq!(attempts - frames.len() as u32, sum.retries, "per-step attempts add up to the total");
+    assert!(
+        sum.retries as usize <= faults.len(),
+        "{} retries, {} faults",
+        sum.retries,
+        faults.len()
+    );
+    assert_eq!(
+        attempts - frames.len() as u32,
+        sum.retries,
+        "per-step attempts add up to the total"
+    );
     assert_eq!(sum.retried_steps.iter().map(|r| r.1).sum::<u32>(), sum.retries);
     // Faults cost time: each at most its operation's timeout (60 s for a move), a backoff and
     // a recapture (a move back, trigger and a 5 s transfer: < 15 s here).
     let extra = sum.hardware_s - sched.timing.hardware_s;
     assert!(extra > 0.0);
-    assert!(extra < faults.len() as f64 * 75.0, "{extra} s extra for {} faults", faults.len());
+    assert!(
+        extra < faults.len() as f64 * 75.0,
+        "{extra} s extra for {} faults",
+        faults.len()
+    );
 }
 
 #[tokio::test(start_paused = true)]
@@ -193,9 +315,13 @@ async fn fault_free_full_plan_is_within_two_percent_of_the_critical_path() {
     let steps = EngineStep::from_schedule(&sched);
     let (devices, _world) = rig(&cfg, &FaultScenario::none()).await;
     let (tx, frames) = consumer(8);
-    let outcome = Engine::spawn(devices, steps.clone(), HashSet::new(), EngineSettings::default(), tx).join().await;
+    let outcome = Engine::spawn(devices, steps.clone(), HashSet::new(), EngineSettings::default(), tx)
+        .join()
+        .await;
     let frames = frames.await.unwrap();
-    let RunOutcome::Finished(sum) = outcome else { panic!("{outcome:?}") };
+    let RunOutcome::Finished(sum) = outcome else {
+        panic!("{outcome:?}")
+    };
     assert_eq!(frames.len(), 6480);
     println!(
         "81x81 fault-free: hardware {:.1} s, planner {:.1} s, critical path {:.1} s, naive order {:.1} s",
@@ -217,11 +343,18 @@ async fn permanent_disconnect_pauses_with_a_message_naming_the_camera_then_abort
     let (tx, frames) = consumer(4);
     let mut h = Engine::spawn(devices, steps.clone(), HashSet::new(), EngineSettings::default(), tx);
     let mut ev = h.events();
-    let Event::Paused { reason } = next_matching(&mut ev, |e| matches!(e, Event::Paused { .. })).await else { unreachable!() };
-    let PauseReason::StepFailed { device, kind, .. } = &reason else { panic!("{reason:?}") };
+    let Event::Paused { reason } = next_matching(&mut ev, |e| matches!(e, Event::Paused { .. })).await else {
+        unreachable!()
+    };
+    let PauseReason::StepFailed { device, kind, .. } = &reason else {
+        panic!("{reason:?}")
+    };
     assert_eq!((device.as_str(), *kind), ("camera", ErrorKind::Disconnected));
     let text = reason.to_string();
-    assert!(text.contains("camera: disconnected") && text.contains("gave up after 5 retries"), "{text}");
+    assert!(
+        text.contains("camera: disconnected") && text.contains("gave up after 5 retries"),
+        "{text}"
+    );
     assert!(text.starts_with("step "), "{text}");
     assert!(matches!(*h.state().borrow(), RunState::Paused(_)));
     // Resuming retries the step; the camera stays away, so the run pauses again.
@@ -229,13 +362,18 @@ async fn permanent_disconnect_pauses_with_a_message_naming_the_camera_then_abort
     next_matching(&mut ev, |e| matches!(e, Event::Resumed)).await;
     next_matching(&mut ev, |e| matches!(e, Event::Paused { .. })).await;
     h.abort();
-    let RunOutcome::Aborted { done, summary } = h.join().await else { panic!() };
+    let RunOutcome::Aborted { done, summary } = h.join().await else {
+        panic!()
+    };
     let frames = frames.await.unwrap();
     let keys = check_delivered(&frames, &steps);
     assert!(!frames.is_empty() && frames.len() < 40, "{}", frames.len());
     assert_eq!(done, keys);
     assert_eq!(summary.captured, frames.len());
-    assert_eq!(summary.retries, 10, "5 per attempt of the failing operation, two attempts");
+    assert_eq!(
+        summary.retries, 10,
+        "5 per attempt of the failing operation, two attempts"
+    );
 }
 
 /// A rail whose emergency stop can be pressed: moves fail with a non-retryable error.
@@ -261,7 +399,11 @@ impl Rail for StoppableRail {
     }
     async fn move_to_rad(&mut self, angle_rad: f64, opts: MoveOptions) -> Result<f64, DeviceError> {
         if self.stopped.load(Ordering::SeqCst) {
-            return Err(DeviceError::new(self.name(), ErrorKind::Other, "emergency stop pressed"));
+            return Err(DeviceError::new(
+                self.name(),
+                ErrorKind::Other,
+                "emergency stop pressed",
+            ));
         }
         self.inner.move_to_rad(angle_rad, opts).await
     }
@@ -276,25 +418,44 @@ async fn non_retryable_error_pauses_and_resume_after_the_fix_completes() {
     let steps = EngineStep::from_schedule(&forty(&cfg));
     let (mut devices, _world) = rig(&cfg, &FaultScenario::none()).await;
     let stopped = Arc::new(AtomicBool::new(false));
-    devices.rail = Box::new(StoppableRail { inner: devices.rail, stopped: stopped.clone() });
+    devices.rail = Box::new(StoppableRail {
+        inner: devices.rail,
+        stopped: stopped.clone(),
+    });
     let (tx, frames) = consumer(4);
     let mut h = Engine::spawn(devices, steps.clone(), HashSet::new(), EngineSettings::default(), tx);
     let mut ev = h.events();
     next_matching(&mut ev, |e| matches!(e, Event::StepDone { index: 9, .. })).await;
     stopped.store(true, Ordering::SeqCst);
-    let Event::Paused { reason } = next_matching(&mut ev, |e| matches!(e, Event::Paused { .. })).await else { unreachable!() };
-    let PauseReason::StepFailed { index, key, device, kind, .. } = &reason else { panic!("{reason:?}") };
+    let Event::Paused { reason } = next_matching(&mut ev, |e| matches!(e, Event::Paused { .. })).await else {
+        unreachable!()
+    };
+    let PauseReason::StepFailed {
+        index,
+        key,
+        device,
+        kind,
+        ..
+    } = &reason
+    else {
+        panic!("{reason:?}")
+    };
     assert_eq!((device.as_str(), *kind), ("rail", ErrorKind::Other));
     assert_eq!(*key, steps[*index].key);
     let text = reason.to_string();
     assert!(text.contains(&format!("step {index} ({key})")), "{text}");
-    assert!(text.contains("rail: other: emergency stop pressed (not retryable)"), "{text}");
+    assert!(
+        text.contains("rail: other: emergency stop pressed (not retryable)"),
+        "{text}"
+    );
     // Still paused after a long wait: nothing more is delivered.
     tokio::time::sleep(std::time::Duration::from_secs(3600)).await;
     assert!(matches!(*h.state().borrow(), RunState::Paused(_)));
     stopped.store(false, Ordering::SeqCst);
     h.resume();
-    let RunOutcome::Finished(sum) = h.join().await else { panic!() };
+    let RunOutcome::Finished(sum) = h.join().await else {
+        panic!()
+    };
     let frames = frames.await.unwrap();
     assert_eq!(frames.len(), 40);
     check_delivered(&frames, &steps);
@@ -327,11 +488,16 @@ async fn pause_holds_between_steps_and_resume_finishes() {
         }
     }
     // The step under way was finished (its frame delivered), no more.
-    assert!((1..=2).contains(&done_at_pause), "{done_at_pause} steps after the pause request");
+    assert!(
+        (1..=2).contains(&done_at_pause),
+        "{done_at_pause} steps after the pause request"
+    );
     tokio::time::sleep(std::time::Duration::from_secs(3600)).await;
     assert!(ev.try_recv().is_err(), "no events while paused");
     h.resume();
-    let RunOutcome::Finished(sum) = h.join().await else { panic!() };
+    let RunOutcome::Finished(sum) = h.join().await else {
+        panic!()
+    };
     assert_eq!(sum.captured, 40);
     let frames = frames.await.unwrap();
     check_delivered(&frames, &steps);
@@ -356,7 +522,9 @@ async fn abort_stops_after_the_current_step_and_resume_with_done_skips_them() {
     next_matching(&mut ev, |e| matches!(e, Event::StepDone { index: 11, .. })).await;
     h.abort();
     let (outcome, devices) = h.join_with_devices().await;
-    let RunOutcome::Aborted { done, summary } = outcome else { panic!("{outcome:?}") };
+    let RunOutcome::Aborted { done, summary } = outcome else {
+        panic!("{outcome:?}")
+    };
     let first = frames.await.unwrap();
     assert_eq!(done, check_delivered(&first, &steps));
     assert!((12..=13).contains(&first.len()), "{}", first.len());
@@ -365,7 +533,9 @@ async fn abort_stops_after_the_current_step_and_resume_with_done_skips_them() {
     // Resume on the same devices: only the remaining steps are captured.
     let (tx, frames) = consumer(4);
     let h = Engine::spawn(devices, steps.clone(), done.clone(), EngineSettings::default(), tx);
-    let RunOutcome::Finished(sum) = h.join().await else { panic!() };
+    let RunOutcome::Finished(sum) = h.join().await else {
+        panic!()
+    };
     let second = frames.await.unwrap();
     check_delivered(&second, &steps);
     assert_eq!(sum.skipped_done, done.len());
@@ -392,7 +562,9 @@ async fn slow_consumer_backpressure_delays_the_run_without_losing_frames() {
         }
         n
     });
-    let RunOutcome::Finished(sum) = Engine::spawn(devices, steps, HashSet::new(), EngineSettings::default(), tx).join().await
+    let RunOutcome::Finished(sum) = Engine::spawn(devices, steps, HashSet::new(), EngineSettings::default(), tx)
+        .join()
+        .await
     else {
         panic!()
     };
@@ -403,7 +575,11 @@ async fn slow_consumer_backpressure_delays_the_run_without_losing_frames() {
 
 #[test]
 fn backoff_doubles_and_is_capped() {
-    let s = EngineSettings { backoff_s: 0.5, max_backoff_s: 3.0, ..EngineSettings::default() };
+    let s = EngineSettings {
+        backoff_s: 0.5,
+        max_backoff_s: 3.0,
+        ..EngineSettings::default()
+    };
     let w: Vec<f64> = (0..5).map(|k| s.backoff_for(k)).collect();
     assert_eq!(w, vec![0.5, 1.0, 2.0, 3.0, 3.0]);
 }
