@@ -347,6 +347,19 @@ impl Runner {
         );
     }
 
+    /// After a failed read-out: a disconnected camera is reconnected before the recapture.
+    async fn reconnect_camera_if(&mut self, index: usize, e: &DeviceError) {
+        if e.kind() != ErrorKind::Disconnected {
+            return;
+        }
+        let clock = self.dev.clock.clone();
+        let limit = COMMAND_TIMEOUT_S + self.s.guard_margin_s;
+        let name = self.dev.camera.name().to_string();
+        if let Err(r) = guard(&clock, limit, &name, self.dev.camera.reconnect()).await {
+            self.warn(format!("step {index}: reconnect failed: {r}"));
+        }
+    }
+
     fn done_count(&self) -> usize {
         self.captured + self.skipped
     }
@@ -429,6 +442,7 @@ impl Runner {
                 Err(e) if e.is_retryable() && k < s.max_retries => {
                     let wait = s.backoff_for(k);
                     self.note_retry(index, format!("{e}; capture again in {wait:.2} s"));
+                    self.reconnect_camera_if(index, &e).await;
                     clock.sleep_s(wait).await;
                     k += 1;
                 }
@@ -451,6 +465,7 @@ impl Runner {
             }
             Err(e) if e.is_retryable() => {
                 self.note_retry(p.index, format!("{e}; capturing step {} again", p.index));
+                self.reconnect_camera_if(p.index, &e).await;
                 self.sequential_step(p.index).await
             }
             Err(error) => Err(Stop::Failed(Failure { index: p.index, error })),
@@ -510,6 +525,8 @@ impl Runner {
                 }
                 Err(e) if e.is_retryable() => {
                     self.note_retry(p.index, format!("{e}; capturing step {} again", p.index));
+                    self.reconnect_camera_if(p.index, &e).await;
+                    self.reconnect_camera_if(p.index, &e).await;
                     self.sequential_step(p.index).await?;
                     // Back to this step's pose, now without overlap.
                     times.move_start_s = clock.now_s();

@@ -376,6 +376,52 @@ async fn permanent_disconnect_pauses_with_a_message_naming_the_camera_then_abort
     );
 }
 
+#[tokio::test(start_paused = true)]
+async fn healing_disconnects_are_reconnected_and_retried() {
+    let cfg = cfg();
+    let steps = EngineStep::from_schedule(&forty(&cfg));
+    // Short outages of the camera and the robot in the middle of the run.
+    let faults = FaultScenario::from_toml(
+        "description = \"two short outages\"\n\
+         [[disconnects]]\ndevice = \"camera\"\nat_call = 20\nreconnect_after_calls = 2\n\
+         [[disconnects]]\ndevice = \"robot\"\nat_call = 15\nreconnect_after_calls = 2\n",
+        "test",
+    )
+    .unwrap();
+    let (devices, world) = rig(&cfg, &faults).await;
+    let (tx, frames) = consumer(4);
+    let mut h = Engine::spawn(devices, steps.clone(), HashSet::new(), EngineSettings::default(), tx);
+    let mut ev = h.events();
+    let RunOutcome::Finished(sum) = h.join().await else {
+        panic!()
+    };
+    let frames = frames.await.unwrap();
+    assert_eq!(frames.len(), 40);
+    check_delivered(&frames, &steps);
+    let mut warnings = Vec::new();
+    while let Ok(e) = ev.try_recv() {
+        if let Event::Warning(w) = e {
+            warnings.push(w);
+        }
+    }
+    assert!(
+        warnings.iter().any(|w| w.contains("camera: disconnected")),
+        "{warnings:?}"
+    );
+    assert!(
+        warnings.iter().any(|w| w.contains("robot: disconnected")),
+        "{warnings:?}"
+    );
+    // Each outage (2 calls): the failing call and the reconnect call fail, the retry succeeds.
+    assert_eq!(world.fault_log().len(), 4, "{:?}", world.fault_log());
+    assert!(
+        warnings.iter().filter(|w| w.contains("reconnect failed")).count() == 2,
+        "{warnings:?}"
+    );
+    assert_eq!(sum.retries, 2);
+    assert_eq!(sum.retried_steps.len(), 2);
+}
+
 /// A rail whose emergency stop can be pressed: moves fail with a non-retryable error.
 struct StoppableRail {
     inner: Box<dyn Rail>,
