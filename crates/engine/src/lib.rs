@@ -9,6 +9,44 @@
 //! first); anything else, or an exhausted retry budget, PAUSES the run with a message naming
 //! the step and the device error, and `resume` retries that step. No rendering, no file I/O.
 //! Design, policies and measured figures: `docs/engine.md`.
+//!
+//! ```
+//! # #[tokio::main(flavor = "current_thread", start_paused = true)]
+//! # async fn main() {
+//! use std::collections::HashSet;
+//! use std::sync::Arc;
+//! use btfrig_core::{config::RigConfig, kinematics::JointState};
+//! use btfrig_engine::{Devices, Engine, EngineSettings, EngineStep, RunOutcome, StepKey};
+//! use btfrig_hw::TokioClock;
+//! use btfrig_sim::{capture::prepare, FaultScenario, FlatFrameSource, SimRig};
+//!
+//! let cfg = RigConfig::from_toml(include_str!("../../../rig-configs/bonn-gonio-sim.toml"), "rig").unwrap();
+//! let clock = TokioClock::shared();
+//! let source = Arc::new(FlatFrameSource::new(8, 6, 1000.0));
+//! let mut rig = SimRig::from_rig_config(&cfg, &FaultScenario::none(), clock.clone(), source).unwrap();
+//! prepare(&mut rig).await.unwrap(); // home, lamp warm-up
+//! let devices = Devices { robot: rig.robot, rail: rig.rail, camera: rig.camera, clock };
+//! let steps: Vec<EngineStep> = (0..3)
+//!     .map(|i| EngineStep {
+//!         key: StepKey { light: i, view: 0 },
+//!         joints: JointState { rail: 0.5 + 0.1 * i as f64, robot: [0.0, 0.2, 0.0], turntable: 0.0 },
+//!         exposure_s: 0.01,
+//!     })
+//!     .collect();
+//! let (tx, mut rx) = tokio::sync::mpsc::channel(2);
+//! let run = Engine::spawn(devices, steps, HashSet::new(), EngineSettings::default(), tx);
+//! let consumer = tokio::spawn(async move {
+//!     let mut keys = Vec::new();
+//!     while let Some(f) = rx.recv().await {
+//!         keys.push(f.key.light);
+//!     }
+//!     keys
+//! });
+//! let RunOutcome::Finished(summary) = run.join().await else { panic!() };
+//! assert_eq!(consumer.await.unwrap(), vec![0, 1, 2]);
+//! assert_eq!((summary.captured, summary.retries), (3, 0));
+//! # }
+//! ```
 #![warn(missing_docs)]
 
 use std::collections::HashSet;
