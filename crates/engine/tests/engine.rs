@@ -508,6 +508,35 @@ async fn non_retryable_error_pauses_and_resume_after_the_fix_completes() {
     assert_eq!(sum.retries, 0, "a non-retryable error is not retried");
 }
 
+#[tokio::test(start_paused = true)]
+async fn out_of_range_move_pauses_naming_the_rail_and_is_not_retried() {
+    let cfg = cfg();
+    let mut steps = EngineStep::from_schedule(&forty(&cfg))[..3].to_vec();
+    steps[1].joints.rail = 200f64.to_radians(); // the sim rail ends at 180 deg
+    let (devices, _world) = rig(&cfg, &FaultScenario::none()).await;
+    let (tx, frames) = consumer(4);
+    let mut h = Engine::spawn(devices, steps.clone(), HashSet::new(), EngineSettings::default(), tx);
+    let mut ev = h.events();
+    let Event::Paused { reason } = next_matching(&mut ev, |e| matches!(e, Event::Paused { .. })).await else {
+        unreachable!()
+    };
+    let PauseReason::StepFailed {
+        index, device, kind, ..
+    } = &reason
+    else {
+        panic!("{reason:?}")
+    };
+    assert_eq!((*index, device.as_str(), *kind), (1, "rail", ErrorKind::OutOfRange));
+    assert!(reason.to_string().contains("(not retryable)"), "{reason}");
+    h.abort();
+    let RunOutcome::Aborted { done, summary } = h.join().await else {
+        panic!()
+    };
+    assert_eq!(done, HashSet::from([steps[0].key]));
+    assert_eq!(summary.retries, 0);
+    assert_eq!(frames.await.unwrap().len(), 1);
+}
+
 async fn pause_after(h: &mut RunHandle, ev: &mut broadcast::Receiver<Event>, index: usize) {
     next_matching(ev, |e| matches!(e, Event::StepDone { index: i, .. } if *i == index)).await;
     h.pause();
