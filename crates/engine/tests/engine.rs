@@ -623,6 +623,26 @@ async fn abort_stops_after_the_current_step_and_resume_with_done_skips_them() {
 }
 
 #[tokio::test(start_paused = true)]
+async fn scattered_done_steps_are_skipped_and_the_rest_captured_at_their_poses() {
+    let cfg = cfg();
+    let steps = EngineStep::from_schedule(&forty(&cfg));
+    let done: HashSet<StepKey> = steps.iter().step_by(3).map(|s| s.key).collect();
+    let (devices, _world) = rig(&cfg, &FaultScenario::none()).await;
+    let (tx, frames) = consumer(4);
+    let RunOutcome::Finished(sum) = Engine::spawn(devices, steps.clone(), done.clone(), EngineSettings::default(), tx)
+        .join()
+        .await
+    else {
+        panic!()
+    };
+    let frames = frames.await.unwrap();
+    let keys = check_delivered(&frames, &steps);
+    assert!(keys.is_disjoint(&done));
+    assert_eq!(keys.len() + done.len(), 40);
+    assert_eq!((sum.skipped_done, sum.captured), (done.len(), 40 - done.len()));
+}
+
+#[tokio::test(start_paused = true)]
 async fn slow_consumer_backpressure_delays_the_run_without_losing_frames() {
     let cfg = cfg();
     let steps = EngineStep::from_schedule(&forty(&cfg))[..10].to_vec();
