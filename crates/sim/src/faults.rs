@@ -107,19 +107,8 @@ pub struct StuckLed {
     pub state: StuckState,
 }
 
-/// A lamp whose output keeps changing: exponential warm-up plus slow linear drift. Output
-/// factor `t` seconds after switch-on:
-/// `1 - (1 - start_fraction) exp(-t / warm_up_tau_s) + drift_per_hour t / 3600`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct LampDrift {
-    /// Output at switch-on relative to the settled output, in `[0, 1]`.
-    pub start_fraction: f64,
-    /// Time constant of the warm-up, seconds, > 0.
-    pub warm_up_tau_s: f64,
-    /// Change of the output per hour, fraction of the settled output (e.g. -0.01).
-    pub drift_per_hour: f64,
-}
+pub use crate::world::LampDrift;
+
 
 /// A fault scenario: the contents of one `sim/faults/*.toml` file.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
