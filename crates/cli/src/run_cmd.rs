@@ -130,6 +130,7 @@ pub fn run(a: &RunArgs) -> anyhow::Result<()> {
         let pipeline = btfrig_pipeline::run(dataset.clone(), processor, rx, lookup, |_| {});
         let listen = async {
             let mut failure = None;
+            let mut warnings = Vec::new();
             let mut current = String::new();
             loop {
                 match events.recv().await {
@@ -146,7 +147,10 @@ pub fn run(a: &RunArgs) -> anyhow::Result<()> {
                         failure = Some(r.to_string());
                         handle.abort();
                     }
-                    Ok(Event::Warning(w)) => eprintln!("\nwarning: {w}"),
+                    Ok(Event::Warning(w)) => {
+                        eprintln!("\nwarning: {w}");
+                        warnings.push(w);
+                    }
                     Ok(Event::Finished(_) | Event::Aborted(_)) => break,
                     Ok(_) => {}
                     Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {}
@@ -154,13 +158,13 @@ pub fn run(a: &RunArgs) -> anyhow::Result<()> {
                 }
             }
             eprintln!();
-            failure
+            (failure, warnings)
         };
-        let (totals, failure) = tokio::join!(pipeline, listen);
+        let (totals, (failure, warnings)) = tokio::join!(pipeline, listen);
         let outcome = handle.join().await;
-        anyhow::Ok((outcome, totals.map(|t| (t, failure))))
+        anyhow::Ok((outcome, totals.map(|t| (t, failure, warnings))))
     })?;
-    let (totals, failure) = totals?;
+    let (totals, failure, warnings) = totals?;
 
     let summary = match &outcome {
         RunOutcome::Finished(s) => s,
@@ -188,7 +192,7 @@ pub fn run(a: &RunArgs) -> anyhow::Result<()> {
         stage_s: totals.stage_s.clone(),
         skipped,
         retries: u64::from(summary.retries),
-        warnings: Vec::new(),
+        warnings,
         extra,
     };
     dataset.finish(&report)?;
