@@ -202,3 +202,69 @@ fn dataset_verify_fails_on_a_directory_that_is_not_a_dataset() {
     assert!(!o.status.success(), "{}", text(&o));
     assert!(text(&o).contains("problem"), "{}", text(&o));
 }
+
+/// A small plan: 12 captures of 32-texel textures on the embedded simulated rig.
+fn tiny_plan(dir: &Path, seed: u64) -> PathBuf {
+    let path = dir.join(format!("tiny-{seed}.toml"));
+    let text = format!(
+        r#"name = "tiny"
+[rig]
+config = "builtin:bonn-gonio-sim"
+material = "lacquered-wood"
+seed = {seed}
+[sampling]
+light = {{ preset = "bonn81", theta_max_deg = 30 }}
+view = {{ preset = "bonn81", theta_max_deg = 30 }}
+[texture]
+size = 32
+region = {{ u = [0.25, 0.75], v = [0.25, 0.75] }}
+[exposure]
+mode = "auto"
+[skip]
+max_captures = 12
+[run]
+fault_scenario = "none"
+"#
+    );
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+#[test]
+fn run_writes_a_verified_dataset_resumes_to_nothing_and_refuses_another_plan() {
+    let dir = scratch("run");
+    let plan = tiny_plan(&dir, 7);
+    let out = dir.join("dataset");
+    let summary = ok(btfrig().args(["run", "--plan"]).arg(&plan).arg("--out").arg(&out));
+    assert!(summary.contains("12 captures (12 this run)"), "{summary}");
+    ok(btfrig().args(["dataset", "verify"]).arg(&out));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["captures"], 12, "{report}");
+    assert_eq!(report["captures_this_session"], 12, "{report}");
+    assert_eq!(report["captures_without_truth"], 0, "{report}");
+    // Rectified with the nominal pose against the truth of the true pose: the positioning
+    // error, sensor noise and colour matrix leave ~0.1 (docs/rectification.md); a wrong
+    // region, orientation or radiometric scale gives 0.5 and more.
+    let rmse = report["texture_rel_rmse"].as_f64().unwrap();
+    assert!(rmse > 0.0 && rmse < 0.25, "texture_rel_rmse {rmse}");
+    for stage in ["demosaic", "rectify", "radiometry", "write"] {
+        assert!(report["stage_s"][stage].as_f64().unwrap() > 0.0, "{stage}: {report}");
+    }
+    let textures = std::fs::read_dir(out.join("textures")).unwrap().count();
+    assert_eq!(textures, 12);
+    let report_before = std::fs::read_to_string(out.join("report.json")).unwrap();
+
+    // The same plan again: resumes with nothing to do, writes nothing, still verifies.
+    let again = ok(btfrig().args(["run", "--plan"]).arg(&plan).arg("--out").arg(&out));
+    assert!(again.contains("nothing to do"), "{again}");
+    assert_eq!(std::fs::read_to_string(out.join("report.json")).unwrap(), report_before);
+    ok(btfrig().args(["dataset", "verify"]).arg(&out));
+
+    // Another plan into the same directory: refused, naming the directory.
+    let other = tiny_plan(&dir, 8);
+    let err = fails(btfrig().args(["run", "--plan"]).arg(&other).arg("--out").arg(&out));
+    assert!(err.contains(&out.display().to_string()) && err.contains("another dataset"), "{err}");
+    assert_eq!(std::fs::read_dir(out.join("textures")).unwrap().count(), 12);
+    ok(btfrig().args(["dataset", "verify"]).arg(&out));
+}

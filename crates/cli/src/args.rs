@@ -18,6 +18,9 @@ pub enum Command {
     /// Run the embedded simulated gonioreflectometer: capture a handful of (light, view)
     /// pairs through the device traits, and print what it did.
     Demo(DemoArgs),
+    /// Run a measurement plan on the simulated rig into a dataset directory; resumes a
+    /// dataset of the same plan, refuses any other.
+    Run(RunArgs),
     /// The simulated rig on its own.
     #[command(subcommand)]
     Sim(SimCommand),
@@ -51,6 +54,17 @@ pub struct DemoArgs {
     /// Print the summary as one JSON object.
     #[arg(long)]
     pub json: bool,
+}
+
+/// `btfrig run`.
+#[derive(Debug, Args)]
+pub struct RunArgs {
+    /// The plan (TOML, see docs/plan-format.md).
+    #[arg(long)]
+    pub plan: std::path::PathBuf,
+    /// The dataset directory (created; or a dataset of the same plan, resumed).
+    #[arg(long)]
+    pub out: std::path::PathBuf,
 }
 
 /// `btfrig sim ...`.

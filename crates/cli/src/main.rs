@@ -8,6 +8,7 @@ mod kinematics_cmd;
 mod material;
 mod plan_cmd;
 mod rig;
+mod run_cmd;
 mod session;
 mod sim_cmd;
 
@@ -19,6 +20,7 @@ fn main() -> std::process::ExitCode {
     let result = match cli.command {
         Command::Kinematics(KinematicsCommand::Check { rig, json }) => kinematics_cmd::check(rig.as_deref(), json),
         Command::Demo(a) => demo_cmd::run(&a),
+        Command::Run(a) => run_cmd::run(&a),
         Command::Sim(SimCommand::Render(a)) => sim_cmd::render(&a),
         Command::Sim(SimCommand::Materials) => sim_cmd::materials(),
         Command::Plan(PlanCommand::Check { file }) => plan_cmd::check(&file),
