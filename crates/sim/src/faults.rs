@@ -239,6 +239,20 @@ pub fn derive_seed(seed: u64, name: &str, stream: u64) -> u64 {
     z ^ (z >> 31)
 }
 
+/// A seed from `seed` and a list of 64-bit words (SplitMix64 finaliser after each word):
+/// randomness keyed by WHAT happens (a target, a state) rather than by how many calls came
+/// before, so a resumed run draws exactly what an uninterrupted one drew at the same step.
+pub fn seed_for(seed: u64, words: &[u64]) -> u64 {
+    let mut z = seed;
+    for &w in words {
+        z = (z ^ w).wrapping_add(0x9e37_79b9_7f4a_7c15);
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^= z >> 31;
+    }
+    z
+}
+
 /// Timeout of calls that take no timeout argument (status queries, settings), seconds.
 pub const COMMAND_TIMEOUT_S: f64 = 5.0;
 

@@ -37,6 +37,8 @@ pub struct SimCamera {
     next_sequence: u64,
     readouts: u64,
     seed: u64,
+    /// The noise key of the last frame and how many frames in a row had it.
+    last_noise_key: (u64, u64),
 }
 
 impl std::fmt::Debug for SimCamera {
@@ -86,12 +88,41 @@ impl SimCamera {
             next_sequence: 0,
             readouts: 0,
             seed,
+            last_noise_key: (0, 0),
         }
     }
 
     /// Bytes sent per frame: the configured figure, or 2 bytes per photosite.
     pub fn frame_bytes(&self) -> u64 {
         self.timing.frame_bytes.unwrap_or((self.caps.width * self.caps.height * 2) as u64)
+    }
+
+    /// The sensor-noise seed of a frame: keyed by the scene state and settings it shows and
+    /// by how many frames in a row showed the same (so a series of dark frames still has
+    /// independent noise), never by the frame counter, so a run resumed after a crash gets
+    /// the same noise as the uninterrupted run at the same step.
+    fn noise_seed(&mut self, p: &Pending) -> u64 {
+        let j = &p.truth.joints;
+        let s = &p.settings;
+        let leds: Vec<u64> = p.truth.leds.iter().map(|l| l.to_bits()).collect();
+        let base = crate::faults::seed_for(derive_seed(self.seed, "camera-noise", 0), &leds);
+        let key = crate::faults::seed_for(
+            base,
+            &[
+                j.rail.to_bits(),
+                j.robot[0].to_bits(),
+                j.robot[1].to_bits(),
+                j.robot[2].to_bits(),
+                j.turntable.to_bits(),
+                p.truth.lamp_intensity.to_bits(),
+                s.exposure_s.to_bits(),
+                s.gain.to_bits(),
+                s.f_number.map_or(0, f64::to_bits),
+            ],
+        );
+        let repeat = if self.last_noise_key.0 == key { self.last_noise_key.1 + 1 } else { 0 };
+        self.last_noise_key = (key, repeat);
+        crate::faults::seed_for(key, &[repeat])
     }
 
     /// Time to transfer one frame to the host, seconds.
@@ -200,7 +231,8 @@ impl Camera for SimCamera {
                 format!("read_frame: frame {} did not arrive within {timeout_s} s", p.sequence),
             ));
         }
-        let mut frame = self.source.render(&p.truth, &p.settings, derive_seed(self.seed, "camera-noise", p.sequence));
+        let noise_seed = self.noise_seed(&p);
+        let mut frame = self.source.render(&p.truth, &p.settings, noise_seed);
         let c = &self.caps;
         frame.meta.sequence = p.sequence;
         frame.meta.timestamp_s = p.truth.time_s;

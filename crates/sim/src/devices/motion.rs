@@ -29,7 +29,7 @@ pub(crate) struct Motion<const N: usize> {
     pub commanded: [f64; N],
     /// Until when (clock seconds) an earlier move is still running.
     pub busy_until_s: f64,
-    rng: ChaCha8Rng,
+    seed: u64,
     clock: SharedClock,
 }
 
@@ -43,7 +43,7 @@ impl<const N: usize> Motion<N> {
             homed,
             commanded: [0.0; N],
             busy_until_s: f64::NEG_INFINITY,
-            rng: ChaCha8Rng::seed_from_u64(seed),
+            seed,
             clock,
         }
     }
@@ -80,11 +80,16 @@ impl<const N: usize> Motion<N> {
         }
     }
 
-    /// Where the axes truly land when commanded to `target`.
-    fn landing(&mut self, target: &[f64; N]) -> [f64; N] {
+    /// Where the axes truly land when commanded to `target`: offset plus a jitter drawn from
+    /// a stream keyed by the seed and the target itself (a pose-dependent repeatability
+    /// error). Keyed by the target, not by the number of moves so far, so a run resumed
+    /// after a crash lands exactly where the uninterrupted run landed.
+    fn landing(&self, target: &[f64; N]) -> [f64; N] {
+        let words: [u64; N] = std::array::from_fn(|i| target[i].to_bits());
+        let mut rng = ChaCha8Rng::seed_from_u64(crate::faults::seed_for(self.seed, &words));
         std::array::from_fn(|i| {
             let a = &self.axes[i];
-            let z: f64 = StandardNormal.sample(&mut self.rng);
+            let z: f64 = StandardNormal.sample(&mut rng);
             target[i] + a.offset_rad + a.jitter_rad * z
         })
     }
