@@ -104,6 +104,15 @@ fn a_run_killed_at_random_moments_and_resumed_equals_an_uninterrupted_one() {
         );
         // Nothing journaled is ever lost, and a kill never commits beyond the plan.
         assert!(done >= done_before && done <= total, "{done} after {done_before}");
+        // A killed run's dataset is not taken for a complete one.
+        if done < total {
+            let v = btfrig().args(["dataset", "verify"]).arg(&b).output().unwrap();
+            assert!(
+                !v.status.success(),
+                "verify passed on a dataset with {done}/{total} steps:\n{}",
+                text(&v)
+            );
+        }
         if !finished_first && done > 0 && done < total {
             mid_run += 1;
         }
