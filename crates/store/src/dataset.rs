@@ -24,6 +24,30 @@ pub const REPORT_FILE: &str = "report.json";
 pub const TEXTURES_DIR: &str = "textures";
 /// Directory of the raw frames.
 pub const RAW_DIR: &str = "raw";
+/// The live preview (8-bit sRGB PNG of the latest processed capture): not data, never
+/// journaled, replaced atomically by [`Dataset::write_preview`].
+pub const PREVIEW_FILE: &str = "preview.png";
+
+/// The files a done step of `manifest` must have written (a journal record naming fewer is
+/// refused by [`Dataset::commit_step`] and reported by [`verify`]).
+fn required_files(manifest: &Manifest, step: StepId) -> Vec<String> {
+    let mut out = Vec::new();
+    if manifest.textures {
+        out.push(texture_path(step));
+    }
+    if manifest.raw_frames {
+        out.push(raw_path(step));
+    }
+    out
+}
+
+fn texture_path(step: StepId) -> String {
+    format!("{TEXTURES_DIR}/{}.exr", step.stem())
+}
+
+fn raw_path(step: StepId) -> String {
+    format!("{RAW_DIR}/{}.exr", step.stem())
+}
 
 fn io_err<S: Storage + ?Sized>(s: &S, op: &'static str, path: &str) -> impl FnOnce(std::io::Error) -> StoreError {
     let path = s.display(path);
@@ -50,7 +74,11 @@ fn write_atomic<S: Storage + ?Sized>(s: &S, path: &str, bytes: &[u8]) -> Result<
     s.fsync(&tmp).map_err(io_err(s, "fsync", &tmp))?;
     s.rename(&tmp, path).map_err(io_err(s, "rename", &tmp))?;
     s.fsync(parent(path)).map_err(io_err(s, "fsync", parent(path)))?;
-    Ok(FileRecord { path: path.to_string(), size: bytes.len() as u64, hash: content_hash(bytes) })
+    Ok(FileRecord {
+        path: path.to_string(),
+        size: bytes.len() as u64,
+        hash: content_hash(bytes),
+    })
 }
 
 fn read_manifest<S: Storage + ?Sized>(s: &S) -> Result<Manifest, StoreError> {
@@ -58,7 +86,10 @@ fn read_manifest<S: Storage + ?Sized>(s: &S) -> Result<Manifest, StoreError> {
         None => return Err(StoreError::NotADataset { path: s.display("") }),
         Some(_) => s.read(MANIFEST_FILE).map_err(io_err(s, "read", MANIFEST_FILE))?,
     };
-    let bad = |reason: String| StoreError::BadManifest { path: s.display(MANIFEST_FILE), reason };
+    let bad = |reason: String| StoreError::BadManifest {
+        path: s.display(MANIFEST_FILE),
+        reason,
+    };
     let m: Manifest = serde_json::from_slice(&bytes).map_err(|e| bad(e.to_string()))?;
     let problems = m.problems();
     if !problems.is_empty() {
@@ -156,12 +187,17 @@ impl<S: Storage> Dataset<S> {
     pub fn create_in(storage: S, manifest: Manifest) -> Result<Self, StoreError> {
         let problems = manifest.problems();
         if !problems.is_empty() {
-            return Err(StoreError::BadManifest { path: storage.display(MANIFEST_FILE), reason: problems.join("; ") });
+            return Err(StoreError::BadManifest {
+                path: storage.display(MANIFEST_FILE),
+                reason: problems.join("; "),
+            });
         }
         let root = list_names(&storage, "")?;
         if root.iter().any(|e| e.name == MANIFEST_FILE) {
             // Look at it leniently: even a manifest of another schema names its plan.
-            let bytes = storage.read(MANIFEST_FILE).map_err(io_err(&storage, "read", MANIFEST_FILE))?;
+            let bytes = storage
+                .read(MANIFEST_FILE)
+                .map_err(io_err(&storage, "read", MANIFEST_FILE))?;
             let v: serde_json::Value = serde_json::from_slice(&bytes).unwrap_or_default();
             let get = |a: &str, b: Option<&str>| {
                 let x = &v[a];
@@ -170,7 +206,10 @@ impl<S: Storage> Dataset<S> {
             };
             let found = get("plan", Some("hash"));
             if found == manifest.plan.hash {
-                return Err(StoreError::AlreadyExists { path: storage.display(""), plan_hash: found });
+                return Err(StoreError::AlreadyExists {
+                    path: storage.display(""),
+                    plan_hash: found,
+                });
             }
             return Err(StoreError::OtherDataset {
                 path: storage.display(""),
@@ -180,12 +219,27 @@ impl<S: Storage> Dataset<S> {
             });
         }
         if !root.is_empty() {
-            let found = root.iter().take(10).map(|e| if e.is_dir { format!("{}/", e.name) } else { e.name.clone() });
-            return Err(StoreError::NotEmpty { path: storage.display(""), found: found.collect() });
+            let found = root.iter().take(10).map(|e| {
+                if e.is_dir {
+                    format!("{}/", e.name)
+                } else {
+                    e.name.clone()
+                }
+            });
+            return Err(StoreError::NotEmpty {
+                path: storage.display(""),
+                found: found.collect(),
+            });
         }
-        storage.create_dir(TEXTURES_DIR).map_err(io_err(&storage, "create directory", TEXTURES_DIR))?;
+        if manifest.textures {
+            storage
+                .create_dir(TEXTURES_DIR)
+                .map_err(io_err(&storage, "create directory", TEXTURES_DIR))?;
+        }
         if manifest.raw_frames {
-            storage.create_dir(RAW_DIR).map_err(io_err(&storage, "create directory", RAW_DIR))?;
+            storage
+                .create_dir(RAW_DIR)
+                .map_err(io_err(&storage, "create directory", RAW_DIR))?;
         }
         // The manifest first: once it exists the directory is this dataset, and a crash
         // before the journal is written leaves a dataset with nothing done (resume recreates it).
@@ -193,7 +247,12 @@ impl<S: Storage> Dataset<S> {
         write_atomic(&storage, MANIFEST_FILE, &json)?;
         let journal = Journal::create(&storage, JOURNAL_FILE, &manifest.plan.hash)?;
         let expected = manifest.samplings.expected_steps();
-        Ok(Dataset { storage, manifest, expected, journal: Mutex::new(journal) })
+        Ok(Dataset {
+            storage,
+            manifest,
+            expected,
+            journal: Mutex::new(journal),
+        })
     }
 
     /// [`Dataset::open_for_resume`] on any storage: checks the manifest and plan hash,
@@ -209,7 +268,11 @@ impl<S: Storage> Dataset<S> {
             });
         }
         let mut report = ResumeReport::default();
-        let journal = if storage.size(JOURNAL_FILE).map_err(io_err(&storage, "stat", JOURNAL_FILE))?.is_none() {
+        let journal = if storage
+            .size(JOURNAL_FILE)
+            .map_err(io_err(&storage, "stat", JOURNAL_FILE))?
+            .is_none()
+        {
             report.journal_recreated = true;
             Journal::create(&storage, JOURNAL_FILE, plan_hash)?
         } else {
@@ -218,11 +281,23 @@ impl<S: Storage> Dataset<S> {
             j
         };
         let expected = manifest.samplings.expected_steps();
-        for dir in [Some(TEXTURES_DIR), manifest.raw_frames.then_some(RAW_DIR)].into_iter().flatten() {
-            storage.create_dir(dir).map_err(io_err(&storage, "create directory", dir))?;
+        for dir in [
+            manifest.textures.then_some(TEXTURES_DIR),
+            manifest.raw_frames.then_some(RAW_DIR),
+        ]
+        .into_iter()
+        .flatten()
+        {
+            storage
+                .create_dir(dir)
+                .map_err(io_err(&storage, "create directory", dir))?;
         }
         let state = journal.state();
-        let named: BTreeSet<&str> = state.done.values().flat_map(|r| r.files.iter().map(|f| f.path.as_str())).collect();
+        let named: BTreeSet<&str> = state
+            .done
+            .values()
+            .flat_map(|r| r.files.iter().map(|f| f.path.as_str()))
+            .collect();
         let mut dirs_touched = BTreeSet::new();
         for path in data_files(&storage)? {
             if !named.contains(path.as_str()) {
@@ -249,7 +324,15 @@ impl<S: Storage> Dataset<S> {
             .filter(|s| !report.completed.contains(s) && !report.skipped.contains_key(s))
             .copied()
             .collect();
-        Ok((Dataset { storage, manifest, expected, journal: Mutex::new(journal) }, report))
+        Ok((
+            Dataset {
+                storage,
+                manifest,
+                expected,
+                journal: Mutex::new(journal),
+            },
+            report,
+        ))
     }
 
     fn journal(&self) -> MutexGuard<'_, Journal> {
@@ -269,10 +352,16 @@ impl<S: Storage> Dataset<S> {
         }
         let st = journal.state();
         if st.done.contains_key(&step) {
-            return Err(StoreError::StepAlreadyJournaled { step, state: "done".into() });
+            return Err(StoreError::StepAlreadyJournaled {
+                step,
+                state: "done".into(),
+            });
         }
         if let Some(r) = st.skipped.get(&step) {
-            return Err(StoreError::StepAlreadyJournaled { step, state: format!("skipped: {r}") });
+            return Err(StoreError::StepAlreadyJournaled {
+                step,
+                state: format!("skipped: {r}"),
+            });
         }
         Ok(())
     }
@@ -304,7 +393,8 @@ impl<S: Storage> Dataset<S> {
 
     /// Writes the rectified texture of `step` (`width x height` row-major linear RGB) as
     /// OpenEXR in the manifest's format to `textures/<stem>.exr`, durably, and returns its
-    /// record for [`Dataset::commit_step`]. Retrying a step simply writes again.
+    /// record for [`Dataset::commit_step`]. Retrying a step simply writes again. Fails unless
+    /// the manifest asks for textures.
     pub fn write_texture(
         &self,
         step: StepId,
@@ -313,12 +403,21 @@ impl<S: Storage> Dataset<S> {
         height: usize,
     ) -> Result<FileRecord, StoreError> {
         self.check_open(step, &self.journal())?;
-        let path = format!("{TEXTURES_DIR}/{}.exr", step.stem());
+        let path = texture_path(step);
+        if !self.manifest.textures {
+            return Err(StoreError::BadInput {
+                what: self.storage.display(&path),
+                reason: "the manifest has textures = false".into(),
+            });
+        }
         let spec = &self.manifest.texture;
         if (width, height) != (spec.width as usize, spec.height as usize) {
             return Err(StoreError::BadInput {
                 what: self.storage.display(&path),
-                reason: format!("texture is {width}x{height}, the manifest says {}x{}", spec.width, spec.height),
+                reason: format!(
+                    "texture is {width}x{height}, the manifest says {}x{}",
+                    spec.width, spec.height
+                ),
             });
         }
         let precision = match spec.format {
@@ -329,11 +428,12 @@ impl<S: Storage> Dataset<S> {
         write_atomic(&self.storage, &path, &bytes)
     }
 
-    /// Writes the raw frame of `step` to `raw/<stem>.exr` (see `btfrig_imageio::write_raw_exr`),
-    /// durably. Fails unless the manifest asks for raw frames.
+    /// Writes the raw frame of `step` to `raw/<stem>.exr` (see `btfrig_imageio::write_raw_exr`:
+    /// one 32-bit float channel holding the DNs exactly, lossless, the frame's metadata as JSON
+    /// in the header), durably. Fails unless the manifest asks for raw frames.
     pub fn write_raw(&self, step: StepId, frame: &RawFrame) -> Result<FileRecord, StoreError> {
         self.check_open(step, &self.journal())?;
-        let path = format!("{RAW_DIR}/{}.exr", step.stem());
+        let path = raw_path(step);
         if !self.manifest.raw_frames {
             return Err(StoreError::BadInput {
                 what: self.storage.display(&path),
@@ -346,7 +446,9 @@ impl<S: Storage> Dataset<S> {
 
     /// Journals `step` as done with the files it wrote (checked present with their sizes),
     /// the attempts it took and its timing. The record is fsync'd before this returns: from
-    /// then on the step counts, and a resumed run will not repeat it.
+    /// then on the step counts, and a resumed run will not repeat it. `files` must name every
+    /// file the manifest asks of a step (its texture, its raw frame), so one record counts
+    /// them together: a crash never leaves one counted without the other.
     pub fn commit_step(
         &self,
         step: StepId,
@@ -356,8 +458,25 @@ impl<S: Storage> Dataset<S> {
     ) -> Result<(), StoreError> {
         let mut journal = self.journal();
         self.check_open(step, &journal)?;
+        for need in required_files(&self.manifest, step) {
+            if !files.iter().any(|f| f.path == need) {
+                let named: Vec<&str> = files.iter().map(|f| f.path.as_str()).collect();
+                return Err(StoreError::BadInput {
+                    what: self.storage.display(&need),
+                    reason: format!(
+                        "step {step} committed without it (files: [{}]); the manifest asks for textures = {}, raw_frames = {}",
+                        named.join(", "),
+                        self.manifest.textures,
+                        self.manifest.raw_frames
+                    ),
+                });
+            }
+        }
         for f in &files {
-            let found = self.storage.size(&f.path).map_err(io_err(&self.storage, "stat", &f.path))?;
+            let found = self
+                .storage
+                .size(&f.path)
+                .map_err(io_err(&self.storage, "stat", &f.path))?;
             if found != Some(f.size) {
                 return Err(StoreError::FileNotAsRecorded {
                     path: self.storage.display(&f.path),
@@ -367,7 +486,26 @@ impl<S: Storage> Dataset<S> {
                 });
             }
         }
-        journal.append(&self.storage, Record::Step(StepRecord { step, files, attempts, timing }))
+        journal.append(
+            &self.storage,
+            Record::Step(StepRecord {
+                step,
+                files,
+                attempts,
+                timing,
+            }),
+        )
+    }
+
+    /// Replaces [`PREVIEW_FILE`] with `png` (temporary file, rename: a reader never sees a
+    /// partial image). Not journaled and not fsync'd: the preview is a live view, not data, and
+    /// after a crash it may be stale or missing.
+    pub fn write_preview(&self, png: &[u8]) -> Result<(), StoreError> {
+        let s = &self.storage;
+        let tmp = tmp_name(PREVIEW_FILE);
+        s.create(&tmp).map_err(io_err(s, "create", &tmp))?;
+        s.append(&tmp, png).map_err(io_err(s, "write", &tmp))?;
+        s.rename(&tmp, PREVIEW_FILE).map_err(io_err(s, "rename", &tmp))
     }
 
     /// Journals `step` as skipped during the run (e.g. a marker occluded), so a resumed run
@@ -375,7 +513,13 @@ impl<S: Storage> Dataset<S> {
     pub fn skip_step(&self, step: StepId, reason: &str) -> Result<(), StoreError> {
         let mut journal = self.journal();
         self.check_open(step, &journal)?;
-        journal.append(&self.storage, Record::Skip { step, reason: reason.into() })
+        journal.append(
+            &self.storage,
+            Record::Skip {
+                step,
+                reason: reason.into(),
+            },
+        )
     }
 
     /// Ends the run: writes `report.json` and the manifest's timing summary (both atomically).
@@ -409,7 +553,10 @@ impl<S: Storage> Dataset<S> {
 }
 
 fn now() -> f64 {
-    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs_f64()).unwrap_or(0.0)
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs_f64())
+        .unwrap_or(0.0)
 }
 
 /// Summary of a dataset for `btfrig dataset info`.
@@ -447,14 +594,21 @@ impl std::fmt::Display for DatasetInfo {
         writeln!(f, "dataset   {}", self.dir)?;
         writeln!(f, "rig       {}", m.rig.name)?;
         writeln!(f, "plan      {}", m.plan.hash)?;
-        writeln!(f, "software  {} {} (manifest schema {})", m.software.name, m.software.version, m.schema_version)?;
+        writeln!(
+            f,
+            "software  {} {} (manifest schema {})",
+            m.software.name, m.software.version, m.schema_version
+        )?;
         writeln!(f, "created   {}  seed {}", m.created_utc, m.seed)?;
         writeln!(
             f,
             "sampling  {} light x {} view directions{}, {} skipped by the plan",
             m.samplings.light.len(),
             m.samplings.view.len(),
-            m.samplings.pairs.as_ref().map_or(String::new(), |p| format!(" ({} pairs)", p.len())),
+            m.samplings
+                .pairs
+                .as_ref()
+                .map_or(String::new(), |p| format!(" ({} pairs)", p.len())),
             m.samplings.skipped.len()
         )?;
         let fmt = match m.texture.format {
@@ -463,7 +617,12 @@ impl std::fmt::Display for DatasetInfo {
         };
         writeln!(
             f,
-            "textures  {}x{} {fmt}, region {:.4}x{:.4} m at ({:.4}, {:.4}){}",
+            "textures  {}{}x{} {fmt}, region {:.4}x{:.4} m at ({:.4}, {:.4}){}",
+            if m.textures {
+                ""
+            } else {
+                "none written (raw frames only); would be "
+            },
             m.texture.width,
             m.texture.height,
             m.texture.region.size_m[0],
@@ -472,14 +631,27 @@ impl std::fmt::Display for DatasetInfo {
             m.texture.region.center_m[1],
             if m.raw_frames { ", raw frames kept" } else { "" }
         )?;
-        let pct = if self.expected == 0 { 100.0 } else { 100.0 * self.done as f64 / self.expected as f64 };
+        let pct = if self.expected == 0 {
+            100.0
+        } else {
+            100.0 * self.done as f64 / self.expected as f64
+        };
         writeln!(
             f,
             "steps     {}/{} done ({pct:.1}%), {} skipped in the run, {} retries",
             self.done, self.expected, self.skipped_in_run, self.retries
         )?;
-        writeln!(f, "size      {} files, {:.1} MB", self.files, self.bytes_on_disk as f64 / 1e6)?;
-        write!(f, "timing    steps: {:.1} s wall, {:.1} s hardware", self.step_wall_s, self.step_hardware_s)?;
+        writeln!(
+            f,
+            "size      {} files, {:.1} MB",
+            self.files,
+            self.bytes_on_disk as f64 / 1e6
+        )?;
+        write!(
+            f,
+            "timing    steps: {:.1} s wall, {:.1} s hardware",
+            self.step_wall_s, self.step_hardware_s
+        )?;
         if let Some(t) = &m.timing {
             write!(f, "; run: {:.1} s wall", t.wall_s)?;
             if let Some(h) = t.hardware_s {
@@ -487,7 +659,15 @@ impl std::fmt::Display for DatasetInfo {
             }
         }
         writeln!(f)?;
-        write!(f, "state     {}", if self.finished { "finished" } else { "unfinished (resumable)" })?;
+        write!(
+            f,
+            "state     {}",
+            if self.finished {
+                "finished"
+            } else {
+                "unfinished (resumable)"
+            }
+        )?;
         if let Some(t) = &self.torn_tail {
             write!(f, "; {t}")?;
         }
@@ -497,7 +677,11 @@ impl std::fmt::Display for DatasetInfo {
 
 fn all_files<S: Storage + ?Sized>(s: &S, dir: &str, out: &mut Vec<(String, u64)>) -> Result<(), StoreError> {
     for e in list_names(s, dir)? {
-        let p = if dir.is_empty() { e.name.clone() } else { format!("{dir}/{}", e.name) };
+        let p = if dir.is_empty() {
+            e.name.clone()
+        } else {
+            format!("{dir}/{}", e.name)
+        };
         if e.is_dir {
             all_files(s, &p, out)?;
         } else {
@@ -528,7 +712,11 @@ pub fn info_in<S: Storage + ?Sized>(s: &S) -> Result<DatasetInfo, StoreError> {
         expected: manifest.samplings.expected_steps().len(),
         done: replay.done.len(),
         skipped_in_run: replay.skipped.len(),
-        retries: replay.done.values().map(|r| u64::from(r.attempts.saturating_sub(1))).sum(),
+        retries: replay
+            .done
+            .values()
+            .map(|r| u64::from(r.attempts.saturating_sub(1)))
+            .sum(),
         bytes_on_disk: files.iter().map(|f| f.1).sum(),
         files: files.len(),
         step_wall_s: replay.done.values().map(|r| r.timing.wall_s).sum(),
@@ -594,6 +782,14 @@ pub enum Problem {
         /// Hash of the file on disk.
         found: String,
     },
+    /// A done step's journal record does not name a file the manifest asks of every step
+    /// (its texture or its raw frame).
+    Unrecorded {
+        /// The step.
+        step: StepId,
+        /// The file it should have recorded.
+        path: String,
+    },
     /// A file that no journal record names, or an entry that does not belong in a dataset.
     Orphan {
         /// The path.
@@ -615,18 +811,38 @@ impl std::fmt::Display for Problem {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             Problem::NotADataset { found } => {
-                write!(f, "not a btfrig dataset: no {MANIFEST_FILE} (found: {})", found.join(", "))
+                write!(
+                    f,
+                    "not a btfrig dataset: no {MANIFEST_FILE} (found: {})",
+                    found.join(", ")
+                )
             }
             Problem::Manifest { reason } => write!(f, "{MANIFEST_FILE}: {reason}"),
             Problem::Journal { reason } => write!(f, "{JOURNAL_FILE}: {reason}"),
             Problem::TornJournalTail(t) => write!(f, "{JOURNAL_FILE}: {t}; resuming the run cuts it"),
             Problem::UnexpectedStep { step } => write!(f, "{JOURNAL_FILE}: step {step} is not in the plan"),
             Problem::MissingFile { step, path } => write!(f, "{path}: missing (journaled for step {step})"),
-            Problem::WrongSize { step, path, expected, found } => {
+            Problem::WrongSize {
+                step,
+                path,
+                expected,
+                found,
+            } => {
                 write!(f, "{path}: {found} bytes, journaled with {expected} for step {step}")
             }
-            Problem::WrongHash { step, path, expected, found } => {
+            Problem::WrongHash {
+                step,
+                path,
+                expected,
+                found,
+            } => {
                 write!(f, "{path}: content hash {found}, journaled {expected} for step {step}")
+            }
+            Problem::Unrecorded { step, path } => {
+                write!(
+                    f,
+                    "{path}: the manifest asks for it, but the journal record of step {step} does not name it"
+                )
             }
             Problem::Orphan { path } => write!(f, "{path}: not named by any journal record"),
             Problem::Incomplete { missing } => {
@@ -699,11 +915,17 @@ pub fn verify(dir: &Path) -> VerifyReport {
 
 /// [`verify`] on any storage.
 pub fn verify_in<S: Storage + ?Sized>(s: &S) -> VerifyReport {
-    let mut r = VerifyReport { dir: s.display(""), ..VerifyReport::default() };
+    let mut r = VerifyReport {
+        dir: s.display(""),
+        ..VerifyReport::default()
+    };
     let manifest = match read_manifest(s) {
         Ok(m) => m,
         Err(StoreError::NotADataset { .. }) => {
-            let found = s.list("").map(|l| l.into_iter().take(10).map(|e| e.name).collect()).unwrap_or_default();
+            let found = s
+                .list("")
+                .map(|l| l.into_iter().take(10).map(|e| e.name).collect())
+                .unwrap_or_default();
             r.problems.push(Problem::NotADataset { found });
             return r;
         }
@@ -716,7 +938,9 @@ pub fn verify_in<S: Storage + ?Sized>(s: &S) -> VerifyReport {
     r.expected = expected.len();
     let replay = match s.read(JOURNAL_FILE) {
         Err(e) => {
-            r.problems.push(Problem::Journal { reason: format!("cannot read: {e}") });
+            r.problems.push(Problem::Journal {
+                reason: format!("cannot read: {e}"),
+            });
             journal::Replay::default()
         }
         Ok(bytes) => match journal::replay(JOURNAL_FILE, &bytes) {
@@ -742,12 +966,23 @@ pub fn verify_in<S: Storage + ?Sized>(s: &S) -> VerifyReport {
         if !expected.contains(step) {
             r.problems.push(Problem::UnexpectedStep { step: *step });
         }
+        for need in required_files(&manifest, *step) {
+            if !rec.files.iter().any(|f| f.path == need) {
+                r.problems.push(Problem::Unrecorded {
+                    step: *step,
+                    path: need,
+                });
+            }
+        }
         for file in &rec.files {
             named.insert(file.path.clone());
             let bytes = match s.read(&file.path) {
                 Ok(b) => b,
                 Err(_) => {
-                    r.problems.push(Problem::MissingFile { step: *step, path: file.path.clone() });
+                    r.problems.push(Problem::MissingFile {
+                        step: *step,
+                        path: file.path.clone(),
+                    });
                     continue;
                 }
             };
@@ -783,10 +1018,15 @@ pub fn verify_in<S: Storage + ?Sized>(s: &S) -> VerifyReport {
         r.skipped.insert(sk.step, sk.reason.clone());
     }
     r.done = replay.done.len();
-    r.missing =
-        expected.iter().filter(|s| !replay.done.contains_key(s) && !replay.skipped.contains_key(s)).copied().collect();
+    r.missing = expected
+        .iter()
+        .filter(|s| !replay.done.contains_key(s) && !replay.skipped.contains_key(s))
+        .copied()
+        .collect();
     if !r.missing.is_empty() {
-        r.problems.push(Problem::Incomplete { missing: r.missing.len() });
+        r.problems.push(Problem::Incomplete {
+            missing: r.missing.len(),
+        });
     }
     match data_files(s) {
         Ok(files) => {
@@ -794,12 +1034,26 @@ pub fn verify_in<S: Storage + ?Sized>(s: &S) -> VerifyReport {
                 r.problems.push(Problem::Orphan { path: p });
             }
         }
-        Err(e) => r.problems.push(Problem::Journal { reason: format!("cannot list data directories: {e}") }),
+        Err(e) => r.problems.push(Problem::Journal {
+            reason: format!("cannot list data directories: {e}"),
+        }),
     }
-    let known = [MANIFEST_FILE, JOURNAL_FILE, REPORT_FILE, TEXTURES_DIR, RAW_DIR];
+    // The preview and its temporary name (a run killed while replacing it) are not data.
+    let preview_tmp = tmp_name(PREVIEW_FILE);
+    let known = [
+        MANIFEST_FILE,
+        JOURNAL_FILE,
+        REPORT_FILE,
+        TEXTURES_DIR,
+        RAW_DIR,
+        PREVIEW_FILE,
+        preview_tmp.as_str(),
+    ];
     for e in s.list("").unwrap_or_default() {
         if !known.contains(&e.name.as_str()) {
-            r.problems.push(Problem::Orphan { path: if e.is_dir { format!("{}/", e.name) } else { e.name } });
+            r.problems.push(Problem::Orphan {
+                path: if e.is_dir { format!("{}/", e.name) } else { e.name },
+            });
         }
     }
     if let Ok(bytes) = s.read(REPORT_FILE) {
