@@ -56,15 +56,8 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
                     let stem = format!("{i:02}_l{lt:03.0}_{lp:03.0}_v{vt:03.0}_{vp:03.0}");
                     btfrig_imageio::write_raw_frame(&out.join(format!("{stem}.raw.png")), &cap.frame)?;
                     write_preview(&s.scene, &cap.frame, &out.join(format!("{stem}.preview.png")))?;
-                    let gt = s
-                        .scene
-                        .ground_truth(&cap.truth.joints, cap.truth.lamp_intensity, DEMO_TEXTURE);
-                    btfrig_imageio::write_rgb_exr(
-                        &out.join(format!("{stem}.truth.exr")),
-                        gt.width,
-                        gt.height,
-                        &gt.data,
-                    )?;
+                    let gt = s.scene.ground_truth(&cap.truth.joints, cap.truth.lamp_intensity, DEMO_TEXTURE);
+                    btfrig_imageio::write_rgb_exr(&out.join(format!("{stem}.truth.exr")), gt.width, gt.height, &gt.data)?;
                     let (l2, v2) = s.scene.gonio().fk(&cap.truth.joints);
                     rows.push(json!({
                         "file": stem,
@@ -107,10 +100,7 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
         return Ok(());
     }
     println!("btfrig demo: rig {}, material {}", cfg.rig.name, material.name);
-    println!(
-        "{:<26} {:<16} {:<16} {:>14} {:>10} {:>8}",
-        "capture", "light (deg)", "view (deg)", "pose err (deg)", "hw (s)", "wall (s)"
-    );
+    println!("{:<26} {:<16} {:<16} {:>14} {:>10} {:>8}", "capture", "light (deg)", "view (deg)", "pose err (deg)", "hw (s)", "wall (s)");
     for r in &rows {
         println!(
             "{:<26} {:<16} {:<16} {:>6.3} {:>6.3} {:>10.2} {:>8.2}",
@@ -124,12 +114,7 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
         );
     }
     for s in &skipped {
-        println!(
-            "skipped: light ({}) view ({}): {}",
-            s["light"].as_str().unwrap_or(""),
-            s["view"].as_str().unwrap_or(""),
-            s["reason"].as_str().unwrap_or("")
-        );
+        println!("skipped: light ({}) view ({}): {}", s["light"].as_str().unwrap_or(""), s["view"].as_str().unwrap_or(""), s["reason"].as_str().unwrap_or(""));
     }
     println!(
         "{} captures, {} skipped; simulated hardware time {:.1} s (of which homing and lamp warm-up {:.1} s); wall {:.2} s",
@@ -146,10 +131,7 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
         st.shadow_rays,
         st.shadow_rays_skipped
     );
-    println!(
-        "wrote raw frames, previews and ground-truth textures to {}",
-        out.display()
-    );
+    println!("wrote raw frames, previews and ground-truth textures to {}", out.display());
     Ok(())
 }
 
@@ -159,10 +141,7 @@ fn prepare_output(out: Option<PathBuf>) -> anyhow::Result<PathBuf> {
     let dir = match out {
         Some(d) => d,
         None => {
-            let stamp = std::time::SystemTime::now()
-                .duration_since(std::time::UNIX_EPOCH)
-                .map(|d| d.as_millis())
-                .unwrap_or(0);
+            let stamp = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_millis()).unwrap_or(0);
             std::env::temp_dir().join(format!("btfrig-demo-{stamp}-{}", std::process::id()))
         }
     };

@@ -27,12 +27,9 @@ fn main() -> std::process::ExitCode {
         Command::Plan(PlanCommand::Show { file }) => plan_cmd::show(&file),
         Command::Dataset(DatasetCommand::Info { dir }) => dataset_cmd::info(&dir),
         Command::Dataset(DatasetCommand::Verify { dir }) => dataset_cmd::verify(&dir),
-        Command::Bench(BenchCommand::Render {
-            rig,
-            material,
-            texels,
-            repeat,
-        }) => bench_cmd::render(rig.as_deref(), &material, texels, repeat),
+        Command::Bench(BenchCommand::Render { rig, material, texels, repeat }) => {
+            bench_cmd::render(rig.as_deref(), &material, texels, repeat)
+        }
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

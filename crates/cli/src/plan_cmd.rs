@@ -26,12 +26,7 @@ pub(crate) fn load(file: &Path) -> anyhow::Result<(Plan, ValidatedPlan)> {
 pub fn check(file: &Path) -> anyhow::Result<()> {
     let (_, v) = load(file)?;
     let list = v.capture_list();
-    println!(
-        "{}: valid plan {:?} (hash {:016x})",
-        file.display(),
-        v.name,
-        v.plan_hash
-    );
+    println!("{}: valid plan {:?} (hash {:016x})", file.display(), v.name, v.plan_hash);
     println!(
         "rig {} ({}), {} light x {} view directions, {} requested pairs, {} captures, {} skipped",
         v.rig.rig.name,
@@ -50,11 +45,7 @@ pub fn check(file: &Path) -> anyhow::Result<()> {
 pub fn show(file: &Path) -> anyhow::Result<()> {
     let (plan, v) = load(file)?;
     let list = v.capture_list();
-    anyhow::ensure!(
-        !list.captures.is_empty(),
-        "{}: the plan captures nothing",
-        file.display()
-    );
+    anyhow::ensure!(!list.captures.is_empty(), "{}: the plan captures nothing", file.display());
     let gonio = Gonio::new(v.rig.geometry.clone())?;
     let exposure_s = exposure_s(&plan, &v, file)?;
     let frame_bytes = frame_bytes(&v);
@@ -72,17 +63,10 @@ pub fn show(file: &Path) -> anyhow::Result<()> {
     let disk = DiskEstimate {
         // Raw frames are stored as single-channel float OpenEXR.
         raw_bytes_per_capture: if v.outputs.raw_frames { photosites * 4 } else { 0 },
-        texture_bytes_per_capture: if v.outputs.textures {
-            (v.texture.size * v.texture.size) as u64 * texel_bytes
-        } else {
-            0
-        },
+        texture_bytes_per_capture: if v.outputs.textures { (v.texture.size * v.texture.size) as u64 * texel_bytes } else { 0 },
     };
     println!("plan {:?} from {} (hash {:016x})", v.name, file.display(), v.plan_hash);
-    println!(
-        "rig {}, exposure {:.4} s per capture, {} bytes transferred per frame",
-        v.rig.rig.name, exposure_s, frame_bytes
-    );
+    println!("rig {}, exposure {:.4} s per capture, {} bytes transferred per frame", v.rig.rig.name, exposure_s, frame_bytes);
     for (reason, n) in skip_counts(&list.skipped) {
         println!("skipped by the plan: {n} ({reason})");
     }
@@ -117,11 +101,7 @@ pub(crate) fn exposure_s(plan: &Plan, v: &ValidatedPlan, file: &Path) -> anyhow:
 /// Bytes the camera transfers per frame (the timing model's, or 2 per photosite).
 pub(crate) fn frame_bytes(v: &ValidatedPlan) -> u64 {
     let cam = &v.rig.camera;
-    v.rig
-        .timing
-        .camera
-        .frame_bytes
-        .unwrap_or((cam.width_px * cam.height_px) as u64 * 2)
+    v.rig.timing.camera.frame_bytes.unwrap_or((cam.width_px * cam.height_px) as u64 * 2)
 }
 
 pub(crate) fn skip_counts(skipped: &[((usize, usize), btfrig_core::plan::SkipReason)]) -> Vec<(String, usize)> {

@@ -42,11 +42,7 @@ pub fn run(a: &RunArgs) -> anyhow::Result<()> {
     let (plan, v) = crate::plan_cmd::load(&a.plan)?;
     let text = std::fs::read_to_string(&a.plan).with_context(|| format!("cannot read plan {}", a.plan.display()))?;
     let list = v.capture_list();
-    anyhow::ensure!(
-        !list.captures.is_empty(),
-        "{}: the plan captures nothing",
-        a.plan.display()
-    );
+    anyhow::ensure!(!list.captures.is_empty(), "{}: the plan captures nothing", a.plan.display());
     let faults = fault_scenario(&plan, &a.plan)?;
     let material = crate::plan_cmd::material(&plan, &v, &a.plan)?;
     let exposure_s = crate::plan_cmd::exposure_s(&plan, &v, &a.plan)?;
@@ -66,10 +62,7 @@ pub fn run(a: &RunArgs) -> anyhow::Result<()> {
                 r.completed.len(),
                 r.skipped.len(),
                 r.remaining.len(),
-                r.torn_tail
-                    .as_ref()
-                    .map(|t| format!(" (torn journal tail dropped: {t:?})"))
-                    .unwrap_or_default()
+                r.torn_tail.as_ref().map(|t| format!(" (torn journal tail dropped: {t:?})")).unwrap_or_default()
             );
             let mut done = r.completed.clone();
             done.extend(r.skipped.keys().copied());
@@ -79,31 +72,15 @@ pub fn run(a: &RunArgs) -> anyhow::Result<()> {
     };
 
     let gonio = Gonio::new(v.rig.geometry.clone())?;
-    let request = PlanRequest::new(
-        &gonio,
-        &v.light,
-        &v.view,
-        &v.rig.timing,
-        exposure_s,
-        crate::plan_cmd::frame_bytes(&v),
-    )
-    .with_pairs(PairSelection::List(list.captures.clone()));
+    let request =
+        PlanRequest::new(&gonio, &v.light, &v.view, &v.rig.timing, exposure_s, crate::plan_cmd::frame_bytes(&v))
+            .with_pairs(PairSelection::List(list.captures.clone()));
     let schedule = plan_schedule(&request)?;
     let steps = EngineStep::from_schedule(&schedule);
-    let done: HashSet<StepKey> = completed
-        .iter()
-        .map(|s| StepKey {
-            light: s.light,
-            view: s.view,
-        })
-        .collect();
+    let done: HashSet<StepKey> = completed.iter().map(|s| StepKey { light: s.light, view: s.view }).collect();
     let to_do = steps.iter().filter(|s| !done.contains(&s.key)).count();
     if to_do == 0 {
-        println!(
-            "{}: all {} captures already done; nothing to do",
-            a.out.display(),
-            completed.len()
-        );
+        println!("{}: all {} captures already done; nothing to do", a.out.display(), completed.len());
         return Ok(());
     }
     eprintln!(
@@ -142,15 +119,8 @@ pub fn run(a: &RunArgs) -> anyhow::Result<()> {
         let source = Arc::new(RenderedFrameSource::new(scene.clone(), RenderOptions::default()));
         let truth = Arc::new(TruthLog::new(source));
         let mut rig = SimRig::from_rig_config(&v.rig, &faults, TokioClock::shared(), truth.clone())?;
-        btfrig_sim::capture::prepare(&mut rig)
-            .await
-            .context("preparing the simulated rig")?;
-        let devices = Devices {
-            robot: rig.robot,
-            rail: rig.rail,
-            camera: rig.camera,
-            clock: rig.world.clock().clone(),
-        };
+        btfrig_sim::capture::prepare(&mut rig).await.context("preparing the simulated rig")?;
+        let devices = Devices { robot: rig.robot, rail: rig.rail, camera: rig.camera, clock: rig.world.clock().clone() };
         let _lamp = rig.lamp; // stays on for the whole run
         let (tx, rx) = tokio::sync::mpsc::channel(FRAME_CHANNEL);
         let mut handle = Engine::spawn(devices, steps, done, settings, tx);
@@ -172,15 +142,10 @@ pub fn run(a: &RunArgs) -> anyhow::Result<()> {
                     Ok(Event::Progress { done, total, eta_s }) => {
                         let eta = eta_s.map(|s| format!("{s:.0} s")).unwrap_or_else(|| "?".into());
                         let mut err = std::io::stderr().lock();
-                        let _ = write!(
-                            err,
-                            "\rcaptures {done}/{total}, ETA {eta} (rig time), last {current}   "
-                        );
+                        let _ = write!(err, "\rcaptures {done}/{total}, ETA {eta} (rig time), last {current}   ");
                         let _ = err.flush();
                     }
-                    Ok(Event::Paused {
-                        reason: r @ PauseReason::StepFailed { .. },
-                    }) => {
+                    Ok(Event::Paused { reason: r @ PauseReason::StepFailed { .. } }) => {
                         // Nobody is at the console to fix the cause: stop; the run stays
                         // resumable (every delivered step is journaled).
                         failure = Some(r.to_string());
@@ -221,21 +186,12 @@ pub fn run(a: &RunArgs) -> anyhow::Result<()> {
         extra.insert("texture_rel_rmse".to_string(), serde_json::json!(r));
     }
     extra.insert("captures_this_session".to_string(), serde_json::json!(totals.committed));
-    extra.insert(
-        "captures_without_truth".to_string(),
-        serde_json::json!(totals.without_truth),
-    );
+    extra.insert("captures_without_truth".to_string(), serde_json::json!(totals.without_truth));
     if v.outputs.preview {
         extra.insert("previews_this_session".to_string(), serde_json::json!(totals.previews));
     }
-    extra.insert(
-        "critical_path_s".to_string(),
-        serde_json::json!(schedule.critical_path_s),
-    );
-    extra.insert(
-        "naive_order_hardware_s".to_string(),
-        serde_json::json!(schedule.naive_order_hardware_s),
-    );
+    extra.insert("critical_path_s".to_string(), serde_json::json!(schedule.critical_path_s));
+    extra.insert("naive_order_hardware_s".to_string(), serde_json::json!(schedule.naive_order_hardware_s));
     let report = RunReport {
         captures,
         wall_s,
@@ -273,22 +229,13 @@ pub fn run(a: &RunArgs) -> anyhow::Result<()> {
 
 /// The plan's fault scenario: an embedded name, or a file relative to the plan.
 fn fault_scenario(plan: &Plan, file: &Path) -> anyhow::Result<FaultScenario> {
-    let Some(name) = plan.run.fault_scenario.as_deref() else {
-        return Ok(FaultScenario::none());
-    };
+    let Some(name) = plan.run.fault_scenario.as_deref() else { return Ok(FaultScenario::none()) };
     if let Some((_, text)) = FAULT_FILES.iter().find(|(n, _)| *n == name) {
-        return Ok(FaultScenario::from_toml(
-            text,
-            &format!("<embedded sim/faults/{name}.toml>"),
-        )?);
+        return Ok(FaultScenario::from_toml(text, &format!("<embedded sim/faults/{name}.toml>"))?);
     }
     let path = file.parent().unwrap_or(Path::new(".")).join(name);
     let text = std::fs::read_to_string(&path).with_context(|| {
-        format!(
-            "run.fault_scenario {name:?}: cannot read {}; allowed: {} or a file",
-            path.display(),
-            BUILTIN_FAULT_SCENARIOS.join(", ")
-        )
+        format!("run.fault_scenario {name:?}: cannot read {}; allowed: {} or a file", path.display(), BUILTIN_FAULT_SCENARIOS.join(", "))
     })?;
     Ok(FaultScenario::from_toml(&text, &path.display().to_string())?)
 }
@@ -302,40 +249,18 @@ fn manifest(
     list: &btfrig_core::plan::CaptureList,
 ) -> anyhow::Result<Manifest> {
     let config_toml = match plan.rig.config.strip_prefix("builtin:") {
-        Some(name) => BUILTIN_RIGS
-            .iter()
-            .find(|(n, _)| *n == name)
-            .map(|(_, t)| t.to_string())
-            .unwrap_or_default(),
+        Some(name) => BUILTIN_RIGS.iter().find(|(n, _)| *n == name).map(|(_, t)| t.to_string()).unwrap_or_default(),
         None => {
-            let p = plan
-                .rig_config_path(file)
-                .unwrap_or_else(|| plan.rig.config.clone().into());
+            let p = plan.rig_config_path(file).unwrap_or_else(|| plan.rig.config.clone().into());
             std::fs::read_to_string(&p).with_context(|| format!("cannot read rig config {}", p.display()))?
         }
     };
-    let id = |(l, v): (usize, usize)| StepId {
-        light: l as u32,
-        view: v as u32,
-    };
+    let id = |(l, v): (usize, usize)| StepId { light: l as u32, view: v as u32 };
     let samplings = Samplings {
         light: v.light.directions().iter().map(|&d| DirectionDeg::from(d)).collect(),
         view: v.view.directions().iter().map(|&d| DirectionDeg::from(d)).collect(),
-        pairs: Some(
-            list.captures
-                .iter()
-                .chain(list.skipped.iter().map(|(p, _)| p))
-                .map(|&p| id(p))
-                .collect(),
-        ),
-        skipped: list
-            .skipped
-            .iter()
-            .map(|&(p, r)| SkippedStep {
-                step: id(p),
-                reason: r.label(),
-            })
-            .collect(),
+        pairs: Some(list.captures.iter().chain(list.skipped.iter().map(|(p, _)| p)).map(|&p| id(p)).collect()),
+        skipped: list.skipped.iter().map(|&(p, r)| SkippedStep { step: id(p), reason: r.label() }).collect(),
     };
     let r = &v.texture.region;
     let texture = TextureSpec {
@@ -350,10 +275,7 @@ fn manifest(
             OutputFormat::ExrFloat => TextureFormat::ExrFloat,
         },
     };
-    let rig = RigInfo {
-        name: v.rig.rig.name.clone(),
-        config_toml,
-    };
+    let rig = RigInfo { name: v.rig.rig.name.clone(), config_toml };
     let mut m = Manifest::new(rig, text, samplings, texture, v.outputs.raw_frames, v.rig.rig.seed);
     m.textures = v.outputs.textures;
     Ok(m)

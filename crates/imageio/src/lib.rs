@@ -71,28 +71,16 @@ pub enum ImageIoError {
 }
 
 fn exr_err(path: &Path, e: impl std::fmt::Display) -> ImageIoError {
-    ImageIoError::Exr {
-        path: path.to_path_buf(),
-        message: e.to_string(),
-    }
+    ImageIoError::Exr { path: path.to_path_buf(), message: e.to_string() }
 }
 fn png_err(path: &Path, e: impl std::fmt::Display) -> ImageIoError {
-    ImageIoError::Png {
-        path: path.to_path_buf(),
-        message: e.to_string(),
-    }
+    ImageIoError::Png { path: path.to_path_buf(), message: e.to_string() }
 }
 fn content(path: &Path, message: impl Into<String>) -> ImageIoError {
-    ImageIoError::Content {
-        path: path.to_path_buf(),
-        message: message.into(),
-    }
+    ImageIoError::Content { path: path.to_path_buf(), message: message.into() }
 }
 fn bad_input(path: &Path, message: impl Into<String>) -> ImageIoError {
-    ImageIoError::BadInput {
-        path: path.to_path_buf(),
-        message: message.into(),
-    }
+    ImageIoError::BadInput { path: path.to_path_buf(), message: message.into() }
 }
 
 fn check_len(path: &Path, width: usize, height: usize, len: usize) -> Result<(), ImageIoError> {
@@ -108,12 +96,7 @@ fn check_len(path: &Path, width: usize, height: usize, len: usize) -> Result<(),
 /// Writes `frame` with the format chosen by the extension: `.exr` ([`write_raw_exr`]) or
 /// `.png` ([`write_raw_png`]).
 pub fn write_raw_frame(path: &Path, frame: &RawFrame) -> Result<(), ImageIoError> {
-    match path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase)
-        .as_deref()
-    {
+    match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
         Some("exr") => write_raw_exr(path, frame),
         Some("png") => write_raw_png(path, frame),
         _ => Err(bad_input(path, "unknown extension for a raw frame: use .exr or .png")),
@@ -130,8 +113,7 @@ pub fn write_raw_png(path: &Path, frame: &RawFrame) -> Result<(), ImageIoError> 
         frame.data.as_slice(),
     )
     .ok_or_else(|| bad_input(path, "buffer size mismatch"))?;
-    buf.save_with_format(path, image::ImageFormat::Png)
-        .map_err(|e| png_err(path, e))
+    buf.save_with_format(path, image::ImageFormat::Png).map_err(|e| png_err(path, e))
 }
 
 /// Reads a 16-bit greyscale PNG as a raw frame with the given metadata (PNG does not carry
@@ -148,31 +130,20 @@ pub fn read_raw_png(path: &Path, meta: FrameMeta) -> Result<RawFrame, ImageIoErr
         return Err(content(path, format!("expected 16-bit greyscale, found {color:?}")));
     };
     let (w, h) = (buf.width() as usize, buf.height() as usize);
-    Ok(RawFrame {
-        width: w,
-        height: h,
-        data: buf.into_raw(),
-        meta,
-    })
+    Ok(RawFrame { width: w, height: h, data: buf.into_raw(), meta })
 }
 
 /// Writes the frame as single-channel OpenEXR (channel [`RAW_CHANNEL`], 32-bit float DN,
 /// lossless RLE compression) with its metadata as JSON in the attribute [`META_ATTRIBUTE`].
 pub fn write_raw_exr(path: &Path, frame: &RawFrame) -> Result<(), ImageIoError> {
-    raw_exr_image(path, frame)?
-        .write()
-        .to_file(path)
-        .map_err(|e| exr_err(path, e))
+    raw_exr_image(path, frame)?.write().to_file(path).map_err(|e| exr_err(path, e))
 }
 
 /// Encodes the frame exactly as [`write_raw_exr`] would write it, into memory (for stores
 /// that write through their own storage layer). `name` only labels errors.
 pub fn encode_raw_exr(name: &Path, frame: &RawFrame) -> Result<Vec<u8>, ImageIoError> {
     let mut out = std::io::Cursor::new(Vec::new());
-    raw_exr_image(name, frame)?
-        .write()
-        .to_buffered(&mut out)
-        .map_err(|e| exr_err(name, e))?;
+    raw_exr_image(name, frame)?.write().to_buffered(&mut out).map_err(|e| exr_err(name, e))?;
     Ok(out.into_inner())
 }
 
@@ -183,9 +154,7 @@ fn raw_exr_image(path: &Path, frame: &RawFrame) -> Result<Image<Layer<AnyChannel
     let mut attrs = LayerAttributes::named("raw");
     let meta = serde_json::to_string(&frame.meta).map_err(|e| bad_input(path, e.to_string()))?;
     let text = Text::new_or_none(&meta).ok_or_else(|| bad_input(path, "metadata is not representable as EXR text"))?;
-    attrs
-        .other
-        .insert(Text::from(META_ATTRIBUTE), AttributeValue::Text(text));
+    attrs.other.insert(Text::from(META_ATTRIBUTE), AttributeValue::Text(text));
     let layer = Layer::new(
         (frame.width, frame.height),
         attrs,
@@ -222,16 +191,10 @@ fn decode_flat_layer(name: &Path, bytes: &[u8]) -> Result<FlatLayer, ImageIoErro
 }
 
 fn channel<'a>(path: &Path, layer: &'a FlatLayer, name: &str) -> Result<&'a FlatSamples, ImageIoError> {
-    layer
-        .channel_data
-        .list
-        .iter()
-        .find(|c| c.name == Text::from(name))
-        .map(|c| &c.sample_data)
-        .ok_or_else(|| {
-            let names: Vec<String> = layer.channel_data.list.iter().map(|c| c.name.to_string()).collect();
-            content(path, format!("no channel {name:?} (channels: {})", names.join(", ")))
-        })
+    layer.channel_data.list.iter().find(|c| c.name == Text::from(name)).map(|c| &c.sample_data).ok_or_else(|| {
+        let names: Vec<String> = layer.channel_data.list.iter().map(|c| c.name.to_string()).collect();
+        content(path, format!("no channel {name:?} (channels: {})", names.join(", ")))
+    })
 }
 
 /// Reads a raw frame written by [`write_raw_exr`]: the DN values (channel [`RAW_CHANNEL`],
@@ -251,12 +214,7 @@ fn raw_from_layer(path: &Path, layer: FlatLayer) -> Result<RawFrame, ImageIoErro
     let meta = match layer.attributes.other.get(&Text::from(META_ATTRIBUTE)) {
         Some(AttributeValue::Text(t)) => serde_json::from_str::<FrameMeta>(&t.to_string())
             .map_err(|e| content(path, format!("attribute {META_ATTRIBUTE}: {e}")))?,
-        _ => {
-            return Err(content(
-                path,
-                format!("no text attribute {META_ATTRIBUTE}: not a btfrig raw frame"),
-            ))
-        }
+        _ => return Err(content(path, format!("no text attribute {META_ATTRIBUTE}: not a btfrig raw frame"))),
     };
     let samples = channel(path, &layer, RAW_CHANNEL)?;
     let data = match samples {
@@ -277,12 +235,7 @@ fn raw_from_layer(path: &Path, layer: FlatLayer) -> Result<RawFrame, ImageIoErro
             })
             .collect::<Result<Vec<u16>, _>>()?,
     };
-    Ok(RawFrame {
-        width: w,
-        height: h,
-        data,
-        meta,
-    })
+    Ok(RawFrame { width: w, height: h, data, meta })
 }
 
 /// Sample type of the channels of an RGB OpenEXR file.
@@ -297,10 +250,7 @@ pub enum ExrPrecision {
 /// Writes a linear RGB float image as OpenEXR: float channels `R`, `G`, `B`, sRGB / Rec. 709
 /// primaries and D65 white in the chromaticities attribute, lossless compression.
 pub fn write_rgb_exr(path: &Path, width: usize, height: usize, data: &[[f32; 3]]) -> Result<(), ImageIoError> {
-    rgb_exr_image(path, width, height, data, ExrPrecision::Float)?
-        .write()
-        .to_file(path)
-        .map_err(|e| exr_err(path, e))
+    rgb_exr_image(path, width, height, data, ExrPrecision::Float)?.write().to_file(path).map_err(|e| exr_err(path, e))
 }
 
 /// Encodes a linear RGB image like [`write_rgb_exr`] into memory, with `precision` channels
@@ -313,10 +263,7 @@ pub fn encode_rgb_exr(
     precision: ExrPrecision,
 ) -> Result<Vec<u8>, ImageIoError> {
     let mut out = std::io::Cursor::new(Vec::new());
-    rgb_exr_image(name, width, height, data, precision)?
-        .write()
-        .to_buffered(&mut out)
-        .map_err(|e| exr_err(name, e))?;
+    rgb_exr_image(name, width, height, data, precision)?.write().to_buffered(&mut out).map_err(|e| exr_err(name, e))?;
     Ok(out.into_inner())
 }
 
@@ -365,10 +312,7 @@ pub fn read_rgb_exr(path: &Path) -> Result<(usize, usize, Vec<[f32; 3]>), ImageI
 pub fn write_srgb8_png(path: &Path, width: usize, height: usize, rgb: &[u8]) -> Result<(), ImageIoError> {
     check_len(path, width, height, rgb.len() / 3)?;
     if rgb.len() % 3 != 0 {
-        return Err(bad_input(
-            path,
-            format!("{} bytes is not a whole number of RGB pixels", rgb.len()),
-        ));
+        return Err(bad_input(path, format!("{} bytes is not a whole number of RGB pixels", rgb.len())));
     }
     image::save_buffer_with_format(
         path,
@@ -386,10 +330,7 @@ pub fn write_srgb8_png(path: &Path, width: usize, height: usize, rgb: &[u8]) -> 
 pub fn encode_srgb8_png(name: &Path, width: usize, height: usize, rgb: &[u8]) -> Result<Vec<u8>, ImageIoError> {
     check_len(name, width, height, rgb.len() / 3)?;
     if rgb.len() % 3 != 0 {
-        return Err(bad_input(
-            name,
-            format!("{} bytes is not a whole number of RGB pixels", rgb.len()),
-        ));
+        return Err(bad_input(name, format!("{} bytes is not a whole number of RGB pixels", rgb.len())));
     }
     let mut out = std::io::Cursor::new(Vec::new());
     image::write_buffer_with_format(
@@ -510,9 +451,8 @@ mod tests {
     fn rgb_exr_round_trip_is_exact_including_negative_and_large_values() {
         let dir = TempDir::new("rgb");
         let (w, h) = (33, 17);
-        let data: Vec<[f32; 3]> = (0..w * h)
-            .map(|i| [i as f32 * 0.001, -0.25 + i as f32 * 1e-5, 1e6 / (1.0 + i as f32)])
-            .collect();
+        let data: Vec<[f32; 3]> =
+            (0..w * h).map(|i| [i as f32 * 0.001, -0.25 + i as f32 * 1e-5, 1e6 / (1.0 + i as f32)]).collect();
         let p = dir.file("rgb.exr");
         write_rgb_exr(&p, w, h, &data).unwrap();
         let (rw, rh, back) = read_rgb_exr(&p).unwrap();
@@ -545,10 +485,7 @@ mod tests {
         assert!(read_raw_exr(&missing).unwrap_err().to_string().contains("nope.exr"));
         assert!(read_rgb_exr(&missing).unwrap_err().to_string().contains("nope.exr"));
         let missing_png = dir.file("nope.png");
-        assert!(read_raw_png(&missing_png, frame(1, 1).meta)
-            .unwrap_err()
-            .to_string()
-            .contains("nope.png"));
+        assert!(read_raw_png(&missing_png, frame(1, 1).meta).unwrap_err().to_string().contains("nope.png"));
         let f = frame(4, 4);
         let e = write_raw_frame(&dir.file("x.tiff"), &f).unwrap_err().to_string();
         assert!(e.contains("x.tiff") && e.contains(".exr"), "{e}");
@@ -556,9 +493,7 @@ mod tests {
         bad.data.pop();
         let e = write_raw_png(&dir.file("bad.png"), &bad).unwrap_err().to_string();
         assert!(e.contains("bad.png") && e.contains("15 values"), "{e}");
-        let e = write_rgb_exr(&dir.file("no/such/dir/x.exr"), 1, 1, &[[0.0; 3]])
-            .unwrap_err()
-            .to_string();
+        let e = write_rgb_exr(&dir.file("no/such/dir/x.exr"), 1, 1, &[[0.0; 3]]).unwrap_err().to_string();
         assert!(e.contains("x.exr"), "{e}");
         // Garbage in a .exr file.
         let junk = dir.file("junk.exr");
@@ -571,9 +506,7 @@ mod tests {
         let dir = TempDir::new("encode");
         let (w, h) = (5, 3);
         // Values exactly representable in half, and one that is not (1/3).
-        let data: Vec<[f32; 3]> = (0..w * h)
-            .map(|i| [i as f32 * 0.25, 1.0 / 3.0, 1024.0 + i as f32 * 2.0])
-            .collect();
+        let data: Vec<[f32; 3]> = (0..w * h).map(|i| [i as f32 * 0.25, 1.0 / 3.0, 1024.0 + i as f32 * 2.0]).collect();
         let path = dir.file("rgb.exr");
         write_rgb_exr(&path, w, h, &data).unwrap();
         let bytes = encode_rgb_exr(&path, w, h, &data, ExrPrecision::Float).unwrap();
@@ -581,10 +514,7 @@ mod tests {
         let frame = frame(7, 4);
         let raw_path = dir.file("raw.exr");
         write_raw_exr(&raw_path, &frame).unwrap();
-        assert_eq!(
-            std::fs::read(&raw_path).unwrap(),
-            encode_raw_exr(&raw_path, &frame).unwrap()
-        );
+        assert_eq!(std::fs::read(&raw_path).unwrap(), encode_raw_exr(&raw_path, &frame).unwrap());
 
         let half = encode_rgb_exr(&path, w, h, &data, ExrPrecision::Half).unwrap();
         let half_path = dir.file("half.exr");

@@ -59,11 +59,7 @@ pub struct Outputs {
 impl Default for Outputs {
     /// Textures only, no preview.
     fn default() -> Self {
-        Outputs {
-            textures: true,
-            raw_frames: false,
-            preview: None,
-        }
+        Outputs { textures: true, raw_frames: false, preview: None }
     }
 }
 
@@ -83,11 +79,7 @@ pub struct PreviewSettings {
 impl Default for PreviewSettings {
     /// 256 px, at most every 0.5 s and at most 2 % of the time.
     fn default() -> Self {
-        PreviewSettings {
-            min_side: 256,
-            min_interval_s: 0.5,
-            max_share: 0.02,
-        }
+        PreviewSettings { min_side: 256, min_interval_s: 0.5, max_share: 0.02 }
     }
 }
 
@@ -111,11 +103,8 @@ pub struct Preview {
 /// black rather than showing amplified noise); values are clipped to [0, 1] (NaN to 0) and
 /// encoded with the sRGB transfer function. Returns `(width, height, bytes)`.
 pub fn tone_map_preview(texels: &[[f32; 3]], width: usize, height: usize, min_side: usize) -> (usize, usize, Vec<u8>) {
-    let mut peaks: Vec<f32> = texels
-        .iter()
-        .map(|t| t[0].max(t[1]).max(t[2]))
-        .map(|v| if v.is_finite() { v } else { 0.0 })
-        .collect();
+    let mut peaks: Vec<f32> =
+        texels.iter().map(|t| t[0].max(t[1]).max(t[2])).map(|v| if v.is_finite() { v } else { 0.0 }).collect();
     let gain = if peaks.is_empty() {
         1.0
     } else {
@@ -131,11 +120,7 @@ pub fn tone_map_preview(texels: &[[f32; 3]], width: usize, height: usize, min_si
     let lut: Vec<u8> = (0..4096)
         .map(|i| {
             let l = f64::from(i) / 4095.0;
-            let v = if l <= 0.003_130_8 {
-                12.92 * l
-            } else {
-                1.055 * l.powf(1.0 / 2.4) - 0.055
-            };
+            let v = if l <= 0.003_130_8 { 12.92 * l } else { 1.055 * l.powf(1.0 / 2.4) - 0.055 };
             (v * 255.0).round() as u8
         })
         .collect();
@@ -144,11 +129,7 @@ pub fn tone_map_preview(texels: &[[f32; 3]], width: usize, height: usize, min_si
         let x = if x.is_finite() { x.clamp(0.0, 1.0) } else { 0.0 };
         lut[(x * 4095.0).round() as usize]
     };
-    let k = if width == 0 || height == 0 {
-        1
-    } else {
-        min_side.div_ceil(width.min(height)).max(1)
-    };
+    let k = if width == 0 || height == 0 { 1 } else { min_side.div_ceil(width.min(height)).max(1) };
     let (w, h) = (width * k, height * k);
     let mut out = Vec::with_capacity(w * h * 3);
     let mut row = Vec::with_capacity(w * 3);
@@ -202,19 +183,13 @@ pub struct TruthLog {
 impl TruthLog {
     /// Wraps `inner`.
     pub fn new(inner: Arc<dyn FrameSource>) -> Self {
-        TruthLog {
-            inner,
-            log: Mutex::new(HashMap::new()),
-        }
+        TruthLog { inner, log: Mutex::new(HashMap::new()) }
     }
 
     /// Removes and returns the true joints and lamp intensity of the frame stamped
     /// `timestamp_s` (`None` if no frame with that stamp was rendered).
     pub fn take(&self, timestamp_s: f64) -> Option<(JointState, f64)> {
-        self.log
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .remove(&timestamp_s.to_bits())
+        self.log.lock().unwrap_or_else(|e| e.into_inner()).remove(&timestamp_s.to_bits())
     }
 }
 
@@ -284,9 +259,7 @@ struct PreviewClaim {
 impl Drop for PreviewClaim {
     fn drop(&mut self) {
         let Some(ps) = self.pr.outputs.preview else { return };
-        let wait = (self.cost_s / ps.max_share.max(1e-9))
-            .max(ps.min_interval_s)
-            .clamp(0.0, 3600.0);
+        let wait = (self.cost_s / ps.max_share.max(1e-9)).max(ps.min_interval_s).clamp(0.0, 3600.0);
         let mut g = self.pr.preview_gate.lock().unwrap_or_else(|e| e.into_inner());
         g.next = Some(self.started + Duration::from_secs_f64(wait));
         g.pending = false;
@@ -303,11 +276,7 @@ fn claim_preview(pr: &Arc<Processor>) -> Option<PreviewClaim> {
         return None;
     }
     g.pending = true;
-    Some(PreviewClaim {
-        pr: pr.clone(),
-        started: now,
-        cost_s: 0.0,
-    })
+    Some(PreviewClaim { pr: pr.clone(), started: now, cost_s: 0.0 })
 }
 
 impl Processor {
@@ -373,17 +342,10 @@ impl Processor {
     /// radiance factor relative to the nominal lamp (what [`Processor::process`] estimates).
     pub fn ground_truth(&self, joints: &JointState, lamp_intensity: f64) -> Vec<[f32; 3]> {
         let r = self.settings.region;
-        let region = btfrig_render::ground_truth::Region {
-            x_min: r.x_min,
-            x_max: r.x_max,
-            y_min: r.y_min,
-            y_max: r.y_max,
-        };
+        let region =
+            btfrig_render::ground_truth::Region { x_min: r.x_min, x_max: r.x_max, y_min: r.y_min, y_max: r.y_max };
         let n = self.settings.size;
-        let mut gt = self
-            .scene
-            .renderer()
-            .ground_truth(&self.scene.pose(joints), n, n, Some(region));
+        let mut gt = self.scene.renderer().ground_truth(&self.scene.pose(joints), n, n, Some(region));
         let sensor = self.scene.sensor();
         let k = (lamp_intensity * sensor.dn_per_electron(1.0) / self.scene.white_signal_dn(1.0, 1.0)) as f32;
         for p in &mut gt.data {
@@ -406,11 +368,7 @@ impl Processor {
         let t = Instant::now();
         // For a mono sensor this only normalises to [0, 1] with equal channels.
         let dm = demosaic_bilinear(frame);
-        let image = LinearImage {
-            width: dm.width,
-            height: dm.height,
-            data: dm.data,
-        };
+        let image = LinearImage { width: dm.width, height: dm.height, data: dm.data };
         stage_s.insert("demosaic".to_string(), t.elapsed().as_secs_f64());
 
         let t = Instant::now();
@@ -439,11 +397,7 @@ impl Processor {
             }
             (se, st)
         });
-        Ok(Processed {
-            texels: tex.data,
-            stage_s,
-            error,
-        })
+        Ok(Processed { texels: tex.data, stage_s, error })
     }
 }
 
@@ -493,14 +447,7 @@ pub async fn run<S>(
 where
     S: btfrig_store::Storage + Send + Sync + 'static,
 {
-    type Output = (
-        StepId,
-        Vec<btfrig_store::FileRecord>,
-        u32,
-        StepTiming,
-        Processed,
-        Option<MadePreview>,
-    );
+    type Output = (StepId, Vec<btfrig_store::FileRecord>, u32, StepTiming, Processed, Option<MadePreview>);
     type Job = tokio::task::JoinHandle<Result<Output, PipelineError>>;
     enum Next {
         Frame(Option<CapturedFrame>),
@@ -525,10 +472,7 @@ where
         match next {
             Next::Frame(None) => open = false,
             Next::Frame(Some(f)) => {
-                let step = StepId {
-                    light: f.key.light,
-                    view: f.key.view,
-                };
+                let step = StepId { light: f.key.light, view: f.key.view };
                 let t = truth(&f);
                 let (ds, pr) = (dataset.clone(), processor.clone());
                 let job = tokio::task::spawn_blocking(move || {
@@ -544,18 +488,13 @@ where
                     }
                     let claim = claim_preview(&pr);
                     let preview_due = claim.is_some();
-                    let nothing = || Processed {
-                        texels: Vec::new(),
-                        stage_s: BTreeMap::new(),
-                        error: None,
-                    };
+                    let nothing = || Processed { texels: Vec::new(), stage_s: BTreeMap::new(), error: None };
                     let mut p = if out.textures {
                         pr.process(step, &f.frame, &f.joints, t)?
                     } else if preview_due {
                         // Only for the preview: its failure must not fail the step, and without
                         // textures there is nothing to compare with the truth.
-                        pr.process(step, &f.frame, &f.joints, None)
-                            .unwrap_or_else(|_| nothing())
+                        pr.process(step, &f.frame, &f.joints, None).unwrap_or_else(|_| nothing())
                     } else {
                         nothing()
                     };
@@ -580,10 +519,8 @@ where
             }
             Next::Done(r) => {
                 let (step, _) = in_flight.pop_front().expect("a job was awaited");
-                let (step, files, attempts, timing, p, preview) = r.map_err(|e| PipelineError::Join {
-                    step,
-                    reason: e.to_string(),
-                })??;
+                let (step, files, attempts, timing, p, preview) =
+                    r.map_err(|e| PipelineError::Join { step, reason: e.to_string() })??;
                 let ds = dataset.clone();
                 // The preview file is replaced only after the commit: it never shows a capture
                 // that does not count.
@@ -599,10 +536,7 @@ where
                     }))
                 })
                 .await
-                .map_err(|e| PipelineError::Join {
-                    step,
-                    reason: e.to_string(),
-                })??;
+                .map_err(|e| PipelineError::Join { step, reason: e.to_string() })??;
                 if let Some((mut made, ok, write_s)) = written {
                     made.claim.cost_s += write_s;
                     *totals.stage_s.entry("preview".to_string()).or_insert(0.0) += made.claim.cost_s;
@@ -649,12 +583,7 @@ fn make_preview(mut claim: PreviewClaim, step: StepId, texels: &[[f32; 3]], n: u
             let (width, height, rgb) = tone_map_preview(texels, n, n, min_side);
             let name = std::path::Path::new(btfrig_store::PREVIEW_FILE);
             let png = btfrig_imageio::encode_srgb8_png(name, width, height, &rgb).ok()?;
-            Some(Preview {
-                step,
-                width,
-                height,
-                png,
-            })
+            Some(Preview { step, width, height, png })
         })
         .flatten();
     claim.cost_s += started.elapsed().as_secs_f64();
@@ -662,8 +591,5 @@ fn make_preview(mut claim: PreviewClaim, step: StepId, texels: &[[f32; 3]], n: u
 }
 
 fn unix_now() -> f64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_secs_f64())
-        .unwrap_or(0.0)
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs_f64()).unwrap_or(0.0)
 }

@@ -42,9 +42,7 @@ fn fixture() -> Fixture {
         for (v, &view) in views.iter().enumerate() {
             let joints = scene.gonio().ik(light, view).unwrap();
             let seed = 100 + frames.len() as u64;
-            let (frame, _) = scene
-                .capture(&joints, 1.0, exposure, 1.0, seed, &RenderOptions::default())
-                .unwrap();
+            let (frame, _) = scene.capture(&joints, 1.0, exposure, 1.0, seed, &RenderOptions::default()).unwrap();
             let times = StepTimes {
                 move_start_s: 0.0,
                 move_end_s: 1.0,
@@ -52,61 +50,33 @@ fn fixture() -> Fixture {
                 trigger_end_s: 2.0,
                 transfer_end_s: 3.0,
             };
-            let key = StepKey {
-                light: l as u32,
-                view: v as u32,
-            };
-            frames.push(CapturedFrame {
-                index: frames.len(),
-                key,
-                frame,
-                attempts: 1,
-                joints,
-                times,
-            });
+            let key = StepKey { light: l as u32, view: v as u32 };
+            frames.push(CapturedFrame { index: frames.len(), key, frame, attempts: 1, joints, times });
         }
     }
-    Fixture {
-        scene,
-        lights,
-        views,
-        frames,
-    }
+    Fixture { scene, lights, views, frames }
 }
 
 fn manifest(f: &Fixture, size: usize, raw: bool, textures: bool) -> Manifest {
     let texture = TextureSpec {
         width: size as u32,
         height: size as u32,
-        region: TextureRegion {
-            center_m: [0.0, 0.0],
-            size_m: [0.05, 0.05],
-        },
+        region: TextureRegion { center_m: [0.0, 0.0], size_m: [0.05, 0.05] },
         format: TextureFormat::ExrFloat,
     };
-    let rig = RigInfo {
-        name: "test".into(),
-        config_toml: BUILTIN_RIGS[0].1.into(),
-    };
+    let rig = RigInfo { name: "test".into(), config_toml: BUILTIN_RIGS[0].1.into() };
     let mut m = Manifest::new(rig, PLAN, Samplings::full(&f.lights, &f.views), texture, raw, 1);
     m.textures = textures;
     m
 }
 
 fn processor(f: &Fixture, size: usize, outputs: Outputs) -> Arc<Processor> {
-    let settings = ProcessSettings {
-        size,
-        region: Region::centred_square(0.05),
-        filter: Filter::Bilinear,
-    };
+    let settings = ProcessSettings { size, region: Region::centred_square(0.05), filter: Filter::Bilinear };
     Arc::new(Processor::new(f.scene.clone(), settings).with_outputs(outputs))
 }
 
 fn run(ds: &Arc<Dataset<MemStorage>>, pr: &Arc<Processor>, frames: &[CapturedFrame]) -> Result<Totals, PipelineError> {
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(1)
-        .build()
-        .unwrap();
+    let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(1).build().unwrap();
     let frames = frames.to_vec();
     rt.block_on(async {
         let (tx, rx) = tokio::sync::mpsc::channel(1);
@@ -118,19 +88,13 @@ fn run(ds: &Arc<Dataset<MemStorage>>, pr: &Arc<Processor>, frames: &[CapturedFra
                 }
             }
         };
-        let ((), totals) = tokio::join!(
-            producer,
-            btfrig_pipeline::run(ds.clone(), pr.clone(), rx, truth, |_| {})
-        );
+        let ((), totals) = tokio::join!(producer, btfrig_pipeline::run(ds.clone(), pr.clone(), rx, truth, |_| {}));
         totals
     })
 }
 
 fn step_of(f: &CapturedFrame) -> StepId {
-    StepId {
-        light: f.key.light,
-        view: f.key.view,
-    }
+    StepId { light: f.key.light, view: f.key.view }
 }
 
 fn raw_path(s: StepId) -> String {
@@ -142,28 +106,17 @@ fn raw_frames_round_trip_exactly_and_are_journaled_with_their_textures() {
     let f = fixture();
     let size = 16;
     let ds = Arc::new(Dataset::create_in(MemStorage::new(), manifest(&f, size, true, true)).unwrap());
-    let out = Outputs {
-        textures: true,
-        raw_frames: true,
-        preview: None,
-    };
+    let out = Outputs { textures: true, raw_frames: true, preview: None };
     let totals = run(&ds, &processor(&f, size, out), &f.frames).unwrap();
     assert_eq!(totals.committed, 4);
     assert_eq!(totals.previews, 0);
-    assert!(
-        totals.stage_s["write_raw"] > 0.0 && totals.stage_s["write"] > 0.0,
-        "{:?}",
-        totals.stage_s
-    );
+    assert!(totals.stage_s["write_raw"] > 0.0 && totals.stage_s["write"] > 0.0, "{:?}", totals.stage_s);
     for cf in &f.frames {
         let s = step_of(cf);
         let rec = ds.step_record(s).unwrap();
         let paths: BTreeSet<&str> = rec.files.iter().map(|r| r.path.as_str()).collect();
         let raw = raw_path(s);
-        assert_eq!(
-            paths,
-            BTreeSet::from([raw.as_str(), format!("textures/{}.exr", s.stem()).as_str()])
-        );
+        assert_eq!(paths, BTreeSet::from([raw.as_str(), format!("textures/{}.exr", s.stem()).as_str()]));
         let bytes = ds.storage().read(&raw).unwrap();
         let file = rec.files.iter().find(|r| r.path == raw).unwrap();
         assert_eq!(file.hash, content_hash(&bytes));
@@ -193,22 +146,14 @@ fn raw_frames_only_writes_no_textures_and_skips_processing() {
     let f = fixture();
     let size = 16;
     let ds = Arc::new(Dataset::create_in(MemStorage::new(), manifest(&f, size, true, false)).unwrap());
-    let out = Outputs {
-        textures: false,
-        raw_frames: true,
-        preview: None,
-    };
+    let out = Outputs { textures: false, raw_frames: true, preview: None };
     let totals = run(&ds, &processor(&f, size, out), &f.frames).unwrap();
     assert_eq!(totals.committed, 4);
     // Nothing was rectified, so nothing was compared with the truth.
     assert_eq!(totals.without_truth, 4);
     assert!(totals.texture_rel_rmse().is_none());
     assert_eq!(totals.stage_s.keys().collect::<Vec<_>>(), vec!["write_raw"]);
-    assert!(
-        !ds.storage().files().iter().any(|p| p.starts_with("textures/")),
-        "{:?}",
-        ds.storage().files()
-    );
+    assert!(!ds.storage().files().iter().any(|p| p.starts_with("textures/")), "{:?}", ds.storage().files());
     let rep = verify_in(ds.storage());
     assert!(rep.is_ok(), "{rep}");
     assert_eq!(rep.files_checked, 4);
@@ -221,11 +166,7 @@ fn a_crash_between_the_writes_and_the_commit_never_counts_a_raw_frame_without_it
     let out = Outputs {
         textures: true,
         raw_frames: true,
-        preview: Some(PreviewSettings {
-            min_side: 16,
-            min_interval_s: 0.0,
-            max_share: 1.0,
-        }),
+        preview: Some(PreviewSettings { min_side: 16, min_interval_s: 0.0, max_share: 1.0 }),
     };
     let mut uncommitted_raw_seen = 0;
     let mut failures = 0;
@@ -246,22 +187,15 @@ fn a_crash_between_the_writes_and_the_commit_never_counts_a_raw_frame_without_it
         failures += 1;
         let committed = ds.completed();
         // Before the crash: a raw frame on disk whose step does not count.
-        if st
-            .files()
-            .iter()
-            .any(|p| p.starts_with("raw/l") && !committed.iter().any(|s| *p == raw_path(*s)))
-        {
+        if st.files().iter().any(|p| p.starts_with("raw/l") && !committed.iter().any(|s| *p == raw_path(*s))) {
             uncommitted_raw_seen += 1;
         }
         drop(ds);
         st.crash(None);
         let (ds, resume) = Dataset::open_for_resume_in(st.clone(), &plan_hash(PLAN)).unwrap();
         // Whatever counts has both files, whole; nothing else is left.
-        let data: BTreeSet<String> = st
-            .files()
-            .into_iter()
-            .filter(|p| p.starts_with("raw/") || p.starts_with("textures/"))
-            .collect();
+        let data: BTreeSet<String> =
+            st.files().into_iter().filter(|p| p.starts_with("raw/") || p.starts_with("textures/")).collect();
         let mut named = BTreeSet::new();
         for s in &resume.completed {
             let rec = ds.step_record(*s).unwrap();
@@ -272,58 +206,32 @@ fn a_crash_between_the_writes_and_the_commit_never_counts_a_raw_frame_without_it
             }
             let cf = f.frames.iter().find(|cf| step_of(cf) == *s).unwrap();
             let raw = raw_path(*s);
-            assert_eq!(
-                btfrig_imageio::decode_raw_exr(raw.as_ref(), &st.read(&raw).unwrap()).unwrap(),
-                cf.frame
-            );
+            assert_eq!(btfrig_imageio::decode_raw_exr(raw.as_ref(), &st.read(&raw).unwrap()).unwrap(), cf.frame);
         }
         assert_eq!(data, named, "n = {n}: files without a record survived the resume");
         let rep = verify_in(&st);
-        assert!(
-            rep.problems.iter().all(|p| matches!(p, Problem::Incomplete { .. })),
-            "n = {n}: {rep}"
-        );
+        assert!(rep.problems.iter().all(|p| matches!(p, Problem::Incomplete { .. })), "n = {n}: {rep}");
         // The resumed run finishes the rest, each step exactly once.
-        let rest: Vec<CapturedFrame> = frames
-            .iter()
-            .filter(|cf| !resume.completed.contains(&step_of(cf)))
-            .cloned()
-            .collect();
+        let rest: Vec<CapturedFrame> =
+            frames.iter().filter(|cf| !resume.completed.contains(&step_of(cf))).cloned().collect();
         let ds = Arc::new(ds);
         let totals = run(&ds, &processor(&f, size, out), &rest).unwrap();
         assert_eq!(totals.committed as usize, rest.len());
         let rep = verify_in(&st);
-        assert!(
-            rep.problems.iter().all(|p| matches!(p, Problem::Incomplete { .. })),
-            "n = {n}: {rep}"
-        );
+        assert!(rep.problems.iter().all(|p| matches!(p, Problem::Incomplete { .. })), "n = {n}: {rep}");
         assert_eq!(rep.done, 2, "n = {n}");
     }
     assert!(failures > 20, "{failures}");
-    assert!(
-        uncommitted_raw_seen > 0,
-        "no cut fell between a raw write and its commit"
-    );
+    assert!(uncommitted_raw_seen > 0, "no cut fell between a raw write and its commit");
 }
 
 #[test]
 fn the_preview_shows_the_latest_capture_is_not_journaled_and_is_rate_limited() {
     let f = fixture();
     let size = 16;
-    let every = PreviewSettings {
-        min_side: 100,
-        min_interval_s: 0.0,
-        max_share: 1.0,
-    };
+    let every = PreviewSettings { min_side: 100, min_interval_s: 0.0, max_share: 1.0 };
     let ds = Arc::new(Dataset::create_in(MemStorage::new(), manifest(&f, size, false, true)).unwrap());
-    let pr = processor(
-        &f,
-        size,
-        Outputs {
-            preview: Some(every),
-            ..Outputs::default()
-        },
-    );
+    let pr = processor(&f, size, Outputs { preview: Some(every), ..Outputs::default() });
     let mut rx = pr.subscribe_preview();
     assert!(pr.latest_preview().is_none());
     let t = Instant::now();
@@ -343,10 +251,7 @@ fn the_preview_shows_the_latest_capture_is_not_journaled_and_is_rate_limited() {
     let (w, h, rgb) = btfrig_imageio::decode_srgb8_png(PREVIEW_FILE.as_ref(), &file).unwrap();
     assert_eq!((w, h), (112, 112));
     // It is the tone-mapped texture of that capture, as stored (float EXR: exact).
-    let tex = ds
-        .storage()
-        .read(&format!("textures/{}.exr", latest.step.stem()))
-        .unwrap();
+    let tex = ds.storage().read(&format!("textures/{}.exr", latest.step.stem())).unwrap();
     let tmp = std::env::temp_dir().join(format!("btfrig-pipeline-preview-{}.exr", std::process::id()));
     std::fs::write(&tmp, &tex).unwrap();
     let (_, _, texels) = btfrig_imageio::read_rgb_exr(&tmp).unwrap();
@@ -360,11 +265,8 @@ fn the_preview_shows_the_latest_capture_is_not_journaled_and_is_rate_limited() {
     let rep = verify_in(ds.storage());
     assert!(rep.is_ok(), "{rep}");
     let per_preview = totals.stage_s["preview"] / totals.previews as f64;
-    let per_frame: f64 = ["demosaic", "rectify", "radiometry", "write"]
-        .iter()
-        .map(|k| totals.stage_s[*k])
-        .sum::<f64>()
-        / 4.0;
+    let per_frame: f64 =
+        ["demosaic", "rectify", "radiometry", "write"].iter().map(|k| totals.stage_s[*k]).sum::<f64>() / 4.0;
     eprintln!(
         "preview {size}px -> 112px: {:.2} ms each; processing {:.2} ms per frame; run wall {wall:.2} s",
         per_preview * 1e3,
@@ -373,34 +275,16 @@ fn the_preview_shows_the_latest_capture_is_not_journaled_and_is_rate_limited() {
 
     // The minimum interval: one preview in a run shorter than it.
     for limit in [
-        PreviewSettings {
-            min_side: 100,
-            min_interval_s: 3600.0,
-            max_share: 1.0,
-        },
+        PreviewSettings { min_side: 100, min_interval_s: 3600.0, max_share: 1.0 },
         // The share: a preview costing c seconds holds the next back by c / 1e-7 (hours).
-        PreviewSettings {
-            min_side: 100,
-            min_interval_s: 0.0,
-            max_share: 1e-7,
-        },
+        PreviewSettings { min_side: 100, min_interval_s: 0.0, max_share: 1e-7 },
     ] {
         let ds = Arc::new(Dataset::create_in(MemStorage::new(), manifest(&f, size, false, true)).unwrap());
-        let pr = processor(
-            &f,
-            size,
-            Outputs {
-                preview: Some(limit),
-                ..Outputs::default()
-            },
-        );
+        let pr = processor(&f, size, Outputs { preview: Some(limit), ..Outputs::default() });
         let totals = run(&ds, &pr, &f.frames).unwrap();
         assert_eq!(totals.previews, 1, "{limit:?}");
         assert!(ds.storage().read(PREVIEW_FILE).is_ok());
-        assert_eq!(
-            pr.latest_preview().unwrap().png,
-            ds.storage().read(PREVIEW_FILE).unwrap()
-        );
+        assert_eq!(pr.latest_preview().unwrap().png, ds.storage().read(PREVIEW_FILE).unwrap());
     }
 }
 
@@ -421,14 +305,7 @@ fn tone_mapping_exposes_the_99th_percentile_to_90_percent_and_enlarges_by_whole_
     for ty in 0..10 {
         for tx in 0..10 {
             let v = px(2 * tx, 2 * ty);
-            assert_eq!(
-                [
-                    px(2 * tx + 1, 2 * ty),
-                    px(2 * tx, 2 * ty + 1),
-                    px(2 * tx + 1, 2 * ty + 1)
-                ],
-                [v; 3]
-            );
+            assert_eq!([px(2 * tx + 1, 2 * ty), px(2 * tx, 2 * ty + 1), px(2 * tx + 1, 2 * ty + 1)], [v; 3]);
         }
     }
     assert_eq!(&rgb[..3], &[0, 0, 0]);
@@ -439,12 +316,7 @@ fn tone_mapping_exposes_the_99th_percentile_to_90_percent_and_enlarges_by_whole_
     // (within 1 of 255: the curve is tabulated at 12-bit input steps)
     let near = |a: u8, b: u8| a.abs_diff(b) <= 1;
     assert!(near(reds[98], srgb(0.9)), "{} vs {}", reds[98], srgb(0.9));
-    assert!(
-        near(reds[50], srgb(0.5 * 0.9 / 0.98)),
-        "{} vs {}",
-        reds[50],
-        srgb(0.5 * 0.9 / 0.98)
-    );
+    assert!(near(reds[50], srgb(0.5 * 0.9 / 0.98)), "{} vs {}", reds[50], srgb(0.5 * 0.9 / 0.98));
     assert!(near(reds[99], srgb(0.99 * 0.9 / 0.98)));
     // A black frame stays black-ish: the gain is capped at 16.
     let (_, _, rgb) = tone_map_preview(&[[0.001; 3]; 4], 2, 2, 1);

@@ -11,7 +11,9 @@ use btfrig_pipeline::{ProcessSettings, Processor, TruthLookup};
 use btfrig_render::material::MaterialSpec;
 use btfrig_render::renderer::RenderOptions;
 use btfrig_render::rig_scene::RigScene;
-use btfrig_store::{Dataset, Manifest, MemStorage, RigInfo, Samplings, TextureFormat, TextureRegion, TextureSpec};
+use btfrig_store::{
+    Dataset, Manifest, MemStorage, RigInfo, Samplings, TextureFormat, TextureRegion, TextureSpec,
+};
 
 #[test]
 fn every_frame_is_written_and_committed_once_and_the_dataset_verifies() {
@@ -23,23 +25,13 @@ fn every_frame_is_written_and_committed_once_and_the_dataset_verifies() {
     let texture = TextureSpec {
         width: size as u32,
         height: size as u32,
-        region: TextureRegion {
-            center_m: [0.0, 0.0],
-            size_m: [0.05, 0.05],
-        },
+        region: TextureRegion { center_m: [0.0, 0.0], size_m: [0.05, 0.05] },
         format: TextureFormat::ExrHalf,
     };
-    let rig = RigInfo {
-        name: "test".into(),
-        config_toml: BUILTIN_RIGS[0].1.into(),
-    };
+    let rig = RigInfo { name: "test".into(), config_toml: BUILTIN_RIGS[0].1.into() };
     let manifest = Manifest::new(rig, "plan", Samplings::full(&lights, &views), texture, false, 1);
     let ds = Arc::new(Dataset::create_in(MemStorage::new(), manifest).unwrap());
-    let settings = ProcessSettings {
-        size,
-        region: Region::centred_square(0.05),
-        filter: Filter::Bilinear,
-    };
+    let settings = ProcessSettings { size, region: Region::centred_square(0.05), filter: Filter::Bilinear };
     let processor = Arc::new(Processor::new(scene.clone(), settings));
 
     let exposure = scene.exposure_for_white(0.5, 1e-4, 30.0);
@@ -47,36 +39,15 @@ fn every_frame_is_written_and_committed_once_and_the_dataset_verifies() {
     for (l, &light) in lights.iter().enumerate() {
         for (v, &view) in views.iter().enumerate() {
             let joints = scene.gonio().ik(light, view).unwrap();
-            let (frame, _) = scene
-                .capture(&joints, 1.0, exposure, 1.0, 5, &RenderOptions::default())
-                .unwrap();
-            let t = StepTimes {
-                move_start_s: 0.0,
-                move_end_s: 1.0,
-                trigger_start_s: 1.0,
-                trigger_end_s: 2.0,
-                transfer_end_s: 3.0,
-            };
-            let key = StepKey {
-                light: l as u32,
-                view: v as u32,
-            };
+            let (frame, _) = scene.capture(&joints, 1.0, exposure, 1.0, 5, &RenderOptions::default()).unwrap();
+            let t = StepTimes { move_start_s: 0.0, move_end_s: 1.0, trigger_start_s: 1.0, trigger_end_s: 2.0, transfer_end_s: 3.0 };
+            let key = StepKey { light: l as u32, view: v as u32 };
             // The second frame took a retry.
             let attempts = if frames.len() == 1 { 2 } else { 1 };
-            frames.push(CapturedFrame {
-                index: frames.len(),
-                key,
-                frame,
-                attempts,
-                joints,
-                times: t,
-            });
+            frames.push(CapturedFrame { index: frames.len(), key, frame, attempts, joints, times: t });
         }
     }
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_time()
-        .build()
-        .unwrap();
+    let rt = tokio::runtime::Builder::new_current_thread().enable_time().build().unwrap();
     let (totals, seen) = rt.block_on(async {
         // Capacity 1: the pipeline's receive loop is the only thing draining it.
         let (tx, rx) = tokio::sync::mpsc::channel(1);

@@ -16,9 +16,7 @@ fn a_step_of_a_raw_frame_dataset_commits_only_with_its_raw_frame_and_verify_chec
     let ds = Dataset::create_in(MemStorage::new(), manifest(PLAN, TextureFormat::ExrHalf, true)).unwrap();
     let s = StepId { light: 0, view: 0 };
     let t = ds.write_texture(s, &texels(s), W, H).unwrap();
-    let err = ds
-        .commit_step(s, vec![t.clone()], 1, StepTiming::default())
-        .unwrap_err();
+    let err = ds.commit_step(s, vec![t.clone()], 1, StepTiming::default()).unwrap_err();
     assert!(
         matches!(&err, StoreError::BadInput { what, reason } if what.contains("raw/l000_v000.exr") && reason.contains("raw_frames = true")),
         "{err}"
@@ -35,12 +33,7 @@ fn a_step_of_a_raw_frame_dataset_commits_only_with_its_raw_frame_and_verify_chec
     let st = ds.storage().clone();
     st.corrupt_byte(&r.path, r.size as usize / 2).unwrap();
     let rep = verify_in(&st);
-    assert!(
-        rep.problems
-            .iter()
-            .any(|p| matches!(p, Problem::WrongHash { path, .. } if *path == r.path)),
-        "{rep}"
-    );
+    assert!(rep.problems.iter().any(|p| matches!(p, Problem::WrongHash { path, .. } if *path == r.path)), "{rep}");
 }
 
 #[test]
@@ -82,16 +75,9 @@ fn verify_reports_a_done_step_whose_record_lacks_a_file_the_manifest_asks_for() 
     st.create("manifest.json").unwrap();
     st.append("manifest.json", &serde_json::to_vec(&m).unwrap()).unwrap();
     let rep = verify_in(&st);
-    let unrecorded: Vec<_> = rep
-        .problems
-        .iter()
-        .filter(|p| matches!(p, Problem::Unrecorded { .. }))
-        .collect();
+    let unrecorded: Vec<_> = rep.problems.iter().filter(|p| matches!(p, Problem::Unrecorded { .. })).collect();
     assert_eq!(unrecorded.len(), 5, "{rep}");
-    assert!(
-        rep.to_string().contains("raw/l000_v000.exr: the manifest asks for it"),
-        "{rep}"
-    );
+    assert!(rep.to_string().contains("raw/l000_v000.exr: the manifest asks for it"), "{rep}");
 }
 
 #[test]
@@ -106,10 +92,7 @@ fn the_preview_is_replaced_atomically_not_journaled_and_not_an_orphan() {
     ds.write_preview(b"second").unwrap();
     assert_eq!(st.read(PREVIEW_FILE).unwrap(), b"second");
     assert!(!st.files().iter().any(|f| f.ends_with(".tmp")), "{:?}", st.files());
-    assert!(ds
-        .completed()
-        .iter()
-        .all(|s| ds.step_record(*s).unwrap().files.iter().all(|f| f.path != PREVIEW_FILE)));
+    assert!(ds.completed().iter().all(|s| ds.step_record(*s).unwrap().files.iter().all(|f| f.path != PREVIEW_FILE)));
     let rep = verify_in(&st);
     assert!(rep.is_ok(), "{rep}");
 
