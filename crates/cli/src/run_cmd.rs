@@ -125,9 +125,11 @@ pub fn run(a: &RunArgs) -> anyhow::Result<()> {
         let (tx, rx) = tokio::sync::mpsc::channel(FRAME_CHANNEL);
         let mut handle = Engine::spawn(devices, steps, done, settings, tx);
         let mut events = handle.events();
+        // From the dataset's manifest (the plan's for a new one): a dataset resumed from an
+        // older build may say otherwise, and the store refuses files its manifest does not ask for.
         let processor = Arc::new(Processor::new(scene, process).with_outputs(btfrig_pipeline::Outputs {
-            textures: v.outputs.textures,
-            raw_frames: v.outputs.raw_frames,
+            textures: dataset.manifest().textures,
+            raw_frames: dataset.manifest().raw_frames,
             preview: v.outputs.preview.then(btfrig_pipeline::PreviewSettings::default),
         }));
         let lookup: btfrig_pipeline::TruthLookup = Arc::new(move |f| truth.take(f.frame.meta.timestamp_s));

@@ -102,7 +102,11 @@ pub struct Preview {
 /// percentile of the brightest channel maps to 90 % (gain at most 16, so a black frame stays
 /// black rather than showing amplified noise); values are clipped to [0, 1] (NaN to 0) and
 /// encoded with the sRGB transfer function. Returns `(width, height, bytes)`.
+///
+/// # Panics
+/// If `texels.len() != width * height`.
 pub fn tone_map_preview(texels: &[[f32; 3]], width: usize, height: usize, min_side: usize) -> (usize, usize, Vec<u8>) {
+    assert_eq!(texels.len(), width * height, "tone_map_preview: {width}x{height} texels expected");
     let mut peaks: Vec<f32> =
         texels.iter().map(|t| t[0].max(t[1]).max(t[2])).map(|v| if v.is_finite() { v } else { 0.0 }).collect();
     let gain = if peaks.is_empty() {
