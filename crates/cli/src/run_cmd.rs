@@ -125,7 +125,13 @@ pub fn run(a: &RunArgs) -> anyhow::Result<()> {
         let (tx, rx) = tokio::sync::mpsc::channel(FRAME_CHANNEL);
         let mut handle = Engine::spawn(devices, steps, done, settings, tx);
         let mut events = handle.events();
-        let processor = Arc::new(Processor::new(scene, process));
+        // From the dataset's manifest (the plan's for a new one): a dataset resumed from an
+        // older build may say otherwise, and the store refuses files its manifest does not ask for.
+        let processor = Arc::new(Processor::new(scene, process).with_outputs(btfrig_pipeline::Outputs {
+            textures: dataset.manifest().textures,
+            raw_frames: dataset.manifest().raw_frames,
+            preview: v.outputs.preview.then(btfrig_pipeline::PreviewSettings::default),
+        }));
         let lookup: btfrig_pipeline::TruthLookup = Arc::new(move |f| truth.take(f.frame.meta.timestamp_s));
         let pipeline = btfrig_pipeline::run(dataset.clone(), processor, rx, lookup, |_| {});
         let listen = async {
@@ -183,6 +189,9 @@ pub fn run(a: &RunArgs) -> anyhow::Result<()> {
     }
     extra.insert("captures_this_session".to_string(), serde_json::json!(totals.committed));
     extra.insert("captures_without_truth".to_string(), serde_json::json!(totals.without_truth));
+    if v.outputs.preview {
+        extra.insert("previews_this_session".to_string(), serde_json::json!(totals.previews));
+    }
     extra.insert("critical_path_s".to_string(), serde_json::json!(schedule.critical_path_s));
     extra.insert("naive_order_hardware_s".to_string(), serde_json::json!(schedule.naive_order_hardware_s));
     let report = RunReport {
@@ -269,5 +278,7 @@ fn manifest(
         },
     };
     let rig = RigInfo { name: v.rig.rig.name.clone(), config_toml };
-    Ok(Manifest::new(rig, text, samplings, texture, false, v.rig.rig.seed))
+    let mut m = Manifest::new(rig, text, samplings, texture, v.outputs.raw_frames, v.rig.rig.seed);
+    m.textures = v.outputs.textures;
+    Ok(m)
 }

@@ -178,6 +178,18 @@ fn read_flat_layer(path: &Path) -> Result<FlatLayer, ImageIoError> {
     Ok(image.layer_data)
 }
 
+fn decode_flat_layer(name: &Path, bytes: &[u8]) -> Result<FlatLayer, ImageIoError> {
+    let image = exr::prelude::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_buffered(std::io::Cursor::new(bytes))
+        .map_err(|e| exr_err(name, e))?;
+    Ok(image.layer_data)
+}
+
 fn channel<'a>(path: &Path, layer: &'a FlatLayer, name: &str) -> Result<&'a FlatSamples, ImageIoError> {
     layer.channel_data.list.iter().find(|c| c.name == Text::from(name)).map(|c| &c.sample_data).ok_or_else(|| {
         let names: Vec<String> = layer.channel_data.list.iter().map(|c| c.name.to_string()).collect();
@@ -188,7 +200,16 @@ fn channel<'a>(path: &Path, layer: &'a FlatLayer, name: &str) -> Result<&'a Flat
 /// Reads a raw frame written by [`write_raw_exr`]: the DN values (channel [`RAW_CHANNEL`],
 /// float or u32, each an integer in 0..=65535) and the metadata.
 pub fn read_raw_exr(path: &Path) -> Result<RawFrame, ImageIoError> {
-    let layer = read_flat_layer(path)?;
+    raw_from_layer(path, read_flat_layer(path)?)
+}
+
+/// Decodes a raw frame held in memory, as [`read_raw_exr`] reads one from a file (e.g. from a
+/// store's storage layer). `name` only labels errors.
+pub fn decode_raw_exr(name: &Path, bytes: &[u8]) -> Result<RawFrame, ImageIoError> {
+    raw_from_layer(name, decode_flat_layer(name, bytes)?)
+}
+
+fn raw_from_layer(path: &Path, layer: FlatLayer) -> Result<RawFrame, ImageIoError> {
     let (w, h) = (layer.size.0, layer.size.1);
     let meta = match layer.attributes.other.get(&Text::from(META_ATTRIBUTE)) {
         Some(AttributeValue::Text(t)) => serde_json::from_str::<FrameMeta>(&t.to_string())
@@ -304,6 +325,37 @@ pub fn write_srgb8_png(path: &Path, width: usize, height: usize, rgb: &[u8]) -> 
     .map_err(|e| png_err(path, e))
 }
 
+/// Encodes an 8-bit sRGB image like [`write_srgb8_png`] into memory (for stores that write
+/// through their own storage layer, and for serving a preview). `name` only labels errors.
+pub fn encode_srgb8_png(name: &Path, width: usize, height: usize, rgb: &[u8]) -> Result<Vec<u8>, ImageIoError> {
+    check_len(name, width, height, rgb.len() / 3)?;
+    if rgb.len() % 3 != 0 {
+        return Err(bad_input(name, format!("{} bytes is not a whole number of RGB pixels", rgb.len())));
+    }
+    let mut out = std::io::Cursor::new(Vec::new());
+    image::write_buffer_with_format(
+        &mut out,
+        rgb,
+        width as u32,
+        height as u32,
+        image::ExtendedColorType::Rgb8,
+        image::ImageFormat::Png,
+    )
+    .map_err(|e| png_err(name, e))?;
+    Ok(out.into_inner())
+}
+
+/// Decodes an 8-bit RGB PNG held in memory (`(width, height, RGBRGB...)`); `name` only
+/// labels errors.
+pub fn decode_srgb8_png(name: &Path, bytes: &[u8]) -> Result<(usize, usize, Vec<u8>), ImageIoError> {
+    let img = image::load_from_memory_with_format(bytes, image::ImageFormat::Png).map_err(|e| png_err(name, e))?;
+    let color = img.color();
+    let image::DynamicImage::ImageRgb8(buf) = img else {
+        return Err(content(name, format!("expected 8-bit RGB, found {color:?}")));
+    };
+    Ok((buf.width() as usize, buf.height() as usize, buf.into_raw()))
+}
+
 /// Reads an 8-bit RGB PNG (`(width, height, RGBRGB...)`), e.g. a preview, for checks.
 pub fn read_srgb8_png(path: &Path) -> Result<(usize, usize, Vec<u8>), ImageIoError> {
     let img = image::ImageReader::open(path)
@@ -392,6 +444,7 @@ mod tests {
         let p = dir.file("mono.exr");
         write_raw_exr(&p, &mono).unwrap();
         assert_eq!(read_raw_exr(&p).unwrap(), mono);
+        assert_eq!(decode_raw_exr(&p, &encode_raw_exr(&p, &mono).unwrap()).unwrap(), mono);
     }
 
     #[test]
@@ -416,7 +469,10 @@ mod tests {
         let rgb: Vec<u8> = (0..20 * 10 * 3).map(|i| (i * 7 % 256) as u8).collect();
         let p = dir.file("preview.png");
         write_srgb8_png(&p, 20, 10, &rgb).unwrap();
-        assert_eq!(read_srgb8_png(&p).unwrap(), (20, 10, rgb));
+        assert_eq!(read_srgb8_png(&p).unwrap(), (20, 10, rgb.clone()));
+        let bytes = encode_srgb8_png(&p, 20, 10, &rgb).unwrap();
+        assert_eq!(bytes, std::fs::read(&p).unwrap());
+        assert_eq!(decode_srgb8_png(&p, &bytes).unwrap(), (20, 10, rgb));
         // A preview is not a 16-bit raw frame.
         let e = read_raw_png(&p, frame(1, 1).meta).unwrap_err().to_string();
         assert!(e.contains("preview.png") && e.contains("16-bit"), "{e}");

@@ -8,6 +8,12 @@
 //! texture is also compared with the ground truth of the TRUE state at exposure (recorded by
 //! [`TruthLog`]), accumulated into an overall relative RMSE.
 //!
+//! What is written follows the plan's `[outputs]` ([`Outputs`], set with
+//! [`Processor::with_outputs`]): the texture, the raw frame, or both, committed in ONE journal
+//! record so a crash never leaves one counted without the other; and, rate-limited, a live
+//! preview ([`PreviewSettings`]): `preview.png` in the dataset directory (atomic, never
+//! journaled) and the same PNG in memory ([`Processor::subscribe_preview`]) for the HTTP daemon.
+//!
 //! Back-pressure: [`run`] keeps at most [`MAX_IN_FLIGHT`] frames in processing and commits them
 //! in arrival order; while both slots are busy it stops receiving, so the engine's bounded
 //! frame channel fills and the engine waits before its next trigger.
@@ -15,9 +21,11 @@
 
 use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::sync::{Arc, Mutex};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
-use btfrig_calib::{rectify, to_radiance_factor, vignetting_map, Filter, LinearImage, Radiometry, RectifyError, Region};
+use btfrig_calib::{
+    rectify, to_radiance_factor, vignetting_map, Filter, LinearImage, Radiometry, RectifyError, Region,
+};
 use btfrig_core::frame::RawFrame;
 use btfrig_core::kinematics::JointState;
 use btfrig_engine::CapturedFrame;
@@ -25,14 +33,124 @@ use btfrig_render::demosaic::demosaic_bilinear;
 use btfrig_render::rig_scene::RigScene;
 use btfrig_sim::{FrameSource, SensorFormat, TrueState};
 use btfrig_store::{Dataset, StepId, StepTiming, StoreError};
-use tokio::sync::mpsc;
+use tokio::sync::{mpsc, watch};
 
 /// Frames processed at the same time (each on its own blocking thread). Two keep both cores
 /// of the target machine busy while bounding memory to two frames plus the engine's channel.
 pub const MAX_IN_FLIGHT: usize = 2;
 
-/// Stage names as reported in `stage_s`.
+/// Stage names as reported in `stage_s` when textures are written. With raw frames the
+/// stage `write_raw` is added; with previews, [`Totals::stage_s`] has `preview` (building,
+/// encoding and writing previews; not in the journal's step timings). Without textures the
+/// texture stages run only for the frames that make a preview.
 pub const STAGES: [&str; 4] = ["demosaic", "rectify", "radiometry", "write"];
+
+/// What the pipeline writes for each frame (the plan's `[outputs]`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Outputs {
+    /// Write the rectified texture (`Dataset::write_texture`).
+    pub textures: bool,
+    /// Write the raw frame (`Dataset::write_raw`); the dataset's manifest must ask for them.
+    pub raw_frames: bool,
+    /// Keep a live preview, rate-limited; `None`: no preview.
+    pub preview: Option<PreviewSettings>,
+}
+
+impl Default for Outputs {
+    /// Textures only, no preview.
+    fn default() -> Self {
+        Outputs { textures: true, raw_frames: false, preview: None }
+    }
+}
+
+/// How the live preview is made and how often.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PreviewSettings {
+    /// Smallest side of the preview, pixels: a smaller texture is enlarged by a whole factor
+    /// (nearest neighbour, so texels stay visible as such).
+    pub min_side: usize,
+    /// Shortest time between two previews, seconds.
+    pub min_interval_s: f64,
+    /// Largest share of wall time previews may cost: after a preview that cost `c` seconds
+    /// the next waits at least `c / max_share`.
+    pub max_share: f64,
+}
+
+impl Default for PreviewSettings {
+    /// 256 px, at most every 0.5 s and at most 2 % of the time.
+    fn default() -> Self {
+        PreviewSettings { min_side: 256, min_interval_s: 0.5, max_share: 0.02 }
+    }
+}
+
+/// A preview image: the rectified texture of one capture, tone-mapped to 8-bit sRGB.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Preview {
+    /// The capture shown.
+    pub step: StepId,
+    /// Width, pixels.
+    pub width: usize,
+    /// Height, pixels.
+    pub height: usize,
+    /// The PNG file's bytes (what `preview.png` holds).
+    pub png: Vec<u8>,
+}
+
+/// Tone-maps a linear radiance-factor texture (`width x height`, row-major) to 8-bit sRGB
+/// (`RGBRGB...`), enlarged by the smallest whole factor that makes both sides at least
+/// `min_side`. Exposure is automatic so dark and glossy captures both show: the 99th
+/// percentile of the brightest channel maps to 90 % (gain at most 16, so a black frame stays
+/// black rather than showing amplified noise); values are clipped to [0, 1] (NaN to 0) and
+/// encoded with the sRGB transfer function. Returns `(width, height, bytes)`.
+///
+/// # Panics
+/// If `texels.len() != width * height`.
+pub fn tone_map_preview(texels: &[[f32; 3]], width: usize, height: usize, min_side: usize) -> (usize, usize, Vec<u8>) {
+    assert_eq!(texels.len(), width * height, "tone_map_preview: {width}x{height} texels expected");
+    let mut peaks: Vec<f32> =
+        texels.iter().map(|t| t[0].max(t[1]).max(t[2])).map(|v| if v.is_finite() { v } else { 0.0 }).collect();
+    let gain = if peaks.is_empty() {
+        1.0
+    } else {
+        let k = ((peaks.len() - 1) as f64 * 0.99) as usize;
+        let (_, p99, _) = peaks.select_nth_unstable_by(k, f32::total_cmp);
+        if *p99 > 0.0 {
+            (0.9 / *p99).min(16.0)
+        } else {
+            16.0
+        }
+    };
+    // One lookup per 12-bit input level: the sRGB curve is the costly part otherwise.
+    let lut: Vec<u8> = (0..4096)
+        .map(|i| {
+            let l = f64::from(i) / 4095.0;
+            let v = if l <= 0.003_130_8 { 12.92 * l } else { 1.055 * l.powf(1.0 / 2.4) - 0.055 };
+            (v * 255.0).round() as u8
+        })
+        .collect();
+    let enc = |v: f32| {
+        let x = v * gain;
+        let x = if x.is_finite() { x.clamp(0.0, 1.0) } else { 0.0 };
+        lut[(x * 4095.0).round() as usize]
+    };
+    let k = if width == 0 || height == 0 { 1 } else { min_side.div_ceil(width.min(height)).max(1) };
+    let (w, h) = (width * k, height * k);
+    let mut out = Vec::with_capacity(w * h * 3);
+    let mut row = Vec::with_capacity(w * 3);
+    for y in 0..height {
+        row.clear();
+        for t in &texels[y * width..(y + 1) * width] {
+            let px = [enc(t[0]), enc(t[1]), enc(t[2])];
+            for _ in 0..k {
+                row.extend_from_slice(&px);
+            }
+        }
+        for _ in 0..k {
+            out.extend_from_slice(&row);
+        }
+    }
+    (w, h, out)
+}
 
 /// Why processing failed.
 #[derive(Debug, thiserror::Error)]
@@ -120,17 +238,89 @@ pub struct Processed {
 pub struct Processor {
     scene: Arc<RigScene>,
     settings: ProcessSettings,
+    outputs: Outputs,
+    preview: watch::Sender<Option<Arc<Preview>>>,
+    preview_gate: Mutex<PreviewGate>,
+}
+
+/// When the next preview may be made.
+#[derive(Debug, Default)]
+struct PreviewGate {
+    /// Not before this (`None`: now).
+    next: Option<Instant>,
+    /// A preview is being made (its cost, which sets `next`, is not known yet).
+    pending: bool,
+}
+
+/// The right to make one preview; dropping it (preview written, or its step failed) releases
+/// the gate with the cost measured so far.
+struct PreviewClaim {
+    pr: Arc<Processor>,
+    started: Instant,
+    cost_s: f64,
+}
+
+impl Drop for PreviewClaim {
+    fn drop(&mut self) {
+        let Some(ps) = self.pr.outputs.preview else { return };
+        let wait = (self.cost_s / ps.max_share.max(1e-9)).max(ps.min_interval_s).clamp(0.0, 3600.0);
+        let mut g = self.pr.preview_gate.lock().unwrap_or_else(|e| e.into_inner());
+        g.next = Some(self.started + Duration::from_secs_f64(wait));
+        g.pending = false;
+    }
+}
+
+/// A claim if a preview is due now (none while another is being made, so frames processed in
+/// parallel do not both make one).
+fn claim_preview(pr: &Arc<Processor>) -> Option<PreviewClaim> {
+    pr.outputs.preview?;
+    let mut g = pr.preview_gate.lock().unwrap_or_else(|e| e.into_inner());
+    let now = Instant::now();
+    if g.pending || g.next.is_some_and(|t| now < t) {
+        return None;
+    }
+    g.pending = true;
+    Some(PreviewClaim { pr: pr.clone(), started: now, cost_s: 0.0 })
 }
 
 impl Processor {
-    /// A processor for `scene` (rig geometry, camera model, sensor, colour).
+    /// A processor for `scene` (rig geometry, camera model, sensor, colour) writing textures
+    /// only ([`Outputs::default`]).
     pub fn new(scene: Arc<RigScene>, settings: ProcessSettings) -> Self {
-        Processor { scene, settings }
+        Processor {
+            scene,
+            settings,
+            outputs: Outputs::default(),
+            preview: watch::Sender::new(None),
+            preview_gate: Mutex::new(PreviewGate::default()),
+        }
+    }
+
+    /// The same processor writing `outputs`.
+    pub fn with_outputs(mut self, outputs: Outputs) -> Self {
+        self.outputs = outputs;
+        self
     }
 
     /// The settings.
     pub fn settings(&self) -> &ProcessSettings {
         &self.settings
+    }
+
+    /// What is written per frame.
+    pub fn outputs(&self) -> &Outputs {
+        &self.outputs
+    }
+
+    /// The latest preview, updated after each committed step that made one (`None` until the
+    /// first): e.g. for an HTTP handler serving "the latest preview frame".
+    pub fn subscribe_preview(&self) -> watch::Receiver<Option<Arc<Preview>>> {
+        self.preview.subscribe()
+    }
+
+    /// The latest preview (see [`Processor::subscribe_preview`]).
+    pub fn latest_preview(&self) -> Option<Arc<Preview>> {
+        self.preview.borrow().clone()
     }
 
     /// The radiometric parameters of `frame` (its exposure and gain; the rig's sensor and
@@ -156,7 +346,8 @@ impl Processor {
     /// radiance factor relative to the nominal lamp (what [`Processor::process`] estimates).
     pub fn ground_truth(&self, joints: &JointState, lamp_intensity: f64) -> Vec<[f32; 3]> {
         let r = self.settings.region;
-        let region = btfrig_render::ground_truth::Region { x_min: r.x_min, x_max: r.x_max, y_min: r.y_min, y_max: r.y_max };
+        let region =
+            btfrig_render::ground_truth::Region { x_min: r.x_min, x_max: r.x_max, y_min: r.y_min, y_max: r.y_max };
         let n = self.settings.size;
         let mut gt = self.scene.renderer().ground_truth(&self.scene.pose(joints), n, n, Some(region));
         let sensor = self.scene.sensor();
@@ -230,6 +421,10 @@ pub struct Totals {
     pub sq_truth: f64,
     /// Committed steps that had no recorded truth (not in the error figure).
     pub without_truth: u64,
+    /// Previews written (`preview.png` replaced and the in-memory preview updated).
+    pub previews: u64,
+    /// Previews that failed to encode or write (not fatal: a preview is not data).
+    pub preview_failures: u64,
 }
 
 impl Totals {
@@ -256,7 +451,7 @@ pub async fn run<S>(
 where
     S: btfrig_store::Storage + Send + Sync + 'static,
 {
-    type Output = (StepId, Vec<btfrig_store::FileRecord>, u32, StepTiming, Processed);
+    type Output = (StepId, Vec<btfrig_store::FileRecord>, u32, StepTiming, Processed, Option<MadePreview>);
     type Job = tokio::task::JoinHandle<Result<Output, PipelineError>>;
     enum Next {
         Frame(Option<CapturedFrame>),
@@ -287,30 +482,77 @@ where
                 let job = tokio::task::spawn_blocking(move || {
                     let started = Instant::now();
                     let started_unix_s = unix_now();
-                    let mut p = pr.process(step, &f.frame, &f.joints, t)?;
-                    let tw = Instant::now();
+                    let out = *pr.outputs();
+                    let mut files = Vec::new();
+                    let mut stage_s = BTreeMap::new();
+                    if out.raw_frames {
+                        let tw = Instant::now();
+                        files.push(ds.write_raw(step, &f.frame)?);
+                        stage_s.insert("write_raw".to_string(), tw.elapsed().as_secs_f64());
+                    }
+                    let claim = claim_preview(&pr);
+                    let preview_due = claim.is_some();
+                    let nothing = || Processed { texels: Vec::new(), stage_s: BTreeMap::new(), error: None };
+                    let mut p = if out.textures {
+                        pr.process(step, &f.frame, &f.joints, t)?
+                    } else if preview_due {
+                        // Only for the preview: its failure must not fail the step, and without
+                        // textures there is nothing to compare with the truth.
+                        pr.process(step, &f.frame, &f.joints, None).unwrap_or_else(|_| nothing())
+                    } else {
+                        nothing()
+                    };
                     let n = pr.settings().size;
-                    let rec = ds.write_texture(step, &p.texels, n, n)?;
-                    p.stage_s.insert("write".to_string(), tw.elapsed().as_secs_f64());
+                    if out.textures {
+                        let tw = Instant::now();
+                        files.push(ds.write_texture(step, &p.texels, n, n)?);
+                        p.stage_s.insert("write".to_string(), tw.elapsed().as_secs_f64());
+                    }
+                    p.stage_s.extend(stage_s);
                     let timing = StepTiming {
                         started_unix_s,
                         wall_s: started.elapsed().as_secs_f64(),
                         hardware_s: Some(f.times.transfer_end_s - f.times.move_start_s),
                         stage_s: p.stage_s.clone(),
                     };
+                    let preview = claim.map(|c| make_preview(c, step, &p.texels, n));
                     p.texels = Vec::new();
-                    Ok((step, vec![rec], f.attempts, timing, p))
+                    Ok((step, files, f.attempts, timing, p, preview))
                 });
                 in_flight.push_back((step, job));
             }
             Next::Done(r) => {
                 let (step, _) = in_flight.pop_front().expect("a job was awaited");
-                let (step, files, attempts, timing, p) =
+                let (step, files, attempts, timing, p, preview) =
                     r.map_err(|e| PipelineError::Join { step, reason: e.to_string() })??;
                 let ds = dataset.clone();
-                tokio::task::spawn_blocking(move || ds.commit_step(step, files, attempts, timing))
-                    .await
-                    .map_err(|e| PipelineError::Join { step, reason: e.to_string() })??;
+                // The preview file is replaced only after the commit: it never shows a capture
+                // that does not count.
+                let written = tokio::task::spawn_blocking(move || {
+                    ds.commit_step(step, files, attempts, timing)?;
+                    Ok::<_, StoreError>(preview.map(|made| {
+                        let t = Instant::now();
+                        let ok = match &made.preview {
+                            Some(pv) => ds.write_preview(&pv.png).is_ok(),
+                            None => false,
+                        };
+                        (made, ok, t.elapsed().as_secs_f64())
+                    }))
+                })
+                .await
+                .map_err(|e| PipelineError::Join { step, reason: e.to_string() })??;
+                if let Some((mut made, ok, write_s)) = written {
+                    made.claim.cost_s += write_s;
+                    *totals.stage_s.entry("preview".to_string()).or_insert(0.0) += made.claim.cost_s;
+                    drop(made.claim);
+                    match (made.preview, ok) {
+                        (Some(pv), true) => {
+                            totals.previews += 1;
+                            processor.preview.send_replace(Some(Arc::new(pv)));
+                        }
+                        _ => totals.preview_failures += 1,
+                    }
+                }
                 totals.committed += 1;
                 totals.retries += u64::from(attempts.saturating_sub(1));
                 for (k, v) in p.stage_s {
@@ -328,6 +570,28 @@ where
         }
     }
     Ok(totals)
+}
+
+/// A preview made on a processing thread, to be written after the step's commit.
+struct MadePreview {
+    /// `None` if encoding failed.
+    preview: Option<Preview>,
+    claim: PreviewClaim,
+}
+
+fn make_preview(mut claim: PreviewClaim, step: StepId, texels: &[[f32; 3]], n: usize) -> MadePreview {
+    let started = Instant::now();
+    let min_side = claim.pr.outputs().preview.map_or(0, |p| p.min_side);
+    let preview = (texels.len() == n * n && n > 0)
+        .then(|| {
+            let (width, height, rgb) = tone_map_preview(texels, n, n, min_side);
+            let name = std::path::Path::new(btfrig_store::PREVIEW_FILE);
+            let png = btfrig_imageio::encode_srgb8_png(name, width, height, &rgb).ok()?;
+            Some(Preview { step, width, height, png })
+        })
+        .flatten();
+    claim.cost_s += started.elapsed().as_secs_f64();
+    MadePreview { preview, claim }
 }
 
 fn unix_now() -> f64 {

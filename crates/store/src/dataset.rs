@@ -24,6 +24,30 @@ pub const REPORT_FILE: &str = "report.json";
 pub const TEXTURES_DIR: &str = "textures";
 /// Directory of the raw frames.
 pub const RAW_DIR: &str = "raw";
+/// The live preview (8-bit sRGB PNG of the latest processed capture): not data, never
+/// journaled, replaced atomically by [`Dataset::write_preview`].
+pub const PREVIEW_FILE: &str = "preview.png";
+
+/// The files a done step of `manifest` must have written (a journal record naming fewer is
+/// refused by [`Dataset::commit_step`] and reported by [`verify`]).
+fn required_files(manifest: &Manifest, step: StepId) -> Vec<String> {
+    let mut out = Vec::new();
+    if manifest.textures {
+        out.push(texture_path(step));
+    }
+    if manifest.raw_frames {
+        out.push(raw_path(step));
+    }
+    out
+}
+
+fn texture_path(step: StepId) -> String {
+    format!("{TEXTURES_DIR}/{}.exr", step.stem())
+}
+
+fn raw_path(step: StepId) -> String {
+    format!("{RAW_DIR}/{}.exr", step.stem())
+}
 
 fn io_err<S: Storage + ?Sized>(s: &S, op: &'static str, path: &str) -> impl FnOnce(std::io::Error) -> StoreError {
     let path = s.display(path);
@@ -183,7 +207,9 @@ impl<S: Storage> Dataset<S> {
             let found = root.iter().take(10).map(|e| if e.is_dir { format!("{}/", e.name) } else { e.name.clone() });
             return Err(StoreError::NotEmpty { path: storage.display(""), found: found.collect() });
         }
-        storage.create_dir(TEXTURES_DIR).map_err(io_err(&storage, "create directory", TEXTURES_DIR))?;
+        if manifest.textures {
+            storage.create_dir(TEXTURES_DIR).map_err(io_err(&storage, "create directory", TEXTURES_DIR))?;
+        }
         if manifest.raw_frames {
             storage.create_dir(RAW_DIR).map_err(io_err(&storage, "create directory", RAW_DIR))?;
         }
@@ -218,7 +244,9 @@ impl<S: Storage> Dataset<S> {
             j
         };
         let expected = manifest.samplings.expected_steps();
-        for dir in [Some(TEXTURES_DIR), manifest.raw_frames.then_some(RAW_DIR)].into_iter().flatten() {
+        for dir in
+            [manifest.textures.then_some(TEXTURES_DIR), manifest.raw_frames.then_some(RAW_DIR)].into_iter().flatten()
+        {
             storage.create_dir(dir).map_err(io_err(&storage, "create directory", dir))?;
         }
         let state = journal.state();
@@ -304,7 +332,8 @@ impl<S: Storage> Dataset<S> {
 
     /// Writes the rectified texture of `step` (`width x height` row-major linear RGB) as
     /// OpenEXR in the manifest's format to `textures/<stem>.exr`, durably, and returns its
-    /// record for [`Dataset::commit_step`]. Retrying a step simply writes again.
+    /// record for [`Dataset::commit_step`]. Retrying a step simply writes again. Fails unless
+    /// the manifest asks for textures.
     pub fn write_texture(
         &self,
         step: StepId,
@@ -313,7 +342,13 @@ impl<S: Storage> Dataset<S> {
         height: usize,
     ) -> Result<FileRecord, StoreError> {
         self.check_open(step, &self.journal())?;
-        let path = format!("{TEXTURES_DIR}/{}.exr", step.stem());
+        let path = texture_path(step);
+        if !self.manifest.textures {
+            return Err(StoreError::BadInput {
+                what: self.storage.display(&path),
+                reason: "the manifest has textures = false".into(),
+            });
+        }
         let spec = &self.manifest.texture;
         if (width, height) != (spec.width as usize, spec.height as usize) {
             return Err(StoreError::BadInput {
@@ -329,11 +364,12 @@ impl<S: Storage> Dataset<S> {
         write_atomic(&self.storage, &path, &bytes)
     }
 
-    /// Writes the raw frame of `step` to `raw/<stem>.exr` (see `btfrig_imageio::write_raw_exr`),
-    /// durably. Fails unless the manifest asks for raw frames.
+    /// Writes the raw frame of `step` to `raw/<stem>.exr` (see `btfrig_imageio::write_raw_exr`:
+    /// one 32-bit float channel holding the DNs exactly, lossless, the frame's metadata as JSON
+    /// in the header), durably. Fails unless the manifest asks for raw frames.
     pub fn write_raw(&self, step: StepId, frame: &RawFrame) -> Result<FileRecord, StoreError> {
         self.check_open(step, &self.journal())?;
-        let path = format!("{RAW_DIR}/{}.exr", step.stem());
+        let path = raw_path(step);
         if !self.manifest.raw_frames {
             return Err(StoreError::BadInput {
                 what: self.storage.display(&path),
@@ -346,7 +382,9 @@ impl<S: Storage> Dataset<S> {
 
     /// Journals `step` as done with the files it wrote (checked present with their sizes),
     /// the attempts it took and its timing. The record is fsync'd before this returns: from
-    /// then on the step counts, and a resumed run will not repeat it.
+    /// then on the step counts, and a resumed run will not repeat it. `files` must name every
+    /// file the manifest asks of a step (its texture, its raw frame), so one record counts
+    /// them together: a crash never leaves one counted without the other.
     pub fn commit_step(
         &self,
         step: StepId,
@@ -356,6 +394,20 @@ impl<S: Storage> Dataset<S> {
     ) -> Result<(), StoreError> {
         let mut journal = self.journal();
         self.check_open(step, &journal)?;
+        for need in required_files(&self.manifest, step) {
+            if !files.iter().any(|f| f.path == need) {
+                let named: Vec<&str> = files.iter().map(|f| f.path.as_str()).collect();
+                return Err(StoreError::BadInput {
+                    what: self.storage.display(&need),
+                    reason: format!(
+                        "step {step} committed without it (files: [{}]); the manifest asks for textures = {}, raw_frames = {}",
+                        named.join(", "),
+                        self.manifest.textures,
+                        self.manifest.raw_frames
+                    ),
+                });
+            }
+        }
         for f in &files {
             let found = self.storage.size(&f.path).map_err(io_err(&self.storage, "stat", &f.path))?;
             if found != Some(f.size) {
@@ -368,6 +420,17 @@ impl<S: Storage> Dataset<S> {
             }
         }
         journal.append(&self.storage, Record::Step(StepRecord { step, files, attempts, timing }))
+    }
+
+    /// Replaces [`PREVIEW_FILE`] with `png` (temporary file, rename: a reader never sees a
+    /// partial image). Not journaled and not fsync'd: the preview is a live view, not data, and
+    /// after a crash it may be stale or missing.
+    pub fn write_preview(&self, png: &[u8]) -> Result<(), StoreError> {
+        let s = &self.storage;
+        let tmp = tmp_name(PREVIEW_FILE);
+        s.create(&tmp).map_err(io_err(s, "create", &tmp))?;
+        s.append(&tmp, png).map_err(io_err(s, "write", &tmp))?;
+        s.rename(&tmp, PREVIEW_FILE).map_err(io_err(s, "rename", &tmp))
     }
 
     /// Journals `step` as skipped during the run (e.g. a marker occluded), so a resumed run
@@ -463,7 +526,8 @@ impl std::fmt::Display for DatasetInfo {
         };
         writeln!(
             f,
-            "textures  {}x{} {fmt}, region {:.4}x{:.4} m at ({:.4}, {:.4}){}",
+            "textures  {}{}x{} {fmt}, region {:.4}x{:.4} m at ({:.4}, {:.4}){}",
+            if m.textures { "" } else { "none written (raw frames only); would be " },
             m.texture.width,
             m.texture.height,
             m.texture.region.size_m[0],
@@ -594,6 +658,14 @@ pub enum Problem {
         /// Hash of the file on disk.
         found: String,
     },
+    /// A done step's journal record does not name a file the manifest asks of every step
+    /// (its texture or its raw frame).
+    Unrecorded {
+        /// The step.
+        step: StepId,
+        /// The file it should have recorded.
+        path: String,
+    },
     /// A file that no journal record names, or an entry that does not belong in a dataset.
     Orphan {
         /// The path.
@@ -627,6 +699,9 @@ impl std::fmt::Display for Problem {
             }
             Problem::WrongHash { step, path, expected, found } => {
                 write!(f, "{path}: content hash {found}, journaled {expected} for step {step}")
+            }
+            Problem::Unrecorded { step, path } => {
+                write!(f, "{path}: the manifest asks for it, but the journal record of step {step} does not name it")
             }
             Problem::Orphan { path } => write!(f, "{path}: not named by any journal record"),
             Problem::Incomplete { missing } => {
@@ -742,6 +817,11 @@ pub fn verify_in<S: Storage + ?Sized>(s: &S) -> VerifyReport {
         if !expected.contains(step) {
             r.problems.push(Problem::UnexpectedStep { step: *step });
         }
+        for need in required_files(&manifest, *step) {
+            if !rec.files.iter().any(|f| f.path == need) {
+                r.problems.push(Problem::Unrecorded { step: *step, path: need });
+            }
+        }
         for file in &rec.files {
             named.insert(file.path.clone());
             let bytes = match s.read(&file.path) {
@@ -796,7 +876,9 @@ pub fn verify_in<S: Storage + ?Sized>(s: &S) -> VerifyReport {
         }
         Err(e) => r.problems.push(Problem::Journal { reason: format!("cannot list data directories: {e}") }),
     }
-    let known = [MANIFEST_FILE, JOURNAL_FILE, REPORT_FILE, TEXTURES_DIR, RAW_DIR];
+    // The preview and its temporary name (a run killed while replacing it) are not data.
+    let preview_tmp = tmp_name(PREVIEW_FILE);
+    let known = [MANIFEST_FILE, JOURNAL_FILE, REPORT_FILE, TEXTURES_DIR, RAW_DIR, PREVIEW_FILE, preview_tmp.as_str()];
     for e in s.list("").unwrap_or_default() {
         if !known.contains(&e.name.as_str()) {
             r.problems.push(Problem::Orphan { path: if e.is_dir { format!("{}/", e.name) } else { e.name } });

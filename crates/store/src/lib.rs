@@ -41,7 +41,7 @@ mod storage;
 
 pub use dataset::{
     info, info_in, verify, verify_in, Dataset, DatasetInfo, Problem, ResumeReport, VerifyReport, JOURNAL_FILE,
-    MANIFEST_FILE, RAW_DIR, REPORT_FILE, TEXTURES_DIR,
+    MANIFEST_FILE, PREVIEW_FILE, RAW_DIR, REPORT_FILE, TEXTURES_DIR,
 };
 pub use error::StoreError;
 pub use hash::{content_hash, sha256, HASH_PREFIX};

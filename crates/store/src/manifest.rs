@@ -29,6 +29,10 @@ pub struct Manifest {
     pub texture: TextureSpec,
     /// True if raw frames are kept under `raw/`.
     pub raw_frames: bool,
+    /// True if rectified textures are written under `textures/` (absent in manifests written
+    /// before this field existed: true). A plan may keep raw frames only.
+    #[serde(default = "Manifest::yes")]
+    pub textures: bool,
     /// Calibration the run used (`null` until the calibration issue provides one).
     pub calibration: Option<serde_json::Value>,
     /// Seed of every random process of the run (simulated rigs).
@@ -197,8 +201,12 @@ pub fn plan_hash(plan_text: &str) -> String {
 }
 
 impl Manifest {
+    const fn yes() -> bool {
+        true
+    }
+
     /// A manifest for a new run, created now, by this software version, without calibration
-    /// or timing.
+    /// or timing, with textures (set [`Manifest::textures`] to false for raw frames only).
     pub fn new(
         rig: RigInfo,
         plan_text: &str,
@@ -217,6 +225,7 @@ impl Manifest {
             samplings,
             texture,
             raw_frames,
+            textures: true,
             calibration: None,
             seed,
             created_unix_s: now,
@@ -228,6 +237,9 @@ impl Manifest {
     /// Every inconsistency of the manifest (empty when it is sound).
     pub fn problems(&self) -> Vec<String> {
         let mut p = Vec::new();
+        if !self.textures && !self.raw_frames {
+            p.push("textures and raw_frames are both false: the dataset would hold no data".into());
+        }
         if self.schema_version != MANIFEST_SCHEMA_VERSION {
             p.push(format!("schema_version {} (this build reads {MANIFEST_SCHEMA_VERSION})", self.schema_version));
         }
