@@ -68,6 +68,11 @@ pub fn finish(s: &RunSummary, command: &str) -> ExitCode {
                 "  dataset: {} (resumable; the report says status \"paused\")",
                 s.dataset.display()
             );
+            if fault.as_ref().is_some_and(|f| f.message.contains("(injected)")) {
+                eprintln!(
+                    "  (the simulated rig's fault scenario injected this fault; it recurs on every resume unless you add --faults none)"
+                );
+            }
             eprintln!("Fix the cause and run the same command again to resume:\n  {command}");
             ExitCode::from(EXIT_PAUSED)
         }
