@@ -21,12 +21,7 @@ fn run(cmd: &mut Command) -> Output {
 }
 
 fn text(o: &Output) -> String {
-    format!(
-        "status {:?}\n--- stdout\n{}--- stderr\n{}",
-        o.status,
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
+    format!("status {:?}\n--- stdout\n{}--- stderr\n{}", o.status, String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
 }
 
 fn ok(cmd: &mut Command) -> String {
@@ -45,9 +40,7 @@ fn fails(cmd: &mut Command) -> String {
 fn render(dir: &Path, name: &str, extra: &[&str]) -> PathBuf {
     let out = dir.join(format!("{name}.exr"));
     let mut cmd = btfrig();
-    cmd.args(["sim", "render", "--view", "45,0", "--light", "30,120", "--out"])
-        .arg(&out)
-        .args(extra);
+    cmd.args(["sim", "render", "--view", "45,0", "--light", "30,120", "--out"]).arg(&out).args(extra);
     ok(&mut cmd);
     out
 }
@@ -57,18 +50,7 @@ fn sim_render_writes_raw_preview_and_ground_truth_that_read_back() {
     let dir = scratch("render");
     let (raw, preview, gt) = (dir.join("f.exr"), dir.join("f.png"), dir.join("t.exr"));
     let stdout = ok(btfrig()
-        .args([
-            "sim",
-            "render",
-            "--material",
-            "leather",
-            "--view",
-            "60,90",
-            "--light",
-            "45,270",
-            "--texture-size",
-            "64",
-        ])
+        .args(["sim", "render", "--material", "leather", "--view", "60,90", "--light", "45,270", "--texture-size", "64"])
         .arg("--out")
         .arg(&raw)
         .arg("--preview")
@@ -110,37 +92,19 @@ fn bad_render_arguments_are_named_with_what_is_allowed() {
     let out = dir.join("x.exr");
     let base = |view: &str, material: &str, out: &Path| {
         let mut c = btfrig();
-        c.args([
-            "sim",
-            "render",
-            "--view",
-            view,
-            "--light",
-            "30,0",
-            "--material",
-            material,
-            "--out",
-        ])
-        .arg(out);
+        c.args(["sim", "render", "--view", view, "--light", "30,0", "--material", material, "--out"]).arg(out);
         c
     };
     let e = fails(&mut base("95,0", "corduroy", &out));
     assert!(e.contains("--view") && e.contains("[0, 90)"), "{e}");
     let e = fails(&mut base("30,0", "velvet", &out));
-    assert!(
-        e.contains("velvet") && e.contains("corduroy") && e.contains("leather"),
-        "{e}"
-    );
+    assert!(e.contains("velvet") && e.contains("corduroy") && e.contains("leather"), "{e}");
     let e = fails(&mut base("30,0", "corduroy", &dir.join("x.jpg")));
     assert!(e.contains("--out") && e.contains("exr, png"), "{e}");
     let e = fails(&mut base("30,0", "corduroy", &dir.join("missing/x.exr")));
     assert!(e.contains("does not exist"), "{e}");
     // Light == view: the camera would block the lamp.
-    let e = fails(
-        btfrig()
-            .args(["sim", "render", "--view", "30,30", "--light", "30,30", "--out"])
-            .arg(&out),
-    );
+    let e = fails(btfrig().args(["sim", "render", "--view", "30,30", "--light", "30,30", "--out"]).arg(&out));
     assert!(e.contains("block the lamp"), "{e}");
     assert!(!out.exists(), "a failed render must not write its output");
 }
@@ -148,25 +112,15 @@ fn bad_render_arguments_are_named_with_what_is_allowed() {
 #[test]
 fn a_rig_config_with_a_typo_or_bad_values_is_rejected_with_the_field_named() {
     let dir = scratch("bad-rig");
-    let good =
-        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../../rig-configs/bonn-gonio-sim.toml"))
-            .unwrap();
+    let good = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../../rig-configs/bonn-gonio-sim.toml")).unwrap();
     let typo = dir.join("typo.toml");
     std::fs::write(&typo, good.replace("rail_radius_m", "rail_radius")).unwrap();
     let e = fails(btfrig().args(["kinematics", "check", "--rig"]).arg(&typo));
     assert!(e.contains("rail_radius") && e.contains("typo.toml"), "{e}");
     let bad = dir.join("bad.toml");
-    std::fs::write(
-        &bad,
-        good.replace("width_px = 1600", "width_px = 0")
-            .replace("bit_depth = 14", "bit_depth = 20"),
-    )
-    .unwrap();
+    std::fs::write(&bad, good.replace("width_px = 1600", "width_px = 0").replace("bit_depth = 14", "bit_depth = 20")).unwrap();
     let e = fails(btfrig().args(["kinematics", "check", "--rig"]).arg(&bad));
-    assert!(
-        e.contains("width_px") && e.contains("bit_depth"),
-        "both problems reported at once: {e}"
-    );
+    assert!(e.contains("width_px") && e.contains("bit_depth"), "both problems reported at once: {e}");
 }
 
 #[test]
@@ -189,18 +143,10 @@ fn every_shipped_rig_config_loads_and_validates() {
 fn kinematics_check_classifies_all_6561_bonn_pairs() {
     let stdout = ok(btfrig().args(["kinematics", "check", "--json"]));
     let v: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
-    let reasons: u64 = v["unreachable"]
-        .as_object()
-        .unwrap()
-        .values()
-        .map(|n| n.as_u64().unwrap())
-        .sum();
+    let reasons: u64 = v["unreachable"].as_object().unwrap().values().map(|n| n.as_u64().unwrap()).sum();
     assert_eq!(v["pairs"], 6561);
     assert_eq!(v["reachable"].as_u64().unwrap() + reasons, 6561);
-    assert_eq!(
-        v["unreachable"]["camera blocks lamp"], 81,
-        "exactly the light == view pairs"
-    );
+    assert_eq!(v["unreachable"]["camera blocks lamp"], 81, "exactly the light == view pairs");
     assert!(v["max_roundtrip_error_rad"].as_f64().unwrap() < 1e-9);
 }
 
@@ -308,13 +254,7 @@ fn plan_check_and_show_on_the_shipped_plans_and_a_broken_one() {
     }
     let broken = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../crates/core/tests/bad-plans/many-errors.toml");
     let e = fails(btfrig().args(["plan", "check"]).arg(&broken));
-    for field in [
-        "rig.material",
-        "sampling.view",
-        "texture.size",
-        "outputs.format",
-        "run.backoff_s",
-    ] {
+    for field in ["rig.material", "sampling.view", "texture.size", "outputs.format", "run.backoff_s"] {
         assert!(e.contains(field), "{field} not named:\n{e}");
     }
 }
@@ -394,10 +334,7 @@ fn run_writes_a_verified_dataset_resumes_to_nothing_and_refuses_another_plan() {
     // Another plan into the same directory: refused, naming the directory.
     let other = tiny_plan(&dir, 8);
     let err = fails(btfrig().args(["run", "--plan"]).arg(&other).arg("--out").arg(&out));
-    assert!(
-        err.contains(&out.display().to_string()) && err.contains("another dataset"),
-        "{err}"
-    );
+    assert!(err.contains(&out.display().to_string()) && err.contains("another dataset"), "{err}");
     assert_eq!(std::fs::read_dir(out.join("textures")).unwrap().count(), 12);
     ok(btfrig().args(["dataset", "verify"]).arg(&out));
 }

@@ -57,9 +57,7 @@ pub fn run(args: &CapturesArgs) -> anyhow::Result<()> {
                     let stem = format!("{i:02}_l{lt:03.0}_{lp:03.0}_v{vt:03.0}_{vp:03.0}");
                     btfrig_imageio::write_raw_frame(&out.join(format!("{stem}.raw.png")), &cap.frame)?;
                     write_preview(&s.scene, &cap.frame, &out.join(format!("{stem}.preview.png")))?;
-                    let gt = s
-                        .scene
-                        .ground_truth(&cap.truth.joints, cap.truth.lamp_intensity, DEMO_TEXTURE);
+                    let gt = s.scene.ground_truth(&cap.truth.joints, cap.truth.lamp_intensity, DEMO_TEXTURE);
                     btfrig_imageio::write_rgb_exr(
                         &out.join(format!("{stem}.truth.exr")),
                         gt.width,
@@ -147,10 +145,7 @@ pub fn run(args: &CapturesArgs) -> anyhow::Result<()> {
         st.shadow_rays,
         st.shadow_rays_skipped
     );
-    println!(
-        "wrote raw frames, previews and ground-truth textures to {}",
-        out.display()
-    );
+    println!("wrote raw frames, previews and ground-truth textures to {}", out.display());
     Ok(())
 }
 
@@ -160,10 +155,8 @@ pub fn prepare_output(out: Option<PathBuf>, prefix: &str) -> anyhow::Result<Path
     let dir = match out {
         Some(d) => d,
         None => {
-            let stamp = std::time::SystemTime::now()
-                .duration_since(std::time::UNIX_EPOCH)
-                .map(|d| d.as_millis())
-                .unwrap_or(0);
+            let stamp =
+                std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_millis()).unwrap_or(0);
             std::env::temp_dir().join(format!("{prefix}-{stamp}-{}", std::process::id()))
         }
     };

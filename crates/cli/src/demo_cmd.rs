@@ -16,21 +16,13 @@ const FULL_PLAN: &str = include_str!("../../../rig-configs/plans/bonn-full.toml"
 
 /// Runs the demo.
 pub fn run(a: &DemoArgs) -> anyhow::Result<ExitCode> {
-    let (name, text) = if a.full {
-        ("bonn-full", FULL_PLAN)
-    } else {
-        ("demo", DEMO_PLAN)
-    };
+    let (name, text) = if a.full { ("bonn-full", FULL_PLAN) } else { ("demo", DEMO_PLAN) };
     let cwd = std::env::current_dir().context("the working directory")?;
     let text = with_overrides(text, a.rig.as_deref(), a.material.as_deref(), &cwd)?;
     let out = crate::captures_cmd::prepare_output(a.out.clone(), "btfrig-demo")?;
     // Relative paths (--rig, --material files) are made absolute above; the plan "file" is
     // only a name for messages.
-    let req = RunRequest::from_text(
-        text,
-        &cwd.join(format!("<embedded rig-configs/plans/{name}.toml>")),
-        &out,
-    );
+    let req = RunRequest::from_text(text, &cwd.join(format!("<embedded rig-configs/plans/{name}.toml>")), &out);
     let s = crate::run_cmd::execute(&req)?;
     if a.json {
         println!("{}", s.to_json());
@@ -39,14 +31,7 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<ExitCode> {
         let stages: Vec<String> = s.stage_s.iter().map(|(k, v)| format!("{k} {v:.2} s")).collect();
         println!("btfrig demo: plan {name:?} on the simulated gonioreflectometer");
         println!("  captures          {} of {} planned", s.captures, s.planned_captures);
-        println!(
-            "  skipped           {}",
-            if skipped.is_empty() {
-                "none".into()
-            } else {
-                skipped.join(", ")
-            }
-        );
+        println!("  skipped           {}", if skipped.is_empty() { "none".into() } else { skipped.join(", ") });
         println!(
             "  rig time          {:.1} s (planner's lower bound {:.1} s; naive nested-loop order {:.1} s)",
             s.hardware_s, s.critical_path_s, s.naive_order_hardware_s
@@ -55,9 +40,7 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<ExitCode> {
         println!("  stages            {}", stages.join(", "));
         println!(
             "  texture error     {} (relative RMSE of the rectified textures against ground truth)",
-            s.texture_rel_rmse
-                .map(|r| format!("{r:.4}"))
-                .unwrap_or_else(|| "n/a".into())
+            s.texture_rel_rmse.map(|r| format!("{r:.4}")).unwrap_or_else(|| "n/a".into())
         );
         println!("  retries           {}, warnings {}", s.retries, s.warnings.len());
         println!("  dataset           {}", s.dataset.display());
@@ -74,19 +57,13 @@ fn with_overrides(text: &str, rig: Option<&Path>, material: Option<&str>, cwd: &
         return Ok(text.to_string());
     }
     let mut doc: toml::Table = text.parse().context("the embedded plan")?;
-    let section = doc
-        .entry("rig")
-        .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+    let section = doc.entry("rig").or_insert_with(|| toml::Value::Table(toml::Table::new()));
     let section = section.as_table_mut().context("the embedded plan's [rig]")?;
     if let Some(r) = rig {
         section.insert("config".into(), toml::Value::String(cwd.join(r).display().to_string()));
     }
     if let Some(m) = material {
-        let m = if m.ends_with(".toml") {
-            cwd.join(m).display().to_string()
-        } else {
-            m.to_string()
-        };
+        let m = if m.ends_with(".toml") { cwd.join(m).display().to_string() } else { m.to_string() };
         section.insert("material".into(), toml::Value::String(m));
     }
     Ok(doc.to_string())

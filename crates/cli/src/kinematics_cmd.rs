@@ -22,11 +22,8 @@ pub fn check(rig: Option<&std::path::Path>, json: bool) -> anyhow::Result<()> {
     }
     let elapsed = started.elapsed().as_secs_f64();
     if json {
-        let reasons: serde_json::Map<String, serde_json::Value> = report
-            .unreachable
-            .iter()
-            .map(|(k, n)| (k.label().to_string(), (*n).into()))
-            .collect();
+        let reasons: serde_json::Map<String, serde_json::Value> =
+            report.unreachable.iter().map(|(k, n)| (k.label().to_string(), (*n).into())).collect();
         let out = serde_json::json!({
             "rig": cfg.rig.name,
             "pairs": report.total,

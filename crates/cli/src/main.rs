@@ -32,12 +32,9 @@ fn main() -> std::process::ExitCode {
         Command::Plan(PlanCommand::Show { file }) => done(plan_cmd::show(&file)),
         Command::Dataset(DatasetCommand::Info { dir }) => done(dataset_cmd::info(&dir)),
         Command::Dataset(DatasetCommand::Verify { dir }) => done(dataset_cmd::verify(&dir)),
-        Command::Bench(BenchCommand::Render {
-            rig,
-            material,
-            texels,
-            repeat,
-        }) => done(bench_cmd::render(rig.as_deref(), &material, texels, repeat)),
+        Command::Bench(BenchCommand::Render { rig, material, texels, repeat }) => {
+            done(bench_cmd::render(rig.as_deref(), &material, texels, repeat))
+        }
     };
     match result {
         Ok(code) => code,

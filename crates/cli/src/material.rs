@@ -15,10 +15,7 @@ pub fn load(name: Option<&str>) -> anyhow::Result<MaterialSpec> {
     }
     MaterialSpec::builtin(name).map_err(|e| {
         let names: Vec<&str> = BUILTIN_MATERIALS.iter().map(|(n, _)| *n).collect();
-        anyhow::anyhow!(
-            "--material {name:?}: {e}; allowed: {} or a path ending in .toml",
-            names.join(", ")
-        )
+        anyhow::anyhow!("--material {name:?}: {e}; allowed: {} or a path ending in .toml", names.join(", "))
     })
 }
 

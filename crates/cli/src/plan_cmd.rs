@@ -11,12 +11,7 @@ use btfrig_runner::plan::{exposure_s, frame_bytes, load, skip_counts};
 pub fn check(file: &Path) -> anyhow::Result<()> {
     let (_, v) = load(file)?;
     let list = v.capture_list();
-    println!(
-        "{}: valid plan {:?} (hash {:016x})",
-        file.display(),
-        v.name,
-        v.plan_hash
-    );
+    println!("{}: valid plan {:?} (hash {:016x})", file.display(), v.name, v.plan_hash);
     println!(
         "rig {} ({}), {} light x {} view directions, {} requested pairs, {} captures, {} skipped",
         v.rig.rig.name,
@@ -35,11 +30,7 @@ pub fn check(file: &Path) -> anyhow::Result<()> {
 pub fn show(file: &Path) -> anyhow::Result<()> {
     let (plan, v) = load(file)?;
     let list = v.capture_list();
-    anyhow::ensure!(
-        !list.captures.is_empty(),
-        "{}: the plan captures nothing",
-        file.display()
-    );
+    anyhow::ensure!(!list.captures.is_empty(), "{}: the plan captures nothing", file.display());
     let gonio = Gonio::new(v.rig.geometry.clone())?;
     let exposure_s = exposure_s(&plan, &v, file)?;
     let frame_bytes = frame_bytes(&v);

@@ -16,10 +16,7 @@ pub fn load(path: Option<&Path>) -> anyhow::Result<RigConfig> {
                 .iter()
                 .find(|(name, _)| *name == BUILTIN_RIG)
                 .expect("the default rig is among the embedded rigs");
-            Ok(RigConfig::from_toml(
-                text,
-                "<embedded rig-configs/bonn-gonio-sim.toml>",
-            )?)
+            Ok(RigConfig::from_toml(text, "<embedded rig-configs/bonn-gonio-sim.toml>")?)
         }
         Some(p) => {
             let text = std::fs::read_to_string(p).with_context(|| format!("cannot read rig config {}", p.display()))?;

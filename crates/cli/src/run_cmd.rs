@@ -23,18 +23,11 @@ pub fn run(a: &RunArgs) -> anyhow::Result<ExitCode> {
     let req = RunRequest::from_file(&a.plan, &a.out)?.with_faults(a.faults.clone());
     let summary = execute(&req)?;
     if summary.outcome == RunOutcome::NothingToDo {
-        println!(
-            "{}: all {} captures already done; nothing to do",
-            a.out.display(),
-            summary.captures
-        );
+        println!("{}: all {} captures already done; nothing to do", a.out.display(), summary.captures);
         return Ok(ExitCode::SUCCESS);
     }
     print_summary(&summary);
-    Ok(finish(
-        &summary,
-        &format!("btfrig run --plan {} --out {}", a.plan.display(), a.out.display()),
-    ))
+    Ok(finish(&summary, &format!("btfrig run --plan {} --out {}", a.plan.display(), a.out.display())))
 }
 
 /// Runs a request with the progress display on stderr and Ctrl-C wired to a clean stop.
@@ -64,10 +57,7 @@ pub fn finish(s: &RunSummary, command: &str) -> ExitCode {
                 }
                 None => eprintln!("  reason:  {reason}"),
             }
-            eprintln!(
-                "  dataset: {} (resumable; the report says status \"paused\")",
-                s.dataset.display()
-            );
+            eprintln!("  dataset: {} (resumable; the report says status \"paused\")", s.dataset.display());
             if fault.as_ref().is_some_and(|f| f.message.contains("(injected)")) {
                 eprintln!(
                     "  (the simulated rig's fault scenario injected this fault; it recurs on every resume unless you add --faults none)"
@@ -171,11 +161,7 @@ impl Progress {
             RunEvent::StepDone { light, view, .. } => self.current = format!("light {light} view {view}"),
             RunEvent::Progress { done, total, eta_s } => {
                 let eta = eta_s.map(|s| format!("{s:.0} s")).unwrap_or_else(|| "?".into());
-                let _ = write!(
-                    err,
-                    "\rcaptures {done}/{total}, ETA {eta} (rig time), last {}   ",
-                    self.current
-                );
+                let _ = write!(err, "\rcaptures {done}/{total}, ETA {eta} (rig time), last {}   ", self.current);
                 let _ = err.flush();
                 self.open_line = true;
             }

@@ -13,10 +13,7 @@ use btfrig_sim::{FaultScenario, RenderedFrameSource, SimRig};
 /// A current-thread tokio runtime on paused (virtual) time: simulated hardware time passes
 /// instantly, and rendering parallelises inside rayon.
 pub fn virtual_time_runtime() -> anyhow::Result<tokio::runtime::Runtime> {
-    Ok(tokio::runtime::Builder::new_current_thread()
-        .enable_time()
-        .start_paused(true)
-        .build()?)
+    Ok(tokio::runtime::Builder::new_current_thread().enable_time().start_paused(true).build()?)
 }
 
 /// The physics and the devices of one simulated rig.

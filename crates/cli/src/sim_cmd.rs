@@ -19,11 +19,7 @@ pub const AUTO_EXPOSURE_WHITE_FRACTION: f64 = 0.6;
 pub fn materials() -> anyhow::Result<()> {
     for name in crate::material::names() {
         let spec = crate::material::load(Some(name))?;
-        let default = if name == crate::material::DEFAULT_MATERIAL {
-            " (default)"
-        } else {
-            ""
-        };
+        let default = if name == crate::material::DEFAULT_MATERIAL { " (default)" } else { "" };
         println!("{name:<16} {}{default}", spec.description);
     }
     Ok(())
@@ -58,35 +54,19 @@ pub fn render(args: &RenderArgs) -> anyhow::Result<()> {
         let (lo, hi) = session.rig.camera.capabilities().exposure_range_s;
         let exposure = match args.exposure {
             Some(e) => {
-                anyhow::ensure!(
-                    e >= lo && e <= hi,
-                    "--exposure {e}: allowed {lo}..={hi} s for this camera"
-                );
+                anyhow::ensure!(e >= lo && e <= hi, "--exposure {e}: allowed {lo}..={hi} s for this camera");
                 e
             }
             None => session.scene.exposure_for_white(AUTO_EXPOSURE_WHITE_FRACTION, lo, hi),
         };
         if args.nominal {
-            let joints = session
-                .scene
-                .gonio()
-                .ik(light, view)
-                .map_err(|r| anyhow::anyhow!("pair unreachable: {r}"))?;
-            let (frame, _) = session
-                .scene
-                .capture(&joints, 1.0, exposure, 1.0, seed, &RenderOptions::default())?;
+            let joints = session.scene.gonio().ik(light, view).map_err(|r| anyhow::anyhow!("pair unreachable: {r}"))?;
+            let (frame, _) = session.scene.capture(&joints, 1.0, exposure, 1.0, seed, &RenderOptions::default())?;
             return Ok((frame, joints, joints, 1.0, 0.0, session.scene));
         }
         capture::prepare(&mut session.rig).await?;
         let cap = capture::capture_pair(&mut session.rig, session.scene.gonio(), light, view, exposure).await?;
-        anyhow::Ok((
-            cap.frame,
-            cap.truth.joints,
-            cap.commanded,
-            cap.truth.lamp_intensity,
-            cap.hardware_s,
-            session.scene,
-        ))
+        anyhow::Ok((cap.frame, cap.truth.joints, cap.commanded, cap.truth.lamp_intensity, cap.hardware_s, session.scene))
     })?;
     let render_s = started.elapsed().as_secs_f64();
 
@@ -145,28 +125,14 @@ pub fn saturated_fraction(frame: &RawFrame) -> f64 {
 }
 
 fn check_extension(path: &Path, allowed: &[&str], flag: &str) -> anyhow::Result<()> {
-    let ext = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase)
-        .unwrap_or_default();
+    let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).unwrap_or_default();
     if allowed.contains(&ext.as_str()) {
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-            anyhow::ensure!(
-                dir.is_dir(),
-                "{flag} {}: directory {} does not exist",
-                path.display(),
-                dir.display()
-            );
+            anyhow::ensure!(dir.is_dir(), "{flag} {}: directory {} does not exist", path.display(), dir.display());
         }
         Ok(())
     } else {
-        Err(anyhow::anyhow!(
-            "{flag} {}: allowed extensions {}",
-            path.display(),
-            allowed.join(", ")
-        ))
-        .context("bad output path")
+        Err(anyhow::anyhow!("{flag} {}: allowed extensions {}", path.display(), allowed.join(", "))).context("bad output path")
     }
 }
 

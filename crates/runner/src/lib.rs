@@ -117,10 +117,7 @@ pub struct RunRequest {
 impl RunRequest {
     /// A request for the plan file `plan` into `out`.
     pub fn from_file(plan: &Path, out: &Path) -> Result<RunRequest, RunError> {
-        let plan_text = std::fs::read_to_string(plan).map_err(|source| RunError::Read {
-            path: plan.into(),
-            source,
-        })?;
+        let plan_text = std::fs::read_to_string(plan).map_err(|source| RunError::Read { path: plan.into(), source })?;
         Ok(RunRequest::from_text(plan_text, plan, out))
     }
 
@@ -168,10 +165,7 @@ impl RunControl {
     /// A new control, not yet attached to a run.
     pub fn new() -> RunControl {
         let (tx, rx) = mpsc::unbounded_channel();
-        RunControl {
-            tx,
-            rx: Arc::new(Mutex::new(Some(rx))),
-        }
+        RunControl { tx, rx: Arc::new(Mutex::new(Some(rx))) }
     }
 
     /// Pause after the step under way; the session waits for resume or abort.
@@ -382,11 +376,7 @@ impl RunSummary {
 /// A virtual-time runtime: a current-thread tokio runtime on paused time, so simulated
 /// hardware time passes instantly; rendering parallelises inside rayon.
 pub fn virtual_time_runtime() -> Result<tokio::runtime::Runtime, RunError> {
-    tokio::runtime::Builder::new_current_thread()
-        .enable_time()
-        .start_paused(true)
-        .build()
-        .map_err(RunError::Runtime)
+    tokio::runtime::Builder::new_current_thread().enable_time().start_paused(true).build().map_err(RunError::Runtime)
 }
 
 /// Runs `req` to its end, to a pause that ends the session, or to an abort; see the crate
@@ -398,10 +388,8 @@ pub fn run(
     on_event: &mut dyn FnMut(&RunEvent),
 ) -> Result<RunSummary, RunError> {
     let wall = Instant::now();
-    let started_unix_s = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_secs_f64())
-        .unwrap_or(0.0);
+    let started_unix_s =
+        std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs_f64()).unwrap_or(0.0);
     let file = req.plan_path.as_path();
     let (plan, v) = plan::load_text(&req.plan_text, file)?;
     let list = v.capture_list();
@@ -420,10 +408,7 @@ pub fn run(
 
     // The dataset: new, or the same plan's to resume; anything else is refused by the store.
     let manifest = plan::manifest(&plan, &v, &req.plan_text, file, &list)?;
-    let ds_err = |source| RunError::Dataset {
-        dir: req.out.clone(),
-        source,
-    };
+    let ds_err = |source| RunError::Dataset { dir: req.out.clone(), source };
     let (dataset, resumed, run_skips, repaired) = match Dataset::create(&req.out, manifest) {
         Ok(d) => (d, false, BTreeMap::new(), None),
         Err(StoreError::AlreadyExists { .. }) => {
@@ -447,26 +432,12 @@ pub fn run(
     }
 
     let gonio = Gonio::new(v.rig.geometry.clone()).map_err(|e| RunError::Rig(e.to_string()))?;
-    let request = PlanRequest::new(
-        &gonio,
-        &v.light,
-        &v.view,
-        &v.rig.timing,
-        exposure_s,
-        plan::frame_bytes(&v),
-    )
-    .with_pairs(PairSelection::List(list.captures.clone()));
+    let request = PlanRequest::new(&gonio, &v.light, &v.view, &v.rig.timing, exposure_s, plan::frame_bytes(&v))
+        .with_pairs(PairSelection::List(list.captures.clone()));
     let schedule = plan_schedule(&request)?;
     let steps = EngineStep::from_schedule(&schedule);
-    let done: HashSet<StepKey> = dataset
-        .completed()
-        .iter()
-        .chain(run_skips.keys())
-        .map(|s| StepKey {
-            light: s.light,
-            view: s.view,
-        })
-        .collect();
+    let done: HashSet<StepKey> =
+        dataset.completed().iter().chain(run_skips.keys()).map(|s| StepKey { light: s.light, view: s.view }).collect();
     let to_do = steps.iter().filter(|s| !done.contains(&s.key)).count();
     let previous = report::previous_sessions(&req.out);
     let fixed = Fixed {
@@ -511,9 +482,7 @@ pub fn run(
         },
     };
 
-    let commands = control
-        .take()
-        .ok_or_else(|| RunError::Rig("this RunControl already drives a run".into()))?;
+    let commands = control.take().ok_or_else(|| RunError::Rig("this RunControl already drives a run".into()))?;
     let dataset = Arc::new(dataset);
     let rt = virtual_time_runtime()?;
     let session = rt.block_on(session(SessionInput {
@@ -529,13 +498,7 @@ pub fn run(
         stop_on_fault: req.stop_on_fault,
         on_event,
     }));
-    let SessionResult {
-        outcome,
-        hardware_s,
-        engine_retries,
-        warnings,
-        totals,
-    } = session?;
+    let SessionResult { outcome, hardware_s, engine_retries, warnings, totals } = session?;
     let totals = totals?;
     let mut dataset =
         Arc::try_unwrap(dataset).map_err(|_| RunError::Rig("dataset still shared after the run".into()))?;
@@ -563,9 +526,7 @@ pub fn run(
     let summary = summarise(&fixed, &dataset, &previous, Some(&this), outcome);
     let mut sessions: Vec<serde_json::Value> = previous.iter().map(Session::to_json).collect();
     sessions.push(this.to_json());
-    dataset
-        .finish(&report_of(&summary, &previous, &this, sessions))
-        .map_err(RunError::Report)?;
+    dataset.finish(&report_of(&summary, &previous, &this, sessions)).map_err(RunError::Report)?;
     Ok(summary)
 }
 
@@ -631,10 +592,7 @@ fn report_of(s: &RunSummary, previous: &[Session], this: &Session, sessions: Vec
     put("captures_this_session", json!(this.captures));
     put("captures_without_truth", json!(without_truth));
     put("unreported_captures", json!(s.unreported_captures));
-    put(
-        "engine_retries",
-        json!(previous.iter().chain([this]).map(|s| s.retries).sum::<u64>()),
-    );
+    put("engine_retries", json!(previous.iter().chain([this]).map(|s| s.retries).sum::<u64>()));
     put("sessions", serde_json::Value::Array(sessions));
     RunReport {
         captures: s.captures,
@@ -672,13 +630,7 @@ struct SessionResult {
 
 fn fault_of(r: &PauseReason) -> Option<Fault> {
     match r {
-        PauseReason::StepFailed {
-            index,
-            key,
-            device,
-            kind,
-            message,
-        } => Some(Fault {
+        PauseReason::StepFailed { index, key, device, kind, message } => Some(Fault {
             index: *index,
             light: key.light,
             view: key.view,
@@ -713,12 +665,7 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
     btfrig_sim::capture::prepare(&mut sim)
         .await
         .map_err(|e| RunError::Rig(format!("preparing the simulated rig: {e}")))?;
-    let devices = Devices {
-        robot: sim.robot,
-        rail: sim.rail,
-        camera: sim.camera,
-        clock: sim.world.clock().clone(),
-    };
+    let devices = Devices { robot: sim.robot, rail: sim.rail, camera: sim.camera, clock: sim.world.clock().clone() };
     let _lamp = sim.lamp; // stays on for the whole run
     let (tx, rx) = mpsc::channel(FRAME_CHANNEL);
     let mut handle = Engine::spawn(devices, steps, done, settings, tx);

@@ -32,10 +32,7 @@ pub const FAULT_FILES: &[(&str, &str)] = &[
 ];
 
 fn read(path: &Path) -> Result<String, RunError> {
-    std::fs::read_to_string(path).map_err(|source| RunError::Read {
-        path: path.to_path_buf(),
-        source,
-    })
+    std::fs::read_to_string(path).map_err(|source| RunError::Read { path: path.to_path_buf(), source })
 }
 
 /// Reads a plan file, then [`load_text`].
@@ -50,10 +47,8 @@ pub fn load_text(text: &str, file: &Path) -> Result<(Plan, ValidatedPlan), RunEr
     let plan = Plan::from_toml(text, &file.display().to_string())?;
     let mut ctx = PlanContext::with_builtin_names();
     if let Some(rig) = plan.rig_config_path(file) {
-        let cfg = RigConfig::from_toml(&read(&rig)?, &rig.display().to_string()).map_err(|e| RunError::Input {
-            what: format!("{}: rig.config", file.display()),
-            message: e.to_string(),
-        })?;
+        let cfg = RigConfig::from_toml(&read(&rig)?, &rig.display().to_string())
+            .map_err(|e| RunError::Input { what: format!("{}: rig.config", file.display()), message: e.to_string() })?;
         ctx.rig = Some(cfg);
     }
     let validated = plan.validate(&ctx)?;
@@ -66,10 +61,8 @@ pub fn load_material(name: Option<&str>) -> Result<MaterialSpec, RunError> {
     let name = name.unwrap_or(DEFAULT_MATERIAL);
     if name.ends_with(".toml") {
         let text = read(Path::new(name))?;
-        return MaterialSpec::from_toml(&text, name).map_err(|e| RunError::Input {
-            what: format!("material {name}"),
-            message: e.to_string(),
-        });
+        return MaterialSpec::from_toml(&text, name)
+            .map_err(|e| RunError::Input { what: format!("material {name}"), message: e.to_string() });
     }
     MaterialSpec::builtin(name).map_err(|e| {
         let names: Vec<&str> = BUILTIN_MATERIALS.iter().map(|(n, _)| *n).collect();
@@ -97,10 +90,8 @@ pub fn exposure_s(plan: &Plan, v: &ValidatedPlan, file: &Path) -> Result<f64, Ru
     Ok(match v.exposure {
         ExposurePolicy::Fixed { exposure_s, .. } => exposure_s,
         ExposurePolicy::Auto { white_fraction } => {
-            let scene = RigScene::new(&v.rig, &material(plan, v, file)?).map_err(|e| RunError::Input {
-                what: "rig scene".into(),
-                message: e.to_string(),
-            })?;
+            let scene = RigScene::new(&v.rig, &material(plan, v, file)?)
+                .map_err(|e| RunError::Input { what: "rig scene".into(), message: e.to_string() })?;
             scene.exposure_for_white(white_fraction, 1e-6, 3600.0)
         }
     })
@@ -109,11 +100,7 @@ pub fn exposure_s(plan: &Plan, v: &ValidatedPlan, file: &Path) -> Result<f64, Ru
 /// Bytes the camera transfers per frame (the timing model's, or 2 per photosite).
 pub fn frame_bytes(v: &ValidatedPlan) -> u64 {
     let cam = &v.rig.camera;
-    v.rig
-        .timing
-        .camera
-        .frame_bytes
-        .unwrap_or((cam.width_px * cam.height_px) as u64 * 2)
+    v.rig.timing.camera.frame_bytes.unwrap_or((cam.width_px * cam.height_px) as u64 * 2)
 }
 
 /// Plan skips counted by reason, in order of first appearance.
@@ -138,28 +125,18 @@ pub fn skip_map(skipped: &[((usize, usize), SkipReason)]) -> BTreeMap<String, u6
 /// `base` (the plan's directory for the plan's own field, the working directory for an
 /// override). `field` names the setting in errors.
 pub fn fault_scenario(name: &str, base: &Path, field: &str) -> Result<FaultScenario, RunError> {
-    let bad = |message: String| RunError::Input {
-        what: format!("{field} {name:?}"),
-        message,
-    };
+    let bad = |message: String| RunError::Input { what: format!("{field} {name:?}"), message };
     if let Some((_, text)) = FAULT_FILES.iter().find(|(n, _)| *n == name) {
         return FaultScenario::from_toml(text, &format!("<embedded sim/faults/{name}.toml>"))
             .map_err(|e| bad(e.to_string()));
     }
     let path = base.join(name);
     let text = std::fs::read_to_string(&path).map_err(|e| {
-        let names: Vec<&str> = BUILTIN_FAULT_SCENARIOS
-            .iter()
-            .chain(FAULT_FILES.iter().map(|(n, _)| n))
-            .copied()
-            .collect();
+        let names: Vec<&str> =
+            BUILTIN_FAULT_SCENARIOS.iter().chain(FAULT_FILES.iter().map(|(n, _)| n)).copied().collect();
         let mut names = names;
         names.dedup();
-        bad(format!(
-            "cannot read {}: {e}; allowed: {} or a scenario file",
-            path.display(),
-            names.join(", ")
-        ))
+        bad(format!("cannot read {}: {e}; allowed: {} or a scenario file", path.display(), names.join(", ")))
     })?;
     FaultScenario::from_toml(&text, &path.display().to_string()).map_err(|e| bad(e.to_string()))
 }
@@ -173,40 +150,18 @@ pub fn manifest(
     list: &CaptureList,
 ) -> Result<Manifest, RunError> {
     let config_toml = match plan.rig.config.strip_prefix("builtin:") {
-        Some(name) => BUILTIN_RIGS
-            .iter()
-            .find(|(n, _)| *n == name)
-            .map(|(_, t)| t.to_string())
-            .unwrap_or_default(),
+        Some(name) => BUILTIN_RIGS.iter().find(|(n, _)| *n == name).map(|(_, t)| t.to_string()).unwrap_or_default(),
         None => {
-            let p = plan
-                .rig_config_path(file)
-                .unwrap_or_else(|| plan.rig.config.clone().into());
+            let p = plan.rig_config_path(file).unwrap_or_else(|| plan.rig.config.clone().into());
             read(&p)?
         }
     };
-    let id = |(l, v): (usize, usize)| StepId {
-        light: l as u32,
-        view: v as u32,
-    };
+    let id = |(l, v): (usize, usize)| StepId { light: l as u32, view: v as u32 };
     let samplings = Samplings {
         light: v.light.directions().iter().map(|&d| DirectionDeg::from(d)).collect(),
         view: v.view.directions().iter().map(|&d| DirectionDeg::from(d)).collect(),
-        pairs: Some(
-            list.captures
-                .iter()
-                .chain(list.skipped.iter().map(|(p, _)| p))
-                .map(|&p| id(p))
-                .collect(),
-        ),
-        skipped: list
-            .skipped
-            .iter()
-            .map(|&(p, r)| SkippedStep {
-                step: id(p),
-                reason: r.label(),
-            })
-            .collect(),
+        pairs: Some(list.captures.iter().chain(list.skipped.iter().map(|(p, _)| p)).map(|&p| id(p)).collect()),
+        skipped: list.skipped.iter().map(|&(p, r)| SkippedStep { step: id(p), reason: r.label() }).collect(),
     };
     let r = &v.texture.region;
     let texture = TextureSpec {
@@ -221,9 +176,6 @@ pub fn manifest(
             OutputFormat::ExrFloat => TextureFormat::ExrFloat,
         },
     };
-    let rig = RigInfo {
-        name: v.rig.rig.name.clone(),
-        config_toml,
-    };
+    let rig = RigInfo { name: v.rig.rig.name.clone(), config_toml };
     Ok(Manifest::new(rig, text, samplings, texture, false, v.rig.rig.seed))
 }

@@ -89,10 +89,7 @@ pub fn previous_sessions(dir: &Path) -> Vec<Session> {
     }
     vec![Session {
         status: v["status"].as_str().unwrap_or("finished").to_string(),
-        captures: v["captures_this_session"]
-            .as_u64()
-            .or(v["captures"].as_u64())
-            .unwrap_or(0),
+        captures: v["captures_this_session"].as_u64().or(v["captures"].as_u64()).unwrap_or(0),
         wall_s: v["wall_s"].as_f64().unwrap_or(0.0),
         hardware_s: v["hardware_s"].as_f64().unwrap_or(0.0),
         retries: v["retries"].as_u64().unwrap_or(0),

@@ -60,18 +60,7 @@ fn an_interrupted_run_resumes_and_the_report_covers_both_sessions() {
     })
     .unwrap();
     assert_eq!(first.outcome, RunOutcome::Interrupted);
-    assert!(
-        matches!(
-            events[0],
-            RunEvent::Started {
-                resumed: false,
-                to_do: 12,
-                total: 12,
-                ..
-            }
-        ),
-        "{events:?}"
-    );
+    assert!(matches!(events[0], RunEvent::Started { resumed: false, to_do: 12, total: 12, .. }), "{events:?}");
     assert!(events.iter().any(|e| matches!(e, RunEvent::Stopping { .. })));
     assert!(first.captures >= 1 && first.captures < 12, "{first:?}");
     assert_eq!(report(&dir)["status"], "interrupted");
@@ -122,10 +111,7 @@ fn with_an_operator_a_fatal_fault_pauses_and_resume_retries_the_step() {
     assert_eq!(s.outcome, RunOutcome::Finished);
     assert_eq!(s.captures, 12);
     assert_eq!(paused.len(), 1, "{paused:?}");
-    assert_eq!(
-        (paused[0].device.as_str(), paused[0].index, paused[0].kind.as_str()),
-        ("robot", 6, "other")
-    );
+    assert_eq!((paused[0].device.as_str(), paused[0].index, paused[0].kind.as_str()), ("robot", 6, "other"));
     assert_eq!(report(&dir)["status"], "finished");
 }
 
@@ -134,22 +120,12 @@ fn fault_override_keeps_the_plan_hash_and_unknown_names_are_refused() {
     let dir = scratch("override");
     let req = request(&dir, "robot-fault");
     let s = run(&req, &RunControl::new(), &mut |_| {}).unwrap();
-    assert!(
-        matches!(&s.outcome, RunOutcome::Paused { fault: Some(f), .. } if f.device == "robot"),
-        "{s:?}"
-    );
+    assert!(matches!(&s.outcome, RunOutcome::Paused { fault: Some(f), .. } if f.device == "robot"), "{s:?}");
     assert_eq!(s.captures, 6);
-    let e = run(
-        &req.clone().with_faults(Some("no-such-scenario".into())),
-        &RunControl::new(),
-        &mut |_| {},
-    )
-    .unwrap_err();
+    let e =
+        run(&req.clone().with_faults(Some("no-such-scenario".into())), &RunControl::new(), &mut |_| {}).unwrap_err();
     let msg = e.to_string();
-    assert!(
-        matches!(e, RunError::Input { .. }) && msg.contains("--faults") && msg.contains("robot-fault"),
-        "{msg}"
-    );
+    assert!(matches!(e, RunError::Input { .. }) && msg.contains("--faults") && msg.contains("robot-fault"), "{msg}");
     // Same plan text, so the same dataset resumes.
     let s = run(&req.with_faults(Some("none".into())), &RunControl::new(), &mut |_| {}).unwrap();
     assert_eq!(s.outcome, RunOutcome::Finished);

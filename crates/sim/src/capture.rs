@@ -62,16 +62,12 @@ pub async fn capture_pair(
     view: Direction,
     exposure_s: f64,
 ) -> Result<Capture, CaptureError> {
-    let commanded = gonio
-        .ik(light, view)
-        .map_err(|reason| CaptureError::Unreachable { light, view, reason })?;
+    let commanded = gonio.ik(light, view).map_err(|reason| CaptureError::Unreachable { light, view, reason })?;
     let clock = rig.world.clock().clone();
     let started = clock.now_s();
     let opts = MoveOptions::default();
-    let (robot, rail) = tokio::join!(
-        rig.robot.move_to_rad(commanded.robot, opts),
-        rig.rail.move_to_rad(commanded.rail, opts)
-    );
+    let (robot, rail) =
+        tokio::join!(rig.robot.move_to_rad(commanded.robot, opts), rig.rail.move_to_rad(commanded.rail, opts));
     robot?;
     rail?;
     if rig.camera.settings().exposure_s != exposure_s {
@@ -79,10 +75,5 @@ pub async fn capture_pair(
     }
     let frame = rig.camera.capture(60.0 + exposure_s).await?;
     let truth = rig.world.truth();
-    Ok(Capture {
-        commanded,
-        truth,
-        frame,
-        hardware_s: clock.now_s() - started,
-    })
+    Ok(Capture { commanded, truth, frame, hardware_s: clock.now_s() - started })
 }

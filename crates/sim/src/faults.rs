@@ -120,6 +120,7 @@ pub struct StuckLed {
 
 pub use crate::world::LampDrift;
 
+
 /// A fault scenario: the contents of one `sim/faults/*.toml` file.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -159,10 +160,8 @@ impl FaultScenario {
 
     /// Parses and validates a scenario; `origin` names the file in errors.
     pub fn from_toml(text: &str, origin: &str) -> Result<Self, ConfigError> {
-        let s: FaultScenario = toml::from_str(text).map_err(|e| ConfigError::Parse {
-            path: origin.to_string(),
-            message: e.to_string(),
-        })?;
+        let s: FaultScenario =
+            toml::from_str(text).map_err(|e| ConfigError::Parse { path: origin.to_string(), message: e.to_string() })?;
         let mut errors = Vec::new();
         s.validate(&mut errors);
         ConfigError::from_list(errors)?;
@@ -178,11 +177,7 @@ impl FaultScenario {
         };
         let calls = |errors: &mut Vec<ConfigError>, field: String, list: &[u64]| {
             if let Some(i) = list.iter().position(|&c| c == 0) {
-                errors.push(ConfigError::out_of_range(
-                    &format!("{field}[{i}]"),
-                    0,
-                    "1.. (calls count from 1)",
-                ));
+                errors.push(ConfigError::out_of_range(&format!("{field}[{i}]"), 0, "1.. (calls count from 1)"));
             }
         };
         for (i, t) in self.timeouts.iter().enumerate() {
@@ -194,11 +189,7 @@ impl FaultScenario {
         }
         for (i, d) in self.disconnects.iter().enumerate() {
             if d.at_call == 0 {
-                errors.push(ConfigError::out_of_range(
-                    &format!("faults.disconnects[{i}].at_call"),
-                    0,
-                    "1..",
-                ));
+                errors.push(ConfigError::out_of_range(&format!("faults.disconnects[{i}].at_call"), 0, "1.."));
             }
             if d.reconnect_after_calls == Some(0) {
                 errors.push(ConfigError::out_of_range(
@@ -208,34 +199,19 @@ impl FaultScenario {
                 ));
             }
         }
-        for (name, f) in [
-            ("dropped_frames", &self.dropped_frames),
-            ("corrupt_frames", &self.corrupt_frames),
-        ] {
+        for (name, f) in [("dropped_frames", &self.dropped_frames), ("corrupt_frames", &self.corrupt_frames)] {
             prob(errors, format!("faults.{name}.probability"), f.probability);
             calls(errors, format!("faults.{name}.frames"), &f.frames);
         }
         if let Some(d) = &self.lamp_drift {
             if !(0.0..=1.0).contains(&d.start_fraction) {
-                errors.push(ConfigError::out_of_range(
-                    "faults.lamp_drift.start_fraction",
-                    d.start_fraction,
-                    "[0, 1]",
-                ));
+                errors.push(ConfigError::out_of_range("faults.lamp_drift.start_fraction", d.start_fraction, "[0, 1]"));
             }
             if !(d.warm_up_tau_s > 0.0 && d.warm_up_tau_s <= 86_400.0) {
-                errors.push(ConfigError::out_of_range(
-                    "faults.lamp_drift.warm_up_tau_s",
-                    d.warm_up_tau_s,
-                    "(0, 86400] s",
-                ));
+                errors.push(ConfigError::out_of_range("faults.lamp_drift.warm_up_tau_s", d.warm_up_tau_s, "(0, 86400] s"));
             }
             if !(-1.0..=1.0).contains(&d.drift_per_hour) {
-                errors.push(ConfigError::out_of_range(
-                    "faults.lamp_drift.drift_per_hour",
-                    d.drift_per_hour,
-                    "[-1, 1] per hour",
-                ));
+                errors.push(ConfigError::out_of_range("faults.lamp_drift.drift_per_hour", d.drift_per_hour, "[-1, 1] per hour"));
             }
         }
     }
@@ -246,11 +222,7 @@ impl FaultScenario {
         let allowed = present.iter().map(|r| r.as_str()).collect::<Vec<_>>().join(", ");
         let mut need = |field: String, role: DeviceRole| {
             if !present.contains(&role) {
-                errors.push(ConfigError::Unknown {
-                    field,
-                    value: role.as_str().into(),
-                    allowed: allowed.clone(),
-                });
+                errors.push(ConfigError::Unknown { field, value: role.as_str().into(), allowed: allowed.clone() });
             }
         };
         for (i, t) in self.timeouts.iter().enumerate() {
@@ -325,18 +297,8 @@ impl FaultGate {
             name: name.to_string(),
             calls: 0,
             timeouts: scenario.timeouts.iter().filter(|t| t.device == role).cloned().collect(),
-            disconnects: scenario
-                .disconnects
-                .iter()
-                .filter(|d| d.device == role)
-                .cloned()
-                .collect(),
-            failures: scenario
-                .failures
-                .iter()
-                .filter(|f| f.device == role)
-                .flat_map(|f| f.calls.iter().copied())
-                .collect(),
+            disconnects: scenario.disconnects.iter().filter(|d| d.device == role).cloned().collect(),
+            failures: scenario.failures.iter().filter(|f| f.device == role).flat_map(|f| f.calls.clone()).collect(),
             rng: ChaCha8Rng::seed_from_u64(derive_seed(seed, name, 1)),
             clock: world.clock().clone(),
             world,

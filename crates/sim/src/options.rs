@@ -102,12 +102,7 @@ pub struct SimLampOptions {
 
 impl Default for SimLampOptions {
     fn default() -> Self {
-        SimLampOptions {
-            model: "sim HMI lamp".into(),
-            has_shutter: true,
-            dimmable: true,
-            min_intensity: 0.5,
-        }
+        SimLampOptions { model: "sim HMI lamp".into(), has_shutter: true, dimmable: true, min_intensity: 0.5 }
     }
 }
 
@@ -125,11 +120,7 @@ pub struct SimLedOptions {
 
 impl Default for SimLedOptions {
     fn default() -> Self {
-        SimLedOptions {
-            model: "sim LED array".into(),
-            count: 198,
-            intensity_steps: 4096,
-        }
+        SimLedOptions { model: "sim LED array".into(), count: 198, intensity_steps: 4096 }
     }
 }
 
@@ -177,10 +168,7 @@ pub(crate) fn parse_over<T: Serialize + DeserializeOwned>(
     options: &toml::Table,
     field: &str,
 ) -> Result<T, ConfigError> {
-    let parse_err = |message: String| ConfigError::Parse {
-        path: field.to_string(),
-        message,
-    };
+    let parse_err = |message: String| ConfigError::Parse { path: field.to_string(), message };
     let mut table = toml::Table::try_from(defaults).map_err(|e| parse_err(e.to_string()))?;
     for (k, v) in options {
         table.insert(k.clone(), v.clone());
@@ -198,11 +186,7 @@ fn check_range(errors: &mut Vec<ConfigError>, field: &str, [lo, hi]: [f64; 2], m
     check(errors, format!("{field}[0]"), lo, min, max, allowed);
     check(errors, format!("{field}[1]"), hi, min, max, allowed);
     if lo > hi {
-        errors.push(ConfigError::out_of_range(
-            field,
-            format!("[{lo}, {hi}]"),
-            "[low, high] with low <= high",
-        ));
+        errors.push(ConfigError::out_of_range(field, format!("[{lo}, {hi}]"), "[low, high] with low <= high"));
     }
 }
 
@@ -210,11 +194,7 @@ fn check_limits(errors: &mut Vec<ConfigError>, min_field: &str, max_field: &str,
     check(errors, min_field.to_string(), lo, -720.0, 720.0, "[-720, 720] deg");
     check(errors, max_field.to_string(), hi, -720.0, 720.0, "[-720, 720] deg");
     if lo >= hi {
-        errors.push(ConfigError::out_of_range(
-            min_field,
-            lo,
-            &format!("below {max_field} = {hi}"),
-        ));
+        errors.push(ConfigError::out_of_range(min_field, lo, &format!("below {max_field} = {hi}")));
     }
 }
 
@@ -222,29 +202,9 @@ impl SimRobotOptions {
     /// Appends every out-of-range value to `errors`; `f` is the table's field path.
     pub fn validate(&self, f: &str, errors: &mut Vec<ConfigError>) {
         for j in 0..3 {
-            check_limits(
-                errors,
-                &format!("{f}.joint_min_deg[{j}]"),
-                &format!("{f}.joint_max_deg[{j}]"),
-                self.joint_min_deg[j],
-                self.joint_max_deg[j],
-            );
-            check(
-                errors,
-                format!("{f}.offset_deg[{j}]"),
-                self.offset_deg[j],
-                -10.0,
-                10.0,
-                "[-10, 10] deg",
-            );
-            check(
-                errors,
-                format!("{f}.jitter_deg[{j}]"),
-                self.jitter_deg[j],
-                0.0,
-                10.0,
-                "[0, 10] deg",
-            );
+            check_limits(errors, &format!("{f}.joint_min_deg[{j}]"), &format!("{f}.joint_max_deg[{j}]"), self.joint_min_deg[j], self.joint_max_deg[j]);
+            check(errors, format!("{f}.offset_deg[{j}]"), self.offset_deg[j], -10.0, 10.0, "[-10, 10] deg");
+            check(errors, format!("{f}.jitter_deg[{j}]"), self.jitter_deg[j], 0.0, 10.0, "[0, 10] deg");
         }
     }
 }
@@ -252,43 +212,16 @@ impl SimRobotOptions {
 impl SimAxisOptions {
     /// Appends every out-of-range value to `errors`.
     pub fn validate(&self, f: &str, errors: &mut Vec<ConfigError>) {
-        check_limits(
-            errors,
-            &format!("{f}.min_deg"),
-            &format!("{f}.max_deg"),
-            self.min_deg,
-            self.max_deg,
-        );
-        check(
-            errors,
-            format!("{f}.offset_deg"),
-            self.offset_deg,
-            -10.0,
-            10.0,
-            "[-10, 10] deg",
-        );
-        check(
-            errors,
-            format!("{f}.jitter_deg"),
-            self.jitter_deg,
-            0.0,
-            10.0,
-            "[0, 10] deg",
-        );
+        check_limits(errors, &format!("{f}.min_deg"), &format!("{f}.max_deg"), self.min_deg, self.max_deg);
+        check(errors, format!("{f}.offset_deg"), self.offset_deg, -10.0, 10.0, "[-10, 10] deg");
+        check(errors, format!("{f}.jitter_deg"), self.jitter_deg, 0.0, 10.0, "[0, 10] deg");
     }
 }
 
 impl SimLampOptions {
     /// Appends every out-of-range value to `errors`.
     pub fn validate(&self, f: &str, errors: &mut Vec<ConfigError>) {
-        check(
-            errors,
-            format!("{f}.min_intensity"),
-            self.min_intensity,
-            0.0,
-            1.0,
-            "[0, 1]",
-        );
+        check(errors, format!("{f}.min_intensity"), self.min_intensity, 0.0, 1.0, "[0, 1]");
     }
 }
 
@@ -296,18 +229,10 @@ impl SimLedOptions {
     /// Appends every out-of-range value to `errors`.
     pub fn validate(&self, f: &str, errors: &mut Vec<ConfigError>) {
         if !(1..=100_000).contains(&self.count) {
-            errors.push(ConfigError::out_of_range(
-                &format!("{f}.count"),
-                self.count,
-                "1..=100000",
-            ));
+            errors.push(ConfigError::out_of_range(&format!("{f}.count"), self.count, "1..=100000"));
         }
         if self.intensity_steps < 2 {
-            errors.push(ConfigError::out_of_range(
-                &format!("{f}.intensity_steps"),
-                self.intensity_steps,
-                "2..",
-            ));
+            errors.push(ConfigError::out_of_range(&format!("{f}.intensity_steps"), self.intensity_steps, "2.."));
         }
     }
 }
@@ -316,55 +241,13 @@ impl SimCameraOptions {
     /// Appends every out-of-range value to `errors`.
     pub fn validate(&self, f: &str, errors: &mut Vec<ConfigError>) {
         let [e0, e1] = self.exposure_range_s;
-        check_range(
-            errors,
-            &format!("{f}.exposure_range_s"),
-            self.exposure_range_s,
-            1e-7,
-            3600.0,
-            "[1e-7, 3600] s",
-        );
-        check_range(
-            errors,
-            &format!("{f}.gain_range"),
-            self.gain_range,
-            0.01,
-            1e4,
-            "[0.01, 10000]",
-        );
-        check_range(
-            errors,
-            &format!("{f}.f_number_range"),
-            self.f_number_range,
-            0.5,
-            128.0,
-            "[0.5, 128]",
-        );
-        check(
-            errors,
-            format!("{f}.exposure_s"),
-            self.exposure_s,
-            e0,
-            e1,
-            &format!("exposure_range_s [{e0}, {e1}]"),
-        );
+        check_range(errors, &format!("{f}.exposure_range_s"), self.exposure_range_s, 1e-7, 3600.0, "[1e-7, 3600] s");
+        check_range(errors, &format!("{f}.gain_range"), self.gain_range, 0.01, 1e4, "[0.01, 10000]");
+        check_range(errors, &format!("{f}.f_number_range"), self.f_number_range, 0.5, 128.0, "[0.5, 128]");
+        check(errors, format!("{f}.exposure_s"), self.exposure_s, e0, e1, &format!("exposure_range_s [{e0}, {e1}]"));
         let [g0, g1] = self.gain_range;
-        check(
-            errors,
-            format!("{f}.gain"),
-            self.gain,
-            g0,
-            g1,
-            &format!("gain_range [{g0}, {g1}]"),
-        );
+        check(errors, format!("{f}.gain"), self.gain, g0, g1, &format!("gain_range [{g0}, {g1}]"));
         let [a0, a1] = self.f_number_range;
-        check(
-            errors,
-            format!("{f}.f_number"),
-            self.f_number,
-            a0,
-            a1,
-            &format!("f_number_range [{a0}, {a1}]"),
-        );
+        check(errors, format!("{f}.f_number"), self.f_number, a0, a1, &format!("f_number_range [{a0}, {a1}]"));
     }
 }

@@ -22,11 +22,7 @@ pub struct RenderedFrameSource {
 impl RenderedFrameSource {
     /// A source for `scene`, rendering with `options` (skips on by default).
     pub fn new(scene: std::sync::Arc<RigScene>, options: RenderOptions) -> Self {
-        RenderedFrameSource {
-            scene,
-            options,
-            totals: Mutex::new((0, RenderStats::default())),
-        }
+        RenderedFrameSource { scene, options, totals: Mutex::new((0, RenderStats::default())) }
     }
 
     /// The scene (for ground truth of the same true state).
@@ -63,14 +59,7 @@ impl FrameSource for RenderedFrameSource {
         let gain = settings.gain.clamp(1.0, sensor.max_analogue_gain);
         let (frame, stats) = self
             .scene
-            .capture(
-                &truth.joints,
-                truth.lamp_intensity,
-                exposure_s,
-                gain,
-                seed,
-                &self.options,
-            )
+            .capture(&truth.joints, truth.lamp_intensity, exposure_s, gain, seed, &self.options)
             .expect("exposure and gain were clamped into the sensor's ranges");
         let mut totals = self.totals.lock().unwrap_or_else(|e| e.into_inner());
         totals.0 += 1;

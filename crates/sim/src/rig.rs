@@ -63,18 +63,11 @@ pub static FACTORIES: &[DeviceFactory] = &[DeviceFactory {
 
 /// The factory for `entry.kind`, or an error naming `field` and the known kinds.
 pub fn factory_for(entry: &DeviceEntry, field: &str) -> Result<&'static DeviceFactory, ConfigError> {
-    FACTORIES
-        .iter()
-        .find(|f| f.kind == entry.kind)
-        .ok_or_else(|| ConfigError::Unknown {
-            field: field.to_string(),
-            value: entry.kind.clone(),
-            allowed: FACTORIES
-                .iter()
-                .map(|f| format!("{:?}", f.kind))
-                .collect::<Vec<_>>()
-                .join(", "),
-        })
+    FACTORIES.iter().find(|f| f.kind == entry.kind).ok_or_else(|| ConfigError::Unknown {
+        field: field.to_string(),
+        value: entry.kind.clone(),
+        allowed: FACTORIES.iter().map(|f| format!("{:?}", f.kind)).collect::<Vec<_>>().join(", "),
+    })
 }
 
 fn gate(cx: &BuildContext<'_>, role: DeviceRole) -> FaultGate {
@@ -89,19 +82,9 @@ fn checked<T>(value: T, field: &str, validate: impl Fn(&T, &str, &mut Vec<Config
 
 fn build_robot(cx: &BuildContext<'_>, options: &toml::Table) -> Result<Box<dyn Robot>, ConfigError> {
     let f = "devices.robot";
-    let o = checked(
-        parse_over(SimRobotOptions::default(), options, f)?,
-        f,
-        SimRobotOptions::validate,
-    )?;
+    let o = checked(parse_over(SimRobotOptions::default(), options, f)?, f, SimRobotOptions::validate)?;
     let seed = derive_seed(cx.seed, "robot", 3);
-    Ok(Box::new(SimRobot::new(
-        &o,
-        &cx.timing.robot,
-        gate(cx, DeviceRole::Robot),
-        cx.world.clone(),
-        seed,
-    )))
+    Ok(Box::new(SimRobot::new(&o, &cx.timing.robot, gate(cx, DeviceRole::Robot), cx.world.clone(), seed)))
 }
 
 fn build_axis(cx: &BuildContext<'_>, options: &toml::Table, role: DeviceRole) -> Result<SimAxis, ConfigError> {
@@ -124,26 +107,13 @@ fn build_turntable(cx: &BuildContext<'_>, options: &toml::Table) -> Result<Box<d
 
 fn build_lamp(cx: &BuildContext<'_>, options: &toml::Table) -> Result<Box<dyn Lamp>, ConfigError> {
     let f = "devices.lamp";
-    let o = checked(
-        parse_over(SimLampOptions::default(), options, f)?,
-        f,
-        SimLampOptions::validate,
-    )?;
-    Ok(Box::new(SimLamp::new(
-        &o,
-        &cx.timing.lamp,
-        gate(cx, DeviceRole::Lamp),
-        cx.world.clone(),
-    )))
+    let o = checked(parse_over(SimLampOptions::default(), options, f)?, f, SimLampOptions::validate)?;
+    Ok(Box::new(SimLamp::new(&o, &cx.timing.lamp, gate(cx, DeviceRole::Lamp), cx.world.clone())))
 }
 
 fn build_led_array(cx: &BuildContext<'_>, options: &toml::Table) -> Result<Box<dyn LedArray>, ConfigError> {
     let f = "devices.led_array";
-    let o = checked(
-        parse_over(SimLedOptions::default(), options, f)?,
-        f,
-        SimLedOptions::validate,
-    )?;
+    let o = checked(parse_over(SimLedOptions::default(), options, f)?, f, SimLedOptions::validate)?;
     {
         let mut w = cx.world.lock();
         w.led_commanded = vec![0.0; o.count];
@@ -152,21 +122,12 @@ fn build_led_array(cx: &BuildContext<'_>, options: &toml::Table) -> Result<Box<d
             w.led_stuck[s.index] = Some(if s.state == StuckState::On { 1.0 } else { 0.0 });
         }
     }
-    Ok(Box::new(SimLedArray::new(
-        &o,
-        &cx.timing.leds,
-        gate(cx, DeviceRole::LedArray),
-        cx.world.clone(),
-    )))
+    Ok(Box::new(SimLedArray::new(&o, &cx.timing.leds, gate(cx, DeviceRole::LedArray), cx.world.clone())))
 }
 
 fn build_camera(cx: &BuildContext<'_>, options: &toml::Table) -> Result<Box<dyn Camera>, ConfigError> {
     let f = "devices.camera";
-    let o = checked(
-        parse_over(SimCameraOptions::default(), options, f)?,
-        f,
-        SimCameraOptions::validate,
-    )?;
+    let o = checked(parse_over(SimCameraOptions::default(), options, f)?, f, SimCameraOptions::validate)?;
     Ok(Box::new(SimCamera::new(
         &o,
         &cx.timing.camera,
@@ -216,13 +177,7 @@ impl SimRig {
         devices.validate(&mut errors);
         faults.validate(&mut errors);
         let world = SimWorld::new(clock, timing, faults.lamp_drift.clone(), 0);
-        let cx = BuildContext {
-            world: &world,
-            timing,
-            faults,
-            seed,
-            frames: &frames,
-        };
+        let cx = BuildContext { world: &world, timing, faults, seed, frames: &frames };
         // Build each device even after a failure, so every problem is reported.
         fn take<T>(r: Result<T, ConfigError>, errors: &mut Vec<ConfigError>) -> Option<T> {
             r.map_err(|e| match e {
@@ -247,12 +202,7 @@ impl SimRig {
         let led_array = devices.led_array.as_ref().map(|e| build!(e, led_array));
         let camera = build!(&devices.camera, camera);
 
-        let mut present = vec![
-            DeviceRole::Robot,
-            DeviceRole::Rail,
-            DeviceRole::Lamp,
-            DeviceRole::Camera,
-        ];
+        let mut present = vec![DeviceRole::Robot, DeviceRole::Rail, DeviceRole::Lamp, DeviceRole::Camera];
         if devices.turntable.is_some() {
             present.push(DeviceRole::Turntable);
         }

@@ -90,12 +90,7 @@ impl SimWorld {
             state: Arc::new(Mutex::new(WorldState {
                 true_joints: JointState::default(),
                 commanded: JointState::default(),
-                lamp: LampTruth {
-                    on: false,
-                    shutter_open: true,
-                    setpoint: 1.0,
-                    on_since_s: 0.0,
-                },
+                lamp: LampTruth { on: false, shutter_open: true, setpoint: 1.0, on_since_s: 0.0 },
                 led_commanded: vec![0.0; led_count],
                 led_stuck: vec![None; led_count],
                 faults: Vec::new(),
@@ -125,12 +120,7 @@ impl SimWorld {
         } else {
             0.0
         };
-        let leds = s
-            .led_commanded
-            .iter()
-            .zip(&s.led_stuck)
-            .map(|(&c, stuck)| stuck.unwrap_or(c))
-            .collect();
+        let leds = s.led_commanded.iter().zip(&s.led_stuck).map(|(&c, stuck)| stuck.unwrap_or(c)).collect();
         TrueState {
             joints: s.true_joints,
             lamp_on: s.lamp.on,
@@ -154,12 +144,7 @@ impl SimWorld {
     pub(crate) fn log_fault(&self, device: &str, call: u64, kind: FaultKind) {
         let time_s = self.clock.now_s();
         tracing::debug!(device, call, ?kind, time_s, "injected fault");
-        self.lock().faults.push(FaultEvent {
-            time_s,
-            device: device.to_string(),
-            call,
-            kind,
-        });
+        self.lock().faults.push(FaultEvent { time_s, device: device.to_string(), call, kind });
     }
 
     /// Lamp output relative to its setpoint, `t_on_s` seconds after switch-on.
@@ -170,9 +155,7 @@ impl SimWorld {
     pub fn lamp_output_factor(&self, t_on_s: f64) -> f64 {
         let t = t_on_s.max(0.0);
         match &self.drift {
-            Some(d) => {
-                (1.0 - (1.0 - d.start_fraction) * (-t / d.warm_up_tau_s).exp() + d.drift_per_hour * t / 3600.0).max(0.0)
-            }
+            Some(d) => (1.0 - (1.0 - d.start_fraction) * (-t / d.warm_up_tau_s).exp() + d.drift_per_hour * t / 3600.0).max(0.0),
             None if self.warm_up_s > 0.0 => (t / self.warm_up_s).min(1.0),
             None => 1.0,
         }

@@ -54,9 +54,7 @@ async fn same_seed_same_faults_and_jitter() {
     assert!(has(FaultKind::Timeout, "robot"));
     assert!(has(FaultKind::Disconnected, "camera"));
     assert!(has(FaultKind::DroppedFrame, "camera"));
-    assert!(log_a
-        .iter()
-        .any(|f| f.device == "robot" && f.call == 40 && f.kind == FaultKind::Timeout));
+    assert!(log_a.iter().any(|f| f.device == "robot" && f.call == 40 && f.kind == FaultKind::Timeout));
     assert!(log_a.len() > 10, "{}", log_a.len());
     println!("flaky, 3000 steps: {} faults, {} retries", log_a.len(), retries_a);
 

@@ -15,11 +15,7 @@ fn faults(text: &str) -> FaultScenario {
 
 #[tokio::test(start_paused = true)]
 async fn timeout_on_the_nth_call_costs_the_timeout_and_is_retryable() {
-    let mut rig = rig(
-        &devices(""),
-        1,
-        &faults("[[timeouts]]\ndevice = \"robot\"\ncalls = [2]\n"),
-    );
+    let mut rig = rig(&devices(""), 1, &faults("[[timeouts]]\ndevice = \"robot\"\ncalls = [2]\n"));
     let clock = rig.world.clock().clone();
     rig.robot.move_to_rad([0.1, 0.0, 0.0], OPTS).await.unwrap();
     let t0 = clock.now_s();
@@ -33,10 +29,7 @@ async fn timeout_on_the_nth_call_costs_the_timeout_and_is_retryable() {
     assert_eq!(rig.world.commanded().robot, [0.2, 0.0, 0.0]);
     let log = rig.world.fault_log();
     assert_eq!(log.len(), 1);
-    assert_eq!(
-        (log[0].device.as_str(), log[0].call, log[0].kind),
-        ("robot", 2, FaultKind::Timeout)
-    );
+    assert_eq!((log[0].device.as_str(), log[0].call, log[0].kind), ("robot", 2, FaultKind::Timeout));
 }
 
 #[tokio::test(start_paused = true)]
@@ -113,11 +106,7 @@ async fn dropped_frame_times_out_and_corrupt_frame_fails_its_checksum() {
 
 #[tokio::test(start_paused = true)]
 async fn device_errors_without_injection_have_the_right_kinds() {
-    let mut rig = rig(
-        &devices("[robot]\nkind = \"sim\"\n[lamp]\nkind = \"sim\"\ndimmable = false\n"),
-        1,
-        &FaultScenario::none(),
-    );
+    let mut rig = rig(&devices("[robot]\nkind = \"sim\"\n[lamp]\nkind = \"sim\"\ndimmable = false\n"), 1, &FaultScenario::none());
     // Not homed.
     let e = rig.robot.move_to_rad([0.1, 0.0, 0.0], OPTS).await.unwrap_err();
     assert_kind(&e, ErrorKind::NotHomed, false);
@@ -127,32 +116,17 @@ async fn device_errors_without_injection_have_the_right_kinds() {
     // Out of range, naming the joint and the limits.
     let e = rig.robot.move_to_rad([0.0, 2.0, 0.0], OPTS).await.unwrap_err();
     assert_kind(&e, ErrorKind::OutOfRange, false);
-    assert!(
-        e.to_string().contains("joint 1") && e.to_string().contains("[-90.0000, 90.0000] deg"),
-        "{e}"
-    );
+    assert!(e.to_string().contains("joint 1") && e.to_string().contains("[-90.0000, 90.0000] deg"), "{e}");
     // A move longer than its timeout: Timeout, then Busy until the axis stops.
-    let e = rig
-        .rail
-        .move_to_rad(3.0, MoveOptions::with_timeout_s(1.0))
-        .await
-        .unwrap_err();
+    let e = rig.rail.move_to_rad(3.0, MoveOptions::with_timeout_s(1.0)).await.unwrap_err();
     assert_kind(&e, ErrorKind::Timeout, true);
     let e = rig.rail.move_to_rad(3.0, OPTS).await.unwrap_err();
     assert_kind(&e, ErrorKind::Busy, true);
     rig.world.clock().sleep_s(10.0).await;
     rig.rail.move_to_rad(3.0, OPTS).await.unwrap();
     // Missing capability.
-    assert_kind(
-        &rig.lamp.set_intensity(0.8).await.unwrap_err(),
-        ErrorKind::Unsupported,
-        false,
-    );
-    assert_kind(
-        &rig.camera.set_exposure_s(100.0).await.unwrap_err(),
-        ErrorKind::OutOfRange,
-        false,
-    );
+    assert_kind(&rig.lamp.set_intensity(0.8).await.unwrap_err(), ErrorKind::Unsupported, false);
+    assert_kind(&rig.camera.set_exposure_s(100.0).await.unwrap_err(), ErrorKind::OutOfRange, false);
     // Trigger twice without reading: the first frame is discarded, the second delivered.
     let first = rig.camera.trigger(30.0).await.unwrap();
     let second = rig.camera.trigger(30.0).await.unwrap();
@@ -165,11 +139,7 @@ async fn device_errors_without_injection_have_the_right_kinds() {
 
 #[tokio::test(start_paused = true)]
 async fn probabilistic_timeouts_occur_at_the_configured_rate() {
-    let mut rig = rig(
-        &devices(""),
-        5,
-        &faults("[[timeouts]]\ndevice = \"camera\"\nprobability = 0.05\n"),
-    );
+    let mut rig = rig(&devices(""), 5, &faults("[[timeouts]]\ndevice = \"camera\"\nprobability = 0.05\n"));
     let n = 4000;
     let mut failures = 0;
     for _ in 0..n {
@@ -190,19 +160,11 @@ async fn stuck_leds_show_in_truth_and_frames_but_not_in_reports() {
     let cfg = devices("[led_array]\nkind = \"sim\"\ncount = 20\n");
     let mut rig = rig(&cfg, 1, &scenario("stuck-led"));
     let leds = rig.led_array.as_mut().unwrap();
-    leds.set_pattern(&LedPattern {
-        intensities: vec![0.5; 20],
-    })
-    .await
-    .unwrap();
+    leds.set_pattern(&LedPattern { intensities: vec![0.5; 20] }).await.unwrap();
     // The controller reports the pattern quantised to its 4096 PWM steps.
     assert_eq!(leds.pattern().await.unwrap().intensities, vec![2048.0 / 4095.0; 20]);
     leds.all_off().await.unwrap();
-    assert_kind(
-        &leds.set_pattern(&LedPattern::all_off(19)).await.unwrap_err(),
-        ErrorKind::OutOfRange,
-        false,
-    );
+    assert_kind(&leds.set_pattern(&LedPattern::all_off(19)).await.unwrap_err(), ErrorKind::OutOfRange, false);
     let mut p = LedPattern::all_off(20);
     p.intensities[17] = 1.0;
     leds.set_pattern(&p).await.unwrap();
@@ -230,11 +192,7 @@ async fn stuck_led_beyond_the_array_is_a_config_error() {
     )
     .err()
     .unwrap();
-    assert!(
-        err.to_string()
-            .contains("faults.stuck_leds[1].index = 17 is out of range: allowed 0..10"),
-        "{err}"
-    );
+    assert!(err.to_string().contains("faults.stuck_leds[1].index = 17 is out of range: allowed 0..10"), "{err}");
 }
 
 #[tokio::test(start_paused = true)]
@@ -270,10 +228,7 @@ async fn nominal_lamp_ramps_then_holds() {
     rig.lamp.set_on(true).await.unwrap();
     clock.sleep_s(90.0).await;
     assert!((rig.world.truth().lamp_intensity - 0.5).abs() < 1e-3);
-    assert!(matches!(
-        rig.lamp.health().await.unwrap(),
-        btfrig_hw::Health::Warning(_)
-    ));
+    assert!(matches!(rig.lamp.health().await.unwrap(), btfrig_hw::Health::Warning(_)));
     rig.lamp.wait_ready(100.0).await.unwrap();
     assert_eq!(rig.world.truth().lamp_intensity, 1.0);
     let src = FlatFrameSource::new(16, 12, 1000.0);

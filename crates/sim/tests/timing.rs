@@ -24,10 +24,7 @@ async fn robot_and_rail_moves_take_the_trapezoid_time() {
     // Joint 0: 90 deg at 60 deg/s, 120 deg/s^2: reaches speed after 0.5 s (15 deg), so
     // trapezoid: 90/60 + 60/120 = 2.0 s, plus settle.
     let t0 = clock.now_s();
-    rig.robot
-        .move_to_rad([90f64.to_radians(), 0.0, 0.0], OPTS)
-        .await
-        .unwrap();
+    rig.robot.move_to_rad([90f64.to_radians(), 0.0, 0.0], OPTS).await.unwrap();
     let dt = clock.now_s() - t0;
     assert!((dt - (2.0 + settle)).abs() < TICK, "{dt}");
 
@@ -35,20 +32,14 @@ async fn robot_and_rail_moves_take_the_trapezoid_time() {
     // 20 deg at 90 deg/s, 180 deg/s^2 (threshold 45 deg): triangle 2 sqrt(20/180) = 0.667 s.
     // Joints move together: the slowest decides.
     let t0 = clock.now_s();
-    rig.robot
-        .move_to_rad([90f64.to_radians(), 10f64.to_radians(), 20f64.to_radians()], OPTS)
-        .await
-        .unwrap();
+    rig.robot.move_to_rad([90f64.to_radians(), 10f64.to_radians(), 20f64.to_radians()], OPTS).await.unwrap();
     let dt = clock.now_s() - t0;
     let expect = 2.0 * (20.0f64 / 180.0).sqrt() + settle;
     assert!((dt - expect).abs() < TICK, "{dt} vs {expect}");
 
     // Zero move: no time, no settle.
     let t0 = clock.now_s();
-    rig.robot
-        .move_to_rad([90f64.to_radians(), 10f64.to_radians(), 20f64.to_radians()], OPTS)
-        .await
-        .unwrap();
+    rig.robot.move_to_rad([90f64.to_radians(), 10f64.to_radians(), 20f64.to_radians()], OPTS).await.unwrap();
     assert_eq!(clock.now_s(), t0);
 
     // Rail: 120 deg at 30 deg/s, 60 deg/s^2: 120/30 + 30/60 = 4.5 s, plus settle 0.5 s.
@@ -80,11 +71,7 @@ async fn homing_lamp_warm_up_and_camera_take_their_configured_times() {
     let t1 = clock.now_s();
     rig.camera.read_frame(30.0).await.unwrap();
     let t2 = clock.now_s();
-    assert!(
-        (t1 - t0 - (c.trigger_latency_s + 0.2 + c.read_out_s)).abs() < 2.0 * TICK,
-        "{}",
-        t1 - t0
-    );
+    assert!((t1 - t0 - (c.trigger_latency_s + 0.2 + c.read_out_s)).abs() < 2.0 * TICK, "{}", t1 - t0);
     assert!((t2 - t1 - 12e6 / 2.4e6).abs() < TICK, "{}", t2 - t1);
 }
 

@@ -50,11 +50,7 @@ fn write_atomic<S: Storage + ?Sized>(s: &S, path: &str, bytes: &[u8]) -> Result<
     s.fsync(&tmp).map_err(io_err(s, "fsync", &tmp))?;
     s.rename(&tmp, path).map_err(io_err(s, "rename", &tmp))?;
     s.fsync(parent(path)).map_err(io_err(s, "fsync", parent(path)))?;
-    Ok(FileRecord {
-        path: path.to_string(),
-        size: bytes.len() as u64,
-        hash: content_hash(bytes),
-    })
+    Ok(FileRecord { path: path.to_string(), size: bytes.len() as u64, hash: content_hash(bytes) })
 }
 
 fn read_manifest<S: Storage + ?Sized>(s: &S) -> Result<Manifest, StoreError> {
@@ -62,10 +58,7 @@ fn read_manifest<S: Storage + ?Sized>(s: &S) -> Result<Manifest, StoreError> {
         None => return Err(StoreError::NotADataset { path: s.display("") }),
         Some(_) => s.read(MANIFEST_FILE).map_err(io_err(s, "read", MANIFEST_FILE))?,
     };
-    let bad = |reason: String| StoreError::BadManifest {
-        path: s.display(MANIFEST_FILE),
-        reason,
-    };
+    let bad = |reason: String| StoreError::BadManifest { path: s.display(MANIFEST_FILE), reason };
     let m: Manifest = serde_json::from_slice(&bytes).map_err(|e| bad(e.to_string()))?;
     let problems = m.problems();
     if !problems.is_empty() {
@@ -163,17 +156,12 @@ impl<S: Storage> Dataset<S> {
     pub fn create_in(storage: S, manifest: Manifest) -> Result<Self, StoreError> {
         let problems = manifest.problems();
         if !problems.is_empty() {
-            return Err(StoreError::BadManifest {
-                path: storage.display(MANIFEST_FILE),
-                reason: problems.join("; "),
-            });
+            return Err(StoreError::BadManifest { path: storage.display(MANIFEST_FILE), reason: problems.join("; ") });
         }
         let root = list_names(&storage, "")?;
         if root.iter().any(|e| e.name == MANIFEST_FILE) {
             // Look at it leniently: even a manifest of another schema names its plan.
-            let bytes = storage
-                .read(MANIFEST_FILE)
-                .map_err(io_err(&storage, "read", MANIFEST_FILE))?;
+            let bytes = storage.read(MANIFEST_FILE).map_err(io_err(&storage, "read", MANIFEST_FILE))?;
             let v: serde_json::Value = serde_json::from_slice(&bytes).unwrap_or_default();
             let get = |a: &str, b: Option<&str>| {
                 let x = &v[a];
@@ -182,10 +170,7 @@ impl<S: Storage> Dataset<S> {
             };
             let found = get("plan", Some("hash"));
             if found == manifest.plan.hash {
-                return Err(StoreError::AlreadyExists {
-                    path: storage.display(""),
-                    plan_hash: found,
-                });
+                return Err(StoreError::AlreadyExists { path: storage.display(""), plan_hash: found });
             }
             return Err(StoreError::OtherDataset {
                 path: storage.display(""),
@@ -195,25 +180,12 @@ impl<S: Storage> Dataset<S> {
             });
         }
         if !root.is_empty() {
-            let found = root.iter().take(10).map(|e| {
-                if e.is_dir {
-                    format!("{}/", e.name)
-                } else {
-                    e.name.clone()
-                }
-            });
-            return Err(StoreError::NotEmpty {
-                path: storage.display(""),
-                found: found.collect(),
-            });
+            let found = root.iter().take(10).map(|e| if e.is_dir { format!("{}/", e.name) } else { e.name.clone() });
+            return Err(StoreError::NotEmpty { path: storage.display(""), found: found.collect() });
         }
-        storage
-            .create_dir(TEXTURES_DIR)
-            .map_err(io_err(&storage, "create directory", TEXTURES_DIR))?;
+        storage.create_dir(TEXTURES_DIR).map_err(io_err(&storage, "create directory", TEXTURES_DIR))?;
         if manifest.raw_frames {
-            storage
-                .create_dir(RAW_DIR)
-                .map_err(io_err(&storage, "create directory", RAW_DIR))?;
+            storage.create_dir(RAW_DIR).map_err(io_err(&storage, "create directory", RAW_DIR))?;
         }
         // The manifest first: once it exists the directory is this dataset, and a crash
         // before the journal is written leaves a dataset with nothing done (resume recreates it).
@@ -221,12 +193,7 @@ impl<S: Storage> Dataset<S> {
         write_atomic(&storage, MANIFEST_FILE, &json)?;
         let journal = Journal::create(&storage, JOURNAL_FILE, &manifest.plan.hash)?;
         let expected = manifest.samplings.expected_steps();
-        Ok(Dataset {
-            storage,
-            manifest,
-            expected,
-            journal: Mutex::new(journal),
-        })
+        Ok(Dataset { storage, manifest, expected, journal: Mutex::new(journal) })
     }
 
     /// [`Dataset::open_for_resume`] on any storage: checks the manifest and plan hash,
@@ -242,11 +209,7 @@ impl<S: Storage> Dataset<S> {
             });
         }
         let mut report = ResumeReport::default();
-        let journal = if storage
-            .size(JOURNAL_FILE)
-            .map_err(io_err(&storage, "stat", JOURNAL_FILE))?
-            .is_none()
-        {
+        let journal = if storage.size(JOURNAL_FILE).map_err(io_err(&storage, "stat", JOURNAL_FILE))?.is_none() {
             report.journal_recreated = true;
             Journal::create(&storage, JOURNAL_FILE, plan_hash)?
         } else {
@@ -255,20 +218,11 @@ impl<S: Storage> Dataset<S> {
             j
         };
         let expected = manifest.samplings.expected_steps();
-        for dir in [Some(TEXTURES_DIR), manifest.raw_frames.then_some(RAW_DIR)]
-            .into_iter()
-            .flatten()
-        {
-            storage
-                .create_dir(dir)
-                .map_err(io_err(&storage, "create directory", dir))?;
+        for dir in [Some(TEXTURES_DIR), manifest.raw_frames.then_some(RAW_DIR)].into_iter().flatten() {
+            storage.create_dir(dir).map_err(io_err(&storage, "create directory", dir))?;
         }
         let state = journal.state();
-        let named: BTreeSet<&str> = state
-            .done
-            .values()
-            .flat_map(|r| r.files.iter().map(|f| f.path.as_str()))
-            .collect();
+        let named: BTreeSet<&str> = state.done.values().flat_map(|r| r.files.iter().map(|f| f.path.as_str())).collect();
         let mut dirs_touched = BTreeSet::new();
         for path in data_files(&storage)? {
             if !named.contains(path.as_str()) {
@@ -295,15 +249,7 @@ impl<S: Storage> Dataset<S> {
             .filter(|s| !report.completed.contains(s) && !report.skipped.contains_key(s))
             .copied()
             .collect();
-        Ok((
-            Dataset {
-                storage,
-                manifest,
-                expected,
-                journal: Mutex::new(journal),
-            },
-            report,
-        ))
+        Ok((Dataset { storage, manifest, expected, journal: Mutex::new(journal) }, report))
     }
 
     fn journal(&self) -> MutexGuard<'_, Journal> {
@@ -323,16 +269,10 @@ impl<S: Storage> Dataset<S> {
         }
         let st = journal.state();
         if st.done.contains_key(&step) {
-            return Err(StoreError::StepAlreadyJournaled {
-                step,
-                state: "done".into(),
-            });
+            return Err(StoreError::StepAlreadyJournaled { step, state: "done".into() });
         }
         if let Some(r) = st.skipped.get(&step) {
-            return Err(StoreError::StepAlreadyJournaled {
-                step,
-                state: format!("skipped: {r}"),
-            });
+            return Err(StoreError::StepAlreadyJournaled { step, state: format!("skipped: {r}") });
         }
         Ok(())
     }
@@ -378,10 +318,7 @@ impl<S: Storage> Dataset<S> {
         if (width, height) != (spec.width as usize, spec.height as usize) {
             return Err(StoreError::BadInput {
                 what: self.storage.display(&path),
-                reason: format!(
-                    "texture is {width}x{height}, the manifest says {}x{}",
-                    spec.width, spec.height
-                ),
+                reason: format!("texture is {width}x{height}, the manifest says {}x{}", spec.width, spec.height),
             });
         }
         let precision = match spec.format {
@@ -420,10 +357,7 @@ impl<S: Storage> Dataset<S> {
         let mut journal = self.journal();
         self.check_open(step, &journal)?;
         for f in &files {
-            let found = self
-                .storage
-                .size(&f.path)
-                .map_err(io_err(&self.storage, "stat", &f.path))?;
+            let found = self.storage.size(&f.path).map_err(io_err(&self.storage, "stat", &f.path))?;
             if found != Some(f.size) {
                 return Err(StoreError::FileNotAsRecorded {
                     path: self.storage.display(&f.path),
@@ -433,15 +367,7 @@ impl<S: Storage> Dataset<S> {
                 });
             }
         }
-        journal.append(
-            &self.storage,
-            Record::Step(StepRecord {
-                step,
-                files,
-                attempts,
-                timing,
-            }),
-        )
+        journal.append(&self.storage, Record::Step(StepRecord { step, files, attempts, timing }))
     }
 
     /// Journals `step` as skipped during the run (e.g. a marker occluded), so a resumed run
@@ -449,13 +375,7 @@ impl<S: Storage> Dataset<S> {
     pub fn skip_step(&self, step: StepId, reason: &str) -> Result<(), StoreError> {
         let mut journal = self.journal();
         self.check_open(step, &journal)?;
-        journal.append(
-            &self.storage,
-            Record::Skip {
-                step,
-                reason: reason.into(),
-            },
-        )
+        journal.append(&self.storage, Record::Skip { step, reason: reason.into() })
     }
 
     /// Ends the run: writes `report.json` and the manifest's timing summary (both atomically).
@@ -489,10 +409,7 @@ impl<S: Storage> Dataset<S> {
 }
 
 fn now() -> f64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_secs_f64())
-        .unwrap_or(0.0)
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs_f64()).unwrap_or(0.0)
 }
 
 /// Summary of a dataset for `btfrig dataset info`.
@@ -533,21 +450,14 @@ impl std::fmt::Display for DatasetInfo {
         writeln!(f, "dataset   {}", self.dir)?;
         writeln!(f, "rig       {}", m.rig.name)?;
         writeln!(f, "plan      {}", m.plan.hash)?;
-        writeln!(
-            f,
-            "software  {} {} (manifest schema {})",
-            m.software.name, m.software.version, m.schema_version
-        )?;
+        writeln!(f, "software  {} {} (manifest schema {})", m.software.name, m.software.version, m.schema_version)?;
         writeln!(f, "created   {}  seed {}", m.created_utc, m.seed)?;
         writeln!(
             f,
             "sampling  {} light x {} view directions{}, {} skipped by the plan",
             m.samplings.light.len(),
             m.samplings.view.len(),
-            m.samplings
-                .pairs
-                .as_ref()
-                .map_or(String::new(), |p| format!(" ({} pairs)", p.len())),
+            m.samplings.pairs.as_ref().map_or(String::new(), |p| format!(" ({} pairs)", p.len())),
             m.samplings.skipped.len()
         )?;
         let fmt = match m.texture.format {
@@ -565,27 +475,14 @@ impl std::fmt::Display for DatasetInfo {
             m.texture.region.center_m[1],
             if m.raw_frames { ", raw frames kept" } else { "" }
         )?;
-        let pct = if self.expected == 0 {
-            100.0
-        } else {
-            100.0 * self.done as f64 / self.expected as f64
-        };
+        let pct = if self.expected == 0 { 100.0 } else { 100.0 * self.done as f64 / self.expected as f64 };
         writeln!(
             f,
             "steps     {}/{} done ({pct:.1}%), {} skipped in the run, {} retries",
             self.done, self.expected, self.skipped_in_run, self.retries
         )?;
-        writeln!(
-            f,
-            "size      {} files, {:.1} MB",
-            self.files,
-            self.bytes_on_disk as f64 / 1e6
-        )?;
-        write!(
-            f,
-            "timing    steps: {:.1} s wall, {:.1} s hardware",
-            self.step_wall_s, self.step_hardware_s
-        )?;
+        writeln!(f, "size      {} files, {:.1} MB", self.files, self.bytes_on_disk as f64 / 1e6)?;
+        write!(f, "timing    steps: {:.1} s wall, {:.1} s hardware", self.step_wall_s, self.step_hardware_s)?;
         if let Some(t) = &m.timing {
             write!(f, "; run: {:.1} s wall", t.wall_s)?;
             if let Some(h) = t.hardware_s {
@@ -600,15 +497,7 @@ impl std::fmt::Display for DatasetInfo {
                     write!(f, ": {r}")?;
                 }
             }
-            None => write!(
-                f,
-                "state     {}",
-                if self.finished {
-                    "finished"
-                } else {
-                    "unfinished (resumable)"
-                }
-            )?,
+            None => write!(f, "state     {}", if self.finished { "finished" } else { "unfinished (resumable)" })?,
         }
         if let Some(t) = &self.torn_tail {
             write!(f, "; {t}")?;
@@ -619,11 +508,7 @@ impl std::fmt::Display for DatasetInfo {
 
 fn all_files<S: Storage + ?Sized>(s: &S, dir: &str, out: &mut Vec<(String, u64)>) -> Result<(), StoreError> {
     for e in list_names(s, dir)? {
-        let p = if dir.is_empty() {
-            e.name.clone()
-        } else {
-            format!("{dir}/{}", e.name)
-        };
+        let p = if dir.is_empty() { e.name.clone() } else { format!("{dir}/{}", e.name) };
         if e.is_dir {
             all_files(s, &p, out)?;
         } else {
@@ -649,6 +534,7 @@ pub fn info_in<S: Storage + ?Sized>(s: &S) -> Result<DatasetInfo, StoreError> {
     let replay = journal::replay(&s.display(JOURNAL_FILE), &bytes)?;
     let mut files = Vec::new();
     all_files(s, "", &mut files)?;
+    // A run that stopped early (paused, interrupted) still writes its report; say so.
     let report: Option<serde_json::Value> = match s.size(REPORT_FILE).map_err(io_err(s, "stat", REPORT_FILE))? {
         Some(_) => Some(
             serde_json::from_slice(&s.read(REPORT_FILE).map_err(io_err(s, "read", REPORT_FILE))?).unwrap_or_default(),
@@ -664,11 +550,7 @@ pub fn info_in<S: Storage + ?Sized>(s: &S) -> Result<DatasetInfo, StoreError> {
         expected: manifest.samplings.expected_steps().len(),
         done: replay.done.len(),
         skipped_in_run: replay.skipped.len(),
-        retries: replay
-            .done
-            .values()
-            .map(|r| u64::from(r.attempts.saturating_sub(1)))
-            .sum(),
+        retries: replay.done.values().map(|r| u64::from(r.attempts.saturating_sub(1))).sum(),
         bytes_on_disk: files.iter().map(|f| f.1).sum(),
         files: files.len(),
         step_wall_s: replay.done.values().map(|r| r.timing.wall_s).sum(),
@@ -756,31 +638,17 @@ impl std::fmt::Display for Problem {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             Problem::NotADataset { found } => {
-                write!(
-                    f,
-                    "not a btfrig dataset: no {MANIFEST_FILE} (found: {})",
-                    found.join(", ")
-                )
+                write!(f, "not a btfrig dataset: no {MANIFEST_FILE} (found: {})", found.join(", "))
             }
             Problem::Manifest { reason } => write!(f, "{MANIFEST_FILE}: {reason}"),
             Problem::Journal { reason } => write!(f, "{JOURNAL_FILE}: {reason}"),
             Problem::TornJournalTail(t) => write!(f, "{JOURNAL_FILE}: {t}; resuming the run cuts it"),
             Problem::UnexpectedStep { step } => write!(f, "{JOURNAL_FILE}: step {step} is not in the plan"),
             Problem::MissingFile { step, path } => write!(f, "{path}: missing (journaled for step {step})"),
-            Problem::WrongSize {
-                step,
-                path,
-                expected,
-                found,
-            } => {
+            Problem::WrongSize { step, path, expected, found } => {
                 write!(f, "{path}: {found} bytes, journaled with {expected} for step {step}")
             }
-            Problem::WrongHash {
-                step,
-                path,
-                expected,
-                found,
-            } => {
+            Problem::WrongHash { step, path, expected, found } => {
                 write!(f, "{path}: content hash {found}, journaled {expected} for step {step}")
             }
             Problem::Orphan { path } => write!(f, "{path}: not named by any journal record"),
@@ -854,17 +722,11 @@ pub fn verify(dir: &Path) -> VerifyReport {
 
 /// [`verify`] on any storage.
 pub fn verify_in<S: Storage + ?Sized>(s: &S) -> VerifyReport {
-    let mut r = VerifyReport {
-        dir: s.display(""),
-        ..VerifyReport::default()
-    };
+    let mut r = VerifyReport { dir: s.display(""), ..VerifyReport::default() };
     let manifest = match read_manifest(s) {
         Ok(m) => m,
         Err(StoreError::NotADataset { .. }) => {
-            let found = s
-                .list("")
-                .map(|l| l.into_iter().take(10).map(|e| e.name).collect())
-                .unwrap_or_default();
+            let found = s.list("").map(|l| l.into_iter().take(10).map(|e| e.name).collect()).unwrap_or_default();
             r.problems.push(Problem::NotADataset { found });
             return r;
         }
@@ -877,9 +739,7 @@ pub fn verify_in<S: Storage + ?Sized>(s: &S) -> VerifyReport {
     r.expected = expected.len();
     let replay = match s.read(JOURNAL_FILE) {
         Err(e) => {
-            r.problems.push(Problem::Journal {
-                reason: format!("cannot read: {e}"),
-            });
+            r.problems.push(Problem::Journal { reason: format!("cannot read: {e}") });
             journal::Replay::default()
         }
         Ok(bytes) => match journal::replay(JOURNAL_FILE, &bytes) {
@@ -910,10 +770,7 @@ pub fn verify_in<S: Storage + ?Sized>(s: &S) -> VerifyReport {
             let bytes = match s.read(&file.path) {
                 Ok(b) => b,
                 Err(_) => {
-                    r.problems.push(Problem::MissingFile {
-                        step: *step,
-                        path: file.path.clone(),
-                    });
+                    r.problems.push(Problem::MissingFile { step: *step, path: file.path.clone() });
                     continue;
                 }
             };
@@ -949,15 +806,10 @@ pub fn verify_in<S: Storage + ?Sized>(s: &S) -> VerifyReport {
         r.skipped.insert(sk.step, sk.reason.clone());
     }
     r.done = replay.done.len();
-    r.missing = expected
-        .iter()
-        .filter(|s| !replay.done.contains_key(s) && !replay.skipped.contains_key(s))
-        .copied()
-        .collect();
+    r.missing =
+        expected.iter().filter(|s| !replay.done.contains_key(s) && !replay.skipped.contains_key(s)).copied().collect();
     if !r.missing.is_empty() {
-        r.problems.push(Problem::Incomplete {
-            missing: r.missing.len(),
-        });
+        r.problems.push(Problem::Incomplete { missing: r.missing.len() });
     }
     match data_files(s) {
         Ok(files) => {
@@ -965,16 +817,12 @@ pub fn verify_in<S: Storage + ?Sized>(s: &S) -> VerifyReport {
                 r.problems.push(Problem::Orphan { path: p });
             }
         }
-        Err(e) => r.problems.push(Problem::Journal {
-            reason: format!("cannot list data directories: {e}"),
-        }),
+        Err(e) => r.problems.push(Problem::Journal { reason: format!("cannot list data directories: {e}") }),
     }
     let known = [MANIFEST_FILE, JOURNAL_FILE, REPORT_FILE, TEXTURES_DIR, RAW_DIR];
     for e in s.list("").unwrap_or_default() {
         if !known.contains(&e.name.as_str()) {
-            r.problems.push(Problem::Orphan {
-                path: if e.is_dir { format!("{}/", e.name) } else { e.name },
-            });
+            r.problems.push(Problem::Orphan { path: if e.is_dir { format!("{}/", e.name) } else { e.name } });
         }
     }
     if let Ok(bytes) = s.read(REPORT_FILE) {

@@ -116,9 +116,7 @@ fn parse_at(bytes: &[u8], off: usize) -> Result<(Record, usize), Bad> {
     }
     let want = u64::from_be_bytes(sha256(json)[..8].try_into().expect("8 bytes"));
     if want != sum {
-        return Err(Bad::Invalid(format!(
-            "checksum {sum:016x} does not match the content ({want:016x})"
-        )));
+        return Err(Bad::Invalid(format!("checksum {sum:016x} does not match the content ({want:016x})")));
     }
     let record = serde_json::from_slice(json).map_err(|e| Bad::Invalid(format!("record JSON: {e}")))?;
     Ok((record, total))
@@ -137,11 +135,7 @@ pub struct TornTail {
 
 impl std::fmt::Display for TornTail {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(
-            f,
-            "torn journal tail at byte {}: {} bytes ({})",
-            self.offset, self.bytes, self.reason
-        )
+        write!(f, "torn journal tail at byte {}: {} bytes ({})", self.offset, self.bytes, self.reason)
     }
 }
 
@@ -174,35 +168,18 @@ pub fn replay(path: &str, bytes: &[u8]) -> Result<Replay, StoreError> {
                     Bad::Invalid(m) => m,
                 };
                 // Damage, not a torn append, if any valid record starts at a later line.
-                let later = (off + 1..bytes.len())
-                    .filter(|&p| bytes[p - 1] == b'\n')
-                    .any(|p| parse_at(bytes, p).is_ok());
+                let later =
+                    (off + 1..bytes.len()).filter(|&p| bytes[p - 1] == b'\n').any(|p| parse_at(bytes, p).is_ok());
                 if later {
-                    return Err(StoreError::JournalCorrupt {
-                        path: path.into(),
-                        offset: off as u64,
-                        reason,
-                    });
+                    return Err(StoreError::JournalCorrupt { path: path.into(), offset: off as u64, reason });
                 }
-                r.torn_tail = Some(TornTail {
-                    offset: off as u64,
-                    bytes: (bytes.len() - off) as u64,
-                    reason,
-                });
+                r.torn_tail = Some(TornTail { offset: off as u64, bytes: (bytes.len() - off) as u64, reason });
                 break;
             }
         };
-        let corrupt = |reason: String| StoreError::JournalCorrupt {
-            path: path.into(),
-            offset: off as u64,
-            reason,
-        };
+        let corrupt = |reason: String| StoreError::JournalCorrupt { path: path.into(), offset: off as u64, reason };
         match record {
-            Record::Header {
-                format,
-                version,
-                plan_hash,
-            } => {
+            Record::Header { format, version, plan_hash } => {
                 if off != 0 {
                     return Err(corrupt("second header record".into()));
                 }
@@ -247,25 +224,15 @@ impl Journal {
             let p = storage.display(p);
             move |source| StoreError::Io { op, path: p, source }
         };
-        let header = Record::Header {
-            format: JOURNAL_FORMAT.into(),
-            version: JOURNAL_VERSION,
-            plan_hash: plan_hash.into(),
-        };
+        let header =
+            Record::Header { format: JOURNAL_FORMAT.into(), version: JOURNAL_VERSION, plan_hash: plan_hash.into() };
         let bytes = encode_record(&header);
         storage.create(path).map_err(io("create", path))?;
         storage.append(path, &bytes).map_err(io("append", path))?;
         storage.fsync(path).map_err(io("fsync", path))?;
         storage.fsync(parent(path)).map_err(io("fsync", parent(path)))?;
-        let state = Replay {
-            plan_hash: Some(plan_hash.into()),
-            valid_len: bytes.len() as u64,
-            ..Replay::default()
-        };
-        Ok(Journal {
-            path: path.into(),
-            state,
-        })
+        let state = Replay { plan_hash: Some(plan_hash.into()), valid_len: bytes.len() as u64, ..Replay::default() };
+        Ok(Journal { path: path.into(), state })
     }
 
     /// Opens an existing journal for appending: replays it, checks the plan hash, and cuts a
@@ -275,11 +242,8 @@ impl Journal {
         path: &str,
         plan_hash: &str,
     ) -> Result<(Journal, Option<TornTail>), StoreError> {
-        let bytes = storage.read(path).map_err(|source| StoreError::Io {
-            op: "read",
-            path: storage.display(path),
-            source,
-        })?;
+        let bytes =
+            storage.read(path).map_err(|source| StoreError::Io { op: "read", path: storage.display(path), source })?;
         let mut state = replay(&storage.display(path), &bytes)?;
         if state.valid_len == 0 {
             // Not even the header survived: nothing was journaled, start afresh.
@@ -302,13 +266,7 @@ impl Journal {
             storage.truncate(path, state.valid_len).map_err(io("truncate"))?;
             storage.fsync(path).map_err(io("fsync"))?;
         }
-        Ok((
-            Journal {
-                path: path.into(),
-                state,
-            },
-            torn,
-        ))
+        Ok((Journal { path: path.into(), state }, torn))
     }
 
     /// Appends a record and fsyncs it; only then is it added to the in-memory state.
@@ -346,22 +304,15 @@ mod tests {
     fn step(l: u32, v: u32) -> Record {
         Record::Step(StepRecord {
             step: StepId { light: l, view: v },
-            files: vec![FileRecord {
-                path: format!("textures/{l}_{v}.exr"),
-                size: 10,
-                hash: "sha256:ab".into(),
-            }],
+            files: vec![FileRecord { path: format!("textures/{l}_{v}.exr"), size: 10, hash: "sha256:ab".into() }],
             attempts: 1,
             timing: StepTiming::default(),
         })
     }
 
     fn journal(n: u32) -> (Vec<u8>, Vec<usize>) {
-        let mut bytes = encode_record(&Record::Header {
-            format: JOURNAL_FORMAT.into(),
-            version: 1,
-            plan_hash: "p".into(),
-        });
+        let mut bytes =
+            encode_record(&Record::Header { format: JOURNAL_FORMAT.into(), version: 1, plan_hash: "p".into() });
         let mut starts = vec![0];
         for i in 0..n {
             starts.push(bytes.len());

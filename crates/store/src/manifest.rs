@@ -207,21 +207,13 @@ impl Manifest {
         raw_frames: bool,
         seed: u64,
     ) -> Self {
-        let now = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map(|d| d.as_secs_f64())
-            .unwrap_or(0.0);
+        let now =
+            std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs_f64()).unwrap_or(0.0);
         Manifest {
             schema_version: MANIFEST_SCHEMA_VERSION,
-            software: Software {
-                name: "btfrig".into(),
-                version: env!("CARGO_PKG_VERSION").into(),
-            },
+            software: Software { name: "btfrig".into(), version: env!("CARGO_PKG_VERSION").into() },
             rig,
-            plan: PlanInfo {
-                text: plan_text.into(),
-                hash: plan_hash(plan_text),
-            },
+            plan: PlanInfo { text: plan_text.into(), hash: plan_hash(plan_text) },
             samplings,
             texture,
             raw_frames,
@@ -237,10 +229,7 @@ impl Manifest {
     pub fn problems(&self) -> Vec<String> {
         let mut p = Vec::new();
         if self.schema_version != MANIFEST_SCHEMA_VERSION {
-            p.push(format!(
-                "schema_version {} (this build reads {MANIFEST_SCHEMA_VERSION})",
-                self.schema_version
-            ));
+            p.push(format!("schema_version {} (this build reads {MANIFEST_SCHEMA_VERSION})", self.schema_version));
         }
         if plan_hash(&self.plan.text) != self.plan.hash {
             p.push(format!(
@@ -251,9 +240,7 @@ impl Manifest {
         }
         let (nl, nv) = (self.samplings.light.len() as u32, self.samplings.view.len() as u32);
         if nl == 0 || nv == 0 {
-            p.push(format!(
-                "samplings: {nl} light and {nv} view directions; both must be non-empty"
-            ));
+            p.push(format!("samplings: {nl} light and {nv} view directions; both must be non-empty"));
         }
         for (name, list) in [("light", &self.samplings.light), ("view", &self.samplings.view)] {
             for (i, d) in list.iter().enumerate() {
@@ -266,28 +253,16 @@ impl Manifest {
             }
         }
         let out_of_range = |s: &StepId| s.light >= nl || s.view >= nv;
-        for s in self
-            .samplings
-            .pairs
-            .iter()
-            .flatten()
-            .chain(self.samplings.skipped.iter().map(|s| &s.step))
-        {
+        for s in self.samplings.pairs.iter().flatten().chain(self.samplings.skipped.iter().map(|s| &s.step)) {
             if out_of_range(s) {
                 p.push(format!("samplings: step {s} outside lights 0..{nl}, views 0..{nv}"));
             }
         }
         if self.texture.width == 0 || self.texture.height == 0 {
-            p.push(format!(
-                "texture: {}x{} texels (both must be > 0)",
-                self.texture.width, self.texture.height
-            ));
+            p.push(format!("texture: {}x{} texels (both must be > 0)", self.texture.width, self.texture.height));
         }
         if !self.texture.region.size_m.iter().all(|&s| s > 0.0 && s.is_finite()) {
-            p.push(format!(
-                "texture.region.size_m {:?} (both must be > 0)",
-                self.texture.region.size_m
-            ));
+            p.push(format!("texture.region.size_m {:?} (both must be > 0)", self.texture.region.size_m));
         }
         p
     }
@@ -306,12 +281,7 @@ pub fn rfc3339_utc(unix_s: i64) -> String {
     let d = doy - (153 * mp + 2) / 5 + 1;
     let m = if mp < 10 { mp + 3 } else { mp - 9 };
     let y = yoe + era * 400 + i64::from(m <= 2);
-    format!(
-        "{y:04}-{m:02}-{d:02}T{:02}:{:02}:{:02}Z",
-        secs / 3600,
-        secs % 3600 / 60,
-        secs % 60
-    )
+    format!("{y:04}-{m:02}-{d:02}T{:02}:{:02}:{:02}Z", secs / 3600, secs % 3600 / 60, secs % 60)
 }
 
 #[cfg(test)]
@@ -332,14 +302,8 @@ mod tests {
         let d = [Direction::from_degrees(0.0, 0.0), Direction::from_degrees(30.0, 90.0)];
         let mut s = Samplings::full(&d, &d[..1]);
         assert_eq!(s.expected_steps().len(), 2);
-        s.skipped.push(SkippedStep {
-            step: StepId { light: 1, view: 0 },
-            reason: "unreachable".into(),
-        });
-        assert_eq!(
-            s.expected_steps().into_iter().collect::<Vec<_>>(),
-            vec![StepId { light: 0, view: 0 }]
-        );
+        s.skipped.push(SkippedStep { step: StepId { light: 1, view: 0 }, reason: "unreachable".into() });
+        assert_eq!(s.expected_steps().into_iter().collect::<Vec<_>>(), vec![StepId { light: 0, view: 0 }]);
         s.pairs = Some(vec![StepId { light: 1, view: 0 }]);
         assert!(s.expected_steps().is_empty());
     }

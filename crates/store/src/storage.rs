@@ -88,10 +88,7 @@ impl Storage for FsStorage {
         std::fs::File::create(self.path(path)).map(drop)
     }
     fn append(&self, path: &str, data: &[u8]) -> io::Result<()> {
-        std::fs::OpenOptions::new()
-            .append(true)
-            .open(self.path(path))?
-            .write_all(data)
+        std::fs::OpenOptions::new().append(true).open(self.path(path))?.write_all(data)
     }
     fn fsync(&self, path: &str) -> io::Result<()> {
         // Linux accepts fsync on a read-only descriptor, for files and directories alike.
@@ -101,10 +98,7 @@ impl Storage for FsStorage {
         std::fs::rename(self.path(from), self.path(to))
     }
     fn truncate(&self, path: &str, len: u64) -> io::Result<()> {
-        std::fs::OpenOptions::new()
-            .write(true)
-            .open(self.path(path))?
-            .set_len(len)
+        std::fs::OpenOptions::new().write(true).open(self.path(path))?.set_len(len)
     }
     fn read(&self, path: &str) -> io::Result<Vec<u8>> {
         std::fs::read(self.path(path))
@@ -113,10 +107,7 @@ impl Storage for FsStorage {
         let mut out = Vec::new();
         for e in std::fs::read_dir(self.path(dir))? {
             let e = e?;
-            out.push(Entry {
-                name: e.file_name().to_string_lossy().into_owned(),
-                is_dir: e.file_type()?.is_dir(),
-            });
+            out.push(Entry { name: e.file_name().to_string_lossy().into_owned(), is_dir: e.file_type()?.is_dir() });
         }
         out.sort();
         Ok(out)
@@ -226,11 +217,8 @@ impl MemStorage {
             f.synced = keep;
         }
         st.names = st.durable_names.clone();
-        let live: std::collections::HashSet<u64> = st
-            .names
-            .values()
-            .filter_map(|n| if let Node::File(id) = n { Some(*id) } else { None })
-            .collect();
+        let live: std::collections::HashSet<u64> =
+            st.names.values().filter_map(|n| if let Node::File(id) = n { Some(*id) } else { None }).collect();
         st.files.retain(|id, _| live.contains(id));
         st.fail_after = None;
         torn
@@ -243,10 +231,7 @@ impl MemStorage {
         let id = st.file_id(path)?;
         let f = st.files.get_mut(&id).ok_or_else(|| not_found(path))?;
         if offset >= f.data.len() {
-            return Err(io::Error::new(
-                io::ErrorKind::InvalidInput,
-                format!("{path}: offset {offset} beyond end"),
-            ));
+            return Err(io::Error::new(io::ErrorKind::InvalidInput, format!("{path}: offset {offset} beyond end")));
         }
         f.data[offset] ^= 0x10;
         if offset < f.synced.len() {
@@ -258,11 +243,7 @@ impl MemStorage {
     /// Every file path (not directories), sorted.
     pub fn files(&self) -> Vec<String> {
         let st = self.lock();
-        st.names
-            .iter()
-            .filter(|(_, n)| matches!(n, Node::File(_)))
-            .map(|(p, _)| p.clone())
-            .collect()
+        st.names.iter().filter(|(_, n)| matches!(n, Node::File(_))).map(|(p, _)| p.clone()).collect()
     }
 }
 
@@ -297,10 +278,7 @@ impl MemState {
     fn file_id(&self, path: &str) -> io::Result<u64> {
         match self.names.get(path) {
             Some(Node::File(id)) => Ok(*id),
-            Some(Node::Dir) => Err(io::Error::new(
-                io::ErrorKind::IsADirectory,
-                format!("{path}: is a directory"),
-            )),
+            Some(Node::Dir) => Err(io::Error::new(io::ErrorKind::IsADirectory, format!("{path}: is a directory"))),
             None => Err(not_found(path)),
         }
     }
@@ -317,10 +295,7 @@ impl Storage for MemStorage {
         st.need_parent(path)?;
         match st.names.get(path) {
             Some(Node::Dir) => Ok(()),
-            Some(Node::File(_)) => Err(io::Error::new(
-                io::ErrorKind::AlreadyExists,
-                format!("{path}: is a file"),
-            )),
+            Some(Node::File(_)) => Err(io::Error::new(io::ErrorKind::AlreadyExists, format!("{path}: is a file"))),
             None => {
                 st.names.insert(path.to_string(), Node::Dir);
                 Ok(())
@@ -332,10 +307,7 @@ impl Storage for MemStorage {
         st.tick()?;
         st.need_parent(path)?;
         if st.is_dir(path) {
-            return Err(io::Error::new(
-                io::ErrorKind::IsADirectory,
-                format!("{path}: is a directory"),
-            ));
+            return Err(io::Error::new(io::ErrorKind::IsADirectory, format!("{path}: is a directory")));
         }
         let id = st.next_id;
         st.next_id += 1;
@@ -380,10 +352,7 @@ impl Storage for MemStorage {
         let id = st.file_id(from)?;
         st.need_parent(to)?;
         if st.is_dir(to) {
-            return Err(io::Error::new(
-                io::ErrorKind::IsADirectory,
-                format!("{to}: is a directory"),
-            ));
+            return Err(io::Error::new(io::ErrorKind::IsADirectory, format!("{to}: is a directory")));
         }
         st.names.remove(from);
         st.names.insert(to.to_string(), Node::File(id));
@@ -411,10 +380,7 @@ impl Storage for MemStorage {
         }
         let start = if dir.is_empty() { 0 } else { dir.len() + 1 };
         Ok(children(&st.names, dir)
-            .map(|(p, n)| Entry {
-                name: p[start..].to_string(),
-                is_dir: *n == Node::Dir,
-            })
+            .map(|(p, n)| Entry { name: p[start..].to_string(), is_dir: *n == Node::Dir })
             .collect())
     }
     fn size(&self, path: &str) -> io::Result<Option<u64>> {
@@ -511,13 +477,7 @@ mod tests {
         assert_eq!(s.size("d/t").unwrap(), None);
         s.truncate("d/f", 4).unwrap();
         assert_eq!(s.read("d/f").unwrap(), b"abcd");
-        assert_eq!(
-            s.list("").unwrap(),
-            vec![Entry {
-                name: "d".into(),
-                is_dir: true
-            }]
-        );
+        assert_eq!(s.list("").unwrap(), vec![Entry { name: "d".into(), is_dir: true }]);
         s.remove("d/f").unwrap();
         assert!(s.list("d").unwrap().is_empty());
         std::fs::remove_dir_all(&dir).unwrap();

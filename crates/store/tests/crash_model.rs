@@ -33,12 +33,9 @@ enum Failed {
 
 /// Runs one step: texture, raw frame, commit.
 fn run_step(ds: &Dataset<MemStorage>, s: StepId, attempts: u32) -> Result<(), (Failed, StoreError)> {
-    let t = ds
-        .write_texture(s, &texels(s), W, H)
-        .map_err(|e| (Failed::BeforeCommit, e))?;
+    let t = ds.write_texture(s, &texels(s), W, H).map_err(|e| (Failed::BeforeCommit, e))?;
     let r = ds.write_raw(s, &raw_frame(s)).map_err(|e| (Failed::BeforeCommit, e))?;
-    ds.commit_step(s, vec![t, r], attempts, StepTiming::default())
-        .map_err(|e| (Failed::InCommit(s), e))
+    ds.commit_step(s, vec![t, r], attempts, StepTiming::default()).map_err(|e| (Failed::InCommit(s), e))
 }
 
 /// Reopens after a crash, itself possibly cut by another power loss (then retried).
@@ -94,11 +91,7 @@ fn run_seed(seed: u64) -> (usize, usize) {
             // A step is 12 mutating operations (2 x [create, write, fsync, rename, fsync dir],
             // then journal append and fsync); cut at any of them or in the next step, and
             // often right between the journal append and its fsync, where records tear.
-            let n = if rng.gen_bool(0.3) {
-                COMMIT_FSYNC_OP
-            } else {
-                rng.gen_range(0..24)
-            };
+            let n = if rng.gen_bool(0.3) { COMMIT_FSYNC_OP } else { rng.gen_range(0..24) };
             storage.fail_after(n);
         }
         let failed = match run_step(&ds, s, 1) {
@@ -121,11 +114,7 @@ fn run_seed(seed: u64) -> (usize, usize) {
         };
         drop(ds);
         crashes += 1;
-        let keep = if rng.gen_bool(0.5) {
-            rng.gen_range(0..40)
-        } else {
-            rng.gen_range(0..1000)
-        };
+        let keep = if rng.gen_bool(0.5) { rng.gen_range(0..40) } else { rng.gen_range(0..1000) };
         let torn = storage.crash(Some(keep));
         let (reopened, resume) = reopen(&storage, &mut rng);
         ds = reopened;
@@ -149,16 +138,9 @@ fn run_seed(seed: u64) -> (usize, usize) {
             "seed {seed}: remaining"
         );
     }
-    assert!(
-        commits.values().all(|&n| n == 1),
-        "seed {seed}: a step was committed twice: {commits:?}"
-    );
+    assert!(commits.values().all(|&n| n == 1), "seed {seed}: a step was committed twice: {commits:?}");
     storage.disarm();
-    ds.finish(&RunReport {
-        captures: durable.len() as u64,
-        ..RunReport::default()
-    })
-    .unwrap();
+    ds.finish(&RunReport { captures: durable.len() as u64, ..RunReport::default() }).unwrap();
     let v = verify_in(&storage);
     assert!(v.is_ok(), "seed {seed}: {v}");
     (crashes, torn_cut)

@@ -17,12 +17,7 @@ fn step(light: u32, view: u32) -> StepId {
 }
 
 fn timing() -> StepTiming {
-    StepTiming {
-        started_unix_s: 1.0e9,
-        wall_s: 0.5,
-        hardware_s: Some(2.0),
-        ..StepTiming::default()
-    }
+    StepTiming { started_unix_s: 1.0e9, wall_s: 0.5, hardware_s: Some(2.0), ..StepTiming::default() }
 }
 
 /// Writes and commits every expected step (texture + raw) and finishes the run.
@@ -33,13 +28,7 @@ fn complete(dir: &std::path::Path) {
         let r = ds.write_raw(s, &raw_frame(s)).unwrap();
         ds.commit_step(s, vec![t, r], 1 + s.view, timing()).unwrap();
     }
-    ds.finish(&RunReport {
-        captures: 5,
-        wall_s: 3.0,
-        hardware_s: Some(10.0),
-        ..RunReport::default()
-    })
-    .unwrap();
+    ds.finish(&RunReport { captures: 5, wall_s: 3.0, hardware_s: Some(10.0), ..RunReport::default() }).unwrap();
 }
 
 #[test]
@@ -71,10 +60,7 @@ fn round_trip_create_write_commit_reopen() {
     let (w, h, back) = btfrig_imageio::read_rgb_exr(&dir.join("textures/l000_v001.exr")).unwrap();
     assert_eq!((w, h), (W, H));
     assert_eq!(back, texels(a));
-    assert_eq!(
-        btfrig_imageio::read_raw_exr(&dir.join("raw/l001_v000.exr")).unwrap(),
-        raw_frame(b)
-    );
+    assert_eq!(btfrig_imageio::read_raw_exr(&dir.join("raw/l001_v000.exr")).unwrap(), raw_frame(b));
     let rec = ds.step_record(a).unwrap();
     assert_eq!(rec.attempts, 2);
     let bytes = std::fs::read(dir.join(&rec.files[0].path)).unwrap();
@@ -82,36 +68,18 @@ fn round_trip_create_write_commit_reopen() {
     assert_eq!(rec.files[0].size, bytes.len() as u64);
 
     // A resumed run can neither rewrite nor recommit a journaled step.
-    assert!(matches!(
-        ds.write_texture(a, &texels(a), W, H),
-        Err(StoreError::StepAlreadyJournaled { .. })
-    ));
-    assert!(matches!(
-        ds.commit_step(a, vec![], 1, timing()),
-        Err(StoreError::StepAlreadyJournaled { .. })
-    ));
+    assert!(matches!(ds.write_texture(a, &texels(a), W, H), Err(StoreError::StepAlreadyJournaled { .. })));
+    assert!(matches!(ds.commit_step(a, vec![], 1, timing()), Err(StoreError::StepAlreadyJournaled { .. })));
     // Nor touch steps outside the plan or skipped by it.
     for s in [step(2, 0), step(1, 2)] {
-        assert!(
-            matches!(
-                ds.write_texture(s, &texels(s), W, H),
-                Err(StoreError::UnknownStep { .. })
-            ),
-            "{s}"
-        );
+        assert!(matches!(ds.write_texture(s, &texels(s), W, H), Err(StoreError::UnknownStep { .. })), "{s}");
     }
-    assert!(matches!(
-        ds.write_texture(c, &texels(c), W + 1, H),
-        Err(StoreError::BadInput { .. })
-    ));
+    assert!(matches!(ds.write_texture(c, &texels(c), W + 1, H), Err(StoreError::BadInput { .. })));
     // A run-time skip is journaled and survives a reopen.
     ds.skip_step(step(1, 1), "marker occluded").unwrap();
     drop(ds);
     let (_, resume) = Dataset::open_for_resume(&dir, &plan_hash(PLAN)).unwrap();
-    assert_eq!(
-        resume.skipped.get(&step(1, 1)).map(String::as_str),
-        Some("marker occluded")
-    );
+    assert_eq!(resume.skipped.get(&step(1, 1)).map(String::as_str), Some("marker occluded"));
     assert_eq!(resume.remaining, BTreeSet::from([step(0, 0), step(0, 2)]));
 
     // Another plan cannot resume it.
@@ -127,20 +95,12 @@ fn half_textures_round_to_half_precision() {
     let ds = Dataset::create(tmp.path(), manifest(PLAN, TextureFormat::ExrHalf, false)).unwrap();
     let s = step(0, 2);
     let t = ds.write_texture(s, &texels(s), W, H).unwrap();
-    assert!(matches!(
-        ds.write_raw(s, &raw_frame(s)),
-        Err(StoreError::BadInput { .. })
-    ));
+    assert!(matches!(ds.write_raw(s, &raw_frame(s)), Err(StoreError::BadInput { .. })));
     let (_, _, back) = btfrig_imageio::read_rgb_exr(&tmp.path().join(&t.path)).unwrap();
     for (a, b) in texels(s).iter().zip(&back) {
         for c in 0..3 {
             // Half: 11 significant bits, round to nearest.
-            assert!(
-                (a[c] - b[c]).abs() <= a[c].abs() * 2f32.powi(-11),
-                "{} vs {}",
-                a[c],
-                b[c]
-            );
+            assert!((a[c] - b[c]).abs() <= a[c].abs() * 2f32.powi(-11), "{} vs {}", a[c], b[c]);
         }
     }
 }
@@ -159,21 +119,11 @@ fn verify_passes_on_a_complete_dataset_and_info_reports_it() {
     assert_eq!(i.retries, 4);
     assert!(i.finished);
     let text = i.to_string();
-    for want in [
-        "test-rig",
-        &plan_hash(PLAN),
-        "2 light x 3 view",
-        "5/5 done",
-        "4x3 OpenEXR float",
-        "finished",
-    ] {
+    for want in ["test-rig", &plan_hash(PLAN), "2 light x 3 view", "5/5 done", "4x3 OpenEXR float", "finished"] {
         assert!(text.contains(want), "{want:?} not in\n{text}");
     }
     let m = i.manifest.timing.unwrap();
-    assert_eq!(
-        (m.steps_done, m.steps_skipped, m.retries, m.hardware_s),
-        (5, 1, 4, Some(10.0))
-    );
+    assert_eq!((m.steps_done, m.steps_skipped, m.retries, m.hardware_s), (5, 1, 4, Some(10.0)));
 }
 
 fn problems_after(tag: &str, damage: impl FnOnce(&std::path::Path)) -> Vec<Problem> {
@@ -189,13 +139,7 @@ fn problems_after(tag: &str, damage: impl FnOnce(&std::path::Path)) -> Vec<Probl
 fn verify_names_each_kind_of_damage() {
     let tex = "textures/l000_v001.exr";
     let p = problems_after("missing", |d| std::fs::remove_file(d.join(tex)).unwrap());
-    assert_eq!(
-        p,
-        vec![Problem::MissingFile {
-            step: step(0, 1),
-            path: tex.into()
-        }]
-    );
+    assert_eq!(p, vec![Problem::MissingFile { step: step(0, 1), path: tex.into() }]);
 
     let p = problems_after("altered", |d| {
         let mut b = std::fs::read(d.join(tex)).unwrap();
@@ -203,19 +147,13 @@ fn verify_names_each_kind_of_damage() {
         b[n - 5] ^= 0x40;
         std::fs::write(d.join(tex), b).unwrap();
     });
-    assert!(
-        matches!(&p[..], [Problem::WrongHash { path, .. }] if path == tex),
-        "{p:?}"
-    );
+    assert!(matches!(&p[..], [Problem::WrongHash { path, .. }] if path == tex), "{p:?}");
 
     let p = problems_after("shortened", |d| {
         let b = std::fs::read(d.join(tex)).unwrap();
         std::fs::write(d.join(tex), &b[..b.len() - 1]).unwrap();
     });
-    assert!(
-        matches!(&p[..], [Problem::WrongSize { path, .. }] if path == tex),
-        "{p:?}"
-    );
+    assert!(matches!(&p[..], [Problem::WrongSize { path, .. }] if path == tex), "{p:?}");
 
     let p = problems_after("torn", |d| {
         let b = std::fs::read(d.join(JOURNAL_FILE)).unwrap();
@@ -224,11 +162,7 @@ fn verify_names_each_kind_of_damage() {
     // The last step's record is torn: its step is missing and its files are orphans.
     assert!(matches!(p[0], Problem::TornJournalTail(_)), "{p:?}");
     assert!(p.contains(&Problem::Incomplete { missing: 1 }), "{p:?}");
-    assert_eq!(
-        p.iter().filter(|x| matches!(x, Problem::Orphan { .. })).count(),
-        2,
-        "{p:?}"
-    );
+    assert_eq!(p.iter().filter(|x| matches!(x, Problem::Orphan { .. })).count(), 2, "{p:?}");
 
     let p = problems_after("middle", |d| {
         let mut b = std::fs::read(d.join(JOURNAL_FILE)).unwrap();
@@ -236,44 +170,21 @@ fn verify_names_each_kind_of_damage() {
         b[second_line + 40] ^= 0x01;
         std::fs::write(d.join(JOURNAL_FILE), b).unwrap();
     });
-    assert!(
-        p.iter()
-            .any(|x| matches!(x, Problem::Journal { reason } if reason.contains("damaged at byte"))),
-        "{p:?}"
-    );
+    assert!(p.iter().any(|x| matches!(x, Problem::Journal { reason } if reason.contains("damaged at byte"))), "{p:?}");
 
-    let p = problems_after("orphan", |d| {
-        std::fs::write(d.join("textures/stray.exr"), b"x").unwrap()
-    });
-    assert_eq!(
-        p,
-        vec![Problem::Orphan {
-            path: "textures/stray.exr".into()
-        }]
-    );
+    let p = problems_after("orphan", |d| std::fs::write(d.join("textures/stray.exr"), b"x").unwrap());
+    assert_eq!(p, vec![Problem::Orphan { path: "textures/stray.exr".into() }]);
 
     let p = problems_after("manifest", |d| {
         let t = std::fs::read_to_string(d.join("manifest.json")).unwrap();
-        std::fs::write(
-            d.join("manifest.json"),
-            t.replace("\"schema_version\": 1", "\"schema_version\": 99"),
-        )
-        .unwrap();
+        std::fs::write(d.join("manifest.json"), t.replace("\"schema_version\": 1", "\"schema_version\": 99")).unwrap();
     });
-    assert!(
-        matches!(&p[..], [Problem::Manifest { reason }] if reason.contains("schema_version 99")),
-        "{p:?}"
-    );
+    assert!(matches!(&p[..], [Problem::Manifest { reason }] if reason.contains("schema_version 99")), "{p:?}");
 
     let tmp = TempDir::new("foreign");
     std::fs::write(tmp.path().join("holiday.jpg"), b"jpeg").unwrap();
     let v = verify(tmp.path());
-    assert_eq!(
-        v.problems,
-        vec![Problem::NotADataset {
-            found: vec!["holiday.jpg".into()]
-        }]
-    );
+    assert_eq!(v.problems, vec![Problem::NotADataset { found: vec!["holiday.jpg".into()] }]);
 }
 
 #[test]
@@ -287,10 +198,7 @@ fn create_refuses_other_datasets_and_unrelated_directories_without_touching_them
     let err = Dataset::create(&dir, manifest("another plan", TextureFormat::ExrFloat, true)).unwrap_err();
     assert!(matches!(err, StoreError::OtherDataset { .. }), "{err:?}");
     let msg = err.to_string();
-    assert!(
-        msg.contains(&plan_hash(PLAN)) && msg.contains("test-rig") && msg.contains("never overwritten"),
-        "{msg}"
-    );
+    assert!(msg.contains(&plan_hash(PLAN)) && msg.contains("test-rig") && msg.contains("never overwritten"), "{msg}");
 
     let err = Dataset::create(&dir, manifest(PLAN, TextureFormat::ExrFloat, true)).unwrap_err();
     assert!(matches!(err, StoreError::AlreadyExists { .. }), "{err:?}");

@@ -32,14 +32,7 @@ fn write(role: DeviceRole, w: &mut WorldState, truth: f64, cmd: f64) {
 }
 
 impl SimAxis {
-    pub(crate) fn new(
-        role: DeviceRole,
-        opts: &SimAxisOptions,
-        timing: &AxisTiming,
-        gate: FaultGate,
-        world: SimWorld,
-        seed: u64,
-    ) -> Self {
+    pub(crate) fn new(role: DeviceRole, opts: &SimAxisOptions, timing: &AxisTiming, gate: FaultGate, world: SimWorld, seed: u64) -> Self {
         let axis = AxisModel {
             limits: AxisLimits {
                 min_rad: opts.min_deg.to_radians(),
@@ -51,22 +44,8 @@ impl SimAxis {
             jitter_rad: opts.jitter_deg.to_radians(),
         };
         let name = gate.name().to_string();
-        let motion = Motion::new(
-            &name,
-            [axis],
-            timing.settle_s,
-            timing.home_s,
-            opts.homed_at_start,
-            seed,
-            world.clock().clone(),
-        );
-        SimAxis {
-            info: super::info(&name, &opts.model),
-            gate,
-            motion,
-            world,
-            role,
-        }
+        let motion = Motion::new(&name, [axis], timing.settle_s, timing.home_s, opts.homed_at_start, seed, world.clock().clone());
+        SimAxis { info: super::info(&name, &opts.model), gate, motion, world, role }
     }
 
     /// Time a move from the commanded position to `angle_rad` would take, seconds.
@@ -77,9 +56,7 @@ impl SimAxis {
     async fn do_home(&mut self, opts: MoveOptions) -> Result<(), DeviceError> {
         self.gate.begin("home", opts.timeout_s).await?;
         let (world, role) = (&self.world, self.role);
-        self.motion
-            .home(opts.timeout_s, |t, c| write(role, &mut world.lock(), t[0], c[0]))
-            .await
+        self.motion.home(opts.timeout_s, |t, c| write(role, &mut world.lock(), t[0], c[0])).await
     }
 
     async fn do_move(&mut self, angle_rad: f64, opts: MoveOptions) -> Result<f64, DeviceError> {
@@ -87,9 +64,7 @@ impl SimAxis {
         let (world, role) = (&self.world, self.role);
         let r = self
             .motion
-            .move_to("move_to_rad", [angle_rad], opts.timeout_s, |t, c| {
-                write(role, &mut world.lock(), t[0], c[0])
-            })
+            .move_to("move_to_rad", [angle_rad], opts.timeout_s, |t, c| write(role, &mut world.lock(), t[0], c[0]))
             .await?;
         Ok(r[0])
     }

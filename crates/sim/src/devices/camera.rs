@@ -7,7 +7,7 @@ use btfrig_core::config::timing::CameraTiming;
 use btfrig_core::frame::RawFrame;
 use btfrig_hw::{
     frame_checksum, verify_frame, Camera, CameraCapabilities, CaptureSettings, DeviceError, DeviceInfo, ErrorKind,
-};
+    };
 
 use crate::faults::{derive_seed, FaultGate, FrameFate, FrameFaults, COMMAND_TIMEOUT_S};
 use crate::options::SimCameraOptions;
@@ -43,10 +43,7 @@ pub struct SimCamera {
 
 impl std::fmt::Debug for SimCamera {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("SimCamera")
-            .field("info", &self.info)
-            .field("settings", &self.settings)
-            .finish_non_exhaustive()
+        f.debug_struct("SimCamera").field("info", &self.info).field("settings", &self.settings).finish_non_exhaustive()
     }
 }
 
@@ -71,9 +68,7 @@ impl SimCamera {
             white_level: f.white_level,
             exposure_range_s: (opts.exposure_range_s[0], opts.exposure_range_s[1]),
             gain_range: (opts.gain_range[0], opts.gain_range[1]),
-            f_number_range: opts
-                .has_aperture
-                .then_some((opts.f_number_range[0], opts.f_number_range[1])),
+            f_number_range: opts.has_aperture.then_some((opts.f_number_range[0], opts.f_number_range[1])),
         };
         let settings = CaptureSettings {
             exposure_s: opts.exposure_s,
@@ -99,9 +94,7 @@ impl SimCamera {
 
     /// Bytes sent per frame: the configured figure, or 2 bytes per photosite.
     pub fn frame_bytes(&self) -> u64 {
-        self.timing
-            .frame_bytes
-            .unwrap_or((self.caps.width * self.caps.height * 2) as u64)
+        self.timing.frame_bytes.unwrap_or((self.caps.width * self.caps.height * 2) as u64)
     }
 
     /// The sensor-noise seed of a frame: keyed by the scene state and settings it shows and
@@ -127,11 +120,7 @@ impl SimCamera {
                 s.f_number.map_or(0, f64::to_bits),
             ],
         );
-        let repeat = if self.last_noise_key.0 == key {
-            self.last_noise_key.1 + 1
-        } else {
-            0
-        };
+        let repeat = if self.last_noise_key.0 == key { self.last_noise_key.1 + 1 } else { 0 };
         self.last_noise_key = (key, repeat);
         crate::faults::seed_for(key, &[repeat])
     }
@@ -145,12 +134,7 @@ impl SimCamera {
         if v >= lo && v <= hi {
             Ok(())
         } else {
-            Err(DeviceError::out_of_range(
-                &self.info.name,
-                what,
-                v,
-                format!("[{lo}, {hi}]"),
-            ))
+            Err(DeviceError::out_of_range(&self.info.name, what, v, format!("[{lo}, {hi}]")))
         }
     }
 
@@ -222,22 +206,14 @@ impl Camera for SimCamera {
         clock.sleep_s(self.settings.exposure_s + t.read_out_s).await;
         let sequence = self.next_sequence;
         self.next_sequence += 1;
-        self.pending = Some(Pending {
-            sequence,
-            truth,
-            settings: self.settings,
-        });
+        self.pending = Some(Pending { sequence, truth, settings: self.settings });
         Ok(sequence)
     }
 
     async fn read_frame(&mut self, timeout_s: f64) -> Result<RawFrame, DeviceError> {
         let call = self.gate.begin("read_frame", timeout_s).await?;
         let Some(p) = self.pending.take() else {
-            return Err(DeviceError::new(
-                &self.info.name,
-                ErrorKind::Other,
-                "read_frame: no frame was triggered",
-            ));
+            return Err(DeviceError::new(&self.info.name, ErrorKind::Other, "read_frame: no frame was triggered"));
         };
         self.readouts += 1;
         let name = self.info.name.clone();

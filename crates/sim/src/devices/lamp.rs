@@ -21,13 +21,7 @@ pub struct SimLamp {
 
 impl SimLamp {
     pub(crate) fn new(opts: &SimLampOptions, timing: &LampTiming, gate: FaultGate, world: SimWorld) -> Self {
-        SimLamp {
-            info: super::info(gate.name(), &opts.model),
-            gate,
-            opts: opts.clone(),
-            timing: *timing,
-            world,
-        }
+        SimLamp { info: super::info(gate.name(), &opts.model), gate, opts: opts.clone(), timing: *timing, world }
     }
 
     fn warm_up(&self) -> WarmUp {
@@ -89,32 +83,20 @@ impl Lamp for SimLamp {
         self.gate.begin("status", COMMAND_TIMEOUT_S).await?;
         let warm_up = self.warm_up();
         let w = self.world.lock();
-        Ok(LampStatus {
-            on: w.lamp.on,
-            shutter_open: w.lamp.shutter_open,
-            intensity: w.lamp.setpoint,
-            warm_up,
-        })
+        Ok(LampStatus { on: w.lamp.on, shutter_open: w.lamp.shutter_open, intensity: w.lamp.setpoint, warm_up })
     }
 
     async fn wait_ready(&mut self, timeout_s: f64) -> Result<(), DeviceError> {
         self.gate.begin("wait_ready", timeout_s).await?;
         match self.warm_up() {
-            WarmUp::Off => Err(DeviceError::new(
-                &self.info.name,
-                ErrorKind::Other,
-                "wait_ready: the lamp is off",
-            )),
+            WarmUp::Off => Err(DeviceError::new(&self.info.name, ErrorKind::Other, "wait_ready: the lamp is off")),
             WarmUp::Ready => Ok(()),
             WarmUp::WarmingUp { remaining_s } if remaining_s > timeout_s => {
                 self.world.clock().sleep_s(timeout_s).await;
                 Err(DeviceError::new(
                     &self.info.name,
                     ErrorKind::Timeout,
-                    format!(
-                        "wait_ready: still warming up after {timeout_s} s ({:.0} s left)",
-                        remaining_s - timeout_s
-                    ),
+                    format!("wait_ready: still warming up after {timeout_s} s ({:.0} s left)", remaining_s - timeout_s),
                 ))
             }
             WarmUp::WarmingUp { remaining_s } => {

@@ -34,15 +34,7 @@ pub(crate) struct Motion<const N: usize> {
 }
 
 impl<const N: usize> Motion<N> {
-    pub fn new(
-        name: &str,
-        axes: [AxisModel; N],
-        settle_s: f64,
-        home_s: f64,
-        homed: bool,
-        seed: u64,
-        clock: SharedClock,
-    ) -> Self {
+    pub fn new(name: &str, axes: [AxisModel; N], settle_s: f64, home_s: f64, homed: bool, seed: u64, clock: SharedClock) -> Self {
         Motion {
             name: name.to_string(),
             axes,
@@ -78,11 +70,7 @@ impl<const N: usize> Motion<N> {
         let motion = (0..N)
             .map(|i| {
                 let a = &self.axes[i];
-                move_time_s(
-                    target[i] - self.commanded[i],
-                    a.limits.max_speed_rad_per_s,
-                    a.accel_rad_per_s2,
-                )
+                move_time_s(target[i] - self.commanded[i], a.limits.max_speed_rad_per_s, a.accel_rad_per_s2)
             })
             .fold(0.0, f64::max);
         if motion > 0.0 {
@@ -120,28 +108,16 @@ impl<const N: usize> Motion<N> {
     ) -> Result<[f64; N], DeviceError> {
         self.check_idle(op)?;
         if !self.homed {
-            return Err(DeviceError::new(
-                &self.name,
-                ErrorKind::NotHomed,
-                format!("{op}: call home first"),
-            ));
+            return Err(DeviceError::new(&self.name, ErrorKind::NotHomed, format!("{op}: call home first")));
         }
         for (i, (&t, a)) in target.iter().zip(&self.axes).enumerate() {
             if !a.limits.contains(t) {
-                let what = if N == 1 {
-                    format!("{op} target")
-                } else {
-                    format!("{op} target of joint {i}")
-                };
+                let what = if N == 1 { format!("{op} target") } else { format!("{op} target of joint {i}") };
                 return Err(DeviceError::out_of_range(
                     &self.name,
                     &what,
                     format!("{:.4} deg", t.to_degrees()),
-                    format!(
-                        "[{:.4}, {:.4}] deg",
-                        a.limits.min_rad.to_degrees(),
-                        a.limits.max_rad.to_degrees()
-                    ),
+                    format!("[{:.4}, {:.4}] deg", a.limits.min_rad.to_degrees(), a.limits.max_rad.to_degrees()),
                 ));
             }
         }
@@ -171,15 +147,11 @@ impl<const N: usize> Motion<N> {
             return Err(DeviceError::new(
                 &self.name,
                 ErrorKind::Timeout,
-                format!(
-                    "home: homing takes {} s, more than the timeout {timeout_s} s",
-                    self.home_s
-                ),
+                format!("home: homing takes {} s, more than the timeout {timeout_s} s", self.home_s),
             ));
         }
         self.clock.sleep_s(self.home_s).await;
-        let target: [f64; N] =
-            std::array::from_fn(|i| 0f64.clamp(self.axes[i].limits.min_rad, self.axes[i].limits.max_rad));
+        let target: [f64; N] = std::array::from_fn(|i| 0f64.clamp(self.axes[i].limits.min_rad, self.axes[i].limits.max_rad));
         let landing = self.landing(&target);
         self.commanded = target;
         self.homed = true;
@@ -189,11 +161,7 @@ impl<const N: usize> Motion<N> {
 
     pub fn position(&self, op: &str) -> Result<[f64; N], DeviceError> {
         if !self.homed {
-            return Err(DeviceError::new(
-                &self.name,
-                ErrorKind::NotHomed,
-                format!("{op}: position unknown before homing"),
-            ));
+            return Err(DeviceError::new(&self.name, ErrorKind::NotHomed, format!("{op}: position unknown before homing")));
         }
         Ok(self.commanded)
     }

@@ -26,10 +26,8 @@ pub fn source() -> Arc<FlatFrameSource> {
 /// Devices all homed at start (so tests can move at once); each table in `extra` (TOML)
 /// replaces the default one of its device.
 pub fn devices(extra: &str) -> DevicesConfig {
-    let mut t: toml::Table = toml::from_str(
-        "[robot]\nkind = \"sim\"\nhomed_at_start = true\n[rail]\nkind = \"sim\"\nhomed_at_start = true\n",
-    )
-    .unwrap();
+    let mut t: toml::Table =
+        toml::from_str("[robot]\nkind = \"sim\"\nhomed_at_start = true\n[rail]\nkind = \"sim\"\nhomed_at_start = true\n").unwrap();
     let extra: toml::Table = toml::from_str(extra).unwrap();
     t.extend(extra);
     t.try_into().unwrap()
@@ -37,15 +35,7 @@ pub fn devices(extra: &str) -> DevicesConfig {
 
 /// Must be called inside the (paused) runtime.
 pub fn rig(devices: &DevicesConfig, seed: u64, faults: &FaultScenario) -> SimRig {
-    SimRig::build(
-        devices,
-        &TimingConfig::bonn(),
-        seed,
-        faults,
-        TokioClock::shared(),
-        source(),
-    )
-    .unwrap()
+    SimRig::build(devices, &TimingConfig::bonn(), seed, faults, TokioClock::shared(), source()).unwrap()
 }
 
 /// Retries an operation while its error is retryable, like a run engine would; returns the

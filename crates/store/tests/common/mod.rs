@@ -32,30 +32,18 @@ pub const H: usize = 3;
 /// 2 lights x 3 views, step (1, 2) skipped by the plan: 5 expected steps.
 pub fn manifest(plan: &str, format: TextureFormat, raw: bool) -> Manifest {
     let light = [Direction::from_degrees(0.0, 0.0), Direction::from_degrees(45.0, 90.0)];
-    let view = [
-        Direction::from_degrees(0.0, 0.0),
-        Direction::from_degrees(30.0, 0.0),
-        Direction::from_degrees(60.0, 180.0),
-    ];
+    let view =
+        [Direction::from_degrees(0.0, 0.0), Direction::from_degrees(30.0, 0.0), Direction::from_degrees(60.0, 180.0)];
     let mut samplings = Samplings::full(&light, &view);
-    samplings.skipped.push(SkippedStep {
-        step: StepId { light: 1, view: 2 },
-        reason: "unreachable: test".into(),
-    });
+    samplings.skipped.push(SkippedStep { step: StepId { light: 1, view: 2 }, reason: "unreachable: test".into() });
     Manifest::new(
-        RigInfo {
-            name: "test-rig".into(),
-            config_toml: "[rig]\nname = \"test-rig\"\n".into(),
-        },
+        RigInfo { name: "test-rig".into(), config_toml: "[rig]\nname = \"test-rig\"\n".into() },
         plan,
         samplings,
         TextureSpec {
             width: W as u32,
             height: H as u32,
-            region: TextureRegion {
-                center_m: [0.0, 0.0],
-                size_m: [0.05, 0.0375],
-            },
+            region: TextureRegion { center_m: [0.0, 0.0], size_m: [0.05, 0.0375] },
             format,
         },
         raw,
@@ -65,15 +53,7 @@ pub fn manifest(plan: &str, format: TextureFormat, raw: bool) -> Manifest {
 
 /// A texture that differs per step and texel; values exact in half precision.
 pub fn texels(step: StepId) -> Vec<[f32; 3]> {
-    (0..W * H)
-        .map(|i| {
-            [
-                step.light as f32 + 0.25 * i as f32,
-                step.view as f32 * 0.5,
-                1.0 / (1 + i) as f32,
-            ]
-        })
-        .collect()
+    (0..W * H).map(|i| [step.light as f32 + 0.25 * i as f32, step.view as f32 * 0.5, 1.0 / (1 + i) as f32]).collect()
 }
 
 pub fn raw_frame(step: StepId) -> RawFrame {
