@@ -7,8 +7,7 @@ use std::path::Path;
 
 use btfrig_core::config::RigConfig;
 use btfrig_core::plan::{
-    CaptureList, ExposurePolicy, MaterialRef, OutputFormat, Plan, PlanContext, SkipReason, ValidatedPlan,
-    BUILTIN_FAULT_SCENARIOS, BUILTIN_RIGS,
+    CaptureList, ExposurePolicy, MaterialRef, OutputFormat, Plan, PlanContext, SkipReason, ValidatedPlan, BUILTIN_RIGS,
 };
 use btfrig_render::material::{MaterialSpec, BUILTIN_MATERIALS};
 use btfrig_render::rig_scene::RigScene;
@@ -132,10 +131,7 @@ pub fn fault_scenario(name: &str, base: &Path, field: &str) -> Result<FaultScena
     }
     let path = base.join(name);
     let text = std::fs::read_to_string(&path).map_err(|e| {
-        let names: Vec<&str> =
-            BUILTIN_FAULT_SCENARIOS.iter().chain(FAULT_FILES.iter().map(|(n, _)| n)).copied().collect();
-        let mut names = names;
-        names.dedup();
+        let names: Vec<&str> = FAULT_FILES.iter().map(|(n, _)| *n).collect();
         bad(format!("cannot read {}: {e}; allowed: {} or a scenario file", path.display(), names.join(", ")))
     })?;
     FaultScenario::from_toml(&text, &path.display().to_string()).map_err(|e| bad(e.to_string()))
@@ -178,4 +174,26 @@ pub fn manifest(
     };
     let rig = RigInfo { name: v.rig.rig.name.clone(), config_toml };
     Ok(Manifest::new(rig, text, samplings, texture, false, v.rig.rig.seed))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn embedded_fault_files_are_the_names_plans_may_use_and_all_parse() {
+        let mut ours: Vec<&str> = FAULT_FILES.iter().map(|(n, _)| *n).collect();
+        let mut core: Vec<&str> = btfrig_core::plan::BUILTIN_FAULT_SCENARIOS.to_vec();
+        ours.sort_unstable();
+        core.sort_unstable();
+        assert_eq!(ours, core);
+        for (name, _) in FAULT_FILES {
+            fault_scenario(name, Path::new("/nonexistent"), "--faults").unwrap();
+        }
+        let e = fault_scenario("nosuch", Path::new("/nonexistent"), "--faults").unwrap_err().to_string();
+        assert!(
+            e.contains("--faults \"nosuch\"") && e.contains("robot-fault") && e.contains("/nonexistent/nosuch"),
+            "{e}"
+        );
+    }
 }
