@@ -15,8 +15,8 @@ pub struct Cli {
 /// The subcommands.
 #[derive(Debug, Subcommand)]
 pub enum Command {
-    /// Run the embedded simulated gonioreflectometer: capture a handful of (light, view)
-    /// pairs through the device traits, and print what it did.
+    /// Run the default measurement plan (embedded) on the simulated gonioreflectometer end
+    /// to end into a new dataset directory, and print a summary.
     Demo(DemoArgs),
     /// Run a measurement plan on the simulated rig into a dataset directory; resumes a
     /// dataset of the same plan, refuses any other.
@@ -41,14 +41,36 @@ pub enum Command {
 /// `btfrig demo`.
 #[derive(Debug, Args)]
 pub struct DemoArgs {
+    /// Run the whole Bonn 81 x 81 plan (embedded rig-configs/plans/bonn-full.toml) instead
+    /// of the quick demo plan (rig-configs/plans/demo.toml).
+    #[arg(long)]
+    pub full: bool,
+    /// Rig config file instead of the plan's embedded simulated gonioreflectometer.
+    #[arg(long)]
+    pub rig: Option<std::path::PathBuf>,
+    /// Material name (see `btfrig sim materials`) or a material TOML file, instead of the plan's.
+    #[arg(long)]
+    pub material: Option<String>,
+    /// Dataset directory, new or empty (default: a new `btfrig-demo-*` directory under the
+    /// system's temporary directory).
+    #[arg(long)]
+    pub out: Option<std::path::PathBuf>,
+    /// Print the summary as one JSON object.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `btfrig sim captures`.
+#[derive(Debug, Args)]
+pub struct CapturesArgs {
     /// Rig config file (default: the embedded simulated gonioreflectometer).
     #[arg(long)]
     pub rig: Option<std::path::PathBuf>,
     /// Material name (see `btfrig sim materials`) or a material TOML file.
     #[arg(long)]
     pub material: Option<String>,
-    /// Directory to write the captured frames into (default: a new `btfrig-demo-*` directory
-    /// under the system's temporary directory).
+    /// Directory to write the captured frames into (default: a new `btfrig-captures-*`
+    /// directory under the system's temporary directory).
     #[arg(long)]
     pub out: Option<std::path::PathBuf>,
     /// Print the summary as one JSON object.
@@ -65,6 +87,11 @@ pub struct RunArgs {
     /// The dataset directory (created; or a dataset of the same plan, resumed).
     #[arg(long)]
     pub out: std::path::PathBuf,
+    /// Fault scenario of the simulated rig instead of the plan's `run.fault_scenario`: an
+    /// embedded name (none, flaky, lamp-drift, stuck-led, robot-fault) or a file. Does not
+    /// change the plan hash, so a run paused on a fatal fault resumes with `--faults none`.
+    #[arg(long, value_name = "NAME|FILE")]
+    pub faults: Option<String>,
 }
 
 /// `btfrig sim ...`.
@@ -74,6 +101,9 @@ pub enum SimCommand {
     Render(RenderArgs),
     /// List the embedded materials.
     Materials,
+    /// A handful of captures through the device traits, each written as raw frame, preview
+    /// and ground-truth texture (no plan, no dataset).
+    Captures(CapturesArgs),
 }
 
 /// `btfrig sim render`.

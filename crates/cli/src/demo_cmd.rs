@@ -1,158 +1,70 @@
-//! `btfrig demo`: a handful of captures on the embedded simulated gonioreflectometer,
-//! through the device traits on virtual time, each with its ground truth.
+//! `btfrig demo`: the default measurement plan (embedded, no files needed) run end to end
+//! on the simulated gonioreflectometer into a new dataset directory, then a summary.
 
-use std::path::PathBuf;
-use std::time::Instant;
+use std::path::Path;
+use std::process::ExitCode;
 
 use anyhow::Context;
-use btfrig_core::Direction;
-use btfrig_sim::capture::{self, CaptureError};
-use btfrig_sim::FaultScenario;
-use serde_json::json;
+use btfrig_runner::RunRequest;
 
 use crate::args::DemoArgs;
-use crate::sim_cmd::{deg, saturated_fraction, write_preview, AUTO_EXPOSURE_WHITE_FRACTION};
 
-/// Ground-truth texture size written by the demo.
-const DEMO_TEXTURE: usize = 256;
-
-/// (light, view) pairs in degrees: frontal, oblique, grazing, a back-scatter pair, and
-/// light == view, which the camera would block (to show a visible skip).
-const DEMO_PAIRS: [((f64, f64), (f64, f64)); 6] = [
-    ((45.0, 0.0), (0.0, 0.0)),
-    ((30.0, 120.0), (45.0, 0.0)),
-    ((75.0, 90.0), (30.0, 270.0)),
-    ((60.0, 18.0), (75.0, 195.0)),
-    ((15.0, 60.0), (60.0, 54.0)),
-    ((30.0, 30.0), (30.0, 30.0)),
-];
+/// The quick demo plan.
+const DEMO_PLAN: &str = include_str!("../../../rig-configs/plans/demo.toml");
+/// The whole Bonn 81 x 81 plan (`--full`).
+const FULL_PLAN: &str = include_str!("../../../rig-configs/plans/bonn-full.toml");
 
 /// Runs the demo.
-pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
-    let cfg = crate::rig::load(args.rig.as_deref())?;
-    let material = crate::material::load(args.material.as_deref())?;
-    let out = prepare_output(args.out.clone())?;
-    let started = Instant::now();
-    let rt = crate::session::virtual_time_runtime()?;
-    let mut rows = Vec::new();
-    let mut skipped = Vec::new();
-    let (hardware_s, setup_s, render_totals) = rt.block_on(async {
-        let mut s = crate::session::build(&cfg, &material, &FaultScenario::none())?;
-        let clock = s.rig.world.clock().clone();
-        capture::prepare(&mut s.rig).await?;
-        let setup_s = clock.now_s();
-        let (lo, hi) = s.rig.camera.capabilities().exposure_range_s;
-        let exposure = s.scene.exposure_for_white(AUTO_EXPOSURE_WHITE_FRACTION, lo, hi);
-        for (i, ((lt, lp), (vt, vp))) in DEMO_PAIRS.iter().enumerate() {
-            let (light, view) = (Direction::from_degrees(*lt, *lp), Direction::from_degrees(*vt, *vp));
-            let t0 = Instant::now();
-            match capture::capture_pair(&mut s.rig, s.scene.gonio(), light, view, exposure).await {
-                Err(CaptureError::Unreachable { reason, .. }) => {
-                    skipped.push(json!({"light": deg(light), "view": deg(view), "reason": reason.to_string()}));
-                    continue;
-                }
-                Err(e) => return Err(e.into()),
-                Ok(cap) => {
-                    let stem = format!("{i:02}_l{lt:03.0}_{lp:03.0}_v{vt:03.0}_{vp:03.0}");
-                    btfrig_imageio::write_raw_frame(&out.join(format!("{stem}.raw.png")), &cap.frame)?;
-                    write_preview(&s.scene, &cap.frame, &out.join(format!("{stem}.preview.png")))?;
-                    let gt = s.scene.ground_truth(&cap.truth.joints, cap.truth.lamp_intensity, DEMO_TEXTURE);
-                    btfrig_imageio::write_rgb_exr(&out.join(format!("{stem}.truth.exr")), gt.width, gt.height, &gt.data)?;
-                    let (l2, v2) = s.scene.gonio().fk(&cap.truth.joints);
-                    rows.push(json!({
-                        "file": stem,
-                        "light": deg(light),
-                        "view": deg(view),
-                        "pose_error_deg": [light.angle_to(l2).to_degrees(), view.angle_to(v2).to_degrees()],
-                        "hardware_s": cap.hardware_s,
-                        "wall_s": t0.elapsed().as_secs_f64(),
-                        "saturated_percent": 100.0 * saturated_fraction(&cap.frame),
-                    }));
-                }
-            }
-        }
-        anyhow::Ok((clock.now_s(), setup_s, s.source.totals()))
-    })?;
-    let (frames, st) = render_totals;
-    let summary = json!({
-        "rig": cfg.rig.name,
-        "material": material.name,
-        "captures": rows.len(),
-        "skipped": skipped,
-        "hardware_s": hardware_s,
-        "setup_s": setup_s,
-        "wall_s": started.elapsed().as_secs_f64(),
-        "renderer": {
-            "frames": frames,
-            "pixels": st.pixels,
-            "pixels_traced": st.pixels_traced,
-            "shadow_rays": st.shadow_rays,
-            "shadow_rays_skipped": st.shadow_rays_skipped,
-        },
-        "texture_size": DEMO_TEXTURE,
-        "output": out.display().to_string(),
-        "frames": rows,
-    });
-    std::fs::write(out.join("summary.json"), serde_json::to_string_pretty(&summary)? + "\n")
-        .with_context(|| format!("cannot write {}", out.join("summary.json").display()))?;
-    if args.json {
-        println!("{summary}");
-        return Ok(());
-    }
-    println!("btfrig demo: rig {}, material {}", cfg.rig.name, material.name);
-    println!("{:<26} {:<16} {:<16} {:>14} {:>10} {:>8}", "capture", "light (deg)", "view (deg)", "pose err (deg)", "hw (s)", "wall (s)");
-    for r in &rows {
+pub fn run(a: &DemoArgs) -> anyhow::Result<ExitCode> {
+    let (name, text) = if a.full { ("bonn-full", FULL_PLAN) } else { ("demo", DEMO_PLAN) };
+    let cwd = std::env::current_dir().context("the working directory")?;
+    let text = with_overrides(text, a.rig.as_deref(), a.material.as_deref(), &cwd)?;
+    let out = crate::captures_cmd::prepare_output(a.out.clone(), "btfrig-demo")?;
+    // Relative paths (--rig, --material files) are made absolute above; the plan "file" is
+    // only a name for messages.
+    let req = RunRequest::from_text(text, &cwd.join(format!("<embedded rig-configs/plans/{name}.toml>")), &out);
+    let s = crate::run_cmd::execute(&req)?;
+    if a.json {
+        println!("{}", s.to_json());
+    } else {
+        let skipped: Vec<String> = s.skipped.iter().map(|(r, n)| format!("{n} {r}")).collect();
+        let stages: Vec<String> = s.stage_s.iter().map(|(k, v)| format!("{k} {v:.2} s")).collect();
+        println!("btfrig demo: plan {name:?} on the simulated gonioreflectometer");
+        println!("  captures          {} of {} planned", s.captures, s.planned_captures);
+        println!("  skipped           {}", if skipped.is_empty() { "none".into() } else { skipped.join(", ") });
         println!(
-            "{:<26} {:<16} {:<16} {:>6.3} {:>6.3} {:>10.2} {:>8.2}",
-            r["file"].as_str().unwrap_or(""),
-            r["light"].as_str().unwrap_or(""),
-            r["view"].as_str().unwrap_or(""),
-            r["pose_error_deg"][0].as_f64().unwrap_or(0.0),
-            r["pose_error_deg"][1].as_f64().unwrap_or(0.0),
-            r["hardware_s"].as_f64().unwrap_or(0.0),
-            r["wall_s"].as_f64().unwrap_or(0.0),
+            "  rig time          {:.1} s (planner's lower bound {:.1} s; naive nested-loop order {:.1} s)",
+            s.hardware_s, s.critical_path_s, s.naive_order_hardware_s
         );
+        println!("  wall time         {:.1} s", s.wall_s);
+        println!("  stages            {}", stages.join(", "));
+        println!(
+            "  texture error     {} (relative RMSE of the rectified textures against ground truth)",
+            s.texture_rel_rmse.map(|r| format!("{r:.4}")).unwrap_or_else(|| "n/a".into())
+        );
+        println!("  retries           {}, warnings {}", s.retries, s.warnings.len());
+        println!("  dataset           {}", s.dataset.display());
+        println!("check it with: btfrig dataset verify {}", s.dataset.display());
     }
-    for s in &skipped {
-        println!("skipped: light ({}) view ({}): {}", s["light"].as_str().unwrap_or(""), s["view"].as_str().unwrap_or(""), s["reason"].as_str().unwrap_or(""));
-    }
-    println!(
-        "{} captures, {} skipped; simulated hardware time {:.1} s (of which homing and lamp warm-up {:.1} s); wall {:.2} s",
-        rows.len(),
-        skipped.len(),
-        hardware_s,
-        setup_s,
-        started.elapsed().as_secs_f64()
-    );
-    println!(
-        "renderer: traced {:.1}% of {} pixels (the rest lie outside the plate); {} shadow rays traced, {} proven unneeded",
-        100.0 * st.pixels_traced as f64 / st.pixels.max(1) as f64,
-        st.pixels,
-        st.shadow_rays,
-        st.shadow_rays_skipped
-    );
-    println!("wrote raw frames, previews and ground-truth textures to {}", out.display());
-    Ok(())
+    // The demo's plan is embedded and its directory is new each time: starting it again is
+    // the way to get a complete demo dataset.
+    Ok(crate::run_cmd::finish(&s, "btfrig demo"))
 }
 
-/// The output directory: the one given (created; it must be empty so nothing is
-/// overwritten) or a new one under the system's temporary directory.
-fn prepare_output(out: Option<PathBuf>) -> anyhow::Result<PathBuf> {
-    let dir = match out {
-        Some(d) => d,
-        None => {
-            let stamp = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_millis()).unwrap_or(0);
-            std::env::temp_dir().join(format!("btfrig-demo-{stamp}-{}", std::process::id()))
-        }
-    };
-    if dir.exists() {
-        let mut entries = std::fs::read_dir(&dir).with_context(|| format!("--out {}: cannot read", dir.display()))?;
-        anyhow::ensure!(
-            entries.next().is_none(),
-            "--out {}: directory is not empty; the demo writes only into a new or empty directory so nothing is overwritten",
-            dir.display()
-        );
+/// The plan text with `rig.config` and `rig.material` replaced (files made absolute).
+fn with_overrides(text: &str, rig: Option<&Path>, material: Option<&str>, cwd: &Path) -> anyhow::Result<String> {
+    if rig.is_none() && material.is_none() {
+        return Ok(text.to_string());
     }
-    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    Ok(dir)
+    let mut doc: toml::Table = text.parse().context("the embedded plan")?;
+    let section = doc.entry("rig").or_insert_with(|| toml::Value::Table(toml::Table::new()));
+    let section = section.as_table_mut().context("the embedded plan's [rig]")?;
+    if let Some(r) = rig {
+        section.insert("config".into(), toml::Value::String(cwd.join(r).display().to_string()));
+    }
+    if let Some(m) = material {
+        let m = if m.ends_with(".toml") { cwd.join(m).display().to_string() } else { m.to_string() };
+        section.insert("material".into(), toml::Value::String(m));
+    }
+    Ok(doc.to_string())
 }

@@ -2,6 +2,7 @@
 
 mod args;
 mod bench_cmd;
+mod captures_cmd;
 mod dataset_cmd;
 mod demo_cmd;
 mod kinematics_cmd;
@@ -17,22 +18,26 @@ use clap::Parser;
 
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
+    let done = |r: anyhow::Result<()>| r.map(|()| std::process::ExitCode::SUCCESS);
     let result = match cli.command {
-        Command::Kinematics(KinematicsCommand::Check { rig, json }) => kinematics_cmd::check(rig.as_deref(), json),
+        Command::Kinematics(KinematicsCommand::Check { rig, json }) => {
+            done(kinematics_cmd::check(rig.as_deref(), json))
+        }
         Command::Demo(a) => demo_cmd::run(&a),
         Command::Run(a) => run_cmd::run(&a),
-        Command::Sim(SimCommand::Render(a)) => sim_cmd::render(&a),
-        Command::Sim(SimCommand::Materials) => sim_cmd::materials(),
-        Command::Plan(PlanCommand::Check { file }) => plan_cmd::check(&file),
-        Command::Plan(PlanCommand::Show { file }) => plan_cmd::show(&file),
-        Command::Dataset(DatasetCommand::Info { dir }) => dataset_cmd::info(&dir),
-        Command::Dataset(DatasetCommand::Verify { dir }) => dataset_cmd::verify(&dir),
+        Command::Sim(SimCommand::Render(a)) => done(sim_cmd::render(&a)),
+        Command::Sim(SimCommand::Materials) => done(sim_cmd::materials()),
+        Command::Sim(SimCommand::Captures(a)) => done(captures_cmd::run(&a)),
+        Command::Plan(PlanCommand::Check { file }) => done(plan_cmd::check(&file)),
+        Command::Plan(PlanCommand::Show { file }) => done(plan_cmd::show(&file)),
+        Command::Dataset(DatasetCommand::Info { dir }) => done(dataset_cmd::info(&dir)),
+        Command::Dataset(DatasetCommand::Verify { dir }) => done(dataset_cmd::verify(&dir)),
         Command::Bench(BenchCommand::Render { rig, material, texels, repeat }) => {
-            bench_cmd::render(rig.as_deref(), &material, texels, repeat)
+            done(bench_cmd::render(rig.as_deref(), &material, texels, repeat))
         }
     };
     match result {
-        Ok(()) => std::process::ExitCode::SUCCESS,
+        Ok(code) => code,
         Err(e) => {
             eprintln!("btfrig: {e:#}");
             std::process::ExitCode::FAILURE

@@ -75,6 +75,17 @@ pub struct DisconnectFault {
     pub reconnect_after_calls: Option<u64>,
 }
 
+/// A device reports an internal error on chosen calls: `ErrorKind::Other`, which no retry
+/// can help (the engine pauses the run for an operator).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FailureFault {
+    /// Which device.
+    pub device: DeviceRole,
+    /// Call numbers (1-based) that fail.
+    pub calls: Vec<u64>,
+}
+
 /// Frames lost or damaged on the way from camera to host.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -123,6 +134,9 @@ pub struct FaultScenario {
     /// Disconnects (`[[disconnects]]`).
     #[serde(default)]
     pub disconnects: Vec<DisconnectFault>,
+    /// Fatal, non-retryable device errors (`[[failures]]`).
+    #[serde(default)]
+    pub failures: Vec<FailureFault>,
     /// Frames that never arrive (`[dropped_frames]`): the read-out times out.
     #[serde(default)]
     pub dropped_frames: FrameFault,
@@ -170,6 +184,9 @@ impl FaultScenario {
             prob(errors, format!("faults.timeouts[{i}].probability"), t.probability);
             calls(errors, format!("faults.timeouts[{i}].calls"), &t.calls);
         }
+        for (i, f) in self.failures.iter().enumerate() {
+            calls(errors, format!("faults.failures[{i}].calls"), &f.calls);
+        }
         for (i, d) in self.disconnects.iter().enumerate() {
             if d.at_call == 0 {
                 errors.push(ConfigError::out_of_range(&format!("faults.disconnects[{i}].at_call"), 0, "1.."));
@@ -213,6 +230,9 @@ impl FaultScenario {
         }
         for (i, d) in self.disconnects.iter().enumerate() {
             need(format!("faults.disconnects[{i}].device"), d.device);
+        }
+        for (i, f) in self.failures.iter().enumerate() {
+            need(format!("faults.failures[{i}].device"), f.device);
         }
         for (i, s) in self.stuck_leds.iter().enumerate() {
             if s.index >= led_count {
@@ -264,6 +284,7 @@ pub(crate) struct FaultGate {
     calls: u64,
     timeouts: Vec<TimeoutFault>,
     disconnects: Vec<DisconnectFault>,
+    failures: Vec<u64>,
     rng: ChaCha8Rng,
     world: SimWorld,
     clock: SharedClock,
@@ -277,6 +298,7 @@ impl FaultGate {
             calls: 0,
             timeouts: scenario.timeouts.iter().filter(|t| t.device == role).cloned().collect(),
             disconnects: scenario.disconnects.iter().filter(|d| d.device == role).cloned().collect(),
+            failures: scenario.failures.iter().filter(|f| f.device == role).flat_map(|f| f.calls.clone()).collect(),
             rng: ChaCha8Rng::seed_from_u64(derive_seed(seed, name, 1)),
             clock: world.clock().clone(),
             world,
@@ -306,6 +328,14 @@ impl FaultGate {
                     format!("{op} (call {n}): device not answering since call {}; {when}", d.at_call),
                 ));
             }
+        }
+        if self.failures.contains(&n) {
+            self.world.log_fault(&self.name, n, FaultKind::Failure);
+            return Err(DeviceError::new(
+                &self.name,
+                ErrorKind::Other,
+                format!("{op} (call {n}): the device reports an internal fault (injected) and needs an operator"),
+            ));
         }
         let mut hit = false;
         for t in &self.timeouts {

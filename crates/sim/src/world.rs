@@ -40,6 +40,8 @@ pub enum FaultKind {
     DroppedFrame,
     /// A frame arrived damaged.
     CorruptFrame,
+    /// A call failed with a fatal (non-retryable) device error.
+    Failure,
 }
 
 /// One injected fault, for logs and determinism checks.

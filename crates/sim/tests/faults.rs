@@ -33,6 +33,30 @@ async fn timeout_on_the_nth_call_costs_the_timeout_and_is_retryable() {
 }
 
 #[tokio::test(start_paused = true)]
+async fn failure_on_the_nth_call_is_fatal_at_once_and_only_that_call() {
+    let mut rig = rig(
+        &devices(""),
+        1,
+        &faults("[[failures]]\ndevice = \"robot\"\ncalls = [2]\n"),
+    );
+    let clock = rig.world.clock().clone();
+    rig.robot.move_to_rad([0.1, 0.0, 0.0], OPTS).await.unwrap();
+    let t0 = clock.now_s();
+    let e = rig.robot.move_to_rad([0.2, 0.0, 0.0], OPTS).await.unwrap_err();
+    assert_kind(&e, ErrorKind::Other, false);
+    assert!(e.to_string().starts_with("robot: other: move_to_rad (call 2)"), "{e}");
+    // Fails at once (no timeout waited) and commands nothing.
+    assert_eq!(clock.now_s(), t0);
+    assert_eq!(rig.world.commanded().robot, [0.1, 0.0, 0.0]);
+    rig.robot.move_to_rad([0.2, 0.0, 0.0], OPTS).await.unwrap();
+    let log = rig.world.fault_log();
+    assert_eq!((log.len(), log[0].call, log[0].kind), (1, 2, FaultKind::Failure));
+    // The shipped scenario parses, and a call number 0 is refused naming the field.
+    let e = FaultScenario::from_toml("[[failures]]\ndevice = \"robot\"\ncalls = [0]\n", "t").unwrap_err();
+    assert!(e.to_string().contains("faults.failures[0].calls[0]"), "{e}");
+}
+
+#[tokio::test(start_paused = true)]
 async fn disconnect_heals_after_n_calls_or_never() {
     let text = "[[disconnects]]\ndevice = \"camera\"\nat_call = 2\nreconnect_after_calls = 2\n\
                 [[disconnects]]\ndevice = \"rail\"\nat_call = 1\n";

@@ -500,8 +500,11 @@ pub struct DatasetInfo {
     pub step_hardware_s: f64,
     /// A torn journal tail (a killed run not yet resumed).
     pub torn_tail: Option<TornTail>,
-    /// True if `report.json` exists (the run finished).
+    /// True if `report.json` exists and its `status` is `finished` (or absent).
     pub finished: bool,
+    /// `report.json`'s `status` and `reason`, when the run that wrote it stopped early
+    /// (`paused`, `interrupted`, `aborted`).
+    pub stopped: Option<(String, Option<String>)>,
 }
 
 impl std::fmt::Display for DatasetInfo {
@@ -551,7 +554,15 @@ impl std::fmt::Display for DatasetInfo {
             }
         }
         writeln!(f)?;
-        write!(f, "state     {}", if self.finished { "finished" } else { "unfinished (resumable)" })?;
+        match &self.stopped {
+            Some((status, reason)) => {
+                write!(f, "state     {status}, resumable")?;
+                if let Some(r) = reason {
+                    write!(f, ": {r}")?;
+                }
+            }
+            None => write!(f, "state     {}", if self.finished { "finished" } else { "unfinished (resumable)" })?,
+        }
         if let Some(t) = &self.torn_tail {
             write!(f, "; {t}")?;
         }
@@ -587,6 +598,17 @@ pub fn info_in<S: Storage + ?Sized>(s: &S) -> Result<DatasetInfo, StoreError> {
     let replay = journal::replay(&s.display(JOURNAL_FILE), &bytes)?;
     let mut files = Vec::new();
     all_files(s, "", &mut files)?;
+    // A run that stopped early (paused, interrupted) still writes its report; say so.
+    let report: Option<serde_json::Value> = match s.size(REPORT_FILE).map_err(io_err(s, "stat", REPORT_FILE))? {
+        Some(_) => Some(
+            serde_json::from_slice(&s.read(REPORT_FILE).map_err(io_err(s, "read", REPORT_FILE))?).unwrap_or_default(),
+        ),
+        None => None,
+    };
+    let stopped = report.as_ref().and_then(|r| match r["status"].as_str() {
+        None | Some("finished") => None,
+        Some(st) => Some((st.to_string(), r["reason"].as_str().map(str::to_string))),
+    });
     Ok(DatasetInfo {
         dir: s.display(""),
         expected: manifest.samplings.expected_steps().len(),
@@ -598,7 +620,8 @@ pub fn info_in<S: Storage + ?Sized>(s: &S) -> Result<DatasetInfo, StoreError> {
         step_wall_s: replay.done.values().map(|r| r.timing.wall_s).sum(),
         step_hardware_s: replay.done.values().filter_map(|r| r.timing.hardware_s).sum(),
         torn_tail: replay.torn_tail,
-        finished: s.size(REPORT_FILE).map_err(io_err(s, "stat", REPORT_FILE))?.is_some(),
+        finished: report.is_some() && stopped.is_none(),
+        stopped,
         manifest,
     })
 }

@@ -1,0 +1,761 @@
+//! Runs a measurement plan on a rig into a dataset, resumable: the one entry point that the
+//! `btfrig` CLI (`btfrig run`, `btfrig demo`) uses, and that the HTTP daemon wraps.
+//!
+//! [`run`] loads and validates the plan, creates the dataset or resumes the same plan's,
+//! plans the schedule, builds the simulated rig on a virtual-time tokio runtime, spawns the
+//! engine, runs the processing pipeline and writes `report.json`. The caller watches
+//! [`RunEvent`]s through a callback and steers the run from any thread with a
+//! [`RunControl`]. However a session ends (finished, paused by a fault, interrupted,
+//! aborted), the frames already captured are processed and committed first and the report
+//! says how it ended; the dataset stays resumable with the same request.
+
+#![warn(missing_docs)]
+
+pub mod plan;
+pub mod report;
+
+use std::collections::{BTreeMap, HashSet};
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use btfrig_core::kinematics::Gonio;
+use btfrig_core::plan::ResampleFilter;
+use btfrig_engine::{
+    Devices, Engine, EngineSettings, EngineStep, Event, PauseReason, RunOutcome as EngineOutcome, StepKey,
+};
+use btfrig_hw::{ScaledClock, SharedClock};
+use btfrig_pipeline::{ProcessSettings, Processor, TruthLog};
+use btfrig_planner::{plan as plan_schedule, PairSelection, PlanRequest};
+use btfrig_render::renderer::RenderOptions;
+use btfrig_render::rig_scene::RigScene;
+use btfrig_sim::{RenderedFrameSource, SimRig};
+use btfrig_store::{Dataset, RunReport, StoreError};
+use serde_json::json;
+use tokio::sync::mpsc;
+
+use crate::report::Session;
+
+/// Frames the engine may hold ready ahead of the pipeline (back-pressure beyond that).
+const FRAME_CHANNEL: usize = 4;
+
+/// Why a run could not start or went wrong (not a pause: that is a [`RunOutcome`]).
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    /// A file could not be read.
+    #[error("cannot read {}: {source}", path.display())]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The plan does not parse or validate (every problem, each naming its field).
+    #[error("{0}")]
+    Plan(#[from] btfrig_core::plan::PlanErrors),
+    /// Something the plan or the request names is unusable (rig config, material, faults).
+    #[error("{what}: {message}")]
+    Input {
+        /// What was named, and where.
+        what: String,
+        /// What is wrong, and what is allowed.
+        message: String,
+    },
+    /// The plan captures nothing.
+    #[error("{}: the plan captures nothing", plan.display())]
+    Empty {
+        /// The plan file.
+        plan: PathBuf,
+    },
+    /// The dataset directory cannot be created or resumed (e.g. it holds another dataset).
+    #[error("--out {}: {source}", dir.display())]
+    Dataset {
+        /// The directory.
+        dir: PathBuf,
+        /// The store's reason.
+        source: StoreError,
+    },
+    /// The planner cannot schedule the plan.
+    #[error("planning: {0}")]
+    Planner(#[from] btfrig_planner::PlanError),
+    /// The rig could not be built or prepared.
+    #[error("rig: {0}")]
+    Rig(String),
+    /// Processing or writing a capture failed; the captures committed before it are kept.
+    #[error("pipeline: {0}")]
+    Pipeline(#[from] btfrig_pipeline::PipelineError),
+    /// Writing the report failed.
+    #[error("writing the report: {0}")]
+    Report(StoreError),
+    /// The async runtime could not be built.
+    #[error("runtime: {0}")]
+    Runtime(std::io::Error),
+}
+
+/// What to run.
+#[derive(Debug, Clone)]
+pub struct RunRequest {
+    /// The plan's TOML text (stored in the manifest; its hash identifies the dataset).
+    pub plan_text: String,
+    /// The plan's file: names it in messages; its directory anchors relative paths in it.
+    /// For text without a file, any path in the directory the relative paths refer to.
+    pub plan_path: PathBuf,
+    /// The dataset directory (created, or a dataset of the same plan resumed).
+    pub out: PathBuf,
+    /// Fault scenario of the simulated rig instead of the plan's `run.fault_scenario`: an
+    /// embedded name or a file (relative to the working directory). Fault injection belongs
+    /// to the simulated rig, not to the measurement, so the plan hash does not change: a
+    /// run that paused on a fatal fault resumes with the fault gone.
+    pub faults: Option<String>,
+    /// When a step fails with an error no retry helps: end the session, report `paused`
+    /// and return (true, the CLI: nobody is there to fix the cause), or keep the engine
+    /// paused and wait for [`RunControl::resume`] or [`RunControl::abort`] (false, a daemon
+    /// with an operator).
+    pub stop_on_fault: bool,
+}
+
+impl RunRequest {
+    /// A request for the plan file `plan` into `out`.
+    pub fn from_file(plan: &Path, out: &Path) -> Result<RunRequest, RunError> {
+        let plan_text = std::fs::read_to_string(plan).map_err(|source| RunError::Read { path: plan.into(), source })?;
+        Ok(RunRequest::from_text(plan_text, plan, out))
+    }
+
+    /// A request for plan text; `plan_path` as in [`RunRequest::plan_path`].
+    pub fn from_text(plan_text: impl Into<String>, plan_path: &Path, out: &Path) -> RunRequest {
+        RunRequest {
+            plan_text: plan_text.into(),
+            plan_path: plan_path.into(),
+            out: out.into(),
+            faults: None,
+            stop_on_fault: true,
+        }
+    }
+
+    /// With a fault-scenario override (see [`RunRequest::faults`]).
+    pub fn with_faults(mut self, faults: Option<String>) -> RunRequest {
+        self.faults = faults;
+        self
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Command {
+    Pause,
+    Resume,
+    Abort,
+    Interrupt,
+}
+
+/// Steers a run from outside, from any thread: clone it, hand one clone to [`run`].
+/// Commands sent before the engine starts take effect when it does.
+#[derive(Debug, Clone)]
+pub struct RunControl {
+    tx: mpsc::UnboundedSender<Command>,
+    rx: Arc<Mutex<Option<mpsc::UnboundedReceiver<Command>>>>,
+}
+
+impl Default for RunControl {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl RunControl {
+    /// A new control, not yet attached to a run.
+    pub fn new() -> RunControl {
+        let (tx, rx) = mpsc::unbounded_channel();
+        RunControl { tx, rx: Arc::new(Mutex::new(Some(rx))) }
+    }
+
+    /// Pause after the step under way; the session waits for resume or abort.
+    pub fn pause(&self) {
+        let _ = self.tx.send(Command::Pause);
+    }
+
+    /// Resume a paused run (a failed step is tried again).
+    pub fn resume(&self) {
+        let _ = self.tx.send(Command::Resume);
+    }
+
+    /// End the session after the step under way; report status `aborted`, resumable.
+    pub fn abort(&self) {
+        let _ = self.tx.send(Command::Abort);
+    }
+
+    /// As [`RunControl::abort`], reported as `interrupted` (Ctrl-C, SIGINT).
+    pub fn interrupt(&self) {
+        let _ = self.tx.send(Command::Interrupt);
+    }
+
+    fn take(&self) -> Option<mpsc::UnboundedReceiver<Command>> {
+        self.rx.lock().unwrap_or_else(|e| e.into_inner()).take()
+    }
+}
+
+/// What a run tells its observer.
+#[derive(Debug, Clone, PartialEq)]
+pub enum RunEvent {
+    /// The dataset is open and the schedule planned; the rig is being prepared.
+    Started {
+        /// The dataset directory.
+        dataset: PathBuf,
+        /// True when an existing dataset of the same plan is resumed.
+        resumed: bool,
+        /// Captures done before this session.
+        done_before: usize,
+        /// Captures this session has to do.
+        to_do: usize,
+        /// Captures of the whole plan.
+        total: usize,
+        /// The planner's hardware time for the whole plan, seconds.
+        planned_hardware_s: f64,
+        /// The planner's lower bound, seconds.
+        critical_path_s: f64,
+        /// What resuming found and repaired (torn journal tail, orphans), if anything.
+        repaired: Option<String>,
+    },
+    /// A capture was delivered by the engine.
+    StepDone {
+        /// Light index.
+        light: u32,
+        /// View index.
+        view: u32,
+        /// 1 + retries.
+        attempts: u32,
+    },
+    /// Progress of the whole plan.
+    Progress {
+        /// Captures done (before and in this session).
+        done: usize,
+        /// Captures of the whole plan.
+        total: usize,
+        /// Remaining rig time from measured step times, seconds.
+        eta_s: Option<f64>,
+    },
+    /// Something was retried or went wrong, but the run goes on.
+    Warning(String),
+    /// The engine is paused.
+    Paused {
+        /// Why.
+        reason: String,
+        /// The failed step, when a step failed.
+        fault: Option<Fault>,
+    },
+    /// The engine goes on after a pause.
+    Resumed,
+    /// The session is ending: the frames in flight are processed and committed first.
+    Stopping {
+        /// Why.
+        reason: String,
+    },
+}
+
+/// A step that failed with an error no retry helps (or that ran out of retries).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Fault {
+    /// Position of the step in the schedule.
+    pub index: usize,
+    /// Light index of the capture.
+    pub light: u32,
+    /// View index of the capture.
+    pub view: u32,
+    /// The device that failed.
+    pub device: String,
+    /// The error's kind (`timeout`, `other`, ...).
+    pub kind: String,
+    /// The device error and what the engine did.
+    pub message: String,
+}
+
+/// How a session ended.
+#[derive(Debug, Clone, PartialEq)]
+pub enum RunOutcome {
+    /// Every capture of the plan is done.
+    Finished,
+    /// Every capture was already done; nothing was run and the report is unchanged.
+    NothingToDo,
+    /// A step failed in a way no retry helps; fix the cause and run again to resume.
+    Paused {
+        /// Why, as one line.
+        reason: String,
+        /// The failed step.
+        fault: Option<Fault>,
+    },
+    /// Interrupted (Ctrl-C); resumable.
+    Interrupted,
+    /// Aborted on request; resumable.
+    Aborted,
+}
+
+impl RunOutcome {
+    /// The `status` written to `report.json`.
+    pub fn status(&self) -> &'static str {
+        match self {
+            RunOutcome::Finished | RunOutcome::NothingToDo => "finished",
+            RunOutcome::Paused { .. } => "paused",
+            RunOutcome::Interrupted => "interrupted",
+            RunOutcome::Aborted => "aborted",
+        }
+    }
+
+    /// Why the run did not finish.
+    pub fn reason(&self) -> Option<String> {
+        match self {
+            RunOutcome::Paused { reason, .. } => Some(reason.clone()),
+            RunOutcome::Interrupted => Some("interrupted (SIGINT)".into()),
+            RunOutcome::Aborted => Some("aborted on request".into()),
+            _ => None,
+        }
+    }
+}
+
+/// The figures of a run over all its sessions (as in `report.json`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RunSummary {
+    /// How this session ended.
+    pub outcome: RunOutcome,
+    /// The dataset directory.
+    pub dataset: PathBuf,
+    /// Captures done (the journal's count).
+    pub captures: u64,
+    /// Captures committed by this session.
+    pub captures_this_session: u64,
+    /// Captures of the whole plan.
+    pub planned_captures: u64,
+    /// Pairs not captured, by reason (the plan's skips and steps skipped in the run).
+    pub skipped: BTreeMap<String, u64>,
+    /// Simulated hardware (rig-clock) time summed over the reported sessions, seconds.
+    pub hardware_s: f64,
+    /// The planner's lower bound for the whole schedule, seconds.
+    pub critical_path_s: f64,
+    /// The whole schedule's captures in the naive nested-loop order, seconds.
+    pub naive_order_hardware_s: f64,
+    /// Wall time summed over the reported sessions, seconds.
+    pub wall_s: f64,
+    /// Seconds per pipeline stage over every journaled capture.
+    pub stage_s: BTreeMap<String, f64>,
+    /// Rectified textures against ground truth over the reported sessions' captures.
+    pub texture_rel_rmse: Option<f64>,
+    /// Retries of the journaled captures (attempts beyond the first).
+    pub retries: u64,
+    /// Warnings of all reported sessions.
+    pub warnings: Vec<String>,
+    /// Sessions in the report (this one included).
+    pub sessions: usize,
+    /// Captures journaled by sessions that left no report (killed): their hardware and wall
+    /// time and texture error are not in the figures.
+    pub unreported_captures: u64,
+}
+
+impl RunSummary {
+    /// The summary as one JSON object (the fields `btfrig demo --json` prints).
+    pub fn to_json(&self) -> serde_json::Value {
+        json!({
+            "status": self.outcome.status(),
+            "reason": self.outcome.reason(),
+            "captures": self.captures,
+            "captures_this_session": self.captures_this_session,
+            "planned_captures": self.planned_captures,
+            "skipped": self.skipped,
+            "hardware_s": self.hardware_s,
+            "critical_path_s": self.critical_path_s,
+            "naive_order_hardware_s": self.naive_order_hardware_s,
+            "wall_s": self.wall_s,
+            "stage_s": self.stage_s,
+            "texture_rel_rmse": self.texture_rel_rmse,
+            "retries": self.retries,
+            "warnings": self.warnings.len(),
+            "sessions": self.sessions,
+            "unreported_captures": self.unreported_captures,
+            "dataset": self.dataset.display().to_string(),
+        })
+    }
+}
+
+/// A virtual-time runtime: a current-thread tokio runtime on paused time, so simulated
+/// hardware time passes instantly; rendering parallelises inside rayon.
+pub fn virtual_time_runtime() -> Result<tokio::runtime::Runtime, RunError> {
+    tokio::runtime::Builder::new_current_thread().enable_time().start_paused(true).build().map_err(RunError::Runtime)
+}
+
+/// Runs `req` to its end, to a pause that ends the session, or to an abort; see the crate
+/// documentation. Builds and drives its own virtual-time runtime: call it from a plain
+/// thread (a daemon: `spawn_blocking`). `on_event` is called on that thread.
+pub fn run(
+    req: &RunRequest,
+    control: &RunControl,
+    on_event: &mut dyn FnMut(&RunEvent),
+) -> Result<RunSummary, RunError> {
+    let wall = Instant::now();
+    let started_unix_s =
+        std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs_f64()).unwrap_or(0.0);
+    let file = req.plan_path.as_path();
+    let (plan, v) = plan::load_text(&req.plan_text, file)?;
+    let list = v.capture_list();
+    if list.captures.is_empty() {
+        return Err(RunError::Empty { plan: file.into() });
+    }
+    let faults = match (&req.faults, &plan.run.fault_scenario) {
+        (Some(name), _) => plan::fault_scenario(name, Path::new("."), "--faults")?,
+        (None, Some(name)) => {
+            plan::fault_scenario(name, file.parent().unwrap_or(Path::new(".")), "run.fault_scenario")?
+        }
+        (None, None) => btfrig_sim::FaultScenario::none(),
+    };
+    let material = plan::material(&plan, &v, file)?;
+    let exposure_s = plan::exposure_s(&plan, &v, file)?;
+
+    // The dataset: new, or the same plan's to resume; anything else is refused by the store.
+    let manifest = plan::manifest(&plan, &v, &req.plan_text, file, &list)?;
+    let ds_err = |source| RunError::Dataset { dir: req.out.clone(), source };
+    let (dataset, resumed, run_skips, repaired) = match Dataset::create(&req.out, manifest) {
+        Ok(d) => (d, false, BTreeMap::new(), None),
+        Err(StoreError::AlreadyExists { .. }) => {
+            let (d, r) =
+                Dataset::open_for_resume(&req.out, &btfrig_store::plan_hash(&req.plan_text)).map_err(ds_err)?;
+            let mut notes = Vec::new();
+            if let Some(t) = &r.torn_tail {
+                notes.push(format!("torn journal tail dropped: {t}"));
+            }
+            if !r.removed_orphans.is_empty() {
+                notes.push(format!("{} unjournaled file(s) removed", r.removed_orphans.len()));
+            }
+            let repaired = (!notes.is_empty()).then(|| notes.join("; "));
+            (d, true, r.skipped.clone(), repaired)
+        }
+        Err(e) => return Err(ds_err(e)),
+    };
+    let mut skipped = plan::skip_map(&list.skipped);
+    for reason in run_skips.values() {
+        *skipped.entry(reason.clone()).or_insert(0) += 1;
+    }
+
+    let gonio = Gonio::new(v.rig.geometry.clone()).map_err(|e| RunError::Rig(e.to_string()))?;
+    let request = PlanRequest::new(&gonio, &v.light, &v.view, &v.rig.timing, exposure_s, plan::frame_bytes(&v))
+        .with_pairs(PairSelection::List(list.captures.clone()));
+    let schedule = plan_schedule(&request)?;
+    let steps = EngineStep::from_schedule(&schedule);
+    let done: HashSet<StepKey> =
+        dataset.completed().iter().chain(run_skips.keys()).map(|s| StepKey { light: s.light, view: s.view }).collect();
+    let to_do = steps.iter().filter(|s| !done.contains(&s.key)).count();
+    let previous = report::previous_sessions(&req.out);
+    let fixed = Fixed {
+        dataset: req.out.clone(),
+        planned: steps.len() as u64,
+        skipped,
+        critical_path_s: schedule.critical_path_s,
+        naive_order_hardware_s: schedule.naive_order_hardware_s,
+    };
+    if to_do == 0 {
+        return Ok(summarise(&fixed, &dataset, &previous, None, RunOutcome::NothingToDo));
+    }
+    on_event(&RunEvent::Started {
+        dataset: req.out.clone(),
+        resumed,
+        done_before: done.len(),
+        to_do,
+        total: steps.len(),
+        planned_hardware_s: schedule.timing.hardware_s,
+        critical_path_s: schedule.critical_path_s,
+        repaired,
+    });
+
+    let settings = EngineSettings {
+        max_retries: v.run.max_retries,
+        backoff_s: v.run.backoff_s,
+        move_timeout_s: v.run.move_timeout_s,
+        trigger_timeout_s: v.run.capture_timeout_s,
+        ..EngineSettings::default()
+    };
+    let process = ProcessSettings {
+        size: v.texture.size,
+        region: btfrig_calib::Region {
+            x_min: v.texture.region.x_min_m,
+            x_max: v.texture.region.x_max_m,
+            y_min: v.texture.region.y_min_m,
+            y_max: v.texture.region.y_max_m,
+        },
+        filter: match v.texture.filter {
+            ResampleFilter::Bilinear => btfrig_calib::Filter::Bilinear,
+            ResampleFilter::Supersample => btfrig_calib::Filter::Footprint { max: 8 },
+        },
+    };
+
+    let commands = control.take().ok_or_else(|| RunError::Rig("this RunControl already drives a run".into()))?;
+    let dataset = Arc::new(dataset);
+    let rt = virtual_time_runtime()?;
+    let session = rt.block_on(session(SessionInput {
+        rig: &v.rig,
+        material: &material,
+        faults: &faults,
+        steps,
+        done,
+        settings,
+        process,
+        // From the dataset's manifest (the plan's for a new one): a dataset resumed from an
+        // older build may say otherwise, and the store refuses files its manifest does not ask for.
+        outputs: btfrig_pipeline::Outputs {
+            textures: dataset.manifest().textures,
+            raw_frames: dataset.manifest().raw_frames,
+            preview: v.outputs.preview.then(btfrig_pipeline::PreviewSettings::default),
+        },
+        dataset: dataset.clone(),
+        commands,
+        stop_on_fault: req.stop_on_fault,
+        on_event,
+    }));
+    let SessionResult { outcome, hardware_s, engine_retries, warnings, totals } = session?;
+    let totals = totals?;
+    let mut dataset =
+        Arc::try_unwrap(dataset).map_err(|_| RunError::Rig("dataset still shared after the run".into()))?;
+    let finished = dataset.completed().len() as u64 >= fixed.planned;
+    // A pause or interrupt that came after the last capture still leaves a complete dataset.
+    let outcome = match outcome {
+        _ if finished => RunOutcome::Finished,
+        // The engine ended early without a recorded cause: say so rather than "finished".
+        RunOutcome::Finished => RunOutcome::Aborted,
+        o => o,
+    };
+    let this = Session {
+        started_unix_s,
+        status: outcome.status().to_string(),
+        reason: outcome.reason(),
+        captures: totals.committed,
+        wall_s: wall.elapsed().as_secs_f64(),
+        hardware_s,
+        retries: engine_retries,
+        sq_err: totals.sq_err,
+        sq_truth: totals.sq_truth,
+        without_truth: totals.without_truth,
+        warnings,
+    };
+    let summary = summarise(&fixed, &dataset, &previous, Some(&this), outcome);
+    let mut sessions: Vec<serde_json::Value> = previous.iter().map(Session::to_json).collect();
+    sessions.push(this.to_json());
+    dataset.finish(&report_of(&summary, &previous, &this, sessions)).map_err(RunError::Report)?;
+    Ok(summary)
+}
+
+/// Figures that do not depend on the session.
+struct Fixed {
+    dataset: PathBuf,
+    planned: u64,
+    skipped: BTreeMap<String, u64>,
+    critical_path_s: f64,
+    naive_order_hardware_s: f64,
+}
+
+fn summarise(
+    fixed: &Fixed,
+    dataset: &Dataset,
+    previous: &[Session],
+    this: Option<&Session>,
+    outcome: RunOutcome,
+) -> RunSummary {
+    let mut all = previous.to_vec();
+    all.extend(this.cloned());
+    let t = report::totals(&all);
+    let (stage_s, retries) = report::journal_stage_s(dataset);
+    let captures = dataset.completed().len() as u64;
+    RunSummary {
+        outcome,
+        dataset: fixed.dataset.clone(),
+        captures,
+        captures_this_session: this.map_or(0, |s| s.captures),
+        planned_captures: fixed.planned,
+        skipped: fixed.skipped.clone(),
+        hardware_s: t.hardware_s,
+        critical_path_s: fixed.critical_path_s,
+        naive_order_hardware_s: fixed.naive_order_hardware_s,
+        wall_s: t.wall_s,
+        stage_s,
+        texture_rel_rmse: t.texture_rel_rmse,
+        retries,
+        warnings: t.warnings,
+        sessions: all.len(),
+        unreported_captures: captures.saturating_sub(t.captures),
+    }
+}
+
+fn report_of(s: &RunSummary, previous: &[Session], this: &Session, sessions: Vec<serde_json::Value>) -> RunReport {
+    let mut extra = BTreeMap::new();
+    let without_truth: u64 = previous.iter().chain([this]).map(|s| s.without_truth).sum();
+    let mut put = |k: &str, v: serde_json::Value| {
+        extra.insert(k.to_string(), v);
+    };
+    put("status", json!(s.outcome.status()));
+    put("reason", json!(s.outcome.reason()));
+    if let RunOutcome::Paused { fault: Some(f), .. } = &s.outcome {
+        put(
+            "paused_step",
+            json!({"index": f.index, "light": f.light, "view": f.view, "device": f.device, "kind": f.kind, "message": f.message}),
+        );
+    }
+    put("texture_rel_rmse", json!(s.texture_rel_rmse));
+    put("critical_path_s", json!(s.critical_path_s));
+    put("naive_order_hardware_s", json!(s.naive_order_hardware_s));
+    put("planned_captures", json!(s.planned_captures));
+    put("captures_this_session", json!(this.captures));
+    put("captures_without_truth", json!(without_truth));
+    put("unreported_captures", json!(s.unreported_captures));
+    put("engine_retries", json!(previous.iter().chain([this]).map(|s| s.retries).sum::<u64>()));
+    put("sessions", serde_json::Value::Array(sessions));
+    RunReport {
+        captures: s.captures,
+        wall_s: s.wall_s,
+        hardware_s: Some(s.hardware_s),
+        stage_s: s.stage_s.clone(),
+        skipped: s.skipped.clone(),
+        retries: s.retries,
+        warnings: s.warnings.clone(),
+        extra,
+    }
+}
+
+struct SessionInput<'a> {
+    rig: &'a btfrig_core::config::RigConfig,
+    material: &'a btfrig_render::material::MaterialSpec,
+    faults: &'a btfrig_sim::FaultScenario,
+    steps: Vec<EngineStep>,
+    done: HashSet<StepKey>,
+    settings: EngineSettings,
+    process: ProcessSettings,
+    outputs: btfrig_pipeline::Outputs,
+    dataset: Arc<Dataset>,
+    commands: mpsc::UnboundedReceiver<Command>,
+    stop_on_fault: bool,
+    on_event: &'a mut dyn FnMut(&RunEvent),
+}
+
+struct SessionResult {
+    outcome: RunOutcome,
+    hardware_s: f64,
+    engine_retries: u64,
+    warnings: Vec<String>,
+    totals: Result<btfrig_pipeline::Totals, btfrig_pipeline::PipelineError>,
+}
+
+fn fault_of(r: &PauseReason) -> Option<Fault> {
+    match r {
+        PauseReason::StepFailed { index, key, device, kind, message } => Some(Fault {
+            index: *index,
+            light: key.light,
+            view: key.view,
+            device: device.clone(),
+            kind: kind.to_string(),
+            message: message.clone(),
+        }),
+        _ => None,
+    }
+}
+
+/// The rig clock of a simulated session: tokio's paused time, slowed a thousandfold. Paused
+/// timers fire on whole milliseconds, so at 1:1 every device wait would be rounded up to the
+/// next millisecond: about 6 s over the 6480 captures of the Bonn plan, more than the
+/// motion-optimised order gains over the naive one there. Slowed, the rounding is 1 us per wait.
+fn sim_clock() -> SharedClock {
+    Arc::new(ScaledClock::new(1e-3).expect("a positive, finite speed"))
+}
+
+/// One engine run with its pipeline, on the current (virtual-time) runtime.
+async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
+    let SessionInput {
+        rig,
+        material,
+        faults,
+        steps,
+        done,
+        settings,
+        process,
+        outputs,
+        dataset,
+        mut commands,
+        stop_on_fault,
+        on_event,
+    } = input;
+    let scene = Arc::new(RigScene::new(rig, material).map_err(|e| RunError::Rig(e.to_string()))?);
+    let source = Arc::new(RenderedFrameSource::new(scene.clone(), RenderOptions::default()));
+    let truth = Arc::new(TruthLog::new(source));
+    let mut sim = SimRig::from_rig_config(rig, faults, sim_clock(), truth.clone())
+        .map_err(|e| RunError::Rig(e.to_string()))?;
+    btfrig_sim::capture::prepare(&mut sim)
+        .await
+        .map_err(|e| RunError::Rig(format!("preparing the simulated rig: {e}")))?;
+    let devices = Devices { robot: sim.robot, rail: sim.rail, camera: sim.camera, clock: sim.world.clock().clone() };
+    let _lamp = sim.lamp; // stays on for the whole run
+    let (tx, rx) = mpsc::channel(FRAME_CHANNEL);
+    let mut handle = Engine::spawn(devices, steps, done, settings, tx);
+    let mut events = handle.events();
+    let processor = Arc::new(Processor::new(scene, process).with_outputs(outputs));
+    let lookup: btfrig_pipeline::TruthLookup = Arc::new(move |f| truth.take(f.frame.meta.timestamp_s));
+    let pipeline = btfrig_pipeline::run(dataset, processor, rx, lookup, |_| {});
+    let listen = async {
+        let mut stop: Option<RunOutcome> = None;
+        let mut warnings = Vec::new();
+        let mut commands_open = true;
+        loop {
+            tokio::select! {
+                ev = events.recv() => match ev {
+                    Ok(Event::StepDone { key, attempts, .. }) => {
+                        on_event(&RunEvent::StepDone { light: key.light, view: key.view, attempts })
+                    }
+                    Ok(Event::Progress { done, total, eta_s }) => on_event(&RunEvent::Progress { done, total, eta_s }),
+                    Ok(Event::Warning(w)) => {
+                        on_event(&RunEvent::Warning(w.clone()));
+                        warnings.push(w);
+                    }
+                    Ok(Event::Paused { reason }) => {
+                        let fault = fault_of(&reason);
+                        on_event(&RunEvent::Paused { reason: reason.to_string(), fault: fault.clone() });
+                        let end = match &reason {
+                            PauseReason::StepFailed { .. } if stop_on_fault => {
+                                Some(RunOutcome::Paused { reason: reason.to_string(), fault })
+                            }
+                            // The pipeline stopped (its error is returned): nothing more can be stored.
+                            PauseReason::ConsumerGone => Some(RunOutcome::Aborted),
+                            _ => None,
+                        };
+                        if let Some(end) = end {
+                            if stop.is_none() {
+                                on_event(&RunEvent::Stopping { reason: reason.to_string() });
+                                stop = Some(end);
+                            }
+                            handle.abort();
+                        }
+                    }
+                    Ok(Event::Resumed) => on_event(&RunEvent::Resumed),
+                    Ok(Event::Finished(_) | Event::Aborted(_)) => break,
+                    Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {}
+                    Err(tokio::sync::broadcast::error::RecvError::Closed) => break,
+                },
+                c = commands.recv(), if commands_open => match c {
+                    None => commands_open = false,
+                    Some(Command::Pause) => handle.pause(),
+                    Some(Command::Resume) => handle.resume(),
+                    Some(c @ (Command::Abort | Command::Interrupt)) => {
+                        let end = if c == Command::Abort { RunOutcome::Aborted } else { RunOutcome::Interrupted };
+                        if stop.is_none() {
+                            on_event(&RunEvent::Stopping { reason: end.reason().unwrap_or_default() });
+                            stop = Some(end);
+                        }
+                        handle.abort();
+                    }
+                },
+            }
+        }
+        (stop, warnings)
+    };
+    let (totals, (stop, warnings)) = tokio::join!(pipeline, listen);
+    let summary = match handle.join().await {
+        EngineOutcome::Finished(s) => s,
+        EngineOutcome::Aborted { summary, .. } => summary,
+    };
+    Ok(SessionResult {
+        outcome: stop.unwrap_or(RunOutcome::Finished),
+        hardware_s: summary.hardware_s,
+        engine_retries: u64::from(summary.retries),
+        warnings,
+        totals,
+    })
+}
