@@ -147,13 +147,18 @@ fn the_full_bonn_plan_captures_every_reachable_pair_once_near_the_lower_bound() 
         planned < naive_shown,
         "optimised order {planned} s not faster than naive {naive_shown} s:\n{show}"
     );
-    // The run executed the planned order: its measured time is the planned one plus at most
-    // 2 ms per capture (tokio's virtual timers fire on whole milliseconds, so every simulated
-    // device wait is rounded up: trigger 0.7051 s lasts 0.706 s).
+    // The run executed the planned order: its measured time is the planned one (`plan show`
+    // prints whole seconds) plus the timer rounding of the simulated session's clock (tokio's
+    // paused timers fire on whole milliseconds; the runner's rig clock is slowed a thousandfold,
+    // so each device wait is rounded up by at most 1 us).
     assert!(
-        hw >= planned - 0.5 && hw <= planned + 0.5 + 0.002 * 6480.0,
+        hw >= planned - 0.5 && hw <= planned + 0.5 + 1e-5 * 6480.0,
         "measured {hw} s vs planned {planned} s"
     );
+    // And measured, the optimised order beats the naive nested loop's time for the same
+    // captures (with Bonn timing by little: the 5 s transfer of each frame hides almost every
+    // move; docs/planner.md).
+    assert!(hw < naive, "measured optimised order {hw} s not faster than the naive order {naive} s");
 
     verify(&out);
     eprintln!("whole test: {:.1} s wall", t0.elapsed().as_secs_f64());
