@@ -21,7 +21,12 @@ fn run(cmd: &mut Command) -> Output {
 }
 
 fn text(o: &Output) -> String {
-    format!("status {:?}\n--- stdout\n{}--- stderr\n{}", o.status, String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
+    format!(
+        "status {:?}\n--- stdout\n{}--- stderr\n{}",
+        o.status,
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
 }
 
 fn ok(cmd: &mut Command) -> String {
@@ -50,7 +55,18 @@ fn sim_render_writes_raw_preview_and_ground_truth_that_read_back() {
     let dir = scratch("render");
     let (raw, preview, gt) = (dir.join("f.exr"), dir.join("f.png"), dir.join("t.exr"));
     let stdout = ok(btfrig()
-        .args(["sim", "render", "--material", "leather", "--view", "60,90", "--light", "45,270", "--texture-size", "64"])
+        .args([
+            "sim",
+            "render",
+            "--material",
+            "leather",
+            "--view",
+            "60,90",
+            "--light",
+            "45,270",
+            "--texture-size",
+            "64",
+        ])
         .arg("--out")
         .arg(&raw)
         .arg("--preview")
@@ -112,13 +128,16 @@ fn bad_render_arguments_are_named_with_what_is_allowed() {
 #[test]
 fn a_rig_config_with_a_typo_or_bad_values_is_rejected_with_the_field_named() {
     let dir = scratch("bad-rig");
-    let good = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../../rig-configs/bonn-gonio-sim.toml")).unwrap();
+    let good =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../../rig-configs/bonn-gonio-sim.toml"))
+            .unwrap();
     let typo = dir.join("typo.toml");
     std::fs::write(&typo, good.replace("rail_radius_m", "rail_radius")).unwrap();
     let e = fails(btfrig().args(["kinematics", "check", "--rig"]).arg(&typo));
     assert!(e.contains("rail_radius") && e.contains("typo.toml"), "{e}");
     let bad = dir.join("bad.toml");
-    std::fs::write(&bad, good.replace("width_px = 1600", "width_px = 0").replace("bit_depth = 14", "bit_depth = 20")).unwrap();
+    std::fs::write(&bad, good.replace("width_px = 1600", "width_px = 0").replace("bit_depth = 14", "bit_depth = 20"))
+        .unwrap();
     let e = fails(btfrig().args(["kinematics", "check", "--rig"]).arg(&bad));
     assert!(e.contains("width_px") && e.contains("bit_depth"), "both problems reported at once: {e}");
 }
@@ -165,10 +184,7 @@ fn sim_captures_writes_raw_preview_and_truth_per_capture_and_refuses_to_overwrit
     for f in v["frames"].as_array().unwrap() {
         let stem = f["file"].as_str().unwrap();
         for suffix in ["raw.png", "preview.png", "truth.exr"] {
-            assert!(
-                out.join(format!("{stem}.{suffix}")).is_file(),
-                "{stem}.{suffix} missing"
-            );
+            assert!(out.join(format!("{stem}.{suffix}")).is_file(), "{stem}.{suffix} missing");
         }
         let err = f["pose_error_deg"].as_array().unwrap();
         // Positioning error is real (configured jitter) but small.
@@ -178,11 +194,7 @@ fn sim_captures_writes_raw_preview_and_truth_per_capture_and_refuses_to_overwrit
     let before = std::fs::read(out.join("summary.json")).unwrap();
     let e = fails(btfrig().args(["sim", "captures", "--out"]).arg(&out));
     assert!(e.contains("not empty"), "{e}");
-    assert_eq!(
-        before,
-        std::fs::read(out.join("summary.json")).unwrap(),
-        "nothing overwritten"
-    );
+    assert_eq!(before, std::fs::read(out.join("summary.json")).unwrap(), "nothing overwritten");
 }
 
 #[test]
@@ -195,17 +207,8 @@ fn demo_runs_the_default_plan_into_a_verified_dataset_and_refuses_to_overwrite()
     // unreachable, the rest capped at 60 captures.
     assert_eq!(v["captures"], 60, "{v}");
     assert_eq!(v["skipped"]["unreachable:camera blocks lamp"], 19, "{v}");
-    let skipped: u64 = v["skipped"]
-        .as_object()
-        .unwrap()
-        .values()
-        .map(|n| n.as_u64().unwrap())
-        .sum();
-    assert_eq!(
-        60 + skipped,
-        19 * 19,
-        "every pair captured or skipped with a reason: {v}"
-    );
+    let skipped: u64 = v["skipped"].as_object().unwrap().values().map(|n| n.as_u64().unwrap()).sum();
+    assert_eq!(60 + skipped, 19 * 19, "every pair captured or skipped with a reason: {v}");
     let (hw, cp, naive) = (
         v["hardware_s"].as_f64().unwrap(),
         v["critical_path_s"].as_f64().unwrap(),
@@ -237,11 +240,7 @@ fn demo_runs_the_default_plan_into_a_verified_dataset_and_refuses_to_overwrite()
     let before = std::fs::read(out.join("report.json")).unwrap();
     let e = fails(btfrig().args(["demo", "--out"]).arg(&out));
     assert!(e.contains("not empty"), "{e}");
-    assert_eq!(
-        before,
-        std::fs::read(out.join("report.json")).unwrap(),
-        "nothing overwritten"
-    );
+    assert_eq!(before, std::fs::read(out.join("report.json")).unwrap(), "nothing overwritten");
 }
 
 #[test]
@@ -345,11 +344,7 @@ fn run_writes_a_verified_dataset_resumes_to_nothing_and_refuses_another_plan() {
 fn only_incomplete(dir: &Path) {
     let o = run(btfrig().args(["dataset", "verify"]).arg(dir));
     let out = String::from_utf8_lossy(&o.stdout);
-    assert!(
-        out.contains("1 problem(s)") && out.contains("incomplete"),
-        "{}",
-        text(&o)
-    );
+    assert!(out.contains("1 problem(s)") && out.contains("incomplete"), "{}", text(&o));
 }
 
 fn report(dir: &Path) -> serde_json::Value {
@@ -361,10 +356,7 @@ fn journal_stage_sum(dir: &Path, stage: &str) -> f64 {
     // Each journal line: length, checksum, then the record as JSON (docs/dataset-format.md).
     let text = std::fs::read_to_string(dir.join("journal.btfj")).unwrap();
     text.lines()
-        .filter_map(|l| {
-            l.find('{')
-                .and_then(|i| serde_json::from_str::<serde_json::Value>(&l[i..]).ok())
-        })
+        .filter_map(|l| l.find('{').and_then(|i| serde_json::from_str::<serde_json::Value>(&l[i..]).ok()))
         .filter_map(|r| r.pointer(&format!("/timing/stage_s/{stage}")).and_then(|v| v.as_f64()))
         .sum()
 }
@@ -379,14 +371,7 @@ fn run_pauses_on_a_fatal_fault_exits_3_and_resumes_with_the_fault_gone() {
     let err = String::from_utf8_lossy(&o.stderr);
     // sim/faults/robot-fault.toml: the robot's 8th call (homing, then one move per capture)
     // fails, so captures 0..6 are done and step 6 is the failed one.
-    for needle in [
-        "PAUSED",
-        "device:  robot",
-        "step:    6",
-        "internal fault",
-        "fix the cause",
-        "--faults none",
-    ] {
+    for needle in ["PAUSED", "device:  robot", "step:    6", "internal fault", "fix the cause", "--faults none"] {
         assert!(err.contains(needle), "{needle:?} missing:\n{err}");
     }
     let r = report(&out);
@@ -395,20 +380,12 @@ fn run_pauses_on_a_fatal_fault_exits_3_and_resumes_with_the_fault_gone() {
     assert_eq!(r["paused_step"]["device"], "robot", "{r}");
     assert!(r["reason"].as_str().unwrap().contains("not retryable"), "{r}");
     let info = ok(btfrig().args(["dataset", "info"]).arg(&out));
-    assert!(
-        info.contains("state     paused, resumable") && info.contains("robot"),
-        "{info}"
-    );
+    assert!(info.contains("state     paused, resumable") && info.contains("robot"), "{info}");
     only_incomplete(&out);
     let first_hw = r["hardware_s"].as_f64().unwrap();
 
     // The same plan (same hash) with the fault gone: resumes, finishes, no capture repeated.
-    let again = ok(btfrig()
-        .args(["run", "--plan"])
-        .arg(&plan)
-        .arg("--out")
-        .arg(&out)
-        .args(["--faults", "none"]));
+    let again = ok(btfrig().args(["run", "--plan"]).arg(&plan).arg("--out").arg(&out).args(["--faults", "none"]));
     assert!(again.contains("12 captures (6 this run)"), "{again}");
     let r = report(&out);
     assert_eq!(r["status"], "finished", "{r}");
@@ -416,10 +393,7 @@ fn run_pauses_on_a_fatal_fault_exits_3_and_resumes_with_the_fault_gone() {
     let sessions = r["sessions"].as_array().unwrap();
     assert_eq!(sessions.len(), 2, "{r}");
     assert_eq!(sessions[0]["status"], "paused");
-    assert_eq!(
-        sessions[0]["captures"].as_u64().unwrap() + sessions[1]["captures"].as_u64().unwrap(),
-        12
-    );
+    assert_eq!(sessions[0]["captures"].as_u64().unwrap() + sessions[1]["captures"].as_u64().unwrap(), 12);
     // The whole run's times, not the last session's.
     let hw = r["hardware_s"].as_f64().unwrap();
     let sum: f64 = sessions.iter().map(|s| s["hardware_s"].as_f64().unwrap()).sum();
@@ -429,10 +403,7 @@ fn run_pauses_on_a_fatal_fault_exits_3_and_resumes_with_the_fault_gone() {
     for stage in ["demosaic", "write"] {
         let s = r["stage_s"][stage].as_f64().unwrap();
         let j = journal_stage_sum(&out, stage);
-        assert!(
-            j > 0.0 && (s - j).abs() < 1e-9 * j.max(1.0),
-            "{stage}: report {s}, journal {j}"
-        );
+        assert!(j > 0.0 && (s - j).abs() < 1e-9 * j.max(1.0), "{stage}: report {s}, journal {j}");
     }
     assert_eq!(std::fs::read_dir(out.join("textures")).unwrap().count(), 12);
     ok(btfrig().args(["dataset", "verify"]).arg(&out));
@@ -460,10 +431,7 @@ fn ctrl_c_commits_the_frames_in_flight_exits_130_and_resumes() {
         assert!(started.elapsed().as_secs() < 120, "no captures after 120 s");
         std::thread::sleep(std::time::Duration::from_millis(20));
     }
-    let status = Command::new("kill")
-        .args(["-INT", &child.id().to_string()])
-        .status()
-        .unwrap();
+    let status = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
     assert!(status.success());
     let o = child.wait_with_output().unwrap();
     let r = report(&out);
@@ -473,11 +441,7 @@ fn ctrl_c_commits_the_frames_in_flight_exits_130_and_resumes() {
         return;
     }
     assert_eq!(o.status.code(), Some(130), "{}", text(&o));
-    assert!(
-        String::from_utf8_lossy(&o.stderr).contains("run the same command again"),
-        "{}",
-        text(&o)
-    );
+    assert!(String::from_utf8_lossy(&o.stderr).contains("run the same command again"), "{}", text(&o));
     assert_eq!(r["status"], "interrupted", "{r}");
     let done = r["captures"].as_u64().unwrap();
     assert!((2..12).contains(&done), "{r}");
@@ -487,10 +451,7 @@ fn ctrl_c_commits_the_frames_in_flight_exits_130_and_resumes() {
     assert_eq!(std::fs::read_dir(out.join("textures")).unwrap().count() as u64, done);
 
     let again = ok(btfrig().args(["run", "--plan"]).arg(&plan).arg("--out").arg(&out));
-    assert!(
-        again.contains(&format!("12 captures ({} this run)", 12 - done)),
-        "{again}"
-    );
+    assert!(again.contains(&format!("12 captures ({} this run)", 12 - done)), "{again}");
     let r = report(&out);
     assert_eq!(r["status"], "finished");
     assert_eq!(r["sessions"].as_array().unwrap().len(), 2);

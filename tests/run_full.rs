@@ -17,15 +17,8 @@ use support::*;
 
 /// Parses `label ... (N s` from `btfrig plan show` output, e.g. `naive order      10:16:12 (36972 s, ...`.
 fn seconds_after(show: &str, label: &str) -> f64 {
-    let line = show
-        .lines()
-        .find(|l| l.starts_with(label))
-        .unwrap_or_else(|| panic!("no {label:?} in\n{show}"));
-    let inner = line
-        .split('(')
-        .nth(1)
-        .and_then(|s| s.split(" s").next())
-        .unwrap_or_else(|| panic!("{line}"));
+    let line = show.lines().find(|l| l.starts_with(label)).unwrap_or_else(|| panic!("no {label:?} in\n{show}"));
+    let inner = line.split('(').nth(1).and_then(|s| s.split(" s").next()).unwrap_or_else(|| panic!("{line}"));
     inner.trim().parse().unwrap_or_else(|e| panic!("{line}: {e}"))
 }
 
@@ -36,13 +29,7 @@ fn the_full_bonn_plan_captures_every_reachable_pair_once_near_the_lower_bound() 
     let out = dir.join("dataset");
 
     let t0 = Instant::now();
-    let o = btfrig()
-        .args(["run", "--plan"])
-        .arg(&plan)
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .expect("btfrig runs");
+    let o = btfrig().args(["run", "--plan"]).arg(&plan).arg("--out").arg(&out).output().expect("btfrig runs");
     let run_wall = t0.elapsed().as_secs_f64();
     assert!(o.status.success(), "{}", text(&o));
     eprintln!("btfrig run of the full plan: {run_wall:.1} s wall");
@@ -52,37 +39,21 @@ fn the_full_bonn_plan_captures_every_reachable_pair_once_near_the_lower_bound() 
     // the one pair kind this rig cannot realise (the camera would block the lamp).
     let journal = read_journal(&out);
     assert!(journal.torn_tail.is_none(), "torn journal tail after a clean run");
-    assert!(
-        journal.skips.is_empty(),
-        "the run skipped steps on its own: {:?}",
-        journal.skips
-    );
+    assert!(journal.skips.is_empty(), "the run skipped steps on its own: {:?}", journal.skips);
     let committed = journal.committed(); // panics on a step journaled twice
     let skipped = manifest_skipped(&out);
     let diagonal: BTreeSet<Step> = (0..81).map(|i| (i, i)).collect();
-    assert_eq!(
-        skipped.keys().copied().collect::<BTreeSet<_>>(),
-        diagonal,
-        "skipped pairs"
-    );
+    assert_eq!(skipped.keys().copied().collect::<BTreeSet<_>>(), diagonal, "skipped pairs");
     for (step, reason) in &skipped {
-        assert!(
-            reason.starts_with("unreachable") && reason.contains("block"),
-            "{step:?}: reason {reason:?}"
-        );
+        assert!(reason.starts_with("unreachable") && reason.contains("block"), "{step:?}: reason {reason:?}");
     }
-    let expected: BTreeSet<Step> = (0..81)
-        .flat_map(|l| (0..81).map(move |v| (l, v)))
-        .filter(|s| !skipped.contains_key(s))
-        .collect();
+    let expected: BTreeSet<Step> =
+        (0..81).flat_map(|l| (0..81).map(move |v| (l, v))).filter(|s| !skipped.contains_key(s)).collect();
     assert_eq!(expected.len(), 6480);
     let got: BTreeSet<Step> = committed.keys().copied().collect();
     let missing: Vec<_> = expected.difference(&got).take(10).collect();
     let extra: Vec<_> = got.difference(&expected).take(10).collect();
-    assert!(
-        missing.is_empty() && extra.is_empty(),
-        "missing {missing:?}, unexpected {extra:?}"
-    );
+    assert!(missing.is_empty() && extra.is_empty(), "missing {missing:?}, unexpected {extra:?}");
     // One texture per step, named after it, and nothing else in textures/.
     let mut files = BTreeSet::new();
     for ((l, v), f) in &committed {
@@ -103,12 +74,7 @@ fn the_full_bonn_plan_captures_every_reachable_pair_once_near_the_lower_bound() 
     eprintln!("report: {report}");
     assert_eq!(report["captures"], 6480, "{report}");
     assert_eq!(report["retries"], 0, "{report}");
-    let skipped_total: u64 = report["skipped"]
-        .as_object()
-        .unwrap()
-        .values()
-        .map(|n| n.as_u64().unwrap())
-        .sum();
+    let skipped_total: u64 = report["skipped"].as_object().unwrap().values().map(|n| n.as_u64().unwrap()).sum();
     assert_eq!(skipped_total, 81, "{report}");
 
     // Hardware time against the planner's lower bound for these captures: the camera's busy
@@ -123,14 +89,8 @@ fn the_full_bonn_plan_captures_every_reachable_pair_once_near_the_lower_bound() 
         100.0 * (hw / bound - 1.0)
     );
     assert!(bound > 6480.0 * 5.0, "a bound below the transfers alone: {bound}");
-    assert!(
-        hw >= bound * (1.0 - 1e-9),
-        "hardware_s {hw} below the lower bound {bound}"
-    );
-    assert!(
-        hw <= bound * 1.02,
-        "hardware_s {hw} more than 2% above the lower bound {bound}"
-    );
+    assert!(hw >= bound * (1.0 - 1e-9), "hardware_s {hw} below the lower bound {bound}");
+    assert!(hw <= bound * 1.02, "hardware_s {hw} more than 2% above the lower bound {bound}");
 
     // The motion-optimised order against the naive nested loop, both in the planner's timing
     // model (the same model that gives the bound). `plan show` prints the planned time of the
@@ -138,23 +98,14 @@ fn the_full_bonn_plan_captures_every_reachable_pair_once_near_the_lower_bound() 
     let show = ok(btfrig().args(["plan", "show"]).arg(&plan));
     let planned = seconds_after(&show, "estimated time");
     let naive_shown = seconds_after(&show, "naive order");
-    assert!(
-        (naive_shown - naive).abs() <= 0.5,
-        "plan show naive {naive_shown} vs report {naive}"
-    );
+    assert!((naive_shown - naive).abs() <= 0.5, "plan show naive {naive_shown} vs report {naive}");
     assert!(naive > bound, "naive {naive} not above the bound {bound}");
-    assert!(
-        planned < naive_shown,
-        "optimised order {planned} s not faster than naive {naive_shown} s:\n{show}"
-    );
+    assert!(planned < naive_shown, "optimised order {planned} s not faster than naive {naive_shown} s:\n{show}");
     // The run executed the planned order: its measured time is the planned one (`plan show`
     // prints whole seconds) plus the timer rounding of the simulated session's clock (tokio's
     // paused timers fire on whole milliseconds; the runner's rig clock is slowed a thousandfold,
     // so each device wait is rounded up by at most 1 us).
-    assert!(
-        hw >= planned - 0.5 && hw <= planned + 0.5 + 1e-5 * 6480.0,
-        "measured {hw} s vs planned {planned} s"
-    );
+    assert!(hw >= planned - 0.5 && hw <= planned + 0.5 + 1e-5 * 6480.0, "measured {hw} s vs planned {planned} s");
     // And measured, the optimised order beats the naive nested loop's time for the same
     // captures (with Bonn timing by little: the 5 s transfer of each frame hides almost every
     // move; docs/planner.md).

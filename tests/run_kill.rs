@@ -95,11 +95,7 @@ fn a_run_killed_at_random_moments_and_resumed_equals_an_uninterrupted_one() {
             "kill {k}: after {:.0} ms, {done}/{total} steps journaled ({:+} this session){}{}",
             delay_s * 1e3,
             done as i64 - done_before as i64,
-            if finished_first {
-                ", the process had already finished"
-            } else {
-                ""
-            },
+            if finished_first { ", the process had already finished" } else { "" },
             if torn { ", torn journal tail" } else { "" },
         );
         // Nothing journaled is ever lost, and a kill never commits beyond the plan.
@@ -107,39 +103,22 @@ fn a_run_killed_at_random_moments_and_resumed_equals_an_uninterrupted_one() {
         // A killed run's dataset is not taken for a complete one.
         if done < total {
             let v = btfrig().args(["dataset", "verify"]).arg(&b).output().unwrap();
-            assert!(
-                !v.status.success(),
-                "verify passed on a dataset with {done}/{total} steps:\n{}",
-                text(&v)
-            );
+            assert!(!v.status.success(), "verify passed on a dataset with {done}/{total} steps:\n{}", text(&v));
         }
         if !finished_first && done > 0 && done < total {
             mid_run += 1;
         }
         done_before = done;
     }
-    assert!(
-        mid_run >= 2,
-        "only {mid_run} of {KILLS} kills landed mid-run (some but not all steps journaled)"
-    );
+    assert!(mid_run >= 2, "only {mid_run} of {KILLS} kills landed mid-run (some but not all steps journaled)");
 
     // Let it finish.
-    let o = btfrig()
-        .args(["run", "--plan"])
-        .arg(&plan)
-        .arg("--out")
-        .arg(&b)
-        .output()
-        .unwrap();
+    let o = btfrig().args(["run", "--plan"]).arg(&plan).arg("--out").arg(&b).output().unwrap();
     assert!(o.status.success(), "{}", text(&o));
 
     // The same captures, the same texture bytes and journal hashes; no step twice in B.
     let resumed = textures(&b); // panics on a step journaled twice
-    assert_eq!(
-        resumed.keys().collect::<Vec<_>>(),
-        reference.keys().collect::<Vec<_>>(),
-        "captured steps differ"
-    );
+    assert_eq!(resumed.keys().collect::<Vec<_>>(), reference.keys().collect::<Vec<_>>(), "captured steps differ");
     let mut differ = Vec::new();
     for (step, (path, hash, bytes)) in &reference {
         let (p, h, by) = &resumed[step];

@@ -29,12 +29,7 @@ pub fn text(o: &Output) -> String {
     // Progress lines are rewritten with '\r': keep only the last state of each.
     let err = String::from_utf8_lossy(&o.stderr);
     let err: Vec<&str> = err.lines().map(|l| l.rsplit('\r').next().unwrap_or(l)).collect();
-    format!(
-        "status {:?}\n--- stdout\n{}--- stderr\n{}",
-        o.status,
-        String::from_utf8_lossy(&o.stdout),
-        err.join("\n")
-    )
+    format!("status {:?}\n--- stdout\n{}--- stderr\n{}", o.status, String::from_utf8_lossy(&o.stdout), err.join("\n"))
 }
 
 /// Runs a command that must succeed, returns its stdout.
@@ -63,20 +58,14 @@ impl Journal {
     pub fn committed(&self) -> BTreeMap<Step, Vec<(String, String)>> {
         let mut out = BTreeMap::new();
         for (step, files) in &self.steps {
-            assert!(
-                out.insert(*step, files.clone()).is_none(),
-                "step {step:?} journaled twice"
-            );
+            assert!(out.insert(*step, files.clone()).is_none(), "step {step:?} journaled twice");
         }
         out
     }
 }
 
 fn step_of(v: &serde_json::Value) -> Step {
-    (
-        v["light"].as_u64().expect("step.light"),
-        v["view"].as_u64().expect("step.view"),
-    )
+    (v["light"].as_u64().expect("step.light"), v["view"].as_u64().expect("step.view"))
 }
 
 /// Reads `DIR/journal.btfj`: `LLLLLLLL CCCCCCCCCCCCCCCC {json}\n` per record, the length
@@ -110,18 +99,11 @@ pub fn read_journal(dir: &Path) -> Journal {
                     .as_array()
                     .expect("files")
                     .iter()
-                    .map(|f| {
-                        (
-                            f["path"].as_str().unwrap().to_string(),
-                            f["hash"].as_str().unwrap().to_string(),
-                        )
-                    })
+                    .map(|f| (f["path"].as_str().unwrap().to_string(), f["hash"].as_str().unwrap().to_string()))
                     .collect();
                 j.steps.push((step_of(&v["step"]), files));
             }
-            Some("skip") => j
-                .skips
-                .push((step_of(&v["step"]), v["reason"].as_str().unwrap_or("").to_string())),
+            Some("skip") => j.skips.push((step_of(&v["step"]), v["reason"].as_str().unwrap_or("").to_string())),
             other => panic!("unknown journal record type {other:?}"),
         }
     }

@@ -17,11 +17,7 @@ pub struct TextureError {
 /// all-zero reference (relative error undefined).
 pub fn compare(a: &[[f32; 3]], b: &[[f32; 3]]) -> Result<TextureError, RectifyError> {
     if a.len() != b.len() || a.is_empty() {
-        return Err(RectifyError::Mismatch {
-            what: "texture",
-            got: a.len(),
-            expected: b.len(),
-        });
+        return Err(RectifyError::Mismatch { what: "texture", got: a.len(), expected: b.len() });
     }
     let (mut se, mut sb, mut sa, mut max) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
     for (p, q) in a.iter().zip(b) {
@@ -34,18 +30,10 @@ pub fn compare(a: &[[f32; 3]], b: &[[f32; 3]]) -> Result<TextureError, RectifyEr
         }
     }
     if sb.is_nan() || sb <= 0.0 {
-        return Err(RectifyError::Radiometry {
-            name: "reference energy",
-            value: sb,
-            allowed: "> 0",
-        });
+        return Err(RectifyError::Radiometry { name: "reference energy", value: sb, allowed: "> 0" });
     }
     let n = (3 * a.len()) as f64;
-    Ok(TextureError {
-        rel_rmse: (se / sb).sqrt(),
-        mean_abs: sa / n,
-        max_abs: max,
-    })
+    Ok(TextureError { rel_rmse: (se / sb).sqrt(), mean_abs: sa / n, max_abs: max })
 }
 
 /// [`compare`]'s relative RMSE alone.

@@ -49,11 +49,7 @@ impl Radiometry {
         ];
         for (name, value) in positive {
             if !(value.is_finite() && value > 0.0) {
-                return Err(RectifyError::Radiometry {
-                    name,
-                    value,
-                    allowed: "finite and > 0",
-                });
+                return Err(RectifyError::Radiometry { name, value, allowed: "finite and > 0" });
             }
         }
         if !(self.dark_e_per_s.is_finite() && self.dark_e_per_s >= 0.0) {
@@ -66,19 +62,11 @@ impl Radiometry {
         for (i, v) in self.white_balance.iter().enumerate() {
             if !(v.is_finite() && *v > 0.0) {
                 const NAMES: [&str; 3] = ["white_balance[0]", "white_balance[1]", "white_balance[2]"];
-                return Err(RectifyError::Radiometry {
-                    name: NAMES[i],
-                    value: *v,
-                    allowed: "finite and > 0",
-                });
+                return Err(RectifyError::Radiometry { name: NAMES[i], value: *v, allowed: "finite and > 0" });
             }
         }
         if let Some(v) = self.matrix.iter().flatten().find(|v| !v.is_finite()) {
-            return Err(RectifyError::Radiometry {
-                name: "matrix",
-                value: *v,
-                allowed: "finite entries",
-            });
+            return Err(RectifyError::Radiometry { name: "matrix", value: *v, allowed: "finite entries" });
         }
         Ok(())
     }
@@ -126,23 +114,13 @@ pub fn vignetting_map(
 pub fn to_radiance_factor(tex: &Texture, vignetting: &[f32], r: &Radiometry) -> Result<Texture, RectifyError> {
     r.validate()?;
     if vignetting.len() != tex.data.len() {
-        return Err(RectifyError::Mismatch {
-            what: "vignetting map",
-            got: vignetting.len(),
-            expected: tex.data.len(),
-        });
+        return Err(RectifyError::Mismatch { what: "vignetting map", got: vignetting.len(), expected: tex.data.len() });
     }
     let data = tex
         .data
         .par_iter()
         .zip(vignetting)
-        .map(|(v, &vig)| {
-            if vig > 0.0 {
-                r.convert(*v, f64::from(vig))
-            } else {
-                [0.0; 3]
-            }
-        })
+        .map(|(v, &vig)| if vig > 0.0 { r.convert(*v, f64::from(vig)) } else { [0.0; 3] })
         .collect();
     Ok(Texture { data, ..tex.clone() })
 }
@@ -176,11 +154,7 @@ mod tests {
         let bad = Radiometry { exposure_s: 0.0, ..r };
         assert_eq!(
             bad.validate(),
-            Err(RectifyError::Radiometry {
-                name: "exposure_s",
-                value: 0.0,
-                allowed: "finite and > 0"
-            })
+            Err(RectifyError::Radiometry { name: "exposure_s", value: 0.0, allowed: "finite and > 0" })
         );
     }
 }

@@ -38,12 +38,7 @@ impl Region {
     /// The centred square of side `side` metres (the sample region of a holder plate).
     pub fn centred_square(side: f64) -> Region {
         let h = side / 2.0;
-        Region {
-            x_min: -h,
-            x_max: h,
-            y_min: -h,
-            y_max: h,
-        }
+        Region { x_min: -h, x_max: h, y_min: -h, y_max: h }
     }
 
     /// Sample-plane position of the point at fractional texel coordinates `(col, row)` of a
@@ -56,9 +51,7 @@ impl Region {
     }
 
     fn is_valid(&self) -> bool {
-        [self.x_min, self.x_max, self.y_min, self.y_max]
-            .iter()
-            .all(|v| v.is_finite())
+        [self.x_min, self.x_max, self.y_min, self.y_max].iter().all(|v| v.is_finite())
             && self.x_max > self.x_min
             && self.y_max > self.y_min
     }
@@ -168,11 +161,7 @@ pub enum RectifyError {
 /// Checks the image against itself and the camera.
 fn check_image(img: &LinearImage, camera: &CameraModel) -> Result<(), RectifyError> {
     if img.data.len() != img.width * img.height {
-        return Err(RectifyError::ImageSize {
-            width: img.width,
-            height: img.height,
-            len: img.data.len(),
-        });
+        return Err(RectifyError::ImageSize { width: img.width, height: img.height, len: img.data.len() });
     }
     if (img.width, img.height) != (camera.width, camera.height) {
         return Err(RectifyError::CameraSize {
@@ -217,12 +206,7 @@ fn bilinear(img: &LinearImage, x: f64, y: f64) -> Option<[f32; 3]> {
     let y1 = (y0 + 1).min(h - 1);
     let fx = (xc - x0 as f64) as f32;
     let fy = (yc - y0 as f64) as f32;
-    let (a, b, c, d) = (
-        img.data[y0 * w + x0],
-        img.data[y0 * w + x1],
-        img.data[y1 * w + x0],
-        img.data[y1 * w + x1],
-    );
+    let (a, b, c, d) = (img.data[y0 * w + x0], img.data[y0 * w + x1], img.data[y1 * w + x0], img.data[y1 * w + x1]);
     Some(std::array::from_fn(|k| {
         let top = a[k] + (b[k] - a[k]) * fx;
         let bottom = c[k] + (d[k] - c[k]) * fx;
@@ -320,13 +304,7 @@ pub fn rectify(
             outside
         })
         .sum();
-    Ok(Texture {
-        width: size,
-        height: size,
-        region,
-        data,
-        texels_outside: outside,
-    })
+    Ok(Texture { width: size, height: size, region, data, texels_outside: outside })
 }
 
 /// The elliptical weighted average of the image over the texel with projected corners `q`
@@ -427,14 +405,8 @@ mod tests {
     use btfrig_core::Direction;
 
     fn ramp(w: usize, h: usize) -> LinearImage {
-        let data = (0..h)
-            .flat_map(|y| (0..w).map(move |x| [x as f32, y as f32, 1.0]))
-            .collect();
-        LinearImage {
-            width: w,
-            height: h,
-            data,
-        }
+        let data = (0..h).flat_map(|y| (0..w).map(move |x| [x as f32, y as f32, 1.0])).collect();
+        LinearImage { width: w, height: h, data }
     }
 
     #[test]
@@ -456,34 +428,19 @@ mod tests {
         // coordinate, each texel must hold the x pixel coordinate of its centre (bilinear is
         // exact on a linear ramp; the box average of a linear function is its centre value).
         let cam = CameraModel::pinhole(200, 150, 1000.0).unwrap();
-        let pose = ScenePose::looking_at(
-            Direction::from_degrees(30.0, 0.0),
-            Direction::from_degrees(0.0, 0.0),
-            1.0,
-            2.0,
-        );
+        let pose =
+            ScenePose::looking_at(Direction::from_degrees(30.0, 0.0), Direction::from_degrees(0.0, 0.0), 1.0, 2.0);
         let img = ramp(200, 150);
         let region = Region::centred_square(0.1);
-        for filter in [
-            Filter::Bilinear,
-            Filter::Supersample { n: 3 },
-            Filter::Footprint { max: 4 },
-        ] {
+        for filter in [Filter::Bilinear, Filter::Supersample { n: 3 }, Filter::Footprint { max: 4 }] {
             let t = rectify(&img, &cam, &pose, region, 16, filter).unwrap();
             assert_eq!(t.texels_outside, 0);
             for row in 0..16 {
                 for col in 0..16 {
                     let (x, y) = region.point(16, 16, col as f64 + 0.5, row as f64 + 0.5);
-                    let q = cam
-                        .project(&sample_to_camera(&pose).transform_point(&Point3::new(x, y, 0.0)))
-                        .unwrap();
+                    let q = cam.project(&sample_to_camera(&pose).transform_point(&Point3::new(x, y, 0.0))).unwrap();
                     let v = t.data[row * 16 + col];
-                    assert!(
-                        (f64::from(v[0]) - q.x).abs() < 1e-3,
-                        "{filter:?} ({col},{row}) {} vs {}",
-                        v[0],
-                        q.x
-                    );
+                    assert!((f64::from(v[0]) - q.x).abs() < 1e-3, "{filter:?} ({col},{row}) {} vs {}", v[0], q.x);
                     assert!((f64::from(v[1]) - q.y).abs() < 1e-3, "{filter:?} ({col},{row})");
                 }
             }
@@ -496,37 +453,19 @@ mod tests {
     #[test]
     fn bad_inputs_are_refused_with_their_values() {
         let cam = CameraModel::pinhole(20, 10, 100.0).unwrap();
-        let pose = ScenePose::looking_at(
-            Direction::from_degrees(30.0, 0.0),
-            Direction::from_degrees(0.0, 0.0),
-            1.0,
-            2.0,
-        );
+        let pose =
+            ScenePose::looking_at(Direction::from_degrees(30.0, 0.0), Direction::from_degrees(0.0, 0.0), 1.0, 2.0);
         let img = ramp(20, 10);
         let r = Region::centred_square(0.1);
-        assert_eq!(
-            rectify(&img, &cam, &pose, r, 0, Filter::Bilinear),
-            Err(RectifyError::Size(0))
-        );
+        assert_eq!(rectify(&img, &cam, &pose, r, 0, Filter::Bilinear), Err(RectifyError::Size(0)));
         let f = Filter::Supersample { n: 0 };
         assert_eq!(rectify(&img, &cam, &pose, r, 8, f), Err(RectifyError::Filter(f)));
         let bad = Region { x_min: 0.1, ..r };
-        assert_eq!(
-            rectify(&img, &cam, &pose, bad, 8, Filter::Bilinear),
-            Err(RectifyError::Region(bad))
-        );
+        assert_eq!(rectify(&img, &cam, &pose, bad, 8, Filter::Bilinear), Err(RectifyError::Region(bad)));
         let small = ramp(10, 10);
-        assert!(matches!(
-            rectify(&small, &cam, &pose, r, 8, Filter::Bilinear),
-            Err(RectifyError::CameraSize { .. })
-        ));
+        assert!(matches!(rectify(&small, &cam, &pose, r, 8, Filter::Bilinear), Err(RectifyError::CameraSize { .. })));
         // A region far off to the side does not project into the image: all texels outside.
-        let off = Region {
-            x_min: 5.0,
-            x_max: 6.0,
-            y_min: 5.0,
-            y_max: 6.0,
-        };
+        let off = Region { x_min: 5.0, x_max: 6.0, y_min: 5.0, y_max: 6.0 };
         let t = rectify(&img, &cam, &pose, off, 4, Filter::Bilinear).unwrap();
         assert_eq!(t.texels_outside, 16);
         assert!(t.data.iter().all(|v| *v == [0.0; 3]));

@@ -22,10 +22,7 @@ fn lacquered_wood_matches_ground_truth_frontal_and_oblique() {
         let t = rectified(&s, &shot, &joints, 256, Filter::Bilinear);
         assert_eq!(t.texels_outside, 0);
         let e = err(&t, &ground_truth(&s, &joints, 256));
-        println!(
-            "view {view:?}: rel_rmse {:.4} mean_abs {:.4} max_abs {:.4}",
-            e.rel_rmse, e.mean_abs, e.max_abs
-        );
+        println!("view {view:?}: rel_rmse {:.4} mean_abs {:.4} max_abs {:.4}", e.rel_rmse, e.mean_abs, e.max_abs);
         assert!(e.rel_rmse < bound, "view {view:?}: rel_rmse {} >= {bound}", e.rel_rmse);
     }
 }
@@ -51,16 +48,10 @@ fn noise_free_frame_is_exact_up_to_the_colour_matrix() {
         }
     }
     let gain: [f64; 3] = std::array::from_fn(|c| sa[c] / sb[c]);
-    let scaled: Vec<[f32; 3]> = t
-        .data
-        .iter()
-        .map(|a| std::array::from_fn(|c| (f64::from(a[c]) / gain[c]) as f32))
-        .collect();
+    let scaled: Vec<[f32; 3]> =
+        t.data.iter().map(|a| std::array::from_fn(|c| (f64::from(a[c]) / gain[c]) as f32)).collect();
     let e = btfrig_calib::rel_rmse(&scaled, &gt).unwrap();
-    println!(
-        "channel gains {gain:?}; rel_rmse raw {:.4}, gain-corrected {e:.4}",
-        err(&t, &gt).rel_rmse
-    );
+    println!("channel gains {gain:?}; rel_rmse raw {:.4}, gain-corrected {e:.4}", err(&t, &gt).rel_rmse);
     assert!((gain[1] - 1.0).abs() < 0.01, "green gain {}", gain[1]);
     assert!(e < 0.015, "gain-corrected rel_rmse {e}");
 }
@@ -77,17 +68,12 @@ fn a_wrong_pose_is_clearly_worse() {
         let gt = ground_truth(&s, &joints, 256);
         let mut off = joints;
         off.robot[2] += 0.5f64.to_radians();
-        for (name, shot, factor) in [
-            ("noisy", shoot(&s, joints, 12), 1.3),
-            ("noise-free", noise_free(&s, joints), 2.0),
-        ] {
+        for (name, shot, factor) in [("noisy", shoot(&s, joints, 12), 1.3), ("noise-free", noise_free(&s, joints), 2.0)]
+        {
             let good = err(&rectified(&s, &shot, &joints, 256, Filter::Bilinear), &gt).rel_rmse;
             let bad = err(&rectified(&s, &shot, &off, 256, Filter::Bilinear), &gt).rel_rmse;
             println!("view {view:?} {name}: nominal pose {good:.4}, robot roll +0.5 deg {bad:.4}");
-            assert!(
-                bad > factor * good,
-                "view {view:?} {name}: wrong pose {bad} not above {factor} x {good}"
-            );
+            assert!(bad > factor * good, "view {view:?} {name}: wrong pose {bad} not above {factor} x {good}");
         }
     }
 }
@@ -102,12 +88,8 @@ fn area_filters_beat_bilinear_at_grazing_view() {
     let shot = shoot(&s, joints, 13);
     let gt_box = ground_truth_box(&s, &joints, 64, 4);
     let e = |f| err(&rectified(&s, &shot, &joints, 64, f), &gt_box).rel_rmse;
-    let (bil, ss, fp, ewa) = (
-        e(Filter::Bilinear),
-        e(Filter::Supersample { n: 4 }),
-        e(Filter::Footprint { max: 8 }),
-        e(Filter::Ewa),
-    );
+    let (bil, ss, fp, ewa) =
+        (e(Filter::Bilinear), e(Filter::Supersample { n: 4 }), e(Filter::Footprint { max: 8 }), e(Filter::Ewa));
     println!(
         "corduroy 75 deg, 64 texels, vs area ground truth: bilinear {bil:.4}, supersample 4 {ss:.4}, \
          footprint 8 {fp:.4}, ewa {ewa:.4}"

@@ -24,8 +24,11 @@ pub fn render(rig: Option<&std::path::Path>, materials: &[String], texels: usize
     anyhow::ensure!((2..=4096).contains(&texels), "--texels {texels}: allowed 2..=4096");
     anyhow::ensure!((1..=100).contains(&repeat), "--repeat {repeat}: allowed 1..=100");
     let cfg = crate::rig::load(rig)?;
-    let names: Vec<String> =
-        if materials.is_empty() { crate::material::names().iter().map(|s| s.to_string()).collect() } else { materials.to_vec() };
+    let names: Vec<String> = if materials.is_empty() {
+        crate::material::names().iter().map(|s| s.to_string()).collect()
+    } else {
+        materials.to_vec()
+    };
     println!(
         "render benchmark: {}x{} frame, {texels}x{texels}-texel sample, {} rayon threads, median of {repeat}",
         cfg.camera.width_px,
@@ -34,7 +37,16 @@ pub fn render(rig: Option<&std::path::Path>, materials: &[String], texels: usize
     );
     println!(
         "{:<16} {:<8} {:>10} {:>10} {:>6} {:>10} {:>10} {:>12} {:>12} {:>10}",
-        "material", "pose", "skips (s)", "none (s)", "ratio", "max diff", "traced %", "shadow rays", "skipped rays", "sensor (s)"
+        "material",
+        "pose",
+        "skips (s)",
+        "none (s)",
+        "ratio",
+        "max diff",
+        "traced %",
+        "shadow rays",
+        "skipped rays",
+        "sensor (s)"
     );
     for name in &names {
         let material = crate::material::load(Some(name))?.with_texels(texels);

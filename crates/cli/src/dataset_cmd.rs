@@ -13,6 +13,11 @@ pub fn info(dir: &Path) -> anyhow::Result<()> {
 pub fn verify(dir: &Path) -> anyhow::Result<()> {
     let report = btfrig_store::verify(dir);
     print!("{report}");
-    anyhow::ensure!(report.is_ok(), "{}: dataset verification found {} problem(s)", dir.display(), report.problems.len());
+    anyhow::ensure!(
+        report.is_ok(),
+        "{}: dataset verification found {} problem(s)",
+        dir.display(),
+        report.problems.len()
+    );
     Ok(())
 }

@@ -66,7 +66,14 @@ pub fn render(args: &RenderArgs) -> anyhow::Result<()> {
         }
         capture::prepare(&mut session.rig).await?;
         let cap = capture::capture_pair(&mut session.rig, session.scene.gonio(), light, view, exposure).await?;
-        anyhow::Ok((cap.frame, cap.truth.joints, cap.commanded, cap.truth.lamp_intensity, cap.hardware_s, session.scene))
+        anyhow::Ok((
+            cap.frame,
+            cap.truth.joints,
+            cap.commanded,
+            cap.truth.lamp_intensity,
+            cap.hardware_s,
+            session.scene,
+        ))
     })?;
     let render_s = started.elapsed().as_secs_f64();
 
@@ -132,7 +139,8 @@ fn check_extension(path: &Path, allowed: &[&str], flag: &str) -> anyhow::Result<
         }
         Ok(())
     } else {
-        Err(anyhow::anyhow!("{flag} {}: allowed extensions {}", path.display(), allowed.join(", "))).context("bad output path")
+        Err(anyhow::anyhow!("{flag} {}: allowed extensions {}", path.display(), allowed.join(", ")))
+            .context("bad output path")
     }
 }
 
@@ -145,11 +153,5 @@ pub fn deg(d: btfrig_core::Direction) -> String {
 /// Joint values in degrees.
 pub fn joints(j: &JointState) -> String {
     let r = j.robot.map(f64::to_degrees);
-    format!(
-        "rail {:.3} deg, robot [pan {:.3}, tilt {:.3}, roll {:.3}] deg",
-        j.rail.to_degrees(),
-        r[0],
-        r[1],
-        r[2]
-    )
+    format!("rail {:.3} deg, robot [pan {:.3}, tilt {:.3}, roll {:.3}] deg", j.rail.to_degrees(), r[0], r[1], r[2])
 }

@@ -77,14 +77,8 @@ impl Distortion {
         let drad = self.k1 + s * (2.0 * self.k2 + s * 3.0 * self.k3);
         let (p1, p2) = (self.p1, self.p2);
         [
-            [
-                rad + 2.0 * x * x * drad + 2.0 * p1 * y + 6.0 * p2 * x,
-                2.0 * x * y * drad + 2.0 * p1 * x + 2.0 * p2 * y,
-            ],
-            [
-                2.0 * x * y * drad + 2.0 * p1 * x + 2.0 * p2 * y,
-                rad + 2.0 * y * y * drad + 6.0 * p1 * y + 2.0 * p2 * x,
-            ],
+            [rad + 2.0 * x * x * drad + 2.0 * p1 * y + 6.0 * p2 * x, 2.0 * x * y * drad + 2.0 * p1 * x + 2.0 * p2 * y],
+            [2.0 * x * y * drad + 2.0 * p1 * x + 2.0 * p2 * y, rad + 2.0 * y * y * drad + 6.0 * p1 * y + 2.0 * p2 * x],
         ]
     }
 
@@ -415,9 +409,8 @@ impl CameraModel {
     /// far outside the image that has no preimage, returns the ray of the undistorted pinhole
     /// (distortion ignored); use [`CameraModel::try_pixel_ray`] to detect that case.
     pub fn pixel_ray(&self, px: Point2<f64>) -> Vector3<f64> {
-        self.try_pixel_ray(px).unwrap_or_else(|| {
-            Vector3::new((px.x - self.cx) / self.fx, (px.y - self.cy) / self.fy, 1.0).normalize()
-        })
+        self.try_pixel_ray(px)
+            .unwrap_or_else(|| Vector3::new((px.x - self.cx) / self.fx, (px.y - self.cy) / self.fy, 1.0).normalize())
     }
 
     /// Relative illumination at pixel `px` (1 on the optical axis, see the module docs).
@@ -474,9 +467,9 @@ mod tests {
 
     fn grid(cam: &CameraModel, step: usize) -> impl Iterator<Item = Point2<f64>> + '_ {
         let (w, h) = (cam.width, cam.height);
-        (0..=h).step_by(step).flat_map(move |v| {
-            (0..=w).step_by(step).map(move |u| Point2::new(u as f64 - 0.5, v as f64 - 0.5))
-        })
+        (0..=h)
+            .step_by(step)
+            .flat_map(move |v| (0..=w).step_by(step).map(move |u| Point2::new(u as f64 - 0.5, v as f64 - 0.5)))
     }
 
     fn max_round_trip(cam: &CameraModel, step: usize) -> f64 {

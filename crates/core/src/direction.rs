@@ -75,7 +75,11 @@ pub fn angle_between(a: &Vector3<f64>, b: &Vector3<f64>) -> f64 {
 pub fn wrap_2pi(a: f64) -> f64 {
     let t = std::f64::consts::TAU;
     let w = a.rem_euclid(t);
-    if w >= t { 0.0 } else { w }
+    if w >= t {
+        0.0
+    } else {
+        w
+    }
 }
 
 #[cfg(test)]

@@ -213,11 +213,7 @@ impl ReachabilityReport {
 
 impl fmt::Display for ReachabilityReport {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        writeln!(
-            f,
-            "light sampling {} x view sampling {}: {} pairs",
-            self.lights, self.views, self.total
-        )?;
+        writeln!(f, "light sampling {} x view sampling {}: {} pairs", self.lights, self.views, self.total)?;
         writeln!(f, "  {:<22} {:>7}", "reachable", self.reachable)?;
         for (kind, n) in &self.unreachable {
             writeln!(f, "  {:<22} {:>7}", kind.label(), n)?;
@@ -283,11 +279,7 @@ fn segment_distance(p0: &Vector3<f64>, p1: &Vector3<f64>, q0: &Vector3<f64>, q1:
         } else {
             let b = d1.dot(&d2);
             let denom = a * e - b * b;
-            let s0 = if denom > 1e-300 {
-                ((b * f - c * e) / denom).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
+            let s0 = if denom > 1e-300 { ((b * f - c * e) / denom).clamp(0.0, 1.0) } else { 0.0 };
             let t0 = (b * s0 + f) / e;
             if t0 < 0.0 {
                 t = 0.0;
@@ -313,12 +305,7 @@ impl Gonio {
         let joint_min = geometry.joint_min_deg.map(f64::to_radians);
         let joint_max = geometry.joint_max_deg.map(f64::to_radians);
         let s = geometry.robot_shoulder_m;
-        Ok(Gonio {
-            geometry,
-            joint_min,
-            joint_max,
-            shoulder: Point3::new(s[0], s[1], s[2]),
-        })
+        Ok(Gonio { geometry, joint_min, joint_max, shoulder: Point3::new(s[0], s[1], s[2]) })
     }
 
     /// The geometry this was built from.
@@ -389,10 +376,7 @@ impl Gonio {
         for (which, d) in [(Device::Lamp, &l), (Device::Camera, &v)] {
             // `!(>)` also rejects NaN.
             if !(d.z > 0.0 && direction_of(d).theta < FRAC_PI_2) {
-                return Err(Unreachable::BelowHorizon {
-                    which,
-                    theta_deg: direction_of(d).theta.to_degrees(),
-                });
+                return Err(Unreachable::BelowHorizon { which, theta_deg: direction_of(d).theta.to_degrees() });
             }
         }
         let cross = l.cross(&v);
@@ -424,10 +408,7 @@ impl Gonio {
         let pan = m[(1, 0)].atan2(m[(0, 0)]);
         let tilt = m[(2, 0)].atan2(m[(0, 0)].hypot(m[(1, 0)]));
         let roll = m[(2, 1)].atan2(m[(2, 2)]);
-        let branches = [
-            [pan, tilt, roll],
-            [wrap_pi(pan + PI), wrap_pi(PI - tilt), wrap_pi(roll + PI)],
-        ];
+        let branches = [[pan, tilt, roll], [wrap_pi(pan + PI), wrap_pi(PI - tilt), wrap_pi(roll + PI)]];
         let mut robot = None;
         let mut first_violation = None;
         for b in branches {
@@ -445,11 +426,7 @@ impl Gonio {
             Some(q) => q,
             None => return Err(first_violation.expect("a branch failed")),
         };
-        let joints = JointState {
-            rail,
-            robot,
-            turntable: 0.0,
-        };
+        let joints = JointState { rail, robot, turntable: 0.0 };
         self.check_arm(&joints)?;
         Ok(joints)
     }
@@ -509,17 +486,11 @@ impl Gonio {
         let cam = rot.inverse_transform_vector(&self.camera_direction_world(j.rail)) * g.rail_radius_m;
         let dl = segment_distance(&a, &b, &lamp, &origin);
         if dl < g.arm_radius_m {
-            return Err(Unreachable::RobotShadows {
-                distance_m: dl,
-                radius_m: g.arm_radius_m,
-            });
+            return Err(Unreachable::RobotShadows { distance_m: dl, radius_m: g.arm_radius_m });
         }
         let dc = segment_distance(&a, &b, &cam, &origin);
         if dc < g.arm_radius_m {
-            return Err(Unreachable::RobotHides {
-                distance_m: dc,
-                radius_m: g.arm_radius_m,
-            });
+            return Err(Unreachable::RobotHides { distance_m: dc, radius_m: g.arm_radius_m });
         }
         Ok(())
     }
@@ -593,10 +564,7 @@ mod tests {
         println!("{report}");
         assert_eq!(report.total, 6561);
         assert_eq!(report.reachable, reachable);
-        assert_eq!(
-            report.reachable + report.unreachable.iter().map(|(_, n)| n).sum::<usize>(),
-            6561
-        );
+        assert_eq!(report.reachable + report.unreachable.iter().map(|(_, n)| n).sum::<usize>(), 6561);
         assert_eq!(report.count(UnreachableKind::CameraBlocksLamp), 81);
         assert!(report.reachable > 6000, "{report}");
         assert!(worst < 1e-12, "worst round-trip error {worst:e}");
@@ -612,10 +580,7 @@ mod tests {
             let (l, v) = (d(), d());
             if let Ok(j) = gonio.ik(l, v) {
                 let (l2, v2) = gonio.fk(&j);
-                assert!(
-                    angular_error(l, l2) < 1e-9 && angular_error(v, v2) < 1e-9,
-                    "{l:?} {v:?} -> {j:?}"
-                );
+                assert!(angular_error(l, l2) < 1e-9 && angular_error(v, v2) < 1e-9, "{l:?} {v:?} -> {j:?}");
                 assert!((j.rail - l.angle_to(v)).abs() < 1e-12);
                 ok += 1;
             }
@@ -640,14 +605,8 @@ mod tests {
             (Direction::new(0.0, 0.0), Direction::new(1e-7, 1.0)),
             (Direction::new(1e-9, 2.0), Direction::new(0.3, 4.0)),
             (Direction::new(0.0, 5.0), Direction::new(89.0f64.to_radians(), 0.3)),
-            (
-                Direction::from_degrees(89.0, 0.0),
-                Direction::from_degrees(89.0, 180.0 - 1e-6),
-            ),
-            (
-                Direction::from_degrees(45.0, 10.0),
-                Direction::from_degrees(45.0 + 1e-6, 10.0),
-            ),
+            (Direction::from_degrees(89.0, 0.0), Direction::from_degrees(89.0, 180.0 - 1e-6)),
+            (Direction::from_degrees(45.0, 10.0), Direction::from_degrees(45.0 + 1e-6, 10.0)),
         ];
         for (l, v) in cases {
             let j = gonio.ik(l, v).unwrap_or_else(|e| panic!("{l:?} {v:?}: {e}"));
@@ -668,11 +627,7 @@ mod tests {
         for _ in 0..2000 {
             let j = JointState {
                 rail: rng.gen_range(0.1..3.0),
-                robot: [
-                    rng.gen_range(-2.0..2.0),
-                    rng.gen_range(-1.4..1.4),
-                    rng.gen_range(-3.0..3.0),
-                ],
+                robot: [rng.gen_range(-2.0..2.0), rng.gen_range(-1.4..1.4), rng.gen_range(-3.0..3.0)],
                 turntable: rng.gen_range(-0.5..0.5),
             };
             let (l, v) = gonio.fk(&j);
@@ -695,72 +650,33 @@ mod tests {
         // All joints 0: the normal faces the lamp, sample x along world y. Rail 90 deg puts
         // the camera on world +y, i.e. on the sample's +x axis at grazing.
         let gonio = bonn();
-        let j = JointState {
-            rail: FRAC_PI_2,
-            robot: [0.0; 3],
-            turntable: 0.0,
-        };
+        let j = JointState { rail: FRAC_PI_2, robot: [0.0; 3], turntable: 0.0 };
         let (l, v) = gonio.fk(&j);
         assert!(l.theta.abs() < 1e-15);
         assert!(v.angle_to(Direction::from_degrees(90.0, 0.0)) < 1e-15);
         // Tilt 30 deg raises the normal: the lamp (horizontal) is then 30 deg from the normal,
         // below it, i.e. towards sample -y.
-        let j = JointState {
-            rail: FRAC_PI_2,
-            robot: [0.0, 30f64.to_radians(), 0.0],
-            turntable: 0.0,
-        };
+        let j = JointState { rail: FRAC_PI_2, robot: [0.0, 30f64.to_radians(), 0.0], turntable: 0.0 };
         let (l, _) = gonio.fk(&j);
         assert!(l.angle_to(Direction::from_degrees(30.0, 270.0)) < 1e-12);
         // IK of a symmetric pair in the plane of the normal and x: the normal bisects the
         // lamp and camera, so pan = rail / 2 and tilt = 0.
-        let j = gonio
-            .ik(Direction::from_degrees(40.0, 180.0), Direction::from_degrees(40.0, 0.0))
-            .expect("reachable");
+        let j = gonio.ik(Direction::from_degrees(40.0, 180.0), Direction::from_degrees(40.0, 0.0)).expect("reachable");
         assert!((j.rail - 80f64.to_radians()).abs() < 1e-12);
-        assert!(
-            (j.robot[0] - 40f64.to_radians()).abs() < 1e-12 && j.robot[1].abs() < 1e-12,
-            "{j:?}"
-        );
+        assert!((j.robot[0] - 40f64.to_radians()).abs() < 1e-12 && j.robot[1].abs() < 1e-12, "{j:?}");
     }
 
     #[test]
     fn reasons_are_reported() {
         let gonio = bonn();
-        let e = gonio
-            .ik(Direction::from_degrees(90.0, 0.0), Direction::from_degrees(10.0, 0.0))
-            .unwrap_err();
-        assert!(
-            matches!(
-                e,
-                Unreachable::BelowHorizon {
-                    which: Device::Lamp,
-                    ..
-                }
-            ),
-            "{e}"
-        );
-        let e = gonio
-            .ik(Direction::from_degrees(10.0, 0.0), Direction::from_degrees(91.0, 0.0))
-            .unwrap_err();
-        assert!(
-            matches!(
-                e,
-                Unreachable::BelowHorizon {
-                    which: Device::Camera,
-                    ..
-                }
-            ),
-            "{e}"
-        );
-        let e = gonio
-            .ik(Direction::from_degrees(30.0, 0.0), Direction::from_degrees(35.0, 0.0))
-            .unwrap_err();
+        let e = gonio.ik(Direction::from_degrees(90.0, 0.0), Direction::from_degrees(10.0, 0.0)).unwrap_err();
+        assert!(matches!(e, Unreachable::BelowHorizon { which: Device::Lamp, .. }), "{e}");
+        let e = gonio.ik(Direction::from_degrees(10.0, 0.0), Direction::from_degrees(91.0, 0.0)).unwrap_err();
+        assert!(matches!(e, Unreachable::BelowHorizon { which: Device::Camera, .. }), "{e}");
+        let e = gonio.ik(Direction::from_degrees(30.0, 0.0), Direction::from_degrees(35.0, 0.0)).unwrap_err();
         assert!(matches!(e, Unreachable::CameraBlocksLamp { .. }), "{e}");
         assert!(e.to_string().contains("5.000 deg apart, at least 8 deg"), "{e}");
-        let e = gonio
-            .ik(Direction::from_degrees(88.0, 0.0), Direction::from_degrees(88.0, 177.0))
-            .unwrap_err();
+        let e = gonio.ik(Direction::from_degrees(88.0, 0.0), Direction::from_degrees(88.0, 177.0)).unwrap_err();
         assert!(matches!(e, Unreachable::RailLimit { .. }), "{e}");
         // Tight tilt limits: a pair that needs the normal well above the horizontal plane.
         let tight = Gonio::new(GonioGeometry {
@@ -769,9 +685,7 @@ mod tests {
             ..GonioGeometry::bonn()
         })
         .expect("valid");
-        let e = tight
-            .ik(Direction::from_degrees(60.0, 0.0), Direction::from_degrees(60.0, 90.0))
-            .unwrap_err();
+        let e = tight.ik(Direction::from_degrees(60.0, 0.0), Direction::from_degrees(60.0, 90.0)).unwrap_err();
         assert!(matches!(e, Unreachable::JointLimit { joint: 1, .. }), "{e}");
         assert!(e.to_string().contains("tilt"), "{e}");
     }
@@ -780,14 +694,9 @@ mod tests {
     fn a_shoulder_in_front_of_the_sample_shadows_or_collides() {
         // Shoulder between sample and lamp, in the rail plane: lamp rays must be blocked
         // for a sample facing the lamp, and the forearm crosses the plate for frontal pairs.
-        let g = GonioGeometry {
-            robot_shoulder_m: [1.0, 0.0, 0.0],
-            ..GonioGeometry::bonn()
-        };
+        let g = GonioGeometry { robot_shoulder_m: [1.0, 0.0, 0.0], ..GonioGeometry::bonn() };
         let gonio = Gonio::new(g).expect("valid");
-        let e = gonio
-            .ik(Direction::from_degrees(0.0, 0.0), Direction::from_degrees(45.0, 0.0))
-            .unwrap_err();
+        let e = gonio.ik(Direction::from_degrees(0.0, 0.0), Direction::from_degrees(45.0, 0.0)).unwrap_err();
         assert_eq!(e.kind(), UnreachableKind::ArmHitsHolder, "{e}");
         // Lamp at grazing: the forearm leaves the plate's back, swings past the plate edge
         // and runs to (1, 0, 0), right along the lamp ray.
@@ -798,34 +707,17 @@ mod tests {
         assert!(shadowed > 0, "{report}");
         // The default rig has its shoulder behind and below: no shadowing at all for the
         // pairs checked above.
-        assert!(bonn()
-            .ik(Direction::from_degrees(0.0, 0.0), Direction::from_degrees(45.0, 0.0))
-            .is_ok());
+        assert!(bonn().ik(Direction::from_degrees(0.0, 0.0), Direction::from_degrees(45.0, 0.0)).is_ok());
     }
 
     #[test]
     fn segment_distance_cases() {
         let z = Vector3::zeros();
-        let d = segment_distance(
-            &z,
-            &Vector3::x(),
-            &Vector3::new(0.5, 1.0, -1.0),
-            &Vector3::new(0.5, 1.0, 1.0),
-        );
+        let d = segment_distance(&z, &Vector3::x(), &Vector3::new(0.5, 1.0, -1.0), &Vector3::new(0.5, 1.0, 1.0));
         assert!((d - 1.0).abs() < 1e-15);
-        let d = segment_distance(
-            &z,
-            &Vector3::x(),
-            &Vector3::new(2.0, 0.0, 0.0),
-            &Vector3::new(3.0, 0.0, 0.0),
-        );
+        let d = segment_distance(&z, &Vector3::x(), &Vector3::new(2.0, 0.0, 0.0), &Vector3::new(3.0, 0.0, 0.0));
         assert!((d - 1.0).abs() < 1e-15);
-        let d = segment_distance(
-            &z,
-            &Vector3::x(),
-            &Vector3::new(0.2, 0.0, 0.0),
-            &Vector3::new(0.8, 0.0, 0.0),
-        );
+        let d = segment_distance(&z, &Vector3::x(), &Vector3::new(0.2, 0.0, 0.0), &Vector3::new(0.8, 0.0, 0.0));
         assert!(d.abs() < 1e-15);
     }
 }

@@ -35,10 +35,8 @@ impl ScenePose {
         let x_cam = (reference - z_cam * reference.dot(&z_cam)).normalize();
         let y_cam = z_cam.cross(&x_cam);
         let rot = nalgebra::Rotation3::from_basis_unchecked(&[x_cam, y_cam, z_cam]);
-        let camera_to_world = Isometry3::from_parts(
-            Translation3::from(v * camera_distance),
-            UnitQuaternion::from_rotation_matrix(&rot),
-        );
+        let camera_to_world =
+            Isometry3::from_parts(Translation3::from(v * camera_distance), UnitQuaternion::from_rotation_matrix(&rot));
         ScenePose {
             sample_to_world: Isometry3::identity(),
             camera_to_world,

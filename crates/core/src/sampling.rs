@@ -93,11 +93,7 @@ pub struct Ring {
 impl Ring {
     /// Shorthand constructor.
     pub const fn new(theta_deg: f64, count: usize, phi_offset_deg: f64) -> Self {
-        Ring {
-            theta_deg,
-            count,
-            phi_offset_deg,
-        }
+        Ring { theta_deg, count, phi_offset_deg }
     }
 }
 
@@ -141,11 +137,7 @@ pub struct Barycentric {
 impl Barycentric {
     /// The used `(index, weight)` pairs.
     pub fn iter(&self) -> impl Iterator<Item = (usize, f64)> + '_ {
-        self.indices
-            .iter()
-            .copied()
-            .zip(self.weights.iter().copied())
-            .take(self.count)
+        self.indices.iter().copied().zip(self.weights.iter().copied()).take(self.count)
     }
 
     /// Blends per-sample values: `sum_i w_i * values[index_i]`.
@@ -183,11 +175,7 @@ impl Sampling {
         let mut dirs = Vec::new();
         for (k, r) in rings.iter().enumerate() {
             if r.count == 0 {
-                return Err(SamplingError::EmptyRing {
-                    name: name.into(),
-                    ring: k,
-                    theta_deg: r.theta_deg,
-                });
+                return Err(SamplingError::EmptyRing { name: name.into(), ring: k, theta_deg: r.theta_deg });
             }
             for j in 0..r.count {
                 let phi = r.phi_offset_deg + j as f64 * 360.0 / r.count as f64;
@@ -205,12 +193,7 @@ impl Sampling {
         }
         for (i, d) in directions.iter().enumerate() {
             if !d.theta.is_finite() || !d.phi.is_finite() {
-                return Err(SamplingError::NotFinite {
-                    name: name.into(),
-                    index: i,
-                    theta: d.theta,
-                    phi: d.phi,
-                });
+                return Err(SamplingError::NotFinite { name: name.into(), index: i, theta: d.theta, phi: d.phi });
             }
             if !(0.0..std::f64::consts::FRAC_PI_2).contains(&d.theta) {
                 return Err(SamplingError::ThetaOutOfRange {
@@ -238,13 +221,7 @@ impl Sampling {
         }
         let projected: Vec<[f64; 2]> = directions.iter().map(|d| project(*d)).collect();
         let triangulation = Triangulation::build(&projected);
-        Ok(Sampling {
-            name: name.into(),
-            directions,
-            units,
-            projected,
-            triangulation,
-        })
+        Ok(Sampling { name: name.into(), directions, units, projected, triangulation })
     }
 
     /// Name of the sampling (e.g. `bonn81`).
@@ -314,11 +291,7 @@ impl Sampling {
             if w.iter().all(|&x| x >= INSIDE_TOL) {
                 let w = [w[0].max(0.0), w[1].max(0.0), w[2].max(0.0)];
                 let s = w[0] + w[1] + w[2];
-                return Barycentric {
-                    indices: t.v,
-                    weights: [w[0] / s, w[1] / s, w[2] / s],
-                    count: 3,
-                };
+                return Barycentric { indices: t.v, weights: [w[0] / s, w[1] / s, w[2] / s], count: 3 };
             }
         }
         let mut best: Option<(f64, usize, usize, f64)> = None;
@@ -326,11 +299,8 @@ impl Sampling {
             let (a, b) = (self.projected[e[0]], self.projected[e[1]]);
             let ab = [b[0] - a[0], b[1] - a[1]];
             let len2 = ab[0] * ab[0] + ab[1] * ab[1];
-            let t = if len2 > 0.0 {
-                (((q[0] - a[0]) * ab[0] + (q[1] - a[1]) * ab[1]) / len2).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
+            let t =
+                if len2 > 0.0 { (((q[0] - a[0]) * ab[0] + (q[1] - a[1]) * ab[1]) / len2).clamp(0.0, 1.0) } else { 0.0 };
             let p = [a[0] + t * ab[0], a[1] + t * ab[1]];
             let dist2 = (q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2);
             if best.is_none_or(|(bd, ..)| dist2 < bd) {
@@ -338,18 +308,10 @@ impl Sampling {
             }
         }
         match best {
-            Some((_, i, j, t)) => Barycentric {
-                indices: [i, j, j],
-                weights: [1.0 - t, t, 0.0],
-                count: 2,
-            },
+            Some((_, i, j, t)) => Barycentric { indices: [i, j, j], weights: [1.0 - t, t, 0.0], count: 2 },
             None => {
                 let i = self.nearest(d);
-                Barycentric {
-                    indices: [i, i, i],
-                    weights: [1.0, 0.0, 0.0],
-                    count: 1,
-                }
+                Barycentric { indices: [i, i, i], weights: [1.0, 0.0, 0.0], count: 1 }
             }
         }
     }
@@ -372,14 +334,8 @@ mod tests {
         let s = Sampling::bonn81();
         assert_eq!(s.len(), 81);
         assert_eq!(s.name(), "bonn81");
-        let expected = [
-            (0.0, 1, 0.0),
-            (15.0, 6, 60.0),
-            (30.0, 12, 30.0),
-            (45.0, 18, 20.0),
-            (60.0, 20, 18.0),
-            (75.0, 24, 15.0),
-        ];
+        let expected =
+            [(0.0, 1, 0.0), (15.0, 6, 60.0), (30.0, 12, 30.0), (45.0, 18, 20.0), (60.0, 20, 18.0), (75.0, 24, 15.0)];
         let mut k = 0;
         for (theta, count, dphi) in expected {
             for j in 0..count {
@@ -410,29 +366,14 @@ mod tests {
 
     #[test]
     fn list_validation_names_the_problem() {
-        let bad_theta = Sampling::from_list(
-            "x",
-            vec![Direction::from_degrees(10.0, 0.0), Direction::from_degrees(90.0, 0.0)],
-        );
-        assert!(matches!(
-            bad_theta,
-            Err(SamplingError::ThetaOutOfRange { index: 1, .. })
-        ));
+        let bad_theta =
+            Sampling::from_list("x", vec![Direction::from_degrees(10.0, 0.0), Direction::from_degrees(90.0, 0.0)]);
+        assert!(matches!(bad_theta, Err(SamplingError::ThetaOutOfRange { index: 1, .. })));
         let negative = Sampling::from_list("x", vec![Direction::new(-0.1, 0.0)]);
         assert!(matches!(negative, Err(SamplingError::ThetaOutOfRange { index: 0, .. })));
         // Two spellings of the pole are the same direction.
-        let dup = Sampling::from_list(
-            "x",
-            vec![Direction::from_degrees(0.0, 0.0), Direction::from_degrees(0.0, 90.0)],
-        );
-        assert!(matches!(
-            dup,
-            Err(SamplingError::Duplicate {
-                first: 0,
-                second: 1,
-                ..
-            })
-        ));
+        let dup = Sampling::from_list("x", vec![Direction::from_degrees(0.0, 0.0), Direction::from_degrees(0.0, 90.0)]);
+        assert!(matches!(dup, Err(SamplingError::Duplicate { first: 0, second: 1, .. })));
         let dup2 = Sampling::from_list(
             "x",
             vec![
@@ -441,27 +382,12 @@ mod tests {
                 Direction::from_degrees(30.0, 370.0),
             ],
         );
-        assert!(matches!(
-            dup2,
-            Err(SamplingError::Duplicate {
-                first: 0,
-                second: 2,
-                ..
-            })
-        ));
-        assert!(matches!(
-            Sampling::from_list("x", vec![]),
-            Err(SamplingError::Empty { .. })
-        ));
+        assert!(matches!(dup2, Err(SamplingError::Duplicate { first: 0, second: 2, .. })));
+        assert!(matches!(Sampling::from_list("x", vec![]), Err(SamplingError::Empty { .. })));
         let empty_ring = Sampling::from_rings("x", &[Ring::new(0.0, 1, 0.0), Ring::new(30.0, 0, 0.0)]);
         assert!(matches!(empty_ring, Err(SamplingError::EmptyRing { ring: 1, .. })));
-        let msg = Sampling::from_list("mine", vec![Direction::from_degrees(95.0, 0.0)])
-            .unwrap_err()
-            .to_string();
-        assert!(
-            msg.contains("mine") && msg.contains("95") && msg.contains("[0, 90)"),
-            "{msg}"
-        );
+        let msg = Sampling::from_list("mine", vec![Direction::from_degrees(95.0, 0.0)]).unwrap_err().to_string();
+        assert!(msg.contains("mine") && msg.contains("95") && msg.contains("[0, 90)"), "{msg}");
     }
 
     #[test]
@@ -504,11 +430,7 @@ mod tests {
                     0.5 * ((b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]))
                 })
                 .sum();
-            assert!(
-                (area - outer_ring_polygon_area(75.0, 24)).abs() < 1e-12,
-                "{}: {area}",
-                s.name()
-            );
+            assert!((area - outer_ring_polygon_area(75.0, 24)).abs() < 1e-12, "{}: {area}", s.name());
         }
     }
 
@@ -574,22 +496,16 @@ mod tests {
         let one = Sampling::from_list("one", vec![Direction::from_degrees(20.0, 40.0)]).expect("valid");
         let b = one.interpolate(Direction::from_degrees(50.0, 200.0));
         assert_eq!((b.count, b.indices[0], b.weights[0]), (1, 0, 1.0));
-        let two = Sampling::from_list(
-            "two",
-            vec![Direction::from_degrees(20.0, 0.0), Direction::from_degrees(40.0, 0.0)],
-        )
-        .expect("valid");
+        let two =
+            Sampling::from_list("two", vec![Direction::from_degrees(20.0, 0.0), Direction::from_degrees(40.0, 0.0)])
+                .expect("valid");
         let b = two.interpolate(Direction::from_degrees(30.0, 0.0));
         assert_eq!(b.count, 2);
         assert!((b.weights[0] - 0.5).abs() < 1e-12);
         // Collinear projections: no triangle; falls back to the nearest sample.
-        let line = Sampling::from_list(
-            "line",
-            (0..4)
-                .map(|i| Direction::from_degrees(10.0 * i as f64 + 5.0, 0.0))
-                .collect(),
-        )
-        .expect("valid");
+        let line =
+            Sampling::from_list("line", (0..4).map(|i| Direction::from_degrees(10.0 * i as f64 + 5.0, 0.0)).collect())
+                .expect("valid");
         assert!(line.triangles().is_empty());
         let b = line.interpolate(Direction::from_degrees(20.0, 0.0));
         assert!((b.weights.iter().sum::<f64>() - 1.0).abs() < 1e-12);

@@ -28,9 +28,8 @@ fn header(text: &str, path: &Path) -> (Vec<String>, String) {
         .strip_prefix("# fields: ")
         .or_else(|| first.strip_prefix("# field: "))
         .unwrap_or_else(|| panic!("{}: first line must be `# field: F | expect: TEXT`", path.display()));
-    let (fields, expect) = body
-        .split_once(" | expect: ")
-        .unwrap_or_else(|| panic!("{}: no ` | expect: `", path.display()));
+    let (fields, expect) =
+        body.split_once(" | expect: ").unwrap_or_else(|| panic!("{}: no ` | expect: `", path.display()));
     (fields.split(", ").map(str::to_string).collect(), expect.to_string())
 }
 
@@ -43,10 +42,7 @@ fn check(path: &Path) -> PlanErrors {
         Err(e) => e,
     };
     let shown = err.to_string();
-    assert!(
-        shown.starts_with(&origin),
-        "{origin}: the message names the file: {shown}"
-    );
+    assert!(shown.starts_with(&origin), "{origin}: the message names the file: {shown}");
     assert!(shown.contains(&expect), "{origin}: expected {expect:?} in:\n{shown}");
     for field in &fields {
         let named = err.errors.iter().any(|e| match e {
@@ -80,11 +76,7 @@ fn every_bad_plan_is_rejected_naming_its_field_and_the_allowed_values() {
             kinds.insert(std::mem::discriminant(e));
         }
     }
-    assert!(
-        files.len() >= 10,
-        "at least ten kinds of broken plans, found {}",
-        files.len()
-    );
+    assert!(files.len() >= 10, "at least ten kinds of broken plans, found {}", files.len());
     // Out of range, unknown, invalid, unsupported, unreachable, syntax: all exercised.
     assert_eq!(kinds.len(), 6, "every kind of plan error is exercised");
 }
@@ -102,24 +94,12 @@ fn an_output_directory_holding_another_dataset_is_refused_and_the_same_plan_resu
         .unwrap();
     let plan = Plan::from_toml(&text, "demo.toml").unwrap();
     let mut ctx = PlanContext::with_builtin_names();
-    ctx.existing_dataset = Some(ExistingDataset {
-        plan_hash: 0x1234,
-        path: "/data/old".into(),
-    });
+    ctx.existing_dataset = Some(ExistingDataset { plan_hash: 0x1234, path: "/data/old".into() });
     let err = plan.validate(&ctx).unwrap_err();
     assert_eq!(err.errors.len(), 1, "{err}");
     let s = err.to_string();
-    assert!(
-        s.contains("output = \"/data/old\" already holds a dataset of another plan"),
-        "{s}"
-    );
-    assert!(
-        s.contains("allowed an empty or new directory, or the same plan to resume"),
-        "{s}"
-    );
-    ctx.existing_dataset = Some(ExistingDataset {
-        plan_hash: plan.content_hash(),
-        path: "/data/old".into(),
-    });
+    assert!(s.contains("output = \"/data/old\" already holds a dataset of another plan"), "{s}");
+    assert!(s.contains("allowed an empty or new directory, or the same plan to resume"), "{s}");
+    ctx.existing_dataset = Some(ExistingDataset { plan_hash: plan.content_hash(), path: "/data/old".into() });
     assert!(plan.validate(&ctx).unwrap().resume);
 }

@@ -95,10 +95,7 @@ impl EngineStep {
             .map(|&i| {
                 let c = &schedule.captures[i];
                 EngineStep {
-                    key: StepKey {
-                        light: c.light_index as u32,
-                        view: c.view_index as u32,
-                    },
+                    key: StepKey { light: c.light_index as u32, view: c.view_index as u32 },
                     joints: c.joints,
                     exposure_s: c.exposure_s,
                 }
@@ -227,13 +224,8 @@ impl fmt::Display for PauseReason {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             PauseReason::Requested => f.write_str("paused on request"),
-            PauseReason::StepFailed {
-                index, key, message, ..
-            } => {
-                write!(
-                    f,
-                    "step {index} ({key}) failed: {message}; fix the cause and resume to retry the step"
-                )
+            PauseReason::StepFailed { index, key, message, .. } => {
+                write!(f, "step {index} ({key}) failed: {message}; fix the cause and resume to retry the step")
             }
             PauseReason::ConsumerGone => f.write_str("the frame consumer is gone"),
         }
@@ -349,24 +341,9 @@ impl Engine {
         let (cmd_tx, cmd_rx) = mpsc::unbounded_channel();
         let (ev_tx, ev_rx) = broadcast::channel(4096);
         let (state_tx, state_rx) = watch::channel(RunState::Running);
-        let runner = run::Runner::new(
-            devices,
-            schedule,
-            done,
-            settings,
-            frames,
-            ev_tx.clone(),
-            state_tx,
-            cmd_rx,
-        );
+        let runner = run::Runner::new(devices, schedule, done, settings, frames, ev_tx.clone(), state_tx, cmd_rx);
         let task = tokio::spawn(runner.run());
-        RunHandle {
-            cmd: cmd_tx,
-            events: ev_tx,
-            first_events: Some(ev_rx),
-            state: state_rx,
-            task,
-        }
+        RunHandle { cmd: cmd_tx, events: ev_tx, first_events: Some(ev_rx), state: state_rx, task }
     }
 }
 

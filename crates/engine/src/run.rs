@@ -79,8 +79,7 @@ macro_rules! retrying {
                 Ok(v) => break Ok(v),
                 Err(e) if e.is_retryable() && k < $s.max_retries => {
                     let wait = $s.backoff_for(k);
-                    $log.warnings
-                        .push(format!("{e}; retry {} of {} in {wait:.2} s", k + 1, $s.max_retries));
+                    $log.warnings.push(format!("{e}; retry {} of {} in {wait:.2} s", k + 1, $s.max_retries));
                     if e.kind() == ErrorKind::Disconnected {
                         let limit = COMMAND_TIMEOUT_S + $s.guard_margin_s;
                         if let Err(r) = guard($clock, limit, &name, $dev.reconnect()).await {
@@ -105,14 +104,7 @@ async fn move_robot(
 ) -> (Result<(), DeviceError>, OpLog) {
     let mut log = OpLog::default();
     let opts = MoveOptions::with_timeout_s(s.move_timeout_s);
-    let r = retrying!(
-        s,
-        clock,
-        log,
-        robot,
-        s.move_timeout_s + s.guard_margin_s,
-        robot.move_to_rad(target, opts)
-    );
+    let r = retrying!(s, clock, log, robot, s.move_timeout_s + s.guard_margin_s, robot.move_to_rad(target, opts));
     (r.map(|_| ()), log)
 }
 
@@ -124,14 +116,7 @@ async fn move_rail(
 ) -> (Result<(), DeviceError>, OpLog) {
     let mut log = OpLog::default();
     let opts = MoveOptions::with_timeout_s(s.move_timeout_s);
-    let r = retrying!(
-        s,
-        clock,
-        log,
-        rail,
-        s.move_timeout_s + s.guard_margin_s,
-        rail.move_to_rad(target, opts)
-    );
+    let r = retrying!(s, clock, log, rail, s.move_timeout_s + s.guard_margin_s, rail.move_to_rad(target, opts));
     (r.map(|_| ()), log)
 }
 
@@ -143,10 +128,8 @@ async fn move_both(
     rail: &mut dyn Rail,
     joints: &JointState,
 ) -> (Result<(), DeviceError>, OpLog) {
-    let ((a, mut log), (b, log_b)) = tokio::join!(
-        move_robot(s, clock, robot, joints.robot),
-        move_rail(s, clock, rail, joints.rail)
-    );
+    let ((a, mut log), (b, log_b)) =
+        tokio::join!(move_robot(s, clock, robot, joints.robot), move_rail(s, clock, rail, joints.rail));
     log.merge(log_b);
     (a.and(b), log)
 }
@@ -161,14 +144,7 @@ async fn set_exposure(
     if camera.settings().exposure_s == exposure_s {
         return (Ok(()), log);
     }
-    let r = retrying!(
-        s,
-        clock,
-        log,
-        camera,
-        COMMAND_TIMEOUT_S + s.guard_margin_s,
-        camera.set_exposure_s(exposure_s)
-    );
+    let r = retrying!(s, clock, log, camera, COMMAND_TIMEOUT_S + s.guard_margin_s, camera.set_exposure_s(exposure_s));
     (r, log)
 }
 
@@ -180,27 +156,14 @@ async fn trigger(
 ) -> (Result<u64, DeviceError>, OpLog) {
     let mut log = OpLog::default();
     let timeout = s.trigger_timeout_s + exposure_s;
-    let r = retrying!(
-        s,
-        clock,
-        log,
-        camera,
-        timeout + s.guard_margin_s,
-        camera.trigger(timeout)
-    );
+    let r = retrying!(s, clock, log, camera, timeout + s.guard_margin_s, camera.trigger(timeout));
     (r, log)
 }
 
 /// One read-out, no retry: a failed read-out needs a new trigger at the step's pose.
 async fn read_once(s: &EngineSettings, clock: &SharedClock, camera: &mut dyn Camera) -> Result<RawFrame, DeviceError> {
     let name = camera.name().to_string();
-    guard(
-        clock,
-        s.read_timeout_s + s.guard_margin_s,
-        &name,
-        camera.read_frame(s.read_timeout_s),
-    )
-    .await
+    guard(clock, s.read_timeout_s + s.guard_margin_s, &name, camera.read_frame(s.read_timeout_s)).await
 }
 
 pub(crate) struct Runner {
@@ -338,13 +301,7 @@ impl Runner {
     }
 
     fn note_retry(&mut self, index: usize, msg: String) {
-        self.absorb(
-            index,
-            OpLog {
-                retries: 1,
-                warnings: vec![msg],
-            },
-        );
+        self.absorb(index, OpLog { retries: 1, warnings: vec![msg] });
     }
 
     /// After a failed read-out: a disconnected camera is reconnected before the recapture.
@@ -368,24 +325,13 @@ impl Runner {
         let remaining = self.steps.len() - self.done_count();
         let eta_s = (!self.recent.is_empty())
             .then(|| self.recent.iter().sum::<f64>() / self.recent.len() as f64 * remaining as f64);
-        self.emit(Event::Progress {
-            done: self.done_count(),
-            total: self.steps.len(),
-            eta_s,
-        });
+        self.emit(Event::Progress { done: self.done_count(), total: self.steps.len(), eta_s });
     }
 
     async fn deliver(&mut self, index: usize, frame: RawFrame, times: StepTimes) -> Result<(), Stop> {
         let step = self.steps[index];
         let attempts = 1 + self.step_retries.get(&index).copied().unwrap_or(0);
-        let cf = CapturedFrame {
-            index,
-            key: step.key,
-            frame,
-            attempts,
-            joints: step.joints,
-            times,
-        };
+        let cf = CapturedFrame { index, key: step.key, frame, attempts, joints: step.joints, times };
         if self.frames.send(cf).await.is_err() {
             return Err(Stop::ConsumerGone);
         }
@@ -400,11 +346,7 @@ impl Runner {
         }
         self.measured_sum_s += dt;
         self.measured_n += 1;
-        self.emit(Event::StepDone {
-            index,
-            key: step.key,
-            attempts,
-        });
+        self.emit(Event::StepDone { index, key: step.key, attempts });
         self.progress();
         Ok(())
     }
@@ -416,10 +358,7 @@ impl Runner {
         let s = self.s.clone();
         let clock = self.dev.clock.clone();
         let fail = |error| Stop::Failed(Failure { index, error });
-        let mut times = StepTimes {
-            move_start_s: clock.now_s(),
-            ..StepTimes::default()
-        };
+        let mut times = StepTimes { move_start_s: clock.now_s(), ..StepTimes::default() };
         let (r, log) = move_both(&s, &clock, &mut *self.dev.robot, &mut *self.dev.rail, &step.joints).await;
         times.move_end_s = clock.now_s();
         self.absorb(index, log);
@@ -457,10 +396,7 @@ impl Runner {
         let clock = self.dev.clock.clone();
         match read_once(&s, &clock, &mut *self.dev.camera).await {
             Ok(frame) => {
-                let times = StepTimes {
-                    transfer_end_s: clock.now_s(),
-                    ..p.times
-                };
+                let times = StepTimes { transfer_end_s: clock.now_s(), ..p.times };
                 self.deliver(p.index, frame, times).await
             }
             Err(e) if e.is_retryable() => {
@@ -479,14 +415,9 @@ impl Runner {
         let s = self.s.clone();
         let clock = self.dev.clock.clone();
         let fail = |error| Stop::Failed(Failure { index, error });
-        let mut times = StepTimes {
-            move_start_s: clock.now_s(),
-            ..StepTimes::default()
-        };
+        let mut times = StepTimes { move_start_s: clock.now_s(), ..StepTimes::default() };
 
-        let Devices {
-            robot, rail, camera, ..
-        } = &mut self.dev;
+        let Devices { robot, rail, camera, .. } = &mut self.dev;
         let moving = async {
             let r = move_both(&s, &clock, &mut **robot, &mut **rail, &step.joints).await;
             (r, clock.now_s())
@@ -503,10 +434,7 @@ impl Runner {
                 }
             }
             // The exposure command runs on the camera after the transfer, during the move.
-            (
-                read,
-                Some(set_exposure(&s, &clock, &mut **camera, step.exposure_s).await),
-            )
+            (read, Some(set_exposure(&s, &clock, &mut **camera, step.exposure_s).await))
         };
         let (((moved, move_log), move_end), (read, exposure)) = tokio::join!(moving, camera_work);
         times.move_end_s = move_end;
@@ -517,10 +445,7 @@ impl Runner {
         if let (Some(p), Some(read)) = (pending, read) {
             match read {
                 Ok((frame, t)) => {
-                    let times = StepTimes {
-                        transfer_end_s: t,
-                        ..p.times
-                    };
+                    let times = StepTimes { transfer_end_s: t, ..p.times };
                     self.deliver(p.index, frame, times).await?;
                 }
                 Err(e) if e.is_retryable() => {
@@ -553,12 +478,8 @@ impl Runner {
     }
 
     fn summary(&self) -> RunSummary {
-        let mut retried: Vec<(usize, u32)> = self
-            .step_retries
-            .iter()
-            .filter(|(_, &n)| n > 0)
-            .map(|(&i, &n)| (i, n))
-            .collect();
+        let mut retried: Vec<(usize, u32)> =
+            self.step_retries.iter().filter(|(_, &n)| n > 0).map(|(&i, &n)| (i, n)).collect();
         retried.sort_unstable();
         RunSummary {
             total: self.steps.len(),
@@ -568,11 +489,7 @@ impl Runner {
             retried_steps: retried.into_iter().map(|(i, n)| (self.steps[i].key, n)).collect(),
             warnings: self.warnings,
             hardware_s: self.now() - self.start_s,
-            mean_step_s: if self.measured_n > 0 {
-                self.measured_sum_s / self.measured_n as f64
-            } else {
-                0.0
-            },
+            mean_step_s: if self.measured_n > 0 { self.measured_sum_s / self.measured_n as f64 } else { 0.0 },
         }
     }
 

@@ -24,11 +24,7 @@ use tokio::task::JoinHandle;
 const EXPOSURE_S: f64 = 0.01;
 
 fn cfg() -> RigConfig {
-    RigConfig::from_toml(
-        include_str!("../../../rig-configs/bonn-gonio-sim.toml"),
-        "bonn-gonio-sim.toml",
-    )
-    .unwrap()
+    RigConfig::from_toml(include_str!("../../../rig-configs/bonn-gonio-sim.toml"), "bonn-gonio-sim.toml").unwrap()
 }
 
 fn schedule(cfg: &RigConfig, pairs: PairSelection) -> Schedule {
@@ -68,11 +64,7 @@ impl FrameSource for PoseFrameSource {
 
 /// The true (rail, pan, tilt) of a frame from [`PoseFrameSource`], degrees.
 fn pose_of(f: &RawFrame) -> [f64; 3] {
-    [
-        f.data[0] as f64 / 10.0,
-        f.data[1] as f64 / 10.0 - 180.0,
-        f.data[2] as f64 / 10.0 - 180.0,
-    ]
+    [f.data[0] as f64 / 10.0, f.data[1] as f64 / 10.0 - 180.0, f.data[2] as f64 / 10.0 - 180.0]
 }
 
 /// A homed rig with a warm lamp; the clock is read after preparation by the caller.
@@ -86,22 +78,8 @@ async fn rig(cfg: &RigConfig, faults: &FaultScenario) -> (Devices, SimWorld) {
     )
     .unwrap();
     prepare(&mut rig).await.unwrap();
-    let SimRig {
-        world,
-        robot,
-        rail,
-        camera,
-        ..
-    } = rig;
-    (
-        Devices {
-            robot,
-            rail,
-            camera,
-            clock,
-        },
-        world,
-    )
+    let SimRig { world, robot, rail, camera, .. } = rig;
+    (Devices { robot, rail, camera, clock }, world)
 }
 
 /// Collects every delivered frame until the engine drops its sender.
@@ -130,12 +108,7 @@ async fn next_matching(rx: &mut broadcast::Receiver<Event>, pred: impl Fn(&Event
 fn check_delivered(frames: &[CapturedFrame], steps: &[EngineStep]) -> HashSet<StepKey> {
     let mut keys = HashSet::new();
     for w in frames.windows(2) {
-        assert!(
-            w[0].index < w[1].index,
-            "out of order: {} then {}",
-            w[0].index,
-            w[1].index
-        );
+        assert!(w[0].index < w[1].index, "out of order: {} then {}", w[0].index, w[1].index);
     }
     for f in frames {
         assert!(keys.insert(f.key), "{} delivered twice", f.key);
@@ -145,34 +118,15 @@ fn check_delivered(frames: &[CapturedFrame], steps: &[EngineStep]) -> HashSet<St
         assert_eq!(f.frame.meta.exposure_s, EXPOSURE_S);
         assert!(f.attempts >= 1);
         let t = &f.times;
-        assert!(
-            t.move_start_s <= t.move_end_s && t.move_end_s <= t.trigger_start_s,
-            "{t:?}"
-        );
-        assert!(
-            t.trigger_start_s < t.trigger_end_s && t.trigger_end_s < t.transfer_end_s,
-            "{t:?}"
-        );
+        assert!(t.move_start_s <= t.move_end_s && t.move_end_s <= t.trigger_start_s, "{t:?}");
+        assert!(t.trigger_start_s < t.trigger_end_s && t.trigger_end_s < t.transfer_end_s, "{t:?}");
         // The frame is the one of the recorded trigger, exposed at this step's pose (within
         // the simulated positioning error, well under a degree).
         let m = &f.frame.meta;
-        assert!(
-            t.trigger_start_s <= m.timestamp_s && m.timestamp_s <= t.trigger_end_s,
-            "{t:?} {}",
-            m.timestamp_s
-        );
-        let want = [
-            s.joints.rail.to_degrees(),
-            s.joints.robot[0].to_degrees(),
-            s.joints.robot[1].to_degrees(),
-        ];
+        assert!(t.trigger_start_s <= m.timestamp_s && m.timestamp_s <= t.trigger_end_s, "{t:?} {}", m.timestamp_s);
+        let want = [s.joints.rail.to_degrees(), s.joints.robot[0].to_degrees(), s.joints.robot[1].to_degrees()];
         for (got, want) in pose_of(&f.frame).iter().zip(want) {
-            assert!(
-                (got - want).abs() < 0.8,
-                "step {}: true pose {:?}, commanded {want}",
-                f.index,
-                pose_of(&f.frame)
-            );
+            assert!((got - want).abs() < 0.8, "step {}: true pose {:?}, commanded {want}", f.index, pose_of(&f.frame));
         }
     }
     keys
@@ -184,13 +138,8 @@ async fn run_forty(overlap: bool) -> (RunOutcome, Vec<CapturedFrame>, Schedule) 
     let steps = EngineStep::from_schedule(&sched);
     let (devices, _world) = rig(&cfg, &FaultScenario::none()).await;
     let (tx, frames) = consumer(4);
-    let settings = EngineSettings {
-        overlap,
-        ..EngineSettings::default()
-    };
-    let outcome = Engine::spawn(devices, steps.clone(), HashSet::new(), settings, tx)
-        .join()
-        .await;
+    let settings = EngineSettings { overlap, ..EngineSettings::default() };
+    let outcome = Engine::spawn(devices, steps.clone(), HashSet::new(), settings, tx).join().await;
     let frames = frames.await.unwrap();
     assert_eq!(frames.len(), 40);
     let keys = check_delivered(&frames, &steps);
@@ -201,18 +150,14 @@ async fn run_forty(overlap: bool) -> (RunOutcome, Vec<CapturedFrame>, Schedule) 
 #[tokio::test(start_paused = true)]
 async fn forty_steps_delivered_once_in_order_and_overlap_matches_the_planner() {
     let (outcome, frames, sched) = run_forty(true).await;
-    let RunOutcome::Finished(sum) = outcome else {
-        panic!("{outcome:?}")
-    };
+    let RunOutcome::Finished(sum) = outcome else { panic!("{outcome:?}") };
     assert_eq!((sum.total, sum.captured, sum.skipped_done, sum.retries), (40, 40, 0, 0));
     assert!(frames.iter().all(|f| f.attempts == 1));
 
     let planned = sched.timing.hardware_s;
     let rel = (sum.hardware_s - planned).abs() / planned;
     let (seq_outcome, _, _) = run_forty(false).await;
-    let RunOutcome::Finished(seq) = seq_outcome else {
-        panic!()
-    };
+    let RunOutcome::Finished(seq) = seq_outcome else { panic!() };
     let seq_sum: f64 = {
         let model = btfrig_planner::TimingModel::new(&cfg().timing);
         let mut prev = sched.start.joints;
@@ -236,17 +181,8 @@ async fn forty_steps_delivered_once_in_order_and_overlap_matches_the_planner() {
     );
     assert!(rel < 0.02, "overlapped {} s vs planner {planned} s", sum.hardware_s);
     // The sequential engine run is the planner's step-by-step sum, and clearly slower.
-    assert!(
-        (seq.hardware_s - seq_sum).abs() / seq_sum < 0.02,
-        "{} vs {seq_sum}",
-        seq.hardware_s
-    );
-    assert!(
-        sum.hardware_s < 0.9 * seq.hardware_s,
-        "{} vs {}",
-        sum.hardware_s,
-        seq.hardware_s
-    );
+    assert!((seq.hardware_s - seq_sum).abs() / seq_sum < 0.02, "{} vs {seq_sum}", seq.hardware_s);
+    assert!(sum.hardware_s < 0.9 * seq.hardware_s, "{} vs {}", sum.hardware_s, seq.hardware_s);
 }
 
 #[tokio::test(start_paused = true)]
@@ -258,13 +194,9 @@ async fn flaky_rig_full_bonn_plan_completes_with_counted_retries_and_no_duplicat
     let (devices, world) = rig(&cfg, &flaky).await;
     let (tx, frames) = consumer(8);
     let wall = std::time::Instant::now();
-    let outcome = Engine::spawn(devices, steps.clone(), HashSet::new(), EngineSettings::default(), tx)
-        .join()
-        .await;
+    let outcome = Engine::spawn(devices, steps.clone(), HashSet::new(), EngineSettings::default(), tx).join().await;
     let frames = frames.await.unwrap();
-    let RunOutcome::Finished(sum) = outcome else {
-        panic!("{outcome:?}")
-    };
+    let RunOutcome::Finished(sum) = outcome else { panic!("{outcome:?}") };
     assert_eq!(frames.len(), steps.len());
     check_delivered(&frames, &steps);
     let faults = world.fault_log();
@@ -285,27 +217,14 @@ async fn flaky_rig_full_bonn_plan_completes_with_counted_retries_and_no_duplicat
     assert!(faults.iter().any(|f| f.kind == btfrig_sim::FaultKind::Disconnected));
     assert!(faults.iter().any(|f| f.kind == btfrig_sim::FaultKind::DroppedFrame));
     // Every retry answers an injected fault (a failed reconnect is a fault but no retry).
-    assert!(
-        sum.retries as usize <= faults.len(),
-        "{} retries, {} faults",
-        sum.retries,
-        faults.len()
-    );
-    assert_eq!(
-        attempts - frames.len() as u32,
-        sum.retries,
-        "per-step attempts add up to the total"
-    );
+    assert!(sum.retries as usize <= faults.len(), "{} retries, {} faults", sum.retries, faults.len());
+    assert_eq!(attempts - frames.len() as u32, sum.retries, "per-step attempts add up to the total");
     assert_eq!(sum.retried_steps.iter().map(|r| r.1).sum::<u32>(), sum.retries);
     // Faults cost time: each at most its operation's timeout (60 s for a move), a backoff and
     // a recapture (a move back, trigger and a 5 s transfer: < 15 s here).
     let extra = sum.hardware_s - sched.timing.hardware_s;
     assert!(extra > 0.0);
-    assert!(
-        extra < faults.len() as f64 * 75.0,
-        "{extra} s extra for {} faults",
-        faults.len()
-    );
+    assert!(extra < faults.len() as f64 * 75.0, "{extra} s extra for {} faults", faults.len());
 }
 
 #[tokio::test(start_paused = true)]
@@ -315,13 +234,9 @@ async fn fault_free_full_plan_is_within_two_percent_of_the_critical_path() {
     let steps = EngineStep::from_schedule(&sched);
     let (devices, _world) = rig(&cfg, &FaultScenario::none()).await;
     let (tx, frames) = consumer(8);
-    let outcome = Engine::spawn(devices, steps.clone(), HashSet::new(), EngineSettings::default(), tx)
-        .join()
-        .await;
+    let outcome = Engine::spawn(devices, steps.clone(), HashSet::new(), EngineSettings::default(), tx).join().await;
     let frames = frames.await.unwrap();
-    let RunOutcome::Finished(sum) = outcome else {
-        panic!("{outcome:?}")
-    };
+    let RunOutcome::Finished(sum) = outcome else { panic!("{outcome:?}") };
     assert_eq!(frames.len(), 6480);
     println!(
         "81x81 fault-free: hardware {:.1} s, planner {:.1} s, critical path {:.1} s, naive order {:.1} s",
@@ -346,15 +261,10 @@ async fn permanent_disconnect_pauses_with_a_message_naming_the_camera_then_abort
     let Event::Paused { reason } = next_matching(&mut ev, |e| matches!(e, Event::Paused { .. })).await else {
         unreachable!()
     };
-    let PauseReason::StepFailed { device, kind, .. } = &reason else {
-        panic!("{reason:?}")
-    };
+    let PauseReason::StepFailed { device, kind, .. } = &reason else { panic!("{reason:?}") };
     assert_eq!((device.as_str(), *kind), ("camera", ErrorKind::Disconnected));
     let text = reason.to_string();
-    assert!(
-        text.contains("camera: disconnected") && text.contains("gave up after 5 retries"),
-        "{text}"
-    );
+    assert!(text.contains("camera: disconnected") && text.contains("gave up after 5 retries"), "{text}");
     assert!(text.starts_with("step "), "{text}");
     assert!(matches!(*h.state().borrow(), RunState::Paused(_)));
     // Resuming retries the step; the camera stays away, so the run pauses again.
@@ -362,18 +272,13 @@ async fn permanent_disconnect_pauses_with_a_message_naming_the_camera_then_abort
     next_matching(&mut ev, |e| matches!(e, Event::Resumed)).await;
     next_matching(&mut ev, |e| matches!(e, Event::Paused { .. })).await;
     h.abort();
-    let RunOutcome::Aborted { done, summary } = h.join().await else {
-        panic!()
-    };
+    let RunOutcome::Aborted { done, summary } = h.join().await else { panic!() };
     let frames = frames.await.unwrap();
     let keys = check_delivered(&frames, &steps);
     assert!(!frames.is_empty() && frames.len() < 40, "{}", frames.len());
     assert_eq!(done, keys);
     assert_eq!(summary.captured, frames.len());
-    assert_eq!(
-        summary.retries, 10,
-        "5 per attempt of the failing operation, two attempts"
-    );
+    assert_eq!(summary.retries, 10, "5 per attempt of the failing operation, two attempts");
 }
 
 #[tokio::test(start_paused = true)]
@@ -392,9 +297,7 @@ async fn healing_disconnects_are_reconnected_and_retried() {
     let (tx, frames) = consumer(4);
     let mut h = Engine::spawn(devices, steps.clone(), HashSet::new(), EngineSettings::default(), tx);
     let mut ev = h.events();
-    let RunOutcome::Finished(sum) = h.join().await else {
-        panic!()
-    };
+    let RunOutcome::Finished(sum) = h.join().await else { panic!() };
     let frames = frames.await.unwrap();
     assert_eq!(frames.len(), 40);
     check_delivered(&frames, &steps);
@@ -404,20 +307,11 @@ async fn healing_disconnects_are_reconnected_and_retried() {
             warnings.push(w);
         }
     }
-    assert!(
-        warnings.iter().any(|w| w.contains("camera: disconnected")),
-        "{warnings:?}"
-    );
-    assert!(
-        warnings.iter().any(|w| w.contains("robot: disconnected")),
-        "{warnings:?}"
-    );
+    assert!(warnings.iter().any(|w| w.contains("camera: disconnected")), "{warnings:?}");
+    assert!(warnings.iter().any(|w| w.contains("robot: disconnected")), "{warnings:?}");
     // Each outage (2 calls): the failing call and the reconnect call fail, the retry succeeds.
     assert_eq!(world.fault_log().len(), 4, "{:?}", world.fault_log());
-    assert!(
-        warnings.iter().filter(|w| w.contains("reconnect failed")).count() == 2,
-        "{warnings:?}"
-    );
+    assert!(warnings.iter().filter(|w| w.contains("reconnect failed")).count() == 2, "{warnings:?}");
     assert_eq!(sum.retries, 2);
     assert_eq!(sum.retried_steps.len(), 2);
 }
@@ -445,11 +339,7 @@ impl Rail for StoppableRail {
     }
     async fn move_to_rad(&mut self, angle_rad: f64, opts: MoveOptions) -> Result<f64, DeviceError> {
         if self.stopped.load(Ordering::SeqCst) {
-            return Err(DeviceError::new(
-                self.name(),
-                ErrorKind::Other,
-                "emergency stop pressed",
-            ));
+            return Err(DeviceError::new(self.name(), ErrorKind::Other, "emergency stop pressed"));
         }
         self.inner.move_to_rad(angle_rad, opts).await
     }
@@ -464,10 +354,7 @@ async fn non_retryable_error_pauses_and_resume_after_the_fix_completes() {
     let steps = EngineStep::from_schedule(&forty(&cfg));
     let (mut devices, _world) = rig(&cfg, &FaultScenario::none()).await;
     let stopped = Arc::new(AtomicBool::new(false));
-    devices.rail = Box::new(StoppableRail {
-        inner: devices.rail,
-        stopped: stopped.clone(),
-    });
+    devices.rail = Box::new(StoppableRail { inner: devices.rail, stopped: stopped.clone() });
     let (tx, frames) = consumer(4);
     let mut h = Engine::spawn(devices, steps.clone(), HashSet::new(), EngineSettings::default(), tx);
     let mut ev = h.events();
@@ -476,32 +363,18 @@ async fn non_retryable_error_pauses_and_resume_after_the_fix_completes() {
     let Event::Paused { reason } = next_matching(&mut ev, |e| matches!(e, Event::Paused { .. })).await else {
         unreachable!()
     };
-    let PauseReason::StepFailed {
-        index,
-        key,
-        device,
-        kind,
-        ..
-    } = &reason
-    else {
-        panic!("{reason:?}")
-    };
+    let PauseReason::StepFailed { index, key, device, kind, .. } = &reason else { panic!("{reason:?}") };
     assert_eq!((device.as_str(), *kind), ("rail", ErrorKind::Other));
     assert_eq!(*key, steps[*index].key);
     let text = reason.to_string();
     assert!(text.contains(&format!("step {index} ({key})")), "{text}");
-    assert!(
-        text.contains("rail: other: emergency stop pressed (not retryable)"),
-        "{text}"
-    );
+    assert!(text.contains("rail: other: emergency stop pressed (not retryable)"), "{text}");
     // Still paused after a long wait: nothing more is delivered.
     tokio::time::sleep(std::time::Duration::from_secs(3600)).await;
     assert!(matches!(*h.state().borrow(), RunState::Paused(_)));
     stopped.store(false, Ordering::SeqCst);
     h.resume();
-    let RunOutcome::Finished(sum) = h.join().await else {
-        panic!()
-    };
+    let RunOutcome::Finished(sum) = h.join().await else { panic!() };
     let frames = frames.await.unwrap();
     assert_eq!(frames.len(), 40);
     check_delivered(&frames, &steps);
@@ -520,18 +393,11 @@ async fn out_of_range_move_pauses_naming_the_rail_and_is_not_retried() {
     let Event::Paused { reason } = next_matching(&mut ev, |e| matches!(e, Event::Paused { .. })).await else {
         unreachable!()
     };
-    let PauseReason::StepFailed {
-        index, device, kind, ..
-    } = &reason
-    else {
-        panic!("{reason:?}")
-    };
+    let PauseReason::StepFailed { index, device, kind, .. } = &reason else { panic!("{reason:?}") };
     assert_eq!((*index, device.as_str(), *kind), (1, "rail", ErrorKind::OutOfRange));
     assert!(reason.to_string().contains("(not retryable)"), "{reason}");
     h.abort();
-    let RunOutcome::Aborted { done, summary } = h.join().await else {
-        panic!()
-    };
+    let RunOutcome::Aborted { done, summary } = h.join().await else { panic!() };
     assert_eq!(done, HashSet::from([steps[0].key]));
     assert_eq!(summary.retries, 0);
     assert_eq!(frames.await.unwrap().len(), 1);
@@ -563,16 +429,11 @@ async fn pause_holds_between_steps_and_resume_finishes() {
         }
     }
     // The step under way was finished (its frame delivered), no more.
-    assert!(
-        (1..=2).contains(&done_at_pause),
-        "{done_at_pause} steps after the pause request"
-    );
+    assert!((1..=2).contains(&done_at_pause), "{done_at_pause} steps after the pause request");
     tokio::time::sleep(std::time::Duration::from_secs(3600)).await;
     assert!(ev.try_recv().is_err(), "no events while paused");
     h.resume();
-    let RunOutcome::Finished(sum) = h.join().await else {
-        panic!()
-    };
+    let RunOutcome::Finished(sum) = h.join().await else { panic!() };
     assert_eq!(sum.captured, 40);
     let frames = frames.await.unwrap();
     check_delivered(&frames, &steps);
@@ -597,9 +458,7 @@ async fn abort_stops_after_the_current_step_and_resume_with_done_skips_them() {
     next_matching(&mut ev, |e| matches!(e, Event::StepDone { index: 11, .. })).await;
     h.abort();
     let (outcome, devices) = h.join_with_devices().await;
-    let RunOutcome::Aborted { done, summary } = outcome else {
-        panic!("{outcome:?}")
-    };
+    let RunOutcome::Aborted { done, summary } = outcome else { panic!("{outcome:?}") };
     let first = frames.await.unwrap();
     assert_eq!(done, check_delivered(&first, &steps));
     assert!((12..=13).contains(&first.len()), "{}", first.len());
@@ -608,9 +467,7 @@ async fn abort_stops_after_the_current_step_and_resume_with_done_skips_them() {
     // Resume on the same devices: only the remaining steps are captured.
     let (tx, frames) = consumer(4);
     let h = Engine::spawn(devices, steps.clone(), done.clone(), EngineSettings::default(), tx);
-    let RunOutcome::Finished(sum) = h.join().await else {
-        panic!()
-    };
+    let RunOutcome::Finished(sum) = h.join().await else { panic!() };
     let second = frames.await.unwrap();
     check_delivered(&second, &steps);
     assert_eq!(sum.skipped_done, done.len());
@@ -629,9 +486,8 @@ async fn scattered_done_steps_are_skipped_and_the_rest_captured_at_their_poses()
     let done: HashSet<StepKey> = steps.iter().step_by(3).map(|s| s.key).collect();
     let (devices, _world) = rig(&cfg, &FaultScenario::none()).await;
     let (tx, frames) = consumer(4);
-    let RunOutcome::Finished(sum) = Engine::spawn(devices, steps.clone(), done.clone(), EngineSettings::default(), tx)
-        .join()
-        .await
+    let RunOutcome::Finished(sum) =
+        Engine::spawn(devices, steps.clone(), done.clone(), EngineSettings::default(), tx).join().await
     else {
         panic!()
     };
@@ -657,9 +513,8 @@ async fn slow_consumer_backpressure_delays_the_run_without_losing_frames() {
         }
         n
     });
-    let RunOutcome::Finished(sum) = Engine::spawn(devices, steps, HashSet::new(), EngineSettings::default(), tx)
-        .join()
-        .await
+    let RunOutcome::Finished(sum) =
+        Engine::spawn(devices, steps, HashSet::new(), EngineSettings::default(), tx).join().await
     else {
         panic!()
     };
@@ -670,11 +525,7 @@ async fn slow_consumer_backpressure_delays_the_run_without_losing_frames() {
 
 #[test]
 fn backoff_doubles_and_is_capped() {
-    let s = EngineSettings {
-        backoff_s: 0.5,
-        max_backoff_s: 3.0,
-        ..EngineSettings::default()
-    };
+    let s = EngineSettings { backoff_s: 0.5, max_backoff_s: 3.0, ..EngineSettings::default() };
     let w: Vec<f64> = (0..5).map(|k| s.backoff_for(k)).collect();
     assert_eq!(w, vec![0.5, 1.0, 2.0, 3.0, 3.0]);
 }

@@ -11,9 +11,7 @@ use btfrig_pipeline::{ProcessSettings, Processor, TruthLookup};
 use btfrig_render::material::MaterialSpec;
 use btfrig_render::renderer::RenderOptions;
 use btfrig_render::rig_scene::RigScene;
-use btfrig_store::{
-    Dataset, Manifest, MemStorage, RigInfo, Samplings, TextureFormat, TextureRegion, TextureSpec,
-};
+use btfrig_store::{Dataset, Manifest, MemStorage, RigInfo, Samplings, TextureFormat, TextureRegion, TextureSpec};
 
 #[test]
 fn every_frame_is_written_and_committed_once_and_the_dataset_verifies() {
@@ -40,7 +38,13 @@ fn every_frame_is_written_and_committed_once_and_the_dataset_verifies() {
         for (v, &view) in views.iter().enumerate() {
             let joints = scene.gonio().ik(light, view).unwrap();
             let (frame, _) = scene.capture(&joints, 1.0, exposure, 1.0, 5, &RenderOptions::default()).unwrap();
-            let t = StepTimes { move_start_s: 0.0, move_end_s: 1.0, trigger_start_s: 1.0, trigger_end_s: 2.0, transfer_end_s: 3.0 };
+            let t = StepTimes {
+                move_start_s: 0.0,
+                move_end_s: 1.0,
+                trigger_start_s: 1.0,
+                trigger_end_s: 2.0,
+                transfer_end_s: 3.0,
+            };
             let key = StepKey { light: l as u32, view: v as u32 };
             // The second frame took a retry.
             let attempts = if frames.len() == 1 { 2 } else { 1 };

@@ -188,20 +188,10 @@ pub fn expand(
         let light = lights.get(light_index);
         let view = views.get(view_index);
         match gonio.ik(light, view) {
-            Ok(joints) => out.captures.push(PlanCapture {
-                light_index,
-                view_index,
-                light,
-                view,
-                joints,
-                exposure_s,
-                frame_bytes,
-            }),
-            Err(u) => out.skipped.push(Skip {
-                light_index,
-                view_index,
-                reason: SkipReason::Unreachable(u),
-            }),
+            Ok(joints) => {
+                out.captures.push(PlanCapture { light_index, view_index, light, view, joints, exposure_s, frame_bytes })
+            }
+            Err(u) => out.skipped.push(Skip { light_index, view_index, reason: SkipReason::Unreachable(u) }),
         }
     }
     Ok(out)

@@ -75,7 +75,8 @@ fn at(o: &[usize], k: isize) -> Option<usize> {
 pub fn optimise_order(model: &TimingModel, captures: &[PlanCapture], start: &Start, opts: &OrderOptions) -> Vec<usize> {
     let ctx = Ctx { model, caps: captures, start };
     let mut o = nearest_neighbour(&ctx);
-    let symmetric = captures.windows(2).all(|w| w[0].frame_bytes == w[1].frame_bytes && w[0].exposure_s == w[1].exposure_s);
+    let symmetric =
+        captures.windows(2).all(|w| w[0].frame_bytes == w[1].frame_bytes && w[0].exposure_s == w[1].exposure_s);
     for _ in 0..opts.max_passes {
         if !improve_pass(&ctx, &mut o, symmetric, opts.or_opt_max_len) {
             break;
@@ -242,7 +243,8 @@ fn or_opt(ctx: &Ctx, o: &mut Vec<usize>, k: usize, max_len: usize) -> bool {
                     })
                     .sum()
             };
-            let removal = ctx.edge(p, q) - ctx.edge(p, Some(seg[0])) - ctx.edge(Some(seg[len - 1]), q) - internal(false);
+            let removal =
+                ctx.edge(p, q) - ctx.edge(p, Some(seg[0])) - ctx.edge(Some(seg[len - 1]), q) - internal(false);
             for rev in [false, true] {
                 if rev && len == 1 {
                     continue;

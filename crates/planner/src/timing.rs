@@ -266,7 +266,8 @@ impl TimingModel {
         // The first trigger waits for the first move and, if the first capture's exposure
         // cannot be the initial one, for a command; later commands are at least the rest.
         let first_command = if initial_known { 0.0 } else { self.timing.camera.command_s };
-        let first_move = captures.iter().map(|c| self.move_s(start.joints.as_ref(), &c.joints)).fold(f64::INFINITY, f64::min);
+        let first_move =
+            captures.iter().map(|c| self.move_s(start.joints.as_ref(), &c.joints)).fold(f64::INFINITY, f64::min);
         first_move.max(first_command) + busy + commands_needed.saturating_sub(1) as f64 * self.timing.camera.command_s
     }
 }

@@ -32,7 +32,11 @@ fn bonn_81x81_optimised_within_2_percent_of_lower_bound_and_faster_than_naive() 
         100.0 * (naive / lb - 1.0),
         schedule.timing.idle_s,
     );
-    println!("{}", schedule.dry_run(DiskEstimate { raw_bytes_per_capture: frame_bytes, texture_bytes_per_capture: 256 * 256 * 3 * 2 }));
+    println!(
+        "{}",
+        schedule
+            .dry_run(DiskEstimate { raw_bytes_per_capture: frame_bytes, texture_bytes_per_capture: 256 * 256 * 3 * 2 })
+    );
     assert_eq!(schedule.captures.len(), 6480);
     // Every reachable pair exactly once in the order.
     let mut seen = vec![0u32; 81 * 81];
@@ -46,7 +50,10 @@ fn bonn_81x81_optimised_within_2_percent_of_lower_bound_and_faster_than_naive() 
             assert_eq!(seen[l * 81 + v], want, "pair ({l}, {v})");
         }
     }
-    assert_eq!(schedule.dry_run(DiskEstimate::default()).skipped, vec![(SkipKind::Unreachable(UnreachableKind::CameraBlocksLamp), 81)]);
+    assert_eq!(
+        schedule.dry_run(DiskEstimate::default()).skipped,
+        vec![(SkipKind::Unreachable(UnreachableKind::CameraBlocksLamp), 81)]
+    );
     assert!(lb <= hw + 1e-6);
     assert!(hw <= 1.02 * lb, "hardware {hw} vs bound {lb}");
     assert!(hw < naive, "optimised {hw} not faster than naive {naive}");

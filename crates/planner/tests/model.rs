@@ -5,8 +5,8 @@ use btfrig_core::kinematics::{Gonio, JointState};
 use btfrig_core::sampling::Sampling;
 use btfrig_core::Direction;
 use btfrig_planner::{
-    expand, naive_order, optimise_order, plan, schedule_expansion, OrderOptions, PairSelection, PlanCapture,
-    PlanError, PlanRequest, SkipKind, Start, TimingModel,
+    expand, naive_order, optimise_order, plan, schedule_expansion, OrderOptions, PairSelection, PlanCapture, PlanError,
+    PlanRequest, SkipKind, Start, TimingModel,
 };
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
@@ -64,11 +64,7 @@ fn single_step_matches_hand_computation() {
 #[test]
 fn three_step_toy_overlaps_moves_with_transfers() {
     let m = TimingModel::new(&TimingConfig::bonn());
-    let caps = [
-        cap(20.0, [0.0; 3], 0.01),
-        cap(20.0, [30.0, 0.0, 0.0], 0.01),
-        cap(175.0, [30.0, 0.0, 0.0], 0.02),
-    ];
+    let caps = [cap(20.0, [0.0; 3], 0.01), cap(20.0, [30.0, 0.0, 0.0], 0.01), cap(175.0, [30.0, 0.0, 0.0], 0.02)];
     let t = m.schedule_time(&caps, &[0, 1, 2], &Start::homed());
     let s = &t.per_step;
     // Step 0: rail 20 deg from home (20/30 + 0.5 s + settle 0.5) while the exposure command
@@ -266,5 +262,8 @@ fn bad_requests_name_the_input_and_not_needed_hook_counts() {
     let model = TimingModel::new(&TimingConfig::bonn());
     let sched = schedule_expansion("bonn81", "bonn81", ex, &model, &Start::homed(), &OrderOptions::default());
     let text = sched.to_string();
-    assert!(text.contains("not needed") && text.contains("camera blocks lamp") && text.contains("captures         2"), "{text}");
+    assert!(
+        text.contains("not needed") && text.contains("camera blocks lamp") && text.contains("captures         2"),
+        "{text}"
+    );
 }

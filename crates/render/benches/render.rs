@@ -30,16 +30,31 @@ fn main() {
     // The 0.2 m plate spans ~1070 px from 1.5 m: the 0.1 m sample covers ~535 x 535 px, about
     // two pixels per texel, as a rig would frame it.
     let cam = Pinhole { width: 1600, height: 1200, fx: 8000.0, fy: 8000.0, cx: 799.5, cy: 599.5 };
-    println!("1600x1200 frame, 256x256-texel sample, {} rayon threads, best of {runs} with skips, 1 run without", rayon::current_num_threads());
+    println!(
+        "1600x1200 frame, 256x256-texel sample, {} rayon threads, best of {runs} with skips, 1 run without",
+        rayon::current_num_threads()
+    );
     println!(
         "{:<15} {:>14} {:>10} {:>10} {:>7} | {:>9} {:>11} {:>11} {:>11} {:>9}",
-        "material", "light/view", "skips on", "skips off", "ratio", "traced", "march cells", "shadow rays", "skipped", "shadowed"
+        "material",
+        "light/view",
+        "skips on",
+        "skips off",
+        "ratio",
+        "traced",
+        "march cells",
+        "shadow rays",
+        "skipped",
+        "shadowed"
     );
     for name in ["lacquered-wood", "corduroy", "glazed-tile", "leather"] {
         let spec = MaterialSpec::builtin(name).unwrap().with_texels(256);
         let r = Renderer::new(&PlateConfig::default(), &spec, 1000.0, &resolver).unwrap();
-        for ((lt, lp), (vt, vp)) in [((45.0, 0.0), (0.0, 0.0)), ((60.0, 30.0), (45.0, 180.0)), ((75.0, 0.0), (60.0, 90.0))] {
-            let pose = ScenePose::looking_at(Direction::from_degrees(lt, lp), Direction::from_degrees(vt, vp), 1.5, 2.0);
+        for ((lt, lp), (vt, vp)) in
+            [((45.0, 0.0), (0.0, 0.0)), ((60.0, 30.0), (45.0, 180.0)), ((75.0, 0.0), (60.0, 90.0))]
+        {
+            let pose =
+                ScenePose::looking_at(Direction::from_degrees(lt, lp), Direction::from_degrees(vt, vp), 1.5, 2.0);
             let (t_on, s_on) = best_of(runs, || r.render_with_stats(&pose, &cam, &RenderOptions::with_skips(true)).1);
             let (t_off, s_off) = best_of(1, || r.render_with_stats(&pose, &cam, &RenderOptions::with_skips(false)).1);
             println!(
@@ -57,7 +72,16 @@ fn main() {
             );
             println!(
                 "{:<15} {:>14} {:>10} {:>10} {:>7} | {:>9} {:>11} {:>11} {:>11} {:>9}",
-                "", "(skips off)", "", "", "", s_off.pixels_traced, s_off.march_cells, s_off.shadow_rays, s_off.shadow_rays_skipped, s_off.shadowed
+                "",
+                "(skips off)",
+                "",
+                "",
+                "",
+                s_off.pixels_traced,
+                s_off.march_cells,
+                s_off.shadow_rays,
+                s_off.shadow_rays_skipped,
+                s_off.shadowed
             );
         }
     }

@@ -47,14 +47,7 @@ pub fn lambert(wi: &Vector3<f64>, wo: &Vector3<f64>, n: &Vector3<f64>) -> f64 {
 
 /// The two weights of a texel's BRDF for one colour channel: `(diffuse, glossy)` factors with
 /// `f = diffuse * lambert + glossy * ggx`. Kept as a function so tests and renderer agree.
-pub fn eval(
-    wi: &Vector3<f64>,
-    wo: &Vector3<f64>,
-    n: &Vector3<f64>,
-    diffuse: f64,
-    glossy: f64,
-    alpha: f64,
-) -> f64 {
+pub fn eval(wi: &Vector3<f64>, wo: &Vector3<f64>, n: &Vector3<f64>, diffuse: f64, glossy: f64, alpha: f64) -> f64 {
     diffuse * lambert(wi, wo, n) + if glossy > 0.0 { glossy * ggx(wi, wo, n, alpha) } else { 0.0 }
 }
 

@@ -360,7 +360,11 @@ mod tests {
     fn bradford_matches_published_d50_to_d65() {
         // Lindbloom's Bradford D50 -> D65 matrix (reference whites of ASTM E308).
         let m = bradford([0.96422, 1.0, 0.82521], [0.95047, 1.0, 1.08883]);
-        let ref_m = [[0.9555766, -0.0230393, 0.0631636], [-0.0282895, 1.0099416, 0.0210077], [0.0122982, -0.0204830, 1.3299098]];
+        let ref_m = [
+            [0.9555766, -0.0230393, 0.0631636],
+            [-0.0282895, 1.0099416, 0.0210077],
+            [0.0122982, -0.0204830, 1.3299098],
+        ];
         for r in 0..3 {
             for c in 0..3 {
                 assert!((m[r][c] - ref_m[r][c]).abs() < 1e-6);
@@ -376,11 +380,8 @@ mod tests {
         // The computed D50 white equals ICC D50 closely.
         assert!((white[0] - 0.9642).abs() < 2e-3 && (white[2] - 0.8249).abs() < 2e-3, "{white:?}");
         let refs = colorchecker24_reference();
-        let des: Vec<f64> = colorchecker24()
-            .iter()
-            .zip(refs)
-            .map(|(p, r)| delta_e76(xyz_to_lab(s.xyz(p), white), r.lab_d50))
-            .collect();
+        let des: Vec<f64> =
+            colorchecker24().iter().zip(refs).map(|(p, r)| delta_e76(xyz_to_lab(s.xyz(p), white), r.lab_d50)).collect();
         let mean = des.iter().sum::<f64>() / 24.0;
         let max = des.iter().cloned().fold(0.0, f64::max);
         eprintln!("Ohta spectra vs published Lab (D50): mean dE76 {mean:.2}, max {max:.2}");

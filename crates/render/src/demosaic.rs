@@ -68,9 +68,8 @@ pub fn preview_srgb8(img: &CameraRgbImage, white_balance: [f64; 3], matrix: &[[f
         std::array::from_fn(|r| std::array::from_fn(|c| (matrix[r][c] * white_balance[c] * exposure) as f32));
     // The sRGB curve through a 4096-entry table: previews need 8 bits, not powf per pixel.
     const N: usize = 4096;
-    let lut: Vec<u8> = (0..N)
-        .map(|i| (crate::colour::srgb_encode(i as f64 / (N - 1) as f64) * 255.0).round() as u8)
-        .collect();
+    let lut: Vec<u8> =
+        (0..N).map(|i| (crate::colour::srgb_encode(i as f64 / (N - 1) as f64) * 255.0).round() as u8).collect();
     let mut out = vec![0u8; img.width * img.height * 3];
     out.par_chunks_mut(3 * img.width.max(1)).zip(img.data.par_chunks(img.width.max(1))).for_each(|(o, row)| {
         for (px, v) in o.chunks_exact_mut(3).zip(row) {

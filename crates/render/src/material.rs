@@ -259,7 +259,11 @@ fn fbm(seed: u64, x: f64, y: f64, scale: f64, octaves: u32, gain: f64) -> f64 {
         amp *= gain;
         f *= 2.0;
     }
-    if norm > 0.0 { sum / norm } else { 0.5 }
+    if norm > 0.0 {
+        sum / norm
+    } else {
+        0.5
+    }
 }
 
 impl Pattern {
@@ -269,7 +273,9 @@ impl Pattern {
     pub fn eval(&self, seed: u64, x: f64, y: f64) -> f64 {
         let v = match *self {
             Pattern::Constant { value } => value,
-            Pattern::Noise { scale_m, octaves, gain, salt } => fbm(hash(seed ^ hash(salt)), x, y, scale_m, octaves, gain),
+            Pattern::Noise { scale_m, octaves, gain, salt } => {
+                fbm(hash(seed ^ hash(salt)), x, y, scale_m, octaves, gain)
+            }
             Pattern::Ridges { period_m, angle_deg, profile, duty } => {
                 let (s, c) = angle_deg.to_radians().sin_cos();
                 let w = (-x * s + y * c) / period_m;
@@ -420,10 +426,8 @@ impl MaterialSpec {
 
     /// A built-in material by name (see [`BUILTIN_MATERIALS`]).
     pub fn builtin(name: &str) -> Result<MaterialSpec, MaterialError> {
-        let (_, text) = BUILTIN_MATERIALS
-            .iter()
-            .find(|(n, _)| *n == name)
-            .ok_or_else(|| MaterialError::Unknown(name.into()))?;
+        let (_, text) =
+            BUILTIN_MATERIALS.iter().find(|(n, _)| *n == name).ok_or_else(|| MaterialError::Unknown(name.into()))?;
         Self::from_toml(text, &format!("<embedded sim/materials/{name}.toml>"))
     }
 
@@ -524,11 +528,7 @@ impl Material {
                 let y = half - j as f64 * dx;
                 for i in 0..=n {
                     let x = -half + i as f64 * dx;
-                    h[j * (n + 1) + i] = spec
-                        .height
-                        .iter()
-                        .map(|l| l.amplitude_m * l.pattern.eval(seed, x, y))
-                        .sum();
+                    h[j * (n + 1) + i] = spec.height.iter().map(|l| l.amplitude_m * l.pattern.eval(seed, x, y)).sum();
                 }
             }
             let mean = h.iter().sum::<f64>() / h.len() as f64;
@@ -618,7 +618,14 @@ mod tests {
         "#;
         let spec: MaterialSpec = toml::from_str(text).unwrap();
         let errs: Vec<String> = spec.validate().iter().map(|e| e.to_string()).collect();
-        for f in ["texels", "height[0].amplitude_m", "height[0].pattern.scale_m", "albedo.stops[0]", "specular.strength", "specular.roughness"] {
+        for f in [
+            "texels",
+            "height[0].amplitude_m",
+            "height[0].pattern.scale_m",
+            "albedo.stops[0]",
+            "specular.strength",
+            "specular.roughness",
+        ] {
             assert!(errs.iter().any(|e| e.contains(&format!(" {f} = "))), "{f} not reported: {errs:#?}");
         }
         let unknown = toml::from_str::<MaterialSpec>(&text.replace("scale_m = -1.0", "scale_m = 1.0, sclae = 2"));

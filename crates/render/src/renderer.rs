@@ -188,7 +188,12 @@ impl Frame {
 impl Renderer {
     /// Builds the scene from the plate config and material and keeps `lamp_scale`: the
     /// camera-RGB signal (e-/s) of a white Lambertian reflector lit normally from 1 m.
-    pub fn new(plate: &PlateConfig, material: &MaterialSpec, lamp_scale: f64, resolve: &Resolver) -> Result<Renderer, SceneError> {
+    pub fn new(
+        plate: &PlateConfig,
+        material: &MaterialSpec,
+        lamp_scale: f64,
+        resolve: &Resolver,
+    ) -> Result<Renderer, SceneError> {
         Ok(Renderer { scene: Scene::build(plate, material, resolve)?, lamp_scale })
     }
 
@@ -237,7 +242,8 @@ impl Renderer {
                     let (fx, fy) = (x as f64, y as f64);
                     let d = frame.rot * rays.ray(fx, fy);
                     st.pixels_traced += 1;
-                    let (mut v, hit) = self.radiance_and_hit(&frame.origin, &d, &frame.lamp, ColourSpace::Camera, opts.skips, &mut st);
+                    let (mut v, hit) =
+                        self.radiance_and_hit(&frame.origin, &d, &frame.lamp, ColourSpace::Camera, opts.skips, &mut st);
                     let ss = opts.marker_supersampling.max(1) as usize;
                     if let Hit::Plate(p, _) = hit {
                         if ss > 1 && self.scene.layout.marker_edge_distance(p.x, p.y, pixel_radius) < pixel_radius {
@@ -247,7 +253,14 @@ impl Renderer {
                                     let ox = (sx as f64 + 0.5) / ss as f64 - 0.5;
                                     let oy = (sy as f64 + 0.5) / ss as f64 - 0.5;
                                     let ds = frame.rot * rays.ray(fx + ox, fy + oy);
-                                    let (s, _) = self.radiance_and_hit(&frame.origin, &ds, &frame.lamp, ColourSpace::Camera, opts.skips, &mut st);
+                                    let (s, _) = self.radiance_and_hit(
+                                        &frame.origin,
+                                        &ds,
+                                        &frame.lamp,
+                                        ColourSpace::Camera,
+                                        opts.skips,
+                                        &mut st,
+                                    );
                                     for c in 0..3 {
                                         acc[c] += s[c];
                                     }
@@ -305,7 +318,10 @@ impl Renderer {
             }
         }
         let clampi = |v: f64, n: usize| v.clamp(0.0, n as f64) as usize;
-        ((clampi((x0 - 2.0).floor(), w), clampi((x1 + 3.0).ceil(), w)), (clampi((y0 - 2.0).floor(), h), clampi((y1 + 3.0).ceil(), h)))
+        (
+            (clampi((x0 - 2.0).floor(), w), clampi((x1 + 3.0).ceil(), w)),
+            (clampi((y0 - 2.0).floor(), h), clampi((y1 + 3.0).ceil(), h)),
+        )
     }
 
     /// A bound on the radius (metres) of one pixel's footprint on the plate: the pixel's
@@ -531,7 +547,14 @@ impl Renderer {
 
     /// Traces one ray from `o` along unit `d` (sample frame) in `space`; `skips` as in
     /// [`RenderOptions`]. The building block of frames and ground truth, public for tests.
-    pub fn trace(&self, pose: &ScenePose, o: &Vector3<f64>, d: &Vector3<f64>, space: ColourSpace, skips: bool) -> ([f64; 3], Hit) {
+    pub fn trace(
+        &self,
+        pose: &ScenePose,
+        o: &Vector3<f64>,
+        d: &Vector3<f64>,
+        space: ColourSpace,
+        skips: bool,
+    ) -> ([f64; 3], Hit) {
         let f = Frame::new(pose);
         let mut st = RenderStats::default();
         let hit = self.intersect(o, d, skips, &mut st);

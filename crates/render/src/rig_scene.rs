@@ -165,7 +165,15 @@ impl RigScene {
         let renderer = Renderer::new(&cfg.plate, material, lamp_scale, &resolve)?;
         let d = cfg.geometry.lamp_distance_m;
         let preview_matrix = colour.colorchecker_matrix().matrix;
-        Ok(RigScene { gonio, camera, sensor, colour, renderer, nominal_irradiance: lamp_scale / (d * d), preview_matrix })
+        Ok(RigScene {
+            gonio,
+            camera,
+            sensor,
+            colour,
+            renderer,
+            nominal_irradiance: lamp_scale / (d * d),
+            preview_matrix,
+        })
     }
 
     /// The kinematics of the rig.
@@ -195,7 +203,12 @@ impl RigScene {
     }
 
     /// The camera-RGB signal rate (e-/s per photosite) for true joints and lamp intensity.
-    pub fn radiance(&self, joints: &JointState, lamp_intensity: f64, opts: &RenderOptions) -> (RadianceImage, RenderStats) {
+    pub fn radiance(
+        &self,
+        joints: &JointState,
+        lamp_intensity: f64,
+        opts: &RenderOptions,
+    ) -> (RadianceImage, RenderStats) {
         let (mut img, stats) = self.renderer.render_with_stats(&self.pose(joints), &self.camera, opts);
         if lamp_intensity != 1.0 {
             let k = lamp_intensity as f32;
@@ -231,7 +244,8 @@ impl RigScene {
     /// nominal lamp distance at `fraction` of the sensor's full scale at gain 1, clamped to
     /// `[min_s, max_s]`. Glossy highlights may still saturate: that is what HDR is for.
     pub fn exposure_for_white(&self, fraction: f64, min_s: f64, max_s: f64) -> f64 {
-        let full_scale_e = f64::from(self.sensor.white_level(1.0) - self.sensor.black_level_dn) / self.sensor.dn_per_electron(1.0);
+        let full_scale_e =
+            f64::from(self.sensor.white_level(1.0) - self.sensor.black_level_dn) / self.sensor.dn_per_electron(1.0);
         (fraction * full_scale_e / self.nominal_irradiance).clamp(min_s, max_s)
     }
 

@@ -109,15 +109,7 @@ impl Scene {
                 albedo[space][t] = acc.map(|a| (a * diffuse) as f32);
             }
         }
-        Ok(Scene {
-            layout,
-            material,
-            basis,
-            albedo,
-            glossy_colour: [gc, go],
-            plate: [pc, po],
-            black: [bc, bo],
-        })
+        Ok(Scene { layout, material, basis, albedo, glossy_colour: [gc, go], plate: [pc, po], black: [bc, bo] })
     }
 
     /// Diffuse albedo at sample point `(x, y)` (bilinear between texel centres) and glossy

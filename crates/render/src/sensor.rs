@@ -431,7 +431,9 @@ mod tests {
 
     #[test]
     fn photon_transfer_slope_equals_configured_gain() {
-        for (cfa, gain) in [(btfrig_core::config::sensor::Cfa::Rggb, 1.0), (btfrig_core::config::sensor::Cfa::Mono, 2.0)] {
+        for (cfa, gain) in
+            [(btfrig_core::config::sensor::Cfa::Rggb, 1.0), (btfrig_core::config::sensor::Cfa::Mono, 2.0)]
+        {
             let s = model(SensorConfig { cfa, ..Default::default() });
             let slope = ptc_slope(&s, gain);
             let expect = s.dn_per_electron(gain);

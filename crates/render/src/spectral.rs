@@ -119,11 +119,8 @@ impl Spectrum {
 
     /// Largest sample and its wavelength (nm).
     pub fn peak(&self) -> (f64, f64) {
-        let (i, v) = self
-            .0
-            .iter()
-            .enumerate()
-            .fold((0, f64::NEG_INFINITY), |acc, (i, &v)| if v > acc.1 { (i, v) } else { acc });
+        let (i, v) =
+            self.0.iter().enumerate().fold((0, f64::NEG_INFINITY), |acc, (i, &v)| if v > acc.1 { (i, v) } else { acc });
         (v, Self::wavelength(i))
     }
 

@@ -68,14 +68,16 @@ fn check_pose(r: &Renderer, cam: &Pinhole, pose: &ScenePose, label: &str, python
     let mut g: Vec<f32> = img.data.iter().map(|p| p[1]).filter(|v| *v > 0.0).collect();
     g.sort_by(f32::total_cmp);
     let max = g[g.len() * 9 / 10] as f64 * 230.0 / 200.0;
-    let gray: Vec<u8> = img.data.iter().map(|p| ((p[1] as f64 / max) * 230.0).round().clamp(0.0, 255.0) as u8).collect();
+    let gray: Vec<u8> =
+        img.data.iter().map(|p| ((p[1] as f64 / max) * 230.0).round().clamp(0.0, 255.0) as u8).collect();
     let dir = repo_root().join("target/marker-check");
     std::fs::create_dir_all(&dir).unwrap();
     let png = dir.join(format!("{label}.png"));
     image::GrayImage::from_raw(cam.width as u32, cam.height as u32, gray).unwrap().save(&png).unwrap();
 
     let script = repo_root().join("tests/markers/detect_aruco.py");
-    let out = python.arg(&script).arg(&png).arg(r.scene().layout.dictionary_name()).output().expect("run detect_aruco.py");
+    let out =
+        python.arg(&script).arg(&png).arg(r.scene().layout.dictionary_name()).output().expect("run detect_aruco.py");
     let text = String::from_utf8_lossy(&out.stdout).to_string();
     assert!(out.status.success(), "{label}: detector failed: {}", String::from_utf8_lossy(&out.stderr));
     eprintln!("{label}: {}", text.lines().last().unwrap_or(""));
@@ -92,13 +94,22 @@ fn check_pose(r: &Renderer, cam: &Pinhole, pose: &ScenePose, label: &str, python
         })
         .collect();
     for m in r.scene().layout.markers() {
-        let det = found.iter().find(|(id, _)| *id == m.id).unwrap_or_else(|| panic!("{label}: marker {} not found; found {found:?}", m.id));
+        let det = found
+            .iter()
+            .find(|(id, _)| *id == m.id)
+            .unwrap_or_else(|| panic!("{label}: marker {} not found; found {found:?}", m.id));
         for (k, c) in m.corners_sample_m.iter().enumerate() {
             let p = cam_from_sample * nalgebra::Point3::new(c.x, c.y, 0.0);
             let [u, v] = cam.project(&Vector3::new(p.x, p.y, p.z)).unwrap();
             let e = ((det.1[2 * k] - u).powi(2) + (det.1[2 * k + 1] - v).powi(2)).sqrt();
             worst = worst.max(e);
-            assert!(e < 1.0, "{label}: marker {} corner {k}: detected ({}, {}) vs true ({u:.3}, {v:.3})", m.id, det.1[2 * k], det.1[2 * k + 1]);
+            assert!(
+                e < 1.0,
+                "{label}: marker {} corner {k}: detected ({}, {}) vs true ({u:.3}, {v:.3})",
+                m.id,
+                det.1[2 * k],
+                det.1[2 * k + 1]
+            );
         }
     }
     assert_eq!(found.len(), r.scene().layout.markers().len(), "{label}: unexpected extra detections {found:?}");
@@ -107,7 +118,8 @@ fn check_pose(r: &Renderer, cam: &Pinhole, pose: &ScenePose, label: &str, python
 
 #[test]
 fn opencv_aruco_detector_reads_every_marker_at_the_true_corners() {
-    let r = Renderer::new(&PlateConfig::default(), &MaterialSpec::builtin("glazed-tile").unwrap(), 1000.0, &resolver).unwrap();
+    let r = Renderer::new(&PlateConfig::default(), &MaterialSpec::builtin("glazed-tile").unwrap(), 1000.0, &resolver)
+        .unwrap();
     let cam = Pinhole { width: 1600, height: 1200, fx: 8000.0, fy: 8000.0, cx: 799.5, cy: 599.5 };
     let light = Direction::from_degrees(20.0, 60.0);
     for (label, view) in [("frontal", (0.0, 0.0)), ("oblique-45", (45.0, 30.0)), ("oblique-60", (60.0, 200.0))] {

@@ -16,7 +16,8 @@ fn resolver(name: &str) -> Result<([f64; 3], [f64; 3]), String> {
         return Ok(([x; 3], [x; 3]));
     }
     let h = name.bytes().fold(7u32, |a, b| a.wrapping_mul(31).wrapping_add(b as u32));
-    let c = [(h % 97) as f64 / 120.0 + 0.05, (h / 97 % 89) as f64 / 110.0 + 0.05, (h / 8633 % 83) as f64 / 100.0 + 0.05];
+    let c =
+        [(h % 97) as f64 / 120.0 + 0.05, (h / 97 % 89) as f64 / 110.0 + 0.05, (h / 8633 % 83) as f64 / 100.0 + 0.05];
     Ok((c, [c[2], c[1], c[0]]))
 }
 
@@ -52,7 +53,12 @@ fn flat_lambertian_follows_cosine_and_inverse_square() {
     let r = renderer(&flat_material(0.5, None));
     for dist in [1.0, 2.0, 3.5] {
         for theta in [0.0, 15.0, 30.0, 45.0, 60.0, 75.0, 85.0] {
-            let pose = ScenePose::looking_at(Direction::from_degrees(theta, 40.0), Direction::from_degrees(20.0, 200.0), 1.5, dist);
+            let pose = ScenePose::looking_at(
+                Direction::from_degrees(theta, 40.0),
+                Direction::from_degrees(20.0, 200.0),
+                1.5,
+                dist,
+            );
             let v = centre(&r.render(&pose, &small_cam(), &RenderOptions::default()));
             let expect = 1000.0 * 0.5 * f64::cos(theta.to_radians()) / (dist * dist);
             for c in v {
@@ -131,8 +137,16 @@ fn no_negative_or_nan_radiance_at_grazing_poses() {
     for name in ["lacquered-wood", "corduroy", "glazed-tile", "leather"] {
         let r = renderer(&MaterialSpec::builtin(name).unwrap());
         let mut lit = 0;
-        for (lt, lp, vt, vp) in [(80.0, 0.0, 75.0, 180.0), (89.0, 90.0, 60.0, 270.0), (85.0, 45.0, 85.0, 45.0), (0.0, 0.0, 88.0, 10.0), (75.0, 180.0, 80.0, 0.0), (60.0, 300.0, 89.5, 120.0)] {
-            let pose = ScenePose::looking_at(Direction::from_degrees(lt, lp), Direction::from_degrees(vt, vp), 0.8, 1.2);
+        for (lt, lp, vt, vp) in [
+            (80.0, 0.0, 75.0, 180.0),
+            (89.0, 90.0, 60.0, 270.0),
+            (85.0, 45.0, 85.0, 45.0),
+            (0.0, 0.0, 88.0, 10.0),
+            (75.0, 180.0, 80.0, 0.0),
+            (60.0, 300.0, 89.5, 120.0),
+        ] {
+            let pose =
+                ScenePose::looking_at(Direction::from_degrees(lt, lp), Direction::from_degrees(vt, vp), 0.8, 1.2);
             for skips in [true, false] {
                 let img = r.render(&pose, &cam, &RenderOptions::with_skips(skips));
                 for p in &img.data {

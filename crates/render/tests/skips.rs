@@ -27,15 +27,23 @@ roughness = 0.2
 #[test]
 fn skips_on_and_off_give_the_same_image() {
     let cam = Pinhole { width: 400, height: 300, fx: 1500.0, fy: 1500.0, cx: 199.5, cy: 149.5 };
-    let mut specs: Vec<MaterialSpec> =
-        ["lacquered-wood", "corduroy", "glazed-tile", "leather"].iter().map(|n| MaterialSpec::builtin(n).unwrap().with_texels(128)).collect();
+    let mut specs: Vec<MaterialSpec> = ["lacquered-wood", "corduroy", "glazed-tile", "leather"]
+        .iter()
+        .map(|n| MaterialSpec::builtin(n).unwrap().with_texels(128))
+        .collect();
     specs.push(MaterialSpec::from_toml(FLAT, "flat-grey").unwrap());
-    let poses = [((45.0, 0.0), (0.0, 0.0)), ((70.0, 10.0), (60.0, 180.0)), ((20.0, 100.0), (75.0, 280.0)), ((85.0, 180.0), (30.0, 45.0))];
+    let poses = [
+        ((45.0, 0.0), (0.0, 0.0)),
+        ((70.0, 10.0), (60.0, 180.0)),
+        ((20.0, 100.0), (75.0, 280.0)),
+        ((85.0, 180.0), (30.0, 45.0)),
+    ];
     for spec in &specs {
         let r = Renderer::new(&PlateConfig::default(), spec, 1000.0, &resolver).unwrap();
         let mut identical = true;
         for ((lt, lp), (vt, vp)) in poses {
-            let pose = ScenePose::looking_at(Direction::from_degrees(lt, lp), Direction::from_degrees(vt, vp), 1.0, 1.5);
+            let pose =
+                ScenePose::looking_at(Direction::from_degrees(lt, lp), Direction::from_degrees(vt, vp), 1.0, 1.5);
             let (a, sa) = r.render_with_stats(&pose, &cam, &RenderOptions::with_skips(true));
             let (b, sb) = r.render_with_stats(&pose, &cam, &RenderOptions::with_skips(false));
             let max = a.max_value().max(b.max_value());

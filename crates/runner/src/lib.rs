@@ -677,8 +677,8 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
     let scene = Arc::new(RigScene::new(rig, material).map_err(|e| RunError::Rig(e.to_string()))?);
     let source = Arc::new(RenderedFrameSource::new(scene.clone(), RenderOptions::default()));
     let truth = Arc::new(TruthLog::new(source));
-    let mut sim = SimRig::from_rig_config(rig, faults, sim_clock(), truth.clone())
-        .map_err(|e| RunError::Rig(e.to_string()))?;
+    let mut sim =
+        SimRig::from_rig_config(rig, faults, sim_clock(), truth.clone()).map_err(|e| RunError::Rig(e.to_string()))?;
     btfrig_sim::capture::prepare(&mut sim)
         .await
         .map_err(|e| RunError::Rig(format!("preparing the simulated rig: {e}")))?;

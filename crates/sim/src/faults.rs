@@ -120,7 +120,6 @@ pub struct StuckLed {
 
 pub use crate::world::LampDrift;
 
-
 /// A fault scenario: the contents of one `sim/faults/*.toml` file.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -160,8 +159,8 @@ impl FaultScenario {
 
     /// Parses and validates a scenario; `origin` names the file in errors.
     pub fn from_toml(text: &str, origin: &str) -> Result<Self, ConfigError> {
-        let s: FaultScenario =
-            toml::from_str(text).map_err(|e| ConfigError::Parse { path: origin.to_string(), message: e.to_string() })?;
+        let s: FaultScenario = toml::from_str(text)
+            .map_err(|e| ConfigError::Parse { path: origin.to_string(), message: e.to_string() })?;
         let mut errors = Vec::new();
         s.validate(&mut errors);
         ConfigError::from_list(errors)?;
@@ -208,10 +207,18 @@ impl FaultScenario {
                 errors.push(ConfigError::out_of_range("faults.lamp_drift.start_fraction", d.start_fraction, "[0, 1]"));
             }
             if !(d.warm_up_tau_s > 0.0 && d.warm_up_tau_s <= 86_400.0) {
-                errors.push(ConfigError::out_of_range("faults.lamp_drift.warm_up_tau_s", d.warm_up_tau_s, "(0, 86400] s"));
+                errors.push(ConfigError::out_of_range(
+                    "faults.lamp_drift.warm_up_tau_s",
+                    d.warm_up_tau_s,
+                    "(0, 86400] s",
+                ));
             }
             if !(-1.0..=1.0).contains(&d.drift_per_hour) {
-                errors.push(ConfigError::out_of_range("faults.lamp_drift.drift_per_hour", d.drift_per_hour, "[-1, 1] per hour"));
+                errors.push(ConfigError::out_of_range(
+                    "faults.lamp_drift.drift_per_hour",
+                    d.drift_per_hour,
+                    "[-1, 1] per hour",
+                ));
             }
         }
     }

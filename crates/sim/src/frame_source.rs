@@ -69,7 +69,8 @@ impl FlatFrameSource {
     /// The value every photosite of a frame taken under `truth` with `settings` reads.
     pub fn expected_value(&self, truth: &TrueState, settings: &CaptureSettings) -> u16 {
         let light = truth.lamp_intensity + truth.leds.iter().sum::<f64>();
-        let v = f64::from(self.format.black_level) + (self.dn_per_s * settings.exposure_s * settings.gain * light).round();
+        let v =
+            f64::from(self.format.black_level) + (self.dn_per_s * settings.exposure_s * settings.gain * light).round();
         v.clamp(0.0, f64::from(self.format.white_level)) as u16
     }
 }

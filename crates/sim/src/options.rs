@@ -202,7 +202,13 @@ impl SimRobotOptions {
     /// Appends every out-of-range value to `errors`; `f` is the table's field path.
     pub fn validate(&self, f: &str, errors: &mut Vec<ConfigError>) {
         for j in 0..3 {
-            check_limits(errors, &format!("{f}.joint_min_deg[{j}]"), &format!("{f}.joint_max_deg[{j}]"), self.joint_min_deg[j], self.joint_max_deg[j]);
+            check_limits(
+                errors,
+                &format!("{f}.joint_min_deg[{j}]"),
+                &format!("{f}.joint_max_deg[{j}]"),
+                self.joint_min_deg[j],
+                self.joint_max_deg[j],
+            );
             check(errors, format!("{f}.offset_deg[{j}]"), self.offset_deg[j], -10.0, 10.0, "[-10, 10] deg");
             check(errors, format!("{f}.jitter_deg[{j}]"), self.jitter_deg[j], 0.0, 10.0, "[0, 10] deg");
         }

@@ -155,7 +155,9 @@ impl SimWorld {
     pub fn lamp_output_factor(&self, t_on_s: f64) -> f64 {
         let t = t_on_s.max(0.0);
         match &self.drift {
-            Some(d) => (1.0 - (1.0 - d.start_fraction) * (-t / d.warm_up_tau_s).exp() + d.drift_per_hour * t / 3600.0).max(0.0),
+            Some(d) => {
+                (1.0 - (1.0 - d.start_fraction) * (-t / d.warm_up_tau_s).exp() + d.drift_per_hour * t / 3600.0).max(0.0)
+            }
             None if self.warm_up_s > 0.0 => (t / self.warm_up_s).min(1.0),
             None => 1.0,
         }

@@ -34,11 +34,7 @@ async fn timeout_on_the_nth_call_costs_the_timeout_and_is_retryable() {
 
 #[tokio::test(start_paused = true)]
 async fn failure_on_the_nth_call_is_fatal_at_once_and_only_that_call() {
-    let mut rig = rig(
-        &devices(""),
-        1,
-        &faults("[[failures]]\ndevice = \"robot\"\ncalls = [2]\n"),
-    );
+    let mut rig = rig(&devices(""), 1, &faults("[[failures]]\ndevice = \"robot\"\ncalls = [2]\n"));
     let clock = rig.world.clock().clone();
     rig.robot.move_to_rad([0.1, 0.0, 0.0], OPTS).await.unwrap();
     let t0 = clock.now_s();
@@ -106,7 +102,8 @@ async fn dropped_frame_times_out_and_corrupt_frame_fails_its_checksum() {
 
 #[tokio::test(start_paused = true)]
 async fn device_errors_without_injection_have_the_right_kinds() {
-    let mut rig = rig(&devices("[robot]\nkind = \"sim\"\n[lamp]\nkind = \"sim\"\ndimmable = false\n"), 1, &FaultScenario::none());
+    let mut rig =
+        rig(&devices("[robot]\nkind = \"sim\"\n[lamp]\nkind = \"sim\"\ndimmable = false\n"), 1, &FaultScenario::none());
     // Not homed.
     let e = rig.robot.move_to_rad([0.1, 0.0, 0.0], OPTS).await.unwrap_err();
     assert_kind(&e, ErrorKind::NotHomed, false);

@@ -23,12 +23,20 @@ async fn every_shipped_fault_scenario_parses_validates_and_builds() {
         let s = FaultScenario::from_toml(&text, &path.display().to_string()).unwrap_or_else(|e| panic!("{e}"));
         assert!(!s.description.is_empty(), "{} has no description", path.display());
         // It fits a rig with every device and a Dome II-sized LED array.
-        let all = [DeviceRole::Robot, DeviceRole::Rail, DeviceRole::Turntable, DeviceRole::Lamp, DeviceRole::LedArray, DeviceRole::Camera];
+        let all = [
+            DeviceRole::Robot,
+            DeviceRole::Rail,
+            DeviceRole::Turntable,
+            DeviceRole::Lamp,
+            DeviceRole::LedArray,
+            DeviceRole::Camera,
+        ];
         let mut errors = Vec::new();
         s.validate_for_rig(&all, 198, &mut errors);
         assert!(errors.is_empty(), "{}: {errors:?}", path.display());
         let cfg = devices("[led_array]\nkind = \"sim\"\n[turntable]\nkind = \"sim\"\n");
-        SimRig::build(&cfg, &TimingConfig::bonn(), 1, &s, TokioClock::shared(), source()).unwrap_or_else(|e| panic!("{e}"));
+        SimRig::build(&cfg, &TimingConfig::bonn(), 1, &s, TokioClock::shared(), source())
+            .unwrap_or_else(|e| panic!("{e}"));
         names.push(path.file_stem().unwrap().to_string_lossy().into_owned());
     }
     names.sort();
@@ -48,7 +56,8 @@ async fn every_rig_config_builds_a_sim_rig() {
         }
         let text = std::fs::read_to_string(&path).unwrap();
         let cfg = RigConfig::from_toml(&text, &path.display().to_string()).unwrap_or_else(|e| panic!("{e}"));
-        SimRig::from_rig_config(&cfg, &FaultScenario::none(), TokioClock::shared(), source()).unwrap_or_else(|e| panic!("{e}"));
+        SimRig::from_rig_config(&cfg, &FaultScenario::none(), TokioClock::shared(), source())
+            .unwrap_or_else(|e| panic!("{e}"));
         count += 1;
     }
     assert!(count >= 1);
@@ -71,7 +80,9 @@ async fn all_bad_values_are_reported_at_once() {
     .unwrap();
     let mut timing = TimingConfig::bonn();
     timing.rail.settle_s = -1.0;
-    let faults = FaultScenario::from_toml("[dropped_frames]\nprobability = 0.1\n[[timeouts]]\ndevice = \"led_array\"\n", "t").unwrap();
+    let faults =
+        FaultScenario::from_toml("[dropped_frames]\nprobability = 0.1\n[[timeouts]]\ndevice = \"led_array\"\n", "t")
+            .unwrap();
     let err = SimRig::build(&devices, &timing, 1, &faults, TokioClock::shared(), source()).err().unwrap();
     let text = err.to_string();
     println!("{text}");

@@ -55,14 +55,17 @@ async fn landing_error_statistics_match_config() {
     let corr = {
         let (m0, s0) = mean_std(&robot_err[1]);
         let (m1, s1) = mean_std(&robot_err[2]);
-        robot_err[1].iter().zip(&robot_err[2]).map(|(a, b)| (a - m0) * (b - m1)).sum::<f64>() / ((n - 1) as f64 * s0 * s1)
+        robot_err[1].iter().zip(&robot_err[2]).map(|(a, b)| (a - m0) * (b - m1)).sum::<f64>()
+            / ((n - 1) as f64 * s0 * s1)
     };
     assert!(corr.abs() < 0.1, "correlation {corr}");
 }
 
 #[tokio::test(start_paused = true)]
 async fn zero_jitter_lands_exactly_at_target_plus_offset() {
-    let cfg = devices("[robot]\nkind = \"sim\"\nhomed_at_start = true\noffset_deg = [1.0, 0.0, -1.0]\njitter_deg = [0.0, 0.0, 0.0]\n");
+    let cfg = devices(
+        "[robot]\nkind = \"sim\"\nhomed_at_start = true\noffset_deg = [1.0, 0.0, -1.0]\njitter_deg = [0.0, 0.0, 0.0]\n",
+    );
     let mut rig = rig(&cfg, 3, &FaultScenario::none());
     rig.robot.move_to_rad([0.5, 0.25, 0.0], OPTS).await.unwrap();
     let t = rig.world.truth().joints.robot;

@@ -36,10 +36,7 @@ impl Setup {
     pub fn joints(&self, light: (f64, f64), view: (f64, f64)) -> JointState {
         self.scene
             .gonio()
-            .ik(
-                Direction::from_degrees(light.0, light.1),
-                Direction::from_degrees(view.0, view.1),
-            )
+            .ik(Direction::from_degrees(light.0, light.1), Direction::from_degrees(view.0, view.1))
             .unwrap_or_else(|e| panic!("light {light:?} view {view:?} unreachable: {e}"))
     }
 }
@@ -72,42 +69,23 @@ pub fn radiometry(s: &Setup, exposure_s: f64, dn_range: f64) -> Radiometry {
 /// Renders, captures (seeded) and demosaics a frame at `joints`.
 pub fn shoot(s: &Setup, joints: JointState, seed: u64) -> Shot {
     let exposure = s.scene.exposure_for_white(0.5, 1e-4, 30.0);
-    let (raw, _) = s
-        .scene
-        .capture(&joints, 1.0, exposure, 1.0, seed, &RenderOptions::default())
-        .unwrap();
+    let (raw, _) = s.scene.capture(&joints, 1.0, exposure, 1.0, seed, &RenderOptions::default()).unwrap();
     let dm = demosaic_bilinear(&raw);
     let dn_range = f64::from(raw.meta.white_level) - f64::from(raw.meta.black_level);
-    let image = LinearImage {
-        width: dm.width,
-        height: dm.height,
-        data: dm.data,
-    };
-    Shot {
-        joints,
-        image,
-        radiometry: radiometry(s, exposure, dn_range),
-    }
+    let image = LinearImage { width: dm.width, height: dm.height, data: dm.data };
+    Shot { joints, image, radiometry: radiometry(s, exposure, dn_range) }
 }
 
 /// The noise-free camera-RGB rate image (e-/s) at `joints`, with the radiometry that
 /// converts it (no sensor, no demosaic: isolates resampling and colour conversion).
 pub fn noise_free(s: &Setup, joints: JointState) -> Shot {
     let (img, _) = s.scene.radiance(&joints, 1.0, &RenderOptions::default());
-    let image = LinearImage {
-        width: img.width,
-        height: img.height,
-        data: img.data,
-    };
+    let image = LinearImage { width: img.width, height: img.height, data: img.data };
     // Rates in e-/s: exposure 1 s, 1 DN per electron, range 1, no dark current.
     let mut r = radiometry(s, 1.0, 1.0);
     r.dn_per_electron = 1.0;
     r.dark_e_per_s = 0.0;
-    Shot {
-        joints,
-        image,
-        radiometry: r,
-    }
+    Shot { joints, image, radiometry: r }
 }
 
 /// Rectifies `shot` with the pose of `pose_joints` and converts it to the radiance factor.

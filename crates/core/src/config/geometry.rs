@@ -83,53 +83,17 @@ impl GonioGeometry {
         range("rail_radius_m", self.rail_radius_m, 0.1, 100.0, "0.1 ..= 100");
         range("rail_min_deg", self.rail_min_deg, 0.0, 180.0, "0 ..= 180");
         range("rail_max_deg", self.rail_max_deg, 0.0, 180.0, "0 ..= 180");
-        range(
-            "min_lamp_camera_separation_deg",
-            self.min_lamp_camera_separation_deg,
-            0.0,
-            90.0,
-            "0 ..= 90",
-        );
+        range("min_lamp_camera_separation_deg", self.min_lamp_camera_separation_deg, 0.0, 90.0, "0 ..= 90");
         for k in 0..3 {
-            range(
-                &format!("joint_min_deg[{k}]"),
-                self.joint_min_deg[k],
-                -360.0,
-                360.0,
-                "-360 ..= 360",
-            );
-            range(
-                &format!("joint_max_deg[{k}]"),
-                self.joint_max_deg[k],
-                -360.0,
-                360.0,
-                "-360 ..= 360",
-            );
+            range(&format!("joint_min_deg[{k}]"), self.joint_min_deg[k], -360.0, 360.0, "-360 ..= 360");
+            range(&format!("joint_max_deg[{k}]"), self.joint_max_deg[k], -360.0, 360.0, "-360 ..= 360");
         }
-        range(
-            "holder_plate_size_m",
-            self.holder_plate_size_m,
-            0.005,
-            1.0,
-            "0.005 ..= 1",
-        );
-        range(
-            "holder_plate_thickness_m",
-            self.holder_plate_thickness_m,
-            0.0,
-            0.1,
-            "0 ..= 0.1",
-        );
+        range("holder_plate_size_m", self.holder_plate_size_m, 0.005, 1.0, "0.005 ..= 1");
+        range("holder_plate_thickness_m", self.holder_plate_thickness_m, 0.0, 0.1, "0 ..= 0.1");
         range("arm_flange_length_m", self.arm_flange_length_m, 0.0, 2.0, "0 ..= 2");
         range("arm_radius_m", self.arm_radius_m, 0.001, 0.5, "0.001 ..= 0.5");
         for k in 0..3 {
-            range(
-                &format!("robot_shoulder_m[{k}]"),
-                self.robot_shoulder_m[k],
-                -10.0,
-                10.0,
-                "-10 ..= 10",
-            );
+            range(&format!("robot_shoulder_m[{k}]"), self.robot_shoulder_m[k], -10.0, 10.0, "-10 ..= 10");
         }
         // Relations between fields, reported with the field that would have to change.
         if self.rail_min_deg >= self.rail_max_deg {
@@ -180,10 +144,7 @@ mod tests {
     /// Parses only the `[geometry]` table: the other sections belong to other owners.
     fn geometry_of(text: &str) -> GonioGeometry {
         let table: toml::Table = toml::from_str(text).expect("valid TOML");
-        table["geometry"]
-            .clone()
-            .try_into()
-            .expect("a valid [geometry] section")
+        table["geometry"].clone().try_into().expect("a valid [geometry] section")
     }
 
     #[test]
@@ -210,10 +171,7 @@ mod tests {
         g.validate(&mut errors);
         let text: Vec<String> = errors.iter().map(|e| e.to_string()).collect();
         let has = |needle: &str| text.iter().any(|t| t.contains(needle));
-        assert!(
-            has("geometry.lamp_distance_m = -1 is out of range: allowed 0.1 ..= 100"),
-            "{text:#?}"
-        );
+        assert!(has("geometry.lamp_distance_m = -1 is out of range: allowed 0.1 ..= 100"), "{text:#?}");
         assert!(has("geometry.rail_max_deg = 100"), "{text:#?}");
         assert!(has("geometry.joint_min_deg[1] = NaN"), "{text:#?}");
         assert!(has("geometry.joint_max_deg[2] = 0"), "{text:#?}");

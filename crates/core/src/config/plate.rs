@@ -129,7 +129,12 @@ impl PlateConfig {
                     errors.push(ConfigError::out_of_range(
                         "plate.first_marker_id",
                         self.first_marker_id,
-                        &format!("0..={} so that all {} marker ids exist in {}", size.saturating_sub(self.marker_count()), self.marker_count(), self.marker_dictionary),
+                        &format!(
+                            "0..={} so that all {} marker ids exist in {}",
+                            size.saturating_sub(self.marker_count()),
+                            self.marker_count(),
+                            self.marker_dictionary
+                        ),
                     ));
                 }
             }
@@ -150,7 +155,9 @@ impl PlateConfig {
             errors.push(ConfigError::out_of_range(
                 "plate.marker_ring_m",
                 self.marker_ring_m,
-                &format!("[{lo:.4}, {hi:.4}] metres (markers with a one-module quiet zone between sample and plate edge)"),
+                &format!(
+                    "[{lo:.4}, {hi:.4}] metres (markers with a one-module quiet zone between sample and plate edge)"
+                ),
             ));
         }
         if self.markers_per_side >= 2 && finite_pos(self.marker_size_m) {
@@ -159,7 +166,11 @@ impl PlateConfig {
                 errors.push(ConfigError::out_of_range(
                     "plate.marker_size_m",
                     self.marker_size_m,
-                    &format!("<= {:.4} metres so that {} markers per side keep their quiet zones", pitch * 6.0 / 8.0, self.markers_per_side),
+                    &format!(
+                        "<= {:.4} metres so that {} markers per side keep their quiet zones",
+                        pitch * 6.0 / 8.0,
+                        self.markers_per_side
+                    ),
                 ));
             }
         }
@@ -191,7 +202,8 @@ mod tests {
         let mut e = Vec::new();
         p.validate(&mut e);
         let text: Vec<String> = e.iter().map(|x| x.to_string()).collect();
-        for field in ["plate.sample_side_m", "plate.marker_dictionary", "plate.markers_per_side", "plate.marker_ring_m"] {
+        for field in ["plate.sample_side_m", "plate.marker_dictionary", "plate.markers_per_side", "plate.marker_ring_m"]
+        {
             assert!(text.iter().any(|t| t.contains(field)), "{field} missing in {text:?}");
         }
     }

@@ -108,19 +108,11 @@ impl PlanError {
     }
 
     pub(crate) fn out_of_range(field: impl Into<String>, value: impl fmt::Display, allowed: impl Into<String>) -> Self {
-        PlanError::OutOfRange {
-            field: field.into(),
-            value: value.to_string(),
-            allowed: allowed.into(),
-        }
+        PlanError::OutOfRange { field: field.into(), value: value.to_string(), allowed: allowed.into() }
     }
 
     pub(crate) fn unknown(field: impl Into<String>, value: impl Into<String>, allowed: impl Into<String>) -> Self {
-        PlanError::Unknown {
-            field: field.into(),
-            value: value.into(),
-            allowed: allowed.into(),
-        }
+        PlanError::Unknown { field: field.into(), value: value.into(), allowed: allowed.into() }
     }
 
     pub(crate) fn invalid(
@@ -138,11 +130,7 @@ impl PlanError {
     }
 
     pub(crate) fn unsupported(field: impl Into<String>, value: impl fmt::Display, allowed: impl Into<String>) -> Self {
-        PlanError::Unsupported {
-            field: field.into(),
-            value: value.to_string(),
-            allowed: allowed.into(),
-        }
+        PlanError::Unsupported { field: field.into(), value: value.to_string(), allowed: allowed.into() }
     }
 }
 

@@ -35,16 +35,15 @@ use serde::{Deserialize, Serialize};
 
 pub use error::{PlanError, PlanErrors};
 pub use validate::{
-    CaptureList, ExistingDataset, ExposurePolicy, MaterialRef, OutputFormat, Outputs, PlanContext, Region, ResampleFilter,
-    SkipReason, TextureSettings, UnreachablePair, ValidatedPlan,
+    CaptureList, ExistingDataset, ExposurePolicy, MaterialRef, OutputFormat, Outputs, PlanContext, Region,
+    ResampleFilter, SkipReason, TextureSettings, UnreachablePair, ValidatedPlan,
 };
 
 /// The rig config name that selects the embedded default simulated gonioreflectometer.
 pub const BUILTIN_RIG: &str = "builtin:bonn-gonio-sim";
 
 /// The embedded rig configs: (name as written in a plan, TOML text).
-pub const BUILTIN_RIGS: &[(&str, &str)] =
-    &[(BUILTIN_RIG, include_str!("../../../../rig-configs/bonn-gonio-sim.toml"))];
+pub const BUILTIN_RIGS: &[(&str, &str)] = &[(BUILTIN_RIG, include_str!("../../../../rig-configs/bonn-gonio-sim.toml"))];
 
 /// Names of the fault scenarios shipped in `sim/faults/` (file stems). The caller may pass
 /// others in [`PlanContext::known_faults`] (e.g. after listing the directory).
@@ -432,12 +431,8 @@ impl Plan {
     /// the dataset's content (all but `name`, `description` and `[run]`). Comments, key order
     /// and spelling of defaults do not change it; it recognises "the same plan" on resume.
     pub fn content_hash(&self) -> u64 {
-        let canonical = Plan {
-            name: String::new(),
-            description: String::new(),
-            run: RunSpec::default(),
-            ..self.clone()
-        };
+        let canonical =
+            Plan { name: String::new(), description: String::new(), run: RunSpec::default(), ..self.clone() };
         let text = toml::to_string(&canonical).expect("a plan always serialises");
         fnv1a64(text.as_bytes())
     }

@@ -75,15 +75,7 @@ fn bonn_full_requests_all_6561_pairs_and_reports_the_same_unreachable_count_as_k
     assert_eq!(v.pairs[81], (1, 0));
     // The whole sample square.
     let a = v.rig.plate.sample_side_m;
-    assert_eq!(
-        v.texture.region,
-        Region {
-            x_min_m: -a / 2.0,
-            x_max_m: a / 2.0,
-            y_min_m: -a / 2.0,
-            y_max_m: a / 2.0
-        }
-    );
+    assert_eq!(v.texture.region, Region { x_min_m: -a / 2.0, x_max_m: a / 2.0, y_min_m: -a / 2.0, y_max_m: a / 2.0 });
 }
 
 #[test]
@@ -115,13 +107,7 @@ fn grazing_views_are_at_60_and_75_degrees() {
         assert!((t - 60.0).abs() < 1e-9 || (t - 75.0).abs() < 1e-9, "{t}");
     }
     assert_eq!(v.outputs.format, OutputFormat::ExrFloat);
-    assert_eq!(
-        v.exposure,
-        ExposurePolicy::Fixed {
-            exposure_s: 0.2,
-            gain: 1.0
-        }
-    );
+    assert_eq!(v.exposure, ExposurePolicy::Fixed { exposure_s: 0.2, gain: 1.0 });
 }
 
 #[test]
@@ -149,11 +135,7 @@ fn content_hash_ignores_comments_order_defaults_and_run_settings_but_not_content
     )
     .unwrap();
     assert_eq!(a.content_hash(), b.content_hash());
-    let c = Plan::from_toml(
-        "[sampling]\nlight = \"bonn81\"\nview = \"bonn81\"\n[texture]\nsize = 512\n",
-        "c",
-    )
-    .unwrap();
+    let c = Plan::from_toml("[sampling]\nlight = \"bonn81\"\nview = \"bonn81\"\n[texture]\nsize = 512\n", "c").unwrap();
     assert_ne!(a.content_hash(), c.content_hash());
     // Pinned: the hash is a file-format fact (datasets record it), so it must not drift.
     assert_eq!(fnv1a64(b""), 0xcbf2_9ce4_8422_2325);
@@ -165,15 +147,9 @@ fn existing_dataset_of_the_same_plan_resumes_and_of_another_is_refused() {
     let text = "[sampling]\nlight = \"bonn81\"\nview = \"bonn81\"\n";
     let plan = Plan::from_toml(text, "p").unwrap();
     let mut c = ctx();
-    c.existing_dataset = Some(ExistingDataset {
-        plan_hash: plan.content_hash(),
-        path: "out".into(),
-    });
+    c.existing_dataset = Some(ExistingDataset { plan_hash: plan.content_hash(), path: "out".into() });
     assert!(plan.validate(&c).unwrap().resume);
-    c.existing_dataset = Some(ExistingDataset {
-        plan_hash: plan.content_hash() ^ 1,
-        path: "out".into(),
-    });
+    c.existing_dataset = Some(ExistingDataset { plan_hash: plan.content_hash() ^ 1, path: "out".into() });
     let e = plan.validate(&c).unwrap_err();
     assert!(e.has_field("output"), "{e}");
     assert!(e.to_string().contains("already holds a dataset of another plan"), "{e}");

@@ -246,11 +246,8 @@ impl ValidatedPlan {
     /// Unreachable pairs go first, then reciprocals of earlier captures, then everything
     /// beyond `max_captures`.
     pub fn capture_list(&self) -> CaptureList {
-        let unreachable: std::collections::HashMap<(usize, usize), UnreachableKind> = self
-            .unreachable
-            .iter()
-            .map(|u| ((u.light, u.view), u.reason.kind()))
-            .collect();
+        let unreachable: std::collections::HashMap<(usize, usize), UnreachableKind> =
+            self.unreachable.iter().map(|u| ((u.light, u.view), u.reason.kind())).collect();
         let mut captured_dirs: Vec<(Direction, Direction)> = Vec::new();
         let mut captures = Vec::new();
         let mut skipped = Vec::new();
@@ -297,11 +294,7 @@ impl Plan {
         let exposure = resolve_exposure(&self.exposure, rig.as_ref(), &mut errors);
         let outputs = resolve_outputs(&self.outputs, &mut errors);
         if self.skip.max_captures == Some(0) {
-            errors.push(PlanError::out_of_range(
-                "skip.max_captures",
-                0,
-                ">= 1 (or leave it out for no cap)",
-            ));
+            errors.push(PlanError::out_of_range("skip.max_captures", 0, ">= 1 (or leave it out for no cap)"));
         }
         let run = resolve_run(&self.run, ctx, rig.as_ref(), &mut errors);
         let plan_hash = self.content_hash();
@@ -325,20 +318,11 @@ impl Plan {
                 Ok(gonio) => {
                     for &(i, j) in pairs {
                         if let Err(reason) = gonio.ik(l.get(i), v.get(j)) {
-                            unreachable.push(UnreachablePair {
-                                light: i,
-                                view: j,
-                                reason,
-                            });
+                            unreachable.push(UnreachablePair { light: i, view: j, reason });
                         }
                     }
                 }
-                Err(e) => errors.push(PlanError::invalid(
-                    "rig.config",
-                    &self.rig.config,
-                    e.to_string(),
-                    "a valid rig",
-                )),
+                Err(e) => errors.push(PlanError::invalid("rig.config", &self.rig.config, e.to_string(), "a valid rig")),
             }
             if !unreachable.is_empty() && !self.skip.unreachable {
                 errors.push(PlanError::Unreachable {
@@ -369,16 +353,10 @@ impl Plan {
         }
 
         if !errors.is_empty() {
-            return Err(PlanErrors {
-                origin: String::new(),
-                errors,
-            });
+            return Err(PlanErrors { origin: String::new(), errors });
         }
-        let (rig, (light, light_source_indices), (view, view_source_indices)) = (
-            rig.expect("no errors"),
-            light.expect("no errors"),
-            view.expect("no errors"),
-        );
+        let (rig, (light, light_source_indices), (view, view_source_indices)) =
+            (rig.expect("no errors"), light.expect("no errors"), view.expect("no errors"));
         Ok(ValidatedPlan {
             name: self.name.clone(),
             plan_hash,
@@ -494,10 +472,7 @@ struct Candidate {
 
 fn resolve_sampling(spec: &SamplingSpec, prefix: &str, errors: &mut Vec<PlanError>) -> Option<(Sampling, Vec<usize>)> {
     let table = match spec {
-        SamplingSpec::Preset(p) => SamplingTable {
-            preset: Some(p.clone()),
-            ..Default::default()
-        },
+        SamplingSpec::Preset(p) => SamplingTable { preset: Some(p.clone()), ..Default::default() },
         SamplingSpec::Table(t) => t.clone(),
     };
     let n_before = errors.len();
@@ -518,11 +493,8 @@ fn resolve_sampling(spec: &SamplingSpec, prefix: &str, errors: &mut Vec<PlanErro
             "dome1-151" | "bonn-dome1-151" => Some(Sampling::from_rings("dome1-151", &BONN_DOME1_RINGS)),
             _ => None,
         };
-        let field = if matches!(spec, SamplingSpec::Preset(_)) {
-            prefix.to_string()
-        } else {
-            format!("{prefix}.preset")
-        };
+        let field =
+            if matches!(spec, SamplingSpec::Preset(_)) { prefix.to_string() } else { format!("{prefix}.preset") };
         match sampling {
             Some(s) => {
                 let s = s.expect("presets are valid");
@@ -531,12 +503,7 @@ fn resolve_sampling(spec: &SamplingSpec, prefix: &str, errors: &mut Vec<PlanErro
                     .directions()
                     .iter()
                     .enumerate()
-                    .map(|(i, d)| Candidate {
-                        dir: *d,
-                        source_index: i,
-                        field: field.clone(),
-                        written: String::new(),
-                    })
+                    .map(|(i, d)| Candidate { dir: *d, source_index: i, field: field.clone(), written: String::new() })
                     .collect();
             }
             None => errors.push(PlanError::unknown(field, p, PRESETS)),
@@ -567,12 +534,7 @@ fn resolve_sampling(spec: &SamplingSpec, prefix: &str, errors: &mut Vec<PlanErro
     } else if let Some(rings) = &table.rings {
         base_name = "rings".into();
         if rings.is_empty() {
-            errors.push(PlanError::invalid(
-                format!("{prefix}.rings"),
-                "[]",
-                "no rings",
-                "at least one ring",
-            ));
+            errors.push(PlanError::invalid(format!("{prefix}.rings"), "[]", "no rings", "at least one ring"));
         }
         let mut k = 0;
         for (r, ring) in rings.iter().enumerate() {
@@ -615,23 +577,15 @@ fn resolve_sampling(spec: &SamplingSpec, prefix: &str, errors: &mut Vec<PlanErro
     // Filters.
     let mut name = base_name;
     let mut theta_range = [0.0f64, 90.0];
-    for (i, (key, v)) in [
-        ("theta_min_deg", table.theta_min_deg),
-        ("theta_max_deg", table.theta_max_deg),
-    ]
-    .into_iter()
-    .enumerate()
+    for (i, (key, v)) in
+        [("theta_min_deg", table.theta_min_deg), ("theta_max_deg", table.theta_max_deg)].into_iter().enumerate()
     {
         if let Some(v) = v {
             if v.is_finite() && (0.0..=90.0).contains(&v) {
                 theta_range[i] = v;
                 name.push_str(&format!("[{key}={v}]"));
             } else {
-                errors.push(PlanError::out_of_range(
-                    format!("{prefix}.{key}"),
-                    v,
-                    "0..=90 (degrees)",
-                ));
+                errors.push(PlanError::out_of_range(format!("{prefix}.{key}"), v, "0..=90 (degrees)"));
             }
         }
     }
@@ -670,10 +624,7 @@ fn resolve_sampling(spec: &SamplingSpec, prefix: &str, errors: &mut Vec<PlanErro
         errors.push(PlanError::invalid(
             prefix,
             format!("{} directions", candidates.len()),
-            format!(
-                "the filters (theta {}..={} deg, every {every}) keep none",
-                theta_range[0], theta_range[1]
-            ),
+            format!("the filters (theta {}..={} deg, every {every}) keep none", theta_range[0], theta_range[1]),
             "filters that keep at least one direction",
         ));
         return None;
@@ -693,11 +644,7 @@ fn resolve_sampling(spec: &SamplingSpec, prefix: &str, errors: &mut Vec<PlanErro
 fn check_theta(t: f64, field: &str, errors: &mut Vec<PlanError>) -> bool {
     let ok = t.is_finite() && (0.0..90.0).contains(&t);
     if !ok {
-        errors.push(PlanError::out_of_range(
-            field,
-            t,
-            "0 <= theta < 90 (degrees from the sample normal)",
-        ));
+        errors.push(PlanError::out_of_range(field, t, "0 <= theta < 90 (degrees from the sample normal)"));
     }
     ok
 }
@@ -705,11 +652,7 @@ fn check_theta(t: f64, field: &str, errors: &mut Vec<PlanError>) -> bool {
 fn check_phi(p: f64, field: &str, errors: &mut Vec<PlanError>) -> bool {
     let ok = p.is_finite() && (-360.0..=360.0).contains(&p);
     if !ok {
-        errors.push(PlanError::out_of_range(
-            field,
-            p,
-            "-360 <= phi <= 360 (degrees from the sample x axis)",
-        ));
+        errors.push(PlanError::out_of_range(field, p, "-360 <= phi <= 360 (degrees from the sample x axis)"));
     }
     ok
 }
@@ -720,11 +663,7 @@ fn check_duplicates(candidates: &[Candidate], errors: &mut Vec<PlanError>) {
     for j in 1..units.len() {
         if let Some(i) = (0..j).find(|&i| angle_between(&units[i], &units[j]) < DUPLICATE_TOLERANCE_RAD) {
             let (a, b) = (&candidates[i], &candidates[j]);
-            let first = if a.field == b.field {
-                a.written.clone()
-            } else {
-                format!("{} = {}", a.field, a.written)
-            };
+            let first = if a.field == b.field { a.written.clone() } else { format!("{} = {}", a.field, a.written) };
             errors.push(PlanError::invalid(
                 &b.field,
                 &b.written,
@@ -795,32 +734,21 @@ fn resolve_texture(plan: &Plan, rig: Option<&RigConfig>, errors: &mut Vec<PlanEr
         "bilinear" => Some(ResampleFilter::Bilinear),
         "supersample" => Some(ResampleFilter::Supersample),
         other => {
-            errors.push(PlanError::unknown(
-                "texture.filter",
-                other,
-                "\"bilinear\", \"supersample\"",
-            ));
+            errors.push(PlanError::unknown("texture.filter", other, "\"bilinear\", \"supersample\""));
             None
         }
     };
     let side = rig.map(|r| r.plate.sample_side_m);
     let region = match (&t.region, side) {
-        (None, Some(a)) => Some(Region {
-            x_min_m: -a / 2.0,
-            x_max_m: a / 2.0,
-            y_min_m: -a / 2.0,
-            y_max_m: a / 2.0,
-        }),
+        (None, Some(a)) => Some(Region { x_min_m: -a / 2.0, x_max_m: a / 2.0, y_min_m: -a / 2.0, y_max_m: a / 2.0 }),
         (None, None) => None,
         (Some(r), side) => resolve_region(r, side, errors),
     };
     // Without a rig (already reported) the region cannot be put in metres.
     match (region, filter) {
-        (Some(region), Some(filter)) if errors.len() == n_before => Some(TextureSettings {
-            size: t.size as usize,
-            region,
-            filter,
-        }),
+        (Some(region), Some(filter)) if errors.len() == n_before => {
+            Some(TextureSettings { size: t.size as usize, region, filter })
+        }
         _ => None,
     }
 }
@@ -832,10 +760,7 @@ fn resolve_region(r: &RegionSpec, side: Option<f64>, errors: &mut Vec<PlanError>
     let fraction = (r.u, r.v);
     let n_before = errors.len();
     let check = |field: &str, range: [f64; 2], lo: f64, hi: f64, unit: &str, errors: &mut Vec<PlanError>| {
-        let ok = range
-            .iter()
-            .all(|x| x.is_finite() && *x >= lo - 1e-12 && *x <= hi + 1e-12)
-            && range[0] < range[1];
+        let ok = range.iter().all(|x| x.is_finite() && *x >= lo - 1e-12 && *x <= hi + 1e-12) && range[0] < range[1];
         if !ok {
             errors.push(PlanError::out_of_range(
                 field,
@@ -847,19 +772,10 @@ fn resolve_region(r: &RegionSpec, side: Option<f64>, errors: &mut Vec<PlanError>
     let region = match (metric, fraction) {
         ((Some(x), Some(y)), (None, None)) => {
             let h = side.map_or(f64::INFINITY, |a| a / 2.0);
-            let unit = if side.is_some() {
-                "metres, within the sample square"
-            } else {
-                "metres"
-            };
+            let unit = if side.is_some() { "metres, within the sample square" } else { "metres" };
             check("texture.region.x_m", x, -h, h, unit, errors);
             check("texture.region.y_m", y, -h, h, unit, errors);
-            Region {
-                x_min_m: x[0],
-                x_max_m: x[1],
-                y_min_m: y[0],
-                y_max_m: y[1],
-            }
+            Region { x_min_m: x[0], x_max_m: x[1], y_min_m: y[0], y_max_m: y[1] }
         }
         ((None, None), (Some(u), Some(v))) => {
             check("texture.region.u", u, 0.0, 1.0, "fractions of the sample side", errors);
@@ -874,16 +790,12 @@ fn resolve_region(r: &RegionSpec, side: Option<f64>, errors: &mut Vec<PlanError>
             }
         }
         _ => {
-            let given: Vec<&str> = [
-                ("x_m", r.x_m.is_some()),
-                ("y_m", r.y_m.is_some()),
-                ("u", r.u.is_some()),
-                ("v", r.v.is_some()),
-            ]
-            .iter()
-            .filter(|(_, g)| *g)
-            .map(|(n, _)| *n)
-            .collect();
+            let given: Vec<&str> =
+                [("x_m", r.x_m.is_some()), ("y_m", r.y_m.is_some()), ("u", r.u.is_some()), ("v", r.v.is_some())]
+                    .iter()
+                    .filter(|(_, g)| *g)
+                    .map(|(n, _)| *n)
+                    .collect();
             errors.push(PlanError::invalid(
                 "texture.region",
                 format!("{{ {} }}", given.join(", ")),
@@ -912,10 +824,7 @@ fn resolve_region(r: &RegionSpec, side: Option<f64>, errors: &mut Vec<PlanError>
 /// Reads a `[lo, hi]` float pair from a device's options, if present and well formed.
 fn option_range(rig: &RigConfig, key: &str) -> Option<[f64; 2]> {
     let arr = rig.devices.camera.options.get(key)?.as_array()?;
-    let v: Vec<f64> = arr
-        .iter()
-        .filter_map(|x| x.as_float().or_else(|| x.as_integer().map(|i| i as f64)))
-        .collect();
+    let v: Vec<f64> = arr.iter().filter_map(|x| x.as_float().or_else(|| x.as_integer().map(|i| i as f64))).collect();
     (v.len() == 2).then(|| [v[0], v[1]])
 }
 
@@ -934,9 +843,7 @@ fn resolve_exposure(e: &ExposureSpec, rig: Option<&RigConfig>, errors: &mut Vec<
             }
         }
         ExposureSpec::Fixed { exposure_s, gain } => {
-            let t_range = rig
-                .and_then(|r| option_range(r, "exposure_range_s"))
-                .unwrap_or([1e-6, 3600.0]);
+            let t_range = rig.and_then(|r| option_range(r, "exposure_range_s")).unwrap_or([1e-6, 3600.0]);
             let max_gain = rig.map_or(64.0, |r| r.sensor.max_analogue_gain);
             let g_range = rig
                 .and_then(|r| option_range(r, "gain_range"))
@@ -946,10 +853,7 @@ fn resolve_exposure(e: &ExposureSpec, rig: Option<&RigConfig>, errors: &mut Vec<
                 errors.push(PlanError::out_of_range(
                     "exposure.exposure_s",
                     exposure_s,
-                    format!(
-                        "{} ..= {} seconds (the camera's exposure range)",
-                        t_range[0], t_range[1]
-                    ),
+                    format!("{} ..= {} seconds (the camera's exposure range)", t_range[0], t_range[1]),
                 ));
                 ok = false;
             }
@@ -980,11 +884,7 @@ fn resolve_outputs(o: &OutputsSpec, errors: &mut Vec<PlanError>) -> Option<Outpu
         "exr-half" => Some(OutputFormat::ExrHalf),
         "exr-float" => Some(OutputFormat::ExrFloat),
         other => {
-            errors.push(PlanError::unknown(
-                "outputs.format",
-                other,
-                "\"exr-half\", \"exr-float\"",
-            ));
+            errors.push(PlanError::unknown("outputs.format", other, "\"exr-half\", \"exr-float\""));
             None
         }
     };
@@ -1019,10 +919,7 @@ fn resolve_run(r: &RunSpec, ctx: &PlanContext, rig: Option<&RigConfig>, errors: 
             errors.push(PlanError::unknown(
                 "run.fault_scenario",
                 f,
-                format!(
-                    "{} (files in sim/faults/), or leave it out",
-                    ctx.known_faults.join(", ")
-                ),
+                format!("{} (files in sim/faults/), or leave it out", ctx.known_faults.join(", ")),
             ));
         }
         if rig.is_some_and(|r| !is_simulated(r)) && stem != "none" {
@@ -1039,22 +936,11 @@ fn resolve_run(r: &RunSpec, ctx: &PlanContext, rig: Option<&RigConfig>, errors: 
         errors.push(PlanError::out_of_range("run.max_retries", r.max_retries, "0..=100"));
     }
     if !(r.backoff_s.is_finite() && (0.0..=600.0).contains(&r.backoff_s)) {
-        errors.push(PlanError::out_of_range(
-            "run.backoff_s",
-            r.backoff_s,
-            "0 ..= 600 seconds",
-        ));
+        errors.push(PlanError::out_of_range("run.backoff_s", r.backoff_s, "0 ..= 600 seconds"));
     }
-    for (key, v) in [
-        ("move_timeout_s", r.move_timeout_s),
-        ("capture_timeout_s", r.capture_timeout_s),
-    ] {
+    for (key, v) in [("move_timeout_s", r.move_timeout_s), ("capture_timeout_s", r.capture_timeout_s)] {
         if !(v.is_finite() && v > 0.0 && v <= 3600.0) {
-            errors.push(PlanError::out_of_range(
-                format!("run.{key}"),
-                v,
-                "> 0 and <= 3600 seconds",
-            ));
+            errors.push(PlanError::out_of_range(format!("run.{key}"), v, "> 0 and <= 3600 seconds"));
         }
     }
     out

@@ -69,10 +69,7 @@ impl Triangulation {
     pub fn build(points: &[[f64; 2]]) -> Self {
         let n = points.len();
         if n < 3 {
-            return Triangulation {
-                tris: Vec::new(),
-                hull: if n == 2 { vec![[0, 1]] } else { Vec::new() },
-            };
+            return Triangulation { tris: Vec::new(), hull: if n == 2 { vec![[0, 1]] } else { Vec::new() } };
         }
         let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
         for p in points {
@@ -131,12 +128,7 @@ impl Triangulation {
             if det <= 1e-14 * extent * extent {
                 continue;
             }
-            let inv = [
-                (c[1] - a[1]) / det,
-                -(c[0] - a[0]) / det,
-                -(b[1] - a[1]) / det,
-                (b[0] - a[0]) / det,
-            ];
+            let inv = [(c[1] - a[1]) / det, -(c[0] - a[0]) / det, -(b[1] - a[1]) / det, (b[0] - a[0]) / det];
             out.tris.push(Tri { v: t, a, inv });
         }
         let mut directed: Vec<[usize; 2]> = Vec::new();
@@ -182,11 +174,7 @@ mod tests {
         let t = Triangulation::build(&pts);
         assert_eq!(t.tris.len(), 18);
         assert_eq!(t.hull.len(), 12);
-        let area: f64 = t
-            .tris
-            .iter()
-            .map(|tr| orient(pts[tr.v[0]], pts[tr.v[1]], pts[tr.v[2]]) / 2.0)
-            .sum();
+        let area: f64 = t.tris.iter().map(|tr| orient(pts[tr.v[0]], pts[tr.v[1]], pts[tr.v[2]]) / 2.0).sum();
         assert!((area - 9.0).abs() < 1e-12);
     }
 }

@@ -32,7 +32,14 @@ fn write(role: DeviceRole, w: &mut WorldState, truth: f64, cmd: f64) {
 }
 
 impl SimAxis {
-    pub(crate) fn new(role: DeviceRole, opts: &SimAxisOptions, timing: &AxisTiming, gate: FaultGate, world: SimWorld, seed: u64) -> Self {
+    pub(crate) fn new(
+        role: DeviceRole,
+        opts: &SimAxisOptions,
+        timing: &AxisTiming,
+        gate: FaultGate,
+        world: SimWorld,
+        seed: u64,
+    ) -> Self {
         let axis = AxisModel {
             limits: AxisLimits {
                 min_rad: opts.min_deg.to_radians(),
@@ -44,7 +51,15 @@ impl SimAxis {
             jitter_rad: opts.jitter_deg.to_radians(),
         };
         let name = gate.name().to_string();
-        let motion = Motion::new(&name, [axis], timing.settle_s, timing.home_s, opts.homed_at_start, seed, world.clock().clone());
+        let motion = Motion::new(
+            &name,
+            [axis],
+            timing.settle_s,
+            timing.home_s,
+            opts.homed_at_start,
+            seed,
+            world.clock().clone(),
+        );
         SimAxis { info: super::info(&name, &opts.model), gate, motion, world, role }
     }
 

@@ -7,7 +7,7 @@ use btfrig_core::config::timing::CameraTiming;
 use btfrig_core::frame::RawFrame;
 use btfrig_hw::{
     frame_checksum, verify_frame, Camera, CameraCapabilities, CaptureSettings, DeviceError, DeviceInfo, ErrorKind,
-    };
+};
 
 use crate::faults::{derive_seed, FaultGate, FrameFate, FrameFaults, COMMAND_TIMEOUT_S};
 use crate::options::SimCameraOptions;

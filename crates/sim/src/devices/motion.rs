@@ -34,7 +34,15 @@ pub(crate) struct Motion<const N: usize> {
 }
 
 impl<const N: usize> Motion<N> {
-    pub fn new(name: &str, axes: [AxisModel; N], settle_s: f64, home_s: f64, homed: bool, seed: u64, clock: SharedClock) -> Self {
+    pub fn new(
+        name: &str,
+        axes: [AxisModel; N],
+        settle_s: f64,
+        home_s: f64,
+        homed: bool,
+        seed: u64,
+        clock: SharedClock,
+    ) -> Self {
         Motion {
             name: name.to_string(),
             axes,
@@ -151,7 +159,8 @@ impl<const N: usize> Motion<N> {
             ));
         }
         self.clock.sleep_s(self.home_s).await;
-        let target: [f64; N] = std::array::from_fn(|i| 0f64.clamp(self.axes[i].limits.min_rad, self.axes[i].limits.max_rad));
+        let target: [f64; N] =
+            std::array::from_fn(|i| 0f64.clamp(self.axes[i].limits.min_rad, self.axes[i].limits.max_rad));
         let landing = self.landing(&target);
         self.commanded = target;
         self.homed = true;
@@ -161,7 +170,11 @@ impl<const N: usize> Motion<N> {
 
     pub fn position(&self, op: &str) -> Result<[f64; N], DeviceError> {
         if !self.homed {
-            return Err(DeviceError::new(&self.name, ErrorKind::NotHomed, format!("{op}: position unknown before homing")));
+            return Err(DeviceError::new(
+                &self.name,
+                ErrorKind::NotHomed,
+                format!("{op}: position unknown before homing"),
+            ));
         }
         Ok(self.commanded)
     }

@@ -20,7 +20,13 @@ pub struct SimRobot {
 }
 
 impl SimRobot {
-    pub(crate) fn new(opts: &SimRobotOptions, timing: &RobotTiming, gate: FaultGate, world: SimWorld, seed: u64) -> Self {
+    pub(crate) fn new(
+        opts: &SimRobotOptions,
+        timing: &RobotTiming,
+        gate: FaultGate,
+        world: SimWorld,
+        seed: u64,
+    ) -> Self {
         let axes = std::array::from_fn(|j| AxisModel {
             limits: AxisLimits {
                 min_rad: opts.joint_min_deg[j].to_radians(),
@@ -32,7 +38,8 @@ impl SimRobot {
             jitter_rad: opts.jitter_deg[j].to_radians(),
         });
         let name = gate.name().to_string();
-        let motion = Motion::new(&name, axes, timing.settle_s, timing.home_s, opts.homed_at_start, seed, world.clock().clone());
+        let motion =
+            Motion::new(&name, axes, timing.settle_s, timing.home_s, opts.homed_at_start, seed, world.clock().clone());
         SimRobot { info: super::info(&name, &opts.model), gate, motion, world }
     }
 

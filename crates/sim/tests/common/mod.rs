@@ -26,8 +26,10 @@ pub fn source() -> Arc<FlatFrameSource> {
 /// Devices all homed at start (so tests can move at once); each table in `extra` (TOML)
 /// replaces the default one of its device.
 pub fn devices(extra: &str) -> DevicesConfig {
-    let mut t: toml::Table =
-        toml::from_str("[robot]\nkind = \"sim\"\nhomed_at_start = true\n[rail]\nkind = \"sim\"\nhomed_at_start = true\n").unwrap();
+    let mut t: toml::Table = toml::from_str(
+        "[robot]\nkind = \"sim\"\nhomed_at_start = true\n[rail]\nkind = \"sim\"\nhomed_at_start = true\n",
+    )
+    .unwrap();
     let extra: toml::Table = toml::from_str(extra).unwrap();
     t.extend(extra);
     t.try_into().unwrap()
