@@ -37,6 +37,9 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<ExitCode> {
             s.hardware_s, s.critical_path_s, s.naive_order_hardware_s
         );
         println!("  wall time         {:.1} s", s.wall_s);
+        if let Some(m) = s.peak_rss_mib {
+            println!("  peak memory       {m:.0} MiB");
+        }
         println!("  stages            {}", stages.join(", "));
         println!(
             "  texture error     {} (relative RMSE of the rectified textures against ground truth)",

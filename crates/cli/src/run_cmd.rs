@@ -81,7 +81,7 @@ pub fn print_summary(s: &RunSummary) {
     let stages: Vec<String> = s.stage_s.iter().map(|(k, v)| format!("{k} {v:.2} s")).collect();
     let skipped: u64 = s.skipped.values().sum();
     println!(
-        "{}: {} captures ({} this run), {} skipped by the plan, {} retries; rig time {:.0} s, wall {:.1} s; stages: {}; texture rel. RMSE {}",
+        "{}: {} captures ({} this run), {} skipped by the plan, {} retries; rig time {:.0} s, wall {:.1} s; stages: {}; texture rel. RMSE {}; peak memory {}",
         s.dataset.display(),
         s.captures,
         s.captures_this_session,
@@ -90,7 +90,8 @@ pub fn print_summary(s: &RunSummary) {
         s.hardware_s,
         s.wall_s,
         stages.join(", "),
-        s.texture_rel_rmse.map(|r| format!("{r:.4}")).unwrap_or_else(|| "n/a".into())
+        s.texture_rel_rmse.map(|r| format!("{r:.4}")).unwrap_or_else(|| "n/a".into()),
+        s.peak_rss_mib.map(|m| format!("{m:.0} MiB")).unwrap_or_else(|| "n/a".into())
     );
     if s.unreported_captures > 0 {
         println!(

@@ -346,6 +346,17 @@ pub struct RunSummary {
     /// Captures journaled by sessions that left no report (killed): their hardware and wall
     /// time and texture error are not in the figures.
     pub unreported_captures: u64,
+    /// Peak resident memory of this process so far (Linux `VmHWM`), MiB; `None` where the
+    /// system does not say. Shows that memory stays bounded by frames in flight, not captures.
+    pub peak_rss_mib: Option<f64>,
+}
+
+/// The process's peak resident set size in MiB, from `/proc/self/status` (Linux).
+pub fn peak_rss_mib() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib / 1024.0)
 }
 
 impl RunSummary {
@@ -368,6 +379,7 @@ impl RunSummary {
             "warnings": self.warnings.len(),
             "sessions": self.sessions,
             "unreported_captures": self.unreported_captures,
+            "peak_rss_mib": self.peak_rss_mib,
             "dataset": self.dataset.display().to_string(),
         })
     }
@@ -575,6 +587,7 @@ fn summarise(
         warnings: t.warnings,
         sessions: all.len(),
         unreported_captures: captures.saturating_sub(t.captures),
+        peak_rss_mib: peak_rss_mib(),
     }
 }
 
@@ -599,6 +612,7 @@ fn report_of(s: &RunSummary, previous: &[Session], this: &Session, sessions: Vec
     put("captures_this_session", json!(this.captures));
     put("captures_without_truth", json!(without_truth));
     put("unreported_captures", json!(s.unreported_captures));
+    put("peak_rss_mib", json!(s.peak_rss_mib));
     put("engine_retries", json!(previous.iter().chain([this]).map(|s| s.retries).sum::<u64>()));
     put("sessions", serde_json::Value::Array(sessions));
     RunReport {
