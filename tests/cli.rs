@@ -1,38 +1,20 @@
 //! The `btfrig` binary as a person runs it: real processes, real files, real errors.
 //! Each test works in its own temporary directory under `target/`.
 
+mod support;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-fn btfrig() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_btfrig"))
-}
+use support::{btfrig, ok, read_journal, text};
 
 /// A fresh, empty directory for one test.
 fn scratch(name: &str) -> PathBuf {
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("cli-{name}"));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+    support::scratch(&format!("cli-{name}"))
 }
 
 fn run(cmd: &mut Command) -> Output {
     cmd.output().expect("btfrig runs")
-}
-
-fn text(o: &Output) -> String {
-    format!(
-        "status {:?}\n--- stdout\n{}--- stderr\n{}",
-        o.status,
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
-}
-
-fn ok(cmd: &mut Command) -> String {
-    let o = run(cmd);
-    assert!(o.status.success(), "{}", text(&o));
-    String::from_utf8_lossy(&o.stdout).into_owned()
 }
 
 /// Runs a command that must fail, returns its stderr.
@@ -455,5 +437,67 @@ fn ctrl_c_commits_the_frames_in_flight_exits_130_and_resumes() {
     let r = report(&out);
     assert_eq!(r["status"], "finished");
     assert_eq!(r["sessions"].as_array().unwrap().len(), 2);
+    ok(btfrig().args(["dataset", "verify"]).arg(&out));
+}
+
+#[test]
+fn retryable_faults_of_every_kind_are_retried_counted_and_nothing_is_duplicated() {
+    let dir = scratch("retryable");
+    // One of each retryable fault, early enough to hit a 12-capture run: the robot's and the
+    // camera's call timeouts, a camera disconnect healing after two calls, a dropped and a
+    // corrupt frame (checksum mismatch).
+    std::fs::write(
+        dir.join("faults.toml"),
+        r#"description = "one of each retryable fault"
+[[timeouts]]
+device = "robot"
+calls = [3]
+[[timeouts]]
+device = "camera"
+calls = [9]
+[[disconnects]]
+device = "camera"
+at_call = 20
+reconnect_after_calls = 2
+[dropped_frames]
+frames = [4]
+[corrupt_frames]
+frames = [7]
+"#,
+    )
+    .unwrap();
+    // A plan names only the shipped scenarios; `--faults` takes a file (and leaves the plan's
+    // hash alone).
+    let plan = tiny_plan(&dir, 5);
+    let bad = fails(
+        btfrig().args(["run", "--plan"]).arg(tiny_plan_with(&dir, 5, "faults.toml")).arg("--out").arg(dir.join("x")),
+    );
+    assert!(
+        bad.contains("tiny-5-faults.toml.toml: run.fault_scenario") && bad.matches("is unknown").count() == 1,
+        "{bad}"
+    );
+    let out = dir.join("dataset");
+    let o = run(btfrig()
+        .args(["run", "--plan"])
+        .arg(&plan)
+        .arg("--out")
+        .arg(&out)
+        .arg("--faults")
+        .arg(dir.join("faults.toml")));
+    assert!(o.status.success(), "{}", text(&o));
+    let r = report(&out);
+    assert_eq!(r["status"], "finished", "{r}");
+    assert_eq!(r["captures"], 12, "{r}");
+    // Five injected faults, each costing at least one retry of its step; counted from the
+    // journal's attempts, so they are the retries of the committed steps.
+    let retries = r["retries"].as_u64().unwrap();
+    assert!((5..=10).contains(&retries), "retries {retries}: {r}");
+    assert!(r["engine_retries"].as_u64().unwrap() >= 5, "{r}");
+    // Nothing duplicated: twelve journal records for twelve distinct steps, one texture each.
+    let j = read_journal(&out);
+    assert_eq!(j.steps.len(), 12, "{j:?}");
+    assert_eq!(j.committed().len(), 12, "{j:?}");
+    assert!(j.torn_tail.is_none());
+    assert_eq!(std::fs::read_dir(out.join("textures")).unwrap().count(), 12);
     ok(btfrig().args(["dataset", "verify"]).arg(&out));
 }

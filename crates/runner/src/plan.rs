@@ -50,7 +50,10 @@ pub fn load_text(text: &str, file: &Path) -> Result<(Plan, ValidatedPlan), RunEr
             .map_err(|e| RunError::Input { what: format!("{}: rig.config", file.display()), message: e.to_string() })?;
         ctx.rig = Some(cfg);
     }
-    let validated = plan.validate(&ctx)?;
+    let validated = plan.validate(&ctx).map_err(|mut e| {
+        e.origin = file.display().to_string();
+        e
+    })?;
     Ok((plan, validated))
 }
 
