@@ -258,26 +258,7 @@ fn tiny_plan(dir: &Path, seed: u64) -> PathBuf {
 /// [`tiny_plan`] with a fault scenario.
 fn tiny_plan_with(dir: &Path, seed: u64, faults: &str) -> PathBuf {
     let path = dir.join(format!("tiny-{seed}-{faults}.toml"));
-    let text = format!(
-        r#"name = "tiny"
-[rig]
-config = "builtin:bonn-gonio-sim"
-material = "lacquered-wood"
-seed = {seed}
-[sampling]
-light = {{ preset = "bonn81", theta_max_deg = 30 }}
-view = {{ preset = "bonn81", theta_max_deg = 30 }}
-[texture]
-size = 32
-region = {{ u = [0.25, 0.75], v = [0.25, 0.75] }}
-[exposure]
-mode = "auto"
-[skip]
-max_captures = 12
-[run]
-fault_scenario = "{faults}"
-"#
-    );
+    let text = include_str!("data/tiny-plan.toml").replace("SEED", &seed.to_string()).replace("FAULTS", faults);
     std::fs::write(&path, text).unwrap();
     path
 }

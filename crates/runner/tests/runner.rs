@@ -12,27 +12,9 @@ fn scratch(name: &str) -> PathBuf {
     dir
 }
 
+/// The tests' small plan (`tests/data/tiny-plan.toml`, shared with the CLI tests).
 fn plan_text(faults: &str) -> String {
-    format!(
-        r#"name = "tiny"
-[rig]
-config = "builtin:bonn-gonio-sim"
-material = "lacquered-wood"
-seed = 5
-[sampling]
-light = {{ preset = "bonn81", theta_max_deg = 30 }}
-view = {{ preset = "bonn81", theta_max_deg = 30 }}
-[texture]
-size = 32
-region = {{ u = [0.25, 0.75], v = [0.25, 0.75] }}
-[exposure]
-mode = "auto"
-[skip]
-max_captures = 12
-[run]
-fault_scenario = "{faults}"
-"#
-    )
+    include_str!("../../../tests/data/tiny-plan.toml").replace("SEED", "5").replace("FAULTS", faults)
 }
 
 fn request(dir: &Path, faults: &str) -> RunRequest {
