@@ -426,7 +426,7 @@ pub fn register(
             continue;
         }
         let errs = errors(&pose);
-        let (markers, cost) = classify(&errs, &|_, e| e < gate_h);
+        let (markers, cost) = classify(&errs, &|i, e| e < gate_h.max(options.inlier_sigmas * correspondences[i].sigma_px));
         let better = match &best {
             None => true,
             Some(s) => markers.len() > s.markers.len() || (markers.len() == s.markers.len() && cost < s.cost),
@@ -453,7 +453,9 @@ pub fn register(
         let rej: Vec<u32> = seen.iter().filter(|m| !inl.contains(m)).copied().collect();
         format!("markers seen: {seen:?}, rejected as outliers: {rej:?}")
     };
-    if best.markers.len() < needed {
+    // A pair of markers may support fewer than `needed` markers and still lead to the right
+    // pose after refinement (local optimisation): two markers are 8 corners.
+    if best.markers.len() < 2 {
         return Err(RegisterError::TooFewMarkers {
             found: best.markers.len(),
             needed,
@@ -493,12 +495,15 @@ pub fn register(
         if next == markers {
             break;
         }
-        if next.len() < needed {
+        if next.len() < 2 {
             return Err(RegisterError::TooFewMarkers { found: next.len(), needed, detail: detail(&next) });
         }
         markers = next;
     }
     let refined = refined.expect("refined at least once");
+    if markers.len() < needed {
+        return Err(RegisterError::TooFewMarkers { found: markers.len(), needed, detail: detail(&markers) });
+    }
     let (inliers, _) = obs_of(&markers);
     let inlier_plane: Vec<Point2<f64>> = inliers.iter().map(|&i| correspondences[i].plane).collect();
     check_spread(&inlier_plane, options)?;
