@@ -241,6 +241,9 @@ impl Registration {
     }
 }
 
+/// How much farther from the nominal pose than the tolerance a RANSAC hypothesis may be.
+const HYPOTHESIS_SLACK: f64 = 3.0;
+
 /// A candidate set of markers with its score (more markers, then lower truncated cost).
 struct Scored {
     pose: Isometry3<f64>,
@@ -333,7 +336,8 @@ pub fn register(
     let needed = options.min_markers;
     for (index, c) in correspondences.iter().enumerate() {
         let bad = |what, value, allowed| Err(RegisterError::BadInput { index, what, value, allowed });
-        for (what, v) in [("plane.x", c.plane.x), ("plane.y", c.plane.y), ("pixel.x", c.pixel.x), ("pixel.y", c.pixel.y)]
+        for (what, v) in
+            [("plane.x", c.plane.x), ("plane.y", c.plane.y), ("pixel.x", c.pixel.x), ("pixel.y", c.pixel.y)]
         {
             if !v.is_finite() {
                 return bad(what, v, "finite");
@@ -367,11 +371,13 @@ pub fn register(
 
     let nominal_t = sample_to_camera(nominal);
     let max_rot = options.max_rotation_deg.to_radians();
-    let within_prior = |t: &Isometry3<f64>| {
+    // `slack` > 1 for RANSAC hypotheses: a pose from two markers is much less certain
+    // (especially in depth) than the refined one, which must meet the tolerance itself.
+    let within_prior = |t: &Isometry3<f64>, slack: f64| {
         let d = refine::difference(t, &nominal_t);
         let rot = Vector3::new(d[0], d[1], d[2]).norm();
         let tr = Vector3::new(d[3], d[4], d[5]).norm();
-        (rot <= max_rot && tr <= options.max_translation_m, rot, tr)
+        (rot <= slack * max_rot && tr <= slack * options.max_translation_m, rot, tr)
     };
     // Per-corner reprojection error (px) under a pose; infinite when it does not project.
     let errors = |t: &Isometry3<f64>| -> Vec<f64> {
@@ -418,7 +424,7 @@ pub fn register(
             degenerate += 1;
             continue;
         };
-        let (ok, rot, tr) = within_prior(&pose);
+        let (ok, rot, tr) = within_prior(&pose, HYPOTHESIS_SLACK);
         if !ok {
             if closest_rejected.is_none_or(|(r, _)| rot < r) {
                 closest_rejected = Some((rot, tr));
@@ -426,7 +432,8 @@ pub fn register(
             continue;
         }
         let errs = errors(&pose);
-        let (markers, cost) = classify(&errs, &|i, e| e < gate_h.max(options.inlier_sigmas * correspondences[i].sigma_px));
+        let (markers, cost) =
+            classify(&errs, &|i, e| e < gate_h.max(options.inlier_sigmas * correspondences[i].sigma_px));
         let better = match &best {
             None => true,
             Some(s) => markers.len() > s.markers.len() || (markers.len() == s.markers.len() && cost < s.cost),
@@ -456,18 +463,11 @@ pub fn register(
     // A pair of markers may support fewer than `needed` markers and still lead to the right
     // pose after refinement (local optimisation): two markers are 8 corners.
     if best.markers.len() < 2 {
-        return Err(RegisterError::TooFewMarkers {
-            found: best.markers.len(),
-            needed,
-            detail: detail(&best.markers),
-        });
+        return Err(RegisterError::TooFewMarkers { found: best.markers.len(), needed, detail: detail(&best.markers) });
     }
 
-    let prior = options.prior_sigma.map(|(r, t)| refine::Prior {
-        mean: nominal_t,
-        sigma_rot: r.to_radians(),
-        sigma_t: t,
-    });
+    let prior =
+        options.prior_sigma.map(|(r, t)| refine::Prior { mean: nominal_t, sigma_rot: r.to_radians(), sigma_t: t });
     let obs_of = |markers: &[u32]| -> (Vec<usize>, Vec<refine::Obs>) {
         let idx: Vec<usize> = markers.iter().flat_map(|m| by_marker[m].iter().copied()).collect();
         let obs = idx
@@ -479,7 +479,8 @@ pub fn register(
             .collect();
         (idx, obs)
     };
-    let final_gate = |i: usize, e: f64| e < (options.inlier_sigmas * correspondences[i].sigma_px).max(options.inlier_floor_px);
+    let final_gate =
+        |i: usize, e: f64| e < (options.inlier_sigmas * correspondences[i].sigma_px).max(options.inlier_floor_px);
     let mut markers = best.markers;
     let mut pose = best.pose;
     let mut refined = None;
@@ -507,7 +508,7 @@ pub fn register(
     let (inliers, _) = obs_of(&markers);
     let inlier_plane: Vec<Point2<f64>> = inliers.iter().map(|&i| correspondences[i].plane).collect();
     check_spread(&inlier_plane, options)?;
-    let (ok, rot, tr) = within_prior(&pose);
+    let (ok, rot, tr) = within_prior(&pose, 1.0);
     if !ok {
         return Err(RegisterError::PriorMismatch {
             rotation_deg: rot.to_degrees(),
@@ -534,9 +535,10 @@ pub fn register(
             why: format!("normal matrix condition {:.3e} exceeds {:.1e}", hi / lo, options.max_condition),
         });
     }
-    let covariance = refined.normal.try_inverse().ok_or_else(|| RegisterError::Degenerate {
-        why: "singular normal matrix".into(),
-    })?;
+    let covariance = refined
+        .normal
+        .try_inverse()
+        .ok_or_else(|| RegisterError::Degenerate { why: "singular normal matrix".into() })?;
     let errs = errors(&pose);
     let rms_px = (inliers.iter().map(|&i| errs[i] * errs[i]).sum::<f64>() / inliers.len() as f64).sqrt();
     let dof = (2 * inliers.len()).saturating_sub(6).max(1);

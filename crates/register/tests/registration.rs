@@ -34,6 +34,21 @@ fn run_view(
     seed: u64,
     corrupt: &dyn Fn(&mut Vec<Correspondence>, &mut ChaCha8Rng),
 ) -> Result<Case, RegisterError> {
+    run_view_with(rig, view, light_start, error_scale, sigma, seed, corrupt, &RegisterOptions::default())
+}
+
+/// [`run_view`] with explicit options.
+#[allow(clippy::too_many_arguments)]
+fn run_view_with(
+    rig: &Rig,
+    view: Direction,
+    light_start: usize,
+    error_scale: f64,
+    sigma: f64,
+    seed: u64,
+    corrupt: &dyn Fn(&mut Vec<Correspondence>, &mut ChaCha8Rng),
+    options: &RegisterOptions,
+) -> Result<Case, RegisterError> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let cmd = joints_for(rig, view, light_start);
     let nominal = rig.gonio.scene_pose(&cmd);
@@ -41,7 +56,7 @@ fn run_view(
     let mut obs = observe(rig, &truth, sigma, &mut rng);
     corrupt(&mut obs, &mut rng);
     let t0 = Instant::now();
-    let reg = register(&obs, &rig.camera, &nominal, &RegisterOptions::default())?;
+    let reg = register(&obs, &rig.camera, &nominal, options)?;
     let seconds = t0.elapsed().as_secs_f64();
     let (est_mean, est_max) = texel_position_error(&truth, &reg.pose, &rig.camera, rig.region, SIZE);
     let (nom_mean, nom_max) = texel_position_error(&truth, &nominal, &rig.camera, rig.region, SIZE);
@@ -119,7 +134,13 @@ fn all_81_bonn_views_default_jitter_meet_the_acceptance() {
 }
 
 /// Registers `views` with a corruption and returns the cases (all must register).
-fn stress(label: &str, views: &[Direction], scale: f64, sigma: f64, corrupt: &dyn Fn(&mut Vec<Correspondence>, &mut ChaCha8Rng)) -> Vec<Case> {
+fn stress(
+    label: &str,
+    views: &[Direction],
+    scale: f64,
+    sigma: f64,
+    corrupt: &dyn Fn(&mut Vec<Correspondence>, &mut ChaCha8Rng),
+) -> Vec<Case> {
     let rig = rig();
     let cases: Vec<Case> = views
         .iter()
@@ -174,10 +195,26 @@ fn strong_noise_degrades_gracefully_and_is_predicted() {
     let views: Vec<Direction> = common::bonn_views().into_iter().step_by(3).collect();
     let cases = stress("noise 1 px", &views, 1.0, 1.0, &none);
     let s = summarise("noise 1 px", &cases);
-    // Ten times the noise of the acceptance: still well below nominal, and the
-    // covariance predicts it.
+    // Ten times the noise of the acceptance: the markers alone are about as good as the
+    // nominal pose, and the covariance predicts the error.
     assert!(s.mean < 0.3, "mean {}", s.mean);
-    assert!(s.nom_mean > s.mean);
+    // With the rig's positioning error as a weak Gaussian prior the two combine: a modest
+    // gain (measured ~5%), never a loss.
+    let rig = rig();
+    let with_prior = RegisterOptions { prior_sigma: Some((0.08, 0.0005)), ..Default::default() };
+    let fused: Vec<Case> = views
+        .iter()
+        .enumerate()
+        .map(|(k, v)| run_view_with(&rig, *v, 11 * k, 1.0, 1.0, 5000 + k as u64, &none, &with_prior).unwrap())
+        .collect();
+    let f = summarise("noise 1 px, prior 0.08 deg / 0.5 mm", &fused);
+    assert!(
+        f.mean < 0.98 * s.mean && f.mean < 0.98 * s.nom_mean,
+        "prior {} vs markers {} vs nominal {}",
+        f.mean,
+        s.mean,
+        s.nom_mean
+    );
     for c in &cases {
         assert!(c.est_mean < 3.0 * c.predicted, "error {} predicted {}", c.est_mean, c.predicted);
         assert!(c.reg.chi2_per_dof > 0.3 && c.reg.chi2_per_dof < 3.0, "chi2/dof {}", c.reg.chi2_per_dof);
@@ -200,7 +237,11 @@ fn a_wrong_marker_is_rejected_whole() {
     let wrong = |obs: &mut Vec<Correspondence>, _: &mut ChaCha8Rng| {
         let rig = rig();
         let victim = obs[0].marker;
-        let other = rig.markers.iter().find(|m| m.id != victim && !obs.iter().any(|c| c.marker == m.id) || m.id == victim + 6).unwrap();
+        let other = rig
+            .markers
+            .iter()
+            .find(|m| m.id != victim && !obs.iter().any(|c| c.marker == m.id) || m.id == victim + 6)
+            .unwrap();
         let mut k = 0;
         for c in obs.iter_mut().filter(|c| c.marker == victim) {
             c.plane = other.corners_sample_m[k];
