@@ -162,3 +162,43 @@ fn finish(pose: Isometry3<f64>, r: &[f64], rows: &[Vector6], n_obs: usize, itera
 pub fn project(cam: &CameraModel, pose: &Isometry3<f64>, p: &Point2<f64>) -> Option<Point2<f64>> {
     cam.project(&(pose * Point3::new(p.x, p.y, 0.0)))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use btfrig_core::camera::{Distortion, Vignetting};
+
+    #[test]
+    fn perturb_and_difference_are_inverse() {
+        let a = Isometry3::new(Vector3::new(0.01, -0.02, 1.2), Vector3::new(0.3, -0.5, 0.2));
+        let d = Vector6::new(0.01, -0.02, 0.005, 0.001, 0.002, -0.003);
+        let b = perturb(&a, &d);
+        assert!((difference(&b, &a) - d).norm() < 1e-12);
+    }
+
+    #[test]
+    fn lm_recovers_an_exact_pose_through_strong_distortion() {
+        let cam = CameraModel::new(
+            1600,
+            1200,
+            1500.0,
+            1500.0,
+            790.0,
+            610.0,
+            Distortion { k1: -0.2, k2: 0.05, k3: 0.0, p1: 1e-3, p2: -8e-4 },
+            Vignetting::default(),
+        )
+        .unwrap();
+        let truth = Isometry3::new(Vector3::new(0.02, -0.01, 0.5), Vector3::new(0.4, -0.3, 0.1));
+        let obs: Vec<Obs> = (0..25)
+            .map(|k| {
+                let plane = Point2::new(-0.1 + 0.05 * (k % 5) as f64, -0.1 + 0.05 * (k / 5) as f64);
+                Obs { plane, pixel: project(&cam, &truth, &plane).unwrap(), sigma: 0.1 }
+            })
+            .collect();
+        let start = perturb(&truth, &Vector6::new(0.02, -0.01, 0.03, 0.005, -0.004, 0.01));
+        let r = refine(&cam, &start, &obs, None).unwrap();
+        assert!(difference(&r.pose, &truth).norm() < 1e-9, "{}", difference(&r.pose, &truth).norm());
+        assert!(r.chi2 < 1e-12);
+    }
+}

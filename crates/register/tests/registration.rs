@@ -335,3 +335,35 @@ fn markers_at_the_image_border() {
     // registered as well as ever.
     assert!(s.mean < 0.05 && s.max < 0.2, "mean {} max {}", s.mean, s.max);
 }
+
+#[test]
+fn noise_free_corners_give_the_true_pose() {
+    // Without pixel noise the only error left would be a modelling one (distortion,
+    // conventions): it must vanish.
+    let rig = rig();
+    for (k, v) in common::bonn_views().into_iter().enumerate().step_by(10) {
+        let c = run_view(&rig, v, k, 1.0, 1e-6, 77 + k as u64, &none).expect("registers");
+        assert!(c.est_max < 1e-4, "view {k}: max texel error {} without noise", c.est_max);
+        assert!(c.reg.rms_px < 1e-5, "rms {}", c.reg.rms_px);
+    }
+}
+
+#[test]
+fn unusable_inputs_are_named() {
+    let rig = rig();
+    let cmd = joints_for(&rig, Direction::from_degrees(30.0, 45.0), 0);
+    let nominal = rig.gonio.scene_pose(&cmd);
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let mut obs = observe(&rig, &nominal, 0.1, &mut rng);
+    obs[5].sigma_px = 0.0;
+    let e = register(&obs, &rig.camera, &nominal, &RegisterOptions::default()).unwrap_err();
+    assert_eq!(e, RegisterError::BadInput { index: 5, what: "sigma_px", value: 0.0, allowed: "finite and > 0" });
+    obs[5].sigma_px = 0.1;
+    obs[9].pixel.y = f64::NAN;
+    let e = register(&obs, &rig.camera, &nominal, &RegisterOptions::default()).unwrap_err();
+    assert!(e.to_string().contains("correspondence 9: pixel.y"), "{e}");
+    obs[9].pixel.y = 10.0;
+    let bad = RegisterOptions { min_markers: 1, ..Default::default() };
+    let e = register(&obs, &rig.camera, &nominal, &bad).unwrap_err();
+    assert!(e.to_string().contains("min_markers"), "{e}");
+}
