@@ -126,7 +126,9 @@ pub fn refine(cam: &CameraModel, start: &Isometry3<f64>, obs: &[Obs], prior: Opt
             if let Some(rc) = residuals(cam, &cand, obs, prior) {
                 let cc = cost(&rc);
                 if cc <= c {
-                    let small = step.norm() < 1e-12 || (c - cc) <= 1e-14 * c.max(1e-300);
+                    // Converged when the step or the relative gain is negligible (far below the
+                    // noise: 1e-10 of the cost moves the pose by ~1e-5 of its sigma).
+                    let small = step.norm() < 1e-11 || (c - cc) <= 1e-10 * c.max(1e-300);
                     pose = cand;
                     c = cc;
                     mu = (mu * 0.3).max(1e-12);
