@@ -65,7 +65,12 @@ pub fn dlt(src: &[Point2<f64>], dst: &[Point2<f64>]) -> Option<Matrix3<f64>> {
 /// DLT with iterative rejection: fit, measure transfer errors, keep the points within
 /// `k` robust standard deviations (median absolute deviation, never below `floor_px`), refit
 /// until the inlier set stops changing. Returns the homography and the inlier mask.
-pub fn robust_dlt(src: &[Point2<f64>], dst: &[Point2<f64>], k: f64, floor_px: f64) -> Option<(Matrix3<f64>, Vec<bool>)> {
+pub fn robust_dlt(
+    src: &[Point2<f64>],
+    dst: &[Point2<f64>],
+    k: f64,
+    floor_px: f64,
+) -> Option<(Matrix3<f64>, Vec<bool>)> {
     let mut inl = vec![true; src.len()];
     let mut h = dlt(src, dst)?;
     for _ in 0..10 {

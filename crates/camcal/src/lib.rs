@@ -18,7 +18,7 @@ use btfrig_core::camera::{CameraError, CameraModel, Distortion, Vignetting};
 use nalgebra::{Isometry3, Matrix3, Point2, Translation3, UnitQuaternion};
 
 pub use file::{CalibrationFile, FileError};
-pub use metric::{distortion_difference, mapping_difference};
+pub use metric::{distortion_difference, mapping_difference, mapping_difference_up_to_rotation};
 pub use refine::CAM_NAMES;
 
 /// One detected target point: where it is on the target and where it was seen.
@@ -70,6 +70,9 @@ pub struct Options {
     /// tilted (0.01: the far edge is 1% farther than the near one, about 5 degrees of tilt for
     /// a target that spans a sixth of its distance).
     pub min_depth_variation: f64,
+    /// Hold the principal point at this pixel position instead of estimating it (OpenCV's
+    /// `CALIB_FIX_PRINCIPAL_POINT`; for long lenses, whose views hardly constrain it).
+    pub fixed_principal_point: Option<Point2<f64>>,
     /// Vignetting to put into the returned model (geometry does not estimate it).
     pub vignetting: Vignetting,
 }
@@ -82,11 +85,12 @@ impl Options {
             height,
             estimate_k3: true,
             estimate_tangential: true,
-            reject_k: 4.0,
+            reject_k: 5.0,
             max_rounds: 6,
             max_iterations: 100,
             min_tilted_views: 2,
             min_depth_variation: 0.01,
+            fixed_principal_point: None,
             vignetting: Vignetting::default(),
         }
     }
@@ -196,8 +200,9 @@ pub struct Uncertainty {
 pub enum Init {
     /// Zhang's closed form with all four intrinsics.
     Zhang,
-    /// Zhang's constraints with the principal point held at the image centre (used when the
-    /// full closed form puts the principal point outside the image or is ill-conditioned).
+    /// Zhang's constraints with the principal point held at the image centre, or at
+    /// [`Options::fixed_principal_point`] (used when that is set, or when the full closed form
+    /// puts the principal point outside the image or is ill-conditioned).
     CentredPrincipalPoint,
 }
 
@@ -300,10 +305,11 @@ pub fn calibrate(views: &[View], opts: &Options) -> Result<Calibration, CalibErr
         }
         // Third row of H is proportional to (r13, r23, tz): depth of (X, Y) relative to the
         // origin's is 1 + (h31 X + h32 Y) / h33, independent of the intrinsics.
-        let (lo, hi) = src.iter().zip(&inl).filter(|(_, &i)| i).fold((f64::INFINITY, f64::NEG_INFINITY), |a, (p, _)| {
-            let d = (hpx[(2, 0)] * p.x + hpx[(2, 1)] * p.y) / hpx[(2, 2)];
-            (a.0.min(d), a.1.max(d))
-        });
+        let (lo, hi) =
+            src.iter().zip(&inl).filter(|(_, &i)| i).fold((f64::INFINITY, f64::NEG_INFINITY), |a, (p, _)| {
+                let d = (hpx[(2, 0)] * p.x + hpx[(2, 1)] * p.y) / hpx[(2, 2)];
+                (a.0.min(d), a.1.max(d))
+            });
         depth_var.push(hi - lo);
         hs.push(norm * hpx);
         active.push(inl);
@@ -324,10 +330,15 @@ pub fn calibrate(views: &[View], opts: &Options) -> Result<Calibration, CalibErr
         let c = unnorm * nalgebra::Vector3::new(k.cx, k.cy, 1.0);
         c.x > -0.5 && c.x < w - 0.5 && c.y > -0.5 && c.y < h - 0.5 && (k.fx / k.fy - 1.0).abs() < 0.5
     };
-    let (k_norm, init) = match zhang::intrinsics(&hs) {
+    let full = match opts.fixed_principal_point {
+        None => zhang::intrinsics(&hs),
+        Some(_) => Err(zhang::ClosedFormFailure::NotPositive),
+    };
+    let (k_norm, init) = match full {
         Ok(k) if in_image(&k) => (k, Init::Zhang),
         first => {
-            let c = norm * nalgebra::Vector3::new((w - 1.0) / 2.0, (h - 1.0) / 2.0, 1.0);
+            let pp = opts.fixed_principal_point.unwrap_or(Point2::new((w - 1.0) / 2.0, (h - 1.0) / 2.0));
+            let c = norm * nalgebra::Vector3::new(pp.x, pp.y, 1.0);
             match zhang::focal_with_centre(&hs, c.x, c.y) {
                 Ok(k) => (k, Init::CentredPrincipalPoint),
                 Err(e) => return Err(CalibError::ClosedForm { why: format!("full: {first:?}; centred: {e:?}") }),
@@ -361,6 +372,8 @@ pub fn calibrate(views: &[View], opts: &Options) -> Result<Calibration, CalibErr
     free[6] = opts.estimate_k3;
     free[7] = opts.estimate_tangential;
     free[8] = opts.estimate_tangential;
+    free[2] = opts.fixed_principal_point.is_none();
+    free[3] = opts.fixed_principal_point.is_none();
     let nfree = free.iter().filter(|&&f| f).count() + 6 * views.len();
     let mut iterations = 0;
     let mut result;
@@ -380,11 +393,14 @@ pub fn calibrate(views: &[View], opts: &Options) -> Result<Calibration, CalibErr
         let mut norms: Vec<f64> = res
             .iter()
             .zip(&active)
-            .flat_map(|(rv, av)| rv.iter().zip(av).filter(|(_, &a)| a).map(|(r, _)| r.map_or(f64::INFINITY, |r| r.norm())))
+            .flat_map(|(rv, av)| {
+                rv.iter().zip(av).filter(|(_, &a)| a).map(|(r, _)| r.map_or(f64::INFINITY, |r| r.norm()))
+            })
             .collect();
         norms.sort_by(|a, b| a.total_cmp(b));
         let sigma = norms[norms.len() / 2] / 1.1774;
-        let thresh = opts.reject_k * sigma;
+        // The floor keeps exact (noise-free) data from rejecting points over rounding error.
+        let thresh = (opts.reject_k * sigma).max(1e-6);
         let next: Vec<Vec<bool>> =
             res.iter().map(|rv| rv.iter().map(|r| r.is_some_and(|r| r.norm() <= thresh)).collect()).collect();
         if next == active {

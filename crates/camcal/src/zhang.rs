@@ -97,7 +97,10 @@ pub fn focal_with_centre(hs: &[Matrix3<f64>], cx: f64, cy: f64) -> Result<Pinhol
         let (a, b) = (h.column(0), h.column(1));
         for (row, rhs) in [
             (nalgebra::Vector2::new(a[0] * b[0], a[1] * b[1]), -a[2] * b[2]),
-            (nalgebra::Vector2::new(a[0] * a[0] - b[0] * b[0], a[1] * a[1] - b[1] * b[1]), -(a[2] * a[2] - b[2] * b[2])),
+            (
+                nalgebra::Vector2::new(a[0] * a[0] - b[0] * b[0], a[1] * a[1] - b[1] * b[1]),
+                -(a[2] * a[2] - b[2] * b[2]),
+            ),
         ] {
             ata += row * row.transpose();
             atb += row * rhs;

@@ -11,17 +11,30 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 
 pub fn rig() -> RigConfig {
-    RigConfig::from_toml(include_str!(concat!(env!("CARGO_MANIFEST_DIR"), "/../../rig-configs/bonn-gonio-sim.toml")), "bonn-gonio-sim.toml").unwrap()
+    RigConfig::from_toml(
+        include_str!(concat!(env!("CARGO_MANIFEST_DIR"), "/../../rig-configs/bonn-gonio-sim.toml")),
+        "bonn-gonio-sim.toml",
+    )
+    .unwrap()
 }
 
 pub fn truth() -> CameraModel {
     rig().camera.to_model().unwrap()
 }
 
+/// The default rig's sensor behind a moderately wide lens (fx = 1600 px, 53 degrees across)
+/// with a decentred principal point and a stronger distortion.
+pub fn wide() -> CameraModel {
+    let d = btfrig_core::camera::Distortion { k1: -0.12, k2: 0.05, k3: -0.01, p1: 4e-4, p2: -3e-4 };
+    CameraModel::new(1600, 1200, 1600.0, 1598.0, 812.4, 590.7, d, btfrig_core::camera::Vignetting::default()).unwrap()
+}
+
 /// Target points: a 12 x 12 grid, 16 mm pitch (the corners of 6 x 6 markers of 16 mm with
 /// 16 mm gaps on a 0.2 m plate look much the same to the calibration).
 pub fn target() -> Vec<Point2<f64>> {
-    (0..12).flat_map(|i| (0..12).map(move |j| Point2::new((i as f64 - 5.5) * 0.016, (j as f64 - 5.5) * 0.016))).collect()
+    (0..12)
+        .flat_map(|i| (0..12).map(move |j| Point2::new((i as f64 - 5.5) * 0.016, (j as f64 - 5.5) * 0.016)))
+        .collect()
 }
 
 pub struct Scene {
@@ -44,7 +57,8 @@ pub fn scene(cam: &CameraModel, seed: u64, n: usize, tilt_deg: (f64, f64), sigma
         let spin: f64 = rng.gen_range(0.0..std::f64::consts::TAU);
         let axis = Unit::new_normalize(Vector3::new(az.cos(), az.sin(), 0.0));
         let r = Rotation3::from_axis_angle(&axis, tilt) * Rotation3::from_axis_angle(&Vector3::z_axis(), spin);
-        let z = rng.gen_range(1.1..1.3);
+        // Same image coverage whatever the lens: 1.1-1.3 m behind a 4800 px focal length.
+        let z = rng.gen_range(1.1..1.3) * cam.fx / 4800.0;
         let u0 = rng.gen_range(0.15..0.85) * cam.width as f64;
         let v0 = rng.gen_range(0.15..0.85) * cam.height as f64;
         let t = Vector3::new((u0 - cam.cx) / cam.fx * z, (v0 - cam.cy) / cam.fy * z, z);
@@ -73,4 +87,3 @@ pub fn scene(cam: &CameraModel, seed: u64, n: usize, tilt_deg: (f64, f64), sigma
     }
     Scene { views, outliers }
 }
-
