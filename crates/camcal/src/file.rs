@@ -55,7 +55,7 @@ pub struct FitSummary {
     pub outliers: usize,
     /// RMS reprojection error of each view, pixels.
     pub per_view_rms_px: Vec<f64>,
-    /// Initialisation: "zhang" or "centred-principal-point".
+    /// Initialisation: "zhang" or "held-principal-point".
     pub init: String,
     /// Free text: where the data came from (rig, date, target).
     #[serde(default)]
@@ -128,7 +128,7 @@ impl CalibrationFile {
                 per_view_rms_px: c.per_view_rms_px.clone(),
                 init: match c.init {
                     Init::Zhang => "zhang",
-                    Init::CentredPrincipalPoint => "centred-principal-point",
+                    Init::HeldPrincipalPoint => "held-principal-point",
                 }
                 .into(),
                 source: source.into(),

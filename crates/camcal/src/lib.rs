@@ -203,7 +203,7 @@ pub enum Init {
     /// Zhang's constraints with the principal point held at the image centre, or at
     /// [`Options::fixed_principal_point`] (used when that is set, or when the full closed form
     /// puts the principal point outside the image or is ill-conditioned).
-    CentredPrincipalPoint,
+    HeldPrincipalPoint,
 }
 
 /// Result of a calibration.
@@ -340,7 +340,7 @@ pub fn calibrate(views: &[View], opts: &Options) -> Result<Calibration, CalibErr
             let pp = opts.fixed_principal_point.unwrap_or(Point2::new((w - 1.0) / 2.0, (h - 1.0) / 2.0));
             let c = norm * nalgebra::Vector3::new(pp.x, pp.y, 1.0);
             match zhang::focal_with_centre(&hs, c.x, c.y) {
-                Ok(k) => (k, Init::CentredPrincipalPoint),
+                Ok(k) => (k, Init::HeldPrincipalPoint),
                 Err(e) => return Err(CalibError::ClosedForm { why: format!("full: {first:?}; centred: {e:?}") }),
             }
         }

@@ -138,3 +138,48 @@ pub fn pose(h: &Matrix3<f64>, k: &Matrix3<f64>) -> Option<(Rotation3<f64>, Vecto
     }
     Some((Rotation3::from_matrix_unchecked(r), t))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn exact_homographies_give_back_k_and_the_poses() {
+        let k = Pinhole { fx: 3.1, fy: 3.05, cx: 0.12, cy: -0.07 };
+        let views = [
+            (Vector3::new(0.5, 0.1, 0.0), Vector3::new(0.02, -0.01, 1.2)),
+            (Vector3::new(-0.2, 0.6, 0.3), Vector3::new(-0.03, 0.02, 1.1)),
+            (Vector3::new(0.3, -0.4, -1.0), Vector3::new(0.01, 0.04, 1.3)),
+        ];
+        let hs: Vec<Matrix3<f64>> = views
+            .iter()
+            .map(|(w, t)| {
+                let r = Rotation3::new(*w);
+                let m =
+                    Matrix3::from_columns(&[r.matrix().column(0).into_owned(), r.matrix().column(1).into_owned(), *t]);
+                k.k() * m * 2.7 // arbitrary scale
+            })
+            .collect();
+        let est = intrinsics(&hs).unwrap();
+        for (a, b) in [(est.fx, k.fx), (est.fy, k.fy), (est.cx, k.cx), (est.cy, k.cy)] {
+            assert!((a - b).abs() < 1e-9, "{est:?}");
+        }
+        let held = focal_with_centre(&hs, k.cx, k.cy).unwrap();
+        assert!((held.fx - k.fx).abs() < 1e-9 && (held.fy - k.fy).abs() < 1e-9, "{held:?}");
+        for (h, (w, t)) in hs.iter().zip(&views) {
+            let (r, te) = pose(h, &k.k()).unwrap();
+            assert!((r.matrix() - Rotation3::new(*w).matrix()).norm() < 1e-9 && (te - t).norm() < 1e-9, "{te} {t}");
+        }
+        // Views that differ only by in-plane rotation and position leave the constraints
+        // with more than one solution.
+        let flat: Vec<Matrix3<f64>> = (0..4)
+            .map(|i| {
+                let r = Rotation3::new(Vector3::new(0.0, 0.0, 0.7 * i as f64));
+                let t = Vector3::new(0.01 * i as f64, -0.02, 1.2 + 0.05 * i as f64);
+                k.k()
+                    * Matrix3::from_columns(&[r.matrix().column(0).into_owned(), r.matrix().column(1).into_owned(), t])
+            })
+            .collect();
+        assert!(intrinsics(&flat).is_err() || !intrinsics(&flat).is_ok_and(|e| (e.fx - k.fx).abs() < 1e-3));
+    }
+}

@@ -178,7 +178,7 @@ fn a_fixed_principal_point_is_held_and_the_rest_estimated() {
     let f = report("default rig, principal point held at the truth, 20 views, noise 0.1 px", &t, &c, 0.1, ms);
     assert_eq!((c.camera.cx, c.camera.cy), (t.cx, t.cy));
     assert_eq!((c.uncertainty.cx_px, c.uncertainty.cy_px), (0.0, 0.0));
-    assert_eq!(c.init, btfrig_camcal::Init::CentredPrincipalPoint);
+    assert_eq!(c.init, btfrig_camcal::Init::HeldPrincipalPoint);
     assert!(f.focal_rel < 1e-3, "focal error {}", f.focal_rel);
     assert_consistent("fixed principal point", &t, &c);
 }
