@@ -1,0 +1,112 @@
+//! Plane-to-image homographies by the normalised direct linear transform (Hartley), with a
+//! robust screening loop that drops gross outliers before the closed form sees them.
+
+use nalgebra::{DMatrix, Matrix3, Point2, Vector3};
+
+/// Similarity that moves `pts` to zero mean and mean distance `sqrt(2)` from the origin
+/// (Hartley's normalisation: keeps the DLT's matrix well conditioned whatever the units).
+fn normaliser(pts: &[Point2<f64>]) -> Matrix3<f64> {
+    let n = pts.len() as f64;
+    let (mx, my) = pts.iter().fold((0.0, 0.0), |(a, b), p| (a + p.x / n, b + p.y / n));
+    let mean_d = pts.iter().map(|p| (p.x - mx).hypot(p.y - my)).sum::<f64>() / n;
+    let s = if mean_d > 0.0 { std::f64::consts::SQRT_2 / mean_d } else { 1.0 };
+    Matrix3::new(s, 0.0, -s * mx, 0.0, s, -s * my, 0.0, 0.0, 1.0)
+}
+
+fn apply(m: &Matrix3<f64>, p: &Point2<f64>) -> Point2<f64> {
+    let q = m * Vector3::new(p.x, p.y, 1.0);
+    Point2::new(q.x / q.z, q.y / q.z)
+}
+
+/// Maps a plane point through a homography (`None` at the line at infinity).
+pub fn map(h: &Matrix3<f64>, p: &Point2<f64>) -> Option<Point2<f64>> {
+    let q = h * Vector3::new(p.x, p.y, 1.0);
+    (q.z.abs() > 1e-300).then(|| Point2::new(q.x / q.z, q.y / q.z))
+}
+
+/// Homography `H` with `dst ~ H src` from at least 4 correspondences by the normalised DLT.
+/// `None` if the points do not determine it (fewer than 4, or a degenerate layout).
+pub fn dlt(src: &[Point2<f64>], dst: &[Point2<f64>]) -> Option<Matrix3<f64>> {
+    let n = src.len();
+    if n < 4 || dst.len() != n {
+        return None;
+    }
+    let ts = normaliser(src);
+    let td = normaliser(dst);
+    // At least 9 rows so the thin SVD returns the full 9x9 right singular basis.
+    let rows = (2 * n).max(9);
+    let mut a = DMatrix::<f64>::zeros(rows, 9);
+    for (i, (s, d)) in src.iter().zip(dst).enumerate() {
+        let s = apply(&ts, s);
+        let d = apply(&td, d);
+        let (x, y, u, v) = (s.x, s.y, d.x, d.y);
+        let r = 2 * i;
+        a.row_mut(r).copy_from_slice(&[-x, -y, -1.0, 0.0, 0.0, 0.0, u * x, u * y, u]);
+        a.row_mut(r + 1).copy_from_slice(&[0.0, 0.0, 0.0, -x, -y, -1.0, v * x, v * y, v]);
+    }
+    let svd = a.svd(false, true);
+    let vt = svd.v_t?;
+    let sv = &svd.singular_values;
+    let (imin, _) = sv.iter().enumerate().min_by(|a, b| a.1.total_cmp(b.1))?;
+    // A second (near-)zero singular value means a family of solutions: collinear points.
+    let mut sorted: Vec<f64> = sv.iter().copied().collect();
+    sorted.sort_by(|a, b| b.total_cmp(a));
+    if sorted.len() >= 2 && sorted[sorted.len() - 2] < 1e-10 * sorted[0] {
+        return None;
+    }
+    let h = vt.row(imin);
+    let hn = Matrix3::new(h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8]);
+    let h = td.try_inverse()? * hn * ts;
+    let scale = h[(2, 2)];
+    let h = if scale.abs() > 1e-300 { h / scale } else { h / h.norm() };
+    h.iter().all(|v| v.is_finite()).then_some(h)
+}
+
+/// DLT with iterative rejection: fit, measure transfer errors, keep the points within
+/// `k` robust standard deviations (median absolute deviation, never below `floor_px`), refit
+/// until the inlier set stops changing. Returns the homography and the inlier mask.
+pub fn robust_dlt(
+    src: &[Point2<f64>],
+    dst: &[Point2<f64>],
+    k: f64,
+    floor_px: f64,
+) -> Option<(Matrix3<f64>, Vec<bool>)> {
+    let mut inl = vec![true; src.len()];
+    let mut h = dlt(src, dst)?;
+    for _ in 0..10 {
+        let errs: Vec<f64> =
+            src.iter().zip(dst).map(|(s, d)| map(&h, s).map_or(f64::INFINITY, |p| (p - d).norm())).collect();
+        let mut sorted: Vec<f64> = errs.iter().zip(&inl).filter(|(_, &i)| i).map(|(e, _)| *e).collect();
+        sorted.sort_by(|a, b| a.total_cmp(b));
+        // The norm of a 2-D Gaussian error has median 1.1774 sigma.
+        let sigma = sorted[sorted.len() / 2] / 1.1774;
+        let thresh = (k * sigma).max(floor_px);
+        let next: Vec<bool> = errs.iter().map(|&e| e <= thresh).collect();
+        if next == inl {
+            break;
+        }
+        let (s, d): (Vec<_>, Vec<_>) =
+            src.iter().zip(dst).zip(&next).filter(|(_, &i)| i).map(|((s, d), _)| (*s, *d)).unzip();
+        h = dlt(&s, &d)?;
+        inl = next;
+    }
+    Some((h, inl))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn recovers_an_exact_homography_and_refuses_collinear_points() {
+        let h = Matrix3::new(900.0, 30.0, 400.0, -20.0, 850.0, 300.0, 0.1, -0.2, 1.0);
+        let src: Vec<_> =
+            (0..5).flat_map(|i| (0..4).map(move |j| Point2::new(0.02 * i as f64, 0.03 * j as f64))).collect();
+        let dst: Vec<_> = src.iter().map(|p| map(&h, p).unwrap()).collect();
+        let est = dlt(&src, &dst).unwrap();
+        assert!((est - h).norm() / h.norm() < 1e-10, "{est}");
+        let line: Vec<_> = (0..6).map(|i| Point2::new(0.01 * i as f64, 0.02 * i as f64)).collect();
+        let img: Vec<_> = line.iter().map(|p| map(&h, p).unwrap()).collect();
+        assert!(dlt(&line, &img).is_none());
+    }
+}
