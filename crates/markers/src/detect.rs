@@ -377,38 +377,53 @@ fn from_fit(cam: Option<&CameraModel>, p: Point2<f64>) -> Option<Point2<f64>> {
 }
 
 /// Fits edge `a -> b` (marker dark on the right-hand side of the direction in screen
-/// coordinates, i.e. the outward normal is `(dy, -dx)`), with a scanline half-width `hw`.
-fn fit_edge(img: &GrayImage, cam: Option<&CameraModel>, a: Point2<f64>, b: Point2<f64>, hw: f64) -> Option<EdgeFit> {
+/// coordinates, i.e. the outward normal is `(dy, -dx)`). Each scanline's profile runs from
+/// `ad` pixels inside (dark) to `bl` pixels outside (light).
+fn fit_edge(
+    img: &GrayImage,
+    cam: Option<&CameraModel>,
+    a: Point2<f64>,
+    b: Point2<f64>,
+    ad: f64,
+    bl: f64,
+) -> Option<EdgeFit> {
     let len = (b - a).norm();
     let dir = (b - a) / len;
     let nrm = Vector2::new(dir.y, -dir.x);
     let step = 0.25;
-    let ns = (2.0 * hw / step).round() as usize + 1;
-    let margin = hw + 1.0;
+    let nd = (ad / step).round() as usize;
+    let ad = nd as f64 * step;
+    let nl = (bl / step).round() as usize;
+    let bl = nl as f64 * step;
+    let ns = nd + nl + 1;
+    // Away from the corners, where the other edge's transition would enter the window.
+    let margin = ad.max(2.0) + 1.0;
     if len < 2.0 * margin + 4.0 {
         return None;
     }
     let nlines = (len - 2.0 * margin).floor() as usize;
-    // Profiles first: the dark and light levels are averaged over the whole edge.
+    // Profiles first: the dark and light levels (outer quarters of the profiles) are averaged
+    // over the whole edge, so the per-scanline offsets carry only the integral's noise.
     let mut profiles = Vec::with_capacity(nlines);
-    let (mut dsum, mut lsum, mut cnt) = (0.0, 0.0, 0.0);
+    let (mut dsum, mut lsum, mut dn, mut ln) = (0.0, 0.0, 0.0, 0.0);
     for k in 0..=nlines {
         let t = margin + k as f64 * (len - 2.0 * margin) / nlines as f64;
         let base = a + dir * t;
         let prof: Vec<f64> = (0..ns)
             .map(|i| {
-                let s = -hw + i as f64 * step;
+                let s = -ad + i as f64 * step;
                 let p = base + nrm * s;
                 img.bilinear(p.x, p.y)
             })
             .collect();
         let q = (ns / 4).max(1);
         dsum += prof[..q].iter().sum::<f64>();
+        dn += q as f64;
         lsum += prof[ns - q..].iter().sum::<f64>();
-        cnt += q as f64;
+        ln += q as f64;
         profiles.push((base, prof));
     }
-    let (dark, light) = (dsum / cnt, lsum / cnt);
+    let (dark, light) = (dsum / dn, lsum / ln);
     if !(light - dark > 0.0) {
         return None;
     }
@@ -416,8 +431,9 @@ fn fit_edge(img: &GrayImage, cam: Option<&CameraModel>, a: Point2<f64>, b: Point
     for (base, prof) in &profiles {
         // Trapezoid integral of the profile over [-hw, hw].
         let integ = step * (prof.iter().sum::<f64>() - 0.5 * (prof[0] + prof[ns - 1]));
-        let e = (hw * (dark + light) - integ) / (light - dark);
-        if e.abs() > hw {
+        // A step from `dark` to `light` at `e` has this integral over [-ad, bl].
+        let e = (dark * ad + light * bl - integ) / (light - dark);
+        if e < -ad || e > bl {
             continue;
         }
         if let Some(p) = to_fit(cam, base + nrm * e) {
@@ -544,17 +560,20 @@ fn candidate(img: &GrayImage, dict: &Dictionary, p: &DetectParams, pixels: &[(u3
     }
     let modules = (dict.size + 2) as f64;
     let cam = p.camera.as_ref();
-    // Two refinement passes: the second centres the scanlines on the first pass's lines.
+    // Three refinement passes: the later ones centre the scanlines on the first pass's lines.
     let mut fits: Vec<EdgeFit> = Vec::new();
     let mut cov = [[[0.0; 2]; 2]; 4];
-    for _pass in 0..2 {
+    for _pass in 0..3 {
         fits.clear();
         for i in 0..4 {
             let (a, b) = (q[i], q[(i + 1) % 4]);
             // Module size across this edge: the adjacent sides over the module count.
             let across = 0.5 * ((q[(i + 2) % 4] - b).norm() + (q[(i + 3) % 4] - a).norm()) / modules;
-            let hw = (0.5 * across).clamp(1.0, 3.0);
-            fits.push(fit_edge(img, cam, a, b, hw)?);
+            // Symmetric window of half a module (at most 3 px): the outer quarters give the
+            // levels. (An asymmetric window reaching farther into the quiet zone measured worse.)
+            let ad = (0.5 * across).clamp(1.0, 3.0);
+            let bl = ad;
+            fits.push(fit_edge(img, cam, a, b, ad, bl)?);
         }
         let mut nq = q;
         for k in 0..4 {

@@ -44,7 +44,7 @@ impl Setup {
     fn shoot(&self, joints: &JointState, seed: u64) -> Vec<f32> {
         let exposure = self.scene.exposure_for_white(0.5, 1e-4, 30.0);
         let (raw, _) = self.scene.capture(joints, 1.0, exposure, 1.0, seed, &self.opts).unwrap();
-        demosaic_bilinear(&raw).data.iter().map(|p| p[0] + p[1] + p[2]).collect()
+        demosaic_bilinear(&raw).data.iter().map(|p| p[1]).collect()
     }
 
     /// The noise-free radiance image (no sensor, no demosaic), grey = R + G + B.
