@@ -107,6 +107,10 @@ pub struct DetectParams {
     /// A marker whose edge-fit RMS residual exceeds this on some edge is rejected as partly
     /// hidden or not a clean square (pixels).
     pub max_edge_rms_px: f64,
+    /// Systematic floor added (in quadrature, per axis) to each corner's standard deviation:
+    /// what the edge-fit residuals cannot see (demosaic, rendering, model error). Measured on
+    /// the simulated rig at 0-45 deg: 0.03 px (`docs/markers.md`).
+    pub corner_sigma_floor_px: f64,
     /// When set, edge points are undistorted with this camera before the line fits (lens
     /// distortion bends the edges), and the corners distorted back. Must match the image size.
     pub camera: Option<CameraModel>,
@@ -124,6 +128,7 @@ impl Default for DetectParams {
             max_border_errors: 0,
             min_relative_contrast: 0.3,
             max_edge_rms_px: 0.35,
+            corner_sigma_floor_px: 0.03,
             camera: None,
         }
     }
@@ -150,6 +155,9 @@ impl DetectParams {
         }
         if !(self.max_edge_rms_px > 0.0 && self.max_edge_rms_px.is_finite()) {
             return bad("max_edge_rms_px", self.max_edge_rms_px, "positive");
+        }
+        if !(self.corner_sigma_floor_px >= 0.0 && self.corner_sigma_floor_px.is_finite()) {
+            return bad("corner_sigma_floor_px", self.corner_sigma_floor_px, "finite, at least 0");
         }
         if let Some(c) = &self.camera {
             if c.width != img.width || c.height != img.height {
@@ -196,7 +204,8 @@ pub struct Detection {
     /// (top-left, top-right, bottom-right, bottom-left of the marker image).
     pub corners: [Point2<f64>; 4],
     /// Standard deviation of each corner (pixels, per axis: `sqrt(trace(cov) / 2)`), from
-    /// the residuals of the two edge fits that meet there.
+    /// the residuals of the two edge fits that meet there plus
+    /// [`DetectParams::corner_sigma_floor_px`].
     pub corner_sigma_px: [f64; 4],
     /// Covariance of each corner, `[[xx, xy], [xy, yy]]`, pixels squared.
     pub corner_cov_px2: [[[f64; 2]; 2]; 4],
@@ -314,7 +323,9 @@ fn initial_quad(pixels: &[(u32, u32)]) -> Option<[Point2<f64>; 4]> {
     let (sx, sy) = pixels.iter().fold((0.0, 0.0), |a, p| (a.0 + p.0 as f64, a.1 + p.1 as f64));
     let c = Point2::new(sx / n, sy / n);
     let pt = |p: &(u32, u32)| Point2::new(p.0 as f64, p.1 as f64);
-    let far = |from: Point2<f64>| pixels.iter().map(pt).max_by(|a, b| (a - from).norm_squared().total_cmp(&(b - from).norm_squared()));
+    let far = |from: Point2<f64>| {
+        pixels.iter().map(pt).max_by(|a, b| (a - from).norm_squared().total_cmp(&(b - from).norm_squared()))
+    };
     let p0 = far(c)?;
     let p2 = far(p0)?;
     let d = p2 - p0;
@@ -497,8 +508,7 @@ fn intersect(l1: &EdgeFit, l2: &EdgeFit) -> Option<(Point2<f64>, [[f64; 2]; 2])>
     // Variance of each line's offset at the corner, from its fit (1/N + t^2 / sum t_i^2).
     let off_var = |l: &EdgeFit| {
         let t = l.dir.dot(&(p - l.mid));
-        // Floor: a perfect fit still has the rendering/noise limits of ~0.02 px per point.
-        l.var.max(4e-4) * (1.0 / l.count + t * t / l.spread2.max(1e-9))
+        l.var * (1.0 / l.count + t * t / l.spread2.max(1e-9))
     };
     let (v1, v2) = (off_var(l1), off_var(l2));
     // dp = inv * (dc1, dc2).
@@ -521,7 +531,10 @@ fn homography(q: &[Point2<f64>; 4], m: f64) -> Option<Matrix3<f64>> {
         let (x, y) = src[k];
         let (u, v) = (q[k].x, q[k].y);
         a.set_row(2 * k, &nalgebra::RowSVector::<f64, 8>::from_row_slice(&[x, y, 1.0, 0.0, 0.0, 0.0, -u * x, -u * y]));
-        a.set_row(2 * k + 1, &nalgebra::RowSVector::<f64, 8>::from_row_slice(&[0.0, 0.0, 0.0, x, y, 1.0, -v * x, -v * y]));
+        a.set_row(
+            2 * k + 1,
+            &nalgebra::RowSVector::<f64, 8>::from_row_slice(&[0.0, 0.0, 0.0, x, y, 1.0, -v * x, -v * y]),
+        );
         b[2 * k] = u;
         b[2 * k + 1] = v;
     }
@@ -538,7 +551,8 @@ fn candidate(img: &GrayImage, dict: &Dictionary, p: &DetectParams, pixels: &[(u3
     let mut q = initial_quad(pixels)?;
     let sides: Vec<f64> = (0..4).map(|i| (q[(i + 1) % 4] - q[i]).norm()).collect();
     let (smin, smax) = sides.iter().fold((f64::MAX, 0.0f64), |a, &s| (a.0.min(s), a.1.max(s)));
-    if smax < p.min_side_px || smin < 0.25 * p.min_side_px || smax > p.max_side_frac * img.width.min(img.height) as f64 {
+    if smax < p.min_side_px || smin < 0.25 * p.min_side_px || smax > p.max_side_frac * img.width.min(img.height) as f64
+    {
         return None;
     }
     // Every region pixel inside the quad (with a tolerance): rejects blobs that are not
@@ -580,7 +594,8 @@ fn candidate(img: &GrayImage, dict: &Dictionary, p: &DetectParams, pixels: &[(u3
             // Corner k joins edge k-1 (from corner k-1) and edge k.
             let (pt, c) = intersect(&fits[(k + 3) % 4], &fits[k])?;
             nq[k] = from_fit(cam, pt)?;
-            cov[k] = c;
+            let f2 = p.corner_sigma_floor_px * p.corner_sigma_floor_px;
+            cov[k] = [[c[0][0] + f2, c[0][1]], [c[1][0], c[1][1] + f2]];
         }
         // The refined corners must stay near the region's.
         if (0..4).any(|k| (nq[k] - q[k]).norm() > 0.25 * smin + 2.0) {
@@ -664,11 +679,6 @@ fn candidate(img: &GrayImage, dict: &Dictionary, p: &DetectParams, pixels: &[(u3
         corner_sigma_px: std::array::from_fn(|j| sigma(&cov[idx(j)])),
         corner_cov_px2: std::array::from_fn(|j| cov[idx(j)]),
         hamming: ham,
-        quality: Quality {
-            edge_rms_px: std::array::from_fn(|j| edge_rms[idx(j)]),
-            contrast,
-            module_px,
-            flags,
-        },
+        quality: Quality { edge_rms_px: std::array::from_fn(|j| edge_rms[idx(j)]), contrast, module_px, flags },
     })
 }
