@@ -27,6 +27,14 @@ fn main() {
     let pose = scene.pose(&j);
     let cs = pose.camera_to_world.inverse() * pose.sample_to_world;
     let markers = scene.renderer().scene().layout.markers();
+    let dets = detect(&g, &Dictionary::dict_4x4_50(), &DetectParams::default()).unwrap();
+    for m in &markers {
+        if !dets.iter().any(|d| d.id == m.id) {
+            let c = m.corners_sample_m[0];
+            let t = cam.project(&(cs * Point3::new(c.x, c.y, 0.0))).unwrap();
+            println!("missed id {} (top-left corner at {:.1}, {:.1})", m.id, t.x, t.y);
+        }
+    }
     for d in detect(&g, &Dictionary::dict_4x4_50(), &DetectParams::default()).unwrap() {
         let m = markers.iter().find(|m| m.id == d.id).unwrap();
         let errs: Vec<String> = (0..4)

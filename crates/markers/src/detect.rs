@@ -407,8 +407,9 @@ fn fit_edge(
     let nl = (bl / step).round() as usize;
     let bl = nl as f64 * step;
     let ns = nd + nl + 1;
-    // Away from the corners, where the other edge's transition would enter the window.
-    let margin = ad.max(2.0) + 1.0;
+    // Away from the corners, where the other edge's transition would enter the window; on
+    // short (foreshortened) edges at most a fifth of the edge at each end.
+    let margin = (ad.max(2.0) + 1.0).min(0.2 * len);
     if len < 2.0 * margin + 4.0 {
         return None;
     }
