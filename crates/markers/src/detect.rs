@@ -136,6 +136,10 @@ impl Default for DetectParams {
 
 impl DetectParams {
     fn validate(&self, img: &GrayImage) -> Result<(), DetectError> {
+        // The fields are public: check the buffer here too, not only in `GrayImage::new`.
+        if img.width == 0 || img.height == 0 || img.data.len() != img.width * img.height {
+            return Err(DetectError::BadImage { width: img.width, height: img.height, len: img.data.len() });
+        }
         let bad = |name, value: f64, allowed| Err(DetectError::BadParameter { name, value, allowed });
         let w = self.threshold_window_px;
         if w < 3 || w % 2 == 0 {

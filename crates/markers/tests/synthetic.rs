@@ -220,6 +220,8 @@ fn bad_inputs_are_named() {
     let e = GrayImage::new(10, 10, &[0.0; 99]).unwrap_err();
     assert!(e.to_string().contains("99"), "{e}");
     let img = vec![0.0f32; 100];
+    let bad = GrayImage { width: 11, height: 10, data: &img };
+    assert!(matches!(detect(&bad, &dict, &DetectParams::default()), Err(btfrig_markers::DetectError::BadImage { .. })));
     let g = GrayImage::new(10, 10, &img).unwrap();
     let p = DetectParams { threshold_window_px: 4, ..DetectParams::default() };
     let e = detect(&g, &dict, &p).unwrap_err();
