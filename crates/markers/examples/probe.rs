@@ -15,7 +15,26 @@ fn main() {
     let scene = RigScene::new(&cfg, &MaterialSpec::builtin("lacquered-wood").unwrap()).unwrap();
     let opts = RenderOptions { marker_supersampling: 16, ..RenderOptions::default() };
     let j = scene.gonio().ik(Direction::from_degrees(45.0, 0.0), Direction::from_degrees(a[0], a[1])).unwrap();
-    let img: Vec<f32> = if a[2] > 0.0 {
+    let img: Vec<f32> = if a[2] > 1.0 {
+        // Mode 2: noise-free radiance, green, plus white Gaussian noise of a[3] relative to
+        // the 99th percentile (no demosaic).
+        let g: Vec<f32> = scene.radiance(&j, 1.0, &opts).0.data.iter().map(|p| p[1]).collect();
+        let mut v = g.clone();
+        v.sort_by(f32::total_cmp);
+        let top = v[v.len() * 99 / 100];
+        let mut state = 12345u64;
+        g.iter()
+            .map(|&x| {
+                // Irwin-Hall approximation of a normal deviate from an LCG: diagnostics only.
+                let mut s = 0.0;
+                for _ in 0..12 {
+                    state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                    s += (state >> 11) as f64 / (1u64 << 53) as f64;
+                }
+                x + ((s - 6.0) * a[3] * top as f64) as f32
+            })
+            .collect()
+    } else if a[2] > 0.0 {
         let exposure = scene.exposure_for_white(0.5, 1e-4, 30.0);
         let (raw, _) = scene.capture(&j, 1.0, exposure, 1.0, 24, &opts).unwrap();
         demosaic_bilinear(&raw).data.iter().map(|p| p[1]).collect()
