@@ -1,7 +1,7 @@
 //! Plane-to-image homographies by the normalised direct linear transform (Hartley), with a
 //! robust screening loop that drops gross outliers before the closed form sees them.
 
-use nalgebra::{DMatrix, Matrix3, Point2, Vector3};
+use nalgebra::{DMatrix, Isometry3, Matrix3, Point2, Translation3, UnitQuaternion, Vector3};
 
 /// Similarity that moves `pts` to zero mean and mean distance `sqrt(2)` from the origin
 /// (Hartley's normalisation: keeps the DLT's matrix well conditioned whatever the units).
@@ -60,6 +60,35 @@ pub fn dlt(src: &[Point2<f64>], dst: &[Point2<f64>]) -> Option<Matrix3<f64>> {
     let scale = h[(2, 2)];
     let h = if scale.abs() > 1e-300 { h / scale } else { h / h.norm() };
     h.iter().all(|v| v.is_finite()).then_some(h)
+}
+
+/// The rigid plane-to-camera transform `[r1 r2 t] ~ H` of a plane homography in normalised
+/// camera coordinates (intrinsics already removed), with the plane in front of the camera.
+/// The rotation is the nearest orthonormal matrix (SVD) to `[r1 r2 r1 x r2]`. Zhang's
+/// extrinsics and the registration crate's pose hypotheses both come from here.
+pub fn decompose(h: &Matrix3<f64>) -> Option<Isometry3<f64>> {
+    let (h1, h2, h3) = (h.column(0).into_owned(), h.column(1).into_owned(), h.column(2).into_owned());
+    let norm = 0.5 * (h1.norm() + h2.norm());
+    if !(norm > 0.0 && norm.is_finite()) {
+        return None;
+    }
+    let mut lambda = 1.0 / norm;
+    // The plane must lie in front of the camera.
+    if h3.z * lambda < 0.0 {
+        lambda = -lambda;
+    }
+    let r1 = h1 * lambda;
+    let r2 = h2 * lambda;
+    let m = Matrix3::from_columns(&[r1, r2, r1.cross(&r2)]);
+    let svd = m.svd(true, true);
+    let (u, vt) = (svd.u?, svd.v_t?);
+    let mut r = u * vt;
+    if r.determinant() < 0.0 {
+        let mut u2 = u;
+        u2.column_mut(2).neg_mut();
+        r = u2 * vt;
+    }
+    Some(Isometry3::from_parts(Translation3::from(h3 * lambda), UnitQuaternion::from_matrix(&r)))
 }
 
 /// DLT with iterative rejection: fit, measure transfer errors, keep the points within
