@@ -22,6 +22,7 @@
 //! measured sample-to-camera transform (all rectification depends on).
 #![warn(missing_docs)]
 
+pub mod frame;
 pub mod homography;
 pub mod metric;
 pub mod refine;
@@ -36,6 +37,7 @@ use rand::seq::SliceRandom;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
+pub use frame::{FrameError, FrameRegistration, PlateRegistrar};
 pub use metric::{back_project, sample_to_camera, texel_position_error};
 pub use refine::{Matrix6, Vector6};
 

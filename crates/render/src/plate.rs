@@ -8,21 +8,11 @@
 //!
 //! [`ScenePose::looking_at`]: btfrig_core::pose::ScenePose::looking_at
 
+pub use btfrig_core::config::plate::MarkerPlacement;
 use btfrig_core::config::plate::PlateConfig;
 use btfrig_core::ConfigError;
-use nalgebra::Point2;
 
 use crate::markers::MarkerDictionary;
-
-/// One marker on the plate.
-#[derive(Debug, Clone, PartialEq)]
-pub struct MarkerPlacement {
-    /// Marker id in the plate's dictionary.
-    pub id: u32,
-    /// Outer corners of the black border in the sample frame (metres), in OpenCV's order:
-    /// top-left, top-right, bottom-right, bottom-left of the marker image.
-    pub corners_sample_m: [Point2<f64>; 4],
-}
 
 /// What the plate surface is at a point of the `z = 0` plane outside the sample region.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -59,37 +49,7 @@ impl PlateLayout {
             value: config.marker_dictionary.clone(),
             allowed: "DICT_4X4_50".into(),
         })?;
-        let r = config.marker_ring_m;
-        let n = config.markers_per_side as usize;
-        let step = 2.0 * r / (n - 1) as f64;
-        let mut centres = Vec::new();
-        // Clockwise seen from above, starting at the top-left corner (-r, +r).
-        for k in 0..n - 1 {
-            centres.push((-r + k as f64 * step, r));
-        }
-        for k in 0..n - 1 {
-            centres.push((r, r - k as f64 * step));
-        }
-        for k in 0..n - 1 {
-            centres.push((r - k as f64 * step, -r));
-        }
-        for k in 0..n - 1 {
-            centres.push((-r, -r + k as f64 * step));
-        }
-        let h = config.marker_size_m / 2.0;
-        let markers = centres
-            .iter()
-            .enumerate()
-            .map(|(k, &(cx, cy))| MarkerPlacement {
-                id: config.first_marker_id + k as u32,
-                corners_sample_m: [
-                    Point2::new(cx - h, cy + h),
-                    Point2::new(cx + h, cy + h),
-                    Point2::new(cx + h, cy - h),
-                    Point2::new(cx - h, cy - h),
-                ],
-            })
-            .collect();
+        let markers = config.marker_placements();
         Ok(PlateLayout {
             side_m: config.side_m,
             sample_side_m: config.sample_side_m,

@@ -2,14 +2,26 @@
 //!
 //! The plate is a square in the sample frame's `z = 0` plane, centred on the sample origin;
 //! the sample region is a centred square inside it; ArUco markers sit on a square ring in the
-//! border between the two (`markers_per_side` on each side, corners shared). The renderer
-//! (`btfrig-render`, `PlateLayout`) turns this into marker corner positions that the
-//! registration code uses. Reflectances are spectrum names resolved by the colour system
+//! border between the two (`markers_per_side` on each side, corners shared).
+//! [`PlateConfig::marker_placements`] gives the marker corner positions that the renderer draws
+//! and the registration measures against. Reflectances are spectrum names resolved by the colour system
 //! (e.g. `"flat:0.8"` is a spectrally flat 80 % reflector).
 
+use nalgebra::Point2;
 use serde::{Deserialize, Serialize};
 
 use crate::error::ConfigError;
+
+/// One marker on the plate.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MarkerPlacement {
+    /// Marker id in the plate's dictionary.
+    pub id: u32,
+    /// Outer corners of the black border in the sample frame (metres), in OpenCV's order:
+    /// top-left, top-right, bottom-right, bottom-left of the marker image (its rows grow along
+    /// `-y`, its columns along `+x`, so a frontal camera sees it upright).
+    pub corners_sample_m: [Point2<f64>; 4],
+}
 
 /// Marker dictionaries the renderer knows (bit patterns shipped in `calibration/markers/`).
 pub const MARKER_DICTIONARIES: &[(&str, u32)] = &[("DICT_4X4_50", 50)];
@@ -101,6 +113,41 @@ impl PlateConfig {
     /// Number of markers on the plate.
     pub fn marker_count(&self) -> u32 {
         4 * self.markers_per_side.saturating_sub(1)
+    }
+
+    /// The markers with their true corner positions, ids counting up clockwise seen from
+    /// above from the corner at `(-ring, +ring)`. Meaningful for a validated section.
+    pub fn marker_placements(&self) -> Vec<MarkerPlacement> {
+        let r = self.marker_ring_m;
+        let n = self.markers_per_side.max(2) as usize;
+        let step = 2.0 * r / (n - 1) as f64;
+        let mut centres = Vec::with_capacity(4 * (n - 1));
+        for k in 0..n - 1 {
+            centres.push((-r + k as f64 * step, r));
+        }
+        for k in 0..n - 1 {
+            centres.push((r, r - k as f64 * step));
+        }
+        for k in 0..n - 1 {
+            centres.push((r - k as f64 * step, -r));
+        }
+        for k in 0..n - 1 {
+            centres.push((-r, -r + k as f64 * step));
+        }
+        let h = self.marker_size_m / 2.0;
+        centres
+            .iter()
+            .enumerate()
+            .map(|(k, &(cx, cy))| MarkerPlacement {
+                id: self.first_marker_id + k as u32,
+                corners_sample_m: [
+                    Point2::new(cx - h, cy + h),
+                    Point2::new(cx + h, cy + h),
+                    Point2::new(cx + h, cy - h),
+                    Point2::new(cx - h, cy - h),
+                ],
+            })
+            .collect()
     }
 
     /// Appends every out-of-range value of this section to `errors`.
