@@ -61,6 +61,7 @@ pub struct Shot {
 }
 
 /// A registered frame measured against the truth.
+#[derive(Clone)]
 pub struct Measured {
     pub reg: FrameRegistration,
     /// Texel position error of the registered pose (mean, max) in texels.
@@ -76,6 +77,8 @@ pub struct Outcome {
     pub shot: Shot,
     pub result: Result<Measured, FrameError>,
     pub render_s: f64,
+    /// Per-marker corner errors ([`corner_errors`]) when asked for.
+    pub corners: Vec<(u32, f64, f64, f64)>,
 }
 
 impl Bench {
@@ -151,6 +154,32 @@ impl Bench {
         Frame { width: raw.width, height: raw.height, grey, render_s: t.elapsed().as_secs_f64() }
     }
 
+    /// Renders the shot once and captures it at each (exposure, gain) with noise from `seed`:
+    /// the green channels, in order.
+    pub fn capture_levels(&self, shot: &Shot, levels: &[(f64, f64)], seed: u64) -> Vec<Frame> {
+        let t = std::time::Instant::now();
+        let (radiance, _) = self.scene.radiance(&shot.truth, 1.0, &self.opts);
+        let render_s = t.elapsed().as_secs_f64();
+        levels
+            .iter()
+            .map(|&(exposure_s, gain)| {
+                let raw = self.scene.sensor().capture(&radiance, exposure_s, gain, seed).expect("capture");
+                let grey: Vec<f32> = demosaic_bilinear(&raw).data.iter().map(|p| p[1]).collect();
+                Frame { width: raw.width, height: raw.height, grey, render_s }
+            })
+            .collect()
+    }
+
+    /// A registrar for the window of the frame starting at column `x0` (a sensor cropped on
+    /// the left): the camera model with the width and principal point shifted.
+    pub fn cropped_registrar(&self, x0: usize) -> PlateRegistrar {
+        let mut cam = self.cfg.camera.clone();
+        cam.width_px -= x0;
+        cam.cx_px -= x0 as f64;
+        PlateRegistrar::new(cam.to_model().expect("cropped camera"), &self.cfg.plate, RegisterOptions::default())
+            .expect("registrar")
+    }
+
     /// Registers `frame` with `registrar` (its camera must match the frame) and measures it.
     pub fn measure(&self, registrar: &PlateRegistrar, shot: &Shot, frame: &Frame) -> Result<Measured, FrameError> {
         let img = GrayImage::new(frame.width, frame.height, &frame.grey).expect("image");
@@ -164,11 +193,24 @@ impl Bench {
 
     /// One view end to end with the default exposure, `edit` applied to the grey frame.
     pub fn run(&self, view: Direction, error_scale: f64, seed: u64, edit: &dyn Fn(&Shot, &mut Frame)) -> Outcome {
+        self.run_with(view, error_scale, seed, edit, false)
+    }
+
+    /// [`Bench::run`], with the detector's corner errors when `diagnose`.
+    pub fn run_with(
+        &self,
+        view: Direction,
+        error_scale: f64,
+        seed: u64,
+        edit: &dyn Fn(&Shot, &mut Frame),
+        diagnose: bool,
+    ) -> Outcome {
         let shot = self.shot(view, error_scale, seed);
         let mut frame = self.capture(&shot, self.default_exposure(), 1.0, seed ^ 0x5eed);
         edit(&shot, &mut frame);
         let result = self.measure(&self.registrar, &shot, &frame);
-        Outcome { shot, result, render_s: frame.render_s }
+        let corners = if diagnose { corner_errors(self, &self.registrar, &shot, &frame) } else { Vec::new() };
+        Outcome { shot, result, render_s: frame.render_s, corners }
     }
 
     /// Pixel positions of a marker's corners (scaled by `grow` about its centre on the plate)
@@ -211,6 +253,13 @@ impl Bench {
     }
 }
 
+/// The frame's columns from `x0` on.
+pub fn crop_left(frame: &Frame, x0: usize) -> Frame {
+    let width = frame.width - x0;
+    let grey = frame.grey.chunks(frame.width).flat_map(|row| row[x0..].iter().copied()).collect();
+    Frame { width, height: frame.height, grey, render_s: frame.render_s }
+}
+
 /// Fills the convex quad `q` (pixel coordinates, integer = pixel centre) with `value`.
 pub fn fill_quad(frame: &mut Frame, q: &[Point2<f64>], value: f32) {
     let (x0, x1) = q.iter().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.x), b.max(p.x)));
@@ -248,7 +297,8 @@ pub struct Summary {
 /// Summarises the registered outcomes (errors are skipped; count them separately) and prints
 /// one line under `label`.
 pub fn summarise(label: &str, outcomes: &[Outcome]) -> Summary {
-    let ok: Vec<(&Outcome, &Measured)> = outcomes.iter().filter_map(|o| o.result.as_ref().ok().map(|m| (o, m))).collect();
+    let ok: Vec<(&Outcome, &Measured)> =
+        outcomes.iter().filter_map(|o| o.result.as_ref().ok().map(|m| (o, m))).collect();
     let n = ok.len().max(1) as f64;
     let avg = |f: &dyn Fn(&Measured) -> f64| ok.iter().map(|(_, m)| f(m)).sum::<f64>() / n;
     let top = |f: &dyn Fn(&Measured) -> f64| ok.iter().map(|(_, m)| f(m)).fold(0.0, f64::max);
@@ -307,4 +357,37 @@ pub fn print_view(label: &str, o: &Outcome) {
         ),
         Err(e) => println!("  {label} view ({t:.0}, {p:.0}) light ({lt:.0}, {lp:.0}): refused: {e}"),
     }
+    if !o.corners.is_empty() {
+        let line: Vec<String> =
+            o.corners.iter().map(|(id, mean, max, sigma)| format!("{id}: {mean:.2}/{max:.2} ({sigma:.2})")).collect();
+        println!("    corner error mean/max px (stated sigma): {}", line.join(", "));
+    }
+}
+
+/// Per detected plate marker: id, mean and max corner error (px) against the corners projected
+/// with the true pose, and the detector's mean stated sigma. For diagnosis of bad views.
+pub fn corner_errors(
+    bench: &Bench,
+    registrar: &PlateRegistrar,
+    shot: &Shot,
+    frame: &Frame,
+) -> Vec<(u32, f64, f64, f64)> {
+    let img = GrayImage::new(frame.width, frame.height, &frame.grey).expect("image");
+    let dict = btfrig_markers::Dictionary::by_name(&bench.cfg.plate.marker_dictionary).expect("dictionary");
+    let found = btfrig_markers::detect(&img, &dict, &registrar.detect).expect("detect");
+    let t = shot.true_pose.camera_to_world.inverse() * shot.true_pose.sample_to_world;
+    let mut out = Vec::new();
+    for d in &found {
+        let Some(m) = registrar.markers().iter().find(|m| m.id == d.id) else { continue };
+        let errs: Vec<f64> = (0..4)
+            .map(|k| {
+                let c = m.corners_sample_m[k];
+                let p = registrar.camera().project(&(t * Point3::new(c.x, c.y, 0.0))).expect("projects");
+                (d.corners[k] - p).norm()
+            })
+            .collect();
+        let sigma = d.corner_sigma_px.iter().sum::<f64>() / 4.0;
+        out.push((d.id, errs.iter().sum::<f64>() / 4.0, errs.iter().cloned().fold(0.0, f64::max), sigma));
+    }
+    out
 }
