@@ -85,6 +85,7 @@ fn check_pose(r: &Renderer, cam: &Pinhole, pose: &ScenePose, label: &str, python
     // Project the true corners: sample frame -> camera frame -> pixels.
     let cam_from_sample = pose.camera_to_world.inverse() * pose.sample_to_world;
     let mut worst: f64 = 0.0;
+    let (mut sum_dx, mut sum_dy, mut n) = (0.0, 0.0, 0.0);
     let found: Vec<(u32, Vec<f64>)> = text
         .lines()
         .filter(|l| !l.starts_with('#'))
@@ -103,6 +104,9 @@ fn check_pose(r: &Renderer, cam: &Pinhole, pose: &ScenePose, label: &str, python
             let [u, v] = cam.project(&Vector3::new(p.x, p.y, p.z)).unwrap();
             let e = ((det.1[2 * k] - u).powi(2) + (det.1[2 * k + 1] - v).powi(2)).sqrt();
             worst = worst.max(e);
+            sum_dx += det.1[2 * k] - u;
+            sum_dy += det.1[2 * k + 1] - v;
+            n += 1.0;
             assert!(
                 e < 1.0,
                 "{label}: marker {} corner {k}: detected ({}, {}) vs true ({u:.3}, {v:.3})",
@@ -113,6 +117,12 @@ fn check_pose(r: &Renderer, cam: &Pinhole, pose: &ScenePose, label: &str, python
         }
     }
     assert_eq!(found.len(), r.scene().layout.markers().len(), "{label}: unexpected extra detections {found:?}");
+    // The pixel-centre convention: OpenCV, like btfrig, puts integer coordinates at pixel
+    // centres (AprilTag-family detectors at pixel corners). A convention mismatch would show as
+    // a mean offset of half a pixel on both axes; the individual errors scatter around zero.
+    let (mx, my) = (sum_dx / n, sum_dy / n);
+    eprintln!("{label}: mean signed corner offset OpenCV - truth: ({mx:+.3}, {my:+.3}) px");
+    assert!(mx.abs() < 0.15 && my.abs() < 0.15, "{label}: OpenCV corners offset by ({mx:.3}, {my:.3}) px on average");
     worst
 }
 
