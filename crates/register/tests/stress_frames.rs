@@ -129,7 +129,7 @@ fn strong_noise_low_light_registers_or_refuses() {
         bench.default_exposure(),
         frames_common::WHITE_FRACTION
     );
-    // White at a fraction of the sensor's full scale in electrons, gain 1 (the shot noise of
+    // White at a fraction of the sensor's full scale at gain 1 (in electrons) (the shot noise of
     // low light); then low light at gain 16 (what an auto exposure does when the time is
     // capped: same electrons and shot noise, amplified; read noise is in electrons).
     let levels: Vec<(f64, f64)> = vec![
@@ -174,7 +174,7 @@ fn strong_noise_low_light_registers_or_refuses() {
                 corners: Vec::new(),
             })
             .collect();
-        let label = format!("white at {:.2}% of full well, gain {gain}", 100.0 * fraction);
+        let label = format!("white at {:.2}% of full scale (gain 1), gain {gain}", 100.0 * fraction);
         for o in &outcomes {
             print_view(&label, o);
         }
