@@ -48,9 +48,11 @@ fn all_81_bonn_views_on_two_materials() {
         let (t, p) = o.shot.view.to_degrees();
         assert_eq!(m.reg.detected.len(), 12, "view ({t:.0}, {p:.0}): all markers found");
         assert!(m.reg.registration.rejected_markers.is_empty(), "view ({t:.0}, {p:.0}): clean markers rejected");
-        // Measured: at most 1.85 predicted sigma (the detector's stated sigmas are optimistic
-        // at grazing views, docs/markers.md).
-        assert!(m.est.0 < 3.0 * m.predicted, "view ({t:.0}, {p:.0}): {:?} predicted {}", m.est, m.predicted);
+        // The predicted sigma tracks the error. Measured: at most 1.85 predicted sigma with this
+        // detector, 2.7 with the model-based edge fit on branch h-markers (which states smaller
+        // sigmas); the 0.01 texel floor (a fifth of the acceptance) keeps sub-0.02-texel views
+        // from failing on the detector's sigma calibration alone.
+        assert!(m.est.0 < 3.0 * m.predicted + 0.01, "view ({t:.0}, {p:.0}): {:?} predicted {}", m.est, m.predicted);
     }
     // Issue 4's acceptance: mean under 0.05 texel, max under 0.2 texel at 256x256.
     assert!(s.mean < 0.05 && s.max < 0.2, "acceptance: mean {} max {}", s.mean, s.max);
@@ -183,7 +185,7 @@ fn strong_noise_low_light_registers_or_refuses() {
             match &o.result {
                 // Never a silent wrong pose: what registers is within its predicted uncertainty.
                 Ok(m) => assert!(
-                    m.est.0 < 3.0 * m.predicted && m.est.1 < 6.0 * m.predicted,
+                    m.est.0 < 3.0 * m.predicted + 0.01 && m.est.1 < 6.0 * m.predicted + 0.02,
                     "{label}: a pose outside its predicted uncertainty: {:?} predicted {}",
                     m.est,
                     m.predicted
