@@ -299,6 +299,9 @@ pub struct Summary {
 pub fn summarise(label: &str, outcomes: &[Outcome]) -> Summary {
     let ok: Vec<(&Outcome, &Measured)> =
         outcomes.iter().filter_map(|o| o.result.as_ref().ok().map(|m| (o, m))).collect();
+    if ok.is_empty() {
+        println!("{label}: 0/{} views registered", outcomes.len());
+    }
     let n = ok.len().max(1) as f64;
     let avg = |f: &dyn Fn(&Measured) -> f64| ok.iter().map(|(_, m)| f(m)).sum::<f64>() / n;
     let top = |f: &dyn Fn(&Measured) -> f64| ok.iter().map(|(_, m)| f(m)).fold(0.0, f64::max);
@@ -314,6 +317,9 @@ pub fn summarise(label: &str, outcomes: &[Outcome]) -> Summary {
         register_ms: (avg(&|m| m.reg.register_s * 1e3), top(&|m| m.reg.register_s * 1e3)),
         render_s: outcomes.iter().map(|o| o.render_s).sum::<f64>() / outcomes.len().max(1) as f64,
     };
+    if ok.is_empty() {
+        return s;
+    }
     println!(
         "{label}: {}/{} views registered; texel error registered mean {:.4} (worst view mean {:.4}) max {:.4}; \
          nominal mean {:.4} max {:.4}; predicted sigma {:.4}; detect {:.1} / {:.1} ms, register {:.2} / {:.2} ms \
