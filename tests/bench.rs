@@ -13,7 +13,7 @@ fn row(stdout: &str, setting: &str, filter: &str) -> (f64, f64) {
         .lines()
         .find(|l| {
             let w: Vec<&str> = l.split_whitespace().collect();
-            w.len() == 12 && w[0] == setting && w[1] == filter
+            w.len() == 13 && w[0] == setting && w[1] == filter
         })
         .unwrap_or_else(|| panic!("no totals row {setting} {filter} in:\n{stdout}"));
     let w: Vec<&str> = line.split_whitespace().collect();

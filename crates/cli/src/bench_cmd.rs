@@ -116,7 +116,8 @@ use btfrig_core::config::RigConfig;
 use nalgebra::{Matrix3, Point2};
 
 /// Views of the benchmark when none are given (theta, phi in degrees; light at 45, 0).
-const DEFAULT_VIEWS: [(f64, f64); 6] = [(0.0, 0.0), (45.0, 90.0), (45.0, 270.0), (75.0, 90.0), (75.0, 270.0), (80.0, 90.0)];
+const DEFAULT_VIEWS: [(f64, f64); 6] =
+    [(0.0, 0.0), (45.0, 90.0), (45.0, 270.0), (75.0, 90.0), (75.0, 270.0), (80.0, 90.0)];
 
 /// Order of the settings in the tables.
 const SETTINGS: [&str; 6] = ["nominal", "true", "dlt", "lm", "lm+prior", "opencv"];
@@ -133,6 +134,7 @@ struct Agg {
     corner_n: usize,
     point: (f64, f64),
     area: (f64, f64),
+    clean: (f64, f64),
     failed: usize,
 }
 
@@ -162,6 +164,7 @@ impl Agg {
             self.rectify_s.push(f.rectify_s);
             self.point = (self.point.0 + f.point.0, self.point.1 + f.point.1);
             self.area = (self.area.0 + f.area.0, self.area.1 + f.area.1);
+            self.clean = (self.clean.0 + f.clean_area.0, self.clean.1 + f.clean_area.1);
         }
     }
     fn total_ms(&self) -> f64 {
@@ -204,7 +207,10 @@ fn python_with_opencv() -> Result<Command, String> {
         .output()
         .map_err(|e| format!("cannot run python3 -m pip: {e}"))?;
     if !out.status.success() {
-        return Err(format!("pip install opencv-python-headless failed: {}", String::from_utf8_lossy(&out.stderr).trim()));
+        return Err(format!(
+            "pip install opencv-python-headless failed: {}",
+            String::from_utf8_lossy(&out.stderr).trim()
+        ));
     }
     if works(true) {
         Ok(make(true))
@@ -222,7 +228,13 @@ use anyhow::Context;
 
 /// Runs OpenCV on `frame` (files in a fresh temp dir, removed afterwards) and measures its
 /// result with our truth.
-fn run_opencv(python: &mut Command, b: &Bench, frame: &Frame, repeat: usize, index: usize) -> anyhow::Result<(SettingResult, String)> {
+fn run_opencv(
+    python: &mut Command,
+    b: &Bench,
+    frame: &Frame,
+    repeat: usize,
+    index: usize,
+) -> anyhow::Result<(SettingResult, String)> {
     let dir = std::env::temp_dir().join(format!("btfrig-bench-opencv-{}-{index}", std::process::id()));
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let result = (|| {
@@ -252,14 +264,18 @@ fn run_opencv(python: &mut Command, b: &Bench, frame: &Frame, repeat: usize, ind
         let res: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("result.json"))?)?;
         let version = res["opencv"].as_str().unwrap_or("?").to_string();
         let check = res["pixel_centre_check"].as_f64().unwrap_or(f64::NAN);
-        anyhow::ensure!((check - 10.25).abs() < 1.0 / 32.0, "OpenCV's warp does not put pixel centres at integers: {check}");
+        anyhow::ensure!(
+            (check - 10.25).abs() < 1.0 / 32.0,
+            "OpenCV's warp does not put pixel centres at integers: {check}"
+        );
         let detections: Vec<(u32, [Point2<f64>; 4])> = res["markers"]
             .as_array()
             .context("markers")?
             .iter()
             .map(|m| {
                 let c = &m["corners"];
-                let p = |k: usize| Point2::new(c[k][0].as_f64().unwrap_or(f64::NAN), c[k][1].as_f64().unwrap_or(f64::NAN));
+                let p =
+                    |k: usize| Point2::new(c[k][0].as_f64().unwrap_or(f64::NAN), c[k][1].as_f64().unwrap_or(f64::NAN));
                 (m["id"].as_u64().unwrap_or(u64::MAX) as u32, [p(0), p(1), p(2), p(3)])
             })
             .collect();
@@ -287,7 +303,8 @@ fn run_opencv(python: &mut Command, b: &Bench, frame: &Frame, repeat: usize, ind
         let bytes = std::fs::read(dir.join("texture.f32"))?;
         let vals: Vec<f32> = bytes.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
         let texture: Vec<[f32; 3]> = vals.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-        let times = (ts("detect_s"), ts("undistort_points_s") + ts("homography_s"), ts("undistort_image_s") + ts("warp_s"));
+        let times =
+            (ts("detect_s"), ts("undistort_points_s") + ts("homography_s"), ts("undistort_image_s") + ts("warp_s"));
         let s = b.evaluate_homography(frame, "opencv", "linear", &detections, &h, texture, times)?;
         Ok((s, version))
     })();
@@ -314,7 +331,10 @@ pub fn registration(a: &BenchRegistrationArgs) -> anyhow::Result<()> {
     let rigs: Vec<(String, RigConfig)> = if a.rig.is_empty() {
         vec![("bonn-gonio-sim (embedded)".into(), crate::rig::load(None)?)]
     } else {
-        a.rig.iter().map(|p| Ok((p.display().to_string(), crate::rig::load(Some(p))?))).collect::<anyhow::Result<_>>()?
+        a.rig
+            .iter()
+            .map(|p| Ok((p.display().to_string(), crate::rig::load(Some(p))?)))
+            .collect::<anyhow::Result<_>>()?
     };
     let material = crate::material::load(Some(&a.material))?;
     let mut python = if a.opencv {
@@ -349,8 +369,19 @@ pub fn registration(a: &BenchRegistrationArgs) -> anyhow::Result<()> {
         let mut aggs: BTreeMap<(usize, usize), Agg> = BTreeMap::new();
         if a.per_view {
             println!(
-                "{:<8} {:<9} {:>4} {:>9} {:>9} {:>8} {:>8} {:>8} {:>15} {:>9}",
-                "view", "setting", "mk", "detect", "register", "tx mean", "tx max", "corner", "bias x,y", "area bil"
+                "{:<8} {:<9} {:>4} {:>9} {:>9} {:>8} {:>8} {:>8} {:>15} {:>9} {:>9} {:>9}",
+                "view",
+                "setting",
+                "mk",
+                "detect",
+                "register",
+                "tx mean",
+                "tx max",
+                "corner",
+                "bias x,y",
+                "pt bil",
+                "area bil",
+                "clean bil"
             );
         }
         for (k, &view) in views.iter().enumerate() {
@@ -377,15 +408,19 @@ pub fn registration(a: &BenchRegistrationArgs) -> anyhow::Result<()> {
                     aggs.entry((si, 0)).or_default().add(s, None);
                 }
                 for f in &s.filters {
-                    let fi = FILTERS.iter().position(|g| crate::bench_registration::filter_name(*g) == f.filter).unwrap_or(0);
+                    let fi = FILTERS
+                        .iter()
+                        .position(|g| crate::bench_registration::filter_name(*g) == f.filter)
+                        .unwrap_or(0);
                     aggs.entry((si, fi)).or_default().add(s, Some(f));
                 }
                 if a.per_view {
                     let bias = s.corner_bias_px.map_or("-".into(), |(x, y)| format!("{x:+.3},{y:+.3}"));
-                    let area = s.filters.first().map_or(f64::NAN, |f| f.rel_area());
+                    let f0 = s.filters.first();
+                    let pick = |g: fn(&crate::bench_registration::FilterResult) -> f64| f0.map_or(f64::NAN, g);
                     println!(
-                        "{:<8} {:<9} {:>4} {:>9} {:>9} {:>8} {:>8} {:>8} {:>15} {:>9}{}",
-                        format!("{},{}", view.0, view.1),
+                        "{:<8} {:<9} {:>4} {:>9} {:>9} {:>8} {:>8} {:>8} {:>15} {:>9} {:>9} {:>9}{}",
+                        format!("{},{}", frame.view_deg.0, frame.view_deg.1),
                         s.setting,
                         s.markers,
                         fmt(s.detect_s * 1e3, 1),
@@ -394,22 +429,39 @@ pub fn registration(a: &BenchRegistrationArgs) -> anyhow::Result<()> {
                         fmt(s.texel.1, 3),
                         s.corner_rms_px.map_or("-".into(), |c| fmt(c, 3)),
                         bias,
-                        fmt(area, 4),
+                        fmt(pick(|f| f.rel_point()), 4),
+                        fmt(pick(|f| f.rel_area()), 4),
+                        fmt(pick(|f| f.rel_clean()), 4),
                         s.error.as_ref().map_or(String::new(), |e| format!("  FAILED: {e}"))
                     );
                 }
             }
         }
         println!(
-            "{:<9} {:<13} {:>9} {:>9} {:>9} {:>9} {:>8} {:>8} {:>8} {:>9} {:>9} {:>5}",
-            "setting", "filter", "detect", "register", "rectify", "total ms", "tx mean", "tx max", "corner", "rel_pt",
-            "rel_area", "fail"
+            "{:<9} {:<13} {:>9} {:>9} {:>9} {:>9} {:>8} {:>8} {:>8} {:>9} {:>9} {:>9} {:>5}",
+            "setting",
+            "filter",
+            "detect",
+            "register",
+            "rectify",
+            "total ms",
+            "tx mean",
+            "tx max",
+            "corner",
+            "rel_pt",
+            "rel_area",
+            "clean",
+            "fail"
         );
         for ((si, _fi), g) in &aggs {
             let setting = SETTINGS.get(*si).copied().unwrap_or("?");
-            let filter = if setting == "opencv" { "linear".to_string() } else { crate::bench_registration::filter_name(FILTERS[*_fi]) };
+            let filter = if setting == "opencv" {
+                "linear".to_string()
+            } else {
+                crate::bench_registration::filter_name(FILTERS[*_fi])
+            };
             println!(
-                "{:<9} {:<13} {:>9} {:>9} {:>9} {:>9} {:>8} {:>8} {:>8} {:>9} {:>9} {:>5}",
+                "{:<9} {:<13} {:>9} {:>9} {:>9} {:>9} {:>8} {:>8} {:>8} {:>9} {:>9} {:>9} {:>5}",
                 setting,
                 filter,
                 fmt(1e3 * mean(&g.detect_s), 1),
@@ -421,6 +473,7 @@ pub fn registration(a: &BenchRegistrationArgs) -> anyhow::Result<()> {
                 fmt(if g.corner_n > 0 { (g.corner_sq / g.corner_n as f64).sqrt() } else { f64::NAN }, 3),
                 fmt(Agg::rel(g.point), 4),
                 fmt(Agg::rel(g.area), 4),
+                fmt(Agg::rel(g.clean), 4),
                 g.failed
             );
         }
@@ -433,10 +486,15 @@ pub fn registration(a: &BenchRegistrationArgs) -> anyhow::Result<()> {
             print!(" | {:^32}", res);
         }
         println!();
-        let keys: std::collections::BTreeSet<(usize, usize)> = all.iter().flat_map(|(_, _, m)| m.keys().copied()).collect();
+        let keys: std::collections::BTreeSet<(usize, usize)> =
+            all.iter().flat_map(|(_, _, m)| m.keys().copied()).collect();
         for key in keys {
             let setting = SETTINGS.get(key.0).copied().unwrap_or("?");
-            let filter = if setting == "opencv" { "linear".to_string() } else { crate::bench_registration::filter_name(FILTERS[key.1]) };
+            let filter = if setting == "opencv" {
+                "linear".to_string()
+            } else {
+                crate::bench_registration::filter_name(FILTERS[key.1])
+            };
             print!("{setting:<9} {filter:<13}");
             for (_, _, m) in &all {
                 match m.get(&key) {
@@ -457,7 +515,7 @@ pub fn registration(a: &BenchRegistrationArgs) -> anyhow::Result<()> {
         "\ndetect/register/rectify: ms per frame (median of repeats, mean over views); total = their sum. \
          tx: texel position error (mean over views of the per-frame mean; max over all). corner: RMS distance of \
          detected corners from the projected true ones, px. rel_pt / rel_area: texture rel_rmse against the \
-         point-sampled / {0}x{0}-area-averaged ground truth, pooled over views.",
+         point-sampled / {0}x{0}-area-averaged ground truth, pooled over views; clean: the same rectification of the          noise-free radiance image (no sensor noise, no demosaic) against the area-averaged truth.",
         crate::bench_registration::BOX_SAMPLES
     );
     println!(

@@ -98,7 +98,9 @@ impl PositioningError {
         let num = |t: &toml::Table, key: &str, default: f64| -> anyhow::Result<f64> {
             match t.get(key) {
                 None => Ok(default),
-                Some(v) => v.as_float().or(v.as_integer().map(|i| i as f64)).with_context(|| format!("{key}: not a number")),
+                Some(v) => {
+                    v.as_float().or(v.as_integer().map(|i| i as f64)).with_context(|| format!("{key}: not a number"))
+                }
             }
         };
         Ok(PositioningError {
@@ -140,6 +142,9 @@ pub struct Frame {
     pub gt_point: Vec<[f32; 3]>,
     /// Area-averaged ground truth ([`BOX_SAMPLES`]² points per texel).
     pub gt_box: Vec<[f32; 3]>,
+    /// The noise-free camera-RGB rate image (e-/s, no sensor, no demosaic) of the same true
+    /// state and its conversion: separates resampling and geometry from sensor noise.
+    pub clean: (LinearImage, Radiometry),
 }
 
 /// Texture error of one filter.
@@ -153,6 +158,9 @@ pub struct FilterResult {
     pub point: (f64, f64),
     /// The same against the area-averaged truth.
     pub area: (f64, f64),
+    /// The same for the noise-free image against the area-averaged truth ((0, 0) if not
+    /// measured).
+    pub clean_area: (f64, f64),
 }
 
 impl FilterResult {
@@ -163,6 +171,10 @@ impl FilterResult {
     /// `rel_rmse` against the area-averaged truth.
     pub fn rel_area(&self) -> f64 {
         (self.area.0 / self.area.1).sqrt()
+    }
+    /// `rel_rmse` of the noise-free image against the area-averaged truth (NaN if not measured).
+    pub fn rel_clean(&self) -> f64 {
+        (self.clean_area.0 / self.clean_area.1).sqrt()
     }
 }
 
@@ -260,7 +272,16 @@ impl Bench {
             .with_context(|| format!("unknown marker dictionary {}", cfg.plate.marker_dictionary))?;
         let positioning = PositioningError::from_config(&cfg)?;
         let region = Region::centred_square(cfg.plate.sample_side_m);
-        Ok(Bench { cfg, scene, registrar, region, size, light: Direction::from_degrees(45.0, 0.0), positioning, dictionary })
+        Ok(Bench {
+            cfg,
+            scene,
+            registrar,
+            region,
+            size,
+            light: Direction::from_degrees(45.0, 0.0),
+            positioning,
+            dictionary,
+        })
     }
 
     /// The camera model.
@@ -301,7 +322,17 @@ impl Bench {
         };
         let gt_point = self.scene.ground_truth(&truth, 1.0, self.size).data;
         let gt_box = box_truth(&self.scene.ground_truth(&truth, 1.0, self.size * BOX_SAMPLES).data, self.size);
-        Ok(Frame { view_deg, commanded, truth, rgb, green, radiometry, gt_point, gt_box })
+        let (img, _) = self.scene.radiance(&truth, 1.0, &RenderOptions::default());
+        // Rates in e-/s: exposure 1 s, 1 DN per electron, range 1, no dark current.
+        let clean_radiometry = Radiometry {
+            dn_range: 1.0,
+            exposure_s: 1.0,
+            dn_per_electron: 1.0,
+            dark_e_per_s: 0.0,
+            ..radiometry.clone()
+        };
+        let clean = (LinearImage { width: img.width, height: img.height, data: img.data }, clean_radiometry);
+        Ok(Frame { view_deg, commanded, truth, rgb, green, radiometry, gt_point, gt_box, clean })
     }
 
     /// Distance of detected corners from the projection of the true corners: (RMS radial,
@@ -341,11 +372,14 @@ impl Bench {
                 tex = Some(r);
             }
             let tex = to_radiance_factor(&tex.expect("at least one repeat"), &vig, &frame.radiometry)?;
+            let clean = rectify(&frame.clean.0, cam, pose, self.region, self.size, f)?;
+            let clean = to_radiance_factor(&clean, &vig, &frame.clean.1)?;
             out.push(FilterResult {
                 filter: filter_name(f),
                 rectify_s: median(times),
                 point: sq_sums(&tex.data, &frame.gt_point),
                 area: sq_sums(&tex.data, &frame.gt_box),
+                clean_area: sq_sums(&clean.data, &frame.gt_box),
             });
         }
         Ok(out)
@@ -550,6 +584,7 @@ impl Bench {
                 rectify_s: times_s.2,
                 point: sq_sums(&tex.data, &frame.gt_point),
                 area: sq_sums(&tex.data, &frame.gt_box),
+                clean_area: (0.0, 0.0),
             }],
             error: None,
         })
@@ -608,7 +643,14 @@ mod tests {
             assert!(bx.abs() < 0.1 && by.abs() < 0.1, "corner bias {bx} {by}");
             for f in &s.filters {
                 let n = nominal.filters.iter().find(|g| g.filter == f.filter).unwrap();
-                assert!(f.rel_point() <= n.rel_point() + 1e-3, "{} {}: {} vs {}", s.setting, f.filter, f.rel_point(), n.rel_point());
+                assert!(
+                    f.rel_point() <= n.rel_point() + 1e-3,
+                    "{} {}: {} vs {}",
+                    s.setting,
+                    f.filter,
+                    f.rel_point(),
+                    n.rel_point()
+                );
             }
         }
         assert_eq!(get("lm").filters.len(), FILTERS.len());
