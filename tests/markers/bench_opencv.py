@@ -5,7 +5,8 @@ Usage: bench_opencv.py DIR
 DIR holds job.json (camera matrix K, distortion [k1, k2, p1, p2, k3], image size, marker
 dictionary, plate marker corners in metres, texture size and region, repeats), green.f32
 (the frame's green channel, float32 little-endian, row-major, fractions of white) and rgb.f32
-(the demosaiced camera RGB, float32, h x w x 3). The script runs the mainstream pipeline
+(the demosaiced camera RGB, float32, h x w x 3), optionally clean.f32 (the noise-free image,
+same layout). The script runs the mainstream pipeline
 
   cv2.aruco detection (CORNER_REFINE_SUBPIX) on the green channel scaled to 8 bits,
   cv2.undistortPoints (P = K: undistorted pixels of the same camera matrix),
@@ -16,7 +17,8 @@ dictionary, plate marker corners in metres, texture size and region, repeats), g
 timing each step (median of the repeats, time.perf_counter; the 8-bit conversion and the
 undistortion maps, which a pipeline computes once per camera, are timed apart). Writes
 result.json (detections, homography, times) and texture.f32 (size x size x 3 float32, row 0
-at the sample's +y edge, column 0 at its -x edge, like btfrig's textures).
+at the sample's +y edge, column 0 at its -x edge, like btfrig's textures), and
+texture_clean.f32 from clean.f32 through the same maps (untimed).
 
 Pixel centres: OpenCV puts them at integer coordinates for remap, warpPerspective and the
 ArUco corners, as btfrig does; `pixel_centre_check` pins this for the warp (a destination
@@ -117,6 +119,15 @@ def main() -> int:
                                         flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                                         borderMode=cv2.BORDER_CONSTANT), repeat)
         np.ascontiguousarray(tex, dtype="<f4").tofile(os.path.join(d, "texture.f32"))
+        # The noise-free image through the same two resamplings (untimed): geometry and
+        # interpolation without sensor noise.
+        clean_path = os.path.join(d, "clean.f32")
+        if os.path.exists(clean_path):
+            clean = np.fromfile(clean_path, dtype="<f4").reshape(h, w, 3)
+            clean = cv2.remap(clean, m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+            clean = cv2.warpPerspective(clean, m, (size, size), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                        borderMode=cv2.BORDER_CONSTANT)
+            np.ascontiguousarray(clean, dtype="<f4").tofile(os.path.join(d, "texture_clean.f32"))
 
     result["times"] = times
     result["threads"] = cv2.getNumThreads()

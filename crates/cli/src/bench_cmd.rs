@@ -258,6 +258,7 @@ fn run_opencv(
         std::fs::write(dir.join("job.json"), job.to_string())?;
         write_f32(&dir.join("green.f32"), frame.green.iter().copied())?;
         write_f32(&dir.join("rgb.f32"), frame.rgb.data.iter().flat_map(|p| *p))?;
+        write_f32(&dir.join("clean.f32"), frame.clean.0.data.iter().flat_map(|p| *p))?;
         let script = repo_root().join("tests/markers/bench_opencv.py");
         let out = python.arg(&script).arg(&dir).output().with_context(|| format!("cannot run {}", script.display()))?;
         anyhow::ensure!(out.status.success(), "bench_opencv.py failed: {}", String::from_utf8_lossy(&out.stderr));
@@ -300,12 +301,15 @@ fn run_opencv(
         }
         let hv = &res["H"];
         let h = Matrix3::from_fn(|i, j| hv[i][j].as_f64().unwrap_or(f64::NAN));
-        let bytes = std::fs::read(dir.join("texture.f32"))?;
-        let vals: Vec<f32> = bytes.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
-        let texture: Vec<[f32; 3]> = vals.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        let read = |name: &str| -> anyhow::Result<Vec<[f32; 3]>> {
+            let bytes = std::fs::read(dir.join(name)).with_context(|| format!("OpenCV's {name}"))?;
+            let vals: Vec<f32> = bytes.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+            Ok(vals.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
+        };
         let times =
             (ts("detect_s"), ts("undistort_points_s") + ts("homography_s"), ts("undistort_image_s") + ts("warp_s"));
-        let s = b.evaluate_homography(frame, "opencv", "linear", &detections, &h, texture, times)?;
+        let textures = (read("texture.f32")?, read("texture_clean.f32")?);
+        let s = b.evaluate_homography(frame, "opencv", "linear", &detections, &h, textures, times)?;
         Ok((s, version))
     })();
     let _ = std::fs::remove_dir_all(&dir);
@@ -515,7 +519,8 @@ pub fn registration(a: &BenchRegistrationArgs) -> anyhow::Result<()> {
         "\ndetect/register/rectify: ms per frame (median of repeats, mean over views); total = their sum. \
          tx: texel position error (mean over views of the per-frame mean; max over all). corner: RMS distance of \
          detected corners from the projected true ones, px. rel_pt / rel_area: texture rel_rmse against the \
-         point-sampled / {0}x{0}-area-averaged ground truth, pooled over views; clean: the same rectification of the          noise-free radiance image (no sensor noise, no demosaic) against the area-averaged truth.",
+         point-sampled / {0}x{0}-area-averaged ground truth, pooled over views; clean: the same rectification of the \
+         noise-free radiance image (no sensor noise, no demosaic) against the area-averaged truth.",
         crate::bench_registration::BOX_SAMPLES
     );
     println!(

@@ -158,8 +158,7 @@ pub struct FilterResult {
     pub point: (f64, f64),
     /// The same against the area-averaged truth.
     pub area: (f64, f64),
-    /// The same for the noise-free image against the area-averaged truth ((0, 0) if not
-    /// measured).
+    /// The same for the noise-free image against the area-averaged truth.
     pub clean_area: (f64, f64),
 }
 
@@ -172,7 +171,7 @@ impl FilterResult {
     pub fn rel_area(&self) -> f64 {
         (self.area.0 / self.area.1).sqrt()
     }
-    /// `rel_rmse` of the noise-free image against the area-averaged truth (NaN if not measured).
+    /// `rel_rmse` of the noise-free image against the area-averaged truth.
     pub fn rel_clean(&self) -> f64 {
         (self.clean_area.0 / self.clean_area.1).sqrt()
     }
@@ -541,8 +540,9 @@ impl Bench {
 
     /// Measures a peer's result on `frame`: its detections, its homography `h` (sample plane
     /// metres to undistorted pixels, see [`Bench::homography_texel_error`]) and its texture
-    /// (camera RGB like `frame.rgb`, `size²` texels, row 0 at the `+y` edge). The texture is
-    /// converted with the vignetting of the pose decomposed from `h`.
+    /// (camera RGB like `frame.rgb`, `size²` texels, row 0 at the `+y` edge) and its texture of
+    /// `frame.clean`. The textures are converted with the vignetting of the pose decomposed
+    /// from `h`.
     #[allow(clippy::too_many_arguments)]
     pub fn evaluate_homography(
         &self,
@@ -551,24 +551,26 @@ impl Bench {
         filter: &str,
         detections: &[(u32, [Point2<f64>; 4])],
         h: &Matrix3<f64>,
-        texture: Vec<[f32; 3]>,
+        (texture, clean): (Vec<[f32; 3]>, Vec<[f32; 3]>),
         times_s: (f64, f64, f64),
     ) -> anyhow::Result<SettingResult> {
-        anyhow::ensure!(texture.len() == self.size * self.size, "peer texture has {} texels", texture.len());
+        let texels = self.size * self.size;
+        anyhow::ensure!(texture.len() == texels && clean.len() == texels, "peer texture has {} texels", texture.len());
         let cam = self.camera();
         let k = Matrix3::new(cam.fx, 0.0, cam.cx, 0.0, cam.fy, cam.cy, 0.0, 0.0, 1.0);
         let hn = k.try_inverse().expect("focal lengths are positive") * h;
         let s2c = decompose(&hn).context("peer homography does not decompose into a pose")?;
         let pose = self.pose_from_camera(&self.scene.pose(&frame.commanded), s2c);
         let vig = vignetting_map(cam, &pose, self.region, self.size)?;
-        let tex = btfrig_calib::Texture {
+        let wrap = |data| btfrig_calib::Texture {
             width: self.size,
             height: self.size,
             region: self.region,
-            data: texture,
+            data,
             texels_outside: 0,
         };
-        let tex = to_radiance_factor(&tex, &vig, &frame.radiometry)?;
+        let tex = to_radiance_factor(&wrap(texture), &vig, &frame.radiometry)?;
+        let clean = to_radiance_factor(&wrap(clean), &vig, &frame.clean.1)?;
         let markers = detections.iter().filter(|(id, _)| self.registrar.markers().iter().any(|m| m.id == *id)).count();
         let corners = self.corner_error(frame, detections);
         Ok(SettingResult {
@@ -584,7 +586,7 @@ impl Bench {
                 rectify_s: times_s.2,
                 point: sq_sums(&tex.data, &frame.gt_point),
                 area: sq_sums(&tex.data, &frame.gt_box),
-                clean_area: (0.0, 0.0),
+                clean_area: sq_sums(&clean.data, &frame.gt_box),
             }],
             error: None,
         })
