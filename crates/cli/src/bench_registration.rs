@@ -629,12 +629,18 @@ mod tests {
     /// homography) measures the same texel error as the pose it decomposes into.
     #[test]
     fn registration_beats_the_nominal_pose_on_a_rendered_frame() {
-        let b = bench(64);
+        let mut b = bench(128);
+        // Three times the rig's positioning error, so the nominal pose is clearly off.
+        let p = &mut b.positioning;
+        p.robot_jitter = p.robot_jitter.map(|j| 3.0 * j);
+        p.robot_offset = p.robot_offset.map(|j| 3.0 * j);
+        p.rail_jitter *= 3.0;
+        p.rail_offset *= 3.0;
         let frame = b.frame((45.0, 90.0), 3).unwrap();
         let r = b.run_ours(&frame, 1).unwrap();
         let get = |n: &str| r.iter().find(|s| s.setting == n).unwrap();
         let nominal = get("nominal");
-        assert!(nominal.texel.0 > 0.05, "positioning error too small to test: {:?}", nominal.texel);
+        assert!(nominal.texel.0 > 0.1, "positioning error too small to test: {:?}", nominal.texel);
         for s in ["dlt", "lm", "lm+prior"] {
             let s = get(s);
             assert!(s.error.is_none(), "{s:?}");
@@ -643,16 +649,19 @@ mod tests {
             // Pixel centres at integers on both sides: no half-pixel bias.
             let (bx, by) = s.corner_bias_px.unwrap();
             assert!(bx.abs() < 0.1 && by.abs() < 0.1, "corner bias {bx} {by}");
+            // On the noise-free image the better pose gives the better texture (on the noisy
+            // one, noise can hide a fraction of a texel).
             for f in &s.filters {
                 let n = nominal.filters.iter().find(|g| g.filter == f.filter).unwrap();
                 assert!(
-                    f.rel_point() <= n.rel_point() + 1e-3,
+                    f.rel_clean() < n.rel_clean(),
                     "{} {}: {} vs {}",
                     s.setting,
                     f.filter,
-                    f.rel_point(),
-                    n.rel_point()
+                    f.rel_clean(),
+                    n.rel_clean()
                 );
+                assert!(f.rel_point() < 0.5 && f.rel_area() < 0.5);
             }
         }
         assert_eq!(get("lm").filters.len(), FILTERS.len());
