@@ -1,11 +1,23 @@
 //! `btfrig bench render`: frame render time with and without the renderer's skips, side by
 //! side, with the difference between the two images (the skips must not change the image).
+//!
+//! `btfrig bench registration`: display of [`crate::bench_registration`]'s measurements, and
+//! the OpenCV peer run through `tests/markers/bench_opencv.py` on the same frames.
 
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
 use std::time::Instant;
 
+use anyhow::Context;
+use btfrig_core::config::RigConfig;
 use btfrig_core::Direction;
 use btfrig_render::renderer::RenderOptions;
 use btfrig_render::rig_scene::RigScene;
+use nalgebra::{Matrix3, Point2};
+
+use crate::args::BenchRegistrationArgs;
+use crate::bench_registration::{Bench, Frame, SettingResult, FILTERS};
 
 /// (name, light, view) in degrees: the poses every material is timed at.
 const POSES: [(&str, (f64, f64), (f64, f64)); 3] = [
@@ -105,15 +117,6 @@ pub fn render(rig: Option<&std::path::Path>, materials: &[String], texels: usize
 }
 
 // ---- `btfrig bench registration` ----
-
-use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
-use std::process::Command;
-
-use crate::args::BenchRegistrationArgs;
-use crate::bench_registration::{Bench, Frame, SettingResult, FILTERS};
-use btfrig_core::config::RigConfig;
-use nalgebra::{Matrix3, Point2};
 
 /// Views of the benchmark when none are given (theta, phi in degrees; light at 45, 0).
 const DEFAULT_VIEWS: [(f64, f64); 6] =
@@ -223,8 +226,6 @@ fn write_f32(path: &Path, values: impl Iterator<Item = f32>) -> anyhow::Result<(
     let bytes: Vec<u8> = values.flat_map(f32::to_le_bytes).collect();
     std::fs::write(path, bytes).with_context(|| format!("cannot write {}", path.display()))
 }
-
-use anyhow::Context;
 
 /// Runs OpenCV on `frame` (files in a fresh temp dir, removed afterwards) and measures its
 /// result with our truth.
@@ -365,7 +366,9 @@ pub fn registration(a: &BenchRegistrationArgs) -> anyhow::Result<()> {
         a.repeat,
         rayon::current_num_threads()
     );
-    let mut all: Vec<(String, String, BTreeMap<(usize, usize), Agg>)> = Vec::new();
+    // (rig label, image size, totals per (setting, filter)).
+    type RigTotals = (String, String, BTreeMap<(usize, usize), Agg>);
+    let mut all: Vec<RigTotals> = Vec::new();
     for (label, cfg) in rigs {
         let b = Bench::new(cfg, &material, a.size).with_context(|| format!("rig {label}"))?;
         let res = format!("{}x{}", b.camera().width, b.camera().height);

@@ -113,7 +113,7 @@ impl PositioningError {
 
     /// True joints for `commanded`, drawn like the simulated devices draw them (radians).
     pub fn apply(&self, commanded: &JointState, rng: &mut ChaCha8Rng) -> JointState {
-        let mut j = commanded.clone();
+        let mut j = *commanded;
         for k in 0..3 {
             let n: f64 = rng.sample(StandardNormal);
             j.robot[k] += (self.robot_offset[k] + self.robot_jitter[k] * n).to_radians();
@@ -323,13 +323,8 @@ impl Bench {
         let gt_box = box_truth(&self.scene.ground_truth(&truth, 1.0, self.size * BOX_SAMPLES).data, self.size);
         let (img, _) = self.scene.radiance(&truth, 1.0, &RenderOptions::default());
         // Rates in e-/s: exposure 1 s, 1 DN per electron, range 1, no dark current.
-        let clean_radiometry = Radiometry {
-            dn_range: 1.0,
-            exposure_s: 1.0,
-            dn_per_electron: 1.0,
-            dark_e_per_s: 0.0,
-            ..radiometry.clone()
-        };
+        let clean_radiometry =
+            Radiometry { dn_range: 1.0, exposure_s: 1.0, dn_per_electron: 1.0, dark_e_per_s: 0.0, ..radiometry };
         let clean = (LinearImage { width: img.width, height: img.height, data: img.data }, clean_radiometry);
         Ok(Frame { view_deg, commanded, truth, rgb, green, radiometry, gt_point, gt_box, clean })
     }
@@ -342,10 +337,9 @@ impl Bench {
         let (mut ss, mut sx, mut sy, mut n) = (0.0, 0.0, 0.0, 0usize);
         for (id, corners) in detections {
             let Some(m) = self.registrar.markers().iter().find(|m| m.id == *id) else { continue };
-            for k in 0..4 {
-                let c = m.corners_sample_m[k];
+            for (c, seen) in m.corners_sample_m.iter().zip(corners) {
                 let Some(p) = cam.project(&(t * Point3::new(c.x, c.y, 0.0))) else { continue };
-                let d = corners[k] - p;
+                let d = seen - p;
                 ss += d.norm_squared();
                 sx += d.x;
                 sy += d.y;
@@ -385,7 +379,7 @@ impl Bench {
     }
 
     fn pose_from_camera(&self, nominal: &ScenePose, s2c: nalgebra::Isometry3<f64>) -> ScenePose {
-        ScenePose { sample_to_world: nominal.camera_to_world * s2c, ..nominal.clone() }
+        ScenePose { sample_to_world: nominal.camera_to_world * s2c, ..*nominal }
     }
 
     fn texel_error(&self, frame: &Frame, pose: &ScenePose) -> (f64, f64) {
