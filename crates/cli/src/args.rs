@@ -210,6 +210,39 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 5)]
         repeat: usize,
     },
+    /// Marker registration and rectification: per pose setting and filter, time per frame
+    /// and texel / texture error against the simulator's truth (docs/benchmarks.md).
+    Registration(BenchRegistrationArgs),
+}
+
+/// `btfrig bench registration` (implemented in `bench_cmd.rs`).
+#[derive(Debug, clap::Args)]
+pub struct BenchRegistrationArgs {
+    /// Rig config files, side by side (default: the embedded simulated gonioreflectometer).
+    #[arg(long)]
+    pub rig: Vec<std::path::PathBuf>,
+    /// Views as THETA,PHI in degrees (light at 45,0); default: 0,0 45,90 45,270 75,90 75,270 80,90.
+    #[arg(long, num_args = 1.., value_parser = |s: &str| parse_direction("views", s))]
+    pub views: Vec<btfrig_core::Direction>,
+    /// Texels per side of the texture over the sample.
+    #[arg(long, default_value_t = 256)]
+    pub size: usize,
+    /// Timed repetitions of each step (the median is reported).
+    #[arg(long, default_value_t = 3)]
+    pub repeat: usize,
+    /// Seed of positioning error and sensor noise (frame k uses seed + k).
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Material of the sample.
+    #[arg(long, default_value = "lacquered-wood")]
+    pub material: String,
+    /// Also run OpenCV (ArUco, undistortPoints, findHomography, warpPerspective) on the same
+    /// frames via tests/markers/bench_opencv.py (installs opencv-python-headless if needed).
+    #[arg(long)]
+    pub opencv: bool,
+    /// Print one table row per view as well as the totals.
+    #[arg(long)]
+    pub per_view: bool,
 }
 
 /// Parses `THETA,PHI` in degrees.

@@ -2,6 +2,7 @@
 
 mod args;
 mod bench_cmd;
+mod bench_registration;
 mod captures_cmd;
 mod dataset_cmd;
 mod demo_cmd;
@@ -35,6 +36,7 @@ fn main() -> std::process::ExitCode {
         Command::Bench(BenchCommand::Render { rig, material, texels, repeat }) => {
             done(bench_cmd::render(rig.as_deref(), &material, texels, repeat))
         }
+        Command::Bench(BenchCommand::Registration(a)) => done(bench_cmd::registration(&a)),
     };
     match result {
         Ok(code) => code,
