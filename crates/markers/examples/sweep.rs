@@ -1,0 +1,73 @@
+//! Diagnostics (not a test): corner error statistics of detector variants on rendered views.
+//! `sweep [ss]`: the renderer's marker supersampling (default 16).
+use std::time::Instant;
+
+use btfrig_core::config::RigConfig;
+use btfrig_core::plan::BUILTIN_RIGS;
+use btfrig_core::Direction;
+use btfrig_markers::{detect, DetectParams, Dictionary, GrayImage, GreenSites};
+use btfrig_render::demosaic::demosaic_bilinear;
+use btfrig_render::material::MaterialSpec;
+use btfrig_render::renderer::RenderOptions;
+use btfrig_render::rig_scene::RigScene;
+use nalgebra::Point3;
+
+fn main() {
+    let ss: u32 = std::env::args().nth(1).map(|v| v.parse().unwrap()).unwrap_or(16);
+    let cfg = RigConfig::from_toml(BUILTIN_RIGS[0].1, "rig").unwrap();
+    let scene = RigScene::new(&cfg, &MaterialSpec::builtin("lacquered-wood").unwrap()).unwrap();
+    let opts = RenderOptions { marker_supersampling: ss, ..RenderOptions::default() };
+    let cam = scene.camera().model().clone();
+    let dict = Dictionary::dict_4x4_50();
+    let base = DetectParams { camera: Some(cam.clone()), ..DetectParams::default() };
+    let variants: Vec<(&str, DetectParams)> = vec![
+        ("scanline", DetectParams { edge_model: false, ..base.clone() }),
+        ("model all", DetectParams { green_sites: GreenSites::All, ..base.clone() }),
+        ("model auto", base.clone()),
+    ];
+    let all = [((0.0, 0.0), 21), ((45.0, 90.0), 22), ((45.0, 200.0), 23), ((75.0, 90.0), 24), ((75.0, 330.0), 25), ((80.0, 90.0), 26)];
+    let pick: Vec<usize> = std::env::args().skip(2).map(|v| v.parse().unwrap()).collect();
+    for (i, &(view, seed)) in all.iter().enumerate() {
+        if !pick.is_empty() && !pick.contains(&i) {
+            continue;
+        }
+        let j = scene.gonio().ik(Direction::from_degrees(45.0, 0.0), Direction::from_degrees(view.0, view.1)).unwrap();
+        let exposure = scene.exposure_for_white(0.5, 1e-4, 30.0);
+        let (raw, _) = scene.capture(&j, 1.0, exposure, 1.0, seed, &opts).unwrap();
+        let img: Vec<f32> = demosaic_bilinear(&raw).data.iter().map(|p| p[1]).collect();
+        let g = GrayImage::new(cam.width, cam.height, &img).unwrap();
+        let pose = scene.pose(&j);
+        let cs = pose.camera_to_world.inverse() * pose.sample_to_world;
+        let markers = scene.renderer().scene().layout.markers();
+        for (name, p) in &variants {
+            let t0 = Instant::now();
+            let dets = detect(&g, &dict, p).unwrap();
+            let ms = t0.elapsed().as_secs_f64() * 1e3;
+            let (mut sum, mut max, mut n, mut ssum, mut rsum) = (0.0, 0.0f64, 0.0, 0.0, 0.0);
+            for d in &dets {
+                let Some(m) = markers.iter().find(|m| m.id == d.id) else { continue };
+                for k in 0..4 {
+                    let c = m.corners_sample_m[k];
+                    let t = cam.project(&(cs * Point3::new(c.x, c.y, 0.0))).unwrap();
+                    let e = (d.corners[k] - t).norm();
+                    if e > 0.25 && std::env::var("SWEEP_DEBUG").is_ok() {
+                        println!("  {name} id {} corner {k} err {:.3} sigma {:.3} flags {}", d.id, e, d.corner_sigma_px[k], d.quality.flags);
+                    }
+                    sum += e;
+                    max = max.max(e);
+                    n += 1.0;
+                    ssum += d.corner_sigma_px[k];
+                    rsum += e / d.corner_sigma_px[k];
+                }
+            }
+            println!(
+                "view {view:?} {name:>10}: {} markers, mean {:.4} max {:.4} px, sigma {:.4}, err/sigma {:.2}, {ms:.1} ms",
+                dets.len(),
+                sum / n,
+                max,
+                ssum / n,
+                rsum / n
+            );
+        }
+    }
+}
