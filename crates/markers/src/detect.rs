@@ -679,7 +679,12 @@ fn candidate(
                 let hout = across.clamp(1.5, 4.0);
                 match fit_edge_model(img, parity, cam, a, b, hin, hout) {
                     Some(f) => mf.push(f),
-                    None => break 'passes,
+                    None => {
+                        if std::env::var("MK_DEBUG").is_ok() {
+                            eprintln!("model fit failed on edge {i} of quad {q:?}");
+                        }
+                        break 'passes;
+                    }
                 }
             }
             let mut nq = q;
@@ -688,6 +693,9 @@ fn candidate(
                 let Some((pt, c)) = intersect(&mf[(k + 3) % 4], &mf[k]) else { break 'passes };
                 let Some(im) = from_fit(cam, pt) else { break 'passes };
                 if (im - q[k]).norm() > 1.0 {
+                    if std::env::var("MK_DEBUG").is_ok() {
+                        eprintln!("model corner moved {:.3}", (im - q[k]).norm());
+                    }
                     break 'passes;
                 }
                 nq[k] = im;
@@ -818,6 +826,10 @@ fn demosaic_green_parity(img: &GrayImage) -> Option<usize> {
 /// `(e0, e1, D, L, w)`. Any symmetric blur (pixel area, demosaic, optics) leaves the fitted
 /// centre unbiased; using every pixel in the band, not scanlines, keeps the short
 /// foreshortened edges' samples up to the corners.
+/// Smallest blur of the edge model (pixels): below it an axis-parallel edge on a pixel
+/// boundary leaves no sample on the model's slope (singular fit).
+const B_MIN: f64 = 0.1;
+
 fn fit_edge_model(
     img: &GrayImage,
     parity: Option<usize>,
@@ -856,6 +868,9 @@ fn fit_edge_model(
         }
     }
     if samples.len() < 20 {
+        if std::env::var("MK_DEBUG").is_ok() {
+            eprintln!("few samples {} len {len} margin {margin}", samples.len());
+        }
         return None;
     }
     let n = samples.len() as f64;
@@ -868,39 +883,59 @@ fn fit_edge_model(
     // The pixel footprint (a unit square) projected on the line's normal: two uniform
     // widths; the fitted blur `b` is a third.
     let (wa, wb) = (nrm.x.abs().max(0.02), nrm.y.abs().max(0.02));
-    let mut p = [0.0, 0.0, level(-hin, -0.5 * hin)?, level(0.5 * hout, hout)?, 0.3];
+    // Starting levels: the outer halves of the band (on a narrow band along a pixel row
+    // the outer half may hold no sample row: then beyond 0.4 px).
+    let d0 = level(-hin, -0.5 * hin).or_else(|| level(-hin, -0.4));
+    let l0 = level(0.5 * hout, hout).or_else(|| level(0.4, hout));
+    let (Some(d0), Some(l0)) = (d0, l0) else {
+        if std::env::var("MK_DEBUG").is_ok() {
+            eprintln!("no level {} {hin} {hout}", samples.len());
+        }
+        return None;
+    };
+    let mut p = [0.0, 0.0, d0, l0, 0.3, 0.0];
+    if std::env::var("MK_DEBUG").is_ok() {
+        eprintln!("init {p:?}");
+    }
     if !(p[3] > p[2]) {
         return None;
     }
-    let model = |p: &[f64; 5], t: f64, s: f64| -> (f64, f64) {
+    // p: offset, slope, dark, light, blur, shading gradient along the line (per px).
+    let model = |p: &[f64; 6], t: f64, s: f64| -> (f64, f64) {
         let x = s - p[0] - p[1] * (t - tm);
         let (cdf, pdf) = uniform3_cdf(x, wa, wb, p[4]);
         (p[2] + (p[3] - p[2]) * cdf, pdf)
     };
-    let sse = |p: &[f64; 5]| samples.iter().map(|&(t, s, v)| (v - model(p, t, s).0).powi(2)).sum::<f64>();
+    let shade = |p: &[f64; 6], t: f64| 1.0 + p[5] * (t - tm);
+    let model = |p: &[f64; 6], t: f64, s: f64| -> (f64, f64) {
+        let (f, pdf) = model(p, t, s);
+        (f * shade(p, t), pdf)
+    };
+    let sse = |p: &[f64; 6]| samples.iter().map(|&(t, s, v)| (v - model(p, t, s).0).powi(2)).sum::<f64>();
     let mut cur = sse(&p);
     let mut lambda = 1e-3;
-    let mut jtj = SMatrix::<f64, 5, 5>::zeros();
+    let mut jtj = SMatrix::<f64, 6, 6>::zeros();
     for _ in 0..30 {
         jtj.fill(0.0);
-        let mut jtr = SVector::<f64, 5>::zeros();
+        let mut jtr = SVector::<f64, 6>::zeros();
         let db = 1e-4;
-        let pb = [p[0], p[1], p[2], p[3], p[4] + db];
+        let pb = [p[0], p[1], p[2], p[3], p[4] + db, p[5]];
         for &(t, s, v) in &samples {
             let u = t - tm;
             let (f, pdf) = model(&p, t, s);
+            let sh = shade(&p, t);
             let amp = p[3] - p[2];
-            let cdf = if amp != 0.0 { (f - p[2]) / amp } else { 0.5 };
-            let g0 = -amp * pdf;
+            let cdf = if amp != 0.0 { (f / sh - p[2]) / amp } else { 0.5 };
+            let g0 = -amp * pdf * sh;
             let gb = (model(&pb, t, s).0 - f) / db;
-            let j = SVector::<f64, 5>::from([g0, g0 * u, 1.0 - cdf, cdf, gb]);
+            let j = SVector::<f64, 6>::from([g0, g0 * u, (1.0 - cdf) * sh, cdf * sh, gb, f / sh * u]);
             jtj += j * j.transpose();
             jtr += j * (v - f);
         }
         let mut improved = false;
         for _ in 0..8 {
             let mut m = jtj;
-            for i in 0..5 {
+            for i in 0..6 {
                 m[(i, i)] *= 1.0 + lambda;
                 m[(i, i)] += 1e-12;
             }
@@ -909,10 +944,10 @@ fn fit_edge_model(
                 continue;
             };
             let mut q = p;
-            for i in 0..5 {
+            for i in 0..6 {
                 q[i] += step[i];
             }
-            q[4] = q[4].max(0.02);
+            q[4] = q[4].max(B_MIN);
             if q[0].abs() > hin.min(hout) || q[4] > h {
                 lambda *= 10.0;
                 continue;
@@ -933,9 +968,25 @@ fn fit_edge_model(
         }
     }
     if !(p[3] > p[2]) {
+        if std::env::var("MK_DEBUG").is_ok() {
+            eprintln!("levels {p:?}");
+        }
         return None;
     }
-    let cov = jtj.try_inverse()? * (cur / (n - 5.0));
+    // At its lower bound the blur is not a free parameter: leave it out of the covariance
+    // (a sharp axis-parallel edge on a pixel boundary would otherwise look singular).
+    if p[4] <= B_MIN * 1.001 {
+        jtj.row_mut(4).fill(0.0);
+        jtj.column_mut(4).fill(0.0);
+        jtj[(4, 4)] = 1.0;
+    }
+    let Some(inv) = jtj.try_inverse() else {
+        if std::env::var("MK_DEBUG").is_ok() {
+            eprintln!("singular {p:?}");
+        }
+        return None;
+    };
+    let cov = inv * (cur / (n - 6.0));
     if std::env::var("MK_DEBUG").is_ok() {
         eprintln!(
             "edge len {len:.1} hin {hin:.2} hout {hout:.2} n {n} parity {parity:?} e0 {:.3} e1 {:.4} D {:.4} L {:.4} b {:.3} sd0 {:.4}",
