@@ -639,8 +639,7 @@ fn candidate(
         fits.clear();
         for i in 0..4 {
             let (a, b) = (q[i], q[(i + 1) % 4]);
-            // Module size across this edge: the adjacent sides over the module count.
-            let across = 0.5 * ((q[(i + 2) % 4] - b).norm() + (q[(i + 3) % 4] - a).norm()) / modules;
+            let across = module_across(&q, i, modules);
             // Symmetric window of half a module (at most 3 px): the outer quarters give the
             // levels. (An asymmetric window reaching farther into the quiet zone measured worse.)
             let ad = (0.5 * across).clamp(1.0, 3.0);
@@ -672,12 +671,12 @@ fn candidate(
             let mut mf = Vec::with_capacity(4);
             for i in 0..4 {
                 let (a, b) = (q[i], q[(i + 1) % 4]);
-                let across = 0.5 * ((q[(i + 2) % 4] - b).norm() + (q[(i + 3) % 4] - a).norm()) / modules;
+                let across = module_across(&q, i, modules);
                 // Inside, the border is one module wide (a white data module may follow);
                 // outside, the quiet zone is wider.
                 let hin = (0.55 * across).clamp(1.0, 4.0);
                 let hout = across.clamp(1.5, 4.0);
-                match fit_edge_model(img, parity, cam, a, b, hin, hout) {
+                match fit_edge_model(img, parity, cam, [q[(i + 3) % 4], a, b, q[(i + 2) % 4]], hin, hout) {
                     Some(f) => mf.push(f),
                     None => {
                         if std::env::var("MK_DEBUG").is_ok() {
@@ -826,6 +825,16 @@ fn demosaic_green_parity(img: &GrayImage) -> Option<usize> {
 /// `(e0, e1, D, L, w)`. Any symmetric blur (pixel area, demosaic, optics) leaves the fitted
 /// centre unbiased; using every pixel in the band, not scanlines, keeps the short
 /// foreshortened edges' samples up to the corners.
+/// Module size across edge `i` of quad `q` (corner `i` to `i + 1`): the distance of the two
+/// other corners from the edge's line over the module count. (Not the adjacent sides'
+/// length: a sheared, foreshortened quad is much thinner across an edge than its sides.)
+fn module_across(q: &[Point2<f64>; 4], i: usize, modules: f64) -> f64 {
+    let (a, b) = (q[i], q[(i + 1) % 4]);
+    let d = (b - a).normalize();
+    let dist = |p: Point2<f64>| cross(d, p - a).abs();
+    0.5 * (dist(q[(i + 2) % 4]) + dist(q[(i + 3) % 4])) / modules
+}
+
 /// Smallest blur of the edge model (pixels): below it an axis-parallel edge on a pixel
 /// boundary leaves no sample on the model's slope (singular fit).
 const B_MIN: f64 = 0.1;
@@ -834,17 +843,27 @@ fn fit_edge_model(
     img: &GrayImage,
     parity: Option<usize>,
     cam: Option<&CameraModel>,
-    a: Point2<f64>,
-    b: Point2<f64>,
+    corners: [Point2<f64>; 4],
     hin: f64,
     hout: f64,
 ) -> Option<EdgeFit> {
+    // corners: the previous corner, this edge's two, the next one (clockwise on screen).
+    let [prev, a, b, next] = corners;
+    // Signed distance inside the adjacent edge `u -> v` (outward normal `(dy, -dx)`).
+    let inside = |u: Point2<f64>, v: Point2<f64>, p: Point2<f64>| {
+        let d = (v - u).normalize();
+        -(Vector2::new(d.y, -d.x).dot(&(p - u)))
+    };
     let h = hin.max(hout);
     let (af, bf) = (to_fit(cam, a)?, to_fit(cam, b)?);
     let len = (bf - af).norm();
     let dir = (bf - af) / len;
     let nrm = Vector2::new(dir.y, -dir.x);
     let margin = 1.5f64.min(0.2 * len);
+    let nrm_img = {
+        let d = (b - a).normalize();
+        Vector2::new(d.y, -d.x)
+    };
     // Samples (u along, s across, value), from the pixels in the band's bounding box.
     let pad = h + 1.0;
     let (xa, xb) = (a.x.min(b.x) - pad, a.x.max(b.x) + pad);
@@ -859,7 +878,15 @@ fn fit_edge_model(
             if parity.is_some_and(|p| (x + y) % 2 != p) {
                 continue;
             }
-            let pf = to_fit(cam, Point2::new(x as f64, y as f64))?;
+            let px = Point2::new(x as f64, y as f64);
+            // Near an acute corner the inner band crosses the adjacent edge: those samples
+            // are light, not the border's dark.
+            if inside(prev, a, px) < 1.0 || inside(b, next, px) < 1.0 {
+                if nrm_img.dot(&(px - a)) < 0.0 {
+                    continue;
+                }
+            }
+            let pf = to_fit(cam, px)?;
             let d = pf - af;
             let (t, s) = (dir.dot(&d), nrm.dot(&d));
             if t >= margin && t <= len - margin && s >= -hin && s <= hout {
@@ -989,8 +1016,8 @@ fn fit_edge_model(
     let cov = inv * (cur / (n - 6.0));
     if std::env::var("MK_DEBUG").is_ok() {
         eprintln!(
-            "edge len {len:.1} hin {hin:.2} hout {hout:.2} n {n} parity {parity:?} e0 {:.3} e1 {:.4} D {:.4} L {:.4} b {:.3} sd0 {:.4}",
-            p[0], p[1], p[2], p[3], p[4], cov[(0, 0)].sqrt()
+            "rms {:.4} edge len {len:.1} hin {hin:.2} hout {hout:.2} n {n} parity {parity:?} e0 {:.3} e1 {:.4} D {:.4} L {:.4} b {:.3} sd0 {:.4}",
+            (cur / n).sqrt() / (p[3] - p[2]), p[0], p[1], p[2], p[3], p[4], cov[(0, 0)].sqrt()
         );
     }
     let ldir = (dir + nrm * p[1]).normalize();
