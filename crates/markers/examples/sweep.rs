@@ -40,9 +40,13 @@ fn main() {
         let cs = pose.camera_to_world.inverse() * pose.sample_to_world;
         let markers = scene.renderer().scene().layout.markers();
         for (name, p) in &variants {
-            let t0 = Instant::now();
-            let dets = detect(&g, &dict, p).unwrap();
-            let ms = t0.elapsed().as_secs_f64() * 1e3;
+            let mut ms = f64::MAX;
+            let mut dets = Vec::new();
+            for _ in 0..std::env::var("SWEEP_REPS").map(|v| v.parse().unwrap()).unwrap_or(1) {
+                let t0 = Instant::now();
+                dets = detect(&g, &dict, p).unwrap();
+                ms = ms.min(t0.elapsed().as_secs_f64() * 1e3);
+            }
             let (mut sum, mut max, mut n, mut ssum, mut rsum) = (0.0, 0.0f64, 0.0, 0.0, 0.0);
             for d in &dets {
                 let Some(m) = markers.iter().find(|m| m.id == d.id) else { continue };

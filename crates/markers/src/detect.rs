@@ -599,6 +599,8 @@ fn apply_h(hm: &Matrix3<f64>, x: f64, y: f64) -> Point2<f64> {
     Point2::new(p.x / p.z, p.y / p.z)
 }
 
+const MODEL_PASSES: usize = 2;
+
 fn candidate(
     img: &GrayImage,
     dict: &Dictionary,
@@ -667,7 +669,7 @@ fn candidate(
     if p.edge_model {
         // Two model passes, the second on the first's corners; if an edge fails, the scanline
         // corners stay.
-        'passes: for _pass in 0..2 {
+        'passes: for _pass in 0..MODEL_PASSES {
             let mut mf = Vec::with_capacity(4);
             for i in 0..4 {
                 let (a, b) = (q[i], q[(i + 1) % 4]);
@@ -839,6 +841,10 @@ fn module_across(q: &[Point2<f64>; 4], i: usize, modules: f64) -> f64 {
 /// boundary leaves no sample on the model's slope (singular fit).
 const B_MIN: f64 = 0.1;
 
+/// Gauss-Newton iterations of the edge model at most (it starts from the scanline edge and
+/// usually converges in 3 to 6).
+const MODEL_ITERATIONS: usize = 12;
+
 fn fit_edge_model(
     img: &GrayImage,
     parity: Option<usize>,
@@ -928,33 +934,27 @@ fn fit_edge_model(
         return None;
     }
     // p: offset, slope, dark, light, blur, shading gradient along the line (per px).
-    let model = |p: &[f64; 6], t: f64, s: f64| -> (f64, f64) {
-        let x = s - p[0] - p[1] * (t - tm);
-        let (cdf, pdf) = uniform3_cdf(x, wa, wb, p[4]);
-        (p[2] + (p[3] - p[2]) * cdf, pdf)
-    };
+    // Value, and the step's density and derivative in the blur width.
     let shade = |p: &[f64; 6], t: f64| 1.0 + p[5] * (t - tm);
-    let model = |p: &[f64; 6], t: f64, s: f64| -> (f64, f64) {
-        let (f, pdf) = model(p, t, s);
-        (f * shade(p, t), pdf)
+    let model = |p: &[f64; 6], t: f64, s: f64| -> (f64, f64, f64, f64) {
+        let x = s - p[0] - p[1] * (t - tm);
+        let (cdf, pdf, dcdf) = uniform3_cdf(x, wa, wb, p[4]);
+        ((p[2] + (p[3] - p[2]) * cdf) * shade(p, t), cdf, pdf, dcdf)
     };
     let sse = |p: &[f64; 6]| samples.iter().map(|&(t, s, v)| (v - model(p, t, s).0).powi(2)).sum::<f64>();
     let mut cur = sse(&p);
     let mut lambda = 1e-3;
     let mut jtj = SMatrix::<f64, 6, 6>::zeros();
-    for _ in 0..30 {
+    for _ in 0..MODEL_ITERATIONS {
         jtj.fill(0.0);
         let mut jtr = SVector::<f64, 6>::zeros();
-        let db = 1e-4;
-        let pb = [p[0], p[1], p[2], p[3], p[4] + db, p[5]];
         for &(t, s, v) in &samples {
             let u = t - tm;
-            let (f, pdf) = model(&p, t, s);
+            let (f, cdf, pdf, dcdf) = model(&p, t, s);
             let sh = shade(&p, t);
             let amp = p[3] - p[2];
-            let cdf = if amp != 0.0 { (f / sh - p[2]) / amp } else { 0.5 };
             let g0 = -amp * pdf * sh;
-            let gb = (model(&pb, t, s).0 - f) / db;
+            let gb = amp * dcdf * sh;
             let j = SVector::<f64, 6>::from([g0, g0 * u, (1.0 - cdf) * sh, cdf * sh, gb, f / sh * u]);
             jtj += j * j.transpose();
             jtr += j * (v - f);
@@ -1044,26 +1044,77 @@ fn fit_edge_model(
 /// `c` (each at least 0.02): a pixel's footprint across an edge (two widths) blurred by a
 /// box of width `c`. From the density of a sum of uniforms, `sum_S (-1)^|S| (x + A/2 -
 /// sum_S a_i)_+^2 / (2 abc)` over the subsets `S`.
-fn uniform3_cdf(x: f64, a: f64, b: f64, c: f64) -> (f64, f64) {
+fn uniform3_cdf(x: f64, a: f64, b: f64, c: f64) -> (f64, f64, f64) {
     let c = c.max(0.02);
     let half = 0.5 * (a + b + c);
     if x <= -half {
-        return (0.0, 0.0);
+        return (0.0, 0.0, 0.0);
     }
     if x >= half {
-        return (1.0, 0.0);
+        return (1.0, 0.0, 0.0);
     }
     let y = x + half;
-    let (mut cdf, mut pdf) = (0.0, 0.0);
+    let (mut cdf, mut pdf, mut dc) = (0.0, 0.0, 0.0);
     for mask in 0..8u32 {
-        let shift = [a, b, c].iter().enumerate().filter(|(i, _)| mask >> i & 1 == 1).map(|(_, w)| w).sum::<f64>();
+        let mut shift = 0.0;
+        if mask & 1 == 1 {
+            shift += a;
+        }
+        if mask & 2 == 2 {
+            shift += b;
+        }
+        let with_c = mask & 4 == 4;
+        if with_c {
+            shift += c;
+        }
         let z = y - shift;
         if z > 0.0 {
             let sign = if mask.count_ones() % 2 == 0 { 1.0 } else { -1.0 };
-            cdf += sign * z * z * z;
-            pdf += sign * z * z;
+            let z2 = z * z;
+            cdf += sign * z2 * z;
+            pdf += sign * z2;
+            // dz/dc: +1/2 from the centring, -1 when c is in the shift.
+            dc += sign * 3.0 * z2 * if with_c { -0.5 } else { 0.5 };
         }
     }
     let abc = a * b * c;
-    ((cdf / (6.0 * abc)).clamp(0.0, 1.0), (pdf / (2.0 * abc)).max(0.0))
+    let f = cdf / (6.0 * abc);
+    ((f).clamp(0.0, 1.0), (pdf / (2.0 * abc)).max(0.0), dc / (6.0 * abc) - f / c)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn uniform3_cdf_matches_a_monte_carlo_free_reference_and_its_derivatives() {
+        // Reference: the CDF of the sum of three uniforms by midpoint integration over the
+        // first two (the third's CDF is a clamped ramp).
+        let (a, b, c) = (0.8, 0.35, 0.2);
+        let reference = |x: f64| {
+            let n = 400;
+            let mut s = 0.0;
+            for i in 0..n {
+                for j in 0..n {
+                    let u = a * ((i as f64 + 0.5) / n as f64 - 0.5);
+                    let v = b * ((j as f64 + 0.5) / n as f64 - 0.5);
+                    s += ((x - u - v) / c + 0.5).clamp(0.0, 1.0);
+                }
+            }
+            s / (n * n) as f64
+        };
+        for x in [-0.7, -0.6, -0.4, -0.2, -0.05, 0.0, 0.1, 0.3, 0.55, 0.69] {
+            let (f, pdf, dc) = uniform3_cdf(x, a, b, c);
+            assert!((f - reference(x)).abs() < 1e-4, "x {x}: {f} vs {}", reference(x));
+            let h = 1e-6;
+            let num_pdf = (uniform3_cdf(x + h, a, b, c).0 - uniform3_cdf(x - h, a, b, c).0) / (2.0 * h);
+            assert!((pdf - num_pdf).abs() < 1e-5, "x {x}: pdf {pdf} vs {num_pdf}");
+            let num_dc = (uniform3_cdf(x, a, b, c + h).0 - uniform3_cdf(x, a, b, c - h).0) / (2.0 * h);
+            assert!((dc - num_dc).abs() < 1e-5, "x {x}: d/dc {dc} vs {num_dc}");
+        }
+        // Symmetric about 0, and 0 / 1 beyond the support.
+        assert!((uniform3_cdf(0.0, a, b, c).0 - 0.5).abs() < 1e-12);
+        assert_eq!(uniform3_cdf(-0.7, a, b, c).0, 0.0);
+        assert_eq!(uniform3_cdf(0.7, a, b, c).0, 1.0);
+    }
 }
