@@ -42,11 +42,14 @@ fn main() {
         for (name, p) in &variants {
             let mut ms = f64::MAX;
             let mut dets = Vec::new();
-            for _ in 0..std::env::var("SWEEP_REPS").map(|v| v.parse().unwrap()).unwrap_or(1) {
+            let reps = std::env::var("SWEEP_REPS").map(|v| v.parse().unwrap()).unwrap_or(1);
+            let c0 = cpu_ticks();
+            for _ in 0..reps {
                 let t0 = Instant::now();
                 dets = detect(&g, &dict, p).unwrap();
                 ms = ms.min(t0.elapsed().as_secs_f64() * 1e3);
             }
+            let cpu_ms = (cpu_ticks() - c0) as f64 * 10.0 / reps as f64;
             let (mut sum, mut max, mut n, mut ssum, mut rsum) = (0.0, 0.0f64, 0.0, 0.0, 0.0);
             for d in &dets {
                 let Some(m) = markers.iter().find(|m| m.id == d.id) else { continue };
@@ -65,7 +68,7 @@ fn main() {
                 }
             }
             println!(
-                "view {view:?} {name:>10}: {} markers, mean {:.4} max {:.4} px, sigma {:.4}, err/sigma {:.2}, {ms:.1} ms",
+                "view {view:?} {name:>10}: {} markers, mean {:.4} max {:.4} px, sigma {:.4}, err/sigma {:.2}, {ms:.1} ms (cpu {cpu_ms:.0} ms)",
                 dets.len(),
                 sum / n,
                 max,
@@ -74,4 +77,12 @@ fn main() {
             );
         }
     }
+}
+
+/// This thread's user + system CPU time in clock ticks (1/100 s), from /proc (Linux).
+fn cpu_ticks() -> u64 {
+    let s = std::fs::read_to_string("/proc/thread-self/stat").unwrap_or_default();
+    let rest = s.rsplit(')').next().unwrap_or("");
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    f.get(11).and_then(|v| v.parse::<u64>().ok()).unwrap_or(0) + f.get(12).and_then(|v| v.parse::<u64>().ok()).unwrap_or(0)
 }
