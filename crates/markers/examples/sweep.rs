@@ -24,6 +24,7 @@ fn main() {
         ("scanline", DetectParams { edge_model: false, ..base.clone() }),
         ("model all", DetectParams { green_sites: GreenSites::All, ..base.clone() }),
         ("model auto", base.clone()),
+        ("auto fl.015", DetectParams { corner_sigma_floor_px: 0.015, ..base.clone() }),
     ];
     let all = [((0.0, 0.0), 21), ((45.0, 90.0), 22), ((45.0, 200.0), 23), ((75.0, 90.0), 24), ((75.0, 330.0), 25), ((80.0, 90.0), 26)];
     let pick: Vec<usize> = std::env::args().skip(2).map(|v| v.parse().unwrap()).collect();
@@ -34,7 +35,22 @@ fn main() {
         let j = scene.gonio().ik(Direction::from_degrees(45.0, 0.0), Direction::from_degrees(view.0, view.1)).unwrap();
         let exposure = scene.exposure_for_white(0.5, 1e-4, 30.0);
         let (raw, _) = scene.capture(&j, 1.0, exposure, 1.0, seed, &opts).unwrap();
-        let img: Vec<f32> = demosaic_bilinear(&raw).data.iter().map(|p| p[1]).collect();
+        let img: Vec<f32> = if let Ok(rel) = std::env::var("SWEEP_RADIANCE") {
+            // Noise-free radiance (green), plus seeded white Gaussian noise of `rel` times its
+            // 99th percentile: a monochrome sensor without mosaic.
+            use rand::SeedableRng;
+            use rand_distr::Distribution;
+            let rel: f64 = rel.parse().unwrap();
+            let g: Vec<f32> = scene.radiance(&j, 1.0, &opts).0.data.iter().map(|p| p[1]).collect();
+            let mut v = g.clone();
+            v.sort_by(f32::total_cmp);
+            let top = f64::from(v[v.len() * 99 / 100]);
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+            let nd = rand_distr::Normal::new(0.0, rel * top).unwrap();
+            g.iter().map(|&x| x + nd.sample(&mut rng) as f32).collect()
+        } else {
+            demosaic_bilinear(&raw).data.iter().map(|p| p[1]).collect()
+        };
         let g = GrayImage::new(cam.width, cam.height, &img).unwrap();
         let pose = scene.pose(&j);
         let cs = pose.camera_to_world.inverse() * pose.sample_to_world;

@@ -108,16 +108,19 @@ pub struct DetectParams {
     /// hidden or not a clean square (pixels).
     pub max_edge_rms_px: f64,
     /// Systematic floor added (in quadrature, per axis) to each corner's standard deviation:
-    /// what the edge-fit residuals cannot see (demosaic, rendering, model error). Measured on
-    /// the simulated rig at 0-45 deg: 0.03 px (`docs/markers.md`).
+    /// what the edge-fit residuals cannot see (rendering, model error). 0.02 px: the simulated
+    /// rig's frontal error, where the rendered image's own edge quantisation dominates
+    /// (`docs/markers.md`; the scanline-only fit, `edge_model: false`, wants 0.03).
     pub corner_sigma_floor_px: f64,
     /// When set, edge points are undistorted with this camera before the line fits (lens
     /// distortion bends the edges), and the corners distorted back. Must match the image size.
     pub camera: Option<CameraModel>,
     /// Which pixels the final, model-based edge fit samples (see [`GreenSites`]).
     pub green_sites: GreenSites,
-    /// Refine each edge by fitting a blurred step to the pixel values around it (after the
-    /// scanline passes). `false` keeps the scanline (profile-area) edges only.
+    /// Refine each edge by fitting a model of the pixel values around it (a straight step seen
+    /// through the pixel footprint and a fitted blur, with dark and light levels and a shading
+    /// gradient) after the scanline passes. `false` keeps the scanline (profile-area) edges
+    /// only (the method before; 4 to 20 times worse at 75-80 degrees, `docs/markers.md`).
     pub edge_model: bool,
 }
 
@@ -151,7 +154,7 @@ impl Default for DetectParams {
             max_border_errors: 0,
             min_relative_contrast: 0.3,
             max_edge_rms_px: 0.35,
-            corner_sigma_floor_px: 0.03,
+            corner_sigma_floor_px: 0.02,
             camera: None,
             green_sites: GreenSites::Auto,
             edge_model: true,
@@ -396,10 +399,7 @@ struct EdgeFit {
     /// Centroid of the points and unit direction.
     mid: Point2<f64>,
     dir: Vector2<f64>,
-    /// Residual variance per point and the point spread along the line.
-    var: f64,
-    count: f64,
-    spread2: f64,
+    /// RMS residual of the edge points (scanline fits; 0 for model fits).
     rms: f64,
     dark: f64,
     light: f64,
@@ -543,9 +543,6 @@ fn line_fit(pts: &[Point2<f64>]) -> Option<EdgeFit> {
         c,
         mid,
         dir,
-        var,
-        count: n,
-        spread2,
         rms: (ss / n).sqrt(),
         dark: 0.0,
         light: 0.0,
@@ -603,8 +600,6 @@ fn apply_h(hm: &Matrix3<f64>, x: f64, y: f64) -> Point2<f64> {
     let p = hm * nalgebra::Vector3::new(x, y, 1.0);
     Point2::new(p.x / p.z, p.y / p.z)
 }
-
-const MODEL_PASSES: usize = 1;
 
 fn candidate(
     img: &GrayImage,
@@ -672,9 +667,8 @@ fn candidate(
         return None;
     }
     if p.edge_model {
-        // Two model passes, the second on the first's corners; if an edge fails, the scanline
-        // corners stay.
-        'passes: for _pass in 0..MODEL_PASSES {
+        // If an edge's model fit fails, the scanline corners stay.
+        'model: {
             let mut mf = Vec::with_capacity(4);
             let mut bands = [(0.0, 0.0); 4];
             for i in 0..4 {
@@ -687,12 +681,7 @@ fn candidate(
                 bands[i] = (hin, hout);
                 match fit_edge_model(img, parity, cam, [q[(i + 3) % 4], a, b, q[(i + 2) % 4]], hin, hout, None) {
                     Some(f) => mf.push(f),
-                    None => {
-                        if std::env::var("MK_DEBUG").is_ok() {
-                            eprintln!("model fit failed on edge {i} of quad {q:?}");
-                        }
-                        break 'passes;
-                    }
+                    None => break 'model,
                 }
             }
             // The blur belongs to the camera, not to an edge: where one edge's data cannot
@@ -711,7 +700,7 @@ fn candidate(
                         let corners = [q[(i + 3) % 4], a, b, q[(i + 2) % 4]];
                         match fit_edge_model(img, parity, cam, corners, hin, hout, Some(blur)) {
                             Some(f) => mf[i] = f,
-                            None => break 'passes,
+                            None => break 'model,
                         }
                     }
                 }
@@ -719,13 +708,10 @@ fn candidate(
             let mut nq = q;
             let mut ncov = cov;
             for k in 0..4 {
-                let Some((pt, c)) = intersect(&mf[(k + 3) % 4], &mf[k]) else { break 'passes };
-                let Some(im) = from_fit(cam, pt) else { break 'passes };
+                let Some((pt, c)) = intersect(&mf[(k + 3) % 4], &mf[k]) else { break 'model };
+                let Some(im) = from_fit(cam, pt) else { break 'model };
                 if (im - q[k]).norm() > 1.0 {
-                    if std::env::var("MK_DEBUG").is_ok() {
-                        eprintln!("model corner moved {:.3}", (im - q[k]).norm());
-                    }
-                    break 'passes;
+                    break 'model;
                 }
                 nq[k] = im;
                 let f2 = p.corner_sigma_floor_px * p.corner_sigma_floor_px;
@@ -935,9 +921,6 @@ fn fit_edge_model(
         }
     }
     if samples.len() < 20 {
-        if std::env::var("MK_DEBUG").is_ok() {
-            eprintln!("few samples {} len {len} margin {margin}", samples.len());
-        }
         return None;
     }
     let n = samples.len() as f64;
@@ -955,9 +938,6 @@ fn fit_edge_model(
     let d0 = level(-hin, -0.5 * hin).or_else(|| level(-hin, -0.4));
     let l0 = level(0.5 * hout, hout).or_else(|| level(0.4, hout));
     let (Some(d0), Some(l0)) = (d0, l0) else {
-        if std::env::var("MK_DEBUG").is_ok() {
-            eprintln!("no level {} {hin} {hout}", samples.len());
-        }
         return None;
     };
     let mut p = [0.0, 0.0, d0, l0, fixed_blur.unwrap_or(0.3), 0.0];
@@ -970,9 +950,6 @@ fn fit_edge_model(
             r[4] = 0.0;
         }
     };
-    if std::env::var("MK_DEBUG").is_ok() {
-        eprintln!("init {p:?}");
-    }
     if !(p[3] > p[2]) {
         return None;
     }
@@ -1039,9 +1016,6 @@ fn fit_edge_model(
         }
     }
     if !(p[3] > p[2]) {
-        if std::env::var("MK_DEBUG").is_ok() {
-            eprintln!("levels {p:?}");
-        }
         return None;
     }
     // At its lower bound the blur is not a free parameter: leave it out of the covariance
@@ -1052,19 +1026,9 @@ fn fit_edge_model(
         jtj[(4, 4)] = 1.0;
     }
     let Some(inv) = jtj.try_inverse() else {
-        if std::env::var("MK_DEBUG").is_ok() {
-            eprintln!("singular {p:?}");
-        }
         return None;
     };
     let cov = inv * (cur / (n - 6.0));
-    if std::env::var("MK_DEBUG").is_ok() {
-        eprintln!(
-            "sdb {:.4} rms {:.4} edge len {len:.1} hin {hin:.2} hout {hout:.2} n {n} parity {parity:?} e0 {:.3} e1 {:.4} D {:.4} L {:.4} b {:.3} sd0 {:.4}",
-            cov[(4, 4)].sqrt(),
-            (cur / n).sqrt() / (p[3] - p[2]), p[0], p[1], p[2], p[3], p[4], cov[(0, 0)].sqrt()
-        );
-    }
     let ldir = (dir + nrm * p[1]).normalize();
     let mid = af + dir * tm + nrm * p[0];
     let ln = Vector2::new(ldir.y, -ldir.x);
@@ -1074,9 +1038,6 @@ fn fit_edge_model(
         c: ln.dot(&mid.coords),
         mid,
         dir: ldir,
-        var: 0.0,
-        count: n,
-        spread2: 0.0,
         rms: 0.0,
         dark: p[2],
         light: p[3],
