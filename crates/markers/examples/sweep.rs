@@ -26,7 +26,14 @@ fn main() {
         ("model auto", base.clone()),
         ("auto fl.015", DetectParams { corner_sigma_floor_px: 0.015, ..base.clone() }),
     ];
-    let all = [((0.0, 0.0), 21), ((45.0, 90.0), 22), ((45.0, 200.0), 23), ((75.0, 90.0), 24), ((75.0, 330.0), 25), ((80.0, 90.0), 26)];
+    let all = [
+        ((0.0, 0.0), 21),
+        ((45.0, 90.0), 22),
+        ((45.0, 200.0), 23),
+        ((75.0, 90.0), 24),
+        ((75.0, 330.0), 25),
+        ((80.0, 90.0), 26),
+    ];
     let pick: Vec<usize> = std::env::args().skip(2).map(|v| v.parse().unwrap()).collect();
     for (i, &(view, seed)) in all.iter().enumerate() {
         if !pick.is_empty() && !pick.contains(&i) {
@@ -74,7 +81,10 @@ fn main() {
                     let t = cam.project(&(cs * Point3::new(c.x, c.y, 0.0))).unwrap();
                     let e = (d.corners[k] - t).norm();
                     if e > 0.25 && std::env::var("SWEEP_DEBUG").is_ok() {
-                        println!("  {name} id {} corner {k} err {:.3} sigma {:.3} flags {}", d.id, e, d.corner_sigma_px[k], d.quality.flags);
+                        println!(
+                            "  {name} id {} corner {k} err {:.3} sigma {:.3} flags {}",
+                            d.id, e, d.corner_sigma_px[k], d.quality.flags
+                        );
                     }
                     sum += e;
                     max = max.max(e);
@@ -100,5 +110,6 @@ fn cpu_ticks() -> u64 {
     let s = std::fs::read_to_string("/proc/thread-self/stat").unwrap_or_default();
     let rest = s.rsplit(')').next().unwrap_or("");
     let f: Vec<&str> = rest.split_whitespace().collect();
-    f.get(11).and_then(|v| v.parse::<u64>().ok()).unwrap_or(0) + f.get(12).and_then(|v| v.parse::<u64>().ok()).unwrap_or(0)
+    f.get(11).and_then(|v| v.parse::<u64>().ok()).unwrap_or(0)
+        + f.get(12).and_then(|v| v.parse::<u64>().ok()).unwrap_or(0)
 }
