@@ -20,12 +20,15 @@ fn main() {
     let cam = scene.camera().model().clone();
     let dict = Dictionary::dict_4x4_50();
     let base = DetectParams { camera: Some(cam.clone()), ..DetectParams::default() };
-    let variants: Vec<(&str, DetectParams)> = vec![
+    let mut variants: Vec<(&str, DetectParams)> = vec![
         ("scanline", DetectParams { edge_model: false, ..base.clone() }),
         ("model all", DetectParams { green_sites: GreenSites::All, ..base.clone() }),
         ("model auto", base.clone()),
         ("auto fl.015", DetectParams { corner_sigma_floor_px: 0.015, ..base.clone() }),
     ];
+    if std::env::var("SWEEP_BONN").is_ok() {
+        variants.retain(|v| v.0 == "scanline" || v.0 == "model auto");
+    }
     let all = [
         ((0.0, 0.0), 21),
         ((45.0, 90.0), 22),
@@ -35,11 +38,26 @@ fn main() {
         ((80.0, 90.0), 26),
     ];
     let pick: Vec<usize> = std::env::args().skip(2).map(|v| v.parse().unwrap()).collect();
-    for (i, &(view, seed)) in all.iter().enumerate() {
+    // SWEEP_BONN: all 81 Bonn view directions instead (seed 100 + index).
+    let views: Vec<((f64, f64), u64)> = if std::env::var("SWEEP_BONN").is_ok() {
+        btfrig_core::sampling::Sampling::bonn81()
+            .directions()
+            .iter()
+            .enumerate()
+            .map(|(i, d)| ((d.theta.to_degrees(), d.phi.to_degrees()), 100 + i as u64))
+            .collect()
+    } else {
+        all.to_vec()
+    };
+    for (i, &(view, seed)) in views.iter().enumerate() {
         if !pick.is_empty() && !pick.contains(&i) {
             continue;
         }
-        let j = scene.gonio().ik(Direction::from_degrees(45.0, 0.0), Direction::from_degrees(view.0, view.1)).unwrap();
+        let Ok(j) = scene.gonio().ik(Direction::from_degrees(45.0, 0.0), Direction::from_degrees(view.0, view.1))
+        else {
+            println!("view {view:?}: not reachable");
+            continue;
+        };
         let exposure = scene.exposure_for_white(0.5, 1e-4, 30.0);
         let (raw, _) = scene.capture(&j, 1.0, exposure, 1.0, seed, &opts).unwrap();
         let img: Vec<f32> = if let Ok(rel) = std::env::var("SWEEP_RADIANCE") {
@@ -93,8 +111,18 @@ fn main() {
                     rsum += e / d.corner_sigma_px[k];
                 }
             }
+            let visible = markers
+                .iter()
+                .filter(|m| {
+                    m.corners_sample_m.iter().all(|c| {
+                        cam.project(&(cs * Point3::new(c.x, c.y, 0.0))).is_some_and(|t| {
+                            t.x > 3.0 && t.y > 3.0 && t.x < cam.width as f64 - 4.0 && t.y < cam.height as f64 - 4.0
+                        })
+                    })
+                })
+                .count();
             println!(
-                "view {view:?} {name:>10}: {} markers, mean {:.4} max {:.4} px, sigma {:.4}, err/sigma {:.2}, {ms:.1} ms (cpu {cpu_ms:.0} ms)",
+                "view {view:?} {name:>10}: {}/{visible} markers, mean {:.4} max {:.4} px, sigma {:.4}, err/sigma {:.2}, {ms:.1} ms (cpu {cpu_ms:.0} ms)",
                 dets.len(),
                 sum / n,
                 max,
