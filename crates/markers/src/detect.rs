@@ -319,6 +319,63 @@ pub fn detect(image: &GrayImage, dict: &Dictionary, params: &DetectParams) -> Re
     Ok(out)
 }
 
+/// Finds the markers in a raw frame: the edges are fitted on its green photosites (on every
+/// photosite of a frame without mosaic), the rest runs on the green channel interpolated as
+/// a bilinear demosaic does (the mean of the 3 x 3 neighbourhood's green sites), values
+/// `(dn - black) / (white - black)`. Same results as [`detect`] on the green channel of
+/// `btfrig_render`'s bilinear demosaic with `green_sites` set by the pattern; it does not
+/// rely on recognising the demosaic. `params.green_sites` is ignored.
+pub fn detect_raw(
+    raw: &btfrig_core::frame::RawFrame,
+    dict: &Dictionary,
+    params: &DetectParams,
+) -> Result<Vec<Detection>, DetectError> {
+    let (w, h) = (raw.width, raw.height);
+    if w == 0 || h == 0 || raw.data.len() != w * h {
+        return Err(DetectError::BadImage { width: w, height: h, len: raw.data.len() });
+    }
+    let black = f32::from(raw.meta.black_level);
+    let range = (f32::from(raw.meta.white_level) - black).max(1.0);
+    let norm = |v: u16| (f32::from(v) - black) / range;
+    let mut p = params.clone();
+    let green: Vec<f32> = match raw.meta.bayer {
+        None => {
+            p.green_sites = GreenSites::All;
+            raw.data.iter().map(|&v| norm(v)).collect()
+        }
+        Some(bayer) => {
+            let is_green = |x: usize, y: usize| bayer.channel_at(x, y) == 1;
+            // Green sites have x + y of one parity in every Bayer layout.
+            p.green_sites = if is_green(0, 0) { GreenSites::Even } else { GreenSites::Odd };
+            let mut g = vec![0.0f32; w * h];
+            for y in 0..h {
+                for x in 0..w {
+                    g[y * w + x] = if is_green(x, y) {
+                        norm(raw.data[y * w + x])
+                    } else {
+                        let (mut sum, mut n) = (0.0f32, 0u32);
+                        for yy in y.saturating_sub(1)..=(y + 1).min(h - 1) {
+                            for xx in x.saturating_sub(1)..=(x + 1).min(w - 1) {
+                                if is_green(xx, yy) {
+                                    sum += norm(raw.data[yy * w + xx]);
+                                    n += 1;
+                                }
+                            }
+                        }
+                        if n > 0 {
+                            sum / n as f32
+                        } else {
+                            0.0
+                        }
+                    };
+                }
+            }
+            g
+        }
+    };
+    detect(&GrayImage::new(w, h, &green)?, dict, &p)
+}
+
 fn score(d: &Detection) -> f64 {
     d.hamming as f64 + d.quality.edge_rms_px.iter().sum::<f64>()
 }

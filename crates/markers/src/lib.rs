@@ -23,5 +23,5 @@
 pub mod detect;
 pub mod dictionary;
 
-pub use detect::{detect, DetectError, DetectParams, Detection, GrayImage, GreenSites, Quality};
+pub use detect::{detect, detect_raw, DetectError, DetectParams, Detection, GrayImage, GreenSites, Quality};
 pub use dictionary::{Dictionary, DictionaryError};

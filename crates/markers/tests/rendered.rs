@@ -6,11 +6,11 @@ use std::time::Instant;
 
 use btfrig_core::camera::CameraModel;
 use btfrig_core::config::RigConfig;
-use btfrig_core::frame::BayerPattern;
+use btfrig_core::frame::{BayerPattern, RawFrame};
 use btfrig_core::kinematics::JointState;
 use btfrig_core::plan::BUILTIN_RIGS;
 use btfrig_core::Direction;
-use btfrig_markers::{detect, DetectParams, Detection, Dictionary, GrayImage, GreenSites};
+use btfrig_markers::{detect, detect_raw, DetectParams, Detection, Dictionary, GrayImage, GreenSites};
 use btfrig_render::demosaic::demosaic_bilinear;
 use btfrig_render::material::MaterialSpec;
 use btfrig_render::renderer::RenderOptions;
@@ -50,12 +50,12 @@ impl Setup {
         self.shoot_with_pattern(joints, seed).0
     }
 
-    /// As `shoot`, with the sensor's Bayer pattern.
-    fn shoot_with_pattern(&self, joints: &JointState, seed: u64) -> (Vec<f32>, BayerPattern) {
+    /// As `shoot`, with the sensor's Bayer pattern and the raw frame.
+    fn shoot_with_pattern(&self, joints: &JointState, seed: u64) -> (Vec<f32>, BayerPattern, RawFrame) {
         let exposure = self.scene.exposure_for_white(0.5, 1e-4, 30.0);
         let (raw, _) = self.scene.capture(joints, 1.0, exposure, 1.0, seed, &self.opts).unwrap();
         let bayer = raw.meta.bayer.expect("the simulated sensor has a Bayer mosaic");
-        (demosaic_bilinear(&raw).data.iter().map(|p| p[1]).collect(), bayer)
+        (demosaic_bilinear(&raw).data.iter().map(|p| p[1]).collect(), bayer, raw)
     }
 
     /// True corners (OpenCV order) of every marker, projected with distortion.
@@ -143,7 +143,7 @@ fn rendered_views_frontal_45_75_all_markers_at_the_true_corners() {
         ((80.0, 90.0), 26, 0.03, 0.12, 0.35, 0.75),
     ] {
         let joints = s.joints(LIGHT, view);
-        let (img, bayer) = s.shoot_with_pattern(&joints, seed);
+        let (img, bayer, raw) = s.shoot_with_pattern(&joints, seed);
         let g = GrayImage::new(cam.width, cam.height, &img).unwrap();
         let truth = s.truth(&joints);
         let t0 = Instant::now();
@@ -177,6 +177,15 @@ fn rendered_views_frontal_45_75_all_markers_at_the_true_corners() {
         };
         let known = detect(&g, &dict, &DetectParams { green_sites: genuine, ..with_cam.clone() }).unwrap();
         assert_eq!(known, dets, "view {view:?}: auto-detected green sites differ from the sensor's {bayer:?}");
+        // The raw entry point fits the same photosites (its green channel may differ from
+        // the demosaic's in the last bit: f32 sums in another order).
+        let from_raw = detect_raw(&raw, &dict, &with_cam).unwrap();
+        assert_eq!(ids(&from_raw), ids(&dets));
+        for (r, d) in from_raw.iter().zip(&dets) {
+            for k in 0..4 {
+                assert!((r.corners[k] - d.corners[k]).norm() < 1e-3, "view {view:?}: raw entry point differs");
+            }
+        }
     }
 }
 
