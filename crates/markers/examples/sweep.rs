@@ -46,6 +46,10 @@ fn main() {
             .enumerate()
             .map(|(i, d)| ((d.theta.to_degrees(), d.phi.to_degrees()), 100 + i as u64))
             .collect()
+    } else if let Ok(v) = std::env::var("SWEEP_VIEW") {
+        // One view "theta,phi" (seed 7).
+        let t: Vec<f64> = v.split(',').map(|x| x.parse().unwrap()).collect();
+        vec![((t[0], t[1]), 7)]
     } else {
         all.to_vec()
     };
@@ -98,7 +102,7 @@ fn main() {
                     let c = m.corners_sample_m[k];
                     let t = cam.project(&(cs * Point3::new(c.x, c.y, 0.0))).unwrap();
                     let e = (d.corners[k] - t).norm();
-                    if e > 0.25 && std::env::var("SWEEP_DEBUG").is_ok() {
+                    if std::env::var("SWEEP_DEBUG").is_ok_and(|v| e > v.parse::<f64>().unwrap_or(0.25)) {
                         println!(
                             "  {name} id {} corner {k} err {:.3} sigma {:.3} flags {}",
                             d.id, e, d.corner_sigma_px[k], d.quality.flags
