@@ -964,10 +964,8 @@ fn fit_edge_model(
             }
             // Near an acute corner the inner band crosses the adjacent edge: those samples
             // are light, not the border's dark.
-            if inside(prev, a, px) < 1.0 || inside(b, next, px) < 1.0 {
-                if nrm_img.dot(&(px - a)) < 0.0 {
-                    continue;
-                }
+            if (inside(prev, a, px) < 1.0 || inside(b, next, px) < 1.0) && nrm_img.dot(&(px - a)) < 0.0 {
+                continue;
             }
             let pf = to_fit(cam, px)?;
             let d = pf - af;
@@ -1082,9 +1080,7 @@ fn fit_edge_model(
         jtj.column_mut(4).fill(0.0);
         jtj[(4, 4)] = 1.0;
     }
-    let Some(inv) = jtj.try_inverse() else {
-        return None;
-    };
+    let inv = jtj.try_inverse()?;
     let cov = inv * (cur / (n - 6.0));
     let ldir = (dir + nrm * p[1]).normalize();
     let mid = af + dir * tm + nrm * p[0];
