@@ -108,12 +108,38 @@ pub struct DetectParams {
     /// hidden or not a clean square (pixels).
     pub max_edge_rms_px: f64,
     /// Systematic floor added (in quadrature, per axis) to each corner's standard deviation:
-    /// what the edge-fit residuals cannot see (demosaic, rendering, model error). Measured on
-    /// the simulated rig at 0-45 deg: 0.03 px (`docs/markers.md`).
+    /// what the edge-fit residuals cannot see (rendering, model error). 0.02 px: the simulated
+    /// rig's frontal error, where the rendered image's own edge quantisation dominates
+    /// (`docs/markers.md`; the scanline-only fit, `edge_model: false`, wants 0.03).
     pub corner_sigma_floor_px: f64,
     /// When set, edge points are undistorted with this camera before the line fits (lens
     /// distortion bends the edges), and the corners distorted back. Must match the image size.
     pub camera: Option<CameraModel>,
+    /// Which pixels the final, model-based edge fit samples (see [`GreenSites`]).
+    pub green_sites: GreenSites,
+    /// Refine each edge by fitting a model of the pixel values around it (a straight step seen
+    /// through the pixel footprint and a fitted blur, with dark and light levels and a shading
+    /// gradient) after the scanline passes. `false` keeps the scanline (profile-area) edges
+    /// only (the method before; 4 to 20 times worse at 75-80 degrees, `docs/markers.md`).
+    pub edge_model: bool,
+}
+
+/// Which pixels of the grey image are genuine samples for the model-based edge fit. In the
+/// green channel of a bilinear demosaic, half the pixels are the mosaic's green photosites
+/// and the other half means of their four neighbours; the interpolated half adds a ripple
+/// along edges that does not average out on short (foreshortened) edges.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum GreenSites {
+    /// Every pixel.
+    All,
+    /// Pixels with `x + y` even only (green photosites of a GRBG or GBRG mosaic).
+    Even,
+    /// Pixels with `x + y` odd only (green photosites of an RGGB or BGGR mosaic).
+    Odd,
+    /// Recognise a bilinear-demosaiced green channel (every pixel of one parity equal to the
+    /// mean of its four neighbours) and use the other parity; otherwise every pixel.
+    #[default]
+    Auto,
 }
 
 impl Default for DetectParams {
@@ -128,8 +154,10 @@ impl Default for DetectParams {
             max_border_errors: 0,
             min_relative_contrast: 0.3,
             max_edge_rms_px: 0.35,
-            corner_sigma_floor_px: 0.03,
+            corner_sigma_floor_px: 0.02,
             camera: None,
+            green_sites: GreenSites::Auto,
+            edge_model: true,
         }
     }
 }
@@ -226,6 +254,12 @@ pub struct Detection {
 pub fn detect(image: &GrayImage, dict: &Dictionary, params: &DetectParams) -> Result<Vec<Detection>, DetectError> {
     params.validate(image)?;
     let dark = threshold(image, params);
+    let parity = match params.green_sites {
+        GreenSites::All => None,
+        GreenSites::Even => Some(0),
+        GreenSites::Odd => Some(1),
+        GreenSites::Auto => demosaic_green_parity(image),
+    };
     let (w, h) = (image.width, image.height);
     let max_side = params.max_side_frac * w.min(h) as f64;
     let mut seen = vec![false; w * h];
@@ -270,7 +304,7 @@ pub fn detect(image: &GrayImage, dict: &Dictionary, params: &DetectParams) -> Re
         if x0 < m || y0 < m || x1 + m >= w || y1 + m >= h {
             continue;
         }
-        if let Some(d) = candidate(image, dict, params, &pixels) {
+        if let Some(d) = candidate(image, dict, params, parity, &pixels) {
             match out.iter_mut().find(|o| o.id == d.id) {
                 Some(o) => {
                     if score(&d) < score(o) {
@@ -283,6 +317,63 @@ pub fn detect(image: &GrayImage, dict: &Dictionary, params: &DetectParams) -> Re
     }
     out.sort_by_key(|d| d.id);
     Ok(out)
+}
+
+/// Finds the markers in a raw frame: the edges are fitted on its green photosites (on every
+/// photosite of a frame without mosaic), the rest runs on the green channel interpolated as
+/// a bilinear demosaic does (the mean of the 3 x 3 neighbourhood's green sites), values
+/// `(dn - black) / (white - black)`. Same results as [`detect`] on the green channel of
+/// `btfrig_render`'s bilinear demosaic with `green_sites` set by the pattern; it does not
+/// rely on recognising the demosaic. `params.green_sites` is ignored.
+pub fn detect_raw(
+    raw: &btfrig_core::frame::RawFrame,
+    dict: &Dictionary,
+    params: &DetectParams,
+) -> Result<Vec<Detection>, DetectError> {
+    let (w, h) = (raw.width, raw.height);
+    if w == 0 || h == 0 || raw.data.len() != w * h {
+        return Err(DetectError::BadImage { width: w, height: h, len: raw.data.len() });
+    }
+    let black = f32::from(raw.meta.black_level);
+    let range = (f32::from(raw.meta.white_level) - black).max(1.0);
+    let norm = |v: u16| (f32::from(v) - black) / range;
+    let mut p = params.clone();
+    let green: Vec<f32> = match raw.meta.bayer {
+        None => {
+            p.green_sites = GreenSites::All;
+            raw.data.iter().map(|&v| norm(v)).collect()
+        }
+        Some(bayer) => {
+            let is_green = |x: usize, y: usize| bayer.channel_at(x, y) == 1;
+            // Green sites have x + y of one parity in every Bayer layout.
+            p.green_sites = if is_green(0, 0) { GreenSites::Even } else { GreenSites::Odd };
+            let mut g = vec![0.0f32; w * h];
+            for y in 0..h {
+                for x in 0..w {
+                    g[y * w + x] = if is_green(x, y) {
+                        norm(raw.data[y * w + x])
+                    } else {
+                        let (mut sum, mut n) = (0.0f32, 0u32);
+                        for yy in y.saturating_sub(1)..=(y + 1).min(h - 1) {
+                            for xx in x.saturating_sub(1)..=(x + 1).min(w - 1) {
+                                if is_green(xx, yy) {
+                                    sum += norm(raw.data[yy * w + xx]);
+                                    n += 1;
+                                }
+                            }
+                        }
+                        if n > 0 {
+                            sum / n as f32
+                        } else {
+                            0.0
+                        }
+                    };
+                }
+            }
+            g
+        }
+    };
+    detect(&GrayImage::new(w, h, &green)?, dict, &p)
 }
 
 fn score(d: &Detection) -> f64 {
@@ -365,13 +456,16 @@ struct EdgeFit {
     /// Centroid of the points and unit direction.
     mid: Point2<f64>,
     dir: Vector2<f64>,
-    /// Residual variance per point and the point spread along the line.
-    var: f64,
-    count: f64,
-    spread2: f64,
+    /// RMS residual of the edge points (scanline fits; 0 for model fits).
     rms: f64,
     dark: f64,
     light: f64,
+    /// Variance of the line's offset at `mid` and of its slope (px^2, rad^2).
+    off_var: f64,
+    slope_var: f64,
+    /// Model fits only: the fitted blur width and its variance (infinite when it was fixed).
+    blur: f64,
+    blur_var: f64,
 }
 
 fn to_fit(cam: Option<&CameraModel>, p: Point2<f64>) -> Option<Point2<f64>> {
@@ -501,7 +595,19 @@ fn line_fit(pts: &[Point2<f64>]) -> Option<EdgeFit> {
     let ss: f64 = pts.iter().map(|p| (nv.dot(&p.coords) - c).powi(2)).sum();
     let spread2: f64 = pts.iter().map(|p| dir.dot(&(p - mid)).powi(2)).sum();
     let var = ss / (n - 2.0);
-    Some(EdgeFit { n: nv, c, mid, dir, var, count: n, spread2, rms: (ss / n).sqrt(), dark: 0.0, light: 0.0 })
+    Some(EdgeFit {
+        n: nv,
+        c,
+        mid,
+        dir,
+        rms: (ss / n).sqrt(),
+        dark: 0.0,
+        light: 0.0,
+        off_var: var / n,
+        slope_var: var / spread2.max(1e-9),
+        blur: 0.0,
+        blur_var: f64::INFINITY,
+    })
 }
 
 /// Intersection of two fitted lines and its covariance (in the fitting frame).
@@ -513,7 +619,7 @@ fn intersect(l1: &EdgeFit, l2: &EdgeFit) -> Option<(Point2<f64>, [[f64; 2]; 2])>
     // Variance of each line's offset at the corner, from its fit (1/N + t^2 / sum t_i^2).
     let off_var = |l: &EdgeFit| {
         let t = l.dir.dot(&(p - l.mid));
-        l.var * (1.0 / l.count + t * t / l.spread2.max(1e-9))
+        l.off_var + t * t * l.slope_var
     };
     let (v1, v2) = (off_var(l1), off_var(l2));
     // dp = inv * (dc1, dc2).
@@ -552,7 +658,13 @@ fn apply_h(hm: &Matrix3<f64>, x: f64, y: f64) -> Point2<f64> {
     Point2::new(p.x / p.z, p.y / p.z)
 }
 
-fn candidate(img: &GrayImage, dict: &Dictionary, p: &DetectParams, pixels: &[(u32, u32)]) -> Option<Detection> {
+fn candidate(
+    img: &GrayImage,
+    dict: &Dictionary,
+    p: &DetectParams,
+    parity: Option<usize>,
+    pixels: &[(u32, u32)],
+) -> Option<Detection> {
     let mut q = initial_quad(pixels)?;
     let sides: Vec<f64> = (0..4).map(|i| (q[(i + 1) % 4] - q[i]).norm()).collect();
     let (smin, smax) = sides.iter().fold((f64::MAX, 0.0f64), |a, &s| (a.0.min(s), a.1.max(s)));
@@ -586,8 +698,7 @@ fn candidate(img: &GrayImage, dict: &Dictionary, p: &DetectParams, pixels: &[(u3
         fits.clear();
         for i in 0..4 {
             let (a, b) = (q[i], q[(i + 1) % 4]);
-            // Module size across this edge: the adjacent sides over the module count.
-            let across = 0.5 * ((q[(i + 2) % 4] - b).norm() + (q[(i + 3) % 4] - a).norm()) / modules;
+            let across = module_across(&q, i, modules);
             // Symmetric window of half a module (at most 3 px): the outer quarters give the
             // levels. (An asymmetric window reaching farther into the quiet zone measured worse.)
             let ad = (0.5 * across).clamp(1.0, 3.0);
@@ -611,6 +722,61 @@ fn candidate(img: &GrayImage, dict: &Dictionary, p: &DetectParams, pixels: &[(u3
     let edge_rms = [fits[0].rms, fits[1].rms, fits[2].rms, fits[3].rms];
     if edge_rms.iter().any(|&r| r > p.max_edge_rms_px) {
         return None;
+    }
+    if p.edge_model {
+        // If an edge's model fit fails, the scanline corners stay.
+        'model: {
+            let mut mf = Vec::with_capacity(4);
+            let mut bands = [(0.0, 0.0); 4];
+            for i in 0..4 {
+                let (a, b) = (q[i], q[(i + 1) % 4]);
+                let across = module_across(&q, i, modules);
+                // Inside, the border is one module wide (a white data module may follow);
+                // outside, the quiet zone is wider.
+                let hin = (0.55 * across).clamp(1.0, 4.0);
+                let hout = across.clamp(1.5, 4.0);
+                bands[i] = (hin, hout);
+                match fit_edge_model(img, parity, cam, [q[(i + 3) % 4], a, b, q[(i + 2) % 4]], hin, hout, None) {
+                    Some(f) => mf.push(f),
+                    None => break 'model,
+                }
+            }
+            // The blur belongs to the camera, not to an edge: where one edge's data cannot
+            // tell it from a shift (a sharp edge along a pixel row, few samples on its
+            // slope), refit that edge with the marker's blur (the inverse-variance mean).
+            let (sw, swb) = mf
+                .iter()
+                .filter(|f| f.blur_var.is_finite() && f.blur_var > 0.0)
+                .fold((0.0, 0.0), |acc, f| (acc.0 + 1.0 / f.blur_var, acc.1 + f.blur / f.blur_var));
+            if sw > 0.0 {
+                let blur = (swb / sw).max(B_MIN);
+                for i in 0..4 {
+                    if mf[i].blur_var.sqrt() > 0.3 || mf[i].off_var.sqrt() > 0.05 {
+                        let (a, b) = (q[i], q[(i + 1) % 4]);
+                        let (hin, hout) = bands[i];
+                        let corners = [q[(i + 3) % 4], a, b, q[(i + 2) % 4]];
+                        match fit_edge_model(img, parity, cam, corners, hin, hout, Some(blur)) {
+                            Some(f) => mf[i] = f,
+                            None => break 'model,
+                        }
+                    }
+                }
+            }
+            let mut nq = q;
+            let mut ncov = cov;
+            for k in 0..4 {
+                let Some((pt, c)) = intersect(&mf[(k + 3) % 4], &mf[k]) else { break 'model };
+                let Some(im) = from_fit(cam, pt) else { break 'model };
+                if (im - q[k]).norm() > 1.0 {
+                    break 'model;
+                }
+                nq[k] = im;
+                let f2 = p.corner_sigma_floor_px * p.corner_sigma_floor_px;
+                ncov[k] = [[c[0][0] + f2, c[0][1]], [c[1][0], c[1][1] + f2]];
+            }
+            q = nq;
+            cov = ncov;
+        }
     }
     let dark = fits.iter().map(|f| f.dark).sum::<f64>() / 4.0;
     let light = fits.iter().map(|f| f.light).sum::<f64>() / 4.0;
@@ -686,4 +852,383 @@ fn candidate(img: &GrayImage, dict: &Dictionary, p: &DetectParams, pixels: &[(u3
         hamming: ham,
         quality: Quality { edge_rms_px: std::array::from_fn(|j| edge_rms[idx(j)]), contrast, module_px, flags },
     })
+}
+
+/// The parity (`(x + y) % 2`) of the genuine samples, if `img` is the green channel of a
+/// bilinear demosaic: then every pixel of the other parity is the mean of its four
+/// neighbours (to float rounding), which the genuine photosites (noisy) are not. Flat
+/// places (all four neighbours equal) do not count.
+fn demosaic_green_parity(img: &GrayImage) -> Option<usize> {
+    let (w, h) = (img.width, img.height);
+    if w < 8 || h < 8 {
+        return None;
+    }
+    let (mut tested, mut hold) = ([0usize; 2], [0usize; 2]);
+    // Every eighth row is plenty (about 240 000 pixels tested on a 1600 x 1200 frame).
+    for y in (1..h - 1).step_by(8) {
+        for x in 1..w - 1 {
+            let nb = [img.at(x - 1, y), img.at(x + 1, y), img.at(x, y - 1), img.at(x, y + 1)];
+            let (lo, hi) = nb.iter().fold((f32::MAX, f32::MIN), |a, &v| (a.0.min(v), a.1.max(v)));
+            let scale = hi.abs().max(lo.abs());
+            if !(hi - lo > 1e-4 * scale) {
+                continue;
+            }
+            let mean = (f64::from(nb[0]) + f64::from(nb[1]) + f64::from(nb[2]) + f64::from(nb[3])) / 4.0;
+            let par = (x + y) % 2;
+            tested[par] += 1;
+            if (f64::from(img.at(x, y)) - mean).abs() <= 1e-5 * f64::from(scale) {
+                hold[par] += 1;
+            }
+        }
+    }
+    for par in 0..2 {
+        let other = 1 - par;
+        if tested[par] >= 1000 && hold[par] * 100 >= tested[par] * 99 && hold[other] * 2 <= tested[other] {
+            return Some(other);
+        }
+    }
+    None
+}
+
+/// Model-based refinement of edge `a -> b` (as in [`fit_edge`]: marker dark on the
+/// right-hand side, outward normal `(dy, -dx)`): every sample pixel (of parity `parity`
+/// when given) within `h` of the line and more than `margin` from its ends is fitted by a
+/// blurred step `D + (L - D) (1 + tanh((s - e0 - e1 u) / w)) / 2` across the line (`s` the
+/// signed distance, `u` the position along it from the samples' mean), by Gauss-Newton over
+/// `(e0, e1, D, L, w)`. Any symmetric blur (pixel area, demosaic, optics) leaves the fitted
+/// centre unbiased; using every pixel in the band, not scanlines, keeps the short
+/// foreshortened edges' samples up to the corners.
+/// Module size across edge `i` of quad `q` (corner `i` to `i + 1`): the distance of the two
+/// other corners from the edge's line over the module count. (Not the adjacent sides'
+/// length: a sheared, foreshortened quad is much thinner across an edge than its sides.)
+fn module_across(q: &[Point2<f64>; 4], i: usize, modules: f64) -> f64 {
+    let (a, b) = (q[i], q[(i + 1) % 4]);
+    let d = (b - a).normalize();
+    let dist = |p: Point2<f64>| cross(d, p - a).abs();
+    0.5 * (dist(q[(i + 2) % 4]) + dist(q[(i + 3) % 4])) / modules
+}
+
+/// Smallest blur of the edge model (pixels): below it an axis-parallel edge on a pixel
+/// boundary leaves no sample on the model's slope (singular fit).
+const B_MIN: f64 = 0.1;
+
+/// Gauss-Newton iterations of the edge model at most (it starts from the scanline edge and
+/// usually converges in 3 to 6).
+const MODEL_ITERATIONS: usize = 12;
+
+fn fit_edge_model(
+    img: &GrayImage,
+    parity: Option<usize>,
+    cam: Option<&CameraModel>,
+    corners: [Point2<f64>; 4],
+    hin: f64,
+    hout: f64,
+    fixed_blur: Option<f64>,
+) -> Option<EdgeFit> {
+    // corners: the previous corner, this edge's two, the next one (clockwise on screen).
+    let [prev, a, b, next] = corners;
+    // Signed distance inside the adjacent edge `u -> v` (outward normal `(dy, -dx)`).
+    let inside = |u: Point2<f64>, v: Point2<f64>, p: Point2<f64>| {
+        let d = (v - u).normalize();
+        -(Vector2::new(d.y, -d.x).dot(&(p - u)))
+    };
+    let h = hin.max(hout);
+    let (af, bf) = (to_fit(cam, a)?, to_fit(cam, b)?);
+    let len = (bf - af).norm();
+    let dir = (bf - af) / len;
+    let nrm = Vector2::new(dir.y, -dir.x);
+    let margin = 1.5f64.min(0.2 * len);
+    let len_img = (b - a).norm();
+    let dir_img = (b - a) / len_img;
+    let nrm_img = Vector2::new(dir_img.y, -dir_img.x);
+    // Samples (u along, s across, value), from the pixels in the band's bounding box.
+    let pad = h + 1.0;
+    let (xa, xb) = (a.x.min(b.x) - pad, a.x.max(b.x) + pad);
+    let (ya, yb) = (a.y.min(b.y) - pad, a.y.max(b.y) + pad);
+    let x0 = xa.floor().max(0.0) as usize;
+    let x1 = (xb.ceil().max(0.0) as usize).min(img.width - 1);
+    let y0 = ya.floor().max(0.0) as usize;
+    let y1 = (yb.ceil().max(0.0) as usize).min(img.height - 1);
+    let mut samples: Vec<(f64, f64, f64)> = Vec::new();
+    for y in y0..=y1 {
+        for x in x0..=x1 {
+            if parity.is_some_and(|p| (x + y) % 2 != p) {
+                continue;
+            }
+            let px = Point2::new(x as f64, y as f64);
+            // Cheap test in image coordinates first (distortion moves a point by far less
+            // than a pixel within an edge's length).
+            let (ti, si) = (dir_img.dot(&(px - a)), nrm_img.dot(&(px - a)));
+            if si < -hin - 1.0 || si > hout + 1.0 || ti < margin - 1.0 || ti > len_img - margin + 1.0 {
+                continue;
+            }
+            // Near an acute corner the inner band crosses the adjacent edge: those samples
+            // are light, not the border's dark.
+            if (inside(prev, a, px) < 1.0 || inside(b, next, px) < 1.0) && nrm_img.dot(&(px - a)) < 0.0 {
+                continue;
+            }
+            let pf = to_fit(cam, px)?;
+            let d = pf - af;
+            let (t, s) = (dir.dot(&d), nrm.dot(&d));
+            if t >= margin && t <= len - margin && s >= -hin && s <= hout {
+                samples.push((t, s, f64::from(img.at(x, y))));
+            }
+        }
+    }
+    if samples.len() < 20 {
+        return None;
+    }
+    let n = samples.len() as f64;
+    let tm = samples.iter().map(|q| q.0).sum::<f64>() / n;
+    let level = |lo: f64, hi: f64| {
+        let (sum, cnt) =
+            samples.iter().filter(|q| q.1 >= lo && q.1 <= hi).fold((0.0, 0.0), |acc, q| (acc.0 + q.2, acc.1 + 1.0));
+        (cnt > 0.0).then(|| sum / cnt)
+    };
+    // The pixel footprint (a unit square) projected on the line's normal: two uniform
+    // widths; the fitted blur `b` is a third.
+    let (wa, wb) = (nrm.x.abs().max(0.02), nrm.y.abs().max(0.02));
+    // Starting levels: the outer halves of the band (on a narrow band along a pixel row
+    // the outer half may hold no sample row: then beyond 0.4 px).
+    let d0 = level(-hin, -0.5 * hin).or_else(|| level(-hin, -0.4));
+    let l0 = level(0.5 * hout, hout).or_else(|| level(0.4, hout));
+    let (Some(d0), Some(l0)) = (d0, l0) else {
+        return None;
+    };
+    let mut p = [0.0, 0.0, d0, l0, fixed_blur.unwrap_or(0.3), 0.0];
+    // The blur is left out of a step (and of the covariance) when fixed or at its bound.
+    let pin_blur = |p: &[f64; 6], m: &mut SMatrix<f64, 6, 6>, r: &mut SVector<f64, 6>| {
+        if fixed_blur.is_some() || p[4] <= B_MIN * 1.001 && r[4] < 0.0 {
+            m.row_mut(4).fill(0.0);
+            m.column_mut(4).fill(0.0);
+            m[(4, 4)] = 1.0;
+            r[4] = 0.0;
+        }
+    };
+    if !(p[3] > p[2]) {
+        return None;
+    }
+    // p: offset, slope, dark, light, blur, shading gradient along the line (per px).
+    // Value, and the step's density and derivative in the blur width.
+    let shade = |p: &[f64; 6], t: f64| 1.0 + p[5] * (t - tm);
+    let model = |p: &[f64; 6], t: f64, s: f64| -> (f64, f64, f64, f64) {
+        let x = s - p[0] - p[1] * (t - tm);
+        let (cdf, pdf, dcdf) = uniform3_cdf(x, wa, wb, p[4]);
+        ((p[2] + (p[3] - p[2]) * cdf) * shade(p, t), cdf, pdf, dcdf)
+    };
+    let sse = |p: &[f64; 6]| samples.iter().map(|&(t, s, v)| (v - model(p, t, s).0).powi(2)).sum::<f64>();
+    let mut cur = sse(&p);
+    let mut lambda = 1e-3;
+    let mut jtj = SMatrix::<f64, 6, 6>::zeros();
+    for _ in 0..MODEL_ITERATIONS {
+        jtj.fill(0.0);
+        let mut jtr = SVector::<f64, 6>::zeros();
+        for &(t, s, v) in &samples {
+            let u = t - tm;
+            let (f, cdf, pdf, dcdf) = model(&p, t, s);
+            let sh = shade(&p, t);
+            let amp = p[3] - p[2];
+            let g0 = -amp * pdf * sh;
+            let gb = amp * dcdf * sh;
+            let j = SVector::<f64, 6>::from([g0, g0 * u, (1.0 - cdf) * sh, cdf * sh, gb, f / sh * u]);
+            jtj += j * j.transpose();
+            jtr += j * (v - f);
+        }
+        let mut improved = false;
+        for _ in 0..8 {
+            let mut m = jtj;
+            pin_blur(&p, &mut m, &mut jtr);
+            for i in 0..6 {
+                m[(i, i)] *= 1.0 + lambda;
+                m[(i, i)] += 1e-12;
+            }
+            let Some(step) = m.cholesky().map(|c| c.solve(&jtr)) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let mut q = p;
+            for i in 0..6 {
+                q[i] += step[i];
+            }
+            q[4] = q[4].max(B_MIN);
+            if q[0].abs() > hin.min(hout) || q[4] > h {
+                lambda *= 10.0;
+                continue;
+            }
+            let new = sse(&q);
+            if new <= cur {
+                let small = step[0].abs() < 1e-5 && step[1].abs() < 1e-7;
+                p = q;
+                cur = new;
+                lambda = (lambda * 0.3).max(1e-7);
+                improved = !small;
+                break;
+            }
+            lambda *= 10.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+    if !(p[3] > p[2]) {
+        return None;
+    }
+    // At its lower bound the blur is not a free parameter: leave it out of the covariance
+    // (a sharp axis-parallel edge on a pixel boundary would otherwise look singular).
+    if fixed_blur.is_some() || p[4] <= B_MIN * 1.001 {
+        jtj.row_mut(4).fill(0.0);
+        jtj.column_mut(4).fill(0.0);
+        jtj[(4, 4)] = 1.0;
+    }
+    let inv = jtj.try_inverse()?;
+    let cov = inv * (cur / (n - 6.0));
+    let ldir = (dir + nrm * p[1]).normalize();
+    let mid = af + dir * tm + nrm * p[0];
+    let ln = Vector2::new(ldir.y, -ldir.x);
+    // Offset variance across the line; the slope's variance in radians^2 (1 / (1 + e1^2)^2 ~ 1).
+    Some(EdgeFit {
+        n: ln,
+        c: ln.dot(&mid.coords),
+        mid,
+        dir: ldir,
+        rms: 0.0,
+        dark: p[2],
+        light: p[3],
+        off_var: cov[(0, 0)],
+        slope_var: cov[(1, 1)],
+        blur: p[4],
+        blur_var: if fixed_blur.is_some() { f64::INFINITY } else { cov[(4, 4)] },
+    })
+}
+
+/// CDF and density at `x` of the sum of three centred uniform variables of widths `a`, `b`,
+/// `c` (each at least 0.02): a pixel's footprint across an edge (two widths) blurred by a
+/// box of width `c`. From the density of a sum of uniforms, `sum_S (-1)^|S| (x + A/2 -
+/// sum_S a_i)_+^2 / (2 abc)` over the subsets `S`.
+fn uniform3_cdf(x: f64, a: f64, b: f64, c: f64) -> (f64, f64, f64) {
+    let c = c.max(0.02);
+    let half = 0.5 * (a + b + c);
+    if x <= -half {
+        return (0.0, 0.0, 0.0);
+    }
+    if x >= half {
+        return (1.0, 0.0, 0.0);
+    }
+    let y = x + half;
+    let (mut cdf, mut pdf, mut dc) = (0.0, 0.0, 0.0);
+    for mask in 0..8u32 {
+        let mut shift = 0.0;
+        if mask & 1 == 1 {
+            shift += a;
+        }
+        if mask & 2 == 2 {
+            shift += b;
+        }
+        let with_c = mask & 4 == 4;
+        if with_c {
+            shift += c;
+        }
+        let z = y - shift;
+        if z > 0.0 {
+            let sign = if mask.count_ones() % 2 == 0 { 1.0 } else { -1.0 };
+            let z2 = z * z;
+            cdf += sign * z2 * z;
+            pdf += sign * z2;
+            // dz/dc: +1/2 from the centring, -1 when c is in the shift.
+            dc += sign * 3.0 * z2 * if with_c { -0.5 } else { 0.5 };
+        }
+    }
+    let abc = a * b * c;
+    let f = cdf / (6.0 * abc);
+    ((f).clamp(0.0, 1.0), (pdf / (2.0 * abc)).max(0.0), dc / (6.0 * abc) - f / c)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn uniform3_cdf_matches_a_monte_carlo_free_reference_and_its_derivatives() {
+        // Reference: the CDF of the sum of three uniforms by midpoint integration over the
+        // first two (the third's CDF is a clamped ramp).
+        let (a, b, c) = (0.8, 0.35, 0.2);
+        let reference = |x: f64| {
+            let n = 400;
+            let mut s = 0.0;
+            for i in 0..n {
+                for j in 0..n {
+                    let u = a * ((i as f64 + 0.5) / n as f64 - 0.5);
+                    let v = b * ((j as f64 + 0.5) / n as f64 - 0.5);
+                    s += ((x - u - v) / c + 0.5).clamp(0.0, 1.0);
+                }
+            }
+            s / (n * n) as f64
+        };
+        for x in [-0.7, -0.6, -0.4, -0.2, -0.05, 0.0, 0.1, 0.3, 0.55, 0.69] {
+            let (f, pdf, dc) = uniform3_cdf(x, a, b, c);
+            assert!((f - reference(x)).abs() < 1e-4, "x {x}: {f} vs {}", reference(x));
+            let h = 1e-6;
+            let num_pdf = (uniform3_cdf(x + h, a, b, c).0 - uniform3_cdf(x - h, a, b, c).0) / (2.0 * h);
+            assert!((pdf - num_pdf).abs() < 1e-5, "x {x}: pdf {pdf} vs {num_pdf}");
+            let num_dc = (uniform3_cdf(x, a, b, c + h).0 - uniform3_cdf(x, a, b, c - h).0) / (2.0 * h);
+            assert!((dc - num_dc).abs() < 1e-5, "x {x}: d/dc {dc} vs {num_dc}");
+        }
+        // Symmetric about 0, and 0 / 1 beyond the support.
+        assert!((uniform3_cdf(0.0, a, b, c).0 - 0.5).abs() < 1e-12);
+        assert_eq!(uniform3_cdf(-0.7, a, b, c).0, 0.0);
+        assert_eq!(uniform3_cdf(0.7, a, b, c).0, 1.0);
+    }
+
+    #[test]
+    fn a_bilinear_demosaic_green_channel_is_recognised_and_nothing_else() {
+        // Photosites from a seeded xorshift (values 0..1); green at (x + y) odd (RGGB) or
+        // even (GRBG); the other sites the mean of their four neighbours, as a bilinear
+        // demosaic's green channel.
+        let (w, h) = (200, 136);
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut rnd = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f32 / (1u64 << 53) as f32
+        };
+        let raw: Vec<f32> = (0..w * h).map(|_| rnd()).collect();
+        for genuine in [0usize, 1] {
+            let mut g = raw.clone();
+            for y in 1..h - 1 {
+                for x in 1..w - 1 {
+                    if (x + y) % 2 != genuine {
+                        let i = y * w + x;
+                        g[i] = (raw[i - 1] + raw[i + 1] + raw[i - w] + raw[i + w]) / 4.0;
+                    }
+                }
+            }
+            let img = GrayImage::new(w, h, &g).unwrap();
+            assert_eq!(demosaic_green_parity(&img), Some(genuine));
+            // Scaled (any linear scale) it still is one.
+            let scaled: Vec<f32> = g.iter().map(|v| 1000.0 * v).collect();
+            assert_eq!(demosaic_green_parity(&GrayImage::new(w, h, &scaled).unwrap()), Some(genuine));
+        }
+        // Not one: the raw values themselves, a flat image, a smooth ramp (every pixel the
+        // mean of its neighbours on both parities), a 3x3 box blur.
+        let img = GrayImage::new(w, h, &raw).unwrap();
+        assert_eq!(demosaic_green_parity(&img), None);
+        let flat = vec![0.5f32; w * h];
+        assert_eq!(demosaic_green_parity(&GrayImage::new(w, h, &flat).unwrap()), None);
+        let ramp: Vec<f32> = (0..w * h).map(|i| (i % w) as f32 * 0.01 + (i / w) as f32 * 0.003).collect();
+        assert_eq!(demosaic_green_parity(&GrayImage::new(w, h, &ramp).unwrap()), None);
+        let mut boxed = raw.clone();
+        for y in 1..h - 1 {
+            for x in 1..w - 1 {
+                let mut s = 0.0;
+                for dy in 0..3 {
+                    for dx in 0..3 {
+                        s += raw[(y + dy - 1) * w + x + dx - 1];
+                    }
+                }
+                boxed[y * w + x] = s / 9.0;
+            }
+        }
+        assert_eq!(demosaic_green_parity(&GrayImage::new(w, h, &boxed).unwrap()), None);
+    }
 }

@@ -12,7 +12,10 @@
 //!    from the profile's area (the position of the step with the same integral between the
 //!    dark and light levels); a straight line fitted to each edge (optionally in undistorted
 //!    coordinates of a [`CameraModel`]); corners are intersections of adjacent lines;
-//! 5. unwarp of the 6x6 module grid with the homography of the refined corners, bit
+//! 5. edge model: each edge refined by fitting an area-sampled, blurred straight step to the
+//!    pixel values around it, on the genuine green photosites when the image is recognised
+//!    as a bilinear demosaic's green channel (or via [`detect_raw`]);
+//! 6. unwarp of the 6x6 module grid with the homography of the refined corners, bit
 //!    sampling, border check, match against the dictionary in all four rotations.
 //!
 //! Conventions (those of `btfrig_core::camera` and OpenCV): integer pixel coordinates are
@@ -23,5 +26,5 @@
 pub mod detect;
 pub mod dictionary;
 
-pub use detect::{detect, DetectError, DetectParams, Detection, GrayImage, Quality};
+pub use detect::{detect, detect_raw, DetectError, DetectParams, Detection, GrayImage, GreenSites, Quality};
 pub use dictionary::{Dictionary, DictionaryError};

@@ -59,8 +59,9 @@ fn rendered_frames_register_within_the_acceptance() {
             r.register_s * 1e3
         );
         assert_eq!(r.detected.len(), 12);
-        // Grazing views carry the detector's larger corner error (docs/markers.md).
-        let (mean_bound, max_bound) = if view.0 > 60.0 { (0.12, 0.3) } else { (0.05, 0.2) };
+        // Measured 0.0044 / 0.0109, 0.0009 / 0.0023, 0.0030 / 0.0076 texel (the detector's edge
+        // model on the green photosites, docs/markers.md; before it, 0.082 / 0.177 at 75 deg).
+        let (mean_bound, max_bound) = (0.02, 0.05);
         assert!(mean < mean_bound && max < max_bound, "view {view:?}: {mean} / {max}");
         assert!(mean < nmean / 3.0);
     }
