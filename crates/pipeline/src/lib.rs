@@ -738,13 +738,16 @@ where
             Next::Done(r) => {
                 let (step, _) = in_flight.pop_front().expect("a job was awaited");
                 let (step, files, attempts, timing, p, preview) =
-                    r.map_err(|e| PipelineError::Join { step, reason: e.to_string() })??;
+                    match r.map_err(|e| PipelineError::Join { step, reason: e.to_string() }).and_then(|r| r) {
+                        Ok(out) => out,
+                        Err(e) => return Err(drain(in_flight, e).await),
+                    };
                 let ds = dataset.clone();
                 // The preview file is replaced only after the commit: it never shows a capture
                 // that does not count.
                 // A texture's pose record goes with it; a preview-only frame wrote no texture.
                 let registration = if processor.outputs().textures { p.registration.clone() } else { None };
-                let written = tokio::task::spawn_blocking(move || {
+                let written = match tokio::task::spawn_blocking(move || {
                     ds.commit_step_with(step, files, attempts, timing, registration)?;
                     Ok::<_, StoreError>(preview.map(|made| {
                         let t = Instant::now();
@@ -756,7 +759,12 @@ where
                     }))
                 })
                 .await
-                .map_err(|e| PipelineError::Join { step, reason: e.to_string() })??;
+                .map_err(|e| PipelineError::Join { step, reason: e.to_string() })
+                .and_then(|r| r.map_err(PipelineError::from))
+                {
+                    Ok(w) => w,
+                    Err(e) => return Err(drain(in_flight, e).await),
+                };
                 if let Some((mut made, ok, write_s)) = written {
                     made.claim.cost_s += write_s;
                     *totals.stage_s.entry("preview".to_string()).or_insert(0.0) += made.claim.cost_s;
@@ -805,6 +813,15 @@ where
         }
     }
     Ok(totals)
+}
+
+/// Waits for the jobs still in flight (their results are dropped: nothing after a failed step
+/// is committed) so that no processing thread outlives the pipeline, then returns `e`.
+async fn drain<T>(in_flight: VecDeque<(StepId, tokio::task::JoinHandle<T>)>, e: PipelineError) -> PipelineError {
+    for (_, job) in in_flight {
+        let _ = job.await;
+    }
+    e
 }
 
 /// A preview made on a processing thread, to be written after the step's commit.

@@ -48,7 +48,8 @@ pub const BUILTIN_RIGS: &[(&str, &str)] = &[(BUILTIN_RIG, include_str!("../../..
 
 /// Names of the fault scenarios shipped in `sim/faults/` (file stems). The caller may pass
 /// others in [`PlanContext::known_faults`] (e.g. after listing the directory).
-pub const BUILTIN_FAULT_SCENARIOS: &[&str] = &["none", "flaky", "lamp-drift", "stuck-led", "robot-fault"];
+pub const BUILTIN_FAULT_SCENARIOS: &[&str] =
+    &["none", "flaky", "lamp-drift", "stuck-led", "robot-fault", "hidden-markers"];
 
 /// Names of the materials embedded in the simulator (`sim/materials/`). Kept here as names
 /// only because `core` must not depend on `render`; a test in `render` can cross-check.
