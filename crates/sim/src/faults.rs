@@ -593,3 +593,101 @@ pub fn cover_markers(frame: &mut RawFrame, camera: &CameraModel, pose: &ScenePos
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::FlatFrameSource;
+    use btfrig_core::config::RigConfig;
+    use btfrig_core::plan::BUILTIN_RIGS;
+    use btfrig_core::Direction;
+    use btfrig_hw::CaptureSettings;
+    use btfrig_render::material::MaterialSpec;
+
+    fn setup() -> (RigConfig, Arc<RigScene>, TrueState) {
+        let cfg = RigConfig::from_toml(BUILTIN_RIGS[0].1, "builtin rig").unwrap();
+        let scene = Arc::new(RigScene::new(&cfg, &MaterialSpec::builtin("leather").unwrap()).unwrap());
+        let joints = scene.gonio().ik(Direction::from_degrees(45.0, 0.0), Direction::from_degrees(30.0, 90.0)).unwrap();
+        let truth = TrueState {
+            joints,
+            lamp_on: true,
+            lamp_shutter_open: true,
+            lamp_intensity: 1.0,
+            leds: Vec::new(),
+            time_s: 0.0,
+        };
+        (cfg, scene, truth)
+    }
+
+    const SETTINGS: CaptureSettings = CaptureSettings { exposure_s: 0.1, gain: 1.0, f_number: None };
+
+    #[test]
+    fn covering_a_marker_paints_its_projected_enlarged_square_at_the_black_level_and_nothing_else() {
+        let (cfg, scene, truth) = setup();
+        let cam = scene.camera().model();
+        let flat = FlatFrameSource::new(cam.width, cam.height, 10_000.0);
+        let mut frame = flat.render(&truth, &SETTINGS, 0);
+        let lit = frame.data[0];
+        let pose = scene.pose(&truth.joints);
+        let marker = cfg.plate.marker_placements()[5].clone();
+        cover_markers(&mut frame, cam, &pose, std::slice::from_ref(&marker));
+        let painted = frame.data.iter().filter(|&&v| v == frame.meta.black_level).count();
+        assert!(frame.data.iter().all(|&v| v == lit || v == frame.meta.black_level));
+        // Independent area: the shoelace area of the projected enlarged corners (the lens
+        // barely bends a 4 cm square), against the count of painted pixel centres.
+        let to_cam = pose.camera_to_world.inverse() * pose.sample_to_world;
+        let c = marker.corners_sample_m.iter().fold(Point2::origin(), |a, p| a + p.coords / 4.0);
+        let q: Vec<Point2<f64>> = marker
+            .corners_sample_m
+            .iter()
+            .map(|p| {
+                let e = c + (p - c) * 2.0;
+                cam.project(&(to_cam * Point3::new(e.x, e.y, 0.0))).unwrap()
+            })
+            .collect();
+        let area = (0..4).map(|k| q[k].x * q[(k + 1) % 4].y - q[(k + 1) % 4].x * q[k].y).sum::<f64>().abs() / 2.0;
+        let perimeter: f64 = (0..4).map(|k| (q[(k + 1) % 4] - q[k]).norm()).sum();
+        assert!(area > 1000.0, "a marker is tens of pixels wide at this view: {area}");
+        assert!(
+            (painted as f64 - area).abs() < perimeter,
+            "painted {painted}, area {area:.0}, perimeter {perimeter:.0}"
+        );
+        // The marker's own centre is covered; the plate centre (the sample) is not.
+        let centre = cam.project(&(to_cam * Point3::new(c.x, c.y, 0.0))).unwrap();
+        let at = |p: Point2<f64>| frame.data[p.y.round() as usize * frame.width + p.x.round() as usize];
+        assert_eq!(at(centre), frame.meta.black_level);
+        let sample = cam.project(&(to_cam * Point3::origin())).unwrap();
+        assert_eq!(at(sample), lit);
+    }
+
+    #[test]
+    fn the_occluder_covers_the_chosen_frames_and_draws_probabilities_from_the_frame_seed() {
+        let (cfg, scene, truth) = setup();
+        let cam = scene.camera().model();
+        let flat: Arc<dyn FrameSource> = Arc::new(FlatFrameSource::new(cam.width, cam.height, 10_000.0));
+        let clean = flat.render(&truth, &SETTINGS, 0);
+        let hidden = HiddenMarkers { frames: vec![2], probability: 0.0, markers: vec![0, 7] };
+        let occ = MarkerOccluder::new(flat.clone(), scene.clone(), &cfg.plate, hidden, 1).unwrap();
+        let covered: Vec<bool> = (0..4).map(|_| occ.render(&truth, &SETTINGS, 0) != clean).collect();
+        assert_eq!(covered, [false, true, false, false]);
+        assert_eq!(occ.covered(), 1);
+
+        // With a probability, the decision follows the frame's seed, not the call count.
+        let hidden = HiddenMarkers { frames: vec![], probability: 0.5, markers: vec![] };
+        let occ = MarkerOccluder::new(flat.clone(), scene.clone(), &cfg.plate, hidden, 1).unwrap();
+        let first: Vec<bool> = (0..64).map(|s| occ.render(&truth, &SETTINGS, s) != clean).collect();
+        let again: Vec<bool> = (0..64).rev().map(|s| occ.render(&truth, &SETTINGS, s) != clean).collect();
+        assert!(first.iter().eq(again.iter().rev()));
+        let n = first.iter().filter(|&&c| c).count();
+        assert!((16..=48).contains(&n), "{n} of 64 covered at p = 0.5");
+
+        let bad = HiddenMarkers { frames: vec![0], probability: 1.5, markers: vec![99] };
+        let e = MarkerOccluder::new(flat.clone(), scene.clone(), &cfg.plate, bad.clone(), 1).err().unwrap().to_string();
+        assert!(e.contains("faults.hidden_markers.markers[0]") && e.contains("0..12"), "{e}");
+        let mut errors = Vec::new();
+        FaultScenario { hidden_markers: bad, ..FaultScenario::none() }.validate(&mut errors);
+        let all: Vec<String> = errors.iter().map(|e| e.to_string()).collect();
+        assert!(all.iter().any(|e| e.contains("faults.hidden_markers.probability")), "{all:?}");
+        assert!(all.iter().any(|e| e.contains("faults.hidden_markers.frames[0]")), "{all:?}");
+    }
+}
