@@ -460,7 +460,7 @@ impl Processor {
         let cam = self.scene.camera().model();
         let s = &self.settings;
         let (pose, registration) = match &self.registrar {
-            None => (nominal.clone(), record(PoseSource::NominalByPlan)),
+            None => (nominal, record(PoseSource::NominalByPlan)),
             Some(registrar) => {
                 let t = Instant::now();
                 let found = self.register(registrar, &image, &nominal);
@@ -469,10 +469,9 @@ impl Processor {
                     Ok(r) => r,
                     Err(reason) => match s.registration.on_failure {
                         OnRegistrationFailure::Fail => return Err(PipelineError::Registration { step, reason }),
-                        OnRegistrationFailure::Nominal => (
-                            nominal.clone(),
-                            StepRegistration { reason: Some(reason), ..record(PoseSource::NominalFallback) },
-                        ),
+                        OnRegistrationFailure::Nominal => {
+                            (nominal, StepRegistration { reason: Some(reason), ..record(PoseSource::NominalFallback) })
+                        }
                     },
                 }
             }
