@@ -22,7 +22,10 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<ExitCode> {
     let out = crate::captures_cmd::prepare_output(a.out.clone(), "btfrig-demo")?;
     // Relative paths (--rig, --material files) are made absolute above; the plan "file" is
     // only a name for messages.
-    let req = RunRequest::from_text(text, &cwd.join(format!("<embedded rig-configs/plans/{name}.toml>")), &out);
+    // The demo shows what registration gains: each registered frame is also rectified with
+    // the nominal pose and compared with the truth.
+    let req = RunRequest::from_text(text, &cwd.join(format!("<embedded rig-configs/plans/{name}.toml>")), &out)
+        .with_nominal_comparison(true);
     let s = crate::run_cmd::execute(&req)?;
     if a.json {
         println!("{}", s.to_json());
@@ -41,9 +44,20 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<ExitCode> {
             println!("  peak memory       {m:.0} MiB");
         }
         println!("  stages            {}", stages.join(", "));
+        let f4 = |v: Option<f64>| v.map(|r| format!("{r:.4}")).unwrap_or_else(|| "n/a".into());
         println!(
-            "  texture error     {} (relative RMSE of the rectified textures against ground truth)",
-            s.texture_rel_rmse.map(|r| format!("{r:.4}")).unwrap_or_else(|| "n/a".into())
+            "  texture error     {} (nominal pose {}): relative RMSE of the rectified textures against ground truth",
+            f4(s.texture_rel_rmse),
+            f4(s.texture_rel_rmse_nominal)
+        );
+        println!(
+            "  registration      {} registered, {} fallbacks; texel position error mean {} / max {} texel (nominal pose {} / {})",
+            s.registered,
+            s.fallbacks,
+            f4(s.registration_mean_texel_err),
+            f4(s.registration_max_texel_err),
+            f4(s.nominal_mean_texel_err),
+            f4(s.nominal_max_texel_err)
         );
         println!("  retries           {}, warnings {}", s.retries, s.warnings.len());
         println!("  dataset           {}", s.dataset.display());

@@ -58,6 +58,11 @@ pub fn finish(s: &RunSummary, command: &str) -> ExitCode {
                 None => eprintln!("  reason:  {reason}"),
             }
             eprintln!("  dataset: {} (resumable; the report says status \"paused\")", s.dataset.display());
+            if fault.as_ref().is_some_and(|f| f.device == "registration") {
+                eprintln!(
+                    "  (the plan says [registration] on_failure = \"fail\": make the plate's markers visible, or set on_failure = \"nominal\" to go on with the nominal pose, recorded as a fallback; a simulated rig's [hidden_markers] fault recurs on every resume unless you add --faults none)"
+                );
+            }
             if fault.as_ref().is_some_and(|f| f.message.contains("(injected)")) {
                 eprintln!(
                     "  (the simulated rig's fault scenario injected this fault; it recurs on every resume unless you add --faults none)"
@@ -93,12 +98,29 @@ pub fn print_summary(s: &RunSummary) {
         s.texture_rel_rmse.map(|r| format!("{r:.4}")).unwrap_or_else(|| "n/a".into()),
         s.peak_rss_mib.map(|m| format!("{m:.0} MiB")).unwrap_or_else(|| "n/a".into())
     );
+    println!("{}", registration_line(s));
     if s.unreported_captures > 0 {
         println!(
             "note: {} captures were made by sessions that were killed; their rig and wall time are not in the totals",
             s.unreported_captures
         );
     }
+}
+
+/// How the textures' poses were found, and their error against the truth when known, e.g.
+/// `registration: 58 registered, 2 fallbacks; texel error mean 0.003 / max 0.011 (nominal pose 0.052 / 0.140)`.
+pub fn registration_line(s: &RunSummary) -> String {
+    let mut line = format!("registration: {} registered, {} fallbacks", s.registered, s.fallbacks);
+    if s.nominal_by_plan > 0 {
+        line += &format!(", {} with the nominal pose by plan", s.nominal_by_plan);
+    }
+    if let (Some(m), Some(x)) = (s.registration_mean_texel_err, s.registration_max_texel_err) {
+        line += &format!("; texel error mean {m:.4} / max {x:.4}");
+        if let (Some(nm), Some(nx)) = (s.nominal_mean_texel_err, s.nominal_max_texel_err) {
+            line += &format!(" (nominal pose {nm:.4} / {nx:.4})");
+        }
+    }
+    line
 }
 
 /// First Ctrl-C: stop cleanly (the runner commits the frames in flight and writes the

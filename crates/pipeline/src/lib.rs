@@ -2,11 +2,20 @@
 //! in a dataset.
 //!
 //! Per frame, on a blocking thread (never on the async threads that drive the devices):
-//! demosaic (a normalisation only for mono sensors), rectification onto the sample plane with
-//! the NOMINAL pose (kinematics of the commanded joints), conversion to radiance factor, the
-//! OpenEXR write, then the journal commit. Each stage is timed. On the simulated rig the
-//! texture is also compared with the ground truth of the TRUE state at exposure (recorded by
-//! [`TruthLog`]), accumulated into an overall relative RMSE.
+//! demosaic (a normalisation only for mono sensors), registration (the holder plate's markers
+//! detected in the green channel, the sample pose estimated from them with the nominal pose
+//! as prior: `btfrig_register::PlateRegistrar`), rectification onto the sample plane with the
+//! REGISTERED pose, conversion to radiance factor, the OpenEXR write, then the journal commit
+//! with how the pose was found ([`StepRegistration`]). Each stage is timed. The plan's
+//! `[registration]` ([`RegistrationPolicy`]) may ask for the nominal pose (kinematics of the
+//! commanded joints) instead, and says what a failed registration does: fall back to the
+//! nominal pose, recorded and counted as a fallback, or stop ([`PipelineError::Registration`]).
+//!
+//! On the simulated rig the texture is also compared with the ground truth of the TRUE state
+//! at exposure (recorded by [`TruthLog`]), accumulated into an overall relative RMSE, and the
+//! texel position error of the pose used and of the nominal pose is measured against the true
+//! pose; optionally ([`Processor::with_nominal_comparison`]) the texture is rectified a second
+//! time with the nominal pose to measure what registration gained.
 //!
 //! What is written follows the plan's `[outputs]` ([`Outputs`], set with
 //! [`Processor::with_outputs`]): the texture, the raw frame, or both, committed in ONE journal
@@ -26,24 +35,31 @@ use std::time::{Duration, Instant};
 use btfrig_calib::{
     rectify, to_radiance_factor, vignetting_map, Filter, LinearImage, Radiometry, RectifyError, Region,
 };
+use btfrig_core::config::plate::PlateConfig;
 use btfrig_core::frame::RawFrame;
 use btfrig_core::kinematics::JointState;
+pub use btfrig_core::plan::{OnRegistrationFailure, RegistrationMethod, RegistrationPolicy};
+use btfrig_core::pose::ScenePose;
 use btfrig_engine::CapturedFrame;
+use btfrig_markers::GrayImage;
+use btfrig_register::{texel_position_error, FrameError, PlateRegistrar, RegisterOptions};
 use btfrig_render::demosaic::demosaic_bilinear;
 use btfrig_render::rig_scene::RigScene;
 use btfrig_sim::{FrameSource, SensorFormat, TrueState};
 use btfrig_store::{Dataset, StepId, StepTiming, StoreError};
+pub use btfrig_store::{PoseSource, StepRegistration};
 use tokio::sync::{mpsc, watch};
 
 /// Frames processed at the same time (each on its own blocking thread). Two keep both cores
 /// of the target machine busy while bounding memory to two frames plus the engine's channel.
 pub const MAX_IN_FLIGHT: usize = 2;
 
-/// Stage names as reported in `stage_s` when textures are written. With raw frames the
-/// stage `write_raw` is added; with previews, [`Totals::stage_s`] has `preview` (building,
-/// encoding and writing previews; not in the journal's step timings). Without textures the
-/// texture stages run only for the frames that make a preview.
-pub const STAGES: [&str; 4] = ["demosaic", "rectify", "radiometry", "write"];
+/// Stage names as reported in `stage_s` when textures are written (`register`: marker
+/// detection and pose estimation, absent with `[registration] method = "nominal"`). With raw
+/// frames the stage `write_raw` is added; with previews, [`Totals::stage_s`] has `preview`
+/// (building, encoding and writing previews; not in the journal's step timings). Without
+/// textures the texture stages run only for the frames that make a preview.
+pub const STAGES: [&str; 5] = ["demosaic", "register", "rectify", "radiometry", "write"];
 
 /// What the pipeline writes for each frame (the plan's `[outputs]`).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -163,6 +179,17 @@ pub enum PipelineError {
         /// What was wrong.
         source: RectifyError,
     },
+    /// Registration failed and the plan says `on_failure = "fail"`.
+    #[error("step {step}: registration failed: {reason}")]
+    Registration {
+        /// Which capture.
+        step: StepId,
+        /// Why (the registrar's error: too few markers, degenerate geometry, ...).
+        reason: String,
+    },
+    /// The registrar could not be built from the rig's plate (e.g. an unknown dictionary).
+    #[error("registration: {0}")]
+    Registrar(#[from] FrameError),
     /// The dataset refused a write or commit.
     #[error(transparent)]
     Store(#[from] StoreError),
@@ -220,6 +247,17 @@ pub struct ProcessSettings {
     pub region: Region,
     /// Resampling filter.
     pub filter: Filter,
+    /// Where the pose comes from and what a failed registration does.
+    pub registration: RegistrationPolicy,
+}
+
+/// Texel position errors of one frame's poses against its true pose (simulated rig only).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PoseErrors {
+    /// Mean and maximum over the texture's texels, texels, of the pose used.
+    pub used: (f64, f64),
+    /// The same for the nominal pose.
+    pub nominal: (f64, f64),
 }
 
 /// One processed frame.
@@ -227,17 +265,40 @@ pub struct ProcessSettings {
 pub struct Processed {
     /// Radiance-factor texture, row-major linear sRGB.
     pub texels: Vec<[f32; 3]>,
-    /// Seconds per stage (demosaic, rectify, radiometry).
+    /// Seconds per stage (demosaic, register, rectify, radiometry).
     pub stage_s: BTreeMap<String, f64>,
     /// Sum of squared differences to the ground truth, and of the squared truth (both over
     /// texels and channels); `None` without a truth.
     pub error: Option<(f64, f64)>,
+    /// How the pose was found (`None` only for a frame that was not processed).
+    pub registration: Option<StepRegistration>,
+    /// Texel position errors against the truth; `None` without a truth.
+    pub pose_errors: Option<PoseErrors>,
+    /// As `error`, had the nominal pose been used; only with
+    /// [`Processor::with_nominal_comparison`] and a truth.
+    pub error_nominal: Option<(f64, f64)>,
+}
+
+impl Processed {
+    fn nothing() -> Processed {
+        Processed {
+            texels: Vec::new(),
+            stage_s: BTreeMap::new(),
+            error: None,
+            registration: None,
+            pose_errors: None,
+            error_nominal: None,
+        }
+    }
 }
 
 /// Turns raw frames into textures for one rig scene.
 pub struct Processor {
     scene: Arc<RigScene>,
     settings: ProcessSettings,
+    /// `None` when the plan asks for the nominal pose.
+    registrar: Option<PlateRegistrar>,
+    compare_nominal: bool,
     outputs: Outputs,
     preview: watch::Sender<Option<Arc<Preview>>>,
     preview_gate: Mutex<PreviewGate>,
@@ -284,16 +345,35 @@ fn claim_preview(pr: &Arc<Processor>) -> Option<PreviewClaim> {
 }
 
 impl Processor {
-    /// A processor for `scene` (rig geometry, camera model, sensor, colour) writing textures
-    /// only ([`Outputs::default`]).
-    pub fn new(scene: Arc<RigScene>, settings: ProcessSettings) -> Self {
-        Processor {
+    /// A processor for `scene` (rig geometry, camera model, sensor, colour) whose holder
+    /// plate is `plate` (the rig config's `[plate]`, validated), writing textures only
+    /// ([`Outputs::default`]). One marker registrar is built here for the whole run, with the
+    /// scene's camera model and the registrar's default settings (their pose tolerance,
+    /// 2 degrees / 10 mm from the nominal pose, is a real rig's, not the simulator's jitter).
+    pub fn new(scene: Arc<RigScene>, plate: &PlateConfig, settings: ProcessSettings) -> Result<Self, PipelineError> {
+        let registrar = match settings.registration.method {
+            RegistrationMethod::Markers => {
+                Some(PlateRegistrar::new(scene.camera().model().clone(), plate, RegisterOptions::default())?)
+            }
+            RegistrationMethod::Nominal => None,
+        };
+        Ok(Processor {
             scene,
             settings,
+            registrar,
+            compare_nominal: false,
             outputs: Outputs::default(),
             preview: watch::Sender::new(None),
             preview_gate: Mutex::new(PreviewGate::default()),
-        }
+        })
+    }
+
+    /// With `on`, each frame that has a truth and was registered is also rectified with the
+    /// nominal pose and compared ([`Processed::error_nominal`], [`Totals::texture_rel_rmse_nominal`]):
+    /// a second rectification per frame, so off by default.
+    pub fn with_nominal_comparison(mut self, on: bool) -> Self {
+        self.compare_nominal = on;
+        self
     }
 
     /// The same processor writing `outputs`.
@@ -358,8 +438,9 @@ impl Processor {
         gt.data
     }
 
-    /// Demosaic, rectify with the nominal pose of `commanded`, convert to radiance factor;
-    /// compare with the truth of `truth` (true joints, lamp intensity) when given.
+    /// Demosaic, register (or take the nominal pose of `commanded`, per the plan's policy),
+    /// rectify with that pose, convert to radiance factor; compare with the truth of `truth`
+    /// (true joints, lamp intensity) when given.
     pub fn process(
         &self,
         step: StepId,
@@ -375,33 +456,142 @@ impl Processor {
         let image = LinearImage { width: dm.width, height: dm.height, data: dm.data };
         stage_s.insert("demosaic".to_string(), t.elapsed().as_secs_f64());
 
-        let t = Instant::now();
-        let pose = self.scene.pose(commanded);
+        let nominal = self.scene.pose(commanded);
         let cam = self.scene.camera().model();
         let s = &self.settings;
+        let (pose, registration) = match &self.registrar {
+            None => (nominal, record(PoseSource::NominalByPlan)),
+            Some(registrar) => {
+                let t = Instant::now();
+                let found = self.register(registrar, &image, &nominal);
+                stage_s.insert("register".to_string(), t.elapsed().as_secs_f64());
+                match found {
+                    Ok(r) => r,
+                    Err(reason) => match s.registration.on_failure {
+                        OnRegistrationFailure::Fail => return Err(PipelineError::Registration { step, reason }),
+                        OnRegistrationFailure::Nominal => {
+                            (nominal, StepRegistration { reason: Some(reason), ..record(PoseSource::NominalFallback) })
+                        }
+                    },
+                }
+            }
+        };
+
+        let t = Instant::now();
         let tex = rectify(&image, cam, &pose, s.region, s.size, s.filter).map_err(err)?;
-        drop(image);
         stage_s.insert("rectify".to_string(), t.elapsed().as_secs_f64());
 
         let t = Instant::now();
+        let radiometry = self.radiometry(frame);
         let vig = vignetting_map(cam, &pose, s.region, s.size).map_err(err)?;
-        let tex = to_radiance_factor(&tex, &vig, &self.radiometry(frame)).map_err(err)?;
+        let tex = to_radiance_factor(&tex, &vig, &radiometry).map_err(err)?;
         stage_s.insert("radiometry".to_string(), t.elapsed().as_secs_f64());
 
-        let error = truth.map(|(joints, lamp)| {
+        let (mut error, mut pose_errors, mut error_nominal) = (None, None, None);
+        if let Some((joints, lamp)) = truth {
             let gt = self.ground_truth(&joints, lamp);
-            let mut se = 0.0;
-            let mut st = 0.0;
-            for (a, b) in tex.data.iter().zip(&gt) {
-                for c in 0..3 {
-                    let (a, b) = (f64::from(a[c]), f64::from(b[c]));
-                    se += (a - b) * (a - b);
-                    st += b * b;
-                }
+            error = Some(squared_error(&tex.data, &gt));
+            let true_pose = self.scene.pose(&joints);
+            let used = texel_position_error(&true_pose, &pose, cam, s.region, s.size);
+            let nominal_err = if registration.pose == PoseSource::Markers {
+                texel_position_error(&true_pose, &nominal, cam, s.region, s.size)
+            } else {
+                used
+            };
+            pose_errors = Some(PoseErrors { used, nominal: nominal_err });
+            if self.compare_nominal {
+                error_nominal = if registration.pose == PoseSource::Markers {
+                    let tex = rectify(&image, cam, &nominal, s.region, s.size, s.filter).map_err(err)?;
+                    let vig = vignetting_map(cam, &nominal, s.region, s.size).map_err(err)?;
+                    let tex = to_radiance_factor(&tex, &vig, &radiometry).map_err(err)?;
+                    Some(squared_error(&tex.data, &gt))
+                } else {
+                    error
+                };
             }
-            (se, st)
-        });
-        Ok(Processed { texels: tex.data, stage_s, error })
+        }
+        Ok(Processed { texels: tex.data, stage_s, error, registration: Some(registration), pose_errors, error_nominal })
+    }
+
+    /// Registers `image` (its green channel: half of a Bayer sensor's photosites) against the
+    /// plate; the pose and its record, or the reason it failed.
+    fn register(
+        &self,
+        registrar: &PlateRegistrar,
+        image: &LinearImage,
+        nominal: &ScenePose,
+    ) -> Result<(ScenePose, StepRegistration), String> {
+        let green: Vec<f32> = image.data.iter().map(|p| p[1]).collect();
+        let gray = GrayImage::new(image.width, image.height, &green).map_err(|e| e.to_string())?;
+        let r = registrar.register_image(&gray, nominal).map_err(|e| e.to_string())?.registration;
+        let s = &self.settings;
+        let sigma = r.texel_sigma(registrar.camera(), s.region, s.size);
+        let rec = StepRegistration {
+            markers: r.inlier_markers.clone(),
+            rms_px: Some(r.rms_px),
+            texel_sigma: sigma.is_finite().then_some(sigma),
+            ..record(PoseSource::Markers)
+        };
+        Ok((r.pose, rec))
+    }
+}
+
+/// A registration record with only its pose source set.
+fn record(pose: PoseSource) -> StepRegistration {
+    StepRegistration { pose, markers: Vec::new(), rms_px: None, texel_sigma: None, reason: None }
+}
+
+/// Sum of squared differences and of the squared truth over texels and channels.
+fn squared_error(tex: &[[f32; 3]], gt: &[[f32; 3]]) -> (f64, f64) {
+    let mut se = 0.0;
+    let mut st = 0.0;
+    for (a, b) in tex.iter().zip(gt) {
+        for c in 0..3 {
+            let (a, b) = (f64::from(a[c]), f64::from(b[c]));
+            se += (a - b) * (a - b);
+            st += b * b;
+        }
+    }
+    (se, st)
+}
+
+/// Texel position errors summed over frames.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct TexelErrorTotals {
+    /// Frames measured (with a finite error).
+    pub frames: u64,
+    /// Sum of the frames' mean errors, texels.
+    pub sum_mean: f64,
+    /// Largest error of any texel of any frame, texels.
+    pub max: f64,
+}
+
+impl TexelErrorTotals {
+    /// Adds one frame's `(mean, max)`; non-finite values (no texel measurable) are left out.
+    pub fn add(&mut self, (mean, max): (f64, f64)) {
+        if mean.is_finite() && max.is_finite() {
+            self.frames += 1;
+            self.sum_mean += mean;
+            self.max = self.max.max(max);
+        }
+    }
+
+    /// Adds another total.
+    pub fn merge(&mut self, o: &TexelErrorTotals) {
+        self.frames += o.frames;
+        self.sum_mean += o.sum_mean;
+        self.max = self.max.max(o.max);
+    }
+
+    /// Mean over frames of the per-frame mean error (every frame has the same texels, so
+    /// this is the mean over all texels), `None` without frames.
+    pub fn mean(&self) -> Option<f64> {
+        (self.frames > 0).then(|| self.sum_mean / self.frames as f64)
+    }
+
+    /// The largest texel error, `None` without frames.
+    pub fn max(&self) -> Option<f64> {
+        (self.frames > 0).then_some(self.max)
     }
 }
 
@@ -425,12 +615,35 @@ pub struct Totals {
     pub previews: u64,
     /// Previews that failed to encode or write (not fatal: a preview is not data).
     pub preview_failures: u64,
+    /// Committed textures rectified with a registered pose.
+    pub registered: u64,
+    /// Committed textures rectified with the nominal pose because registration failed.
+    pub fallbacks: u64,
+    /// Committed textures rectified with the nominal pose because the plan asked for it.
+    pub nominal_by_plan: u64,
+    /// The fallback steps with the reason registration failed, in commit order.
+    pub fallback_steps: Vec<(StepId, String)>,
+    /// Texel position error of the poses used, against the truth.
+    pub texel_err: TexelErrorTotals,
+    /// Texel position error of the nominal poses, against the truth.
+    pub nominal_texel_err: TexelErrorTotals,
+    /// Sum of squared texture errors had the nominal pose been used (only with
+    /// [`Processor::with_nominal_comparison`]).
+    pub sq_err_nominal: f64,
+    /// Sum of squared truth of the frames in `sq_err_nominal`.
+    pub sq_truth_nominal: f64,
 }
 
 impl Totals {
     /// `sqrt(sum sq_err / sum sq_truth)` over all compared textures, texels and channels.
     pub fn texture_rel_rmse(&self) -> Option<f64> {
         (self.sq_truth > 0.0).then(|| (self.sq_err / self.sq_truth).sqrt())
+    }
+
+    /// The same had every texture been rectified with the nominal pose (`None` unless the
+    /// processor compared).
+    pub fn texture_rel_rmse_nominal(&self) -> Option<f64> {
+        (self.sq_truth_nominal > 0.0).then(|| (self.sq_err_nominal / self.sq_truth_nominal).sqrt())
     }
 }
 
@@ -492,7 +705,7 @@ where
                     }
                     let claim = claim_preview(&pr);
                     let preview_due = claim.is_some();
-                    let nothing = || Processed { texels: Vec::new(), stage_s: BTreeMap::new(), error: None };
+                    let nothing = Processed::nothing;
                     let mut p = if out.textures {
                         pr.process(step, &f.frame, &f.joints, t)?
                     } else if preview_due {
@@ -524,12 +737,17 @@ where
             Next::Done(r) => {
                 let (step, _) = in_flight.pop_front().expect("a job was awaited");
                 let (step, files, attempts, timing, p, preview) =
-                    r.map_err(|e| PipelineError::Join { step, reason: e.to_string() })??;
+                    match r.map_err(|e| PipelineError::Join { step, reason: e.to_string() }).and_then(|r| r) {
+                        Ok(out) => out,
+                        Err(e) => return Err(drain(in_flight, e).await),
+                    };
                 let ds = dataset.clone();
                 // The preview file is replaced only after the commit: it never shows a capture
                 // that does not count.
-                let written = tokio::task::spawn_blocking(move || {
-                    ds.commit_step(step, files, attempts, timing)?;
+                // A texture's pose record goes with it; a preview-only frame wrote no texture.
+                let registration = if processor.outputs().textures { p.registration.clone() } else { None };
+                let written = match tokio::task::spawn_blocking(move || {
+                    ds.commit_step_with(step, files, attempts, timing, registration)?;
                     Ok::<_, StoreError>(preview.map(|made| {
                         let t = Instant::now();
                         let ok = match &made.preview {
@@ -540,7 +758,12 @@ where
                     }))
                 })
                 .await
-                .map_err(|e| PipelineError::Join { step, reason: e.to_string() })??;
+                .map_err(|e| PipelineError::Join { step, reason: e.to_string() })
+                .and_then(|r| r.map_err(PipelineError::from))
+                {
+                    Ok(w) => w,
+                    Err(e) => return Err(drain(in_flight, e).await),
+                };
                 if let Some((mut made, ok, write_s)) = written {
                     made.claim.cost_s += write_s;
                     *totals.stage_s.entry("preview".to_string()).or_insert(0.0) += made.claim.cost_s;
@@ -565,11 +788,39 @@ where
                     }
                     None => totals.without_truth += 1,
                 }
+                if let Some((se, st)) = p.error_nominal {
+                    totals.sq_err_nominal += se;
+                    totals.sq_truth_nominal += st;
+                }
+                if let Some(e) = p.pose_errors {
+                    totals.texel_err.add(e.used);
+                    totals.nominal_texel_err.add(e.nominal);
+                }
+                if processor.outputs().textures {
+                    match p.registration {
+                        Some(StepRegistration { pose: PoseSource::Markers, .. }) => totals.registered += 1,
+                        Some(StepRegistration { pose: PoseSource::NominalByPlan, .. }) => totals.nominal_by_plan += 1,
+                        Some(StepRegistration { pose: PoseSource::NominalFallback, reason, .. }) => {
+                            totals.fallbacks += 1;
+                            totals.fallback_steps.push((step, reason.unwrap_or_default()));
+                        }
+                        None => {}
+                    }
+                }
                 on_commit(&totals);
             }
         }
     }
     Ok(totals)
+}
+
+/// Waits for the jobs still in flight (their results are dropped: nothing after a failed step
+/// is committed) so that no processing thread outlives the pipeline, then returns `e`.
+async fn drain<T>(in_flight: VecDeque<(StepId, tokio::task::JoinHandle<T>)>, e: PipelineError) -> PipelineError {
+    for (_, job) in in_flight {
+        let _ = job.await;
+    }
+    e
 }
 
 /// A preview made on a processing thread, to be written after the step's commit.

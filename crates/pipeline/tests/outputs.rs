@@ -30,6 +30,10 @@ struct Fixture {
     frames: Vec<CapturedFrame>,
 }
 
+fn builtin_rig() -> RigConfig {
+    RigConfig::from_toml(BUILTIN_RIGS[0].1, "builtin rig").unwrap()
+}
+
 /// 2 x 2 captures of the builtin rig (rendered once: the costly part).
 fn fixture() -> Fixture {
     let cfg = RigConfig::from_toml(BUILTIN_RIGS[0].1, "builtin rig").unwrap();
@@ -71,8 +75,13 @@ fn manifest(f: &Fixture, size: usize, raw: bool, textures: bool) -> Manifest {
 }
 
 fn processor(f: &Fixture, size: usize, outputs: Outputs) -> Arc<Processor> {
-    let settings = ProcessSettings { size, region: Region::centred_square(0.05), filter: Filter::Bilinear };
-    Arc::new(Processor::new(f.scene.clone(), settings).with_outputs(outputs))
+    let settings = ProcessSettings {
+        size,
+        region: Region::centred_square(0.05),
+        filter: Filter::Bilinear,
+        registration: Default::default(),
+    };
+    Arc::new(Processor::new(f.scene.clone(), &builtin_rig().plate, settings).unwrap().with_outputs(outputs))
 }
 
 fn run(ds: &Arc<Dataset<MemStorage>>, pr: &Arc<Processor>, frames: &[CapturedFrame]) -> Result<Totals, PipelineError> {

@@ -15,8 +15,13 @@ use btfrig_store::StepId;
 fn processor(size: usize) -> (Arc<RigScene>, Processor) {
     let cfg = RigConfig::from_toml(BUILTIN_RIGS[0].1, "builtin rig").unwrap();
     let scene = Arc::new(RigScene::new(&cfg, &MaterialSpec::builtin("lacquered-wood").unwrap()).unwrap());
-    let settings = ProcessSettings { size, region: Region::centred_square(0.05), filter: Filter::Bilinear };
-    (scene.clone(), Processor::new(scene, settings))
+    let settings = ProcessSettings {
+        size,
+        region: Region::centred_square(0.05),
+        filter: Filter::Bilinear,
+        registration: Default::default(),
+    };
+    (scene.clone(), Processor::new(scene, &cfg.plate, settings).unwrap())
 }
 
 #[test]

@@ -29,8 +29,13 @@ fn every_frame_is_written_and_committed_once_and_the_dataset_verifies() {
     let rig = RigInfo { name: "test".into(), config_toml: BUILTIN_RIGS[0].1.into() };
     let manifest = Manifest::new(rig, "plan", Samplings::full(&lights, &views), texture, false, 1);
     let ds = Arc::new(Dataset::create_in(MemStorage::new(), manifest).unwrap());
-    let settings = ProcessSettings { size, region: Region::centred_square(0.05), filter: Filter::Bilinear };
-    let processor = Arc::new(Processor::new(scene.clone(), settings));
+    let settings = ProcessSettings {
+        size,
+        region: Region::centred_square(0.05),
+        filter: Filter::Bilinear,
+        registration: Default::default(),
+    };
+    let processor = Arc::new(Processor::new(scene.clone(), &cfg.plate, settings).unwrap());
 
     let exposure = scene.exposure_for_white(0.5, 1e-4, 30.0);
     let mut frames = Vec::new();

@@ -112,6 +112,10 @@ pub struct RunRequest {
     /// paused and wait for [`RunControl::resume`] or [`RunControl::abort`] (false, a daemon
     /// with an operator).
     pub stop_on_fault: bool,
+    /// On a simulated rig, also rectify every registered frame with the nominal pose and
+    /// compare it with the truth (`texture_rel_rmse_nominal`): a second rectification per
+    /// frame, so off by default (`btfrig demo` turns it on).
+    pub compare_nominal: bool,
 }
 
 impl RunRequest {
@@ -129,7 +133,14 @@ impl RunRequest {
             out: out.into(),
             faults: None,
             stop_on_fault: true,
+            compare_nominal: false,
         }
+    }
+
+    /// With the nominal-pose comparison on or off (see [`RunRequest::compare_nominal`]).
+    pub fn with_nominal_comparison(mut self, on: bool) -> RunRequest {
+        self.compare_nominal = on;
+        self
     }
 
     /// With a fault-scenario override (see [`RunRequest::faults`]).
@@ -337,6 +348,24 @@ pub struct RunSummary {
     pub stage_s: BTreeMap<String, f64>,
     /// Rectified textures against ground truth over the reported sessions' captures.
     pub texture_rel_rmse: Option<f64>,
+    /// The same had the nominal pose been used (only from sessions that compared:
+    /// [`RunRequest::compare_nominal`]).
+    pub texture_rel_rmse_nominal: Option<f64>,
+    /// Journaled textures rectified with a pose registered from the markers.
+    pub registered: u64,
+    /// Journaled textures rectified with the nominal pose because registration failed.
+    pub fallbacks: u64,
+    /// Journaled textures rectified with the nominal pose because the plan says so.
+    pub nominal_by_plan: u64,
+    /// Mean texel position error of the poses used against the true poses, texels, over the
+    /// reported sessions' captures (simulated rig).
+    pub registration_mean_texel_err: Option<f64>,
+    /// Largest texel position error of the poses used, texels.
+    pub registration_max_texel_err: Option<f64>,
+    /// Mean texel position error of the nominal poses, texels.
+    pub nominal_mean_texel_err: Option<f64>,
+    /// Largest texel position error of the nominal poses, texels.
+    pub nominal_max_texel_err: Option<f64>,
     /// Retries of the journaled captures (attempts beyond the first).
     pub retries: u64,
     /// Warnings of all reported sessions.
@@ -375,6 +404,14 @@ impl RunSummary {
             "wall_s": self.wall_s,
             "stage_s": self.stage_s,
             "texture_rel_rmse": self.texture_rel_rmse,
+            "texture_rel_rmse_nominal": self.texture_rel_rmse_nominal,
+            "registered": self.registered,
+            "fallbacks": self.fallbacks,
+            "nominal_by_plan": self.nominal_by_plan,
+            "registration_mean_texel_err": self.registration_mean_texel_err,
+            "registration_max_texel_err": self.registration_max_texel_err,
+            "nominal_mean_texel_err": self.nominal_mean_texel_err,
+            "nominal_max_texel_err": self.nominal_max_texel_err,
             "retries": self.retries,
             "warnings": self.warnings.len(),
             "sessions": self.sessions,
@@ -490,8 +527,11 @@ pub fn run(
         },
         filter: match v.texture.filter {
             ResampleFilter::Bilinear => btfrig_calib::Filter::Bilinear,
-            ResampleFilter::Supersample => btfrig_calib::Filter::Footprint { max: 8 },
+            ResampleFilter::Supersample { n } => btfrig_calib::Filter::Supersample { n },
+            ResampleFilter::Footprint { max } => btfrig_calib::Filter::Footprint { max },
+            ResampleFilter::Ewa => btfrig_calib::Filter::Ewa,
         },
+        registration: v.registration,
     };
 
     let commands = control.take().ok_or_else(|| RunError::Rig("this RunControl already drives a run".into()))?;
@@ -515,6 +555,7 @@ pub fn run(
         dataset: dataset.clone(),
         commands,
         stop_on_fault: req.stop_on_fault,
+        compare_nominal: req.compare_nominal,
         on_event,
     }));
     let SessionResult { outcome, hardware_s, engine_retries, warnings, totals } = session?;
@@ -541,6 +582,10 @@ pub fn run(
         sq_truth: totals.sq_truth,
         without_truth: totals.without_truth,
         warnings,
+        sq_err_nominal: totals.sq_err_nominal,
+        sq_truth_nominal: totals.sq_truth_nominal,
+        texel_err: totals.texel_err,
+        nominal_texel_err: totals.nominal_texel_err,
     };
     let summary = summarise(&fixed, &dataset, &previous, Some(&this), outcome);
     let mut sessions: Vec<serde_json::Value> = previous.iter().map(Session::to_json).collect();
@@ -569,6 +614,7 @@ fn summarise(
     all.extend(this.cloned());
     let t = report::totals(&all);
     let (stage_s, retries) = report::journal_stage_s(dataset);
+    let poses = report::journal_poses(dataset);
     let captures = dataset.completed().len() as u64;
     RunSummary {
         outcome,
@@ -583,6 +629,14 @@ fn summarise(
         wall_s: t.wall_s,
         stage_s,
         texture_rel_rmse: t.texture_rel_rmse,
+        texture_rel_rmse_nominal: t.texture_rel_rmse_nominal,
+        registered: poses.registered,
+        fallbacks: poses.fallbacks,
+        nominal_by_plan: poses.nominal_by_plan,
+        registration_mean_texel_err: t.texel_err.mean(),
+        registration_max_texel_err: t.texel_err.max(),
+        nominal_mean_texel_err: t.nominal_texel_err.mean(),
+        nominal_max_texel_err: t.nominal_texel_err.max(),
         retries,
         warnings: t.warnings,
         sessions: all.len(),
@@ -606,6 +660,19 @@ fn report_of(s: &RunSummary, previous: &[Session], this: &Session, sessions: Vec
         );
     }
     put("texture_rel_rmse", json!(s.texture_rel_rmse));
+    put("texture_rel_rmse_nominal", json!(s.texture_rel_rmse_nominal));
+    put(
+        "registration",
+        json!({
+            "registered": s.registered,
+            "fallbacks": s.fallbacks,
+            "nominal_by_plan": s.nominal_by_plan,
+            "registration_mean_texel_err": s.registration_mean_texel_err,
+            "registration_max_texel_err": s.registration_max_texel_err,
+            "nominal_mean_texel_err": s.nominal_mean_texel_err,
+            "nominal_max_texel_err": s.nominal_max_texel_err,
+        }),
+    );
     put("critical_path_s", json!(s.critical_path_s));
     put("naive_order_hardware_s", json!(s.naive_order_hardware_s));
     put("planned_captures", json!(s.planned_captures));
@@ -639,6 +706,7 @@ struct SessionInput<'a> {
     dataset: Arc<Dataset>,
     commands: mpsc::UnboundedReceiver<Command>,
     stop_on_fault: bool,
+    compare_nominal: bool,
     on_event: &'a mut dyn FnMut(&RunEvent),
 }
 
@@ -686,10 +754,23 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
         dataset,
         mut commands,
         stop_on_fault,
+        compare_nominal,
         on_event,
     } = input;
     let scene = Arc::new(RigScene::new(rig, material).map_err(|e| RunError::Rig(e.to_string()))?);
-    let source = Arc::new(RenderedFrameSource::new(scene.clone(), RenderOptions::default()));
+    let mut source: Arc<dyn btfrig_sim::FrameSource> =
+        Arc::new(RenderedFrameSource::new(scene.clone(), RenderOptions::default()));
+    if faults.hidden_markers.is_active() {
+        let occluder = btfrig_sim::faults::MarkerOccluder::new(
+            source,
+            scene.clone(),
+            &rig.plate,
+            faults.hidden_markers.clone(),
+            rig.rig.seed,
+        )
+        .map_err(|e| RunError::Input { what: "fault scenario [hidden_markers]".into(), message: e.to_string() })?;
+        source = Arc::new(occluder);
+    }
     let truth = Arc::new(TruthLog::new(source));
     let mut sim =
         SimRig::from_rig_config(rig, faults, sim_clock(), truth.clone()).map_err(|e| RunError::Rig(e.to_string()))?;
@@ -698,12 +779,31 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
         .map_err(|e| RunError::Rig(format!("preparing the simulated rig: {e}")))?;
     let devices = Devices { robot: sim.robot, rail: sim.rail, camera: sim.camera, clock: sim.world.clock().clone() };
     let _lamp = sim.lamp; // stays on for the whole run
+    let processor = Arc::new(
+        Processor::new(scene, &rig.plate, process)
+            .map_err(|e| RunError::Rig(e.to_string()))?
+            .with_outputs(outputs)
+            .with_nominal_comparison(compare_nominal),
+    );
+    let index_of: std::collections::HashMap<StepKey, usize> =
+        steps.iter().enumerate().map(|(i, s)| (s.key, i)).collect();
     let (tx, rx) = mpsc::channel(FRAME_CHANNEL);
     let mut handle = Engine::spawn(devices, steps, done, settings, tx);
     let mut events = handle.events();
-    let processor = Arc::new(Processor::new(scene, process).with_outputs(outputs));
     let lookup: btfrig_pipeline::TruthLookup = Arc::new(move |f| truth.take(f.frame.meta.timestamp_s));
-    let pipeline = btfrig_pipeline::run(dataset, processor, rx, lookup, |_| {});
+    // The pipeline's totals as of its last commit (kept if it stops at an error) and its
+    // fallbacks, which become warnings on the listening side.
+    let last_totals = Arc::new(Mutex::new(btfrig_pipeline::Totals::default()));
+    let (fallback_tx, mut fallback_rx) = mpsc::unbounded_channel::<String>();
+    let kept = last_totals.clone();
+    let pipeline = btfrig_pipeline::run(dataset, processor, rx, lookup, move |t| {
+        let mut k = kept.lock().unwrap_or_else(|e| e.into_inner());
+        for (step, reason) in &t.fallback_steps[k.fallback_steps.len()..] {
+            let _ = fallback_tx
+                .send(format!("step {step}: registration failed, rectified with the nominal pose: {reason}"));
+        }
+        *k = t.clone();
+    });
     let listen = async {
         let mut stop: Option<RunOutcome> = None;
         let mut warnings = Vec::new();
@@ -743,6 +843,10 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
                     Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {}
                     Err(tokio::sync::broadcast::error::RecvError::Closed) => break,
                 },
+                Some(w) = fallback_rx.recv() => {
+                    on_event(&RunEvent::Warning(w.clone()));
+                    warnings.push(w);
+                }
                 c = commands.recv(), if commands_open => match c {
                     None => commands_open = false,
                     Some(Command::Pause) => handle.pause(),
@@ -760,7 +864,32 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
         }
         (stop, warnings)
     };
-    let (totals, (stop, warnings)) = tokio::join!(pipeline, listen);
+    let (totals, (mut stop, mut warnings)) = tokio::join!(pipeline, listen);
+    // Fallbacks of the frames committed after the engine finished.
+    while let Ok(w) = fallback_rx.try_recv() {
+        on_event(&RunEvent::Warning(w.clone()));
+        warnings.push(w);
+    }
+    // A registration failure under `on_failure = "fail"` ends the session like a device
+    // fault: paused on that step, resumable, the report written.
+    let totals = match totals {
+        Err(btfrig_pipeline::PipelineError::Registration { step, reason }) => {
+            let key = StepKey { light: step.light, view: step.view };
+            let fault = Fault {
+                index: index_of.get(&key).copied().unwrap_or(0),
+                light: step.light,
+                view: step.view,
+                device: "registration".into(),
+                kind: "registration".into(),
+                message: format!("registration failed: {reason}"),
+            };
+            let why = format!("step {step}: registration failed and the plan says on_failure = \"fail\": {reason}");
+            on_event(&RunEvent::Paused { reason: why.clone(), fault: Some(fault.clone()) });
+            stop = Some(RunOutcome::Paused { reason: why, fault: Some(fault) });
+            Ok(last_totals.lock().unwrap_or_else(|e| e.into_inner()).clone())
+        }
+        other => other,
+    };
     let summary = match handle.join().await {
         EngineOutcome::Finished(s) => s,
         EngineOutcome::Aborted { summary, .. } => summary,

@@ -28,6 +28,7 @@ pub const FAULT_FILES: &[(&str, &str)] = &[
     ("lamp-drift", include_str!("../../../sim/faults/lamp-drift.toml")),
     ("stuck-led", include_str!("../../../sim/faults/stuck-led.toml")),
     ("robot-fault", include_str!("../../../sim/faults/robot-fault.toml")),
+    ("hidden-markers", include_str!("../../../sim/faults/hidden-markers.toml")),
 ];
 
 fn read(path: &Path) -> Result<String, RunError> {

@@ -5,6 +5,7 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
+use btfrig_pipeline::TexelErrorTotals;
 use serde_json::{json, Value};
 
 /// One session's figures, as kept in `report.json`'s `sessions` list.
@@ -32,6 +33,26 @@ pub struct Session {
     pub without_truth: u64,
     /// Warnings of the session.
     pub warnings: Vec<String>,
+    /// Sum of squared texture errors had the nominal pose been used (sessions that compared).
+    pub sq_err_nominal: f64,
+    /// Sum of squared truth of those textures.
+    pub sq_truth_nominal: f64,
+    /// Texel position error of the poses used against the truth.
+    pub texel_err: TexelErrorTotals,
+    /// Texel position error of the nominal poses against the truth.
+    pub nominal_texel_err: TexelErrorTotals,
+}
+
+fn texel_json(t: &TexelErrorTotals) -> Value {
+    json!({"frames": t.frames, "sum_mean": t.sum_mean, "max": t.max})
+}
+
+fn texel_from_json(v: &Value) -> TexelErrorTotals {
+    TexelErrorTotals {
+        frames: v["frames"].as_u64().unwrap_or(0),
+        sum_mean: v["sum_mean"].as_f64().unwrap_or(0.0),
+        max: v["max"].as_f64().unwrap_or(0.0),
+    }
 }
 
 impl Session {
@@ -49,6 +70,10 @@ impl Session {
             "sq_truth": self.sq_truth,
             "captures_without_truth": self.without_truth,
             "warnings": self.warnings,
+            "sq_err_nominal": self.sq_err_nominal,
+            "sq_truth_nominal": self.sq_truth_nominal,
+            "texel_err": texel_json(&self.texel_err),
+            "nominal_texel_err": texel_json(&self.nominal_texel_err),
         })
     }
 
@@ -70,6 +95,10 @@ impl Session {
                 .as_array()
                 .map(|a| a.iter().filter_map(|w| w.as_str().map(str::to_string)).collect())
                 .unwrap_or_default(),
+            sq_err_nominal: f("sq_err_nominal"),
+            sq_truth_nominal: f("sq_truth_nominal"),
+            texel_err: texel_from_json(&v["texel_err"]),
+            nominal_texel_err: texel_from_json(&v["nominal_texel_err"]),
         }
     }
 }
@@ -114,12 +143,18 @@ pub struct SessionTotals {
     pub without_truth: u64,
     /// All warnings, oldest first.
     pub warnings: Vec<String>,
+    /// `texture_rel_rmse` had the nominal pose been used, when any session compared.
+    pub texture_rel_rmse_nominal: Option<f64>,
+    /// Texel position errors of the poses used.
+    pub texel_err: TexelErrorTotals,
+    /// Texel position errors of the nominal poses.
+    pub nominal_texel_err: TexelErrorTotals,
 }
 
 /// Sums `sessions`.
 pub fn totals(sessions: &[Session]) -> SessionTotals {
     let mut t = SessionTotals::default();
-    let (mut se, mut st) = (0.0, 0.0);
+    let (mut se, mut st, mut sen, mut stn) = (0.0, 0.0, 0.0, 0.0);
     for s in sessions {
         t.wall_s += s.wall_s;
         t.hardware_s += s.hardware_s;
@@ -129,9 +164,40 @@ pub fn totals(sessions: &[Session]) -> SessionTotals {
         t.warnings.extend(s.warnings.iter().cloned());
         se += s.sq_err;
         st += s.sq_truth;
+        sen += s.sq_err_nominal;
+        stn += s.sq_truth_nominal;
+        t.texel_err.merge(&s.texel_err);
+        t.nominal_texel_err.merge(&s.nominal_texel_err);
     }
     t.texture_rel_rmse = (st > 0.0).then(|| (se / st).sqrt());
+    t.texture_rel_rmse_nominal = (stn > 0.0).then(|| (sen / stn).sqrt());
     t
+}
+
+/// How the journaled textures' poses were found.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct PoseCounts {
+    /// Registered from the markers.
+    pub registered: u64,
+    /// Nominal because registration failed.
+    pub fallbacks: u64,
+    /// Nominal because the plan says so.
+    pub nominal_by_plan: u64,
+}
+
+/// Counts the journaled steps by how their pose was found (exact across sessions; steps
+/// journaled before registration existed count in none).
+pub fn journal_poses<S: btfrig_store::Storage>(dataset: &btfrig_store::Dataset<S>) -> PoseCounts {
+    let mut c = PoseCounts::default();
+    for step in dataset.completed() {
+        match dataset.step_record(step).and_then(|r| r.registration).map(|r| r.pose) {
+            Some(btfrig_store::PoseSource::Markers) => c.registered += 1,
+            Some(btfrig_store::PoseSource::NominalFallback) => c.fallbacks += 1,
+            Some(btfrig_store::PoseSource::NominalByPlan) => c.nominal_by_plan += 1,
+            None => {}
+        }
+    }
+    c
 }
 
 /// Stage times summed over every journaled step (exact across sessions, killed ones too).
@@ -167,6 +233,10 @@ mod tests {
             sq_truth: 100.0,
             without_truth: 0,
             warnings: vec!["w1".into()],
+            sq_err_nominal: 2.0,
+            sq_truth_nominal: 100.0,
+            texel_err: TexelErrorTotals { frames: 10, sum_mean: 0.05, max: 0.02 },
+            nominal_texel_err: TexelErrorTotals { frames: 10, sum_mean: 1.0, max: 0.3 },
         };
         let b = Session {
             status: "finished".into(),
@@ -175,6 +245,7 @@ mod tests {
             hardware_s: 50.0,
             sq_err: 3.0,
             sq_truth: 300.0,
+            texel_err: TexelErrorTotals { frames: 5, sum_mean: 0.05, max: 0.04 },
             ..Session::default()
         };
         assert_eq!(Session::from_json(&a.to_json()), a);
@@ -184,6 +255,12 @@ mod tests {
         // Pooled over all texels, not the mean of the sessions' figures.
         assert!((t.texture_rel_rmse.unwrap() - (4.0f64 / 400.0).sqrt()).abs() < 1e-15);
         assert_eq!(t.warnings, vec!["w1".to_string()]);
+        // Only the session that compared with the nominal pose counts for that figure.
+        assert!((t.texture_rel_rmse_nominal.unwrap() - (2.0f64 / 100.0).sqrt()).abs() < 1e-15);
+        // Mean over all 15 frames of their per-frame means; max over both sessions.
+        assert!((t.texel_err.mean().unwrap() - 0.1 / 15.0).abs() < 1e-15);
+        assert_eq!(t.texel_err.max(), Some(0.04));
+        assert_eq!(t.nominal_texel_err.frames, 10);
         assert_eq!(totals(&[]).texture_rel_rmse, None);
     }
 }

@@ -113,3 +113,54 @@ fn fault_override_keeps_the_plan_hash_and_unknown_names_are_refused() {
     assert_eq!(s.outcome, RunOutcome::Finished);
     assert_eq!((s.captures, s.captures_this_session, s.sessions), (12, 6, 2));
 }
+
+#[test]
+fn hidden_markers_fall_back_on_record_or_pause_naming_the_step_and_the_run_resumes() {
+    // on_failure = "nominal" (the default): the run finishes, the two frames whose markers
+    // are covered use the nominal pose, are counted and warned about by step.
+    let dir = scratch("hidden-nominal");
+    let req = request(&dir, "none").with_faults(Some("hidden-markers".into()));
+    let mut warnings = Vec::new();
+    let s = run(&req, &RunControl::new(), &mut |e| {
+        if let RunEvent::Warning(w) = e {
+            warnings.push(w.clone());
+        }
+    })
+    .unwrap();
+    assert_eq!(s.outcome, RunOutcome::Finished);
+    assert_eq!((s.captures, s.registered, s.fallbacks, s.nominal_by_plan), (12, 10, 2, 0), "{s:?}");
+    let fallbacks: Vec<&String> = warnings.iter().filter(|w| w.contains("registration failed")).collect();
+    assert_eq!(fallbacks.len(), 2, "{warnings:?}");
+    for w in &fallbacks {
+        assert!(w.starts_with("step (light ") && w.contains("nominal pose") && w.contains("good markers"), "{w}");
+    }
+    let r = report(&dir);
+    assert_eq!(r["registration"]["fallbacks"], 2);
+    assert_eq!(r["registration"]["registered"], 10);
+    // The journal says which textures used a fallback.
+    let journal = std::fs::read_to_string(dir.join("dataset/journal.btfj")).unwrap();
+    assert_eq!(journal.matches(r#""pose":"nominal-fallback""#).count(), 2);
+    assert_eq!(journal.matches(r#""pose":"markers""#).count(), 10);
+    // Ground truth figures: the registered poses are far closer to the truth.
+    let (reg, nom) = (s.registration_mean_texel_err.unwrap(), s.nominal_mean_texel_err.unwrap());
+    assert!(reg < nom, "registration {reg} vs nominal {nom}");
+
+    // on_failure = "fail": the session pauses at the first covered frame, naming the step and
+    // the reason; what was committed before stays, and a run without the fault resumes.
+    let dir = scratch("hidden-fail");
+    let text = plan_text("none") + "[registration]\non_failure = \"fail\"\n";
+    let req = RunRequest::from_text(text, &dir.join("plan.toml"), &dir.join("dataset"))
+        .with_faults(Some("hidden-markers".into()));
+    let s = run(&req, &RunControl::new(), &mut |_| {}).unwrap();
+    let RunOutcome::Paused { reason, fault: Some(f) } = &s.outcome else { panic!("{s:?}") };
+    assert_eq!((f.device.as_str(), f.kind.as_str(), f.index), ("registration", "registration", 2), "{f:?}");
+    assert!(reason.starts_with("step (light ") && reason.contains("on_failure = \"fail\""), "{reason}");
+    assert!(reason.contains("good markers"), "{reason}");
+    assert_eq!(s.captures, 2);
+    assert_eq!(report(&dir)["status"], "paused");
+    assert_eq!(report(&dir)["paused_step"]["device"], "registration");
+    let s = run(&req.with_faults(Some("none".into())), &RunControl::new(), &mut |_| {}).unwrap();
+    assert_eq!(s.outcome, RunOutcome::Finished);
+    assert_eq!((s.captures, s.captures_this_session, s.sessions), (12, 10, 2));
+    assert_eq!((s.registered, s.fallbacks), (12, 0));
+}

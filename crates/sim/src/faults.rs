@@ -4,17 +4,28 @@
 //! Every device call (every async method of a device trait) counts as one call of that
 //! device, numbered from 1. A scenario can make chosen calls time out, take a device
 //! off-line from a call on (and bring it back after some calls), drop or corrupt frames,
-//! keep LEDs stuck, and make the lamp drift. Random faults draw from a ChaCha stream seeded
+//! keep LEDs stuck, make the lamp drift, and hide the holder plate's markers from the camera
+//! ([`HiddenMarkers`], applied by the frame source wrapper [`MarkerOccluder`]). Random faults draw from a ChaCha stream seeded
 //! from the rig seed and the device name, so the same seed and the same calls give the same
 //! faults. The format is documented in `docs/devices.md`.
 
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+
+use btfrig_core::camera::CameraModel;
+use btfrig_core::config::plate::{MarkerPlacement, PlateConfig};
+use btfrig_core::frame::RawFrame;
+use btfrig_core::pose::ScenePose;
 use btfrig_core::ConfigError;
 use btfrig_hw::{DeviceError, ErrorKind, SharedClock};
+use btfrig_render::rig_scene::RigScene;
+use nalgebra::{Point2, Point3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::world::{FaultKind, SimWorld};
+use crate::{FrameSource, SensorFormat, TrueState};
 
 /// A device of the rig, as named in fault scenarios and in `[devices]`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -120,6 +131,32 @@ pub struct StuckLed {
 
 pub use crate::world::LampDrift;
 
+/// Markers of the holder plate covered by a dark object (a cable, a hand) in chosen frames,
+/// so that registration has too few markers: the way to test a plan's registration failure
+/// policy end to end.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HiddenMarkers {
+    /// Frame numbers (1-based count of frames rendered, i.e. of read-outs that were not
+    /// dropped) whose markers are covered.
+    #[serde(default)]
+    pub frames: Vec<u64>,
+    /// Probability that any other frame's markers are covered, in `[0, 1]`. Drawn from the
+    /// frame's noise seed, so a resumed run covers the same captures.
+    #[serde(default)]
+    pub probability: f64,
+    /// Ids of the markers covered; empty (default): all of them.
+    #[serde(default)]
+    pub markers: Vec<u32>,
+}
+
+impl HiddenMarkers {
+    /// Does the scenario hide anything?
+    pub fn is_active(&self) -> bool {
+        !self.frames.is_empty() || self.probability > 0.0
+    }
+}
+
 /// A fault scenario: the contents of one `sim/faults/*.toml` file.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -149,6 +186,10 @@ pub struct FaultScenario {
     /// Lamp output drift (`[lamp_drift]`).
     #[serde(default)]
     pub lamp_drift: Option<LampDrift>,
+    /// Plate markers covered in chosen frames (`[hidden_markers]`); applied by
+    /// [`MarkerOccluder`], a wrapper of the rig's frame source.
+    #[serde(default)]
+    pub hidden_markers: HiddenMarkers,
 }
 
 impl FaultScenario {
@@ -198,6 +239,8 @@ impl FaultScenario {
                 ));
             }
         }
+        prob(errors, "faults.hidden_markers.probability".into(), self.hidden_markers.probability);
+        calls(errors, "faults.hidden_markers.frames".into(), &self.hidden_markers.frames);
         for (name, f) in [("dropped_frames", &self.dropped_frames), ("corrupt_frames", &self.corrupt_frames)] {
             prob(errors, format!("faults.{name}.probability"), f.probability);
             calls(errors, format!("faults.{name}.frames"), &f.frames);
@@ -411,5 +454,240 @@ impl FrameFaults {
             let bit = self.rng.gen_range(0..bit_depth.clamp(1, 16));
             data[i] ^= 1 << bit;
         }
+    }
+}
+
+/// Checks `[hidden_markers]` against the rig's plate: every named id must be on it.
+pub fn validate_hidden_markers(h: &HiddenMarkers, plate: &PlateConfig, errors: &mut Vec<ConfigError>) {
+    let n = plate.marker_count();
+    for (i, &id) in h.markers.iter().enumerate() {
+        if id >= n {
+            errors.push(ConfigError::out_of_range(
+                &format!("faults.hidden_markers.markers[{i}]"),
+                id,
+                &format!("0..{n} (the ids of the plate's markers)"),
+            ));
+        }
+    }
+}
+
+/// A frame source that covers the holder plate's markers in chosen frames with a dark
+/// object ([`HiddenMarkers`]): every covered marker's square, enlarged by half its side in
+/// each direction (so its white quiet zone goes too), is painted at the black level in the
+/// raw frame, using the TRUE pose of the frame.
+pub struct MarkerOccluder {
+    inner: Arc<dyn FrameSource>,
+    scene: Arc<RigScene>,
+    hidden: HiddenMarkers,
+    markers: Vec<MarkerPlacement>,
+    seed: u64,
+    rendered: AtomicU64,
+    covered: AtomicU64,
+}
+
+impl MarkerOccluder {
+    /// Wraps `inner`, whose frames show `scene` with the plate `plate`; `seed` is the rig's.
+    /// Fails if `hidden` names a marker the plate does not have.
+    pub fn new(
+        inner: Arc<dyn FrameSource>,
+        scene: Arc<RigScene>,
+        plate: &PlateConfig,
+        hidden: HiddenMarkers,
+        seed: u64,
+    ) -> Result<Self, ConfigError> {
+        let mut errors = Vec::new();
+        validate_hidden_markers(&hidden, plate, &mut errors);
+        ConfigError::from_list(errors)?;
+        let all = plate.marker_placements();
+        let markers = if hidden.markers.is_empty() {
+            all
+        } else {
+            all.into_iter().filter(|m| hidden.markers.contains(&m.id)).collect()
+        };
+        Ok(MarkerOccluder {
+            inner,
+            scene,
+            hidden,
+            markers,
+            seed,
+            rendered: AtomicU64::new(0),
+            covered: AtomicU64::new(0),
+        })
+    }
+
+    /// Frames whose markers were covered so far.
+    pub fn covered(&self) -> u64 {
+        self.covered.load(Ordering::Relaxed)
+    }
+}
+
+impl FrameSource for MarkerOccluder {
+    fn format(&self) -> SensorFormat {
+        self.inner.format()
+    }
+
+    fn render(&self, truth: &TrueState, settings: &btfrig_hw::CaptureSettings, seed: u64) -> RawFrame {
+        let mut frame = self.inner.render(truth, settings, seed);
+        let n = self.rendered.fetch_add(1, Ordering::Relaxed) + 1;
+        let h = &self.hidden;
+        // Keyed by the frame's own seed (what is captured), not by the call count.
+        let hit = h.frames.contains(&n)
+            || (h.probability > 0.0
+                && ChaCha8Rng::seed_from_u64(seed_for(derive_seed(self.seed, "hidden-markers", 3), &[seed]))
+                    .gen_bool(h.probability));
+        if hit {
+            self.covered.fetch_add(1, Ordering::Relaxed);
+            let pose = self.scene.pose(&truth.joints);
+            cover_markers(&mut frame, self.scene.camera().model(), &pose, &self.markers);
+        }
+        frame
+    }
+}
+
+/// Paints each of `markers`, enlarged by half its side in each direction, at the frame's
+/// black level, as seen by `camera` with the plate at `pose` (integer pixel coordinates are
+/// pixel centres).
+pub fn cover_markers(frame: &mut RawFrame, camera: &CameraModel, pose: &ScenePose, markers: &[MarkerPlacement]) {
+    let to_cam = pose.camera_to_world.inverse() * pose.sample_to_world;
+    let dark = frame.meta.black_level;
+    for m in markers {
+        let c = m.corners_sample_m.iter().fold(Point2::origin(), |a, p| a + p.coords / 4.0);
+        // Enlarged about the centre by 2x: the marker plus a border half its side wide.
+        let quad: Option<Vec<Point2<f64>>> = m
+            .corners_sample_m
+            .iter()
+            .map(|p| {
+                let q = c + (p - c) * 2.0;
+                camera.project(&(to_cam * Point3::new(q.x, q.y, 0.0)))
+            })
+            .collect();
+        let Some(quad) = quad else { continue };
+        let (x0, x1) = quad.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| (a.min(p.x), b.max(p.x)));
+        let (y0, y1) = quad.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| (a.min(p.y), b.max(p.y)));
+        let clamp = |v: f64, hi: usize| v.clamp(0.0, hi as f64 - 1.0) as usize;
+        if x1 < 0.0 || y1 < 0.0 || x0 > frame.width as f64 || y0 > frame.height as f64 {
+            continue;
+        }
+        // The projected quad is convex (a plane seen through a lens with mild distortion):
+        // inside when on the same side of all four edges.
+        let inside = |x: f64, y: f64| {
+            let mut sign = 0.0f64;
+            for k in 0..4 {
+                let (a, b) = (quad[k], quad[(k + 1) % 4]);
+                let cross = (b.x - a.x) * (y - a.y) - (b.y - a.y) * (x - a.x);
+                if cross != 0.0 {
+                    if sign != 0.0 && cross.signum() != sign {
+                        return false;
+                    }
+                    sign = cross.signum();
+                }
+            }
+            true
+        };
+        for y in clamp(y0.floor(), frame.height)..=clamp(y1.ceil(), frame.height) {
+            for x in clamp(x0.floor(), frame.width)..=clamp(x1.ceil(), frame.width) {
+                if inside(x as f64, y as f64) {
+                    frame.data[y * frame.width + x] = dark;
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::FlatFrameSource;
+    use btfrig_core::config::RigConfig;
+    use btfrig_core::plan::BUILTIN_RIGS;
+    use btfrig_core::Direction;
+    use btfrig_hw::CaptureSettings;
+    use btfrig_render::material::MaterialSpec;
+
+    fn setup() -> (RigConfig, Arc<RigScene>, TrueState) {
+        let cfg = RigConfig::from_toml(BUILTIN_RIGS[0].1, "builtin rig").unwrap();
+        let scene = Arc::new(RigScene::new(&cfg, &MaterialSpec::builtin("leather").unwrap()).unwrap());
+        let joints = scene.gonio().ik(Direction::from_degrees(45.0, 0.0), Direction::from_degrees(30.0, 90.0)).unwrap();
+        let truth = TrueState {
+            joints,
+            lamp_on: true,
+            lamp_shutter_open: true,
+            lamp_intensity: 1.0,
+            leds: Vec::new(),
+            time_s: 0.0,
+        };
+        (cfg, scene, truth)
+    }
+
+    const SETTINGS: CaptureSettings = CaptureSettings { exposure_s: 0.1, gain: 1.0, f_number: None };
+
+    #[test]
+    fn covering_a_marker_paints_its_projected_enlarged_square_at_the_black_level_and_nothing_else() {
+        let (cfg, scene, truth) = setup();
+        let cam = scene.camera().model();
+        let flat = FlatFrameSource::new(cam.width, cam.height, 10_000.0);
+        let mut frame = flat.render(&truth, &SETTINGS, 0);
+        let lit = frame.data[0];
+        let pose = scene.pose(&truth.joints);
+        let marker = cfg.plate.marker_placements()[5].clone();
+        cover_markers(&mut frame, cam, &pose, std::slice::from_ref(&marker));
+        let painted = frame.data.iter().filter(|&&v| v == frame.meta.black_level).count();
+        assert!(frame.data.iter().all(|&v| v == lit || v == frame.meta.black_level));
+        // Independent area: the shoelace area of the projected enlarged corners (the lens
+        // barely bends a 4 cm square), against the count of painted pixel centres.
+        let to_cam = pose.camera_to_world.inverse() * pose.sample_to_world;
+        let c = marker.corners_sample_m.iter().fold(Point2::origin(), |a, p| a + p.coords / 4.0);
+        let q: Vec<Point2<f64>> = marker
+            .corners_sample_m
+            .iter()
+            .map(|p| {
+                let e = c + (p - c) * 2.0;
+                cam.project(&(to_cam * Point3::new(e.x, e.y, 0.0))).unwrap()
+            })
+            .collect();
+        let area = (0..4).map(|k| q[k].x * q[(k + 1) % 4].y - q[(k + 1) % 4].x * q[k].y).sum::<f64>().abs() / 2.0;
+        let perimeter: f64 = (0..4).map(|k| (q[(k + 1) % 4] - q[k]).norm()).sum();
+        assert!(area > 1000.0, "a marker is tens of pixels wide at this view: {area}");
+        assert!(
+            (painted as f64 - area).abs() < perimeter,
+            "painted {painted}, area {area:.0}, perimeter {perimeter:.0}"
+        );
+        // The marker's own centre is covered; the plate centre (the sample) is not.
+        let centre = cam.project(&(to_cam * Point3::new(c.x, c.y, 0.0))).unwrap();
+        let at = |p: Point2<f64>| frame.data[p.y.round() as usize * frame.width + p.x.round() as usize];
+        assert_eq!(at(centre), frame.meta.black_level);
+        let sample = cam.project(&(to_cam * Point3::origin())).unwrap();
+        assert_eq!(at(sample), lit);
+    }
+
+    #[test]
+    fn the_occluder_covers_the_chosen_frames_and_draws_probabilities_from_the_frame_seed() {
+        let (cfg, scene, truth) = setup();
+        let cam = scene.camera().model();
+        let flat: Arc<dyn FrameSource> = Arc::new(FlatFrameSource::new(cam.width, cam.height, 10_000.0));
+        let clean = flat.render(&truth, &SETTINGS, 0);
+        let hidden = HiddenMarkers { frames: vec![2], probability: 0.0, markers: vec![0, 7] };
+        let occ = MarkerOccluder::new(flat.clone(), scene.clone(), &cfg.plate, hidden, 1).unwrap();
+        let covered: Vec<bool> = (0..4).map(|_| occ.render(&truth, &SETTINGS, 0) != clean).collect();
+        assert_eq!(covered, [false, true, false, false]);
+        assert_eq!(occ.covered(), 1);
+
+        // With a probability, the decision follows the frame's seed, not the call count.
+        let hidden = HiddenMarkers { frames: vec![], probability: 0.5, markers: vec![] };
+        let occ = MarkerOccluder::new(flat.clone(), scene.clone(), &cfg.plate, hidden, 1).unwrap();
+        let first: Vec<bool> = (0..64).map(|s| occ.render(&truth, &SETTINGS, s) != clean).collect();
+        let again: Vec<bool> = (0..64).rev().map(|s| occ.render(&truth, &SETTINGS, s) != clean).collect();
+        assert!(first.iter().eq(again.iter().rev()));
+        let n = first.iter().filter(|&&c| c).count();
+        assert!((16..=48).contains(&n), "{n} of 64 covered at p = 0.5");
+
+        let bad = HiddenMarkers { frames: vec![0], probability: 1.5, markers: vec![99] };
+        let e = MarkerOccluder::new(flat.clone(), scene.clone(), &cfg.plate, bad.clone(), 1).err().unwrap().to_string();
+        assert!(e.contains("faults.hidden_markers.markers[0]") && e.contains("0..12"), "{e}");
+        let mut errors = Vec::new();
+        FaultScenario { hidden_markers: bad, ..FaultScenario::none() }.validate(&mut errors);
+        let all: Vec<String> = errors.iter().map(|e| e.to_string()).collect();
+        assert!(all.iter().any(|e| e.contains("faults.hidden_markers.probability")), "{all:?}");
+        assert!(all.iter().any(|e| e.contains("faults.hidden_markers.frames[0]")), "{all:?}");
     }
 }

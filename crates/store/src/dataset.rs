@@ -12,7 +12,7 @@ use crate::hash::content_hash;
 use crate::journal::{self, Journal, Record, StepRecord, TornTail};
 use crate::manifest::{Manifest, TextureFormat, TimingSummary};
 use crate::storage::{parent, FsStorage, Storage};
-use crate::{FileRecord, RunReport, StepId, StepTiming};
+use crate::{FileRecord, RunReport, StepId, StepRegistration, StepTiming};
 
 /// The manifest's file name.
 pub const MANIFEST_FILE: &str = "manifest.json";
@@ -392,6 +392,19 @@ impl<S: Storage> Dataset<S> {
         attempts: u32,
         timing: StepTiming,
     ) -> Result<(), StoreError> {
+        self.commit_step_with(step, files, attempts, timing, None)
+    }
+
+    /// [`Dataset::commit_step`] with how the step's sample pose was found, journaled in the
+    /// same record.
+    pub fn commit_step_with(
+        &self,
+        step: StepId,
+        files: Vec<FileRecord>,
+        attempts: u32,
+        timing: StepTiming,
+        registration: Option<StepRegistration>,
+    ) -> Result<(), StoreError> {
         let mut journal = self.journal();
         self.check_open(step, &journal)?;
         for need in required_files(&self.manifest, step) {
@@ -419,7 +432,7 @@ impl<S: Storage> Dataset<S> {
                 });
             }
         }
-        journal.append(&self.storage, Record::Step(StepRecord { step, files, attempts, timing }))
+        journal.append(&self.storage, Record::Step(StepRecord { step, files, attempts, timing, registration }))
     }
 
     /// Replaces [`PREVIEW_FILE`] with `png` (temporary file, rename: a reader never sees a

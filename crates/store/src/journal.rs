@@ -20,7 +20,7 @@ use serde::{Deserialize, Serialize};
 use crate::error::StoreError;
 use crate::hash::sha256;
 use crate::storage::{parent, Storage};
-use crate::{FileRecord, StepId, StepTiming};
+use crate::{FileRecord, StepId, StepRegistration, StepTiming};
 
 /// `format` field of the header record.
 pub const JOURNAL_FORMAT: &str = "btfrig-journal";
@@ -64,6 +64,10 @@ pub struct StepRecord {
     pub attempts: u32,
     /// Its timing.
     pub timing: StepTiming,
+    /// How its sample pose was found (absent in journals written before registration, and
+    /// for steps that wrote no texture).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub registration: Option<StepRegistration>,
 }
 
 /// Frames one record: length, checksum, JSON, newline.
@@ -307,6 +311,7 @@ mod tests {
             files: vec![FileRecord { path: format!("textures/{l}_{v}.exr"), size: 10, hash: "sha256:ab".into() }],
             attempts: 1,
             timing: StepTiming::default(),
+            registration: None,
         })
     }
 
@@ -319,6 +324,33 @@ mod tests {
             bytes.extend(encode_record(&step(i, i + 1)));
         }
         (bytes, starts)
+    }
+
+    #[test]
+    fn the_registration_field_is_optional_and_round_trips() {
+        // A step record as journaled before registration existed still parses.
+        let old = r#"{"type":"step","step":{"light":1,"view":2},"files":[],"attempts":1,"timing":{"started_unix_s":1.0,"wall_s":0.5,"hardware_s":null}}"#;
+        match serde_json::from_str::<Record>(old).unwrap() {
+            Record::Step(r) => assert_eq!(r.registration, None),
+            other => panic!("{other:?}"),
+        }
+        let reg = crate::StepRegistration {
+            pose: crate::PoseSource::NominalFallback,
+            markers: vec![],
+            rms_px: None,
+            texel_sigma: None,
+            reason: Some("registration needs at least 3 good markers, found 0".into()),
+        };
+        let Record::Step(mut r) = step(1, 2) else { unreachable!() };
+        r.registration = Some(reg.clone());
+        let json = serde_json::to_string(&Record::Step(r)).unwrap();
+        assert!(json.contains(r#""pose":"nominal-fallback""#), "{json}");
+        match serde_json::from_str::<Record>(&json).unwrap() {
+            Record::Step(back) => assert_eq!(back.registration, Some(reg)),
+            other => panic!("{other:?}"),
+        }
+        // Without registration the record is byte-for-byte what older versions wrote.
+        assert!(!serde_json::to_string(&step(1, 2)).unwrap().contains("registration"));
     }
 
     #[test]

@@ -102,6 +102,52 @@ pub struct StepTiming {
     pub stage_s: BTreeMap<String, f64>,
 }
 
+/// Which pose a step's texture was rectified with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum PoseSource {
+    /// The pose registered from the holder plate's markers in the frame.
+    Markers,
+    /// Registration failed and the plan allowed the nominal (kinematic) pose instead.
+    NominalFallback,
+    /// The plan asked for the nominal pose (`[registration] method = "nominal"`).
+    NominalByPlan,
+}
+
+impl PoseSource {
+    /// The name as journaled.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            PoseSource::Markers => "markers",
+            PoseSource::NominalFallback => "nominal-fallback",
+            PoseSource::NominalByPlan => "nominal-by-plan",
+        }
+    }
+}
+
+/// How a step's sample pose was found, as journaled with the step (optional: journals
+/// written before registration have none).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StepRegistration {
+    /// The pose the texture was rectified with.
+    pub pose: PoseSource,
+    /// Ids of the markers the registered pose rests on (its inliers), ascending; empty
+    /// unless `pose` is `markers`.
+    #[serde(default)]
+    pub markers: Vec<u32>,
+    /// RMS reprojection error of those markers' corners, pixels.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rms_px: Option<f64>,
+    /// Predicted standard deviation of the texel position error from the pose covariance,
+    /// texels (worst point of the texture).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub texel_sigma: Option<f64>,
+    /// Why registration failed (fallbacks only).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reason: Option<String>,
+}
+
 /// The run report (`report.json`), written by [`Dataset::finish`]. Unknown fields are kept
 /// in `extra` so later versions can add figures.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]

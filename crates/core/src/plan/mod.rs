@@ -35,8 +35,9 @@ use serde::{Deserialize, Serialize};
 
 pub use error::{PlanError, PlanErrors};
 pub use validate::{
-    CaptureList, ExistingDataset, ExposurePolicy, MaterialRef, OutputFormat, Outputs, PlanContext, Region,
-    ResampleFilter, SkipReason, TextureSettings, UnreachablePair, ValidatedPlan,
+    CaptureList, ExistingDataset, ExposurePolicy, MaterialRef, OnRegistrationFailure, OutputFormat, Outputs,
+    PlanContext, Region, RegistrationMethod, RegistrationPolicy, ResampleFilter, SkipReason, TextureSettings,
+    UnreachablePair, ValidatedPlan,
 };
 
 /// The rig config name that selects the embedded default simulated gonioreflectometer.
@@ -47,7 +48,8 @@ pub const BUILTIN_RIGS: &[(&str, &str)] = &[(BUILTIN_RIG, include_str!("../../..
 
 /// Names of the fault scenarios shipped in `sim/faults/` (file stems). The caller may pass
 /// others in [`PlanContext::known_faults`] (e.g. after listing the directory).
-pub const BUILTIN_FAULT_SCENARIOS: &[&str] = &["none", "flaky", "lamp-drift", "stuck-led", "robot-fault"];
+pub const BUILTIN_FAULT_SCENARIOS: &[&str] =
+    &["none", "flaky", "lamp-drift", "stuck-led", "robot-fault", "hidden-markers"];
 
 /// Names of the materials embedded in the simulator (`sim/materials/`). Kept here as names
 /// only because `core` must not depend on `render`; a test in `render` can cross-check.
@@ -84,6 +86,42 @@ pub struct Plan {
     /// Faults, retries and timeouts of the run.
     #[serde(default)]
     pub run: RunSpec,
+    /// How each frame's sample pose is found (marker registration or the nominal pose).
+    #[serde(default, skip_serializing_if = "RegistrationSpec::is_default")]
+    pub registration: RegistrationSpec,
+}
+
+/// The `[registration]` table: where the pose each frame is rectified with comes from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RegistrationSpec {
+    /// `"markers"` (default): register every frame against the holder plate's markers;
+    /// `"nominal"`: rectify with the kinematic pose of the commanded joints (no registration).
+    #[serde(default = "RegistrationSpec::default_method")]
+    pub method: String,
+    /// When registration fails: `"nominal"` (default) rectifies with the kinematic pose and
+    /// records the step as a fallback; `"fail"` stops the run naming the step and the reason.
+    /// A run policy: not part of [`Plan::content_hash`].
+    #[serde(default = "RegistrationSpec::default_on_failure")]
+    pub on_failure: String,
+}
+
+impl RegistrationSpec {
+    fn default_method() -> String {
+        "markers".into()
+    }
+    fn default_on_failure() -> String {
+        "nominal".into()
+    }
+    fn is_default(&self) -> bool {
+        *self == RegistrationSpec::default()
+    }
+}
+
+impl Default for RegistrationSpec {
+    fn default() -> Self {
+        RegistrationSpec { method: Self::default_method(), on_failure: Self::default_on_failure() }
+    }
 }
 
 /// The `[rig]` table of a plan.
@@ -205,17 +243,42 @@ pub struct TextureSpec {
     /// Part of the sample to rectify (default: the whole sample square). Must be square.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub region: Option<RegionSpec>,
-    /// Resampling filter: `"bilinear"` (default) or `"supersample"`.
+    /// Resampling filter: a name (`"bilinear"` (default), `"supersample"`, `"footprint"`,
+    /// `"ewa"`) or a table `{ name = "supersample", n = 4 }` / `{ name = "footprint", max = 8 }`.
     #[serde(default = "TextureSpec::default_filter")]
-    pub filter: String,
+    pub filter: FilterSpec,
+}
+
+/// A resampling filter as written: a name, or a table with the name and its parameter.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(untagged)]
+pub enum FilterSpec {
+    /// A filter name with its default parameter.
+    Name(String),
+    /// A table.
+    Table(FilterTable),
+}
+
+/// The table form of a [`FilterSpec`].
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FilterTable {
+    /// `"bilinear"`, `"supersample"`, `"footprint"` or `"ewa"`.
+    pub name: String,
+    /// Sub-samples per texel axis of `"supersample"` (`1..=16`, default 4).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub n: Option<u32>,
+    /// Upper bound of sub-samples per texel axis of `"footprint"` (`1..=16`, default 8).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max: Option<u32>,
 }
 
 impl TextureSpec {
     const fn default_size() -> u32 {
         256
     }
-    fn default_filter() -> String {
-        "bilinear".into()
+    fn default_filter() -> FilterSpec {
+        FilterSpec::Name("bilinear".into())
     }
 }
 
@@ -431,8 +494,17 @@ impl Plan {
     /// the dataset's content (all but `name`, `description` and `[run]`). Comments, key order
     /// and spelling of defaults do not change it; it recognises "the same plan" on resume.
     pub fn content_hash(&self) -> u64 {
-        let canonical =
-            Plan { name: String::new(), description: String::new(), run: RunSpec::default(), ..self.clone() };
+        // `registration.on_failure` is a run policy like `[run]`: a run that stopped on a
+        // failed registration may be resumed with a fallback.
+        let registration =
+            RegistrationSpec { on_failure: RegistrationSpec::default_on_failure(), ..self.registration.clone() };
+        let canonical = Plan {
+            name: String::new(),
+            description: String::new(),
+            run: RunSpec::default(),
+            registration,
+            ..self.clone()
+        };
         let text = toml::to_string(&canonical).expect("a plan always serialises");
         fnv1a64(text.as_bytes())
     }
@@ -500,6 +572,25 @@ impl<'de> Deserialize<'de> for SamplingSpec {
             }
             fn visit_map<A: MapAccess<'de>>(self, m: A) -> Result<Self::Value, A::Error> {
                 SamplingTable::deserialize(de::value::MapAccessDeserializer::new(m)).map(SamplingSpec::Table)
+            }
+        }
+        d.deserialize_any(V)
+    }
+}
+
+impl<'de> Deserialize<'de> for FilterSpec {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V;
+        impl<'de> Visitor<'de> for V {
+            type Value = FilterSpec;
+            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+                f.write_str("a filter name (\"bilinear\", \"supersample\", \"footprint\", \"ewa\") or a table with name and n or max")
+            }
+            fn visit_str<E: de::Error>(self, s: &str) -> Result<Self::Value, E> {
+                Ok(FilterSpec::Name(s.to_string()))
+            }
+            fn visit_map<A: MapAccess<'de>>(self, m: A) -> Result<Self::Value, A::Error> {
+                FilterTable::deserialize(de::value::MapAccessDeserializer::new(m)).map(FilterSpec::Table)
             }
         }
         d.deserialize_any(V)

@@ -204,3 +204,59 @@ fn dome_preset_with_theta_and_every_filters_keeps_the_expected_directions() {
         assert!(v.light.get(k).angle_to(full.get(i)) < 1e-12);
     }
 }
+
+const MINIMAL: &str = "[sampling]\nlight = \"bonn81\"\nview = \"bonn81\"\n";
+
+#[test]
+fn every_filter_of_calib_is_selectable_with_its_parameter_and_bad_ones_name_the_field() {
+    let filter = |t: &str| validate(&format!("{MINIMAL}[texture]\nfilter = {t}\n")).map(|v| v.texture.filter);
+    assert_eq!(validate(MINIMAL).unwrap().texture.filter, ResampleFilter::Bilinear);
+    assert_eq!(filter("\"bilinear\"").unwrap(), ResampleFilter::Bilinear);
+    assert_eq!(filter("\"ewa\"").unwrap(), ResampleFilter::Ewa);
+    assert_eq!(filter("\"supersample\"").unwrap(), ResampleFilter::Supersample { n: 4 });
+    assert_eq!(filter("{ name = \"supersample\", n = 3 }").unwrap(), ResampleFilter::Supersample { n: 3 });
+    assert_eq!(filter("\"footprint\"").unwrap(), ResampleFilter::Footprint { max: 8 });
+    assert_eq!(filter("{ name = \"footprint\", max = 12 }").unwrap(), ResampleFilter::Footprint { max: 12 });
+    let e = filter("{ name = \"supersample\", n = 17 }").unwrap_err();
+    assert!(e.has_field("texture.filter.n") && e.to_string().contains("1..=16"), "{e}");
+    let e = filter("{ name = \"ewa\", max = 4 }").unwrap_err();
+    assert!(e.has_field("texture.filter.max") && e.to_string().contains("only with name = \"footprint\""), "{e}");
+    let e = filter("{ name = \"lanczos\" }").unwrap_err();
+    assert!(e.has_field("texture.filter.name") && e.to_string().contains("\"footprint\", \"ewa\""), "{e}");
+    // Schema errors inside the table keep serde's message naming the key.
+    let e =
+        Plan::from_toml(&format!("{MINIMAL}[texture]\nfilter = {{ name = \"ewa\", sigma = 1 }}\n"), "x").unwrap_err();
+    assert!(e.to_string().contains("unknown field `sigma`"), "{e}");
+}
+
+#[test]
+fn registration_defaults_to_markers_with_a_nominal_fallback_and_bad_values_name_the_field() {
+    let reg = |t: &str| validate(&format!("{MINIMAL}[registration]\n{t}\n")).map(|v| v.registration);
+    assert_eq!(validate(MINIMAL).unwrap().registration, RegistrationPolicy::default());
+    assert_eq!(
+        RegistrationPolicy::default(),
+        RegistrationPolicy { method: RegistrationMethod::Markers, on_failure: OnRegistrationFailure::Nominal }
+    );
+    let r = reg("method = \"nominal\"\non_failure = \"fail\"").unwrap();
+    assert_eq!(r.method, RegistrationMethod::Nominal);
+    assert_eq!(r.on_failure, OnRegistrationFailure::Fail);
+    let e = reg("method = \"sift\"\non_failure = \"retry\"").unwrap_err();
+    assert!(e.has_field("registration.method") && e.has_field("registration.on_failure"), "{e}");
+    assert!(
+        e.to_string().contains("\"markers\", \"nominal\"") && e.to_string().contains("\"nominal\", \"fail\""),
+        "{e}"
+    );
+}
+
+#[test]
+fn the_registration_method_is_content_but_the_failure_policy_and_spelled_out_defaults_are_not() {
+    let hash = |t: &str| Plan::from_toml(&format!("{MINIMAL}{t}"), "h").unwrap().content_hash();
+    let base = hash("");
+    assert_eq!(hash("[registration]\nmethod = \"markers\"\n"), base);
+    assert_eq!(hash("[registration]\non_failure = \"fail\"\n"), base);
+    assert_ne!(hash("[registration]\nmethod = \"nominal\"\n"), base);
+    // A filter name and its table with the default parameter are different spellings, but
+    // the name alone keeps the hash plans had before filter tables existed.
+    assert_eq!(hash("[texture]\nfilter = \"bilinear\"\n"), base);
+    assert_ne!(hash("[texture]\nfilter = \"ewa\"\n"), base);
+}

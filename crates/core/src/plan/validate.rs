@@ -7,8 +7,9 @@ use crate::kinematics::{Gonio, Unreachable, UnreachableKind};
 use crate::sampling::{Sampling, BONN81_RINGS, BONN_DOME1_RINGS, DUPLICATE_TOLERANCE_RAD};
 
 use super::{
-    is_path_like, ExposureSpec, OutputsSpec, PairsSpec, Plan, PlanError, PlanErrors, RegionSpec, RunSpec, SamplingSpec,
-    SamplingTable, SkipSpec, BUILTIN_FAULT_SCENARIOS, BUILTIN_MATERIAL_NAMES, BUILTIN_RIGS,
+    is_path_like, ExposureSpec, FilterSpec, OutputsSpec, PairsSpec, Plan, PlanError, PlanErrors, RegionSpec,
+    RegistrationSpec, RunSpec, SamplingSpec, SamplingTable, SkipSpec, BUILTIN_FAULT_SCENARIOS, BUILTIN_MATERIAL_NAMES,
+    BUILTIN_RIGS,
 };
 
 /// Sampling presets a plan may name, with their directions' source.
@@ -80,13 +81,75 @@ impl OutputFormat {
     }
 }
 
-/// How a frame is resampled onto the texture grid.
+/// How a frame is resampled onto the texture grid (the filters of `btfrig_calib::Filter`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ResampleFilter {
     /// One bilinear lookup per texel centre.
     Bilinear,
-    /// Several lookups spread over each texel's footprint, averaged.
-    Supersample,
+    /// `n x n` lookups on a regular grid over each texel, averaged.
+    Supersample {
+        /// Sub-samples per texel axis, `1..=16`.
+        n: usize,
+    },
+    /// Lookups over each texel's footprint, their number per axis from the local footprint
+    /// length, at most `max`.
+    Footprint {
+        /// Upper bound of sub-samples per texel axis, `1..=16`.
+        max: usize,
+    },
+    /// Elliptical weighted average over the texel's footprint.
+    Ewa,
+}
+
+impl ResampleFilter {
+    /// Sub-samples per axis of `"supersample"` when the plan gives no `n`.
+    pub const DEFAULT_SUPERSAMPLE_N: usize = 4;
+    /// Upper bound of `"footprint"` when the plan gives no `max`.
+    pub const DEFAULT_FOOTPRINT_MAX: usize = 8;
+
+    /// The filter's name as written in plans.
+    pub fn name(self) -> &'static str {
+        match self {
+            ResampleFilter::Bilinear => "bilinear",
+            ResampleFilter::Supersample { .. } => "supersample",
+            ResampleFilter::Footprint { .. } => "footprint",
+            ResampleFilter::Ewa => "ewa",
+        }
+    }
+}
+
+/// Where the pose each frame is rectified with comes from (`[registration] method`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RegistrationMethod {
+    /// Registered against the holder plate's markers in the frame.
+    Markers,
+    /// The nominal pose (kinematics of the commanded joints), no registration.
+    Nominal,
+}
+
+/// What a failed registration does (`[registration] on_failure`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OnRegistrationFailure {
+    /// Rectify with the nominal pose; the step is recorded as a fallback and warned about.
+    Nominal,
+    /// Stop the run, naming the step and the reason (resumable).
+    Fail,
+}
+
+/// Resolved `[registration]`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RegistrationPolicy {
+    /// Where the pose comes from.
+    pub method: RegistrationMethod,
+    /// What a failed registration does.
+    pub on_failure: OnRegistrationFailure,
+}
+
+impl Default for RegistrationPolicy {
+    /// Markers, falling back to the nominal pose.
+    fn default() -> Self {
+        RegistrationPolicy { method: RegistrationMethod::Markers, on_failure: OnRegistrationFailure::Nominal }
+    }
 }
 
 /// A square region of the sample plane, sample-frame metres.
@@ -228,6 +291,8 @@ pub struct ValidatedPlan {
     pub skip: SkipSpec,
     /// Run settings as written (`fault_scenario` without a `.toml` suffix).
     pub run: RunSpec,
+    /// Registration policy.
+    pub registration: RegistrationPolicy,
     /// The output directory holds a dataset of this same plan: the run resumes it.
     pub resume: bool,
 }
@@ -297,6 +362,7 @@ impl Plan {
             errors.push(PlanError::out_of_range("skip.max_captures", 0, ">= 1 (or leave it out for no cap)"));
         }
         let run = resolve_run(&self.run, ctx, rig.as_ref(), &mut errors);
+        let registration = resolve_registration(&self.registration, &mut errors);
         let plan_hash = self.content_hash();
         let mut resume = false;
         if let Some(existing) = &ctx.existing_dataset {
@@ -374,6 +440,7 @@ impl Plan {
             outputs: outputs.expect("no errors"),
             skip: self.skip.clone(),
             run,
+            registration: registration.expect("no errors"),
             resume,
         })
     }
@@ -730,14 +797,7 @@ fn resolve_texture(plan: &Plan, rig: Option<&RigConfig>, errors: &mut Vec<PlanEr
             "8..=4096 texels per side (typical 256, 512, 800)",
         ));
     }
-    let filter = match t.filter.as_str() {
-        "bilinear" => Some(ResampleFilter::Bilinear),
-        "supersample" => Some(ResampleFilter::Supersample),
-        other => {
-            errors.push(PlanError::unknown("texture.filter", other, "\"bilinear\", \"supersample\""));
-            None
-        }
-    };
+    let filter = resolve_filter(&t.filter, errors);
     let side = rig.map(|r| r.plate.sample_side_m);
     let region = match (&t.region, side) {
         (None, Some(a)) => Some(Region { x_min_m: -a / 2.0, x_max_m: a / 2.0, y_min_m: -a / 2.0, y_max_m: a / 2.0 }),
@@ -751,6 +811,86 @@ fn resolve_texture(plan: &Plan, rig: Option<&RigConfig>, errors: &mut Vec<PlanEr
         }
         _ => None,
     }
+}
+
+const FILTER_NAMES: &str = "\"bilinear\", \"supersample\", \"footprint\", \"ewa\"";
+
+fn resolve_filter(f: &FilterSpec, errors: &mut Vec<PlanError>) -> Option<ResampleFilter> {
+    let (name, field, n, max) = match f {
+        FilterSpec::Name(name) => (name.as_str(), "texture.filter", None, None),
+        FilterSpec::Table(t) => (t.name.as_str(), "texture.filter.name", t.n, t.max),
+    };
+    let n_before = errors.len();
+    let param = |key: &str, v: Option<u32>, default: usize, errors: &mut Vec<PlanError>| match v {
+        None => default,
+        Some(v) if (1..=16).contains(&v) => v as usize,
+        Some(v) => {
+            errors.push(PlanError::out_of_range(
+                format!("texture.filter.{key}"),
+                v,
+                "1..=16 sub-samples per texel axis",
+            ));
+            default
+        }
+    };
+    let only = |key: &str, v: Option<u32>, errors: &mut Vec<PlanError>| {
+        if let Some(v) = v {
+            let allowed = match key {
+                "n" => "n only with name = \"supersample\"",
+                _ => "max only with name = \"footprint\"",
+            };
+            errors.push(PlanError::invalid(
+                format!("texture.filter.{key}"),
+                v,
+                format!("filter {name:?} has no parameter {key}"),
+                allowed,
+            ));
+        }
+    };
+    let filter = match name {
+        "bilinear" | "ewa" => {
+            only("n", n, errors);
+            only("max", max, errors);
+            if name == "ewa" {
+                ResampleFilter::Ewa
+            } else {
+                ResampleFilter::Bilinear
+            }
+        }
+        "supersample" => {
+            only("max", max, errors);
+            ResampleFilter::Supersample { n: param("n", n, ResampleFilter::DEFAULT_SUPERSAMPLE_N, errors) }
+        }
+        "footprint" => {
+            only("n", n, errors);
+            ResampleFilter::Footprint { max: param("max", max, ResampleFilter::DEFAULT_FOOTPRINT_MAX, errors) }
+        }
+        other => {
+            errors.push(PlanError::unknown(field, other, FILTER_NAMES));
+            return None;
+        }
+    };
+    (errors.len() == n_before).then_some(filter)
+}
+
+fn resolve_registration(r: &RegistrationSpec, errors: &mut Vec<PlanError>) -> Option<RegistrationPolicy> {
+    let method = match r.method.as_str() {
+        "markers" => Some(RegistrationMethod::Markers),
+        "nominal" => Some(RegistrationMethod::Nominal),
+        other => {
+            errors.push(PlanError::unknown("registration.method", other, "\"markers\", \"nominal\""));
+            None
+        }
+    };
+    let on_failure = match r.on_failure.as_str() {
+        "nominal" => Some(OnRegistrationFailure::Nominal),
+        "fail" => Some(OnRegistrationFailure::Fail),
+        other => {
+            errors.push(PlanError::unknown("registration.on_failure", other, "\"nominal\", \"fail\""));
+            None
+        }
+    };
+    Some(RegistrationPolicy { method: method?, on_failure: on_failure? })
 }
 
 fn resolve_region(r: &RegionSpec, side: Option<f64>, errors: &mut Vec<PlanError>) -> Option<Region> {
