@@ -247,22 +247,19 @@ fn degenerate_marker_sets_fail_clearly() {
             Ok(m) => panic!("{label}: expected a refusal, got a pose ({:?})", m.est),
         }
     }
-    // One row of the ring only (four markers along one side): not degenerate by the
-    // estimator's rules (each marker spans 2 cm, so the points' spread ratio is about 6, under
-    // `max_spread_ratio` 20) but weakly conditioned: tilt about the row is poorly seen. It
-    // registers with an error larger than the nominal pose's here (measured 0.29 / 0.52 texel
-    // against 0.13 / 0.33), and says so through its predicted sigma (0.135 texel, above the
-    // acceptance): a caller must gate on `texel_sigma`.
+    // One row of the ring only (four markers along one side, spread ratio about 6): weakly
+    // conditioned (tilt about the row is seen only across the 2 cm markers). Accepted, it
+    // registered worse than the nominal pose (0.29 / 0.52 texel against 0.13 / 0.33) with a
+    // predicted sigma that did not warn (0.076), so the estimator refuses it.
     let hidden: Vec<u32> = (4..12).collect();
     let o = bench.run(view, 1.0, 9001, &|shot, frame| bench.hide_markers(shot, frame, &hidden));
     print_view("one row (0-3)", &o);
     match &o.result {
-        Ok(m) => {
-            assert_eq!(m.reg.detected, vec![0, 1, 2, 3]);
-            assert!(m.est.0 < 3.0 * m.predicted, "one row: {:?} predicted {}", m.est, m.predicted);
-            assert!(m.predicted > 0.05, "one row: the weak geometry shows in the predicted sigma {}", m.predicted);
+        Err(e) => {
+            let text = e.to_string();
+            assert!(text.contains("degenerate marker geometry") && text.contains("collinear"), "one row: {text}");
         }
-        Err(e) => assert!(e.to_string().contains("degenerate"), "one row: {e}"),
+        Ok(m) => panic!("one row: expected a refusal, got a pose ({:?}, predicted {})", m.est, m.predicted),
     }
 }
 
