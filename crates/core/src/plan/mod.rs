@@ -243,8 +243,10 @@ pub struct TextureSpec {
     /// Part of the sample to rectify (default: the whole sample square). Must be square.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub region: Option<RegionSpec>,
-    /// Resampling filter: a name (`"bilinear"` (default), `"supersample"`, `"footprint"`,
-    /// `"ewa"`) or a table `{ name = "supersample", n = 4 }` / `{ name = "footprint", max = 8 }`.
+    /// Resampling filter: a name (`"bilinear"`, `"supersample"`, `"footprint"` (default),
+    /// `"ewa"`) or a table `{ name = "supersample", n = 4 }` / `{ name = "footprint", max = 4 }`.
+    /// The default is the measured best trade (`docs/benchmarks.md`, registration section):
+    /// area-correct where a texel covers several pixels, one lookup where it covers less.
     #[serde(default = "TextureSpec::default_filter")]
     pub filter: FilterSpec,
 }
@@ -268,7 +270,7 @@ pub struct FilterTable {
     /// Sub-samples per texel axis of `"supersample"` (`1..=16`, default 4).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub n: Option<u32>,
-    /// Upper bound of sub-samples per texel axis of `"footprint"` (`1..=16`, default 8).
+    /// Upper bound of sub-samples per texel axis of `"footprint"` (`1..=16`, default 4).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub max: Option<u32>,
 }
@@ -278,7 +280,7 @@ impl TextureSpec {
         256
     }
     fn default_filter() -> FilterSpec {
-        FilterSpec::Name("bilinear".into())
+        FilterSpec::Name("footprint".into())
     }
 }
 

@@ -210,12 +210,12 @@ const MINIMAL: &str = "[sampling]\nlight = \"bonn81\"\nview = \"bonn81\"\n";
 #[test]
 fn every_filter_of_calib_is_selectable_with_its_parameter_and_bad_ones_name_the_field() {
     let filter = |t: &str| validate(&format!("{MINIMAL}[texture]\nfilter = {t}\n")).map(|v| v.texture.filter);
-    assert_eq!(validate(MINIMAL).unwrap().texture.filter, ResampleFilter::Bilinear);
+    assert_eq!(validate(MINIMAL).unwrap().texture.filter, ResampleFilter::Footprint { max: 4 });
     assert_eq!(filter("\"bilinear\"").unwrap(), ResampleFilter::Bilinear);
     assert_eq!(filter("\"ewa\"").unwrap(), ResampleFilter::Ewa);
     assert_eq!(filter("\"supersample\"").unwrap(), ResampleFilter::Supersample { n: 4 });
     assert_eq!(filter("{ name = \"supersample\", n = 3 }").unwrap(), ResampleFilter::Supersample { n: 3 });
-    assert_eq!(filter("\"footprint\"").unwrap(), ResampleFilter::Footprint { max: 8 });
+    assert_eq!(filter("\"footprint\"").unwrap(), ResampleFilter::Footprint { max: 4 });
     assert_eq!(filter("{ name = \"footprint\", max = 12 }").unwrap(), ResampleFilter::Footprint { max: 12 });
     let e = filter("{ name = \"supersample\", n = 17 }").unwrap_err();
     assert!(e.has_field("texture.filter.n") && e.to_string().contains("1..=16"), "{e}");
@@ -255,8 +255,8 @@ fn the_registration_method_is_content_but_the_failure_policy_and_spelled_out_def
     assert_eq!(hash("[registration]\nmethod = \"markers\"\n"), base);
     assert_eq!(hash("[registration]\non_failure = \"fail\"\n"), base);
     assert_ne!(hash("[registration]\nmethod = \"nominal\"\n"), base);
-    // A filter name and its table with the default parameter are different spellings, but
-    // the name alone keeps the hash plans had before filter tables existed.
-    assert_eq!(hash("[texture]\nfilter = \"bilinear\"\n"), base);
+    // The default filter spelled out keeps the hash; another filter changes the texels.
+    assert_eq!(hash("[texture]\nfilter = \"footprint\"\n"), base);
+    assert_ne!(hash("[texture]\nfilter = \"bilinear\"\n"), base);
     assert_ne!(hash("[texture]\nfilter = \"ewa\"\n"), base);
 }

@@ -105,7 +105,7 @@ impl ResampleFilter {
     /// Sub-samples per axis of `"supersample"` when the plan gives no `n`.
     pub const DEFAULT_SUPERSAMPLE_N: usize = 4;
     /// Upper bound of `"footprint"` when the plan gives no `max`.
-    pub const DEFAULT_FOOTPRINT_MAX: usize = 8;
+    pub const DEFAULT_FOOTPRINT_MAX: usize = 4;
 
     /// The filter's name as written in plans.
     pub fn name(self) -> &'static str {
