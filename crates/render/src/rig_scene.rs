@@ -23,7 +23,8 @@ use crate::ground_truth::GroundTruth;
 use crate::material::{MaterialError, MaterialSpec};
 use crate::radiance::RadianceImage;
 use crate::renderer::{PixelRays, RenderOptions, RenderStats, Renderer};
-use crate::scene::SceneError;
+use crate::scene::{Scene, SceneError};
+use crate::target::TargetBoard;
 use crate::sensor::{electrons_per_second_scale, SensorError, SensorModel};
 use crate::spectral::{self, Spectrum};
 
@@ -152,6 +153,22 @@ pub struct RigScene {
 impl RigScene {
     /// Builds everything from the rig config and a material. Every section is validated.
     pub fn new(cfg: &RigConfig, material: &MaterialSpec) -> Result<RigScene, RigSceneError> {
+        Self::build(cfg, |lamp_scale, resolve| Renderer::new(&cfg.plate, material, lamp_scale, resolve))
+    }
+
+    /// The rig with a calibration board ([`TargetBoard`]) on the holder in place of the
+    /// plate and sample: same kinematics, true lens, sensor and lamp. For geometric camera
+    /// calibration captures.
+    pub fn with_target(cfg: &RigConfig, board: &TargetBoard) -> Result<RigScene, RigSceneError> {
+        Self::build(cfg, |lamp_scale, resolve| {
+            Ok(Renderer::from_scene(Scene::build_target(board, resolve)?, lamp_scale))
+        })
+    }
+
+    fn build(
+        cfg: &RigConfig,
+        make: impl FnOnce(f64, &crate::scene::Resolver) -> Result<Renderer, SceneError>,
+    ) -> Result<RigScene, RigSceneError> {
         cfg.validate()?;
         let gonio = Gonio::new(cfg.geometry.clone())?;
         let camera = CachedCamera::new(cfg.camera.to_model()?);
@@ -162,7 +179,7 @@ impl RigScene {
         let k = electrons_per_second_scale(&cfg.camera, &cfg.sensor, &cfg.lamp, &colour);
         let lamp_scale = k / std::f64::consts::PI;
         let resolve = |name: &str| resolve_spectrum(&colour, name);
-        let renderer = Renderer::new(&cfg.plate, material, lamp_scale, &resolve)?;
+        let renderer = make(lamp_scale, &resolve)?;
         let d = cfg.geometry.lamp_distance_m;
         let preview_matrix = colour.colorchecker_matrix().matrix;
         Ok(RigScene {
