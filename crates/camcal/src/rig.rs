@@ -18,6 +18,7 @@ use btfrig_core::frame::RawFrame;
 use btfrig_core::kinematics::JointState;
 use btfrig_core::Direction;
 use btfrig_markers::{detect, DetectParams, Detection, Dictionary, GrayImage};
+use rayon::prelude::*;
 use btfrig_render::demosaic::demosaic_bilinear;
 use btfrig_render::renderer::RenderOptions;
 use btfrig_render::rig_scene::RigScene;
@@ -275,22 +276,96 @@ pub fn detect_params(board: &TargetBoard, camera_distance_m: f64, fx_px: f64) ->
     DetectParams { threshold_window_px: win, max_side_frac: 0.9, ..DetectParams::default() }
 }
 
-/// Pairs detected corners with the board: four correspondences per board marker (sigma: the
-/// detector's per-corner standard deviation); ids not on the board are ignored.
-pub fn correspondences(markers: &[MarkerPlacement], detections: &[Detection]) -> Vec<Correspondence> {
+/// Pairs detected corners with the board: four correspondences per detection (sigma: the
+/// detector's per-corner standard deviation). A board may repeat its ids; each detection is
+/// paired with the instance of its id whose predicted image centre (`predict`: board point
+/// to pixel, from the kinematic pose and the nominal lens) is nearest, provided that it is
+/// less than a third as far as the next instance's. Ids not on the board are ignored.
+pub fn correspondences(
+    markers: &[MarkerPlacement],
+    detections: &[Detection],
+    predict: &dyn Fn(Point2<f64>) -> Option<Point2<f64>>,
+) -> Vec<Correspondence> {
     let mut out = Vec::with_capacity(4 * detections.len());
+    let mut used = vec![false; markers.len()];
     for d in detections {
-        if let Some(m) = markers.iter().find(|m| m.id == d.id) {
-            for k in 0..4 {
-                out.push(Correspondence {
-                    target: m.corners_sample_m[k],
-                    pixel: d.corners[k],
-                    sigma_px: Some(d.corner_sigma_px[k]),
-                });
+        let seen = nalgebra::center(&nalgebra::center(&d.corners[0], &d.corners[1]), &nalgebra::center(&d.corners[2], &d.corners[3]));
+        let mut best: Option<(f64, usize)> = None;
+        let mut second = f64::INFINITY;
+        for (k, m) in markers.iter().enumerate().filter(|(_, m)| m.id == d.id) {
+            let c = nalgebra::center(&m.corners_sample_m[0], &m.corners_sample_m[2]);
+            let dist = predict(c).map_or(f64::INFINITY, |p| (p - seen).norm());
+            match best {
+                Some((b, _)) if dist >= b => second = second.min(dist),
+                _ => {
+                    if let Some((b, _)) = best {
+                        second = second.min(b);
+                    }
+                    best = Some((dist, k));
+                }
             }
+        }
+        let Some((dist, k)) = best else { continue };
+        if !(dist.is_finite() && dist < second / 3.0) || used[k] {
+            continue;
+        }
+        used[k] = true;
+        for c in 0..4 {
+            out.push(Correspondence {
+                target: markers[k].corners_sample_m[c],
+                pixel: d.corners[c],
+                sigma_px: Some(d.corner_sigma_px[c]),
+            });
         }
     }
     out
+}
+
+/// Detects every marker of `image` although the detector reports each id once: after each
+/// round the found markers (grown by their quiet zone) are painted over with the bright
+/// level and the detector runs again, until a round finds nothing new (at most `rounds`).
+pub fn detect_repeated(
+    width: usize,
+    height: usize,
+    mut image: Vec<f32>,
+    dict: &Dictionary,
+    params: &DetectParams,
+    rounds: usize,
+) -> Result<Vec<Detection>, btfrig_markers::DetectError> {
+    let mut all = Vec::new();
+    // The bright level: a high percentile of the frame (the board's white).
+    let mut sample: Vec<f32> = image.iter().step_by(97).copied().collect();
+    sample.sort_by(|a, b| a.total_cmp(b));
+    let white = sample.get(sample.len() * 9 / 10).copied().unwrap_or(1.0);
+    for _ in 0..rounds {
+        let found = detect(&GrayImage::new(width, height, &image)?, dict, params)?;
+        if found.is_empty() {
+            break;
+        }
+        for d in &found {
+            // The quad grown by 1.25 about its centre: the quiet zone (one module of six each
+            // side would be 1.33), leaving neighbours two modules away untouched.
+            let c = nalgebra::center(&nalgebra::center(&d.corners[0], &d.corners[1]), &nalgebra::center(&d.corners[2], &d.corners[3]));
+            let q: Vec<Point2<f64>> = d.corners.iter().map(|p| c + (p - c) * 1.25).collect();
+            let (x0, x1) = q.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |a, p| (a.0.min(p.x), a.1.max(p.x)));
+            let (y0, y1) = q.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |a, p| (a.0.min(p.y), a.1.max(p.y)));
+            let (xa, xb) = (x0.floor().max(0.0) as usize, (x1.ceil().max(0.0) as usize).min(width.saturating_sub(1)));
+            let (ya, yb) = (y0.floor().max(0.0) as usize, (y1.ceil().max(0.0) as usize).min(height.saturating_sub(1)));
+            // Inside a convex quad: the same side of all four edges.
+            let cross = |a: &Point2<f64>, b: &Point2<f64>, p: &Point2<f64>| (b.x - a.x) * (p.y - a.y) - (b.y - a.y) * (p.x - a.x);
+            for y in ya..=yb {
+                for x in xa..=xb {
+                    let p = Point2::new(x as f64, y as f64);
+                    let s: Vec<f64> = (0..4).map(|k| cross(&q[k], &q[(k + 1) % 4], &p)).collect();
+                    if s.iter().all(|&v| v >= 0.0) || s.iter().all(|&v| v <= 0.0) {
+                        image[y * width + x] = white;
+                    }
+                }
+            }
+        }
+        all.extend(found);
+    }
+    Ok(all)
 }
 
 /// The green channel of a bilinear demosaic (the detector's input, `docs/markers.md`).
@@ -314,6 +389,9 @@ pub fn calibrate_simulated(
     }
     let scene = RigScene::with_target(cfg, &plan.target).map_err(|e| RigCalibError::Rig(e.to_string()))?;
     let truth = scene.camera().model().clone();
+    // The lens the rig config states (for a real rig its nominal lens; here also the truth):
+    // only used to predict roughly where each board marker appears.
+    let nominal = cfg.camera.to_model().map_err(|e| RigCalibError::Rig(format!("[camera]: {e}")))?;
     let dict = Dictionary::by_name(&plan.target.dictionary)
         .ok_or_else(|| RigCalibError::Rig(format!("target.dictionary {:?} unknown to the detector", plan.target.dictionary)))?;
     let markers = plan.target.markers();
@@ -359,15 +437,21 @@ pub fn calibrate_simulated(
         // 2. Detect (with the previous pass's lens from the second pass on).
         let t = Instant::now();
         let mut views = Vec::new();
-        for (frame, cap) in frames.iter().zip(captures.iter_mut()) {
-            let Some(raw) = frame else { continue };
-            let g = green(raw);
-            let img = GrayImage::new(raw.width, raw.height, &g).map_err(|e| RigCalibError::Rig(e.to_string()))?;
-            let det = detect(&img, &dict, &params).map_err(|e| RigCalibError::Rig(format!("detector: {e}")))?;
-            let corr = correspondences(&markers, &det);
+        let detected: Vec<Option<Result<Vec<Detection>, btfrig_markers::DetectError>>> = frames
+            .par_iter()
+            .map(|f| f.as_ref().map(|raw| detect_repeated(raw.width, raw.height, green(raw), &dict, &params, 4)))
+            .collect();
+        for ((det, cap), _) in detected.into_iter().zip(captures.iter_mut()).zip(&frames) {
+            let Some(det) = det else { continue };
+            let det = det.map_err(|e| RigCalibError::Rig(format!("detector: {e}")))?;
+            // Where the kinematics and the nominal lens put each board point.
+            let pose = scene.pose(&cap.joints);
+            let s2c = pose.camera_to_world.inverse() * pose.sample_to_world;
+            let predict = |p: Point2<f64>| nominal.project(&(s2c * nalgebra::Point3::new(p.x, p.y, 0.0)));
+            let corr = correspondences(&markers, &det, &predict);
             cap.markers = corr.len() / 4;
             if corr.len() < MIN_POINTS_PER_VIEW.max(12) {
-                cap.skipped = Some(format!("{} board markers detected, need 3", corr.len() / 4));
+                cap.skipped = Some(format!("{} board markers detected and paired, need 3", corr.len() / 4));
             } else {
                 cap.skipped = None;
                 views.push(View { points: corr });

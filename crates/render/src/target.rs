@@ -4,7 +4,7 @@
 //! The board lies in the sample frame's `z = 0` plane, centred on the origin, like the plate;
 //! `n x n` markers of the plate's dictionary sit on a square grid of pitch `pitch_m`, ids
 //! counting row by row from the marker at `(-x, +y)` (top-left seen frontally) starting at
-//! `first_id`. Marker images are laid out as on the plate ([`crate::plate`]): rows along
+//! `first_id`, the block of `ids_per_side²` ids repeating over larger boards. Marker images are laid out as on the plate ([`crate::plate`]): rows along
 //! `-y`, columns along `+x`, corners in OpenCV's order. Every corner of every marker is a
 //! known target point, so a detector that decodes the ids pairs image points with board
 //! points without any search.
@@ -18,9 +18,16 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TargetBoard {
-    /// Markers per row and per column (2..=7 for `DICT_4X4_50`: at most 49 ids).
+    /// Markers per row and per column (2..=40).
     #[serde(default = "TargetBoard::default_markers_per_side")]
     pub markers_per_side: u32,
+    /// The id pattern repeats every `ids_per_side` markers along rows and columns (a
+    /// dictionary of 50 ids holds at most a 7 x 7 block): marker `(r, c)` has id
+    /// `first_id + (r mod n) * n + (c mod n)`. Equal ids are then `n` pitches apart, far more
+    /// than where the kinematic pose predicts a marker to be, so the calibration pairs each
+    /// detection with the instance nearest its prediction.
+    #[serde(default = "TargetBoard::default_ids_per_side")]
+    pub ids_per_side: u32,
     /// Outer side of one marker (black border included), metres.
     #[serde(default = "TargetBoard::default_marker_size_m")]
     pub marker_size_m: f64,
@@ -46,6 +53,7 @@ impl Default for TargetBoard {
     fn default() -> Self {
         TargetBoard {
             markers_per_side: Self::default_markers_per_side(),
+            ids_per_side: Self::default_ids_per_side(),
             marker_size_m: Self::default_marker_size_m(),
             pitch_m: Self::default_pitch_m(),
             first_id: 0,
@@ -58,13 +66,16 @@ impl Default for TargetBoard {
 
 impl TargetBoard {
     const fn default_markers_per_side() -> u32 {
+        15
+    }
+    const fn default_ids_per_side() -> u32 {
         7
     }
     const fn default_marker_size_m() -> f64 {
-        0.06
+        0.03
     }
     const fn default_pitch_m() -> f64 {
-        0.08
+        0.04
     }
     fn default_dictionary() -> String {
         "DICT_4X4_50".into()
@@ -81,8 +92,8 @@ impl TargetBoard {
         6
     }
 
-    /// Side of the square board, metres: the marker grid plus one pitch gap's worth of
-    /// margin around it (half a pitch beyond the outer marker centres).
+    /// Side of the square board, metres: the marker grid plus half a pitch of margin beyond
+    /// the outer marker centres.
     pub fn side_m(&self) -> f64 {
         self.markers_per_side as f64 * self.pitch_m
     }
@@ -90,6 +101,18 @@ impl TargetBoard {
     /// Number of markers.
     pub fn marker_count(&self) -> u32 {
         self.markers_per_side * self.markers_per_side
+    }
+
+    /// Number of distinct ids (`ids_per_side²`, fewer if the board is smaller).
+    pub fn id_count(&self) -> u32 {
+        let n = self.ids_per_side.min(self.markers_per_side);
+        n * n
+    }
+
+    /// Id of the marker in grid row `r`, column `c`.
+    pub fn id_at(&self, r: u32, c: u32) -> u32 {
+        let n = self.ids_per_side.max(1);
+        self.first_id + (r % n) * n + (c % n)
     }
 
     /// Centre of the marker in grid row `r`, column `c` (row 0 at the top, `+y`).
@@ -107,7 +130,7 @@ impl TargetBoard {
             for c in 0..n {
                 let p = self.centre(r, c);
                 out.push(MarkerPlacement {
-                    id: self.first_id + r * n + c,
+                    id: self.id_at(r, c),
                     corners_sample_m: [
                         Point2::new(p.x - h, p.y + h),
                         Point2::new(p.x + h, p.y + h),
@@ -123,8 +146,11 @@ impl TargetBoard {
     /// Checks every value; reports all problems, naming fields as `target.<field>`.
     pub fn validate(&self) -> Result<(), ConfigError> {
         let mut errors = Vec::new();
-        if !(2..=7).contains(&self.markers_per_side) {
-            errors.push(ConfigError::out_of_range("target.markers_per_side", self.markers_per_side, "2..=7"));
+        if !(2..=40).contains(&self.markers_per_side) {
+            errors.push(ConfigError::out_of_range("target.markers_per_side", self.markers_per_side, "2..=40"));
+        }
+        if !(2..=40).contains(&self.ids_per_side) {
+            errors.push(ConfigError::out_of_range("target.ids_per_side", self.ids_per_side, "2..=40"));
         }
         if !(self.marker_size_m.is_finite() && self.marker_size_m > 0.0 && self.marker_size_m <= 1.0) {
             errors.push(ConfigError::out_of_range("target.marker_size_m", self.marker_size_m, "(0, 1] metres"));
@@ -145,14 +171,14 @@ impl TargetBoard {
                 allowed: MARKER_DICTIONARIES.iter().map(|(n, _)| *n).collect::<Vec<_>>().join(", "),
             }),
             Some((_, size)) => {
-                if self.first_id as u64 + self.marker_count() as u64 > *size as u64 {
+                if self.first_id as u64 + self.id_count() as u64 > *size as u64 {
                     errors.push(ConfigError::out_of_range(
                         "target.first_id",
                         self.first_id,
                         &format!(
                             "0..={} so that all {} ids exist in {}",
-                            size.saturating_sub(self.marker_count()),
-                            self.marker_count(),
+                            size.saturating_sub(self.id_count()),
+                            self.id_count(),
                             self.dictionary
                         ),
                     ));
@@ -169,7 +195,7 @@ mod tests {
 
     #[test]
     fn default_board_is_valid_and_laid_out_row_by_row() {
-        let b = TargetBoard::default();
+        let b = TargetBoard { markers_per_side: 7, marker_size_m: 0.06, pitch_m: 0.08, ..TargetBoard::default() };
         b.validate().unwrap();
         let m = b.markers();
         assert_eq!(m.len(), 49);
@@ -187,9 +213,32 @@ mod tests {
     }
 
     #[test]
+    fn larger_boards_repeat_the_id_block() {
+        let b = TargetBoard::default();
+        b.validate().unwrap();
+        let m = b.markers();
+        assert_eq!(m.len(), 225);
+        assert_eq!(b.id_count(), 49);
+        // Row 0: ids 0..6, then 0 again; row 7 starts the block again.
+        let ids: Vec<u32> = m[..9].iter().map(|k| k.id).collect();
+        assert_eq!(ids, vec![0, 1, 2, 3, 4, 5, 6, 0, 1]);
+        assert_eq!(m[7 * 15].id, 0);
+        assert_eq!(m[15].id, 7);
+        // Equal ids are 7 pitches apart at least.
+        for a in &m {
+            for c in &m {
+                if a.id == c.id && a.corners_sample_m != c.corners_sample_m {
+                    let d = (a.corners_sample_m[0] - c.corners_sample_m[0]).norm();
+                    assert!(d > 6.9 * b.pitch_m, "{d}");
+                }
+            }
+        }
+    }
+
+    #[test]
     fn bad_boards_name_every_field() {
         let b = TargetBoard {
-            markers_per_side: 8,
+            markers_per_side: 41,
             pitch_m: 0.061,
             dictionary: "DICT_5X5_100".into(),
             ..TargetBoard::default()
@@ -199,6 +248,8 @@ mod tests {
             assert!(text.contains(f), "{text}");
         }
         let b = TargetBoard { first_id: 2, ..TargetBoard::default() };
+        assert!(b.validate().unwrap_err().to_string().contains("target.first_id"));
+        let b = TargetBoard { ids_per_side: 8, markers_per_side: 8, ..TargetBoard::default() };
         assert!(b.validate().unwrap_err().to_string().contains("target.first_id"));
     }
 }
