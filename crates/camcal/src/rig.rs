@@ -383,19 +383,29 @@ pub fn calibrate_simulated(
     seed: u64,
     mut progress: impl FnMut(&str),
 ) -> Result<RigCalibration, RigCalibError> {
+    let shots = capture_simulated(cfg, plan, seed)?;
+    progress(&format!("captured {} views in {:.1} s", shots.frames.iter().flatten().count(), shots.render_s));
+    calibrate_captures(cfg, plan, &shots, progress)
+}
+
+/// The raw frames of a plan's captures on the simulated rig (`None`: view unreachable).
+#[derive(Debug, Clone)]
+pub struct SimCaptures {
+    /// One per planned view.
+    pub frames: Vec<Option<RawFrame>>,
+    /// One per planned view (detection fields not yet filled).
+    pub captures: Vec<CaptureReport>,
+    /// Seconds spent.
+    pub render_s: f64,
+}
+
+/// Renders the plan's captures (first half of [`calibrate_simulated`]).
+pub fn capture_simulated(cfg: &RigConfig, plan: &CalibrationPlan, seed: u64) -> Result<SimCaptures, RigCalibError> {
     let problems = plan.problems();
     if !problems.is_empty() {
         return Err(RigCalibError::Plan { origin: plan.name.clone(), message: problems.join("; ") });
     }
     let scene = RigScene::with_target(cfg, &plan.target).map_err(|e| RigCalibError::Rig(e.to_string()))?;
-    let truth = scene.camera().model().clone();
-    // The lens the rig config states (for a real rig its nominal lens; here also the truth):
-    // only used to predict roughly where each board marker appears.
-    let nominal = cfg.camera.to_model().map_err(|e| RigCalibError::Rig(format!("[camera]: {e}")))?;
-    let dict = Dictionary::by_name(&plan.target.dictionary)
-        .ok_or_else(|| RigCalibError::Rig(format!("target.dictionary {:?} unknown to the detector", plan.target.dictionary)))?;
-    let markers = plan.target.markers();
-    let mut params = detect_params(&plan.target, cfg.geometry.rail_radius_m, cfg.camera.fx_px);
     let exposure = scene.exposure_for_white(plan.exposure_fraction, 1e-4, 30.0);
     let opts = RenderOptions { marker_supersampling: plan.marker_supersampling, ..RenderOptions::default() };
 
@@ -426,7 +436,29 @@ pub fn calibrate_simulated(
         }
     }
     let render_s = t.elapsed().as_secs_f64();
-    progress(&format!("captured {} views in {render_s:.1} s", frames.iter().flatten().count()));
+    Ok(SimCaptures { frames, captures, render_s })
+}
+
+/// Detects the board in captured frames and calibrates (second half of
+/// [`calibrate_simulated`]; `plan` supplies the board, passes and estimated parameters).
+pub fn calibrate_captures(
+    cfg: &RigConfig,
+    plan: &CalibrationPlan,
+    shots: &SimCaptures,
+    mut progress: impl FnMut(&str),
+) -> Result<RigCalibration, RigCalibError> {
+    let scene = RigScene::with_target(cfg, &plan.target).map_err(|e| RigCalibError::Rig(e.to_string()))?;
+    let truth = scene.camera().model().clone();
+    // The lens the rig config states (for a real rig its nominal lens; here also the truth):
+    // only used to predict roughly where each board marker appears.
+    let nominal = cfg.camera.to_model().map_err(|e| RigCalibError::Rig(format!("[camera]: {e}")))?;
+    let dict = Dictionary::by_name(&plan.target.dictionary)
+        .ok_or_else(|| RigCalibError::Rig(format!("target.dictionary {:?} unknown to the detector", plan.target.dictionary)))?;
+    let markers = plan.target.markers();
+    let mut params = detect_params(&plan.target, cfg.geometry.rail_radius_m, cfg.camera.fx_px);
+    let frames = &shots.frames;
+    let mut captures = shots.captures.clone();
+    let render_s = shots.render_s;
 
     let mut opts_cal = Options::new(truth.width, truth.height);
     opts_cal.estimate_k3 = plan.estimate_k3;
@@ -441,7 +473,7 @@ pub fn calibrate_simulated(
             .par_iter()
             .map(|f| f.as_ref().map(|raw| detect_repeated(raw.width, raw.height, green(raw), &dict, &params, 4)))
             .collect();
-        for ((det, cap), _) in detected.into_iter().zip(captures.iter_mut()).zip(&frames) {
+        for (det, cap) in detected.into_iter().zip(captures.iter_mut()) {
             let Some(det) = det else { continue };
             let det = det.map_err(|e| RigCalibError::Rig(format!("detector: {e}")))?;
             // Where the kinematics and the nominal lens put each board point.
