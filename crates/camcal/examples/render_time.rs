@@ -21,7 +21,10 @@ fn main() {
         let t = Instant::now();
         let g = btfrig_camcal::rig::green(&raw);
         let d = t.elapsed().as_secs_f64();
-        eprintln!("ss {ss}: radiance {r:.3}s sensor {s:.3}s green {d:.3}s traced {} plate hits {}", st.pixels_traced, st.plate_hits);
+        eprintln!(
+            "ss {ss}: radiance {r:.3}s sensor {s:.3}s green {d:.3}s traced {} plate hits {}",
+            st.pixels_traced, st.plate_hits
+        );
         let _ = g;
     }
 }

@@ -18,12 +18,12 @@ use btfrig_core::frame::RawFrame;
 use btfrig_core::kinematics::JointState;
 use btfrig_core::Direction;
 use btfrig_markers::{detect, DetectParams, Detection, Dictionary, GrayImage};
-use rayon::prelude::*;
 use btfrig_render::demosaic::demosaic_bilinear;
 use btfrig_render::renderer::RenderOptions;
 use btfrig_render::rig_scene::RigScene;
 use btfrig_render::target::TargetBoard;
 use nalgebra::Point2;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::{calibrate, CalibError, Calibration, CalibrationFile, Correspondence, Options, View, MIN_POINTS_PER_VIEW};
@@ -128,7 +128,10 @@ impl CalibrationPlan {
     pub fn problems(&self) -> Vec<String> {
         let mut out = Vec::new();
         if self.format_version != PLAN_FORMAT_VERSION {
-            out.push(format!("format_version = {} is not supported (this build reads {PLAN_FORMAT_VERSION})", self.format_version));
+            out.push(format!(
+                "format_version = {} is not supported (this build reads {PLAN_FORMAT_VERSION})",
+                self.format_version
+            ));
         }
         if let Err(e) = self.target.validate() {
             out.push(e.to_string());
@@ -289,7 +292,10 @@ pub fn correspondences(
     let mut out = Vec::with_capacity(4 * detections.len());
     let mut used = vec![false; markers.len()];
     for d in detections {
-        let seen = nalgebra::center(&nalgebra::center(&d.corners[0], &d.corners[1]), &nalgebra::center(&d.corners[2], &d.corners[3]));
+        let seen = nalgebra::center(
+            &nalgebra::center(&d.corners[0], &d.corners[1]),
+            &nalgebra::center(&d.corners[2], &d.corners[3]),
+        );
         let mut best: Option<(f64, usize)> = None;
         let mut second = f64::INFINITY;
         for (k, m) in markers.iter().enumerate().filter(|(_, m)| m.id == d.id) {
@@ -345,14 +351,19 @@ pub fn detect_repeated(
         for d in &found {
             // The quad grown by 1.25 about its centre: the quiet zone (one module of six each
             // side would be 1.33), leaving neighbours two modules away untouched.
-            let c = nalgebra::center(&nalgebra::center(&d.corners[0], &d.corners[1]), &nalgebra::center(&d.corners[2], &d.corners[3]));
+            let c = nalgebra::center(
+                &nalgebra::center(&d.corners[0], &d.corners[1]),
+                &nalgebra::center(&d.corners[2], &d.corners[3]),
+            );
             let q: Vec<Point2<f64>> = d.corners.iter().map(|p| c + (p - c) * 1.25).collect();
             let (x0, x1) = q.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |a, p| (a.0.min(p.x), a.1.max(p.x)));
             let (y0, y1) = q.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |a, p| (a.0.min(p.y), a.1.max(p.y)));
             let (xa, xb) = (x0.floor().max(0.0) as usize, (x1.ceil().max(0.0) as usize).min(width.saturating_sub(1)));
             let (ya, yb) = (y0.floor().max(0.0) as usize, (y1.ceil().max(0.0) as usize).min(height.saturating_sub(1)));
             // Inside a convex quad: the same side of all four edges.
-            let cross = |a: &Point2<f64>, b: &Point2<f64>, p: &Point2<f64>| (b.x - a.x) * (p.y - a.y) - (b.y - a.y) * (p.x - a.x);
+            let cross = |a: &Point2<f64>, b: &Point2<f64>, p: &Point2<f64>| {
+                (b.x - a.x) * (p.y - a.y) - (b.y - a.y) * (p.x - a.x)
+            };
             for y in ya..=yb {
                 for x in xa..=xb {
                     let p = Point2::new(x as f64, y as f64);
@@ -452,8 +463,9 @@ pub fn calibrate_captures(
     // The lens the rig config states (for a real rig its nominal lens; here also the truth):
     // only used to predict roughly where each board marker appears.
     let nominal = cfg.camera.to_model().map_err(|e| RigCalibError::Rig(format!("[camera]: {e}")))?;
-    let dict = Dictionary::by_name(&plan.target.dictionary)
-        .ok_or_else(|| RigCalibError::Rig(format!("target.dictionary {:?} unknown to the detector", plan.target.dictionary)))?;
+    let dict = Dictionary::by_name(&plan.target.dictionary).ok_or_else(|| {
+        RigCalibError::Rig(format!("target.dictionary {:?} unknown to the detector", plan.target.dictionary))
+    })?;
     let markers = plan.target.markers();
     let mut params = detect_params(&plan.target, cfg.geometry.rail_radius_m, cfg.camera.fx_px);
     let frames = &shots.frames;
@@ -495,10 +507,12 @@ pub fn calibrate_captures(
             let skipped = captures
                 .iter()
                 .enumerate()
-                .filter_map(|(i, c)| c.skipped.as_ref().map(|s| {
-                    let (th, ph) = c.view.to_degrees();
-                    format!("view {i} (theta {th:.0}, phi {ph:.0}): {s}")
-                }))
+                .filter_map(|(i, c)| {
+                    c.skipped.as_ref().map(|s| {
+                        let (th, ph) = c.view.to_degrees();
+                        format!("view {i} (theta {th:.0}, phi {ph:.0}): {s}")
+                    })
+                })
                 .collect::<Vec<_>>()
                 .join(", ");
             return Err(RigCalibError::TooFewViews {
@@ -527,7 +541,16 @@ pub fn calibrate_captures(
         result = Some((cal, points));
     }
     let (calibration, points_detected) = result.expect("at least one pass");
-    Ok(RigCalibration { calibration, truth, captures, points_detected, render_s, detect_s, calibrate_s, passes: plan.passes })
+    Ok(RigCalibration {
+        calibration,
+        truth,
+        captures,
+        points_detected,
+        render_s,
+        detect_s,
+        calibrate_s,
+        passes: plan.passes,
+    })
 }
 
 /// The text of the calibration file a rig config's `[camera] calibration` names, with a name
@@ -544,8 +567,7 @@ pub fn read_calibration_reference(reference: &str, rig_path: Option<&Path>) -> R
     }
     let base: PathBuf = rig_path.and_then(Path::parent).map(Path::to_path_buf).unwrap_or_default();
     let path = base.join(reference);
-    let text =
-        std::fs::read_to_string(&path).map_err(|e| err(format!("cannot read {}: {e}", path.display())))?;
+    let text = std::fs::read_to_string(&path).map_err(|e| err(format!("cannot read {}: {e}", path.display())))?;
     Ok((text, path.display().to_string()))
 }
 
@@ -578,7 +600,11 @@ pub fn processing_camera(rig: &RigConfig, rig_path: Option<&Path>) -> Result<Cam
 }
 
 /// Where the board's corners should appear for `joints` with the true camera: for tests.
-pub fn project_board(scene: &RigScene, board: &TargetBoard, joints: &JointState) -> Vec<(Point2<f64>, Option<Point2<f64>>)> {
+pub fn project_board(
+    scene: &RigScene,
+    board: &TargetBoard,
+    joints: &JointState,
+) -> Vec<(Point2<f64>, Option<Point2<f64>>)> {
     let pose = scene.pose(joints);
     let s2c = pose.camera_to_world.inverse() * pose.sample_to_world;
     let cam = scene.camera().model();

@@ -21,7 +21,8 @@ fn a_builtin_calibration_replaces_the_geometry_and_keeps_the_rest() {
     cfg.camera.calibration = Some("builtin:bonn-gonio-sim-geometry".into());
     cfg.validate().unwrap();
     let cam = processing_camera(&cfg, None).unwrap();
-    let file = CalibrationFile::from_toml(include_str!("../../../calibration/bonn-gonio-sim-geometry.toml"), "x").unwrap();
+    let file =
+        CalibrationFile::from_toml(include_str!("../../../calibration/bonn-gonio-sim-geometry.toml"), "x").unwrap();
     assert_eq!(cam.fx, file.camera.fx_px);
     assert_eq!(cam.cy, file.camera.cy_px);
     assert_eq!(cam.distortion.k2, file.camera.k2);
@@ -34,7 +35,8 @@ fn a_builtin_calibration_replaces_the_geometry_and_keeps_the_rest() {
 fn a_file_is_found_relative_to_the_rig_file() {
     let dir = std::env::temp_dir().join(format!("btfrig-camcal-pc-{}", std::process::id()));
     std::fs::create_dir_all(dir.join("cal")).unwrap();
-    let mut file = CalibrationFile::from_toml(include_str!("../../../calibration/bonn-gonio-sim-geometry.toml"), "x").unwrap();
+    let mut file =
+        CalibrationFile::from_toml(include_str!("../../../calibration/bonn-gonio-sim-geometry.toml"), "x").unwrap();
     file.camera.fx_px = 4810.0;
     std::fs::write(dir.join("cal/mine.toml"), file.to_toml()).unwrap();
     let mut cfg = rig();
@@ -71,7 +73,8 @@ fn the_default_plan_parses_and_bad_plans_name_fields() {
     for v in p.views() {
         g.ik(p.light_for(v), v).unwrap();
     }
-    let e = CalibrationPlan::from_toml("format_version = 2\nname = \"x\"\nrings = []\n", "p.toml").unwrap_err().to_string();
+    let e =
+        CalibrationPlan::from_toml("format_version = 2\nname = \"x\"\nrings = []\n", "p.toml").unwrap_err().to_string();
     assert!(e.contains("p.toml") && e.contains("format_version") && e.contains("rings"), "{e}");
     let e = CalibrationPlan::from_toml("format_version = 1\nname = \"x\"\nzoom = 2\nrings = []\n", "p.toml")
         .unwrap_err()

@@ -15,11 +15,12 @@ pub fn geometry(a: &CalibrateGeometryArgs) -> anyhow::Result<()> {
     let t0 = Instant::now();
     let cfg = crate::rig::load(a.rig.as_deref())?;
     let rig_name = a.rig.as_ref().map_or("<embedded bonn-gonio-sim>".to_string(), |p| p.display().to_string());
-    let not_sim: Vec<&str> = [("camera", &cfg.devices.camera), ("robot", &cfg.devices.robot), ("rail", &cfg.devices.rail)]
-        .iter()
-        .filter(|(_, d)| d.kind != "sim")
-        .map(|(n, _)| *n)
-        .collect();
+    let not_sim: Vec<&str> =
+        [("camera", &cfg.devices.camera), ("robot", &cfg.devices.robot), ("rail", &cfg.devices.rail)]
+            .iter()
+            .filter(|(_, d)| d.kind != "sim")
+            .map(|(n, _)| *n)
+            .collect();
     if !not_sim.is_empty() {
         bail!(
             "calibrate geometry drives only simulated rigs so far; devices {} of {rig_name} are not kind = \"sim\"",
@@ -29,7 +30,8 @@ pub fn geometry(a: &CalibrateGeometryArgs) -> anyhow::Result<()> {
     let (plan, plan_name) = match &a.plan {
         None => (CalibrationPlan::default_plan(), "<embedded rig-configs/plans/calibration-geometry.toml>".to_string()),
         Some(p) => {
-            let text = std::fs::read_to_string(p).with_context(|| format!("cannot read calibration plan {}", p.display()))?;
+            let text =
+                std::fs::read_to_string(p).with_context(|| format!("cannot read calibration plan {}", p.display()))?;
             (CalibrationPlan::from_toml(&text, &p.display().to_string())?, p.display().to_string())
         }
     };
@@ -46,8 +48,8 @@ pub fn geometry(a: &CalibrateGeometryArgs) -> anyhow::Result<()> {
         b.dictionary,
         n = b.markers_per_side,
     );
-    let r = calibrate_simulated(&cfg, &plan, seed, |line| println!("  {line}"))
-        .context("geometric calibration failed")?;
+    let r =
+        calibrate_simulated(&cfg, &plan, seed, |line| println!("  {line}")).context("geometric calibration failed")?;
     let c = &r.calibration;
     let (e, t, u) = (&c.camera, &r.truth, &c.uncertainty);
     println!("{:<6} {:>14} {:>12} {:>14} {:>12}", "param", "estimate", "sigma", "truth", "error");

@@ -45,7 +45,9 @@ fn small_plan_calibrates_and_writes_a_file_that_parses() {
     let stdout = String::from_utf8_lossy(&o.stdout);
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "stdout:\n{stdout}\nstderr:\n{stderr}");
-    for needle in ["fx_px", "cy_px", "p2", "RMS reprojection error", "views used 8 of 8", "principal point error", "wrote"] {
+    for needle in
+        ["fx_px", "cy_px", "p2", "RMS reprojection error", "views used 8 of 8", "principal point error", "wrote"]
+    {
         assert!(stdout.contains(needle), "missing {needle:?} in\n{stdout}");
     }
     let text = std::fs::read_to_string(&out).unwrap();
@@ -84,9 +86,16 @@ fn a_board_out_of_view_fails_with_a_clear_message() {
     assert!(stderr.contains("only 0 of 4 calibration views"), "{stderr}");
     assert!(!out.exists());
     // A bad plan is named.
-    std::fs::write(&plan, "format_version = 1\nname = \"bad\"\nlight_theta_deg = 95.0\n[[rings]]\ntheta_deg = 0.0\ncount = 0\n")
+    std::fs::write(
+        &plan,
+        "format_version = 1\nname = \"bad\"\nlight_theta_deg = 95.0\n[[rings]]\ntheta_deg = 0.0\ncount = 0\n",
+    )
+    .unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_btfrig"))
+        .args(["calibrate", "geometry", "--plan"])
+        .arg(&plan)
+        .output()
         .unwrap();
-    let o = Command::new(env!("CARGO_BIN_EXE_btfrig")).args(["calibrate", "geometry", "--plan"]).arg(&plan).output().unwrap();
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success());
     assert!(stderr.contains("light_theta_deg") && stderr.contains("rings[0].count"), "{stderr}");

@@ -24,9 +24,9 @@ use crate::material::{MaterialError, MaterialSpec};
 use crate::radiance::RadianceImage;
 use crate::renderer::{PixelRays, RenderOptions, RenderStats, Renderer};
 use crate::scene::{Scene, SceneError};
-use crate::target::TargetBoard;
 use crate::sensor::{electrons_per_second_scale, SensorError, SensorModel};
 use crate::spectral::{self, Spectrum};
+use crate::target::TargetBoard;
 
 /// Why a rig scene could not be built.
 #[derive(Debug, thiserror::Error)]
