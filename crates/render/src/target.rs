@@ -239,7 +239,7 @@ mod tests {
     fn bad_boards_name_every_field() {
         let b = TargetBoard {
             markers_per_side: 41,
-            pitch_m: 0.061,
+            pitch_m: 0.031,
             dictionary: "DICT_5X5_100".into(),
             ..TargetBoard::default()
         };
