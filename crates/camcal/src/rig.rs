@@ -261,6 +261,9 @@ pub struct RigCalibration {
     pub calibrate_s: f64,
     /// Passes run.
     pub passes: u32,
+    /// The correspondences of the last pass, one per used view (captures without a skip
+    /// reason, in plan order).
+    pub views: Vec<View>,
 }
 
 impl RigCalibration {
@@ -538,9 +541,9 @@ pub fn calibrate_captures(
             cal.camera.cy
         ));
         params.camera = Some(cal.camera.clone());
-        result = Some((cal, points));
+        result = Some((cal, points, views));
     }
-    let (calibration, points_detected) = result.expect("at least one pass");
+    let (calibration, points_detected, views) = result.expect("at least one pass");
     Ok(RigCalibration {
         calibration,
         truth,
@@ -550,6 +553,7 @@ pub fn calibrate_captures(
         detect_s,
         calibrate_s,
         passes: plan.passes,
+        views,
     })
 }
 

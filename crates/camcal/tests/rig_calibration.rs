@@ -48,10 +48,10 @@ fn default_plan_on_the_simulated_rig_recovers_the_true_camera() {
     assert!(dist < 0.1, "distortion difference {dist} px");
     // RMS reported and plausible for ~0.04 px corners (norm of both axes).
     assert!(c.rms_px > 0.02 && c.rms_px < 0.12, "rms {}", c.rms_px);
-    // Principal point: the issue asks for 0.5 px; this plan's standard uncertainty is
-    // 0.16-0.27 px, so 0.5 px is a 2-3 sigma bound that a given seed may miss (measured with
-    // seed 1: cx off by 0.57 px). Asserted: within 3 reported sigmas and 1 px
-    // (docs/camera-calibration.md).
+    // Principal point: the issue asks for 0.5 px, which this plan does NOT meet in x: measured
+    // at the rig's seed cx -0.573, cy +0.278 px (sd 0.270 / 0.156), and about the same for
+    // seeds 1 and 2 (docs/camera-calibration.md, "Measured on the simulated default rig").
+    // Asserted: within 3 reported sigmas (0.81 / 0.5 px) and 1 px.
     assert!(dcx.abs() < (3.0 * u.cx_px).max(0.5) && dcx.abs() < 1.0, "cx error {dcx} (sd {})", u.cx_px);
     assert!(dcy.abs() < (3.0 * u.cy_px).max(0.5) && dcy.abs() < 1.0, "cy error {dcy} (sd {})", u.cy_px);
     // The camera images the scene as the truth does, up to the free rotation.
