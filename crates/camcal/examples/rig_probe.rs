@@ -52,6 +52,8 @@ fn main() {
     let used: Vec<_> = r.captures.iter().filter(|c| c.skipped.is_none()).collect();
     let (mut sx, mut sy, mut s2, mut n) = (0.0, 0.0, 0.0, 0usize);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    // Detected - true binned by radius from the image centre (radial and tangential parts).
+    let mut bins = [(0.0f64, 0.0f64, 0usize); 5];
     let mut synth = Vec::new();
     for (cap, view) in used.iter().zip(&r.views) {
         let pose = scene.pose(&cap.joints);
@@ -60,6 +62,13 @@ fn main() {
         for c in &view.points {
             let p = r.truth.project(&(s2c * nalgebra::Point3::new(c.target.x, c.target.y, 0.0))).unwrap();
             let d = c.pixel - p;
+            let rv = nalgebra::Vector2::new(p.x - 799.5, p.y - 599.5);
+            let rn = rv.norm();
+            let b = ((rn / 1000.0 * 5.0) as usize).min(4);
+            let u = rv / rn.max(1e-9);
+            bins[b].0 += d.dot(&u);
+            bins[b].1 += d.x * -u.y + d.y * u.x;
+            bins[b].2 += 1;
             sx += d.x;
             sy += d.y;
             s2 += d.norm_squared();
@@ -79,7 +88,20 @@ fn main() {
         sy / n as f64,
         (s2 / n as f64).sqrt()
     );
+    for (k, b) in bins.iter().enumerate() {
+        let m = b.2.max(1) as f64;
+        eprintln!("radius {}-{} px: mean radial {:+.4} tangential {:+.4} px ({} corners)", k * 200, k * 200 + 200, b.0 / m, b.1 / m, b.2);
+    }
+    let unweighted: Vec<btfrig_camcal::View> = r
+        .views
+        .iter()
+        .map(|v| btfrig_camcal::View { points: v.points.iter().map(|c| btfrig_camcal::Correspondence { sigma_px: None, ..*c }).collect() })
+        .collect();
     let mut o = btfrig_camcal::Options::new(r.truth.width, r.truth.height);
+    o.estimate_k3 = plan.estimate_k3;
+    let mut ru = r.clone();
+    ru.calibration = btfrig_camcal::calibrate(&unweighted, &o).unwrap();
+    show("detected corners, equal weights", &ru);
     o.estimate_k3 = plan.estimate_k3;
     let c = btfrig_camcal::calibrate(&synth, &o).unwrap();
     let mut rs = r.clone();
