@@ -90,12 +90,21 @@ fn main() {
     );
     for (k, b) in bins.iter().enumerate() {
         let m = b.2.max(1) as f64;
-        eprintln!("radius {}-{} px: mean radial {:+.4} tangential {:+.4} px ({} corners)", k * 200, k * 200 + 200, b.0 / m, b.1 / m, b.2);
+        eprintln!(
+            "radius {}-{} px: mean radial {:+.4} tangential {:+.4} px ({} corners)",
+            k * 200,
+            k * 200 + 200,
+            b.0 / m,
+            b.1 / m,
+            b.2
+        );
     }
     let unweighted: Vec<btfrig_camcal::View> = r
         .views
         .iter()
-        .map(|v| btfrig_camcal::View { points: v.points.iter().map(|c| btfrig_camcal::Correspondence { sigma_px: None, ..*c }).collect() })
+        .map(|v| btfrig_camcal::View {
+            points: v.points.iter().map(|c| btfrig_camcal::Correspondence { sigma_px: None, ..*c }).collect(),
+        })
         .collect();
     let mut o = btfrig_camcal::Options::new(r.truth.width, r.truth.height);
     o.estimate_k3 = plan.estimate_k3;

@@ -602,23 +602,3 @@ pub fn processing_camera(rig: &RigConfig, rig_path: Option<&Path>) -> Result<Cam
     }
     cfg.to_model().map_err(|e| err(format!("{origin}: {e}")))
 }
-
-/// Where the board's corners should appear for `joints` with the true camera: for tests.
-pub fn project_board(
-    scene: &RigScene,
-    board: &TargetBoard,
-    joints: &JointState,
-) -> Vec<(Point2<f64>, Option<Point2<f64>>)> {
-    let pose = scene.pose(joints);
-    let s2c = pose.camera_to_world.inverse() * pose.sample_to_world;
-    let cam = scene.camera().model();
-    board
-        .markers()
-        .iter()
-        .flat_map(|m| m.corners_sample_m)
-        .map(|c| {
-            let p = s2c * nalgebra::Point3::new(c.x, c.y, 0.0);
-            (c, cam.project(&p))
-        })
-        .collect()
-}
