@@ -12,7 +12,10 @@ use btfrig_core::config::RigConfig;
 fn default_plan_on_the_simulated_rig_recovers_the_true_camera() {
     let cfg =
         RigConfig::from_toml(include_str!("../../../rig-configs/bonn-gonio-sim.toml"), "bonn-gonio-sim.toml").unwrap();
-    let plan = CalibrationPlan::default_plan();
+    // The default plan with the renderer's edge supersampling at 4 instead of 8: a third of
+    // the render time, to keep the test near a minute. With 8 the principal point meets the
+    // issue's 0.5 px (docs/camera-calibration.md); with 4 it does not in x (see below).
+    let plan = CalibrationPlan { marker_supersampling: 4, ..CalibrationPlan::default_plan() };
     let t0 = Instant::now();
     let r = calibrate_simulated(&cfg, &plan, cfg.rig.seed, |s| println!("{s}")).unwrap();
     let (c, t) = (&r.calibration, &r.truth);
@@ -48,9 +51,9 @@ fn default_plan_on_the_simulated_rig_recovers_the_true_camera() {
     assert!(dist < 0.1, "distortion difference {dist} px");
     // RMS reported and plausible for ~0.04 px corners (norm of both axes).
     assert!(c.rms_px > 0.02 && c.rms_px < 0.12, "rms {}", c.rms_px);
-    // Principal point: the issue asks for 0.5 px, which this plan does NOT meet in x: measured
-    // at the rig's seed cx -0.573, cy +0.278 px (sd 0.270 / 0.156), and about the same for
-    // seeds 1 and 2 (docs/camera-calibration.md, "Measured on the simulated default rig").
+    // Principal point: the issue asks for 0.5 px, which supersampling 4 does NOT meet in x:
+    // measured at the rig's seed cx -0.573, cy +0.278 px (sd 0.270 / 0.156), about the same
+    // for seeds 1 and 2: the quantised marker edges pull cx (docs/camera-calibration.md).
     // Asserted: within 3 reported sigmas (0.81 / 0.5 px) and 1 px.
     assert!(dcx.abs() < (3.0 * u.cx_px).max(0.5) && dcx.abs() < 1.0, "cx error {dcx} (sd {})", u.cx_px);
     assert!(dcy.abs() < (3.0 * u.cy_px).max(0.5) && dcy.abs() < 1.0, "cy error {dcy} (sd {})", u.cy_px);
