@@ -4,7 +4,9 @@
 //! per-parameter uncertainties. The estimated model is [`btfrig_core::camera::CameraModel`]
 //! (OpenCV's conventions; integer pixel coordinates are pixel centres).
 //!
-//! Numerics only: [`file`] converts a result to and from TOML text, and callers do the I/O.
+//! Numerics apart from [`rig`]: [`file`] converts a result to and from TOML text, and callers do
+//! the I/O; [`rig`] photographs a calibration board on the simulated rig, detects it and
+//! calibrates, and loads the calibration a rig config names ([`rig::processing_camera`]).
 //! Method, file format and measured accuracy: `docs/camera-calibration.md`.
 #![warn(missing_docs)]
 
@@ -12,6 +14,7 @@ pub mod file;
 pub mod homography;
 pub mod metric;
 mod refine;
+pub mod rig;
 pub mod zhang;
 
 use btfrig_core::camera::{CameraError, CameraModel, Distortion, Vignetting};

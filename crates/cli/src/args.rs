@@ -36,6 +36,35 @@ pub enum Command {
     /// Benchmarks that print time and error side by side.
     #[command(subcommand)]
     Bench(BenchCommand),
+    /// Calibrations of the rig.
+    #[command(subcommand)]
+    Calibrate(CalibrateCommand),
+}
+
+/// `btfrig calibrate ...`.
+#[derive(Debug, Subcommand)]
+pub enum CalibrateCommand {
+    /// Geometric camera calibration: photograph the calibration board at the plan's views
+    /// (simulated rig), detect its markers, estimate intrinsics and distortion, write the
+    /// calibration file (docs/camera-calibration.md).
+    Geometry(CalibrateGeometryArgs),
+}
+
+/// `btfrig calibrate geometry`.
+#[derive(Debug, Args)]
+pub struct CalibrateGeometryArgs {
+    /// Rig config file (default: the embedded simulated gonioreflectometer).
+    #[arg(long)]
+    pub rig: Option<std::path::PathBuf>,
+    /// Calibration plan file (default: the embedded rig-configs/plans/calibration-geometry.toml).
+    #[arg(long)]
+    pub plan: Option<std::path::PathBuf>,
+    /// Calibration file to write (default: `<rig name>-geometry.toml` in the current directory).
+    #[arg(long)]
+    pub out: Option<std::path::PathBuf>,
+    /// Seed of the sensor noise (default: the rig's `[rig] seed`).
+    #[arg(long)]
+    pub seed: Option<u64>,
 }
 
 /// `btfrig demo`.

@@ -3,6 +3,7 @@
 mod args;
 mod bench_cmd;
 mod bench_registration;
+mod calibrate_cmd;
 mod captures_cmd;
 mod dataset_cmd;
 mod demo_cmd;
@@ -14,7 +15,7 @@ mod run_cmd;
 mod session;
 mod sim_cmd;
 
-use args::{BenchCommand, Cli, Command, DatasetCommand, KinematicsCommand, PlanCommand, SimCommand};
+use args::{BenchCommand, CalibrateCommand, Cli, Command, DatasetCommand, KinematicsCommand, PlanCommand, SimCommand};
 use clap::Parser;
 
 fn main() -> std::process::ExitCode {
@@ -33,6 +34,7 @@ fn main() -> std::process::ExitCode {
         Command::Plan(PlanCommand::Show { file }) => done(plan_cmd::show(&file)),
         Command::Dataset(DatasetCommand::Info { dir }) => done(dataset_cmd::info(&dir)),
         Command::Dataset(DatasetCommand::Verify { dir }) => done(dataset_cmd::verify(&dir)),
+        Command::Calibrate(CalibrateCommand::Geometry(a)) => done(calibrate_cmd::geometry(&a)),
         Command::Bench(BenchCommand::Render { rig, material, texels, repeat }) => {
             done(bench_cmd::render(rig.as_deref(), &material, texels, repeat))
         }

@@ -17,7 +17,8 @@
 //! reflectance spectrum into camera RGB and into the ground-truth output colour (linear sRGB,
 //! D65, adapted); [`sensor::SensorModel`] turns a [`radiance::RadianceImage`] of
 //! photo-electron rates into a noisy [`btfrig_core::frame::RawFrame`]; [`demosaic`] makes
-//! previews from raw frames; [`rig_scene::RigScene`] assembles all of it from a rig config.
+//! previews from raw frames; [`target::TargetBoard`] is the geometric calibration board
+//! that replaces the plate for calibration captures; [`rig_scene::RigScene`] assembles all of it from a rig config.
 //!
 //! ```
 //! use btfrig_core::{Direction, pose::ScenePose, config::plate::PlateConfig};
@@ -52,3 +53,4 @@ pub mod rig_scene;
 pub mod scene;
 pub mod sensor;
 pub mod spectral;
+pub mod target;

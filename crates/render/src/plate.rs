@@ -13,6 +13,7 @@ use btfrig_core::config::plate::PlateConfig;
 use btfrig_core::ConfigError;
 
 use crate::markers::MarkerDictionary;
+use crate::target::TargetBoard;
 
 /// What the plate surface is at a point of the `z = 0` plane outside the sample region.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -36,6 +37,16 @@ pub struct PlateLayout {
     pub marker_size_m: f64,
     dictionary: MarkerDictionary,
     markers: Vec<MarkerPlacement>,
+    /// For a calibration board: its grid (markers found by arithmetic instead of a scan).
+    grid: Option<Grid>,
+}
+
+/// A square grid of markers: `n x n`, centres `pitch` apart, marker `(r, c)` is
+/// `markers[r * n + c]`, row 0 at `+y`.
+#[derive(Debug, Clone, Copy)]
+struct Grid {
+    n: usize,
+    pitch: f64,
 }
 
 impl PlateLayout {
@@ -56,7 +67,45 @@ impl PlateLayout {
             marker_size_m: config.marker_size_m,
             dictionary,
             markers,
+            grid: None,
         })
+    }
+
+    /// The layout of a calibration board ([`TargetBoard`]): the board in place of the plate,
+    /// no sample region.
+    pub fn target(board: &TargetBoard) -> Result<PlateLayout, ConfigError> {
+        board.validate()?;
+        let dictionary = MarkerDictionary::by_name(&board.dictionary).ok_or_else(|| ConfigError::Unknown {
+            field: "target.dictionary".into(),
+            value: board.dictionary.clone(),
+            allowed: "DICT_4X4_50".into(),
+        })?;
+        Ok(PlateLayout {
+            side_m: board.side_m(),
+            sample_side_m: 0.0,
+            marker_size_m: board.marker_size_m,
+            dictionary,
+            markers: board.markers(),
+            grid: Some(Grid { n: board.markers_per_side as usize, pitch: board.pitch_m }),
+        })
+    }
+
+    /// The markers whose outer square, grown by `margin`, may contain `(x, y)`: all of them
+    /// on a plate, at most one on a board (its grid cell).
+    fn candidates(&self, x: f64, y: f64) -> &[MarkerPlacement] {
+        match self.grid {
+            None => &self.markers,
+            Some(g) => {
+                let h = (g.n as f64 - 1.0) / 2.0;
+                let c = (x / g.pitch + h).round();
+                let r = (h - y / g.pitch).round();
+                if c < 0.0 || r < 0.0 || c >= g.n as f64 || r >= g.n as f64 {
+                    return &[];
+                }
+                let k = r as usize * g.n + c as usize;
+                &self.markers[k..k + 1]
+            }
+        }
     }
 
     /// The markers with their true corner positions on the plate.
@@ -71,6 +120,10 @@ impl PlateLayout {
 
     /// True if `(x, y)` lies in the sample region (closed square).
     pub fn in_sample(&self, x: f64, y: f64) -> bool {
+        if self.sample_side_m <= 0.0 {
+            // A calibration board has no sample.
+            return false;
+        }
         let h = self.sample_side_m / 2.0;
         x.abs() <= h && y.abs() <= h
     }
@@ -78,7 +131,7 @@ impl PlateLayout {
     /// True if `(x, y)` lies within `margin` metres of a marker's outer square (where a
     /// pixel may straddle a black/white edge).
     pub fn near_marker(&self, x: f64, y: f64, margin: f64) -> bool {
-        self.markers.iter().any(|mk| {
+        self.candidates(x, y).iter().any(|mk| {
             let (tl, br) = (mk.corners_sample_m[0], mk.corners_sample_m[2]);
             x >= tl.x - margin && x <= br.x + margin && y <= tl.y + margin && y >= br.y - margin
         })
@@ -91,7 +144,7 @@ impl PlateLayout {
         let m = self.dictionary.modules();
         let module = self.marker_size_m / m as f64;
         let mut best = f64::INFINITY;
-        for mk in &self.markers {
+        for mk in self.candidates(x, y) {
             let (tl, br) = (mk.corners_sample_m[0], mk.corners_sample_m[2]);
             if x >= tl.x - margin && x <= br.x + margin && y <= tl.y + margin && y >= br.y - margin {
                 let gx = ((x - tl.x) / module).round().clamp(0.0, m as f64);
@@ -112,7 +165,7 @@ impl PlateLayout {
         }
         let m = self.dictionary.modules();
         let module = self.marker_size_m / m as f64;
-        for mk in &self.markers {
+        for mk in self.candidates(x, y) {
             let tl = mk.corners_sample_m[0];
             let (dx, dy) = (x - tl.x, tl.y - y);
             if dx >= 0.0 && dy >= 0.0 && dx < self.marker_size_m && dy < self.marker_size_m {

@@ -12,6 +12,7 @@ use btfrig_core::ConfigError;
 
 use crate::material::{Material, MaterialError, MaterialSpec};
 use crate::plate::PlateLayout;
+use crate::target::TargetBoard;
 
 /// Maps a spectrum name to its `(camera RGB, output RGB)` response, or says why it cannot.
 pub type Resolver<'a> = dyn Fn(&str) -> Result<([f64; 3], [f64; 3]), String> + 'a;
@@ -79,7 +80,30 @@ impl Scene {
     /// square, resolves every spectrum name.
     pub fn build(plate: &PlateConfig, material: &MaterialSpec, resolve: &Resolver) -> Result<Scene, SceneError> {
         let layout = PlateLayout::new(plate)?;
-        let material = Material::generate(material, layout.sample_side_m)?;
+        Self::build_with_layout(layout, material, &plate.albedo, &plate.marker_black, resolve)
+    }
+
+    /// A scene of a calibration board ([`TargetBoard`]) mounted in place of the plate: no
+    /// sample (a flat, never-hit placeholder material keeps the renderer's paths uniform).
+    pub fn build_target(board: &TargetBoard, resolve: &Resolver) -> Result<Scene, SceneError> {
+        let layout = PlateLayout::target(board)?;
+        let spec = MaterialSpec::from_toml(
+            "name = \"calibration-board\"\ntexels = 8\nseed = 0\nbasis = [\"flat:0\"]\n\
+             [albedo]\npattern = { kind = \"constant\", value = 0.0 }\nstops = [[1.0]]\n",
+            "<calibration board placeholder material>",
+        )?;
+        Self::build_with_layout(layout, &spec, &board.albedo, &board.marker_black, resolve)
+    }
+
+    fn build_with_layout(
+        layout: PlateLayout,
+        material: &MaterialSpec,
+        albedo_name: &str,
+        black_name: &str,
+        resolve: &Resolver,
+    ) -> Result<Scene, SceneError> {
+        // A board has no sample region; its placeholder material spans a tiny square.
+        let material = Material::generate(material, layout.sample_side_m.max(1e-6))?;
         let res = |field: String, name: &str| {
             resolve(name).map_err(|message| SceneError::Colour { field, name: name.into(), message })
         };
@@ -91,8 +115,8 @@ impl Scene {
         }
         let gname = material.spec.specular.as_ref().map_or("flat:1", |s| s.colour.as_str()).to_string();
         let (gc, go) = res(format!("{}.specular.colour", material.spec.name), &gname)?;
-        let (pc, po) = res("plate.albedo".into(), &plate.albedo)?;
-        let (bc, bo) = res("plate.marker_black".into(), &plate.marker_black)?;
+        let (pc, po) = res("plate.albedo".into(), albedo_name)?;
+        let (bc, bo) = res("plate.marker_black".into(), black_name)?;
         let n = material.texels;
         let k = basis.camera.len();
         let mut albedo = [vec![[0.0f32; 3]; n * n], vec![[0.0f32; 3]; n * n]];

@@ -51,6 +51,13 @@ pub struct CameraConfig {
     pub f_number: f64,
     /// Fraction of light the lens transmits (0 < t <= 1).
     pub lens_transmittance: f64,
+    /// Optional geometric calibration the pipeline processes frames with instead of the
+    /// geometric fields above: a calibration file (`docs/camera-calibration.md`) as a path
+    /// relative to the rig config's directory (ending in `.toml`), or `builtin:NAME` for one
+    /// embedded in the binary. The fields above stay the camera's truth for a simulated rig
+    /// (what the renderer images with).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<String>,
 }
 
 impl Default for CameraConfig {
@@ -71,6 +78,7 @@ impl Default for CameraConfig {
             vignetting_poly: [-0.1, 0.0, 0.0],
             f_number: 8.0,
             lens_transmittance: 0.9,
+            calibration: None,
         }
     }
 }
@@ -116,6 +124,15 @@ impl CameraConfig {
         }
         if !(self.lens_transmittance > 0.0 && self.lens_transmittance <= 1.0) {
             push("lens_transmittance", self.lens_transmittance.to_string(), "0 < t <= 1");
+        }
+        if let Some(c) = &self.calibration {
+            let ok = match c.strip_prefix("builtin:") {
+                Some(name) => !name.trim().is_empty(),
+                None => c.trim().ends_with(".toml") && c.trim().len() > 5,
+            };
+            if !ok {
+                push("calibration", format!("{c:?}"), "a calibration file path ending in .toml, or builtin:NAME");
+            }
         }
         // Only when the numbers are individually sane: does the distortion fold inside the image?
         if errors.is_empty() {
@@ -200,6 +217,26 @@ mod tests {
         cfg.validate(&mut errors);
         assert_eq!(errors.len(), 1, "{errors:?}");
         assert!(errors[0].to_string().contains("fold"));
+    }
+
+    #[test]
+    fn calibration_reference_is_checked() {
+        for good in ["calibration/x.toml", "builtin:bonn-gonio-sim-geometry"] {
+            let cfg = CameraConfig { calibration: Some(good.into()), ..Default::default() };
+            let mut errors = Vec::new();
+            cfg.validate(&mut errors);
+            assert!(errors.is_empty(), "{good}: {errors:?}");
+        }
+        for bad in ["", "builtin:", "calibration/x.json"] {
+            let cfg = CameraConfig { calibration: Some(bad.into()), ..Default::default() };
+            let mut errors = Vec::new();
+            cfg.validate(&mut errors);
+            assert_eq!(errors.len(), 1, "{bad}: {errors:?}");
+            assert!(errors[0].to_string().contains("camera.calibration"), "{}", errors[0]);
+        }
+        let cfg: CameraConfig = toml::from_str("calibration = \"calibration/a.toml\"").unwrap();
+        assert_eq!(cfg.calibration.as_deref(), Some("calibration/a.toml"));
+        assert_eq!(CameraConfig::default().calibration, None);
     }
 
     #[test]
