@@ -4,9 +4,9 @@
 //! per-parameter uncertainties. The estimated model is [`btfrig_core::camera::CameraModel`]
 //! (OpenCV's conventions; integer pixel coordinates are pixel centres).
 //!
-//! Numerics apart from [`rig`]: [`file`] converts a result to and from TOML text, and callers do
-//! the I/O; [`rig`] photographs a calibration board on the simulated rig, detects it and
-//! calibrates, and loads the calibration a rig config names ([`rig::processing_camera`]).
+//! Numerics only: [`file`] converts a result to and from TOML text, and callers do the I/O.
+//! The procedure on a rig (calibration plan, rendered board frames, detection, the camera the
+//! pipeline processes with) is the crate `btfrig-calibrate`.
 //! Method, file format and measured accuracy: `docs/camera-calibration.md`.
 #![warn(missing_docs)]
 
@@ -14,7 +14,6 @@ pub mod file;
 pub mod homography;
 pub mod metric;
 mod refine;
-pub mod rig;
 pub mod zhang;
 
 use btfrig_core::camera::{CameraError, CameraModel, Distortion, Vignetting};

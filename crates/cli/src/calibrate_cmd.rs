@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{bail, Context};
-use btfrig_camcal::rig::{calibrate_simulated, CalibrationPlan};
+use btfrig_calibrate::{calibrate_simulated, CalibrationPlan};
 use btfrig_camcal::{distortion_difference, mapping_difference_up_to_rotation, CalibrationFile};
 
 use crate::args::CalibrateGeometryArgs;

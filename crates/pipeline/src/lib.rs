@@ -35,6 +35,7 @@ use std::time::{Duration, Instant};
 use btfrig_calib::{
     rectify, to_radiance_factor, vignetting_map, Filter, LinearImage, Radiometry, RectifyError, Region,
 };
+use btfrig_core::camera::CameraModel;
 use btfrig_core::config::plate::PlateConfig;
 use btfrig_core::frame::RawFrame;
 use btfrig_core::kinematics::JointState;
@@ -42,7 +43,7 @@ pub use btfrig_core::plan::{OnRegistrationFailure, RegistrationMethod, Registrat
 use btfrig_core::pose::ScenePose;
 use btfrig_engine::CapturedFrame;
 use btfrig_markers::GrayImage;
-use btfrig_register::{texel_position_error, FrameError, PlateRegistrar, RegisterOptions};
+use btfrig_register::{texel_position_error_with_cameras, FrameError, PlateRegistrar, RegisterOptions};
 use btfrig_render::demosaic::demosaic_bilinear;
 use btfrig_render::rig_scene::RigScene;
 use btfrig_sim::{FrameSource, SensorFormat, TrueState};
@@ -295,6 +296,10 @@ impl Processed {
 /// Turns raw frames into textures for one rig scene.
 pub struct Processor {
     scene: Arc<RigScene>,
+    /// The camera model frames are registered and rectified with: the rig's calibrated one
+    /// ([`Processor::with_camera`]); by default the scene's (on the simulator: the true lens).
+    camera: CameraModel,
+    plate: PlateConfig,
     settings: ProcessSettings,
     /// `None` when the plan asks for the nominal pose.
     registrar: Option<PlateRegistrar>,
@@ -358,7 +363,9 @@ impl Processor {
             RegistrationMethod::Nominal => None,
         };
         Ok(Processor {
+            camera: scene.camera().model().clone(),
             scene,
+            plate: plate.clone(),
             settings,
             registrar,
             compare_nominal: false,
@@ -366,6 +373,25 @@ impl Processor {
             preview: watch::Sender::new(None),
             preview_gate: Mutex::new(PreviewGate::default()),
         })
+    }
+
+    /// The same processor registering and rectifying with `camera` (a calibration of the rig's
+    /// camera, e.g. from `btfrig_calibrate::processing_camera`) instead of the scene's model;
+    /// the simulator keeps rendering with the true lens, and the ground-truth figures cast
+    /// pixels back with the true lens, so a calibration error shows in them.
+    pub fn with_camera(mut self, camera: CameraModel) -> Result<Self, PipelineError> {
+        if let Some(r) = &self.registrar {
+            let mut next = PlateRegistrar::new(camera.clone(), &self.plate, r.options.clone())?;
+            next.detect = btfrig_markers::DetectParams { camera: Some(camera.clone()), ..r.detect.clone() };
+            self.registrar = Some(next);
+        }
+        self.camera = camera;
+        Ok(self)
+    }
+
+    /// The camera model frames are registered and rectified with.
+    pub fn camera(&self) -> &CameraModel {
+        &self.camera
     }
 
     /// With `on`, each frame that has a truth and was registered is also rectified with the
@@ -424,18 +450,34 @@ impl Processor {
 
     /// Ground truth of the texture region for true `joints` and `lamp_intensity`, as a
     /// radiance factor relative to the nominal lamp (what [`Processor::process`] estimates).
+    /// A texel stands for its area, so the truth is the mean of `k x k` point samples of the
+    /// renderer over the texel ([`area_truth_subsamples`]).
     pub fn ground_truth(&self, joints: &JointState, lamp_intensity: f64) -> Vec<[f32; 3]> {
         let r = self.settings.region;
         let region =
             btfrig_render::ground_truth::Region { x_min: r.x_min, x_max: r.x_max, y_min: r.y_min, y_max: r.y_max };
         let n = self.settings.size;
-        let mut gt = self.scene.renderer().ground_truth(&self.scene.pose(joints), n, n, Some(region));
+        let k = area_truth_subsamples(n);
+        let fine = self.scene.renderer().ground_truth(&self.scene.pose(joints), n * k, n * k, Some(region));
         let sensor = self.scene.sensor();
-        let k = (lamp_intensity * sensor.dn_per_electron(1.0) / self.scene.white_signal_dn(1.0, 1.0)) as f32;
-        for p in &mut gt.data {
-            *p = p.map(|c| c * k);
+        let scale = lamp_intensity * sensor.dn_per_electron(1.0) / self.scene.white_signal_dn(1.0, 1.0);
+        let w = scale / (k * k) as f64;
+        let mut out = vec![[0.0f32; 3]; n * n];
+        for (row, line) in out.chunks_mut(n).enumerate() {
+            for (col, texel) in line.iter_mut().enumerate() {
+                let mut acc = [0.0f64; 3];
+                for fr in row * k..(row + 1) * k {
+                    for fc in col * k..(col + 1) * k {
+                        let p = fine.data[fr * n * k + fc];
+                        for c in 0..3 {
+                            acc[c] += f64::from(p[c]);
+                        }
+                    }
+                }
+                *texel = acc.map(|a| (a * w) as f32);
+            }
         }
-        gt.data
+        out
     }
 
     /// Demosaic, register (or take the nominal pose of `commanded`, per the plan's policy),
@@ -457,7 +499,8 @@ impl Processor {
         stage_s.insert("demosaic".to_string(), t.elapsed().as_secs_f64());
 
         let nominal = self.scene.pose(commanded);
-        let cam = self.scene.camera().model();
+        let cam = &self.camera;
+        let true_cam = self.scene.camera().model();
         let s = &self.settings;
         let (pose, registration) = match &self.registrar {
             None => (nominal, record(PoseSource::NominalByPlan)),
@@ -492,9 +535,9 @@ impl Processor {
             let gt = self.ground_truth(&joints, lamp);
             error = Some(squared_error(&tex.data, &gt));
             let true_pose = self.scene.pose(&joints);
-            let used = texel_position_error(&true_pose, &pose, cam, s.region, s.size);
+            let used = texel_position_error_with_cameras(&true_pose, true_cam, &pose, cam, s.region, s.size);
             let nominal_err = if registration.pose == PoseSource::Markers {
-                texel_position_error(&true_pose, &nominal, cam, s.region, s.size)
+                texel_position_error_with_cameras(&true_pose, true_cam, &nominal, cam, s.region, s.size)
             } else {
                 used
             };
@@ -593,6 +636,14 @@ impl TexelErrorTotals {
     pub fn max(&self) -> Option<f64> {
         (self.frames > 0).then_some(self.max)
     }
+}
+
+/// Point samples per texel axis of the pipeline's area-averaged ground truth: 4 (as the
+/// rectification benchmarks use) while the fine grid stays within 512 x 512, fewer for larger
+/// textures (2 at 256 texels, 1 from 512 on), so the truth costs at most about as much as a
+/// 512-texel point-sampled one.
+pub fn area_truth_subsamples(size: usize) -> usize {
+    (512 / size.max(1)).clamp(1, 4)
 }
 
 /// Running totals of a pipeline.

@@ -38,7 +38,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 pub use frame::{FrameError, FrameRegistration, PlateRegistrar};
-pub use metric::{back_project, sample_to_camera, texel_position_error};
+pub use metric::{back_project, sample_to_camera, texel_position_error, texel_position_error_with_cameras};
 pub use refine::{Matrix6, Vector6};
 
 /// One observed marker corner.

@@ -53,6 +53,22 @@ pub fn texel_position_error(
     region: Region,
     size: usize,
 ) -> (f64, f64) {
+    texel_position_error_with_cameras(truth, camera, estimated, camera, region, size)
+}
+
+/// [`texel_position_error`] when the camera model that rectifies (`processing`, e.g. a
+/// calibrated one) is not the true camera (`true_camera`): each texel centre is projected with
+/// the estimated pose through the processing camera, and the pixel's ray is cast with the
+/// true camera onto the truly posed plane. A calibration error thus counts as what it does to
+/// the texture.
+pub fn texel_position_error_with_cameras(
+    truth: &ScenePose,
+    true_camera: &CameraModel,
+    estimated: &ScenePose,
+    processing: &CameraModel,
+    region: Region,
+    size: usize,
+) -> (f64, f64) {
     let t = sample_to_camera(truth);
     let e = sample_to_camera(estimated);
     let pitch_x = (region.x_max - region.x_min) / size as f64;
@@ -62,7 +78,8 @@ pub fn texel_position_error(
         for col in 0..size {
             let (x, y) = region.point(size, size, col as f64 + 0.5, row as f64 + 0.5);
             let p = Point2::new(x, y);
-            if let Some(q) = sampled_point(camera, &t, &e, p) {
+            let px = processing.project(&(e * Point3::new(p.x, p.y, 0.0)));
+            if let Some(q) = px.and_then(|px| back_project(true_camera, &t, px)) {
                 let d = ((q.x - x) / pitch_x).hypot((q.y - y) / pitch_y);
                 sum += d;
                 max = max.max(d);

@@ -534,6 +534,10 @@ pub fn run(
         registration: v.registration,
     };
 
+    // The camera model frames are processed with: the rig's calibration when its config names
+    // one (`[camera] calibration`), else the config's own lens.
+    let camera = btfrig_calibrate::processing_camera(&v.rig, plan.rig_config_path(file).as_deref())
+        .map_err(|e| RunError::Rig(format!("the rig's camera calibration: {e}")))?;
     let commands = control.take().ok_or_else(|| RunError::Rig("this RunControl already drives a run".into()))?;
     let dataset = Arc::new(dataset);
     let rt = virtual_time_runtime()?;
@@ -545,6 +549,7 @@ pub fn run(
         done,
         settings,
         process,
+        camera,
         // From the dataset's manifest (the plan's for a new one): a dataset resumed from an
         // older build may say otherwise, and the store refuses files its manifest does not ask for.
         outputs: btfrig_pipeline::Outputs {
@@ -702,6 +707,7 @@ struct SessionInput<'a> {
     done: HashSet<StepKey>,
     settings: EngineSettings,
     process: ProcessSettings,
+    camera: btfrig_core::camera::CameraModel,
     outputs: btfrig_pipeline::Outputs,
     dataset: Arc<Dataset>,
     commands: mpsc::UnboundedReceiver<Command>,
@@ -750,6 +756,7 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
         done,
         settings,
         process,
+        camera,
         outputs,
         dataset,
         mut commands,
@@ -781,6 +788,7 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
     let _lamp = sim.lamp; // stays on for the whole run
     let processor = Arc::new(
         Processor::new(scene, &rig.plate, process)
+            .and_then(|p| p.with_camera(camera))
             .map_err(|e| RunError::Rig(e.to_string()))?
             .with_outputs(outputs)
             .with_nominal_comparison(compare_nominal),

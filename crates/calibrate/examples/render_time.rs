@@ -1,5 +1,5 @@
 //! Times one board capture: radiance vs sensor vs demosaic vs detection.
-use btfrig_camcal::rig::CalibrationPlan;
+use btfrig_calibrate::CalibrationPlan;
 use btfrig_core::config::RigConfig;
 use btfrig_render::renderer::RenderOptions;
 use btfrig_render::rig_scene::RigScene;
@@ -19,7 +19,7 @@ fn main() {
         let raw = scene.sensor().capture(&img, 0.1, 1.0, 1).unwrap();
         let s = t.elapsed().as_secs_f64();
         let t = Instant::now();
-        let g = btfrig_camcal::rig::green(&raw);
+        let g = btfrig_calibrate::green(&raw);
         let d = t.elapsed().as_secs_f64();
         eprintln!(
             "ss {ss}: radiance {r:.3}s sensor {s:.3}s green {d:.3}s traced {} plate hits {}",

@@ -4,7 +4,7 @@
 
 use std::time::Instant;
 
-use btfrig_camcal::rig::{calibrate_simulated, CalibrationPlan};
+use btfrig_calibrate::{calibrate_simulated, CalibrationPlan};
 use btfrig_camcal::{distortion_difference, mapping_difference_up_to_rotation};
 use btfrig_core::config::RigConfig;
 

@@ -5,8 +5,10 @@
 //! the board and calibrates; [`processing_camera`] is the camera model the pipeline processes
 //! frames with (the calibrated one when the rig config points to a calibration file).
 //!
-//! Unlike the rest of the crate this module does I/O in one place only: [`processing_camera`]
+//! The numerics are in `btfrig-camcal` (which knows nothing of rigs, renderers or files); this
+//! crate is the procedure around them, and does I/O in one place only: [`processing_camera`]
 //! reads the calibration file a rig config names.
+#![warn(missing_docs)]
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -26,7 +28,9 @@ use nalgebra::Point2;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::{calibrate, CalibError, Calibration, CalibrationFile, Correspondence, Options, View, MIN_POINTS_PER_VIEW};
+use btfrig_camcal::{
+    calibrate, CalibError, Calibration, CalibrationFile, Correspondence, Options, View, MIN_POINTS_PER_VIEW,
+};
 
 /// Version of the calibration plan format.
 pub const PLAN_FORMAT_VERSION: u32 = 1;
@@ -505,7 +509,7 @@ pub fn calibrate_captures(
             }
         }
         detect_s += t.elapsed().as_secs_f64();
-        let need = crate::MIN_VIEWS.max(4);
+        let need = btfrig_camcal::MIN_VIEWS.max(4);
         if views.len() < need {
             let skipped = captures
                 .iter()

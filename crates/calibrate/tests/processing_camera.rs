@@ -1,7 +1,7 @@
 //! `processing_camera`: which camera model the pipeline processes frames with, and plan
 //! parsing. No rendering here (see `rig_calibration.rs`).
 
-use btfrig_camcal::rig::{processing_camera, CalibrationPlan, RigCalibError};
+use btfrig_calibrate::{processing_camera, CalibrationPlan, RigCalibError};
 use btfrig_camcal::CalibrationFile;
 use btfrig_core::config::RigConfig;
 

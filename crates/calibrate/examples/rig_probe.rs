@@ -1,7 +1,7 @@
 //! `cargo run --release -p btfrig-camcal --example rig_probe [PLAN|-] [SEED]`: runs a
 //! calibration plan on the default simulated rig and prints the errors against the truth, for
 //! the plan as given and with k3 held at 0, with one and two detection passes (tuning plans).
-use btfrig_camcal::rig::{calibrate_captures, capture_simulated, CalibrationPlan, RigCalibration};
+use btfrig_calibrate::{calibrate_captures, capture_simulated, CalibrationPlan, RigCalibration};
 use btfrig_camcal::{distortion_difference, mapping_difference_up_to_rotation};
 use btfrig_core::config::RigConfig;
 use rand::SeedableRng;
