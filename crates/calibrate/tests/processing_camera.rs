@@ -11,7 +11,10 @@ fn rig() -> RigConfig {
 
 #[test]
 fn without_a_calibration_the_configs_own_camera_is_used() {
-    let cfg = rig();
+    let mut cfg = rig();
+    // The default rig names the shipped calibration; without it the lens itself is used.
+    assert_eq!(cfg.camera.calibration.as_deref(), Some("builtin:bonn-gonio-sim-geometry"));
+    cfg.camera.calibration = None;
     assert_eq!(processing_camera(&cfg, None).unwrap(), cfg.camera.to_model().unwrap());
 }
 

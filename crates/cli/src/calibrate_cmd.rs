@@ -1,5 +1,5 @@
 //! `btfrig calibrate geometry`: runs a geometric calibration plan on the (simulated) rig and
-//! writes the calibration file. The work is in `btfrig_camcal::rig`.
+//! writes the calibration file. The work is in `btfrig-calibrate`.
 
 use std::path::PathBuf;
 use std::time::Instant;
