@@ -23,6 +23,10 @@ fn every_shipped_plan_validates() {
         if path.extension().is_none_or(|e| e != "toml") {
             continue;
         }
+        // Calibration plans are another format, parsed by btfrig-calibrate (its tests load them).
+        if path.file_name().is_some_and(|n| n.to_string_lossy().starts_with("calibration-")) {
+            continue;
+        }
         let text = std::fs::read_to_string(&path).unwrap();
         let v = Plan::load_and_validate(&text, &path.display().to_string(), &ctx()).unwrap_or_else(|e| panic!("{e}"));
         let captures = v.capture_list().captures;
