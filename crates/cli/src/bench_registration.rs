@@ -320,7 +320,7 @@ impl Bench {
             matrix: fit.matrix,
         };
         let gt_point = self.scene.ground_truth(&truth, 1.0, self.size).data;
-        let gt_box = box_truth(&self.scene.ground_truth(&truth, 1.0, self.size * BOX_SAMPLES).data, self.size);
+        let gt_box = self.scene.ground_truth(&truth, 1.0, self.size * BOX_SAMPLES).box_average(BOX_SAMPLES).data;
         let (img, _) = self.scene.radiance(&truth, 1.0, &RenderOptions::default());
         // Rates in e-/s: exposure 1 s, 1 DN per electron, range 1, no dark current.
         let clean_radiometry =
@@ -585,27 +585,6 @@ impl Bench {
             error: None,
         })
     }
-}
-
-/// Averages `k x k` blocks of a `(size k)²` point-sampled truth into `size²` texels.
-fn box_truth(fine: &[[f32; 3]], size: usize) -> Vec<[f32; 3]> {
-    let k = BOX_SAMPLES;
-    let n = size * k;
-    (0..size * size)
-        .map(|i| {
-            let (row, col) = (i / size, i % size);
-            let mut sum = [0.0f64; 3];
-            for j in 0..k {
-                for m in 0..k {
-                    let v = fine[(row * k + j) * n + col * k + m];
-                    for c in 0..3 {
-                        sum[c] += f64::from(v[c]);
-                    }
-                }
-            }
-            sum.map(|x| (x / (k * k) as f64) as f32)
-        })
-        .collect()
 }
 
 #[cfg(test)]

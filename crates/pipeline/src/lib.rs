@@ -458,26 +458,11 @@ impl Processor {
             btfrig_render::ground_truth::Region { x_min: r.x_min, x_max: r.x_max, y_min: r.y_min, y_max: r.y_max };
         let n = self.settings.size;
         let k = area_truth_subsamples(n);
-        let fine = self.scene.renderer().ground_truth(&self.scene.pose(joints), n * k, n * k, Some(region));
+        let truth =
+            self.scene.renderer().ground_truth(&self.scene.pose(joints), n * k, n * k, Some(region)).box_average(k);
         let sensor = self.scene.sensor();
-        let scale = lamp_intensity * sensor.dn_per_electron(1.0) / self.scene.white_signal_dn(1.0, 1.0);
-        let w = scale / (k * k) as f64;
-        let mut out = vec![[0.0f32; 3]; n * n];
-        for (row, line) in out.chunks_mut(n).enumerate() {
-            for (col, texel) in line.iter_mut().enumerate() {
-                let mut acc = [0.0f64; 3];
-                for fr in row * k..(row + 1) * k {
-                    for fc in col * k..(col + 1) * k {
-                        let p = fine.data[fr * n * k + fc];
-                        for c in 0..3 {
-                            acc[c] += f64::from(p[c]);
-                        }
-                    }
-                }
-                *texel = acc.map(|a| (a * w) as f32);
-            }
-        }
-        out
+        let scale = (lamp_intensity * sensor.dn_per_electron(1.0) / self.scene.white_signal_dn(1.0, 1.0)) as f32;
+        truth.data.into_iter().map(|p| p.map(|c| c * scale)).collect()
     }
 
     /// Demosaic, register (or take the nominal pose of `commanded`, per the plan's policy),

@@ -47,6 +47,29 @@ impl GroundTruth {
     pub fn texel_centre(&self, col: usize, row: usize) -> (f64, f64) {
         texel_centre(&self.region, self.width, self.height, col, row)
     }
+
+    /// The area-averaged truth of a `k` times coarser grid: each output texel is the mean of
+    /// the `k x k` texels it covers (render the point truth at `k` times the size first). What
+    /// a texel holds if it stands for its whole square. Sizes not divisible by `k` are cut.
+    pub fn box_average(&self, k: usize) -> GroundTruth {
+        let k = k.max(1);
+        let (w, h) = (self.width / k, self.height / k);
+        let mut data = Vec::with_capacity(w * h);
+        for row in 0..h {
+            for col in 0..w {
+                let mut sum = [0.0f64; 3];
+                for fr in row * k..(row + 1) * k {
+                    for v in &self.data[fr * self.width + col * k..fr * self.width + (col + 1) * k] {
+                        for c in 0..3 {
+                            sum[c] += f64::from(v[c]);
+                        }
+                    }
+                }
+                data.push(sum.map(|x| (x / (k * k) as f64) as f32));
+            }
+        }
+        GroundTruth { width: w, height: h, region: self.region, data }
+    }
 }
 
 fn texel_centre(r: &Region, w: usize, h: usize, col: usize, row: usize) -> (f64, f64) {
@@ -79,5 +102,24 @@ impl Renderer {
             }
         });
         GroundTruth { width, height, region, data }
+    }
+}
+
+#[cfg(test)]
+mod box_tests {
+    use super::*;
+
+    #[test]
+    fn box_average_is_the_mean_of_each_block() {
+        let region = Region { x_min: -1.0, x_max: 1.0, y_min: -1.0, y_max: 1.0 };
+        let data = (0..16).map(|i| [i as f32, 2.0 * i as f32, 1.0]).collect();
+        let fine = GroundTruth { width: 4, height: 4, region, data };
+        let c = fine.box_average(2);
+        assert_eq!((c.width, c.height), (2, 2));
+        // Top-left block: 0, 1, 4, 5.
+        assert_eq!(c.data[0], [2.5, 5.0, 1.0]);
+        // Bottom-right block: 10, 11, 14, 15.
+        assert_eq!(c.data[3], [12.5, 25.0, 1.0]);
+        assert_eq!(fine.box_average(1).data, fine.data);
     }
 }

@@ -105,23 +105,7 @@ pub fn ground_truth(s: &Setup, joints: &JointState, size: usize) -> Vec<[f32; 3]
 /// Area-averaged ground truth: `k x k` point samples per texel, averaged (what a texel holds
 /// if it stands for its whole square).
 pub fn ground_truth_box(s: &Setup, joints: &JointState, size: usize, k: usize) -> Vec<[f32; 3]> {
-    let fine = s.scene.ground_truth(joints, 1.0, size * k).data;
-    let n = size * k;
-    (0..size * size)
-        .map(|i| {
-            let (row, col) = (i / size, i % size);
-            let mut sum = [0.0f64; 3];
-            for j in 0..k {
-                for m in 0..k {
-                    let v = fine[(row * k + j) * n + col * k + m];
-                    for c in 0..3 {
-                        sum[c] += f64::from(v[c]);
-                    }
-                }
-            }
-            sum.map(|x| (x / (k * k) as f64) as f32)
-        })
-        .collect()
+    s.scene.ground_truth(joints, 1.0, size * k).box_average(k).data
 }
 
 pub fn err(t: &Texture, gt: &[[f32; 3]]) -> TextureError {
