@@ -69,6 +69,9 @@ pub struct Outputs {
     pub textures: bool,
     /// Write the raw frame (`Dataset::write_raw`); the dataset's manifest must ask for them.
     pub raw_frames: bool,
+    /// Write an 8-bit sRGB preview of each texture (`Dataset::write_texture_preview`, in the
+    /// `write` stage); needs `textures` and a manifest that asks for them.
+    pub texture_previews: bool,
     /// Keep a live preview, rate-limited; `None`: no preview.
     pub preview: Option<PreviewSettings>,
 }
@@ -76,7 +79,7 @@ pub struct Outputs {
 impl Default for Outputs {
     /// Textures only, no preview.
     fn default() -> Self {
-        Outputs { textures: true, raw_frames: false, preview: None }
+        Outputs { textures: true, raw_frames: false, texture_previews: false, preview: None }
     }
 }
 
@@ -755,6 +758,9 @@ where
                     if out.textures {
                         let tw = Instant::now();
                         files.push(ds.write_texture(step, &p.texels, n, n)?);
+                        if out.texture_previews {
+                            files.push(ds.write_texture_preview(step, &p.texels, n, n)?);
+                        }
                         p.stage_s.insert("write".to_string(), tw.elapsed().as_secs_f64());
                     }
                     p.stage_s.extend(stage_s);

@@ -114,8 +114,10 @@ fn raw_path(s: StepId) -> String {
 fn raw_frames_round_trip_exactly_and_are_journaled_with_their_textures() {
     let f = fixture();
     let size = 16;
-    let ds = Arc::new(Dataset::create_in(MemStorage::new(), manifest(&f, size, true, true)).unwrap());
-    let out = Outputs { textures: true, raw_frames: true, preview: None };
+    let mut m = manifest(&f, size, true, true);
+    m.texture_previews = true;
+    let ds = Arc::new(Dataset::create_in(MemStorage::new(), m).unwrap());
+    let out = Outputs { textures: true, raw_frames: true, texture_previews: true, preview: None };
     let totals = run(&ds, &processor(&f, size, out), &f.frames).unwrap();
     assert_eq!(totals.committed, 4);
     assert_eq!(totals.previews, 0);
@@ -125,7 +127,8 @@ fn raw_frames_round_trip_exactly_and_are_journaled_with_their_textures() {
         let rec = ds.step_record(s).unwrap();
         let paths: BTreeSet<&str> = rec.files.iter().map(|r| r.path.as_str()).collect();
         let raw = raw_path(s);
-        assert_eq!(paths, BTreeSet::from([raw.as_str(), format!("textures/{}.exr", s.stem()).as_str()]));
+        let (tex_name, preview_name) = (format!("textures/{}.exr", s.stem()), format!("previews/{}.png", s.stem()));
+        assert_eq!(paths, BTreeSet::from([raw.as_str(), tex_name.as_str(), preview_name.as_str()]));
         let bytes = ds.storage().read(&raw).unwrap();
         let file = rec.files.iter().find(|r| r.path == raw).unwrap();
         assert_eq!(file.hash, content_hash(&bytes));
@@ -144,10 +147,15 @@ fn raw_frames_round_trip_exactly_and_are_journaled_with_their_textures() {
         let (_, _, stored) = btfrig_imageio::read_rgb_exr(&dir).unwrap();
         std::fs::remove_file(&dir).unwrap();
         assert_eq!(stored, again, "{s}");
+        // The texture's 8-bit preview is the sRGB encoding of the stored texels.
+        let png = ds.storage().read(&preview_name).unwrap();
+        let (w, h, rgb) = btfrig_imageio::decode_srgb8_png(preview_name.as_ref(), &png).unwrap();
+        assert_eq!((w, h), (size, size));
+        assert_eq!(rgb, btfrig_imageio::linear_to_srgb8(&stored, 1.0));
     }
     let rep = verify_in(ds.storage());
     assert!(rep.is_ok(), "{rep}");
-    assert_eq!(rep.files_checked, 8);
+    assert_eq!(rep.files_checked, 12);
 }
 
 #[test]
@@ -155,7 +163,7 @@ fn raw_frames_only_writes_no_textures_and_skips_processing() {
     let f = fixture();
     let size = 16;
     let ds = Arc::new(Dataset::create_in(MemStorage::new(), manifest(&f, size, true, false)).unwrap());
-    let out = Outputs { textures: false, raw_frames: true, preview: None };
+    let out = Outputs { textures: false, raw_frames: true, texture_previews: false, preview: None };
     let totals = run(&ds, &processor(&f, size, out), &f.frames).unwrap();
     assert_eq!(totals.committed, 4);
     // Nothing was rectified, so nothing was compared with the truth.
@@ -175,6 +183,7 @@ fn a_crash_between_the_writes_and_the_commit_never_counts_a_raw_frame_without_it
     let out = Outputs {
         textures: true,
         raw_frames: true,
+        texture_previews: false,
         preview: Some(PreviewSettings { min_side: 16, min_interval_s: 0.0, max_share: 1.0 }),
     };
     let mut uncommitted_raw_seen = 0;

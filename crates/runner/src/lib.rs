@@ -555,6 +555,7 @@ pub fn run(
         outputs: btfrig_pipeline::Outputs {
             textures: dataset.manifest().textures,
             raw_frames: dataset.manifest().raw_frames,
+            texture_previews: dataset.manifest().texture_previews,
             preview: v.outputs.preview.then(btfrig_pipeline::PreviewSettings::default),
         },
         dataset: dataset.clone(),

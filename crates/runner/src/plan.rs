@@ -179,6 +179,7 @@ pub fn manifest(
     let rig = RigInfo { name: v.rig.rig.name.clone(), config_toml };
     let mut m = Manifest::new(rig, text, samplings, texture, v.outputs.raw_frames, v.rig.rig.seed);
     m.textures = v.outputs.textures;
+    m.texture_previews = v.outputs.texture_previews;
     Ok(m)
 }
 

@@ -24,6 +24,8 @@ pub const REPORT_FILE: &str = "report.json";
 pub const TEXTURES_DIR: &str = "textures";
 /// Directory of the raw frames.
 pub const RAW_DIR: &str = "raw";
+/// Directory of the 8-bit sRGB texture previews.
+pub const PREVIEWS_DIR: &str = "previews";
 /// The live preview (8-bit sRGB PNG of the latest processed capture): not data, never
 /// journaled, replaced atomically by [`Dataset::write_preview`].
 pub const PREVIEW_FILE: &str = "preview.png";
@@ -38,7 +40,14 @@ fn required_files(manifest: &Manifest, step: StepId) -> Vec<String> {
     if manifest.raw_frames {
         out.push(raw_path(step));
     }
+    if manifest.texture_previews {
+        out.push(texture_preview_path(step));
+    }
     out
+}
+
+fn texture_preview_path(step: StepId) -> String {
+    format!("{PREVIEWS_DIR}/{}.png", step.stem())
 }
 
 fn texture_path(step: StepId) -> String {
@@ -99,7 +108,7 @@ fn list_names<S: Storage + ?Sized>(s: &S, dir: &str) -> Result<Vec<crate::Entry>
 fn data_files<S: Storage + ?Sized>(s: &S) -> Result<Vec<String>, StoreError> {
     let root = list_names(s, "")?;
     let mut out = Vec::new();
-    for dir in [TEXTURES_DIR, RAW_DIR] {
+    for dir in [TEXTURES_DIR, RAW_DIR, PREVIEWS_DIR] {
         if root.iter().any(|e| e.name == dir && e.is_dir) {
             for e in list_names(s, dir)? {
                 out.push(format!("{dir}/{}", e.name));
@@ -213,6 +222,9 @@ impl<S: Storage> Dataset<S> {
         if manifest.raw_frames {
             storage.create_dir(RAW_DIR).map_err(io_err(&storage, "create directory", RAW_DIR))?;
         }
+        if manifest.texture_previews {
+            storage.create_dir(PREVIEWS_DIR).map_err(io_err(&storage, "create directory", PREVIEWS_DIR))?;
+        }
         // The manifest first: once it exists the directory is this dataset, and a crash
         // before the journal is written leaves a dataset with nothing done (resume recreates it).
         let json = serde_json::to_vec_pretty(&manifest).expect("manifest serialises");
@@ -244,8 +256,13 @@ impl<S: Storage> Dataset<S> {
             j
         };
         let expected = manifest.samplings.expected_steps();
-        for dir in
-            [manifest.textures.then_some(TEXTURES_DIR), manifest.raw_frames.then_some(RAW_DIR)].into_iter().flatten()
+        for dir in [
+            manifest.textures.then_some(TEXTURES_DIR),
+            manifest.raw_frames.then_some(RAW_DIR),
+            manifest.texture_previews.then_some(PREVIEWS_DIR),
+        ]
+        .into_iter()
+        .flatten()
         {
             storage.create_dir(dir).map_err(io_err(&storage, "create directory", dir))?;
         }
@@ -364,6 +381,32 @@ impl<S: Storage> Dataset<S> {
         write_atomic(&self.storage, &path, &bytes)
     }
 
+    /// Writes the 8-bit sRGB preview of `step`'s texture (`width x height` linear RGB, the
+    /// values [`Dataset::write_texture`] writes) to `previews/<stem>.png`, durably, and returns
+    /// its record for [`Dataset::commit_step`]: linear 1.0 (a white reflector facing the
+    /// nominal lamp) is 255, brighter texels clip, no tone mapping (`btfrig_imageio::
+    /// linear_to_srgb8`), so previews of one dataset compare. Fails unless the manifest asks
+    /// for texture previews.
+    pub fn write_texture_preview(
+        &self,
+        step: StepId,
+        texels: &[[f32; 3]],
+        width: usize,
+        height: usize,
+    ) -> Result<FileRecord, StoreError> {
+        self.check_open(step, &self.journal())?;
+        let path = texture_preview_path(step);
+        if !self.manifest.texture_previews {
+            return Err(StoreError::BadInput {
+                what: self.storage.display(&path),
+                reason: "the manifest has texture_previews = false".into(),
+            });
+        }
+        let rgb = btfrig_imageio::linear_to_srgb8(texels, 1.0);
+        let bytes = btfrig_imageio::encode_srgb8_png(Path::new(&path), width, height, &rgb)?;
+        write_atomic(&self.storage, &path, &bytes)
+    }
+
     /// Writes the raw frame of `step` to `raw/<stem>.exr` (see `btfrig_imageio::write_raw_exr`:
     /// one 32-bit float channel holding the DNs exactly, lossless, the frame's metadata as JSON
     /// in the header), durably. Fails unless the manifest asks for raw frames.
@@ -413,10 +456,11 @@ impl<S: Storage> Dataset<S> {
                 return Err(StoreError::BadInput {
                     what: self.storage.display(&need),
                     reason: format!(
-                        "step {step} committed without it (files: [{}]); the manifest asks for textures = {}, raw_frames = {}",
+                        "step {step} committed without it (files: [{}]); the manifest asks for textures = {}, raw_frames = {}, texture_previews = {}",
                         named.join(", "),
                         self.manifest.textures,
-                        self.manifest.raw_frames
+                        self.manifest.raw_frames,
+                        self.manifest.texture_previews
                     ),
                 });
             }
@@ -914,7 +958,16 @@ pub fn verify_in<S: Storage + ?Sized>(s: &S) -> VerifyReport {
     }
     // The preview and its temporary name (a run killed while replacing it) are not data.
     let preview_tmp = tmp_name(PREVIEW_FILE);
-    let known = [MANIFEST_FILE, JOURNAL_FILE, REPORT_FILE, TEXTURES_DIR, RAW_DIR, PREVIEW_FILE, preview_tmp.as_str()];
+    let known = [
+        MANIFEST_FILE,
+        JOURNAL_FILE,
+        REPORT_FILE,
+        TEXTURES_DIR,
+        RAW_DIR,
+        PREVIEWS_DIR,
+        PREVIEW_FILE,
+        preview_tmp.as_str(),
+    ];
     for e in s.list("").unwrap_or_default() {
         if !known.contains(&e.name.as_str()) {
             r.problems.push(Problem::Orphan { path: if e.is_dir { format!("{}/", e.name) } else { e.name } });

@@ -33,6 +33,10 @@ pub struct Manifest {
     /// before this field existed: true). A plan may keep raw frames only.
     #[serde(default = "Manifest::yes")]
     pub textures: bool,
+    /// True if each texture has an 8-bit sRGB preview under `previews/` (absent in manifests
+    /// written before this field existed: false). Requires `textures`.
+    #[serde(default)]
+    pub texture_previews: bool,
     /// Calibration the run used (`null` until the calibration issue provides one).
     pub calibration: Option<serde_json::Value>,
     /// Seed of every random process of the run (simulated rigs).
@@ -226,6 +230,7 @@ impl Manifest {
             texture,
             raw_frames,
             textures: true,
+            texture_previews: false,
             calibration: None,
             seed,
             created_unix_s: now,
@@ -239,6 +244,9 @@ impl Manifest {
         let mut p = Vec::new();
         if !self.textures && !self.raw_frames {
             p.push("textures and raw_frames are both false: the dataset would hold no data".into());
+        }
+        if self.texture_previews && !self.textures {
+            p.push("texture_previews is true but textures is false: a preview shows a texture".into());
         }
         if self.schema_version != MANIFEST_SCHEMA_VERSION {
             p.push(format!("schema_version {} (this build reads {MANIFEST_SCHEMA_VERSION})", self.schema_version));

@@ -106,3 +106,40 @@ fn the_preview_is_replaced_atomically_not_journaled_and_not_an_orphan() {
     let (_ds, resume) = Dataset::open_for_resume_in(st.clone(), &plan_hash(PLAN)).unwrap();
     assert_eq!(resume.removed_orphans, vec![".preview.png.tmp".to_string()]);
 }
+
+#[test]
+fn texture_previews_are_journaled_with_their_texture_and_encode_the_texture_in_srgb() {
+    let mut m = manifest(PLAN, TextureFormat::ExrFloat, false);
+    m.texture_previews = true;
+    let ds = Dataset::create_in(MemStorage::new(), m.clone()).unwrap();
+    let s = StepId { light: 0, view: 1 };
+    let tex: Vec<[f32; 3]> = (0..W * H).map(|i| [i as f32 / (W * H - 1) as f32, 0.18, 2.0]).collect();
+    let t = ds.write_texture(s, &tex, W, H).unwrap();
+    let err = ds.commit_step(s, vec![t.clone()], 1, StepTiming::default()).unwrap_err();
+    assert!(err.to_string().contains("previews/l000_v001.png") && err.to_string().contains("texture_previews = true"));
+    let p = ds.write_texture_preview(s, &tex, W, H).unwrap();
+    ds.commit_step(s, vec![t, p.clone()], 1, StepTiming::default()).unwrap();
+    let (w, h, rgb) = btfrig_imageio::decode_srgb8_png(p.path.as_ref(), &ds.storage().read(&p.path).unwrap()).unwrap();
+    assert_eq!((w, h), (W, H));
+    // Red ramps 0..1 (0 -> 0, 1 -> 255), green is mid grey (linear 0.18 -> sRGB 118), blue
+    // (linear 2) clips.
+    assert_eq!(&rgb[..3], &[0, 118, 255]);
+    assert_eq!(rgb[3 * (W * H - 1)], 255);
+    assert!(rgb.chunks(3).all(|px| px[1] == 118 && px[2] == 255));
+    assert!(rgb.chunks(3).map(|px| px[0]).collect::<Vec<_>>().windows(2).all(|w| w[0] < w[1]));
+
+    // A preview is data like a texture: a damaged one is named by verify.
+    let st = ds.storage().clone();
+    st.corrupt_byte(&p.path, p.size as usize / 2).unwrap();
+    assert!(verify_in(&st).problems.iter().any(|q| matches!(q, Problem::WrongHash { path, .. } if *path == p.path)));
+
+    // Previews without textures is refused; a dataset without previews refuses to write one.
+    let mut bad = m.clone();
+    bad.textures = false;
+    bad.raw_frames = true;
+    let err = Dataset::create_in(MemStorage::new(), bad).unwrap_err();
+    assert!(err.to_string().contains("texture_previews is true but textures is false"), "{err}");
+    let plain = Dataset::create_in(MemStorage::new(), manifest(PLAN, TextureFormat::ExrHalf, false)).unwrap();
+    let err = plain.write_texture_preview(s, &tex, W, H).unwrap_err();
+    assert!(err.to_string().contains("texture_previews = false"), "{err}");
+}

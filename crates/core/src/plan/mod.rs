@@ -365,6 +365,10 @@ pub struct OutputsSpec {
     /// Write small preview images (default false).
     #[serde(default)]
     pub preview: bool,
+    /// Write an 8-bit sRGB PNG preview of every texture under `previews/` (default false;
+    /// needs `textures`).
+    #[serde(default)]
+    pub texture_previews: bool,
     /// Fit a compressed BTF model (reserved: `true` is not supported yet; default false).
     #[serde(default)]
     pub compressed_model: bool,
@@ -388,6 +392,7 @@ impl Default for OutputsSpec {
             raw_frames: false,
             textures: true,
             preview: false,
+            texture_previews: false,
             compressed_model: false,
             format: Self::default_format(),
         }

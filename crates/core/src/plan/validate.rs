@@ -218,6 +218,8 @@ pub struct Outputs {
     pub textures: bool,
     /// Write previews.
     pub preview: bool,
+    /// Write an 8-bit sRGB preview of every texture.
+    pub texture_previews: bool,
     /// Texture file format.
     pub format: OutputFormat,
 }
@@ -1043,10 +1045,19 @@ fn resolve_outputs(o: &OutputsSpec, errors: &mut Vec<PlanError>) -> Option<Outpu
             "textures = true or raw_frames = true",
         ));
     }
+    if o.texture_previews && !o.textures {
+        errors.push(PlanError::invalid(
+            "outputs.texture_previews",
+            true,
+            "with textures = false there is no texture to preview",
+            "texture_previews = false, or textures = true",
+        ));
+    }
     (errors.len() == n_before).then(|| Outputs {
         raw_frames: o.raw_frames,
         textures: o.textures,
         preview: o.preview,
+        texture_previews: o.texture_previews,
         format: format.expect("no errors"),
     })
 }
