@@ -10,7 +10,8 @@
 //!   put at a target level), and the next exposure of a bracket from the meterings of the
 //!   exposures taken so far: shorter by `stop_ratio` while too much of the footprint is
 //!   saturated even in the shortest one, longer while too much is underexposed even in the
-//!   longest, at most `max_exposures` in all. A scene one exposure holds gets one.
+//!   longest (and the previous longer exposure halved that fraction at least), at most
+//!   `max_exposures` in all. A scene one exposure holds gets one.
 //!
 //! Numerics only; the policy, its defaults and the measured figures are in `docs/hdr.md`.
 
@@ -289,7 +290,10 @@ pub struct HdrPolicy {
     pub saturated_max_fraction: f64,
     /// Largest tolerated underexposed fraction of the footprint.
     pub dark_max_fraction: f64,
-    /// Level the base exposure puts the brightest tolerated rate at (fraction of full scale).
+    /// Quantile of the footprint's rates the base exposure meters on (e.g. 0.99: the bulk of
+    /// the sample, not its highlights, sets the base).
+    pub meter_quantile: f64,
+    /// Level the base exposure puts that quantile at (fraction of full scale).
     pub target_fraction: f64,
     /// Shortest and longest exposure the camera allows, seconds.
     pub exposure_range_s: (f64, f64),
@@ -299,12 +303,12 @@ pub struct HdrPolicy {
 
 impl HdrPolicy {
     /// Base exposure from a metering taken at `metered_exposure_s`: the rate at the
-    /// `1 - saturated_max_fraction` quantile of the footprint lands at `target_fraction` of
-    /// full scale. If that quantile was saturated (its rate is only a lower bound), the
-    /// exposure is cut by `stop_ratio` instead, and the next metering refines it.
+    /// `meter_quantile` of the footprint lands at `target_fraction` of full scale. If that
+    /// quantile was saturated (its rate is only a lower bound), the exposure is cut by
+    /// `stop_ratio` instead, and the next metering refines it.
     pub fn base_exposure(&self, metering: &Metering, metered_exposure_s: f64) -> f64 {
         let (lo, hi) = self.exposure_range_s;
-        let t = match metering.rate_quantile(1.0 - self.saturated_max_fraction) {
+        let t = match metering.rate_quantile(self.meter_quantile) {
             None => metered_exposure_s,
             Some((_, true)) => metered_exposure_s * self.stop_ratio,
             Some((r, false)) if r > 0.0 => self.target_fraction * metering.full_scale_e / r,
@@ -331,7 +335,17 @@ impl HdrPolicy {
                 if shortest.1.saturated_fraction() > self.saturated_max_fraction && shortest.0 > lo {
                     return Some((shortest.0 * self.stop_ratio).max(lo));
                 }
-                if longest.1.dark_fraction() > self.dark_max_fraction && longest.0 < hi {
+                // A longer exposure only while the last one helped: photosites that stay dark
+                // (shadowed grout, a black marker) would otherwise fill the bracket.
+                let mut by_time: Vec<&(f64, Metering)> = taken.iter().collect();
+                by_time.sort_by(|a, b| a.0.total_cmp(&b.0));
+                let helped = match by_time.as_slice() {
+                    [.., prev, last] if std::ptr::eq(*last, &taken[taken.len() - 1]) && last.0 > base * 1.0001 => {
+                        last.1.dark_fraction() < 0.5 * prev.1.dark_fraction()
+                    }
+                    _ => true,
+                };
+                if helped && longest.1.dark_fraction() > self.dark_max_fraction && longest.0 < hi {
                     return Some((longest.0 / self.stop_ratio).min(hi));
                 }
                 None
