@@ -359,3 +359,137 @@ impl HdrPolicy {
 pub fn bracket_time_s(exposures: &[f64], per_exposure_overhead_s: f64) -> f64 {
     exposures.iter().map(|t| t + per_exposure_overhead_s).sum()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::hdr::NominalCalibration;
+    use btfrig_core::camera::{Distortion, Vignetting};
+    use btfrig_core::frame::FrameMeta;
+    use btfrig_core::Direction;
+
+    const NOISE: NoiseModel = NoiseModel { electrons_per_dn: 2.5, read_noise_e: 3.0 };
+    const NOMINAL: NominalCalibration = NominalCalibration { dark_current_e_per_s: 0.0, electrons_per_dn: 2.5 };
+
+    #[test]
+    fn frontal_footprint_is_the_projected_square() {
+        // Pinhole, f = 1000 px, 0.5 m away: a 0.05 m square spans 100 px, centred.
+        let cam =
+            CameraModel::new(400, 300, 1000.0, 1000.0, 199.5, 149.5, Distortion::default(), Vignetting::default())
+                .unwrap();
+        let pose =
+            ScenePose::looking_at(Direction::from_degrees(30.0, 0.0), Direction::from_degrees(0.0, 0.0), 0.5, 1.0);
+        let fp = sample_footprint(&cam, &pose, Region::centred_square(0.05));
+        assert!((fp.count() as f64 - 100.0 * 100.0).abs() < 2.0 * 2.0 * 100.0, "{}", fp.count());
+        assert!(fp.mask[150 * 400 + 200] && !fp.mask[150 * 400 + 260] && !fp.mask[90 * 400 + 200]);
+        // Oblique at 60 degrees: foreshortened to half along one axis.
+        let pose =
+            ScenePose::looking_at(Direction::from_degrees(30.0, 0.0), Direction::from_degrees(60.0, 0.0), 0.5, 1.0);
+        let n = sample_footprint(&cam, &pose, Region::centred_square(0.05)).count() as f64;
+        assert!((n / 5000.0 - 1.0).abs() < 0.05, "{n}");
+    }
+
+    fn frame(dn: Vec<u16>, exposure_s: f64) -> RawFrame {
+        RawFrame {
+            width: dn.len(),
+            height: 1,
+            data: dn,
+            meta: FrameMeta {
+                sequence: 0,
+                exposure_s,
+                gain: 1.0,
+                f_number: None,
+                black_level: 256,
+                white_level: 16251,
+                bit_depth: 14,
+                bayer: None,
+                timestamp_s: 0.0,
+            },
+        }
+    }
+
+    #[test]
+    fn metering_counts_saturated_and_dark_photosites_on_the_footprint_only() {
+        // Full scale 15995 DN: saturated from 15195.25 DN above black, dark below 159.95.
+        let f = frame(vec![16251, 15500, 8256, 300, 16251, 256], 0.01);
+        let mut fp = Footprint::whole(6, 1);
+        fp.mask[4] = false;
+        fp.mask[5] = false;
+        let m = meter(&f, &fp, &NOMINAL, &NOISE, &MeterLevels::default()).unwrap();
+        assert_eq!((m.photosites, m.saturated, m.dark), (4, 2, 1));
+        // Rates: 44 DN -> 11 000 e-/s; 8000 DN -> 2e6 e-/s.
+        assert!((m.rates[0] - 11_000.0).abs() < 1e-6 && (m.rates[1] - 2e6).abs() < 1e-3);
+        assert_eq!(m.rate_quantile(0.5), Some((2e6, false)));
+        assert!(m.rate_quantile(1.0).unwrap().1, "the top is saturated, a lower bound");
+        let bad = Footprint::whole(5, 1);
+        assert!(meter(&f, &bad, &NOMINAL, &NOISE, &MeterLevels::default()).is_err());
+    }
+
+    fn metering(saturated: f64, dark: f64, rates: Vec<f64>, saturation_rate: f64) -> Metering {
+        Metering {
+            photosites: 10_000,
+            saturated: (saturated * 10_000.0) as usize,
+            dark: (dark * 10_000.0) as usize,
+            rates,
+            saturation_rate,
+            full_scale_e: 40_000.0,
+        }
+    }
+
+    fn policy(mode: BracketMode) -> HdrPolicy {
+        HdrPolicy {
+            mode,
+            max_exposures: 3,
+            stop_ratio: 0.125,
+            saturated_max_fraction: 1e-3,
+            dark_max_fraction: 0.02,
+            meter_quantile: 0.99,
+            target_fraction: 0.6,
+            exposure_range_s: (1e-4, 30.0),
+            levels: MeterLevels::default(),
+        }
+    }
+
+    #[test]
+    fn base_exposure_puts_the_metered_quantile_at_the_target() {
+        let p = policy(BracketMode::Adaptive);
+        let rates: Vec<f64> = (1..=100).map(|i| f64::from(i) * 1e4).collect();
+        // The 99 % quantile is 9.9e5 e-/s: 0.6 * 40 000 / 9.9e5 s.
+        let t = p.base_exposure(&metering(0.0, 0.0, rates.clone(), 1e9), 0.01);
+        assert!((t - 24_000.0 / 9.9e5).abs() < 1e-12, "{t}");
+        // A saturated quantile says only "shorter": cut by the stop ratio.
+        assert_eq!(p.base_exposure(&metering(0.5, 0.0, rates.clone(), 5e5), 0.01), 0.01 * 0.125);
+        // Clamped to the camera's range.
+        let dim: Vec<f64> = vec![1e-3; 100];
+        assert_eq!(p.base_exposure(&metering(0.0, 1.0, dim, 1e9), 0.01), 30.0);
+    }
+
+    #[test]
+    fn adaptive_brackets_only_while_the_range_needs_it() {
+        let p = policy(BracketMode::Adaptive);
+        let ok = || metering(0.0, 0.0, vec![1.0], 1e9);
+        // One exposure holds the scene: done after one.
+        assert_eq!(p.next_exposure(&[(0.01, ok())]), None);
+        // Too many saturated: shorter by the ratio; then the short one holds the highlights.
+        let sat = || metering(0.01, 0.0, vec![1.0], 1e9);
+        assert_eq!(p.next_exposure(&[(0.01, sat())]), Some(0.00125));
+        assert_eq!(p.next_exposure(&[(0.01, sat()), (0.00125, metering(0.0, 0.3, vec![1.0], 1e9))]), None);
+        // Still saturated in the shortest: shorter again, but never beyond max_exposures.
+        let taken = [(0.01, sat()), (0.00125, sat())];
+        assert_eq!(p.next_exposure(&taken), Some(0.00125 * 0.125));
+        let taken = [(0.01, sat()), (0.00125, sat()), (0.00125 * 0.125, sat())];
+        assert_eq!(p.next_exposure(&taken), None);
+        // Too dark: longer; stop when the longer one did not halve the dark fraction.
+        let dark = |f| metering(0.0, f, vec![1.0], 1e9);
+        assert_eq!(p.next_exposure(&[(0.01, dark(0.1))]), Some(0.08));
+        assert_eq!(p.next_exposure(&[(0.01, dark(0.1)), (0.08, dark(0.03))]), Some(0.64));
+        assert_eq!(p.next_exposure(&[(0.01, dark(0.1)), (0.08, dark(0.08))]), None);
+        // Off never brackets; Always follows the stops.
+        assert_eq!(policy(BracketMode::Off).next_exposure(&[(0.01, sat())]), None);
+        let always = policy(BracketMode::Always(vec![1.0, 0.25, 4.0]));
+        assert_eq!(always.next_exposure(&[(0.01, ok())]), Some(0.0025));
+        assert_eq!(always.next_exposure(&[(0.01, ok()), (0.0025, ok())]), Some(0.04));
+        assert_eq!(always.next_exposure(&[(0.01, ok()), (0.0025, ok()), (0.04, ok())]), None);
+        assert!((bracket_time_s(&[0.01, 0.00125], 0.5) - 1.01125).abs() < 1e-12);
+    }
+}
