@@ -184,6 +184,13 @@ pub fn merge_bracket(
         return Err(HdrError::OutOfRange { what: "saturation_fraction".into(), value: sf, allowed: "(0, 1]" });
     }
     check_noise(noise)?;
+    if frames.len() > 64 {
+        return Err(HdrError::OutOfRange {
+            what: "bracket length".into(),
+            value: frames.len() as f64,
+            allowed: "1 ..= 64 frames",
+        });
+    }
     for (i, f) in frames.iter().enumerate() {
         if (f.width, f.height) != (w, h) {
             return Err(HdrError::SizeMismatch {
@@ -216,14 +223,23 @@ pub fn merge_bracket(
     let mut rate = vec![0.0f32; w * h];
     let mut variance = vec![0.0f32; w * h];
     let mut used = vec![0u8; w * h];
-    rate.par_chunks_mut(w.max(1))
+    let rows: Vec<Result<(), HdrError>> = rate
+        .par_chunks_mut(w.max(1))
         .zip(variance.par_chunks_mut(w.max(1)))
         .zip(used.par_chunks_mut(w.max(1)))
         .enumerate()
-        .for_each(|(y, ((r_row, v_row), u_row))| {
+        .map(|(y, ((r_row, v_row), u_row))| {
             let mut samples: Vec<Sample> = Vec::with_capacity(order.len());
             for x in 0..w {
                 let flat = calibration.flat(x, y);
+                if !(flat.is_finite() && flat > 0.0) {
+                    // A dead photosite in the flat: an error naming it, never a NaN rate.
+                    return Err(HdrError::OutOfRange {
+                        what: format!("flat({x}, {y})"),
+                        value: flat,
+                        allowed: "finite and > 0",
+                    });
+                }
                 samples.clear();
                 let mut estimate: Option<f64> = None;
                 for (j, f) in order.iter().enumerate() {
@@ -276,7 +292,11 @@ pub fn merge_bracket(
                 v_row[x] = var as f32;
                 u_row[x] = samples.len() as u8;
             }
-        });
+            Ok(())
+        })
+        .collect();
+    // The first bad photosite in row order, if any.
+    rows.into_iter().collect::<Result<Vec<()>, HdrError>>()?;
     Ok(MergedFrame { width: w, height: h, rate, variance, used })
 }
 
@@ -475,6 +495,20 @@ mod tests {
     }
 
     #[test]
+    fn extreme_readings_stay_finite() {
+        // Below black (read noise on a dark photosite), exactly black, clipped at the ADC:
+        // finite rates and variances, never NaN, with or without read noise.
+        let mut f = frame(&[0.0, 0.0, 1e12], 0.01, 1.0);
+        f.data[0] = 0;
+        for noise in [NOISE, NoiseModel { electrons_per_dn: 2.5, read_noise_e: 0.0 }] {
+            let m = merge_bracket(&[&f, &frame(&[0.0, 0.0, 1e12], 0.1, 8.0)], &NOMINAL, &noise, &Default::default())
+                .unwrap();
+            assert!(m.rate.iter().chain(&m.variance).all(|v| v.is_finite()), "{m:?}");
+            assert!(m.rate[0] < 0.0 && m.rate[1] == 0.0 && m.used[2] == 0);
+        }
+    }
+
+    #[test]
     fn bad_inputs_are_named_errors() {
         let opts = MergeOptions::default();
         assert_eq!(merge_bracket(&[], &NOMINAL, &NOISE, &opts), Err(HdrError::Empty));
@@ -488,6 +522,9 @@ mod tests {
         assert!(e.contains("frame 1 exposure_s = 0"), "{e}");
         let e = merge_bracket(&[&a], &NOMINAL, &NOISE, &MergeOptions { saturation_fraction: 1.5 }).unwrap_err();
         assert!(e.to_string().contains("saturation_fraction = 1.5"), "{e}");
+        let dead = Flat(vec![1.0, 0.0]);
+        let e = merge_bracket(&[&a], &dead, &NOISE, &opts).unwrap_err().to_string();
+        assert!(e.contains("flat(1, 0) = 0"), "{e}");
         let bad = NoiseModel { electrons_per_dn: f64::NAN, read_noise_e: 1.0 };
         assert!(merge_bracket(&[&a], &NOMINAL, &bad, &opts).unwrap_err().to_string().contains("electrons_per_dn"));
     }
