@@ -154,7 +154,15 @@ fn acquire(
 fn glossy_highlight_is_bracketed_and_merged_to_truth_off_specular_takes_one_exposure() {
     let setup = Setup::new("glazed-tile");
     let s = setup.scene.sensor().clone();
-    let range = (1e-4, 30.0); // the rig camera's exposure_range_s
+    let range = setup
+        .cfg
+        .devices
+        .camera
+        .options
+        .get("exposure_range_s")
+        .and_then(|v| v.as_array())
+        .map_or((1e-4, 30.0), |a| (a[0].as_float().unwrap(), a[1].as_float().unwrap()));
+    assert_eq!(range, (1e-4, 30.0), "the rig camera's exposure range");
     let pol = policy(range);
     for (view, seed) in [(SPECULAR, 10), (OFF_SPECULAR, 20)] {
         let joints = setup.joints(LIGHT, view);
