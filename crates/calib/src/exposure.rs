@@ -360,6 +360,32 @@ pub fn bracket_time_s(exposures: &[f64], per_exposure_overhead_s: f64) -> f64 {
     exposures.iter().map(|t| t + per_exposure_overhead_s).sum()
 }
 
+/// What one exposure costs beyond its own time on a camera of this timing model: the exposure
+/// command, the trigger latency, the read-out and the transfer of `frame_bytes`.
+pub fn per_exposure_overhead_s(camera: &btfrig_core::config::timing::CameraTiming, frame_bytes: u64) -> f64 {
+    camera.command_s + camera.trigger_latency_s + camera.read_out_s + frame_bytes as f64 / camera.transfer_bytes_per_s
+}
+
+/// The run report's HDR figures: captures counted by number of exposures, and the time the
+/// policy saved against always taking the full bracket.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct HdrTally {
+    /// Captures by number of exposures (`exposures_per_capture`).
+    pub exposures_per_capture: std::collections::BTreeMap<usize, usize>,
+    /// Sum over captures of the always-bracket's time minus the time taken, seconds
+    /// (`hdr_time_saved_s`).
+    pub time_saved_s: f64,
+}
+
+impl HdrTally {
+    /// Records a capture that took `taken` where always bracketing would have taken `always`
+    /// (exposure times, seconds), each exposure costing `overhead_s` more.
+    pub fn record(&mut self, taken: &[f64], always: &[f64], overhead_s: f64) {
+        *self.exposures_per_capture.entry(taken.len()).or_default() += 1;
+        self.time_saved_s += bracket_time_s(always, overhead_s) - bracket_time_s(taken, overhead_s);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -491,5 +517,21 @@ mod tests {
         assert_eq!(always.next_exposure(&[(0.01, ok()), (0.0025, ok())]), Some(0.04));
         assert_eq!(always.next_exposure(&[(0.01, ok()), (0.0025, ok()), (0.04, ok())]), None);
         assert!((bracket_time_s(&[0.01, 0.00125], 0.5) - 1.01125).abs() < 1e-12);
+    }
+
+    #[test]
+    fn tally_counts_captures_and_the_time_saved_on_the_bonn_camera() {
+        let cfg = btfrig_core::config::RigConfig::from_toml(btfrig_core::plan::BUILTIN_RIGS[0].1, "rig").unwrap();
+        let overhead = per_exposure_overhead_s(&cfg.timing.camera, cfg.timing.camera.frame_bytes.unwrap());
+        // 0.05 command + 0.1 latency + 0.6 read-out + 12 MB at 2.4 MB/s.
+        assert!((overhead - 5.75).abs() < 1e-12, "{overhead}");
+        let always = [0.01, 0.00125, 0.00015625];
+        let mut tally = HdrTally::default();
+        tally.record(&[0.01], &always, overhead);
+        tally.record(&[0.01], &always, overhead);
+        tally.record(&[0.01, 0.00125], &always, overhead);
+        assert_eq!(tally.exposures_per_capture.into_iter().collect::<Vec<_>>(), vec![(1, 2), (2, 1)]);
+        let expect = 2.0 * (2.0 * 5.75 + 0.00125 + 0.00015625) + (5.75 + 0.00015625);
+        assert!((tally.time_saved_s - expect).abs() < 1e-9, "{}", tally.time_saved_s);
     }
 }
