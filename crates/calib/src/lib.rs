@@ -12,6 +12,8 @@
 //! `docs/rectification.md`.
 #![warn(missing_docs)]
 
+pub mod exposure;
+pub mod hdr;
 pub mod metric;
 pub mod radiometry;
 pub mod rectify;

@@ -320,6 +320,37 @@ pub enum ExposureSpec {
         /// Target level of a white reference, fraction of full scale (`0.05..=0.95`, default 0.6).
         #[serde(default = "ExposureSpec::default_white_fraction")]
         white_fraction: f64,
+        /// HDR bracketing: `"off"` (default, one exposure per capture) or `"adaptive"` (more
+        /// exposures where one cannot hold the sample's range; `docs/hdr.md`).
+        #[serde(default = "ExposureSpec::default_hdr", skip_serializing_if = "ExposureSpec::is_default_hdr")]
+        hdr: String,
+        /// Most exposures per capture with `hdr = "adaptive"` (`1..=8`, default 3).
+        #[serde(
+            default = "ExposureSpec::default_max_exposures",
+            skip_serializing_if = "ExposureSpec::is_default_max_exposures"
+        )]
+        max_exposures: u32,
+        /// Ratio between neighbouring exposures of an adaptive bracket (`1/64 ..= 1/2`,
+        /// default 1/8).
+        #[serde(
+            default = "ExposureSpec::default_stop_ratio",
+            skip_serializing_if = "ExposureSpec::is_default_stop_ratio"
+        )]
+        stop_ratio: f64,
+        /// Largest tolerated fraction of the sample's photosites saturated in every exposure
+        /// (`0 ..= 0.5`, default 1e-4).
+        #[serde(
+            default = "ExposureSpec::default_saturated_max_fraction",
+            skip_serializing_if = "ExposureSpec::is_default_saturated_max_fraction"
+        )]
+        saturated_max_fraction: f64,
+        /// Largest tolerated fraction underexposed (below 1 % of full scale) in every
+        /// exposure (`0 ..= 1`, default 0.02).
+        #[serde(
+            default = "ExposureSpec::default_dark_max_fraction",
+            skip_serializing_if = "ExposureSpec::is_default_dark_max_fraction"
+        )]
+        dark_max_fraction: f64,
     },
     /// The same exposure for every capture.
     Fixed {
@@ -329,9 +360,10 @@ pub enum ExposureSpec {
         #[serde(default = "ExposureSpec::default_gain")]
         gain: f64,
     },
-    /// HDR bracketing: reserved, not supported yet.
+    /// HDR bracketing, always: validated, not executed yet (`docs/hdr.md`).
     Bracket {
-        /// Exposure multipliers of the bracket (reserved).
+        /// Exposure multipliers of the bracket relative to the metered base (1 to 8 of
+        /// them, each in `1/1024 ..= 64`).
         #[serde(default, skip_serializing_if = "Option::is_none")]
         stops: Option<Vec<f64>>,
     },
@@ -344,11 +376,50 @@ impl ExposureSpec {
     const fn default_gain() -> f64 {
         1.0
     }
+    // Defaults are left out of the serialisation, so [`Plan::content_hash`] of a plan without
+    // HDR settings is what it was before they existed (datasets made then still resume).
+    fn is_default_hdr(v: &String) -> bool {
+        *v == Self::default_hdr()
+    }
+    fn is_default_max_exposures(v: &u32) -> bool {
+        *v == Self::default_max_exposures()
+    }
+    fn is_default_stop_ratio(v: &f64) -> bool {
+        *v == Self::default_stop_ratio()
+    }
+    fn is_default_saturated_max_fraction(v: &f64) -> bool {
+        *v == Self::default_saturated_max_fraction()
+    }
+    fn is_default_dark_max_fraction(v: &f64) -> bool {
+        *v == Self::default_dark_max_fraction()
+    }
+    fn default_hdr() -> String {
+        "off".into()
+    }
+    const fn default_max_exposures() -> u32 {
+        3
+    }
+    const fn default_stop_ratio() -> f64 {
+        0.125
+    }
+    const fn default_saturated_max_fraction() -> f64 {
+        1e-4
+    }
+    const fn default_dark_max_fraction() -> f64 {
+        0.02
+    }
 }
 
 impl Default for ExposureSpec {
     fn default() -> Self {
-        ExposureSpec::Auto { white_fraction: Self::default_white_fraction() }
+        ExposureSpec::Auto {
+            white_fraction: Self::default_white_fraction(),
+            hdr: Self::default_hdr(),
+            max_exposures: Self::default_max_exposures(),
+            stop_ratio: Self::default_stop_ratio(),
+            saturated_max_fraction: Self::default_saturated_max_fraction(),
+            dark_max_fraction: Self::default_dark_max_fraction(),
+        }
     }
 }
 

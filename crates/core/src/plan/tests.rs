@@ -264,3 +264,38 @@ fn the_registration_method_is_content_but_the_failure_policy_and_spelled_out_def
     assert_ne!(hash("[texture]\nfilter = \"bilinear\"\n"), base);
     assert_ne!(hash("[texture]\nfilter = \"ewa\"\n"), base);
 }
+
+#[test]
+fn hdr_settings_default_off_keep_the_hash_and_name_bad_values() {
+    let hash = |t: &str| Plan::from_toml(&format!("{MINIMAL}{t}"), "h").unwrap().content_hash();
+    // The defaults spelled out keep the hash of a plan written before they existed.
+    let spelled = "[exposure]\nmode = \"auto\"\nhdr = \"off\"\nmax_exposures = 3\nstop_ratio = 0.125\n\
+                   saturated_max_fraction = 0.0001\ndark_max_fraction = 0.02\n";
+    assert_eq!(hash(spelled), hash(""));
+    assert_ne!(hash("[exposure]\nmode = \"auto\"\nmax_exposures = 4\n"), hash(""));
+    assert!(validate(&format!("{MINIMAL}{spelled}")).is_ok());
+    // Every bad value is named; "adaptive" is valid but not executed yet.
+    let e = validate(&format!(
+        "{MINIMAL}[exposure]\nmode = \"auto\"\nhdr = \"adaptive\"\nmax_exposures = 9\nstop_ratio = 0.9\n\
+         saturated_max_fraction = -1\ndark_max_fraction = 2\n"
+    ))
+    .unwrap_err()
+    .to_string();
+    for field in [
+        "exposure.max_exposures = 9",
+        "exposure.stop_ratio = 0.9",
+        "exposure.saturated_max_fraction = -1",
+        "exposure.dark_max_fraction = 2",
+        "exposure.hdr = \"adaptive\" is not supported yet",
+    ] {
+        assert!(e.contains(field), "{field} missing in {e}");
+    }
+    let e = validate(&format!("{MINIMAL}[exposure]\nmode = \"auto\"\nhdr = \"sometimes\"\n")).unwrap_err().to_string();
+    assert!(e.contains("exposure.hdr = \"sometimes\" is unknown"), "{e}");
+    let e = validate(&format!("{MINIMAL}[exposure]\nmode = \"bracket\"\nstops = [1.0, 0.0, 100.0]\n"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("exposure.stops[1] = 0") && e.contains("exposure.stops[2] = 100"), "{e}");
+    let e = validate(&format!("{MINIMAL}[exposure]\nmode = \"bracket\"\n")).unwrap_err().to_string();
+    assert!(e.contains("exposure.stops = [] is invalid"), "{e}");
+}

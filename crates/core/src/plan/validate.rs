@@ -971,20 +971,28 @@ fn option_range(rig: &RigConfig, key: &str) -> Option<[f64; 2]> {
 }
 
 fn resolve_exposure(e: &ExposureSpec, rig: Option<&RigConfig>, errors: &mut Vec<PlanError>) -> Option<ExposurePolicy> {
-    match *e {
-        ExposureSpec::Auto { white_fraction } => {
-            if white_fraction.is_finite() && (0.05..=0.95).contains(&white_fraction) {
-                Some(ExposurePolicy::Auto { white_fraction })
-            } else {
+    match e {
+        ExposureSpec::Auto {
+            white_fraction,
+            hdr,
+            max_exposures,
+            stop_ratio,
+            saturated_max_fraction,
+            dark_max_fraction,
+        } => {
+            let white_fraction = *white_fraction;
+            let n_before = errors.len();
+            if !(white_fraction.is_finite() && (0.05..=0.95).contains(&white_fraction)) {
                 errors.push(PlanError::out_of_range(
                     "exposure.white_fraction",
                     white_fraction,
                     "0.05..=0.95 (fraction of full scale)",
                 ));
-                None
             }
+            resolve_hdr(hdr, *max_exposures, *stop_ratio, *saturated_max_fraction, *dark_max_fraction, errors);
+            (errors.len() == n_before).then_some(ExposurePolicy::Auto { white_fraction })
         }
-        ExposureSpec::Fixed { exposure_s, gain } => {
+        &ExposureSpec::Fixed { exposure_s, gain } => {
             let t_range = rig.and_then(|r| option_range(r, "exposure_range_s")).unwrap_or([1e-6, 3600.0]);
             let max_gain = rig.map_or(64.0, |r| r.sensor.max_analogue_gain);
             let g_range = rig
@@ -1009,7 +1017,27 @@ fn resolve_exposure(e: &ExposureSpec, rig: Option<&RigConfig>, errors: &mut Vec<
             }
             ok.then_some(ExposurePolicy::Fixed { exposure_s, gain })
         }
-        ExposureSpec::Bracket { .. } => {
+        ExposureSpec::Bracket { stops } => {
+            match stops.as_deref() {
+                None | Some([]) => errors.push(PlanError::invalid(
+                    "exposure.stops",
+                    "[]",
+                    "mode \"bracket\" needs the exposure multipliers",
+                    "1 to 8 of them, e.g. stops = [1.0, 0.125]",
+                )),
+                Some(v) if v.len() > 8 => {
+                    errors.push(PlanError::out_of_range("exposure.stops", format!("{} entries", v.len()), "1 ..= 8"))
+                }
+                Some(v) => {
+                    for (i, x) in v.iter().enumerate() {
+                        if !(x.is_finite() && (1.0 / 1024.0..=64.0).contains(x)) {
+                            errors.push(PlanError::out_of_range(format!("exposure.stops[{i}]"), x, "1/1024 ..= 64"));
+                        }
+                    }
+                }
+            }
+            // The bracket policy and merge exist (btfrig-calib); the engine does not capture
+            // several exposures per step yet (docs/hdr.md).
             errors.push(PlanError::unsupported(
                 "exposure.mode",
                 "\"bracket\"",
@@ -1017,6 +1045,39 @@ fn resolve_exposure(e: &ExposureSpec, rig: Option<&RigConfig>, errors: &mut Vec<
             ));
             None
         }
+    }
+}
+
+/// Checks the HDR fields of `mode = "auto"`. `hdr = "adaptive"` passes the range checks and
+/// is then reported as not supported yet: the engine does not capture brackets (docs/hdr.md).
+fn resolve_hdr(
+    hdr: &str,
+    max_exposures: u32,
+    stop_ratio: f64,
+    saturated_max_fraction: f64,
+    dark_max_fraction: f64,
+    errors: &mut Vec<PlanError>,
+) {
+    if !(1..=8).contains(&max_exposures) {
+        errors.push(PlanError::out_of_range("exposure.max_exposures", max_exposures, "1 ..= 8"));
+    }
+    if !(stop_ratio.is_finite() && (1.0 / 64.0..=0.5).contains(&stop_ratio)) {
+        errors.push(PlanError::out_of_range("exposure.stop_ratio", stop_ratio, "1/64 ..= 1/2"));
+    }
+    if !(saturated_max_fraction.is_finite() && (0.0..=0.5).contains(&saturated_max_fraction)) {
+        errors.push(PlanError::out_of_range("exposure.saturated_max_fraction", saturated_max_fraction, "0 ..= 0.5"));
+    }
+    if !(dark_max_fraction.is_finite() && (0.0..=1.0).contains(&dark_max_fraction)) {
+        errors.push(PlanError::out_of_range("exposure.dark_max_fraction", dark_max_fraction, "0 ..= 1"));
+    }
+    match hdr {
+        "off" => {}
+        "adaptive" => errors.push(PlanError::unsupported(
+            "exposure.hdr",
+            "\"adaptive\"",
+            "\"off\" (the engine does not capture brackets yet; the policy and merge are in btfrig-calib, docs/hdr.md)",
+        )),
+        other => errors.push(PlanError::unknown("exposure.hdr", other, "\"off\", \"adaptive\"")),
     }
 }
 
