@@ -538,6 +538,13 @@ pub fn run(
     // one (`[camera] calibration`), else the config's own lens.
     let camera = btfrig_calibrate::processing_camera(&v.rig, plan.rig_config_path(file).as_deref())
         .map_err(|e| RunError::Rig(format!("the rig's camera calibration: {e}")))?;
+    // The colour calibration textures are converted with (`[camera] color_calibration`).
+    let color = btfrig_calibrate::color::processing_color(&v.rig, plan.rig_config_path(file).as_deref())
+        .map_err(|e| RunError::Rig(format!("the rig's colour calibration: {e}")))?
+        .map(|f| {
+            let model = f.to_model().expect("checked when read");
+            btfrig_pipeline::color::ColorCorrection { name: f.source.plan.clone(), white_balance: f.white_balance, model }
+        });
     let commands = control.take().ok_or_else(|| RunError::Rig("this RunControl already drives a run".into()))?;
     let dataset = Arc::new(dataset);
     let rt = virtual_time_runtime()?;
@@ -550,6 +557,7 @@ pub fn run(
         settings,
         process,
         camera,
+        color,
         // From the dataset's manifest (the plan's for a new one): a dataset resumed from an
         // older build may say otherwise, and the store refuses files its manifest does not ask for.
         outputs: btfrig_pipeline::Outputs {
@@ -708,6 +716,7 @@ struct SessionInput<'a> {
     settings: EngineSettings,
     process: ProcessSettings,
     camera: btfrig_core::camera::CameraModel,
+    color: Option<btfrig_pipeline::color::ColorCorrection>,
     outputs: btfrig_pipeline::Outputs,
     dataset: Arc<Dataset>,
     commands: mpsc::UnboundedReceiver<Command>,
@@ -757,6 +766,7 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
         settings,
         process,
         camera,
+        color,
         outputs,
         dataset,
         mut commands,
@@ -791,6 +801,7 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
             .and_then(|p| p.with_camera(camera))
             .map_err(|e| RunError::Rig(e.to_string()))?
             .with_outputs(outputs)
+            .with_color_correction(color)
             .with_nominal_comparison(compare_nominal),
     );
     let index_of: std::collections::HashMap<StepKey, usize> =
