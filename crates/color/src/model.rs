@@ -26,7 +26,9 @@
 //! solved by SVD. Its condition number σ_max/σ_min (with a ridge λ:
 //! √((σ_max² + λ)/(σ_min² + λ))) is checked against [`FitOptions::max_condition`]; above it the
 //! fit fails with [`ColorError::IllConditioned`] instead of returning coefficients that fit
-//! noise (too few distinct colours for the model). A white constraint (`M·φ(w_cam) = w_target`)
+//! noise. Separately, the camera r, g, b columns alone must have a condition number under
+//! [`FitOptions::max_colour_condition`] ([`ColorError::FewColours`] otherwise): all-grey or
+//! few-hued patch sets cannot determine a colour map however well it fits them. A white constraint (`M·φ(w_cam) = w_target`)
 //! is imposed exactly by solving in the constraint's null space (a Householder basis).
 
 use nalgebra::{DMatrix, DVector};
@@ -204,22 +206,39 @@ pub struct FitOptions {
     /// is below 0.01). 0 = plain least squares.
     pub ridge: f64,
     /// Largest accepted condition number of the (equilibrated, ridge-regularised) design
-    /// matrix; above it the fit fails with [`ColorError::IllConditioned`].
+    /// matrix; above it the fit fails with [`ColorError::IllConditioned`]. This guards the
+    /// numerics (digits lost in the solve), not over-fitting: cross-validation judges that.
     pub max_condition: f64,
+    /// Largest accepted condition number of the samples' (equilibrated) camera r, g, b alone:
+    /// how well they span the three colour dimensions. Above it the fit fails with
+    /// [`ColorError::FewColours`] for every model, because a set of (nearly) grey or
+    /// few-hued patches leaves the map's response to other colours undetermined even when
+    /// the fit itself reproduces the patches.
+    pub max_colour_condition: f64,
     /// Optional exact white constraint.
     pub white: Option<WhiteConstraint>,
 }
 
 impl FitOptions {
-    /// Default condition-number limit. Measured on the 24 ColorChecker patches (Nikon D5100
-    /// under D65, docs/color.md): the linear model has ~10, root-polynomial degree 3 ~2e3,
-    /// polynomial degree 3 ~4e4; exactly grey (rank-1) data gives > 1e15.
-    pub const DEFAULT_MAX_CONDITION: f64 = 1e6;
+    /// Default limit of [`FitOptions::max_condition`]. Measured on the 24 ColorChecker patches
+    /// (Nikon D5100, 12 lamps, docs/color.md): linear ~10, root-polynomial degree 2 ~2e2–4e2,
+    /// degree 3 ~5e5–1.1e6, polynomial degree 3 ~5e4–2e5; an exactly rank-deficient design
+    /// gives > 1e13. 1e10 still leaves ~6 significant digits in the solution.
+    pub const DEFAULT_MAX_CONDITION: f64 = 1e10;
+    /// Default limit of [`FitOptions::max_colour_condition`]: the 24 ColorChecker patches give
+    /// 9–15 under every lamp of the shipped illuminant table; 100 means the weakest colour
+    /// direction carries 1 % of the strongest.
+    pub const DEFAULT_MAX_COLOUR_CONDITION: f64 = 100.0;
 }
 
 impl Default for FitOptions {
     fn default() -> Self {
-        FitOptions { ridge: 0.0, max_condition: Self::DEFAULT_MAX_CONDITION, white: None }
+        FitOptions {
+            ridge: 0.0,
+            max_condition: Self::DEFAULT_MAX_CONDITION,
+            max_colour_condition: Self::DEFAULT_MAX_COLOUR_CONDITION,
+            white: None,
+        }
     }
 }
 
@@ -255,6 +274,25 @@ fn null_space_basis(p: &DVector<f64>) -> DMatrix<f64> {
     let vv = v.dot(&v);
     let h = DMatrix::identity(n, n) - (&v * v.transpose()) * (2.0 / vv);
     h.columns(1, n - 1).into_owned()
+}
+
+/// Condition number of `a` with unit-norm columns (infinite for a zero column).
+fn condition_number(a: &DMatrix<f64>) -> f64 {
+    let mut ae = a.clone();
+    for j in 0..ae.ncols() {
+        let s = ae.column(j).norm();
+        if !(s > 0.0 && s.is_finite()) {
+            return f64::INFINITY;
+        }
+        ae.column_mut(j).scale_mut(1.0 / s);
+    }
+    let sv = ae.singular_values();
+    let c = sv.max() / sv.min();
+    if c.is_nan() {
+        f64::INFINITY
+    } else {
+        c
+    }
 }
 
 /// Least squares `min |A x − B|² + λ|x'|²` (per column of B) on the column-equilibrated A.
@@ -333,6 +371,13 @@ impl ColorModel {
                 allowed: ">= 1",
             });
         }
+        if !(options.max_colour_condition >= 1.0) {
+            return Err(ColorError::InvalidOption {
+                what: "max_colour_condition",
+                value: options.max_colour_condition,
+                allowed: ">= 1",
+            });
+        }
         if let Some(wc) = options.white {
             check_finite("white.camera", &[wc.camera])?;
             check_finite("white.target", &[wc.target])?;
@@ -356,6 +401,14 @@ impl ColorModel {
             for c in 0..3 {
                 bm[(row, c)] = sw * target[i][c];
             }
+        }
+        let colour_condition = condition_number(&a.columns(0, 3).into_owned());
+        if !(colour_condition <= options.max_colour_condition) {
+            return Err(ColorError::FewColours {
+                model: kind,
+                condition: colour_condition,
+                limit: options.max_colour_condition,
+            });
         }
         let ill = |condition: f64| ColorError::IllConditioned { model: kind, condition, limit: options.max_condition };
         let (x, condition) = match options.white {

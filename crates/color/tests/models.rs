@@ -160,13 +160,22 @@ fn grey_only_and_few_colours_are_ill_conditioned_not_nan() {
     // Every patch grey: r = g = b, the design matrix has rank 1.
     let grey: Vec<[f64; 3]> = (1..=24).map(|i| [i as f64 / 25.0; 3]).collect();
     let tgt: Vec<[f64; 3]> = grey.clone();
+    // The same with sensor-like noise (0.1 % of the signal): the fit would succeed and reproduce
+    // the greys, but its colour response is noise.
+    let mut rng = ChaCha8Rng::seed_from_u64(14);
+    let noisy: Vec<[f64; 3]> = grey.iter().map(|g| g.map(|v| v * (1.0 + rng.gen_range(-1e-3..1e-3)))).collect();
     for kind in ModelKind::ALL {
-        match ColorModel::fit(kind, &grey, &tgt, None, &FitOptions::default()) {
-            Err(ColorError::IllConditioned { model, condition, limit }) => {
-                assert_eq!(model, kind);
-                assert!(condition > limit && limit == FitOptions::DEFAULT_MAX_CONDITION, "{condition}");
+        for (cam, min_condition) in [(&grey, 1e13), (&noisy, 100.0)] {
+            match ColorModel::fit(kind, cam, &tgt, None, &FitOptions::default()) {
+                Err(ColorError::FewColours { model, condition, limit }) => {
+                    assert_eq!(model, kind);
+                    assert!(
+                        condition > min_condition && limit == FitOptions::DEFAULT_MAX_COLOUR_CONDITION,
+                        "{condition}"
+                    );
+                }
+                other => panic!("{kind}: {other:?}"),
             }
-            other => panic!("{kind}: {other:?}"),
         }
     }
     // Three distinct colours at several exposures: enough for the linear map (rank 3), not for
