@@ -121,47 +121,100 @@ impl ModelKind {
     /// Writes the model's terms of `rgb` into `out[..self.terms()]`.
     #[inline]
     pub fn eval_terms(self, rgb: [f64; 3], out: &mut [f64; MAX_TERMS]) {
-        let [r, g, b] = rgb;
-        out[0] = r;
-        out[1] = g;
-        out[2] = b;
         match self {
-            ModelKind::Linear => {}
-            ModelKind::Polynomial2 | ModelKind::Polynomial3 => {
-                out[3] = r * r;
-                out[4] = g * g;
-                out[5] = b * b;
-                out[6] = r * g;
-                out[7] = g * b;
-                out[8] = r * b;
-                if self == ModelKind::Polynomial3 {
-                    out[9] = r * r * r;
-                    out[10] = g * g * g;
-                    out[11] = b * b * b;
-                    out[12] = r * g * g;
-                    out[13] = g * b * b;
-                    out[14] = r * b * b;
-                    out[15] = g * r * r;
-                    out[16] = b * g * g;
-                    out[17] = b * r * r;
-                    out[18] = r * g * b;
-                }
-            }
-            ModelKind::RootPolynomial2 | ModelKind::RootPolynomial3 => {
-                out[3] = signed_sqrt(r * g);
-                out[4] = signed_sqrt(g * b);
-                out[5] = signed_sqrt(r * b);
-                if self == ModelKind::RootPolynomial3 {
-                    out[6] = (r * g * g).cbrt();
-                    out[7] = (g * b * b).cbrt();
-                    out[8] = (r * b * b).cbrt();
-                    out[9] = (g * r * r).cbrt();
-                    out[10] = (b * g * g).cbrt();
-                    out[11] = (b * r * r).cbrt();
-                    out[12] = (r * g * b).cbrt();
-                }
-            }
+            ModelKind::Linear => out[..3].copy_from_slice(&rgb),
+            ModelKind::Polynomial2 => out[..9].copy_from_slice(&terms_poly2(rgb)),
+            ModelKind::Polynomial3 => out[..19].copy_from_slice(&terms_poly3(rgb)),
+            ModelKind::RootPolynomial2 => out[..6].copy_from_slice(&terms_root2(rgb)),
+            ModelKind::RootPolynomial3 => out[..13].copy_from_slice(&terms_root3(rgb)),
         }
+    }
+}
+
+#[inline(always)]
+fn terms_linear(rgb: [f64; 3]) -> [f64; 3] {
+    rgb
+}
+
+#[inline(always)]
+fn terms_poly2([r, g, b]: [f64; 3]) -> [f64; 9] {
+    [r, g, b, r * r, g * g, b * b, r * g, g * b, r * b]
+}
+
+#[inline(always)]
+fn terms_poly3([r, g, b]: [f64; 3]) -> [f64; 19] {
+    [
+        r,
+        g,
+        b,
+        r * r,
+        g * g,
+        b * b,
+        r * g,
+        g * b,
+        r * b,
+        r * r * r,
+        g * g * g,
+        b * b * b,
+        r * g * g,
+        g * b * b,
+        r * b * b,
+        g * r * r,
+        b * g * g,
+        b * r * r,
+        r * g * b,
+    ]
+}
+
+// Roots of products as products of roots: sgn(xy)·√|xy| = (sgn x·√|x|)(sgn y·√|y|) and
+// ∛(xy²) = ∛x·(∛y)², exact identities for reals (negative values included) that need 3 roots
+// per pixel instead of up to 10.
+#[inline(always)]
+fn terms_root2([r, g, b]: [f64; 3]) -> [f64; 6] {
+    let [sr, sg, sb] = [signed_sqrt(r), signed_sqrt(g), signed_sqrt(b)];
+    [r, g, b, sr * sg, sg * sb, sr * sb]
+}
+
+#[inline(always)]
+fn terms_root3([r, g, b]: [f64; 3]) -> [f64; 13] {
+    let [sr, sg, sb] = [signed_sqrt(r), signed_sqrt(g), signed_sqrt(b)];
+    let [cr, cg, cb] = [r.cbrt(), g.cbrt(), b.cbrt()];
+    [
+        r,
+        g,
+        b,
+        sr * sg,
+        sg * sb,
+        sr * sb,
+        cr * cg * cg,
+        cg * cb * cb,
+        cr * cb * cb,
+        cg * cr * cr,
+        cb * cg * cg,
+        cb * cr * cr,
+        cr * cg * cb,
+    ]
+}
+
+/// `Σ_j t_j · coef_j` for a fixed number of terms (unrolled by the compiler).
+#[inline(always)]
+fn combine<const M: usize>(t: &[f64; M], coef: &[[f64; 3]; M]) -> [f64; 3] {
+    let mut out = [0.0; 3];
+    for j in 0..M {
+        out[0] += t[j] * coef[j][0];
+        out[1] += t[j] * coef[j][1];
+        out[2] += t[j] * coef[j][2];
+    }
+    out
+}
+
+/// Applies terms `f` and coefficients to every pixel (monomorphised per model).
+#[inline(always)]
+fn batch<const M: usize>(pixels: &mut [[f32; 3]], coefficients: &[[f64; 3]], f: impl Fn([f64; 3]) -> [f64; M]) {
+    let coef: [[f64; 3]; M] = std::array::from_fn(|j| coefficients[j]);
+    for p in pixels.iter_mut() {
+        let o = combine(&f([p[0] as f64, p[1] as f64, p[2] as f64]), &coef);
+        *p = [o[0] as f32, o[1] as f32, o[2] as f32];
     }
 }
 
@@ -495,9 +548,50 @@ impl ColorModel {
     /// up to ~1e-5 relative) and rounded once, so the result agrees with [`ColorModel::apply`]
     /// to f32 rounding. Single-threaded: callers parallelise over chunks.
     pub fn apply_f32(&self, pixels: &mut [[f32; 3]]) {
-        for p in pixels.iter_mut() {
-            let o = self.apply([p[0] as f64, p[1] as f64, p[2] as f64]);
-            *p = [o[0] as f32, o[1] as f32, o[2] as f32];
+        let c = &self.coefficients;
+        match self.kind {
+            ModelKind::Linear => batch(pixels, c, terms_linear),
+            ModelKind::Polynomial2 => batch(pixels, c, terms_poly2),
+            ModelKind::Polynomial3 => batch(pixels, c, terms_poly3),
+            ModelKind::RootPolynomial2 => batch(pixels, c, terms_root2),
+            ModelKind::RootPolynomial3 => batch(pixels, c, terms_root3),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The product-of-roots evaluation equals the roots of the products as documented.
+    #[test]
+    fn root_terms_equal_their_definitions_including_negative_values() {
+        let direct = |[r, g, b]: [f64; 3]| -> [f64; 13] {
+            [
+                r,
+                g,
+                b,
+                signed_sqrt(r * g),
+                signed_sqrt(g * b),
+                signed_sqrt(r * b),
+                (r * g * g).cbrt(),
+                (g * b * b).cbrt(),
+                (r * b * b).cbrt(),
+                (g * r * r).cbrt(),
+                (b * g * g).cbrt(),
+                (b * r * r).cbrt(),
+                (r * g * b).cbrt(),
+            ]
+        };
+        for rgb in [[0.3, 0.5, 0.9], [-0.001, 0.02, 0.4], [0.0, 0.7, -0.2], [-0.3, -0.4, -0.5], [1e-9, 2.0, 3.0]] {
+            let mut t = [0.0; MAX_TERMS];
+            ModelKind::RootPolynomial3.eval_terms(rgb, &mut t);
+            for (j, (a, b)) in t.iter().zip(direct(rgb)).enumerate() {
+                assert!((a - b).abs() <= 1e-14 * b.abs().max(1e-300), "{rgb:?} term {j}: {a} vs {b}");
+            }
+            let mut t2 = [0.0; MAX_TERMS];
+            ModelKind::RootPolynomial2.eval_terms(rgb, &mut t2);
+            assert_eq!(t[..6], t2[..6]);
         }
     }
 }
