@@ -266,6 +266,8 @@ pub enum BenchCommand {
     /// Marker registration and rectification: per pose setting and filter, time per frame
     /// and texel / texture error against the simulator's truth (docs/benchmarks.md).
     Registration(BenchRegistrationArgs),
+    /// Colour-correction models: fit and apply time against held-out CIEDE2000 (docs/color.md).
+    Color(crate::bench_color::BenchColorArgs),
 }
 
 /// `btfrig bench registration` (implemented in `bench_cmd.rs`).

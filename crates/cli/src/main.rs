@@ -2,6 +2,7 @@
 
 mod args;
 mod bench_cmd;
+mod bench_color;
 mod bench_registration;
 mod calibrate_cmd;
 mod calibrate_color_cmd;
@@ -41,6 +42,7 @@ fn main() -> std::process::ExitCode {
             done(bench_cmd::render(rig.as_deref(), &material, texels, repeat))
         }
         Command::Bench(BenchCommand::Registration(a)) => done(bench_cmd::registration(&a)),
+        Command::Bench(BenchCommand::Color(a)) => done(bench_color::bench(&a)),
     };
     match result {
         Ok(code) => code,

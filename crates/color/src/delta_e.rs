@@ -50,7 +50,9 @@ pub fn delta_e_2000(lab1: [f64; 3], lab2: [f64; 3]) -> f64 {
 /// 180 ± 1 ulp. We decide "exactly opposite" from the (a′, b) vectors themselves (their cross
 /// product is exactly zero and their dot product negative), which is exact for inputs that are
 /// exactly antiparallel in floating point, as Sharma's pair 14 is; every other pair takes the
-/// branch its computed hue angles give.
+/// branch its computed hue angles give. (With this evaluation order the rounded hues of pair
+/// 14 happen to differ by exactly 180.0 anyway; the vector test keeps the branch from
+/// depending on how `atan2` and the degree conversion round on a given platform.)
 pub fn delta_e_2000_parts(lab1: [f64; 3], lab2: [f64; 3]) -> Ciede2000Parts {
     let [l1, a1, b1] = lab1;
     let [l2, a2, b2] = lab2;

@@ -56,13 +56,25 @@ pub enum ColorError {
     /// The fit's design matrix is (nearly) rank deficient: the samples do not hold enough
     /// distinct colours for this model (e.g. every patch grey). `condition` is the condition
     /// number of the column-equilibrated design matrix (infinite when exactly singular).
-    #[error("{model}: design matrix condition number {condition:.3e} exceeds the limit {limit:.1e} (too few distinct colours for this model?)")]
+    #[error("{model}: design matrix condition number {condition:.3e} exceeds the limit {limit:.1e}: the samples cannot determine this model's terms (use fewer terms, more distinct patches or a ridge)")]
     IllConditioned {
         /// The model being fitted.
         model: ModelKind,
         /// Its condition number.
         condition: f64,
         /// The limit ([`crate::FitOptions::max_condition`]).
+        limit: f64,
+    },
+    /// The samples do not span the three colour dimensions: the condition number of their
+    /// (column-equilibrated) camera r, g, b exceeds [`crate::FitOptions::max_colour_condition`]
+    /// (e.g. every patch grey, or a few hues only). Infinite when exactly degenerate.
+    #[error("{model}: the patches' camera colours have condition number {condition:.3e} over the limit {limit:.1e}: too few distinct colours (all grey or few hues) to determine a colour map")]
+    FewColours {
+        /// The model being fitted.
+        model: ModelKind,
+        /// Condition number of the samples' r, g, b.
+        condition: f64,
+        /// The limit.
         limit: f64,
     },
     /// A model's coefficient table has the wrong number of terms.

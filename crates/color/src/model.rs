@@ -26,7 +26,9 @@
 //! solved by SVD. Its condition number σ_max/σ_min (with a ridge λ:
 //! √((σ_max² + λ)/(σ_min² + λ))) is checked against [`FitOptions::max_condition`]; above it the
 //! fit fails with [`ColorError::IllConditioned`] instead of returning coefficients that fit
-//! noise (too few distinct colours for the model). A white constraint (`M·φ(w_cam) = w_target`)
+//! noise. Separately, the camera r, g, b columns alone must have a condition number under
+//! [`FitOptions::max_colour_condition`] ([`ColorError::FewColours`] otherwise): all-grey or
+//! few-hued patch sets cannot determine a colour map however well it fits them. A white constraint (`M·φ(w_cam) = w_target`)
 //! is imposed exactly by solving in the constraint's null space (a Householder basis).
 
 use nalgebra::{DMatrix, DVector};
@@ -119,47 +121,120 @@ impl ModelKind {
     /// Writes the model's terms of `rgb` into `out[..self.terms()]`.
     #[inline]
     pub fn eval_terms(self, rgb: [f64; 3], out: &mut [f64; MAX_TERMS]) {
-        let [r, g, b] = rgb;
-        out[0] = r;
-        out[1] = g;
-        out[2] = b;
         match self {
-            ModelKind::Linear => {}
-            ModelKind::Polynomial2 | ModelKind::Polynomial3 => {
-                out[3] = r * r;
-                out[4] = g * g;
-                out[5] = b * b;
-                out[6] = r * g;
-                out[7] = g * b;
-                out[8] = r * b;
-                if self == ModelKind::Polynomial3 {
-                    out[9] = r * r * r;
-                    out[10] = g * g * g;
-                    out[11] = b * b * b;
-                    out[12] = r * g * g;
-                    out[13] = g * b * b;
-                    out[14] = r * b * b;
-                    out[15] = g * r * r;
-                    out[16] = b * g * g;
-                    out[17] = b * r * r;
-                    out[18] = r * g * b;
-                }
-            }
-            ModelKind::RootPolynomial2 | ModelKind::RootPolynomial3 => {
-                out[3] = signed_sqrt(r * g);
-                out[4] = signed_sqrt(g * b);
-                out[5] = signed_sqrt(r * b);
-                if self == ModelKind::RootPolynomial3 {
-                    out[6] = (r * g * g).cbrt();
-                    out[7] = (g * b * b).cbrt();
-                    out[8] = (r * b * b).cbrt();
-                    out[9] = (g * r * r).cbrt();
-                    out[10] = (b * g * g).cbrt();
-                    out[11] = (b * r * r).cbrt();
-                    out[12] = (r * g * b).cbrt();
-                }
-            }
+            ModelKind::Linear => out[..3].copy_from_slice(&rgb),
+            ModelKind::Polynomial2 => out[..9].copy_from_slice(&terms_poly2(rgb)),
+            ModelKind::Polynomial3 => out[..19].copy_from_slice(&terms_poly3(rgb)),
+            ModelKind::RootPolynomial2 => out[..6].copy_from_slice(&terms_root2(rgb)),
+            ModelKind::RootPolynomial3 => out[..13].copy_from_slice(&terms_root3(rgb)),
         }
+    }
+}
+
+#[inline(always)]
+fn terms_linear(rgb: [f64; 3]) -> [f64; 3] {
+    rgb
+}
+
+#[inline(always)]
+fn terms_poly2([r, g, b]: [f64; 3]) -> [f64; 9] {
+    [r, g, b, r * r, g * g, b * b, r * g, g * b, r * b]
+}
+
+#[inline(always)]
+fn terms_poly3([r, g, b]: [f64; 3]) -> [f64; 19] {
+    [
+        r,
+        g,
+        b,
+        r * r,
+        g * g,
+        b * b,
+        r * g,
+        g * b,
+        r * b,
+        r * r * r,
+        g * g * g,
+        b * b * b,
+        r * g * g,
+        g * b * b,
+        r * b * b,
+        g * r * r,
+        b * g * g,
+        b * r * r,
+        r * g * b,
+    ]
+}
+
+// Roots of products as products of roots: sgn(xy)·√|xy| = (sgn x·√|x|)(sgn y·√|y|) and
+// ∛(xy²) = ∛x·(∛y)², exact identities for reals (negative values included) that need 3 roots
+// per pixel instead of up to 10.
+#[inline(always)]
+fn terms_root2([r, g, b]: [f64; 3]) -> [f64; 6] {
+    let [sr, sg, sb] = [signed_sqrt(r), signed_sqrt(g), signed_sqrt(b)];
+    [r, g, b, sr * sg, sg * sb, sr * sb]
+}
+
+/// Cube root for the per-pixel terms: libm's `cbrt` costs ~50 ns here (it dominated applying
+/// `rootpoly3` to a texture), so: an exponent-third first guess from the bit pattern (within
+/// ~10 %), then three Halley steps `y ← y (y³ + 2a)/(2y³ + a)` (cubic convergence: 1e-1 → 1e-3 →
+/// 1e-9 → below f64 rounding). Zero, non-finite and extreme magnitudes (where the bit trick
+/// does not hold) go to `f64::cbrt`. Odd like `cbrt`.
+#[inline(always)]
+pub(crate) fn fast_cbrt(x: f64) -> f64 {
+    let a = x.abs();
+    if !(1e-300..=1e300).contains(&a) {
+        return x.cbrt();
+    }
+    // (e + 1023)/3 + 682 = e/3 + 1023 in the exponent field.
+    let mut y = f64::from_bits(a.to_bits() / 3 + (682u64 << 52));
+    for _ in 0..3 {
+        let y3 = y * y * y;
+        y *= (y3 + 2.0 * a) / (2.0 * y3 + a);
+    }
+    y.copysign(x)
+}
+
+#[inline(always)]
+fn terms_root3([r, g, b]: [f64; 3]) -> [f64; 13] {
+    let [sr, sg, sb] = [signed_sqrt(r), signed_sqrt(g), signed_sqrt(b)];
+    let [cr, cg, cb] = [fast_cbrt(r), fast_cbrt(g), fast_cbrt(b)];
+    [
+        r,
+        g,
+        b,
+        sr * sg,
+        sg * sb,
+        sr * sb,
+        cr * cg * cg,
+        cg * cb * cb,
+        cr * cb * cb,
+        cg * cr * cr,
+        cb * cg * cg,
+        cb * cr * cr,
+        cr * cg * cb,
+    ]
+}
+
+/// `Σ_j t_j · coef_j` for a fixed number of terms (unrolled by the compiler).
+#[inline(always)]
+fn combine<const M: usize>(t: &[f64; M], coef: &[[f64; 3]; M]) -> [f64; 3] {
+    let mut out = [0.0; 3];
+    for j in 0..M {
+        out[0] += t[j] * coef[j][0];
+        out[1] += t[j] * coef[j][1];
+        out[2] += t[j] * coef[j][2];
+    }
+    out
+}
+
+/// Applies terms `f` and coefficients to every pixel (monomorphised per model).
+#[inline(always)]
+fn batch<const M: usize>(pixels: &mut [[f32; 3]], coefficients: &[[f64; 3]], f: impl Fn([f64; 3]) -> [f64; M]) {
+    let coef: [[f64; 3]; M] = std::array::from_fn(|j| coefficients[j]);
+    for p in pixels.iter_mut() {
+        let o = combine(&f([p[0] as f64, p[1] as f64, p[2] as f64]), &coef);
+        *p = [o[0] as f32, o[1] as f32, o[2] as f32];
     }
 }
 
@@ -204,22 +279,39 @@ pub struct FitOptions {
     /// is below 0.01). 0 = plain least squares.
     pub ridge: f64,
     /// Largest accepted condition number of the (equilibrated, ridge-regularised) design
-    /// matrix; above it the fit fails with [`ColorError::IllConditioned`].
+    /// matrix; above it the fit fails with [`ColorError::IllConditioned`]. This guards the
+    /// numerics (digits lost in the solve), not over-fitting: cross-validation judges that.
     pub max_condition: f64,
+    /// Largest accepted condition number of the samples' (equilibrated) camera r, g, b alone:
+    /// how well they span the three colour dimensions. Above it the fit fails with
+    /// [`ColorError::FewColours`] for every model, because a set of (nearly) grey or
+    /// few-hued patches leaves the map's response to other colours undetermined even when
+    /// the fit itself reproduces the patches.
+    pub max_colour_condition: f64,
     /// Optional exact white constraint.
     pub white: Option<WhiteConstraint>,
 }
 
 impl FitOptions {
-    /// Default condition-number limit. Measured on the 24 ColorChecker patches (Nikon D5100
-    /// under D65, docs/color.md): the linear model has ~10, root-polynomial degree 3 ~2e3,
-    /// polynomial degree 3 ~4e4; exactly grey (rank-1) data gives > 1e15.
-    pub const DEFAULT_MAX_CONDITION: f64 = 1e6;
+    /// Default limit of [`FitOptions::max_condition`]. Measured on the 24 ColorChecker patches
+    /// (Nikon D5100, 12 lamps, docs/color.md): linear ~10, root-polynomial degree 2 ~2e2–4e2,
+    /// degree 3 ~5e5–1.1e6, polynomial degree 3 ~5e4–2e5; an exactly rank-deficient design
+    /// gives > 1e13. 1e10 still leaves ~6 significant digits in the solution.
+    pub const DEFAULT_MAX_CONDITION: f64 = 1e10;
+    /// Default limit of [`FitOptions::max_colour_condition`]: the 24 ColorChecker patches give
+    /// 9–15 under every lamp of the shipped illuminant table; 100 means the weakest colour
+    /// direction carries 1 % of the strongest.
+    pub const DEFAULT_MAX_COLOUR_CONDITION: f64 = 100.0;
 }
 
 impl Default for FitOptions {
     fn default() -> Self {
-        FitOptions { ridge: 0.0, max_condition: Self::DEFAULT_MAX_CONDITION, white: None }
+        FitOptions {
+            ridge: 0.0,
+            max_condition: Self::DEFAULT_MAX_CONDITION,
+            max_colour_condition: Self::DEFAULT_MAX_COLOUR_CONDITION,
+            white: None,
+        }
     }
 }
 
@@ -255,6 +347,25 @@ fn null_space_basis(p: &DVector<f64>) -> DMatrix<f64> {
     let vv = v.dot(&v);
     let h = DMatrix::identity(n, n) - (&v * v.transpose()) * (2.0 / vv);
     h.columns(1, n - 1).into_owned()
+}
+
+/// Condition number of `a` with unit-norm columns (infinite for a zero column).
+fn condition_number(a: &DMatrix<f64>) -> f64 {
+    let mut ae = a.clone();
+    for j in 0..ae.ncols() {
+        let s = ae.column(j).norm();
+        if !(s > 0.0 && s.is_finite()) {
+            return f64::INFINITY;
+        }
+        ae.column_mut(j).scale_mut(1.0 / s);
+    }
+    let sv = ae.singular_values();
+    let c = sv.max() / sv.min();
+    if c.is_nan() {
+        f64::INFINITY
+    } else {
+        c
+    }
 }
 
 /// Least squares `min |A x − B|² + λ|x'|²` (per column of B) on the column-equilibrated A.
@@ -333,6 +444,13 @@ impl ColorModel {
                 allowed: ">= 1",
             });
         }
+        if !(options.max_colour_condition >= 1.0) {
+            return Err(ColorError::InvalidOption {
+                what: "max_colour_condition",
+                value: options.max_colour_condition,
+                allowed: ">= 1",
+            });
+        }
         if let Some(wc) = options.white {
             check_finite("white.camera", &[wc.camera])?;
             check_finite("white.target", &[wc.target])?;
@@ -356,6 +474,14 @@ impl ColorModel {
             for c in 0..3 {
                 bm[(row, c)] = sw * target[i][c];
             }
+        }
+        let colour_condition = condition_number(&a.columns(0, 3).into_owned());
+        if !(colour_condition <= options.max_colour_condition) {
+            return Err(ColorError::FewColours {
+                model: kind,
+                condition: colour_condition,
+                limit: options.max_colour_condition,
+            });
         }
         let ill = |condition: f64| ColorError::IllConditioned { model: kind, condition, limit: options.max_condition };
         let (x, condition) = match options.white {
@@ -442,9 +568,66 @@ impl ColorModel {
     /// up to ~1e-5 relative) and rounded once, so the result agrees with [`ColorModel::apply`]
     /// to f32 rounding. Single-threaded: callers parallelise over chunks.
     pub fn apply_f32(&self, pixels: &mut [[f32; 3]]) {
-        for p in pixels.iter_mut() {
-            let o = self.apply([p[0] as f64, p[1] as f64, p[2] as f64]);
-            *p = [o[0] as f32, o[1] as f32, o[2] as f32];
+        let c = &self.coefficients;
+        match self.kind {
+            ModelKind::Linear => batch(pixels, c, terms_linear),
+            ModelKind::Polynomial2 => batch(pixels, c, terms_poly2),
+            ModelKind::Polynomial3 => batch(pixels, c, terms_poly3),
+            ModelKind::RootPolynomial2 => batch(pixels, c, terms_root2),
+            ModelKind::RootPolynomial3 => batch(pixels, c, terms_root3),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fast_cbrt_matches_libm_to_rounding() {
+        let mut worst: f64 = 0.0;
+        for i in 0..200_000 {
+            // Log sweep over 1e-12 .. 1e6, both signs, plus the fall-back ranges.
+            let x = 10f64.powf(-12.0 + 18.0 * i as f64 / 200_000.0) * if i % 2 == 0 { 1.0 } else { -1.0 };
+            let (a, b) = (fast_cbrt(x), x.cbrt());
+            worst = worst.max(((a - b) / b).abs());
+        }
+        assert!(worst < 5e-16, "{worst:e}");
+        for x in [0.0, -0.0, 1e-310, -1e-320, 1e305, f64::INFINITY, f64::NEG_INFINITY, 8.0, -27.0] {
+            assert_eq!(fast_cbrt(x), x.cbrt(), "{x}");
+        }
+        assert!(fast_cbrt(f64::NAN).is_nan());
+    }
+
+    /// The product-of-roots evaluation equals the roots of the products as documented.
+    #[test]
+    fn root_terms_equal_their_definitions_including_negative_values() {
+        let direct = |[r, g, b]: [f64; 3]| -> [f64; 13] {
+            [
+                r,
+                g,
+                b,
+                signed_sqrt(r * g),
+                signed_sqrt(g * b),
+                signed_sqrt(r * b),
+                (r * g * g).cbrt(),
+                (g * b * b).cbrt(),
+                (r * b * b).cbrt(),
+                (g * r * r).cbrt(),
+                (b * g * g).cbrt(),
+                (b * r * r).cbrt(),
+                (r * g * b).cbrt(),
+            ]
+        };
+        for rgb in [[0.3, 0.5, 0.9], [-0.001, 0.02, 0.4], [0.0, 0.7, -0.2], [-0.3, -0.4, -0.5], [1e-9, 2.0, 3.0]] {
+            let mut t = [0.0; MAX_TERMS];
+            ModelKind::RootPolynomial3.eval_terms(rgb, &mut t);
+            for (j, (a, b)) in t.iter().zip(direct(rgb)).enumerate() {
+                assert!((a - b).abs() <= 1e-14 * b.abs().max(1e-300), "{rgb:?} term {j}: {a} vs {b}");
+            }
+            let mut t2 = [0.0; MAX_TERMS];
+            ModelKind::RootPolynomial2.eval_terms(rgb, &mut t2);
+            assert_eq!(t[..6], t2[..6]);
         }
     }
 }
