@@ -229,7 +229,7 @@ pub struct ModelResult {
 pub struct ColorCalibration {
     /// Every measured patch, fitting chart first.
     pub patches: Vec<PatchMeasurement>,
-    /// White balance used (from the fitting chart's brightest neutral patch).
+    /// White balance used (from the first chart's white patch).
     pub white_balance: [f64; 3],
     /// One per candidate, in plan order.
     pub models: Vec<ModelResult>,
@@ -473,6 +473,29 @@ pub fn calibrate_color_simulated(
     camera: &CameraModel,
     plan: &ColorPlan,
     seed: u64,
+    progress: impl FnMut(&str),
+) -> Result<ColorCalibration, RigCalibError> {
+    run(cfg, camera, plan, seed, 1.0, progress)
+}
+
+/// [`calibrate_color_simulated`] with the metered exposure multiplied by `exposure_scale`
+/// (stress tests: over-exposure clips bright patches, under-exposure buries dark ones).
+pub fn calibrate_color_simulated_with_exposure_scale(
+    cfg: &RigConfig,
+    camera: &CameraModel,
+    plan: &ColorPlan,
+    seed: u64,
+    exposure_scale: f64,
+) -> Result<ColorCalibration, RigCalibError> {
+    run(cfg, camera, plan, seed, exposure_scale, |_| {})
+}
+
+fn run(
+    cfg: &RigConfig,
+    camera: &CameraModel,
+    plan: &ColorPlan,
+    seed: u64,
+    exposure_scale: f64,
     mut progress: impl FnMut(&str),
 ) -> Result<ColorCalibration, RigCalibError> {
     let problems = plan.problems();
@@ -506,7 +529,7 @@ pub fn calibrate_color_simulated(
     if !(brightest > 1e-4) {
         return Err(rig(format!("metering shot: brightest patch at {brightest:.2e} of full scale; is the lamp on?")));
     }
-    let exposure_s = (meter_exposure * plan.exposure_fraction / brightest).clamp(1e-4, 30.0);
+    let exposure_s = (meter_exposure * plan.exposure_fraction / brightest * exposure_scale).clamp(1e-4, 30.0);
     progress(&format!(
         "metering: brightest patch at {:.3} of full scale in {:.4} s; exposure {:.4} s",
         brightest, meter_exposure, exposure_s
@@ -524,11 +547,24 @@ pub fn calibrate_color_simulated(
 
     // 2. Measure: the fitting chart first without white balance, to find it.
     let t = Instant::now();
-    let fit_raw = measure(&shots[0].scene, &shots[0].chart, &shots[0].raw, &shots[0].nominal, camera, &registrar, cfg, plan, [1.0; 3])?;
-    let white_balance = white_balance_from(&fit_raw)?;
+    let fit_raw = measure(
+        &shots[0].scene,
+        &shots[0].chart,
+        &shots[0].raw,
+        &shots[0].nominal,
+        camera,
+        &registrar,
+        cfg,
+        plan,
+        [1.0; 3],
+    )?;
+    let refs: Vec<[f64; 3]> =
+        shots[0].chart.patches.iter().map(|p| shots[0].scene.colour().output_rgb(&p.spectrum)).collect();
+    let white_balance = white_balance_from(&fit_raw, &refs)?;
     let mut patches = Vec::new();
     for (ci, shot) in shots.iter().enumerate() {
-        let raw = measure(&shot.scene, &shot.chart, &shot.raw, &shot.nominal, camera, &registrar, cfg, plan, white_balance)?;
+        let raw =
+            measure(&shot.scene, &shot.chart, &shot.raw, &shot.nominal, camera, &registrar, cfg, plan, white_balance)?;
         let colour = shot.scene.colour();
         for (k, r) in raw.into_iter().enumerate() {
             let reference = colour.output_rgb(&shot.chart.patches[k].spectrum);
@@ -573,7 +609,14 @@ pub fn calibrate_color_simulated(
         times.sort_by(f64::total_cmp);
         let held_out = r.model.as_ref().map_err(Clone::clone).and_then(|m| held_out_stats(m, &held));
         let apply_s_per_mpix = r.model.as_ref().map_or(f64::NAN, apply_time_per_mpix);
-        models.push(ModelResult { kind: r.kind, cv: r.cv, held_out, fit_s: times[2], apply_s_per_mpix, model: r.model });
+        models.push(ModelResult {
+            kind: r.kind,
+            cv: r.cv,
+            held_out,
+            fit_s: times[2],
+            apply_s_per_mpix,
+            model: r.model,
+        });
     }
     let chosen = selection.chosen.ok_or_else(|| {
         let first = models
@@ -611,25 +654,30 @@ fn held_out_stats(model: &ColorModel, held: &[&PatchMeasurement]) -> Result<Delt
 }
 
 fn apply_time_per_mpix(model: &ColorModel) -> f64 {
-    let mut buf: Vec<[f32; 3]> = (0..1 << 16).map(|i| [(i % 251) as f32 / 251.0, 0.5, (i % 13) as f32 / 13.0]).collect();
+    let mut buf: Vec<[f32; 3]> =
+        (0..1 << 16).map(|i| [(i % 251) as f32 / 251.0, 0.5, (i % 13) as f32 / 13.0]).collect();
     let t = Instant::now();
     model.apply_f32(&mut buf);
     t.elapsed().as_secs_f64() * 1e6 / buf.len() as f64
 }
 
-/// White balance from the fitting chart's measured patches: the brightest patch whose
-/// channels agree within 20% (a neutral) is made grey, green unchanged.
-fn white_balance_from(m: &[RawPatch]) -> Result<[f64; 3], RigCalibError> {
+/// White balance from the first chart's measured patches: the brightest unclipped patch
+/// whose reference colour is neutral (channels within 10%: the chart's white) is made grey,
+/// green unchanged.
+fn white_balance_from(m: &[RawPatch], references: &[[f64; 3]]) -> Result<[f64; 3], RigCalibError> {
     let neutral = m
         .iter()
-        .filter(|p| p.status.is_valid())
-        .filter(|p| {
-            let c = p.camera;
-            let (lo, hi) = (c.iter().cloned().fold(f64::INFINITY, f64::min), c.iter().cloned().fold(0.0, f64::max));
-            lo > 0.0 && hi / lo < 1.6
+        .zip(references)
+        .filter(|(p, r)| {
+            let lo = r.iter().cloned().fold(f64::INFINITY, f64::min);
+            let hi = r.iter().cloned().fold(0.0, f64::max);
+            p.status.is_valid() && p.camera.iter().all(|v| *v > 0.0) && lo > 0.0 && hi / lo < 1.1
         })
-        .max_by(|a, b| a.camera[1].total_cmp(&b.camera[1]))
-        .ok_or_else(|| RigCalibError::Rig("no unclipped near-neutral patch on the fitting chart for white balance".into()))?;
+        .max_by(|a, b| a.1[1].total_cmp(&b.1[1]))
+        .map(|(p, _)| p)
+        .ok_or_else(|| {
+            RigCalibError::Rig("no unclipped, measurable neutral patch on the first chart for the white balance".into())
+        })?;
     Ok([neutral.camera[1] / neutral.camera[0], 1.0, neutral.camera[1] / neutral.camera[2]])
 }
 

@@ -134,10 +134,7 @@ impl ColorChart {
     /// Centre of patch `k` in the sample frame (metres, chart centred on the origin).
     pub fn patch_centre_m(&self, k: usize) -> [f64; 2] {
         let (r, c) = ((k / self.cols) as f64, (k % self.cols) as f64);
-        [
-            (c - (self.cols as f64 - 1.0) / 2.0) * self.pitch_m,
-            ((self.rows as f64 - 1.0) / 2.0 - r) * self.pitch_m,
-        ]
+        [(c - (self.cols as f64 - 1.0) / 2.0) * self.pitch_m, ((self.rows as f64 - 1.0) / 2.0 - r) * self.pitch_m]
     }
 
     /// The patch under sample point `(x, y)`, or `None` on a gap or off the chart.
@@ -160,7 +157,10 @@ impl ColorChart {
             out.push(format!("chart {}: {} patches for {} x {}", self.name, self.patches.len(), self.rows, self.cols));
         }
         if !(self.pitch_m > 0.0 && self.gap_m >= 0.0 && self.gap_m < self.pitch_m) {
-            out.push(format!("chart {}: pitch {} m, gap {} m: need 0 <= gap < pitch", self.name, self.pitch_m, self.gap_m));
+            out.push(format!(
+                "chart {}: pitch {} m, gap {} m: need 0 <= gap < pitch",
+                self.name, self.pitch_m, self.gap_m
+            ));
         }
         let (w, h) = self.extent_m();
         if w > sample_side_m || h > sample_side_m {
@@ -274,7 +274,13 @@ pub fn synthesise_reflectance(weights: &[Spectrum; 3], target: [f64; 3]) -> Spec
         let mut block = None;
         for &i in &free {
             let d = cand[i] - x[i];
-            let room = if d < 0.0 { -x[i] / d } else if d > 0.0 { (1.0 - x[i]) / d } else { f64::INFINITY };
+            let room = if d < 0.0 {
+                -x[i] / d
+            } else if d > 0.0 {
+                (1.0 - x[i]) / d
+            } else {
+                f64::INFINITY
+            };
             if room < alpha {
                 alpha = room;
                 block = Some((i, if d < 0.0 { -1 } else { 1 }));
@@ -322,7 +328,11 @@ pub fn chart_scene(
     let mut scene = Scene::build(plate, &spec, resolve)?;
     let problems = chart.problems(scene.layout.sample_side_m);
     if !problems.is_empty() {
-        return Err(SceneError::Colour { field: "chart".into(), name: chart.name.clone(), message: problems.join("; ") });
+        return Err(SceneError::Colour {
+            field: "chart".into(),
+            name: chart.name.clone(),
+            message: problems.join("; "),
+        });
     }
     let n = scene.material.texels;
     let side = scene.layout.sample_side_m;

@@ -147,7 +147,11 @@ impl CameraConfig {
                 None => c.trim().ends_with(".toml") && c.trim().len() > 5,
             };
             if !ok {
-                push("color_calibration", format!("{c:?}"), "a colour calibration file path ending in .toml, or builtin:NAME");
+                push(
+                    "color_calibration",
+                    format!("{c:?}"),
+                    "a colour calibration file path ending in .toml, or builtin:NAME",
+                );
             }
         }
         // Only when the numbers are individually sane: does the distortion fold inside the image?
