@@ -1,7 +1,7 @@
 //! Colour calibration on a rig: a colour calibration plan ([`ColorPlan`],
-//! `rig-configs/plans/calibration-color.toml`) names a fitting chart and a test chart mounted
-//! in the sample region of the holder plate, one view and one lamp direction;
-//! [`calibrate_color_simulated`] photographs both charts on the simulated rig (true lens,
+//! `rig-configs/plans/calibration-color.toml`) names colour charts mounted in the sample
+//! region of the holder plate (which of their patches are held out of the fit), one view and
+//! one lamp direction; [`calibrate_color_simulated`] photographs each chart on the simulated rig (true lens,
 //! lamp, seeded sensor noise), registers each frame against the plate's markers, rectifies
 //! it and converts it to white-balanced camera RGB radiance factor (the pipeline's radiometry
 //! with an identity matrix), averages each patch's interior, screens clipped and dark patches,
@@ -217,8 +217,8 @@ pub struct ModelResult {
     pub held_out: Result<DeltaEStats, ColorError>,
     /// Seconds to fit once on the fitting set (median of 5 fits).
     pub fit_s: f64,
-    /// Seconds to apply the model to one million pixels (f32), extrapolated from the
-    /// held-out evaluation cost is meaningless, so measured on a 2^16-pixel buffer.
+    /// Seconds to apply the model to one million pixels (f32, one thread), measured on a
+    /// 2^16-pixel buffer.
     pub apply_s_per_mpix: f64,
     /// The model fitted on every fitting patch.
     pub model: Result<ColorModel, ColorError>,
