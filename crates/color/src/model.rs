@@ -385,7 +385,7 @@ fn solve_ls(a: &DMatrix<f64>, b: &DMatrix<f64>, ridge: f64, limit: f64) -> Resul
     let smax = sv.max();
     let smin = sv.min();
     let condition = ((smax * smax + ridge) / (smin * smin + ridge)).sqrt();
-    if !(condition <= limit) {
+    if condition.is_nan() || condition > limit {
         return Err(if condition.is_nan() { f64::INFINITY } else { condition });
     }
     let u = svd.u.as_ref().expect("computed");
@@ -437,14 +437,14 @@ impl ColorModel {
         if !(options.ridge.is_finite() && options.ridge >= 0.0) {
             return Err(ColorError::InvalidOption { what: "ridge", value: options.ridge, allowed: "finite, >= 0" });
         }
-        if !(options.max_condition >= 1.0) {
+        if options.max_condition.is_nan() || options.max_condition < 1.0 {
             return Err(ColorError::InvalidOption {
                 what: "max_condition",
                 value: options.max_condition,
                 allowed: ">= 1",
             });
         }
-        if !(options.max_colour_condition >= 1.0) {
+        if options.max_colour_condition.is_nan() || options.max_colour_condition < 1.0 {
             return Err(ColorError::InvalidOption {
                 what: "max_colour_condition",
                 value: options.max_colour_condition,
@@ -476,7 +476,7 @@ impl ColorModel {
             }
         }
         let colour_condition = condition_number(&a.columns(0, 3).into_owned());
-        if !(colour_condition <= options.max_colour_condition) {
+        if colour_condition.is_nan() || colour_condition > options.max_colour_condition {
             return Err(ColorError::FewColours {
                 model: kind,
                 condition: colour_condition,
@@ -490,7 +490,7 @@ impl ColorModel {
                 kind.eval_terms(wc.camera, &mut t);
                 let p = DVector::from_column_slice(&t[..m]);
                 let pp = p.dot(&p);
-                if !(pp > 0.0) {
+                if pp.is_nan() || pp <= 0.0 {
                     return Err(ColorError::InvalidOption {
                         what: "white.camera (all model terms zero)",
                         value: pp,

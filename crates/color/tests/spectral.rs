@@ -13,7 +13,10 @@ use common::{add_noise, chart_spectra, mixtures, pairs, Spectral};
 const SPACE: TargetSpace = TargetSpace::LinearSrgb;
 
 /// 24 chart patches for fitting, 200 mixtures of their spectra held out.
-fn chart_and_held_out(lamp: &str) -> (Vec<[f64; 3]>, Vec<[f64; 3]>, Vec<[f64; 3]>, Vec<[f64; 3]>) {
+/// Camera RGB and targets of the fitting set, then of the held-out set.
+type Sets = (Vec<[f64; 3]>, Vec<[f64; 3]>, Vec<[f64; 3]>, Vec<[f64; 3]>);
+
+fn chart_and_held_out(lamp: &str) -> Sets {
     let s = Spectral::new(lamp);
     let chart = chart_spectra();
     let (cam, tgt) = pairs(&s, &chart, 0.9);
