@@ -5,8 +5,8 @@
 mod common;
 
 use btfrig_color::{
-    cross_validate, evaluate, screen_patches, select_model, valid_indices, ColorModel, FitOptions, ModelKind,
-    PatchStatus, ScreenOptions, TargetSpace,
+    cross_validate, evaluate, screen_patches, screen_weights, select_model, valid_indices, ColorModel, FitOptions,
+    ModelKind, PatchStatus, ScreenOptions, TargetSpace,
 };
 use common::{add_noise, chart_spectra, mixtures, pairs, Spectral};
 
@@ -182,7 +182,8 @@ fn clipped_patches_are_flagged_and_excluded() {
     let keep: Vec<usize> = (0..tcam.len()).filter(|&i| tcam[i].iter().all(|&v| v < 0.98)).collect();
     let tcam: Vec<[f64; 3]> = keep.iter().map(|&i| tcam[i]).collect();
     let ttgt: Vec<[f64; 3]> = keep.iter().map(|&i| ttgt[i].map(|v| v * 3.0)).collect();
-    let w: Vec<f64> = status.iter().map(|s| if s.is_valid() { 1.0 } else { 0.0 }).collect();
+    let w = screen_weights(&status);
+    assert_eq!(w.iter().filter(|v| **v == 0.0).count(), clipped.len());
     let idx = valid_indices(&status);
     assert_eq!(idx.len(), cam.len() - clipped.len());
     for kind in [ModelKind::Linear, ModelKind::RootPolynomial2] {
