@@ -8,9 +8,7 @@
 
 use std::time::Instant;
 
-use btfrig_color::{
-    evaluate, select_model, ColorModel, DeltaEStats, FitOptions, ModelKind, Selection, TargetSpace,
-};
+use btfrig_color::{evaluate, select_model, ColorModel, DeltaEStats, FitOptions, ModelKind, Selection, TargetSpace};
 use btfrig_render::colour::ColourSystem;
 use btfrig_render::spectral::{colorchecker24, Spectrum, LEN};
 use rand::{Rng, SeedableRng};

@@ -297,3 +297,9 @@ pub fn screen_patches(means: &[[f64; 3]], peaks: Option<&[[f64; 3]]>, options: &
 pub fn valid_indices(status: &[PatchStatus]) -> Vec<usize> {
     status.iter().enumerate().filter(|(_, s)| s.is_valid()).map(|(i, _)| i).collect()
 }
+
+/// Fit weights from a screening: 1 for valid patches, 0 for flagged ones (pass to
+/// [`ColorModel::fit`], [`cross_validate`] or [`select_model`]).
+pub fn screen_weights(status: &[PatchStatus]) -> Vec<f64> {
+    status.iter().map(|s| if s.is_valid() { 1.0 } else { 0.0 }).collect()
+}

@@ -32,7 +32,7 @@ pub mod space;
 pub use delta_e::{delta_e_2000, delta_e_2000_parts, delta_e_76, Ciede2000Parts};
 pub use error::ColorError;
 pub use eval::{
-    cross_validate, evaluate, screen_patches, select_model, valid_indices, DeltaEStats, ModelReport, PatchStatus,
-    ScreenOptions, Selection, TargetSpace,
+    cross_validate, evaluate, screen_patches, screen_weights, select_model, valid_indices, DeltaEStats, ModelReport,
+    PatchStatus, ScreenOptions, Selection, TargetSpace,
 };
 pub use model::{ColorModel, FitOptions, ModelKind, WhiteConstraint};

@@ -7,7 +7,10 @@ use common::Csv;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-fn pairs() -> (Csv, Vec<([f64; 3], [f64; 3])>) {
+/// (L*a*b* 1, L*a*b* 2) of a test pair.
+type Pair = ([f64; 3], [f64; 3]);
+
+fn pairs() -> (Csv, Vec<Pair>) {
     let c = Csv::read("ciede2000_sharma.csv");
     assert_eq!(c.rows.len(), 34);
     let p = c.rows.iter().map(|r| ([r[1], r[2], r[3]], [r[4], r[5], r[6]])).collect();

@@ -5,15 +5,18 @@
 mod common;
 
 use btfrig_color::{
-    cross_validate, evaluate, screen_patches, select_model, valid_indices, ColorModel, FitOptions, ModelKind,
-    PatchStatus, ScreenOptions, TargetSpace,
+    cross_validate, evaluate, screen_patches, screen_weights, select_model, valid_indices, ColorModel, FitOptions,
+    ModelKind, PatchStatus, ScreenOptions, TargetSpace,
 };
 use common::{add_noise, chart_spectra, mixtures, pairs, Spectral};
 
 const SPACE: TargetSpace = TargetSpace::LinearSrgb;
 
 /// 24 chart patches for fitting, 200 mixtures of their spectra held out.
-fn chart_and_held_out(lamp: &str) -> (Vec<[f64; 3]>, Vec<[f64; 3]>, Vec<[f64; 3]>, Vec<[f64; 3]>) {
+/// Camera RGB and targets of the fitting set, then of the held-out set.
+type Sets = (Vec<[f64; 3]>, Vec<[f64; 3]>, Vec<[f64; 3]>, Vec<[f64; 3]>);
+
+fn chart_and_held_out(lamp: &str) -> Sets {
     let s = Spectral::new(lamp);
     let chart = chart_spectra();
     let (cam, tgt) = pairs(&s, &chart, 0.9);
@@ -179,7 +182,8 @@ fn clipped_patches_are_flagged_and_excluded() {
     let keep: Vec<usize> = (0..tcam.len()).filter(|&i| tcam[i].iter().all(|&v| v < 0.98)).collect();
     let tcam: Vec<[f64; 3]> = keep.iter().map(|&i| tcam[i]).collect();
     let ttgt: Vec<[f64; 3]> = keep.iter().map(|&i| ttgt[i].map(|v| v * 3.0)).collect();
-    let w: Vec<f64> = status.iter().map(|s| if s.is_valid() { 1.0 } else { 0.0 }).collect();
+    let w = screen_weights(&status);
+    assert_eq!(w.iter().filter(|v| **v == 0.0).count(), clipped.len());
     let idx = valid_indices(&status);
     assert_eq!(idx.len(), cam.len() - clipped.len());
     for kind in [ModelKind::Linear, ModelKind::RootPolynomial2] {
