@@ -109,3 +109,19 @@ fn clipped_and_dark_patches_are_excluded_with_reasons() {
     p.charts[0].hold_out_every = 1;
     assert!(p.problems().iter().any(|m| m.contains("nothing to fit")));
 }
+
+/// A plan with bad values is refused with every problem named (no rendering).
+#[test]
+fn bad_plans_name_every_field() {
+    let text = btfrig_calibrate::color::DEFAULT_COLOR_PLAN
+        .replace("texels = 500", "texels = 5")
+        .replace("exposure_fraction = 0.8", "exposure_fraction = 1.5")
+        .replace("\"poly3\"]", "\"poly4\"]")
+        .replace("name = \"colorchecker24\"", "name = \"it8\"");
+    let e = ColorPlan::from_toml(&text, "bad.toml").unwrap_err().to_string();
+    for want in ["bad.toml", "texels = 5", "exposure_fraction = 1.5", "models[4]", "poly4", "charts[1].name", "it8"] {
+        assert!(e.contains(want), "{want}: {e}");
+    }
+    let e = ColorPlan::from_toml("format_version = 1\nname = 3\n", "x.toml").unwrap_err().to_string();
+    assert!(e.contains("x.toml"), "{e}");
+}
