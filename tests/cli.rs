@@ -549,3 +549,46 @@ frames = [7]
     assert_eq!(std::fs::read_dir(out.join("textures")).unwrap().count(), 12);
     ok(btfrig().args(["dataset", "verify"]).arg(&out));
 }
+
+/// `btfrig calibrate color`: per-model held-out figures in JSON, the chosen model meets the
+/// issue's figures, the written file is what `[camera] color_calibration` reads; a bad plan
+/// is refused naming the field.
+#[test]
+fn calibrate_color_reports_held_out_figures_and_writes_a_usable_file() {
+    let dir = scratch("calibrate-color");
+    let out = dir.join("color.toml");
+    let mut cmd = btfrig();
+    cmd.args(["calibrate", "color", "--json", "--seed", "11", "--out"]).arg(&out);
+    let v: serde_json::Value = serde_json::from_str(&ok(&mut cmd)).unwrap();
+    let chosen = v["chosen"].as_str().unwrap().to_string();
+    let models = v["models"].as_array().unwrap();
+    assert_eq!(models.len(), 5, "{v}");
+    for m in models {
+        assert!(m["fit_ms"].as_f64().unwrap() >= 0.0, "{m}");
+        assert!(m["held_out"]["mean"].as_f64().unwrap().is_finite(), "{m}");
+    }
+    let c = models.iter().find(|m| m["model"] == chosen.as_str()).unwrap();
+    let (mean, max) = (c["held_out"]["mean"].as_f64().unwrap(), c["held_out"]["max"].as_f64().unwrap());
+    assert!(mean < 1.5 && max < 4.0, "{c}");
+    let file = std::fs::read_to_string(&out).unwrap();
+    assert!(file.contains(&format!("model = \"{chosen}\"")), "{file}");
+    // A rig naming the file runs with it.
+    let rig =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../../rig-configs/bonn-gonio-sim.toml"))
+            .unwrap()
+            .replace("color_calibration = \"builtin:bonn-gonio-sim-color\"", "color_calibration = \"color.toml\"");
+    std::fs::write(dir.join("rig.toml"), rig).unwrap();
+    let mut cmd = btfrig();
+    cmd.args(["demo", "--json", "--rig"]).arg(dir.join("rig.toml")).arg("--out").arg(dir.join("demo"));
+    let d: serde_json::Value = serde_json::from_str(&ok(&mut cmd)).unwrap();
+    assert!((d["color_delta_e00_mean"].as_f64().unwrap() - mean).abs() < 1e-9, "{d}");
+    assert!(d["texture_rel_rmse"].as_f64().unwrap() < 0.25, "{d}");
+    let plan = dir.join("bad-plan.toml");
+    std::fs::write(
+        &plan,
+        include_str!("../rig-configs/plans/calibration-color.toml").replace("texels = 500", "texels = 5"),
+    )
+    .unwrap();
+    let err = fails(btfrig().args(["calibrate", "color", "--plan"]).arg(&plan).arg("--rig").arg(dir.join("rig.toml")));
+    assert!(err.contains("texels = 5"), "{err}");
+}

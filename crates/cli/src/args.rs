@@ -48,6 +48,30 @@ pub enum CalibrateCommand {
     /// (simulated rig), detect its markers, estimate intrinsics and distortion, write the
     /// calibration file (docs/camera-calibration.md).
     Geometry(CalibrateGeometryArgs),
+    /// Colour calibration: photograph colour charts in the sample region (simulated rig),
+    /// fit colour models, choose by cross-validated CIEDE2000, report held-out CIEDE2000 and
+    /// write the calibration file (docs/color.md).
+    Color(CalibrateColorArgs),
+}
+
+/// `btfrig calibrate color`.
+#[derive(Debug, Args)]
+pub struct CalibrateColorArgs {
+    /// Rig config file (default: the embedded simulated gonioreflectometer).
+    #[arg(long)]
+    pub rig: Option<std::path::PathBuf>,
+    /// Colour calibration plan file (default: the embedded rig-configs/plans/calibration-color.toml).
+    #[arg(long)]
+    pub plan: Option<std::path::PathBuf>,
+    /// Calibration file to write (default: `<rig name>-color.toml` in the current directory).
+    #[arg(long)]
+    pub out: Option<std::path::PathBuf>,
+    /// Seed of the sensor noise (default: the rig's `[rig] seed`).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Print one JSON object (per model figures, per patch errors) instead of tables.
+    #[arg(long)]
+    pub json: bool,
 }
 
 /// `btfrig calibrate geometry`.
@@ -242,6 +266,8 @@ pub enum BenchCommand {
     /// Marker registration and rectification: per pose setting and filter, time per frame
     /// and texel / texture error against the simulator's truth (docs/benchmarks.md).
     Registration(BenchRegistrationArgs),
+    /// Colour-correction models: fit and apply time against held-out CIEDE2000 (docs/color.md).
+    Color(crate::bench_color::BenchColorArgs),
 }
 
 /// `btfrig bench registration` (implemented in `bench_cmd.rs`).

@@ -2,8 +2,10 @@
 
 mod args;
 mod bench_cmd;
+mod bench_color;
 mod bench_registration;
 mod calibrate_cmd;
+mod calibrate_color_cmd;
 mod captures_cmd;
 mod dataset_cmd;
 mod demo_cmd;
@@ -35,10 +37,12 @@ fn main() -> std::process::ExitCode {
         Command::Dataset(DatasetCommand::Info { dir }) => done(dataset_cmd::info(&dir)),
         Command::Dataset(DatasetCommand::Verify { dir }) => done(dataset_cmd::verify(&dir)),
         Command::Calibrate(CalibrateCommand::Geometry(a)) => done(calibrate_cmd::geometry(&a)),
+        Command::Calibrate(CalibrateCommand::Color(a)) => done(calibrate_color_cmd::color(&a)),
         Command::Bench(BenchCommand::Render { rig, material, texels, repeat }) => {
             done(bench_cmd::render(rig.as_deref(), &material, texels, repeat))
         }
         Command::Bench(BenchCommand::Registration(a)) => done(bench_cmd::registration(&a)),
+        Command::Bench(BenchCommand::Color(a)) => done(bench_color::bench(&a)),
     };
     match result {
         Ok(code) => code,

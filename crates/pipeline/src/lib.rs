@@ -28,6 +28,8 @@
 //! frame channel fills and the engine waits before its next trigger.
 #![warn(missing_docs)]
 
+pub mod color;
+
 use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -310,6 +312,8 @@ pub struct Processor {
     outputs: Outputs,
     preview: watch::Sender<Option<Arc<Preview>>>,
     preview_gate: Mutex<PreviewGate>,
+    /// The measured colour calibration textures are converted with, if any.
+    color: Option<Arc<color::ColorCorrection>>,
 }
 
 /// When the next preview may be made.
@@ -375,6 +379,7 @@ impl Processor {
             outputs: Outputs::default(),
             preview: watch::Sender::new(None),
             preview_gate: Mutex::new(PreviewGate::default()),
+            color: None,
         })
     }
 
@@ -390,6 +395,18 @@ impl Processor {
         }
         self.camera = camera;
         Ok(self)
+    }
+
+    /// The same processor converting colours with a measured colour calibration (white
+    /// balance, then the model) instead of the rig model's matrix (`docs/color.md`).
+    pub fn with_color_correction(mut self, color: Option<color::ColorCorrection>) -> Self {
+        self.color = color.map(Arc::new);
+        self
+    }
+
+    /// The colour calibration in use, if any.
+    pub fn color_correction(&self) -> Option<&color::ColorCorrection> {
+        self.color.as_deref()
     }
 
     /// The camera model frames are registered and rectified with.
@@ -437,7 +454,12 @@ impl Processor {
     pub fn radiometry(&self, frame: &RawFrame) -> Radiometry {
         let sensor = self.scene.sensor();
         let gain = frame.meta.gain.max(1.0);
-        let fit = self.scene.colour().colorchecker_matrix();
+        let mut fit = self.scene.colour().colorchecker_matrix();
+        if let Some(c) = &self.color {
+            // The calibration's own white balance, no matrix: its model does the rest.
+            fit.white_balance = c.white_balance;
+            fit.matrix = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        }
         Radiometry {
             dn_range: (f64::from(frame.meta.white_level) - f64::from(frame.meta.black_level)).max(1.0),
             exposure_s: frame.meta.exposure_s,
@@ -515,7 +537,10 @@ impl Processor {
         let t = Instant::now();
         let radiometry = self.radiometry(frame);
         let vig = vignetting_map(cam, &pose, s.region, s.size).map_err(err)?;
-        let tex = to_radiance_factor(&tex, &vig, &radiometry).map_err(err)?;
+        let mut tex = to_radiance_factor(&tex, &vig, &radiometry).map_err(err)?;
+        if let Some(c) = &self.color {
+            c.apply(&mut tex.data);
+        }
         stage_s.insert("radiometry".to_string(), t.elapsed().as_secs_f64());
 
         let (mut error, mut pose_errors, mut error_nominal) = (None, None, None);
@@ -534,7 +559,10 @@ impl Processor {
                 error_nominal = if registration.pose == PoseSource::Markers {
                     let tex = rectify(&image, cam, &nominal, s.region, s.size, s.filter).map_err(err)?;
                     let vig = vignetting_map(cam, &nominal, s.region, s.size).map_err(err)?;
-                    let tex = to_radiance_factor(&tex, &vig, &radiometry).map_err(err)?;
+                    let mut tex = to_radiance_factor(&tex, &vig, &radiometry).map_err(err)?;
+                    if let Some(c) = &self.color {
+                        c.apply(&mut tex.data);
+                    }
                     Some(squared_error(&tex.data, &gt))
                 } else {
                     error

@@ -18,7 +18,7 @@
 //! D65, adapted); [`sensor::SensorModel`] turns a [`radiance::RadianceImage`] of
 //! photo-electron rates into a noisy [`btfrig_core::frame::RawFrame`]; [`demosaic`] makes
 //! previews from raw frames; [`target::TargetBoard`] is the geometric calibration board
-//! that replaces the plate for calibration captures; [`rig_scene::RigScene`] assembles all of it from a rig config.
+//! that replaces the plate for calibration captures; [`chart::ColorChart`] is the colour chart mounted in the sample region for colour calibration; [`rig_scene::RigScene`] assembles all of it from a rig config.
 //!
 //! ```
 //! use btfrig_core::{Direction, pose::ScenePose, config::plate::PlateConfig};
@@ -40,6 +40,7 @@
 #![warn(missing_docs)]
 
 pub mod brdf;
+pub mod chart;
 pub mod colour;
 pub mod demosaic;
 pub mod ground_truth;

@@ -17,6 +17,7 @@ use btfrig_core::ConfigError;
 use nalgebra::{Point2, Point3, Vector3};
 use rayon::prelude::*;
 
+use crate::chart::ColorChart;
 use crate::colour::ColourSystem;
 use crate::demosaic::{demosaic_bilinear, preview_srgb8};
 use crate::ground_truth::GroundTruth;
@@ -187,6 +188,20 @@ impl RigScene {
         // A board frame is mostly marker edges: interpolate the supersampled rays.
         scene.camera = scene.camera.interpolating(true);
         Ok(scene)
+    }
+
+    /// The rig with a colour chart ([`ColorChart`]) in the sample region of its holder plate
+    /// (markers as usual): same kinematics, true lens, sensor and lamp. For colour
+    /// calibration captures; the ground truth is the patches' output colours.
+    pub fn with_chart(cfg: &RigConfig, chart: &ColorChart) -> Result<RigScene, RigSceneError> {
+        let colour = ColourSystem::from_config(&cfg.lamp, &cfg.sensor)?;
+        let colours: Vec<([f64; 3], [f64; 3])> =
+            chart.patches.iter().map(|p| (colour.camera_rgb(&p.spectrum), colour.output_rgb(&p.spectrum))).collect();
+        let black = Spectrum::constant(crate::chart::GAP_REFLECTANCE);
+        let gap = (colour.camera_rgb(&black), colour.output_rgb(&black));
+        Self::build(cfg, |lamp_scale, resolve| {
+            Ok(Renderer::from_scene(crate::chart::chart_scene(&cfg.plate, chart, &colours, gap, resolve)?, lamp_scale))
+        })
     }
 
     fn build(

@@ -351,6 +351,11 @@ pub struct RunSummary {
     /// The same had the nominal pose been used (only from sessions that compared:
     /// [`RunRequest::compare_nominal`]).
     pub texture_rel_rmse_nominal: Option<f64>,
+    /// Mean CIEDE2000 on the held-out chart patches of the colour calibration the textures
+    /// were converted with (`docs/color.md`); `None` without one.
+    pub color_delta_e00_mean: Option<f64>,
+    /// Largest CIEDE2000 on those patches.
+    pub color_delta_e00_max: Option<f64>,
     /// Journaled textures rectified with a pose registered from the markers.
     pub registered: u64,
     /// Journaled textures rectified with the nominal pose because registration failed.
@@ -405,6 +410,8 @@ impl RunSummary {
             "stage_s": self.stage_s,
             "texture_rel_rmse": self.texture_rel_rmse,
             "texture_rel_rmse_nominal": self.texture_rel_rmse_nominal,
+            "color_delta_e00_mean": self.color_delta_e00_mean,
+            "color_delta_e00_max": self.color_delta_e00_max,
             "registered": self.registered,
             "fallbacks": self.fallbacks,
             "nominal_by_plan": self.nominal_by_plan,
@@ -495,6 +502,11 @@ pub fn run(
         skipped,
         critical_path_s: schedule.critical_path_s,
         naive_order_hardware_s: schedule.naive_order_hardware_s,
+        // The colour calibration's held-out CIEDE2000 (an unreadable file fails the run below).
+        color_held_out: btfrig_calibrate::color::processing_color(&v.rig, plan.rig_config_path(file).as_deref())
+            .ok()
+            .flatten()
+            .map(|f| (f.statistics.held_out_mean, f.statistics.held_out_max)),
     };
     if to_do == 0 {
         return Ok(summarise(&fixed, &dataset, &previous, None, RunOutcome::NothingToDo));
@@ -538,6 +550,17 @@ pub fn run(
     // one (`[camera] calibration`), else the config's own lens.
     let camera = btfrig_calibrate::processing_camera(&v.rig, plan.rig_config_path(file).as_deref())
         .map_err(|e| RunError::Rig(format!("the rig's camera calibration: {e}")))?;
+    // The colour calibration textures are converted with (`[camera] color_calibration`).
+    let color = btfrig_calibrate::color::processing_color(&v.rig, plan.rig_config_path(file).as_deref())
+        .map_err(|e| RunError::Rig(format!("the rig's colour calibration: {e}")))?
+        .map(|f| {
+            let model = f.to_model().expect("checked when read");
+            btfrig_pipeline::color::ColorCorrection {
+                name: f.source.plan.clone(),
+                white_balance: f.white_balance,
+                model,
+            }
+        });
     let commands = control.take().ok_or_else(|| RunError::Rig("this RunControl already drives a run".into()))?;
     let dataset = Arc::new(dataset);
     let rt = virtual_time_runtime()?;
@@ -550,6 +573,7 @@ pub fn run(
         settings,
         process,
         camera,
+        color,
         // From the dataset's manifest (the plan's for a new one): a dataset resumed from an
         // older build may say otherwise, and the store refuses files its manifest does not ask for.
         outputs: btfrig_pipeline::Outputs {
@@ -607,6 +631,8 @@ struct Fixed {
     skipped: BTreeMap<String, u64>,
     critical_path_s: f64,
     naive_order_hardware_s: f64,
+    /// Held-out CIEDE2000 (mean, max) of the colour calibration in use.
+    color_held_out: Option<(f64, f64)>,
 }
 
 fn summarise(
@@ -636,6 +662,8 @@ fn summarise(
         stage_s,
         texture_rel_rmse: t.texture_rel_rmse,
         texture_rel_rmse_nominal: t.texture_rel_rmse_nominal,
+        color_delta_e00_mean: fixed.color_held_out.map(|c| c.0),
+        color_delta_e00_max: fixed.color_held_out.map(|c| c.1),
         registered: poses.registered,
         fallbacks: poses.fallbacks,
         nominal_by_plan: poses.nominal_by_plan,
@@ -667,6 +695,8 @@ fn report_of(s: &RunSummary, previous: &[Session], this: &Session, sessions: Vec
     }
     put("texture_rel_rmse", json!(s.texture_rel_rmse));
     put("texture_rel_rmse_nominal", json!(s.texture_rel_rmse_nominal));
+    put("color_delta_e00_mean", json!(s.color_delta_e00_mean));
+    put("color_delta_e00_max", json!(s.color_delta_e00_max));
     put(
         "registration",
         json!({
@@ -709,6 +739,7 @@ struct SessionInput<'a> {
     settings: EngineSettings,
     process: ProcessSettings,
     camera: btfrig_core::camera::CameraModel,
+    color: Option<btfrig_pipeline::color::ColorCorrection>,
     outputs: btfrig_pipeline::Outputs,
     dataset: Arc<Dataset>,
     commands: mpsc::UnboundedReceiver<Command>,
@@ -758,6 +789,7 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
         settings,
         process,
         camera,
+        color,
         outputs,
         dataset,
         mut commands,
@@ -792,6 +824,7 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
             .and_then(|p| p.with_camera(camera))
             .map_err(|e| RunError::Rig(e.to_string()))?
             .with_outputs(outputs)
+            .with_color_correction(color)
             .with_nominal_comparison(compare_nominal),
     );
     let index_of: std::collections::HashMap<StepKey, usize> =

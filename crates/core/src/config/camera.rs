@@ -58,6 +58,12 @@ pub struct CameraConfig {
     /// (what the renderer images with).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub calibration: Option<String>,
+    /// Optional colour calibration the pipeline converts textures with (`docs/color.md`):
+    /// a file made by `btfrig calibrate color`, as a path relative to the rig config's
+    /// directory (ending in `.toml`) or `builtin:NAME`. None: white-balanced camera RGB
+    /// through the rig model's matrix.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub color_calibration: Option<String>,
 }
 
 impl Default for CameraConfig {
@@ -79,6 +85,7 @@ impl Default for CameraConfig {
             f_number: 8.0,
             lens_transmittance: 0.9,
             calibration: None,
+            color_calibration: None,
         }
     }
 }
@@ -132,6 +139,19 @@ impl CameraConfig {
             };
             if !ok {
                 push("calibration", format!("{c:?}"), "a calibration file path ending in .toml, or builtin:NAME");
+            }
+        }
+        if let Some(c) = &self.color_calibration {
+            let ok = match c.strip_prefix("builtin:") {
+                Some(name) => !name.trim().is_empty(),
+                None => c.trim().ends_with(".toml") && c.trim().len() > 5,
+            };
+            if !ok {
+                push(
+                    "color_calibration",
+                    format!("{c:?}"),
+                    "a colour calibration file path ending in .toml, or builtin:NAME",
+                );
             }
         }
         // Only when the numbers are individually sane: does the distortion fold inside the image?
