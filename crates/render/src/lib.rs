@@ -42,6 +42,7 @@
 pub mod brdf;
 pub mod colour;
 pub mod demosaic;
+pub mod flat_field;
 pub mod ground_truth;
 pub mod heightfield;
 pub mod markers;
