@@ -48,6 +48,10 @@ pub enum CalibrateCommand {
     /// (simulated rig), detect its markers, estimate intrinsics and distortion, write the
     /// calibration file (docs/camera-calibration.md).
     Geometry(CalibrateGeometryArgs),
+    /// Dark and flat-field calibration: dark frames at several exposures and gains, master
+    /// flats per f-number (simulated rig); writes float EXR maps and a TOML header
+    /// (docs/dark-flat.md).
+    Radiometric(crate::calibrate_radiometric_cmd::CalibrateRadiometricArgs),
 }
 
 /// `btfrig calibrate geometry`.
