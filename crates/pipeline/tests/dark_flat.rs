@@ -47,8 +47,7 @@ fn no_correction(cfg: &RigConfig, like: &DarkFlat) -> DarkFlat {
 
 fn rel_rmse(tex: &[[f32; 3]], gt: &[[f32; 3]], keep: impl Fn(usize) -> bool) -> f64 {
     let (mut se, mut st) = (0.0, 0.0);
-    for (i, (a, b)) in tex.iter().zip(gt).enumerate().filter(|(i, _)| keep(*i)) {
-        let _ = i;
+    for (_, (a, b)) in tex.iter().zip(gt).enumerate().filter(|(i, _)| keep(*i)) {
         for c in 0..3 {
             se += (f64::from(a[c]) - f64::from(b[c])).powi(2);
             st += f64::from(b[c]).powi(2);
