@@ -204,6 +204,9 @@ pub enum PipelineError {
         /// What was wrong.
         source: btfrig_calib::dark_flat::DarkFlatError,
     },
+    /// A dark/flat calibration given to [`Processor::with_dark_flat`] does not fit the camera.
+    #[error("dark/flat calibration: {0}")]
+    DarkFlatSetup(btfrig_calib::dark_flat::DarkFlatError),
     /// A processing thread panicked or was cancelled.
     #[error("step {step}: processing thread failed: {reason}")]
     Join {
@@ -414,7 +417,7 @@ impl Processor {
                 cal_w: cal.dark.width,
                 cal_h: cal.dark.height,
             };
-            return Err(PipelineError::DarkFlat { step: StepId { light: 0, view: 0 }, source });
+            return Err(PipelineError::DarkFlatSetup(source));
         }
         self.dark_flat = Some(cal);
         Ok(self)

@@ -79,6 +79,11 @@ fn measured_dark_and_flat_correct_textures_as_well_as_the_model_and_far_better_t
     };
     let model = Processor::new(scene.clone(), &cfg.plate, settings).unwrap();
     let measured = Processor::new(scene.clone(), &cfg.plate, settings).unwrap().with_dark_flat(cal.clone()).unwrap();
+    // A calibration of another size is refused when the processor is built.
+    let mut wrong = (*cal).clone();
+    wrong.dark.width += 2;
+    let e = Processor::new(scene.clone(), &cfg.plate, settings).unwrap().with_dark_flat(Arc::new(wrong)).err();
+    assert!(e.unwrap().to_string().contains("the calibration 162x120"));
     let none = Processor::new(scene.clone(), &cfg.plate, settings)
         .unwrap()
         .with_dark_flat(Arc::new(no_correction(&cfg, &cal)))
