@@ -14,6 +14,7 @@
 
 pub mod exposure;
 pub mod hdr;
+pub mod dark_flat;
 pub mod metric;
 pub mod radiometry;
 pub mod rectify;

@@ -11,6 +11,7 @@
 #![warn(missing_docs)]
 
 pub mod color;
+pub mod dark_flat;
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;

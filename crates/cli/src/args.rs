@@ -48,6 +48,10 @@ pub enum CalibrateCommand {
     /// (simulated rig), detect its markers, estimate intrinsics and distortion, write the
     /// calibration file (docs/camera-calibration.md).
     Geometry(CalibrateGeometryArgs),
+    /// Dark and flat-field calibration: dark frames at several exposures and gains, master
+    /// flats per f-number (simulated rig); writes float EXR maps and a TOML header
+    /// (docs/dark-flat.md).
+    Radiometric(crate::calibrate_radiometric_cmd::CalibrateRadiometricArgs),
     /// Colour calibration: photograph colour charts in the sample region (simulated rig),
     /// fit colour models, choose by cross-validated CIEDE2000, report held-out CIEDE2000 and
     /// write the calibration file (docs/color.md).

@@ -6,6 +6,7 @@ mod bench_color;
 mod bench_registration;
 mod calibrate_cmd;
 mod calibrate_color_cmd;
+mod calibrate_radiometric_cmd;
 mod captures_cmd;
 mod dataset_cmd;
 mod demo_cmd;
@@ -38,6 +39,7 @@ fn main() -> std::process::ExitCode {
         Command::Dataset(DatasetCommand::Verify { dir }) => done(dataset_cmd::verify(&dir)),
         Command::Calibrate(CalibrateCommand::Geometry(a)) => done(calibrate_cmd::geometry(&a)),
         Command::Calibrate(CalibrateCommand::Color(a)) => done(calibrate_color_cmd::color(&a)),
+        Command::Calibrate(CalibrateCommand::Radiometric(a)) => done(calibrate_radiometric_cmd::run(&a)),
         Command::Bench(BenchCommand::Render { rig, material, texels, repeat }) => {
             done(bench_cmd::render(rig.as_deref(), &material, texels, repeat))
         }

@@ -29,6 +29,7 @@
 #![warn(missing_docs)]
 
 pub mod color;
+pub mod dark_flat;
 
 use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::sync::{Arc, Mutex};
@@ -199,6 +200,17 @@ pub enum PipelineError {
     /// The dataset refused a write or commit.
     #[error(transparent)]
     Store(#[from] StoreError),
+    /// The dark/flat calibration does not fit the frame (size, f-number).
+    #[error("step {step}: dark/flat correction: {source}")]
+    DarkFlat {
+        /// Which capture.
+        step: StepId,
+        /// What was wrong.
+        source: btfrig_calib::dark_flat::DarkFlatError,
+    },
+    /// A dark/flat calibration given to [`Processor::with_dark_flat`] does not fit the camera.
+    #[error("dark/flat calibration: {0}")]
+    DarkFlatSetup(btfrig_calib::dark_flat::DarkFlatError),
     /// A processing thread panicked or was cancelled.
     #[error("step {step}: processing thread failed: {reason}")]
     Join {
@@ -314,6 +326,8 @@ pub struct Processor {
     preview_gate: Mutex<PreviewGate>,
     /// The measured colour calibration textures are converted with, if any.
     color: Option<Arc<color::ColorCorrection>>,
+    /// Measured dark model and flats ([`Processor::with_dark_flat`]); `None`: the model's.
+    dark_flat: Option<Arc<dark_flat::DarkFlat>>,
 }
 
 /// When the next preview may be made.
@@ -380,6 +394,7 @@ impl Processor {
             preview: watch::Sender::new(None),
             preview_gate: Mutex::new(PreviewGate::default()),
             color: None,
+            dark_flat: None,
         })
     }
 
@@ -407,6 +422,24 @@ impl Processor {
     /// The colour calibration in use, if any.
     pub fn color_correction(&self) -> Option<&color::ColorCorrection> {
         self.color.as_deref()
+    }
+
+    /// The same processor correcting every frame with a measured dark model and master flat
+    /// ([`dark_flat`]) before demosaicing; the radiometric conversion then uses no dark current
+    /// and no model vignetting. Refused if the calibration's size is not the camera's.
+    pub fn with_dark_flat(mut self, cal: Arc<dark_flat::DarkFlat>) -> Result<Self, PipelineError> {
+        let (w, h) = (self.camera.width, self.camera.height);
+        if (cal.dark.width, cal.dark.height) != (w, h) {
+            let source = btfrig_calib::dark_flat::DarkFlatError::SizeMismatch {
+                got_w: w,
+                got_h: h,
+                cal_w: cal.dark.width,
+                cal_h: cal.dark.height,
+            };
+            return Err(PipelineError::DarkFlatSetup(source));
+        }
+        self.dark_flat = Some(cal);
+        Ok(self)
     }
 
     /// The camera model frames are registered and rectified with.
@@ -464,7 +497,7 @@ impl Processor {
             dn_range: (f64::from(frame.meta.white_level) - f64::from(frame.meta.black_level)).max(1.0),
             exposure_s: frame.meta.exposure_s,
             dn_per_electron: sensor.dn_per_electron(gain),
-            dark_e_per_s: sensor.dark_current_e_per_s,
+            dark_e_per_s: if self.dark_flat.is_some() { 0.0 } else { sensor.dark_current_e_per_s },
             // RigScene keeps the nominal irradiance private; white_signal_dn(1 s, gain 1) is
             // nominal_irradiance * dn_per_electron(1).
             nominal_irradiance: self.scene.white_signal_dn(1.0, 1.0) / sensor.dn_per_electron(1.0),
@@ -504,7 +537,12 @@ impl Processor {
         let mut stage_s = BTreeMap::new();
         let t = Instant::now();
         // For a mono sensor this only normalises to [0, 1] with equal channels.
-        let dm = demosaic_bilinear(frame);
+        let dm = match &self.dark_flat {
+            Some(cal) => {
+                dark_flat::demosaic_corrected(frame, cal).map_err(|source| PipelineError::DarkFlat { step, source })?
+            }
+            None => demosaic_bilinear(frame),
+        };
         let image = LinearImage { width: dm.width, height: dm.height, data: dm.data };
         stage_s.insert("demosaic".to_string(), t.elapsed().as_secs_f64());
 
@@ -536,7 +574,10 @@ impl Processor {
 
         let t = Instant::now();
         let radiometry = self.radiometry(frame);
-        let vig = vignetting_map(cam, &pose, s.region, s.size).map_err(err)?;
+        let mut vig = vignetting_map(cam, &pose, s.region, s.size).map_err(err)?;
+        if self.dark_flat.is_some() {
+            vig = dark_flat::unit_vignetting(vig);
+        }
         let mut tex = to_radiance_factor(&tex, &vig, &radiometry).map_err(err)?;
         if let Some(c) = &self.color {
             c.apply(&mut tex.data);
@@ -558,7 +599,10 @@ impl Processor {
             if self.compare_nominal {
                 error_nominal = if registration.pose == PoseSource::Markers {
                     let tex = rectify(&image, cam, &nominal, s.region, s.size, s.filter).map_err(err)?;
-                    let vig = vignetting_map(cam, &nominal, s.region, s.size).map_err(err)?;
+                    let mut vig = vignetting_map(cam, &nominal, s.region, s.size).map_err(err)?;
+                    if self.dark_flat.is_some() {
+                        vig = dark_flat::unit_vignetting(vig);
+                    }
                     let mut tex = to_radiance_factor(&tex, &vig, &radiometry).map_err(err)?;
                     if let Some(c) = &self.color {
                         c.apply(&mut tex.data);

@@ -83,6 +83,47 @@ pub fn preview_srgb8(img: &CameraRgbImage, white_balance: [f64; 3], matrix: &[[f
     out
 }
 
+/// Bilinear demosaic, as [`demosaic_bilinear`], of a mosaic of already-normalised values
+/// (`values[y * width + x]`, e.g. a raw frame after dark subtraction and flat-field division),
+/// with `bayer` its colour filter array (`None`: monochrome, equal channels).
+pub fn demosaic_bilinear_values(
+    width: usize,
+    height: usize,
+    bayer: Option<btfrig_core::frame::BayerPattern>,
+    values: &[f32],
+) -> CameraRgbImage {
+    let (w, h) = (width, height);
+    let mut data = vec![[0.0f32; 3]; w * h];
+    let Some(bayer) = bayer else {
+        data.par_iter_mut().zip(values).for_each(|(o, &v)| *o = [v; 3]);
+        return CameraRgbImage { width: w, height: h, data };
+    };
+    data.par_chunks_mut(w.max(1)).enumerate().for_each(|(y, row)| {
+        for (x, out) in row.iter_mut().enumerate() {
+            let mut sum = [0.0f32; 3];
+            let mut count = [0u32; 3];
+            for yy in y.saturating_sub(1)..=(y + 1).min(h - 1) {
+                for xx in x.saturating_sub(1)..=(x + 1).min(w - 1) {
+                    let c = bayer.channel_at(xx, yy);
+                    sum[c] += values[yy * w + xx];
+                    count[c] += 1;
+                }
+            }
+            let own = bayer.channel_at(x, y);
+            for c in 0..3 {
+                out[c] = if c == own {
+                    values[y * w + x]
+                } else if count[c] > 0 {
+                    sum[c] / count[c] as f32
+                } else {
+                    0.0
+                };
+            }
+        }
+    });
+    CameraRgbImage { width: w, height: h, data }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -119,6 +160,15 @@ mod tests {
             for v in &img.data {
                 assert_eq!(*v, [0.5, 0.25, 0.75], "{p:?}");
             }
+        }
+    }
+
+    #[test]
+    fn demosaic_of_values_equals_demosaic_of_the_normalised_raw_frame() {
+        for bayer in [Some(BayerPattern::Grbg), None] {
+            let raw = frame(11, 6, bayer, |x, y, c| (100 + 37 * x + 11 * y * y + 90 * c) as u16);
+            let values: Vec<f32> = raw.data.iter().map(|&v| (f32::from(v) - 100.0) / 1000.0).collect();
+            assert_eq!(demosaic_bilinear_values(11, 6, bayer, &values), demosaic_bilinear(&raw), "{bayer:?}");
         }
     }
 

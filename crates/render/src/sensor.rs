@@ -4,10 +4,10 @@
 //! monochrome sensor uses channel 1, green) and exposure `t`:
 //!
 //! ```text
-//! λ  = rate_c(x, y) · prnu(x, y) · t + dark_current · t          mean electrons
+//! λ  = rate_c(x, y) · prnu(x, y) · t + dark(x, y) · t            mean electrons
 //! n  = min(Poisson(λ), full_well)                                 shot noise, saturation
 //! v  = n + N(0, read_noise²)                                      read noise, electrons
-//! DN = clamp(round(v · gain / electrons_per_dn) + black_level, 0, white_level)
+//! DN = clamp(round(v · gain / electrons_per_dn + col(x)) + black_level, 0, white_level)
 //! white_level = min(2^bits - 1, black_level + floor((full_well - 4 read_noise) · gain / electrons_per_dn))
 //! ```
 //!
@@ -18,7 +18,11 @@
 //! drawn as one Gaussian of summed variance (identical distribution, one draw instead of two).
 //! `prnu(x, y) = max(0, 1 + prnu_rms · z)` is a fixed pattern hashed from the config's
 //! `fixed_pattern_seed` and the photosite position ([`SensorModel::prnu_gain`]), the same in
-//! every frame.
+//! every frame. So are the dark current `dark(x, y)` ([`SensorModel::dark_current_at`]:
+//! `dark_current · max(0, 1 + dsnu_rms · z)`, or for the `hot_pixel_fraction` of hot
+//! photosites `hot_pixel_dark_e_per_s · 10^u`, u uniform in [0, 1)) and the column offset
+//! `col(x) = column_offset_rms_dn · z` ([`SensorModel::column_offset_dn`]), hashed with other
+//! salts from the same seed.
 //!
 //! Determinism: rows are processed in parallel (rayon), each with its own ChaCha8 stream
 //! derived from `(seed, row)`, so a frame is bit-identical for a given seed whatever the
@@ -100,6 +104,14 @@ pub struct SensorModel {
     pub prnu_rms: f64,
     /// Seed of the PRNU pattern.
     pub fixed_pattern_seed: u64,
+    /// Relative RMS of the per-photosite dark-current multiplier.
+    pub dsnu_rms: f64,
+    /// Fraction of hot photosites.
+    pub hot_pixel_fraction: f64,
+    /// Smallest dark current of a hot photosite, e-/s.
+    pub hot_pixel_dark_e_per_s: f64,
+    /// RMS of the per-column black-level offset, DN.
+    pub column_offset_rms_dn: f64,
 }
 
 impl SensorModel {
@@ -119,6 +131,10 @@ impl SensorModel {
             dark_current_e_per_s: cfg.dark_current_e_per_s,
             prnu_rms: cfg.prnu_rms,
             fixed_pattern_seed: cfg.fixed_pattern_seed,
+            dsnu_rms: cfg.dsnu_rms,
+            hot_pixel_fraction: cfg.hot_pixel_fraction,
+            hot_pixel_dark_e_per_s: cfg.hot_pixel_dark_e_per_s,
+            column_offset_rms_dn: cfg.column_offset_rms_dn,
         })
     }
 
@@ -145,9 +161,46 @@ impl SensorModel {
     /// same in every frame and free of any random-stream state.
     pub fn prnu_gain(&self, x: usize, y: usize) -> f64 {
         let h = splitmix64(self.fixed_pattern_seed ^ splitmix64(((y as u64) << 32) | x as u64));
-        let sum: f64 = (0..4).map(|i| ((h >> (16 * i)) & 0xffff) as f64 / 65536.0).sum::<f64>() + 4.0 / 131072.0;
-        let z = (sum - 2.0) * 3f64.sqrt();
-        (1.0 + self.prnu_rms * z).max(0.0)
+        (1.0 + self.prnu_rms * unit_normal_from_hash(h)).max(0.0)
+    }
+
+    /// The fixed dark current of photosite `(x, y)`, e-/s (see the module docs): hot with
+    /// probability `hot_pixel_fraction`, else `dark_current · max(0, 1 + dsnu_rms · z)`. Hashed
+    /// like [`SensorModel::prnu_gain`] with other salts, so the patterns are independent.
+    pub fn dark_current_at(&self, x: usize, y: usize) -> f64 {
+        let key = splitmix64(((y as u64) << 32) | x as u64);
+        if self.hot_pixel_fraction > 0.0 {
+            let h = splitmix64(self.fixed_pattern_seed ^ key ^ HOT_SALT);
+            // Two independent 32-bit uniforms: is it hot, and how hot.
+            let u_hot = (h & 0xffff_ffff) as f64 / 4_294_967_296.0;
+            if u_hot < self.hot_pixel_fraction {
+                let u = (h >> 32) as f64 / 4_294_967_296.0;
+                return self.hot_pixel_dark_e_per_s * 10f64.powf(u);
+            }
+        }
+        if self.dsnu_rms == 0.0 {
+            return self.dark_current_e_per_s;
+        }
+        let h = splitmix64(self.fixed_pattern_seed ^ key ^ DSNU_SALT);
+        self.dark_current_e_per_s * (1.0 + self.dsnu_rms * unit_normal_from_hash(h)).max(0.0)
+    }
+
+    /// The fixed black-level offset of column `x`, DN (`column_offset_rms_dn · z`).
+    pub fn column_offset_dn(&self, x: usize) -> f64 {
+        if self.column_offset_rms_dn == 0.0 {
+            return 0.0;
+        }
+        let h = splitmix64(self.fixed_pattern_seed ^ splitmix64(x as u64 ^ COLUMN_SALT));
+        self.column_offset_rms_dn * unit_normal_from_hash(h)
+    }
+
+    /// The mean DN of photosite `(x, y)` in the dark (lamp off) for an exposure and gain,
+    /// before rounding and clipping: `black + col(x) + dark(x, y) · t · gain / electrons_per_dn`.
+    /// The truth a dark calibration estimates.
+    pub fn dark_mean_dn(&self, x: usize, y: usize, exposure_s: f64, gain: f64) -> f64 {
+        f64::from(self.black_level_dn)
+            + self.column_offset_dn(x)
+            + self.dark_current_at(x, y) * exposure_s * self.dn_per_electron(gain)
     }
 
     /// Colour channel (0 R, 1 G, 2 B) sampled at photosite `(x, y)`.
@@ -192,7 +245,8 @@ impl SensorModel {
         let white = self.white_level(gain);
         let k = self.dn_per_electron(gain);
         let black = f64::from(self.black_level_dn);
-        let dark = self.dark_current_e_per_s * exposure_s;
+        let uniform_dark = self.dsnu_rms == 0.0 && self.hot_pixel_fraction == 0.0;
+        let cols: Vec<f64> = (0..w).map(|x| self.column_offset_dn(x)).collect();
         let read_var = self.read_noise_e * self.read_noise_e;
         let mut data = vec![0u16; w * h];
         data.par_chunks_mut(w.max(1)).enumerate().for_each(|(y, row)| {
@@ -204,7 +258,8 @@ impl SensorModel {
                 if self.prnu_rms > 0.0 {
                     r *= self.prnu_gain(x, y);
                 }
-                let mean = r * exposure_s + dark;
+                let dark = if uniform_dark { self.dark_current_e_per_s } else { self.dark_current_at(x, y) };
+                let mean = r * exposure_s + dark * exposure_s;
                 let e = if mean >= GAUSSIAN_ABOVE && mean + 5.0 * mean.sqrt() < self.full_well_e {
                     // Shot and read noise are both Gaussian here and the well (5 sigma away)
                     // does not clip: one draw with the summed variance.
@@ -218,7 +273,7 @@ impl SensorModel {
                     }
                     e
                 };
-                let dn = (e * k).round() + black;
+                let dn = (e * k + cols[x]).round() + black;
                 *out = dn.clamp(0.0, f64::from(white)) as u16;
             }
         });
@@ -243,6 +298,18 @@ impl SensorModel {
 
 /// Mean above which shot noise is drawn as a Gaussian (see the module docs).
 pub const GAUSSIAN_ABOVE: f64 = 1000.0;
+
+/// Salts of the fixed patterns hashed from `fixed_pattern_seed` (PRNU uses none).
+const DSNU_SALT: u64 = 0x6473_6e75_0000_0001;
+const HOT_SALT: u64 = 0x686f_7470_0000_0002;
+const COLUMN_SALT: u64 = 0x636f_6c6f_0000_0003;
+
+/// A zero-mean, unit-variance, near-Gaussian number from a 64-bit hash: the Irwin–Hall sum of
+/// its four 16-bit quarters as uniforms, bounded at ±3.46.
+fn unit_normal_from_hash(h: u64) -> f64 {
+    let sum: f64 = (0..4).map(|i| ((h >> (16 * i)) & 0xffff) as f64 / 65536.0).sum::<f64>() + 4.0 / 131072.0;
+    (sum - 2.0) * 3f64.sqrt()
+}
 
 /// SplitMix64 finaliser: a well-mixed 64-bit hash.
 fn splitmix64(mut z: u64) -> u64 {
@@ -533,6 +600,48 @@ mod tests {
         assert!(matches!(s.capture(&img, 0.1, 1.0, 0), Err(SensorError::SizeMismatch { .. })));
         let bad = SensorConfig { bit_depth: 3, ..Default::default() };
         assert!(SensorModel::from_config(&bad).unwrap_err().to_string().contains("bit_depth"));
+    }
+
+    #[test]
+    fn dark_signal_non_uniformity_hot_pixels_and_column_offsets_are_fixed_patterns() {
+        let cfg = SensorConfig {
+            dark_current_e_per_s: 20.0,
+            dsnu_rms: 0.3,
+            hot_pixel_fraction: 0.005,
+            hot_pixel_dark_e_per_s: 1000.0,
+            column_offset_rms_dn: 2.0,
+            ..Default::default()
+        };
+        let s = model(cfg);
+        let (w, h) = (128, 128);
+        // Pattern statistics: hot fraction, DSNU spread of the rest, column offset RMS.
+        let dark: Vec<f64> =
+            (0..h).flat_map(|y| (0..w).map(move |x| (x, y))).map(|(x, y)| s.dark_current_at(x, y)).collect();
+        let hot = dark.iter().filter(|&&d| d >= 1000.0).count();
+        assert!((40..=125).contains(&hot), "{hot} hot of {}", w * h); // expect 82
+        let (m, v) = mean_var(dark.iter().copied().filter(|&d| d < 1000.0));
+        assert!((m / 20.0 - 1.0).abs() < 0.02 && (v.sqrt() / m - 0.3).abs() < 0.02, "{m} {}", v.sqrt());
+        let (cm, cv) = mean_var((0..4096).map(|x| s.column_offset_dn(x)));
+        assert!(cm.abs() < 0.1 && (cv.sqrt() - 2.0).abs() < 0.1, "{cm} {}", cv.sqrt());
+        // The average of dark frames converges to dark_mean_dn per photosite.
+        let img = RadianceImage::filled(w, h, [0.0; 3]);
+        let n = 24;
+        let mut sum = vec![0.0f64; w * h];
+        for seed in 0..n {
+            let f = s.capture(&img, 0.5, 1.0, seed).unwrap();
+            sum.iter_mut().zip(&f.data).for_each(|(a, &d)| *a += f64::from(d));
+        }
+        let z2: f64 = (0..w * h)
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                let truth = s.dark_mean_dn(x, y, 0.5, 1.0);
+                // Per frame: read noise, dark shot noise (DN^2), rounding.
+                let var = (9.0 + s.dark_current_at(x, y) * 0.5) / 6.25 + 1.0 / 12.0;
+                (sum[i] / n as f64 - truth).powi(2) / (var / n as f64)
+            })
+            .sum::<f64>()
+            / (w * h) as f64;
+        assert!((z2 - 1.0).abs() < 0.1, "mean squared z = {z2}");
     }
 
     #[test]

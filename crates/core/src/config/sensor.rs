@@ -76,6 +76,17 @@ pub struct SensorConfig {
     pub pixel_pitch_um: f64,
     /// Quantum efficiency of the most sensitive channel at its peak wavelength (0 < q <= 1).
     pub peak_quantum_efficiency: f64,
+    /// Dark-signal non-uniformity: relative RMS of the fixed per-photosite multiplier of
+    /// `dark_current_e_per_s` (0..=2; 0 disables it). Hashed from `fixed_pattern_seed`.
+    pub dsnu_rms: f64,
+    /// Fraction of photosites that are hot: their dark current is `hot_pixel_dark_e_per_s`
+    /// times a log-uniform factor in [1, 10) instead of the DSNU value (0..=0.01).
+    pub hot_pixel_fraction: f64,
+    /// Smallest dark current of a hot photosite, electrons per second (>= 0).
+    pub hot_pixel_dark_e_per_s: f64,
+    /// RMS of the fixed per-column offset of the black level, DN (0..=100; 0 disables it):
+    /// column-parallel ADCs each have their own offset.
+    pub column_offset_rms_dn: f64,
 }
 
 impl Default for SensorConfig {
@@ -94,6 +105,10 @@ impl Default for SensorConfig {
             fixed_pattern_seed: 1,
             pixel_pitch_um: 14.75,
             peak_quantum_efficiency: 0.5,
+            dsnu_rms: 0.0,
+            hot_pixel_fraction: 0.0,
+            hot_pixel_dark_e_per_s: 0.0,
+            column_offset_rms_dn: 0.0,
         }
     }
 }
@@ -142,6 +157,18 @@ impl SensorConfig {
         if !(self.peak_quantum_efficiency > 0.0 && self.peak_quantum_efficiency <= 1.0) {
             push("peak_quantum_efficiency", self.peak_quantum_efficiency.to_string(), "0 < q <= 1");
         }
+        if !(0.0..=2.0).contains(&self.dsnu_rms) {
+            push("dsnu_rms", self.dsnu_rms.to_string(), "0..=2");
+        }
+        if !(0.0..=0.01).contains(&self.hot_pixel_fraction) {
+            push("hot_pixel_fraction", self.hot_pixel_fraction.to_string(), "0..=0.01");
+        }
+        if !(self.hot_pixel_dark_e_per_s.is_finite() && self.hot_pixel_dark_e_per_s >= 0.0) {
+            push("hot_pixel_dark_e_per_s", self.hot_pixel_dark_e_per_s.to_string(), ">= 0");
+        }
+        if !(0.0..=100.0).contains(&self.column_offset_rms_dn) {
+            push("column_offset_rms_dn", self.column_offset_rms_dn.to_string(), "0..=100");
+        }
     }
 }
 
@@ -171,6 +198,24 @@ mod tests {
         assert_eq!(errors.len(), 4, "{text}");
         assert!(text.contains("nikon_d5100, canon_5d_mk2"), "{text}");
         assert!(text.contains("sensor.bit_depth = 20"), "{text}");
+    }
+
+    #[test]
+    fn dark_non_uniformity_fields_default_off_and_are_checked() {
+        let cfg: SensorConfig = toml::from_str("prnu_rms = 0.01").unwrap();
+        assert_eq!((cfg.dsnu_rms, cfg.hot_pixel_fraction, cfg.column_offset_rms_dn), (0.0, 0.0, 0.0));
+        let bad = SensorConfig {
+            dsnu_rms: 3.0,
+            hot_pixel_fraction: 0.5,
+            hot_pixel_dark_e_per_s: -1.0,
+            column_offset_rms_dn: f64::NAN,
+            ..Default::default()
+        };
+        let mut errors = Vec::new();
+        bad.validate(&mut errors);
+        let text = errors.iter().map(|e| e.to_string()).collect::<Vec<_>>().join("\n");
+        assert_eq!(errors.len(), 4, "{text}");
+        assert!(text.contains("sensor.hot_pixel_fraction = 0.5"), "{text}");
     }
 
     #[test]
