@@ -12,6 +12,7 @@
 //! `docs/rectification.md`.
 #![warn(missing_docs)]
 
+pub mod light;
 pub mod metric;
 pub mod radiometry;
 pub mod rectify;
