@@ -28,6 +28,8 @@
 //! frame channel fills and the engine waits before its next trigger.
 #![warn(missing_docs)]
 
+pub mod light;
+
 use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -194,6 +196,9 @@ pub enum PipelineError {
     /// The dataset refused a write or commit.
     #[error(transparent)]
     Store(#[from] StoreError),
+    /// The light calibration is unusable.
+    #[error("light calibration: {0}")]
+    Light(#[from] btfrig_calib::light::LightError),
     /// A processing thread panicked or was cancelled.
     #[error("step {step}: processing thread failed: {reason}")]
     Join {
@@ -278,6 +283,11 @@ pub struct Processed {
     /// As `error`, had the nominal pose been used; only with
     /// [`Processor::with_nominal_comparison`] and a truth.
     pub error_nominal: Option<(f64, f64)>,
+    /// The lamp factor measured on the plate (only with [`Processor::with_light`] and drift
+    /// correction, and when the plate was measurable).
+    pub lamp_factor: Option<light::LampFactor>,
+    /// `sum(texture) / sum(truth at the nominal lamp) - 1`; `None` without a truth.
+    pub brightness_err: Option<f64>,
 }
 
 impl Processed {
@@ -289,6 +299,8 @@ impl Processed {
             registration: None,
             pose_errors: None,
             error_nominal: None,
+            lamp_factor: None,
+            brightness_err: None,
         }
     }
 }
@@ -307,6 +319,8 @@ pub struct Processor {
     outputs: Outputs,
     preview: watch::Sender<Option<Arc<Preview>>>,
     preview_gate: Mutex<PreviewGate>,
+    /// The light calibration and the plate points of the drift patch.
+    light: Option<(light::LightCorrection, Vec<nalgebra::Point2<f64>>)>,
 }
 
 /// When the next preview may be made.
@@ -372,6 +386,7 @@ impl Processor {
             outputs: Outputs::default(),
             preview: watch::Sender::new(None),
             preview_gate: Mutex::new(PreviewGate::default()),
+            light: None,
         })
     }
 
@@ -400,6 +415,21 @@ impl Processor {
     pub fn with_nominal_comparison(mut self, on: bool) -> Self {
         self.compare_nominal = on;
         self
+    }
+
+    /// The same processor converting with a light calibration (lamp power and colour) and,
+    /// if `correction.correct_drift`, correcting each frame by the lamp factor measured on
+    /// the plate (see [`light`]).
+    pub fn with_light(mut self, correction: light::LightCorrection) -> Result<Self, PipelineError> {
+        correction.validate()?;
+        let points = light::patch_points(&correction, &self.plate);
+        self.light = Some((correction, points));
+        Ok(self)
+    }
+
+    /// The light correction, if any.
+    pub fn light(&self) -> Option<&light::LightCorrection> {
+        self.light.as_ref().map(|(l, _)| l)
     }
 
     /// The same processor writing `outputs`.
@@ -510,15 +540,31 @@ impl Processor {
         stage_s.insert("rectify".to_string(), t.elapsed().as_secs_f64());
 
         let t = Instant::now();
-        let radiometry = self.radiometry(frame);
+        let mut radiometry = self.radiometry(frame);
+        let mut lamp_factor = None;
+        if let Some((l, points)) = &self.light {
+            let d = self.scene.gonio().geometry().lamp_distance_m;
+            // A frame whose plate cannot be measured keeps factor 1 (counted in the totals).
+            lamp_factor = l
+                .correct_drift
+                .then(|| light::measure_lamp_factor(l, &image, cam, &pose, d, &radiometry, points).ok())
+                .flatten();
+            radiometry = l.apply(&radiometry, lamp_factor.map_or([1.0; 3], |f| f.factor));
+        }
         let vig = vignetting_map(cam, &pose, s.region, s.size).map_err(err)?;
         let tex = to_radiance_factor(&tex, &vig, &radiometry).map_err(err)?;
         stage_s.insert("radiometry".to_string(), t.elapsed().as_secs_f64());
 
-        let (mut error, mut pose_errors, mut error_nominal) = (None, None, None);
+        let (mut error, mut pose_errors, mut error_nominal, mut brightness_err) = (None, None, None, None);
         if let Some((joints, lamp)) = truth {
-            let gt = self.ground_truth(&joints, lamp);
+            // Drift-corrected textures estimate the radiance factor under the calibrated
+            // (nominal) lamp, the others under the lamp of the exposure.
+            let gt_lamp = if self.light().is_some_and(|l| l.correct_drift) { 1.0 } else { lamp };
+            let gt = self.ground_truth(&joints, gt_lamp);
             error = Some(squared_error(&tex.data, &gt));
+            brightness_err = (gt_lamp > 0.0)
+                .then(|| (1.0 + light::brightness_error(&tex.data, &gt)) * gt_lamp - 1.0)
+                .filter(|e| e.is_finite());
             let true_pose = self.scene.pose(&joints);
             let used = texel_position_error_with_cameras(&true_pose, true_cam, &pose, cam, s.region, s.size);
             let nominal_err = if registration.pose == PoseSource::Markers {
@@ -538,7 +584,16 @@ impl Processor {
                 };
             }
         }
-        Ok(Processed { texels: tex.data, stage_s, error, registration: Some(registration), pose_errors, error_nominal })
+        Ok(Processed {
+            texels: tex.data,
+            stage_s,
+            error,
+            registration: Some(registration),
+            pose_errors,
+            error_nominal,
+            lamp_factor,
+            brightness_err,
+        })
     }
 
     /// Registers `image` (its green channel: half of a Bayer sensor's photosites) against the
@@ -668,6 +723,9 @@ pub struct Totals {
     pub sq_err_nominal: f64,
     /// Sum of squared truth of the frames in `sq_err_nominal`.
     pub sq_truth_nominal: f64,
+    /// Lamp factors measured on the plate and texture brightness against the truth at the
+    /// nominal lamp.
+    pub lamp: light::LampTotals,
 }
 
 impl Totals {
@@ -827,6 +885,12 @@ where
                 if let Some((se, st)) = p.error_nominal {
                     totals.sq_err_nominal += se;
                     totals.sq_truth_nominal += st;
+                }
+                if let Some(f) = &p.lamp_factor {
+                    totals.lamp.add_factor(f);
+                }
+                if let Some(e) = p.brightness_err {
+                    totals.lamp.add_brightness(e);
                 }
                 if let Some(e) = p.pose_errors {
                     totals.texel_err.add(e.used);
