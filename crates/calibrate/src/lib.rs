@@ -10,6 +10,8 @@
 //! reads the calibration file a rig config names.
 #![warn(missing_docs)]
 
+pub mod light;
+
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
