@@ -886,12 +886,7 @@ where
                     totals.sq_err_nominal += se;
                     totals.sq_truth_nominal += st;
                 }
-                if let Some(f) = &p.lamp_factor {
-                    totals.lamp.add_factor(f);
-                }
-                if let Some(e) = p.brightness_err {
-                    totals.lamp.add_brightness(e);
-                }
+                totals.lamp.add(step, p.lamp_factor, p.brightness_err);
                 if let Some(e) = p.pose_errors {
                     totals.texel_err.add(e.used);
                     totals.nominal_texel_err.add(e.nominal);

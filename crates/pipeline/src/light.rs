@@ -120,9 +120,22 @@ pub fn patch_points(light: &LightCorrection, plate: &PlateConfig) -> Vec<Point2<
     plate_patch_points(plate, &light.patch)
 }
 
+/// One committed step's lamp figures.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LampStep {
+    /// The capture.
+    pub step: btfrig_store::StepId,
+    /// Its lamp factor (`None`: not measured).
+    pub factor: Option<LampFactor>,
+    /// Its brightness error against the truth at the nominal lamp (`None`: no truth).
+    pub brightness_err: Option<f64>,
+}
+
 /// Lamp factors and texture brightness over a run.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[derive(Debug, Clone, Default, PartialEq)]
 pub struct LampTotals {
+    /// Every committed step with a factor or a brightness figure, in commit order.
+    pub steps: Vec<LampStep>,
     /// Frames with a measured lamp factor.
     pub frames: u64,
     /// Smallest factor of any channel of any frame.
@@ -140,6 +153,19 @@ pub struct LampTotals {
 }
 
 impl LampTotals {
+    /// Adds one step's figures.
+    pub fn add(&mut self, step: btfrig_store::StepId, factor: Option<LampFactor>, brightness_err: Option<f64>) {
+        if let Some(f) = &factor {
+            self.add_factor(f);
+        }
+        if let Some(e) = brightness_err {
+            self.add_brightness(e);
+        }
+        if factor.is_some() || brightness_err.is_some() {
+            self.steps.push(LampStep { step, factor, brightness_err });
+        }
+    }
+
     /// Adds one frame's factor.
     pub fn add_factor(&mut self, f: &LampFactor) {
         let (lo, hi) = f.factor.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
