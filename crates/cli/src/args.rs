@@ -48,6 +48,10 @@ pub enum CalibrateCommand {
     /// (simulated rig), detect its markers, estimate intrinsics and distortion, write the
     /// calibration file (docs/camera-calibration.md).
     Geometry(CalibrateGeometryArgs),
+    /// Light calibration: photograph a white reference tile on the holder at the plan's
+    /// captures (simulated rig), measure each light's power and colour and the plate's albedo
+    /// relative to the tile, write the light calibration file (docs/light.md).
+    Light(crate::calibrate_light_cmd::CalibrateLightArgs),
 }
 
 /// `btfrig calibrate geometry`.

@@ -4,6 +4,7 @@ mod args;
 mod bench_cmd;
 mod bench_registration;
 mod calibrate_cmd;
+mod calibrate_light_cmd;
 mod captures_cmd;
 mod dataset_cmd;
 mod demo_cmd;
@@ -35,6 +36,7 @@ fn main() -> std::process::ExitCode {
         Command::Dataset(DatasetCommand::Info { dir }) => done(dataset_cmd::info(&dir)),
         Command::Dataset(DatasetCommand::Verify { dir }) => done(dataset_cmd::verify(&dir)),
         Command::Calibrate(CalibrateCommand::Geometry(a)) => done(calibrate_cmd::geometry(&a)),
+        Command::Calibrate(CalibrateCommand::Light(a)) => done(calibrate_light_cmd::light(&a)),
         Command::Bench(BenchCommand::Render { rig, material, texels, repeat }) => {
             done(bench_cmd::render(rig.as_deref(), &material, texels, repeat))
         }
