@@ -125,6 +125,10 @@ pub struct RunArgs {
     /// change the plan hash, so a run paused on a fatal fault resumes with `--faults none`.
     #[arg(long, value_name = "NAME|FILE")]
     pub faults: Option<String>,
+    /// Light calibration file (`btfrig calibrate light`): the lamp's power and colour from it,
+    /// and its drift measured on the plate per frame and corrected (docs/light.md).
+    #[arg(long, value_name = "FILE")]
+    pub light: Option<std::path::PathBuf>,
 }
 
 /// `btfrig sim ...`.

@@ -112,6 +112,13 @@ pub fn calibrated_lamp(cfg: &RigConfig) -> anyhow::Result<LightCorrection> {
     correction(&file)
 }
 
+/// The lamp's correction from the light calibration file at `path`.
+pub fn load(path: &std::path::Path) -> anyhow::Result<LightCorrection> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("cannot read light calibration {}", path.display()))?;
+    correction(&LightCalibrationFile::from_toml(&text, &path.display().to_string())?)
+}
+
 /// The lamp's correction from a light calibration file.
 pub fn correction(file: &LightCalibrationFile) -> anyhow::Result<LightCorrection> {
     let e = file.light(LAMP).with_context(|| format!("the light calibration has no {LAMP:?} entry"))?;
