@@ -5,12 +5,15 @@ use btfrig_pipeline::light::LampTotals;
 use serde_json::{json, Value};
 
 /// The report's `lamp` object: range, largest standard error, brightness against the truth
-/// at the nominal lamp (simulated rig), and every step's factor.
+/// at the nominal lamp (simulated rig), and every step's factor (with a light calibration).
 pub fn lamp_json(l: &LampTotals) -> Value {
     let range = l.factor_range();
+    // Per-step figures only with measured factors (a light calibration): a run without one
+    // would list every capture for its brightness figure alone.
     let steps: Vec<Value> = l
         .steps
         .iter()
+        .filter(|_| l.frames > 0)
         .map(|s| {
             json!({
                 "light": s.step.light,
