@@ -259,7 +259,7 @@ mod tests {
         let centres: Vec<_> = plate.marker_placements().iter().map(|m| m.corners_sample_m[0]).collect();
         for p in &pts {
             let m = p.x.abs().max(p.y.abs());
-            assert!(m >= 0.05 + 0.006 - 1e-12 && m <= 0.1 - 0.003 + 1e-12, "{p:?}");
+            assert!((0.05 + 0.006 - 1e-12..=0.1 - 0.003 + 1e-12).contains(&m), "{p:?}");
             for c in &centres {
                 // corners_sample_m[0] is (cx - h, cy + h): the centre is (c.x + h, c.y - h).
                 let (cx, cy) = (c.x + 0.01, c.y - 0.01);

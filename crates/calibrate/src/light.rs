@@ -281,6 +281,9 @@ pub struct SimLightCalibration {
     pub per_frame_white_rate: Vec<[f64; 3]>,
 }
 
+/// One frame's figures: `W_c`, its sigma, the plate albedo, its sigma.
+type FrameFigures = ([f64; 3], [f64; 3], [f64; 3], [f64; 3]);
+
 /// The white reference tile as a material: flat, Lambertian, spectrally flat reflectance.
 pub fn white_tile(albedo: f64) -> MaterialSpec {
     MaterialSpec {
@@ -331,7 +334,7 @@ pub fn calibrate_light_simulated(
         }
     }
     // Frames are independent: measured in parallel, each one's noise seeded by its index.
-    let measured: Vec<Result<([f64; 3], [f64; 3], [f64; 3], [f64; 3]), LightCalibError>> = jobs
+    let measured: Vec<Result<FrameFigures, LightCalibError>> = jobs
         .par_iter()
         .enumerate()
         .map(|(k, &(index, light_deg, view_deg, joints, _))| {
@@ -367,11 +370,11 @@ pub fn calibrate_light_simulated(
         .collect();
     let measured = measured.into_iter().collect::<Result<Vec<_>, _>>()?;
     let n = measured.len() as f64;
-    let mean = |f: &dyn Fn(&([f64; 3], [f64; 3], [f64; 3], [f64; 3])) -> [f64; 3]| -> [f64; 3] {
+    let mean = |f: &dyn Fn(&FrameFigures) -> [f64; 3]| -> [f64; 3] {
         std::array::from_fn(|c| measured.iter().map(|m| f(m)[c]).sum::<f64>() / n)
     };
     // Frames are independent: the mean's error is the root-sum-square of theirs over n.
-    let rss = |f: &dyn Fn(&([f64; 3], [f64; 3], [f64; 3], [f64; 3])) -> [f64; 3]| -> [f64; 3] {
+    let rss = |f: &dyn Fn(&FrameFigures) -> [f64; 3]| -> [f64; 3] {
         std::array::from_fn(|c| measured.iter().map(|m| f(m)[c].powi(2)).sum::<f64>().sqrt() / n)
     };
     let w = mean(&|m| m.0);

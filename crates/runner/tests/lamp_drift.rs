@@ -71,7 +71,10 @@ fn run_one(name: &str, faults: Option<&str>, light: Option<LightCorrection>) -> 
     (s.hardware_s, s.lamp.expect("a simulated run measures brightness"))
 }
 
-fn by_step(t: &LampTotals) -> std::collections::BTreeMap<(u32, u32), (Option<[f64; 3]>, f64)> {
+/// Per (light, view): the lamp factor (if measured) and the brightness error.
+type Steps = std::collections::BTreeMap<(u32, u32), (Option<[f64; 3]>, f64)>;
+
+fn by_step(t: &LampTotals) -> Steps {
     t.steps
         .iter()
         .map(|s| ((s.step.light, s.step.view), (s.factor.map(|f| f.factor), s.brightness_err.unwrap())))
