@@ -180,6 +180,26 @@ fn sim_captures_writes_raw_preview_and_truth_per_capture_and_refuses_to_overwrit
 }
 
 #[test]
+fn calibrate_light_measures_the_lamp_against_the_truth_and_names_a_bad_plan() {
+    let dir = scratch("calibrate-light");
+    let out = dir.join("lamp.toml");
+    let stdout = ok(btfrig().args(["calibrate", "light", "--json", "--seed", "3", "--out"]).arg(&out));
+    let v: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+    for key in ["white_rate_err_pct", "plate_albedo_err_pct"] {
+        for c in 0..3 {
+            let e = v[key][c].as_f64().unwrap();
+            // docs/light.md: within 0.01 %.
+            assert!(e.abs() < 0.1, "{key}[{c}] = {e} %: {v}");
+        }
+    }
+    assert!(std::fs::read_to_string(&out).unwrap().contains("[lights.lamp]"));
+    let plan = dir.join("bad-plan.toml");
+    std::fs::write(&plan, "format_version = 1\nname = \"x\"\nreference_albedo = 2.0\ncaptures = []\n").unwrap();
+    let e = fails(btfrig().args(["calibrate", "light", "--plan"]).arg(&plan));
+    assert!(e.contains("reference_albedo = 2") && e.contains("captures"), "{e}");
+}
+
+#[test]
 fn demo_runs_the_default_plan_into_a_verified_dataset_and_refuses_to_overwrite() {
     let dir = scratch("demo");
     let out = dir.join("run");
@@ -223,6 +243,10 @@ fn demo_runs_the_default_plan_into_a_verified_dataset_and_refuses_to_overwrite()
         "registration {reg_mean} / {reg_max}, nominal {nom_mean} / {nom_max}"
     );
     assert!(rmse <= f("texture_rel_rmse_nominal"), "{rmse} vs nominal {}", f("texture_rel_rmse_nominal"));
+    // The demo runs with a light calibration; its lamp is steady, so the lamp factor measured on
+    // the plate stays 1 (docs/light.md: measured 0.9992 .. 1.0006).
+    let (lo, hi) = (f("lamp_factor_min"), f("lamp_factor_max"));
+    assert!(lo > 0.995 && hi < 1.005 && lo <= hi, "lamp factor {lo} .. {hi}");
     assert_eq!(v["dataset"].as_str().unwrap(), out.display().to_string());
     assert_eq!(std::fs::read_dir(out.join("textures")).unwrap().count(), 60);
     ok(btfrig().args(["dataset", "verify"]).arg(&out));

@@ -15,6 +15,7 @@
 pub mod exposure;
 pub mod hdr;
 pub mod dark_flat;
+pub mod light;
 pub mod metric;
 pub mod radiometry;
 pub mod rectify;

@@ -192,7 +192,7 @@ pub(crate) fn sample_to_camera(pose: &ScenePose) -> Isometry3<f64> {
 /// Bilinear lookup at image position `(x, y)` (integer = pixel centre), edge pixels
 /// extended; `None` outside the image area `[-0.5, w - 0.5] x [-0.5, h - 0.5]`.
 #[inline]
-fn bilinear(img: &LinearImage, x: f64, y: f64) -> Option<[f32; 3]> {
+pub(crate) fn bilinear(img: &LinearImage, x: f64, y: f64) -> Option<[f32; 3]> {
     let (w, h) = (img.width, img.height);
     if !(x >= -0.5 && y >= -0.5 && x <= w as f64 - 0.5 && y <= h as f64 - 0.5) {
         return None;

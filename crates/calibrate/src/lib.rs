@@ -12,6 +12,7 @@
 
 pub mod color;
 pub mod dark_flat;
+pub mod light;
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;

@@ -48,6 +48,10 @@ pub enum CalibrateCommand {
     /// (simulated rig), detect its markers, estimate intrinsics and distortion, write the
     /// calibration file (docs/camera-calibration.md).
     Geometry(CalibrateGeometryArgs),
+    /// Light calibration: photograph a white reference tile on the holder at the plan's
+    /// captures (simulated rig), measure each light's power and colour and the plate's albedo
+    /// relative to the tile, write the light calibration file (docs/light.md).
+    Light(crate::calibrate_light_cmd::CalibrateLightArgs),
     /// Dark and flat-field calibration: dark frames at several exposures and gains, master
     /// flats per f-number (simulated rig); writes float EXR maps and a TOML header
     /// (docs/dark-flat.md).
@@ -149,6 +153,10 @@ pub struct RunArgs {
     /// change the plan hash, so a run paused on a fatal fault resumes with `--faults none`.
     #[arg(long, value_name = "NAME|FILE")]
     pub faults: Option<String>,
+    /// Light calibration file (`btfrig calibrate light`): the lamp's power and colour from it,
+    /// and its drift measured on the plate per frame and corrected (docs/light.md).
+    #[arg(long, value_name = "FILE")]
+    pub light: Option<std::path::PathBuf>,
 }
 
 /// `btfrig sim ...`.

@@ -25,7 +25,10 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<ExitCode> {
     // The demo shows what registration gains: each registered frame is also rectified with
     // the nominal pose and compared with the truth.
     let req = RunRequest::from_text(text, &cwd.join(format!("<embedded rig-configs/plans/{name}.toml>")), &out)
-        .with_nominal_comparison(true);
+        .with_nominal_comparison(true)
+        // The lamp's power and colour from a light calibration run first, its drift corrected
+        // per frame (docs/light.md).
+        .with_light(Some(crate::calibrate_light_cmd::calibrated_lamp(&crate::rig::load(a.rig.as_deref())?)?));
     let s = crate::run_cmd::execute(&req)?;
     if a.json {
         println!("{}", s.to_json());
@@ -59,6 +62,9 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<ExitCode> {
             f4(s.nominal_mean_texel_err),
             f4(s.nominal_max_texel_err)
         );
+        if let Some((lo, hi)) = s.lamp.as_ref().and_then(|l| l.factor_range()) {
+            println!("  lamp factor       {lo:.4} .. {hi:.4}: lamp output against the light calibration, measured on the plate per frame and divided out");
+        }
         println!("  retries           {}, warnings {}", s.retries, s.warnings.len());
         println!("  dataset           {}", s.dataset.display());
         println!("check it with: btfrig dataset verify {}", s.dataset.display());

@@ -7,6 +7,7 @@ mod bench_registration;
 mod calibrate_cmd;
 mod calibrate_color_cmd;
 mod calibrate_radiometric_cmd;
+mod calibrate_light_cmd;
 mod captures_cmd;
 mod dataset_cmd;
 mod demo_cmd;
@@ -40,6 +41,7 @@ fn main() -> std::process::ExitCode {
         Command::Calibrate(CalibrateCommand::Geometry(a)) => done(calibrate_cmd::geometry(&a)),
         Command::Calibrate(CalibrateCommand::Color(a)) => done(calibrate_color_cmd::color(&a)),
         Command::Calibrate(CalibrateCommand::Radiometric(a)) => done(calibrate_radiometric_cmd::run(&a)),
+        Command::Calibrate(CalibrateCommand::Light(a)) => done(calibrate_light_cmd::light(&a)),
         Command::Bench(BenchCommand::Render { rig, material, texels, repeat }) => {
             done(bench_cmd::render(rig.as_deref(), &material, texels, repeat))
         }

@@ -20,7 +20,9 @@ pub const EXIT_INTERRUPTED: u8 = 130;
 
 /// `btfrig run`.
 pub fn run(a: &RunArgs) -> anyhow::Result<ExitCode> {
-    let req = RunRequest::from_file(&a.plan, &a.out)?.with_faults(a.faults.clone());
+    let req = RunRequest::from_file(&a.plan, &a.out)?
+        .with_faults(a.faults.clone())
+        .with_light(a.light.as_deref().map(crate::calibrate_light_cmd::load).transpose()?);
     let summary = execute(&req)?;
     if summary.outcome == RunOutcome::NothingToDo {
         println!("{}: all {} captures already done; nothing to do", a.out.display(), summary.captures);
@@ -99,6 +101,9 @@ pub fn print_summary(s: &RunSummary) {
         s.peak_rss_mib.map(|m| format!("{m:.0} MiB")).unwrap_or_else(|| "n/a".into())
     );
     println!("{}", registration_line(s));
+    if let Some((lo, hi)) = s.lamp.as_ref().and_then(|l| l.factor_range()) {
+        println!("lamp factor {lo:.4} .. {hi:.4} (measured on the plate against the light calibration, divided out)");
+    }
     if s.unreported_captures > 0 {
         println!(
             "note: {} captures were made by sessions that were killed; their rig and wall time are not in the totals",

@@ -30,6 +30,7 @@
 
 pub mod color;
 pub mod dark_flat;
+pub mod light;
 
 use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::sync::{Arc, Mutex};
@@ -211,6 +212,9 @@ pub enum PipelineError {
     /// A dark/flat calibration given to [`Processor::with_dark_flat`] does not fit the camera.
     #[error("dark/flat calibration: {0}")]
     DarkFlatSetup(btfrig_calib::dark_flat::DarkFlatError),
+    /// The light calibration is unusable.
+    #[error("light calibration: {0}")]
+    Light(#[from] btfrig_calib::light::LightError),
     /// A processing thread panicked or was cancelled.
     #[error("step {step}: processing thread failed: {reason}")]
     Join {
@@ -295,6 +299,11 @@ pub struct Processed {
     /// As `error`, had the nominal pose been used; only with
     /// [`Processor::with_nominal_comparison`] and a truth.
     pub error_nominal: Option<(f64, f64)>,
+    /// The lamp factor measured on the plate (only with [`Processor::with_light`] and drift
+    /// correction, and when the plate was measurable).
+    pub lamp_factor: Option<light::LampFactor>,
+    /// `sum(texture) / sum(truth at the nominal lamp) - 1`; `None` without a truth.
+    pub brightness_err: Option<f64>,
 }
 
 impl Processed {
@@ -306,6 +315,8 @@ impl Processed {
             registration: None,
             pose_errors: None,
             error_nominal: None,
+            lamp_factor: None,
+            brightness_err: None,
         }
     }
 }
@@ -328,6 +339,8 @@ pub struct Processor {
     color: Option<Arc<color::ColorCorrection>>,
     /// Measured dark model and flats ([`Processor::with_dark_flat`]); `None`: the model's.
     dark_flat: Option<Arc<dark_flat::DarkFlat>>,
+    /// The light calibration and the plate points of the drift patch.
+    light: Option<(light::LightCorrection, Vec<nalgebra::Point2<f64>>)>,
 }
 
 /// When the next preview may be made.
@@ -395,6 +408,7 @@ impl Processor {
             preview_gate: Mutex::new(PreviewGate::default()),
             color: None,
             dark_flat: None,
+            light: None,
         })
     }
 
@@ -453,6 +467,21 @@ impl Processor {
     pub fn with_nominal_comparison(mut self, on: bool) -> Self {
         self.compare_nominal = on;
         self
+    }
+
+    /// The same processor converting with a light calibration (lamp power and colour) and,
+    /// if `correction.correct_drift`, correcting each frame by the lamp factor measured on
+    /// the plate (see [`light`]).
+    pub fn with_light(mut self, correction: light::LightCorrection) -> Result<Self, PipelineError> {
+        correction.validate()?;
+        let points = light::patch_points(&correction, &self.plate);
+        self.light = Some((correction, points));
+        Ok(self)
+    }
+
+    /// The light correction, if any.
+    pub fn light(&self) -> Option<&light::LightCorrection> {
+        self.light.as_ref().map(|(l, _)| l)
     }
 
     /// The same processor writing `outputs`.
@@ -573,7 +602,23 @@ impl Processor {
         stage_s.insert("rectify".to_string(), t.elapsed().as_secs_f64());
 
         let t = Instant::now();
-        let radiometry = self.radiometry(frame);
+        let mut radiometry = self.radiometry(frame);
+        let mut lamp_factor = None;
+        if let Some((l, points)) = &self.light {
+            let d = self.scene.gonio().geometry().lamp_distance_m;
+            // A frame whose plate cannot be measured keeps factor 1 (counted in the totals).
+            lamp_factor = l
+                .correct_drift
+                .then(|| light::measure_lamp_factor(l, &image, cam, &pose, d, &radiometry, points).ok())
+                .flatten();
+            let factor = lamp_factor.map_or([1.0; 3], |f| f.factor);
+            radiometry = l.apply(&radiometry, factor);
+            if let Some(c) = &self.color {
+                // The colour model was fitted to camera RGB balanced with the chart's white:
+                // keep that balance, corrected by this frame's lamp factor only.
+                radiometry.white_balance = std::array::from_fn(|k| c.white_balance[k] / factor[k]);
+            }
+        }
         let mut vig = vignetting_map(cam, &pose, s.region, s.size).map_err(err)?;
         if self.dark_flat.is_some() {
             vig = dark_flat::unit_vignetting(vig);
@@ -584,10 +629,16 @@ impl Processor {
         }
         stage_s.insert("radiometry".to_string(), t.elapsed().as_secs_f64());
 
-        let (mut error, mut pose_errors, mut error_nominal) = (None, None, None);
+        let (mut error, mut pose_errors, mut error_nominal, mut brightness_err) = (None, None, None, None);
         if let Some((joints, lamp)) = truth {
-            let gt = self.ground_truth(&joints, lamp);
+            // Drift-corrected textures estimate the radiance factor under the calibrated
+            // (nominal) lamp, the others under the lamp of the exposure.
+            let gt_lamp = if self.light().is_some_and(|l| l.correct_drift) { 1.0 } else { lamp };
+            let gt = self.ground_truth(&joints, gt_lamp);
             error = Some(squared_error(&tex.data, &gt));
+            brightness_err = (gt_lamp > 0.0)
+                .then(|| (1.0 + light::brightness_error(&tex.data, &gt)) * gt_lamp - 1.0)
+                .filter(|e| e.is_finite());
             let true_pose = self.scene.pose(&joints);
             let used = texel_position_error_with_cameras(&true_pose, true_cam, &pose, cam, s.region, s.size);
             let nominal_err = if registration.pose == PoseSource::Markers {
@@ -613,7 +664,16 @@ impl Processor {
                 };
             }
         }
-        Ok(Processed { texels: tex.data, stage_s, error, registration: Some(registration), pose_errors, error_nominal })
+        Ok(Processed {
+            texels: tex.data,
+            stage_s,
+            error,
+            registration: Some(registration),
+            pose_errors,
+            error_nominal,
+            lamp_factor,
+            brightness_err,
+        })
     }
 
     /// Registers `image` (its green channel: half of a Bayer sensor's photosites) against the
@@ -743,6 +803,9 @@ pub struct Totals {
     pub sq_err_nominal: f64,
     /// Sum of squared truth of the frames in `sq_err_nominal`.
     pub sq_truth_nominal: f64,
+    /// Lamp factors measured on the plate and texture brightness against the truth at the
+    /// nominal lamp.
+    pub lamp: light::LampTotals,
 }
 
 impl Totals {
@@ -906,6 +969,7 @@ where
                     totals.sq_err_nominal += se;
                     totals.sq_truth_nominal += st;
                 }
+                totals.lamp.add(step, p.lamp_factor, p.brightness_err);
                 if let Some(e) = p.pose_errors {
                     totals.texel_err.add(e.used);
                     totals.nominal_texel_err.add(e.nominal);

@@ -11,6 +11,7 @@
 
 #![warn(missing_docs)]
 
+mod light;
 pub mod plan;
 pub mod report;
 
@@ -116,6 +117,10 @@ pub struct RunRequest {
     /// compare it with the truth (`texture_rel_rmse_nominal`): a second rectification per
     /// frame, so off by default (`btfrig demo` turns it on).
     pub compare_nominal: bool,
+    /// The light calibration frames are converted with, and whether the lamp's drift is
+    /// measured on the plate and corrected (`btfrig_pipeline::light`); `None`: the lamp's
+    /// power and colour come from the rig model.
+    pub light: Option<btfrig_pipeline::light::LightCorrection>,
 }
 
 impl RunRequest {
@@ -134,7 +139,14 @@ impl RunRequest {
             faults: None,
             stop_on_fault: true,
             compare_nominal: false,
+            light: None,
         }
+    }
+
+    /// With a light calibration (see [`RunRequest::light`]).
+    pub fn with_light(mut self, light: Option<btfrig_pipeline::light::LightCorrection>) -> RunRequest {
+        self.light = light;
+        self
     }
 
     /// With the nominal-pose comparison on or off (see [`RunRequest::compare_nominal`]).
@@ -383,6 +395,8 @@ pub struct RunSummary {
     /// Peak resident memory of this process so far (Linux `VmHWM`), MiB; `None` where the
     /// system does not say. Shows that memory stays bounded by frames in flight, not captures.
     pub peak_rss_mib: Option<f64>,
+    /// This session's lamp figures, with a light calibration only (`RunRequest::light`).
+    pub lamp: Option<btfrig_pipeline::light::LampTotals>,
 }
 
 /// The process's peak resident set size in MiB, from `/proc/self/status` (Linux).
@@ -396,7 +410,7 @@ pub fn peak_rss_mib() -> Option<f64> {
 impl RunSummary {
     /// The summary as one JSON object (the fields `btfrig demo --json` prints).
     pub fn to_json(&self) -> serde_json::Value {
-        json!({
+        let mut v = json!({
             "status": self.outcome.status(),
             "reason": self.outcome.reason(),
             "captures": self.captures,
@@ -425,7 +439,9 @@ impl RunSummary {
             "unreported_captures": self.unreported_captures,
             "peak_rss_mib": self.peak_rss_mib,
             "dataset": self.dataset.display().to_string(),
-        })
+        });
+        light::add_summary_fields(&mut v, self.lamp.as_ref());
+        v
     }
 }
 
@@ -586,10 +602,13 @@ pub fn run(
         commands,
         stop_on_fault: req.stop_on_fault,
         compare_nominal: req.compare_nominal,
+        light: req.light.clone(),
         on_event,
     }));
     let SessionResult { outcome, hardware_s, engine_retries, warnings, totals } = session?;
     let totals = totals?;
+    let mut warnings = warnings;
+    warnings.extend(req.light.as_ref().and_then(|l| totals.lamp.warning(l.warn_drift)));
     let mut dataset =
         Arc::try_unwrap(dataset).map_err(|_| RunError::Rig("dataset still shared after the run".into()))?;
     let finished = dataset.completed().len() as u64 >= fixed.planned;
@@ -617,7 +636,10 @@ pub fn run(
         texel_err: totals.texel_err,
         nominal_texel_err: totals.nominal_texel_err,
     };
-    let summary = summarise(&fixed, &dataset, &previous, Some(&this), outcome);
+    let mut summary = summarise(&fixed, &dataset, &previous, Some(&this), outcome);
+    // Brightness against the nominal-lamp truth is measured on every simulated run; factors
+    // only with a light calibration.
+    summary.lamp = (req.light.is_some() || !totals.lamp.steps.is_empty()).then(|| totals.lamp.clone());
     let mut sessions: Vec<serde_json::Value> = previous.iter().map(Session::to_json).collect();
     sessions.push(this.to_json());
     dataset.finish(&report_of(&summary, &previous, &this, sessions)).map_err(RunError::Report)?;
@@ -676,6 +698,7 @@ fn summarise(
         sessions: all.len(),
         unreported_captures: captures.saturating_sub(t.captures),
         peak_rss_mib: peak_rss_mib(),
+        lamp: None,
     }
 }
 
@@ -697,6 +720,9 @@ fn report_of(s: &RunSummary, previous: &[Session], this: &Session, sessions: Vec
     put("texture_rel_rmse_nominal", json!(s.texture_rel_rmse_nominal));
     put("color_delta_e00_mean", json!(s.color_delta_e00_mean));
     put("color_delta_e00_max", json!(s.color_delta_e00_max));
+    if let Some(l) = &s.lamp {
+        put("lamp", light::lamp_json(l));
+    }
     put(
         "registration",
         json!({
@@ -745,6 +771,7 @@ struct SessionInput<'a> {
     commands: mpsc::UnboundedReceiver<Command>,
     stop_on_fault: bool,
     compare_nominal: bool,
+    light: Option<btfrig_pipeline::light::LightCorrection>,
     on_event: &'a mut dyn FnMut(&RunEvent),
 }
 
@@ -795,6 +822,7 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
         mut commands,
         stop_on_fault,
         compare_nominal,
+        light,
         on_event,
     } = input;
     let scene = Arc::new(RigScene::new(rig, material).map_err(|e| RunError::Rig(e.to_string()))?);
@@ -822,6 +850,10 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
     let processor = Arc::new(
         Processor::new(scene, &rig.plate, process)
             .and_then(|p| p.with_camera(camera))
+            .and_then(|p| match light {
+                Some(l) => p.with_light(l),
+                None => Ok(p),
+            })
             .map_err(|e| RunError::Rig(e.to_string()))?
             .with_outputs(outputs)
             .with_color_correction(color)

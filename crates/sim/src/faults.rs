@@ -256,11 +256,19 @@ impl FaultScenario {
                     "(0, 86400] s",
                 ));
             }
-            if !(-1.0..=1.0).contains(&d.drift_per_hour) {
+            if !(d.drift_delay_s.is_finite() && (0.0..=86_400.0).contains(&d.drift_delay_s)) {
+                errors.push(ConfigError::out_of_range(
+                    "faults.lamp_drift.drift_delay_s",
+                    d.drift_delay_s,
+                    "[0, 86400] s",
+                ));
+            }
+            // Up to 10 per hour: a short simulated run (minutes) can then drift by percents.
+            if !(-10.0..=10.0).contains(&d.drift_per_hour) {
                 errors.push(ConfigError::out_of_range(
                     "faults.lamp_drift.drift_per_hour",
                     d.drift_per_hour,
-                    "[-1, 1] per hour",
+                    "[-10, 10] per hour",
                 ));
             }
         }

@@ -150,13 +150,15 @@ impl SimWorld {
     /// Lamp output relative to its setpoint, `t_on_s` seconds after switch-on.
     ///
     /// Nominal lamp: a linear ramp to 1 over the warm-up time, then constant. With a
-    /// [`LampDrift`] fault: `1 - (1 - start_fraction) exp(-t / tau) + drift_per_hour t / 3600`,
-    /// never negative.
+    /// [`LampDrift`] fault: `1 - (1 - start_fraction) exp(-t / tau) + drift_per_hour
+    /// max(0, t - drift_delay_s) / 3600`, never negative.
     pub fn lamp_output_factor(&self, t_on_s: f64) -> f64 {
         let t = t_on_s.max(0.0);
         match &self.drift {
             Some(d) => {
-                (1.0 - (1.0 - d.start_fraction) * (-t / d.warm_up_tau_s).exp() + d.drift_per_hour * t / 3600.0).max(0.0)
+                let drift_t = (t - d.drift_delay_s).max(0.0);
+                (1.0 - (1.0 - d.start_fraction) * (-t / d.warm_up_tau_s).exp() + d.drift_per_hour * drift_t / 3600.0)
+                    .max(0.0)
             }
             None if self.warm_up_s > 0.0 => (t / self.warm_up_s).min(1.0),
             None => 1.0,
@@ -166,7 +168,7 @@ impl SimWorld {
 
 /// A lamp whose output keeps changing: exponential warm-up plus slow linear drift. Output
 /// factor `t` seconds after switch-on:
-/// `1 - (1 - start_fraction) exp(-t / warm_up_tau_s) + drift_per_hour t / 3600`.
+/// `1 - (1 - start_fraction) exp(-t / warm_up_tau_s) + drift_per_hour max(0, t - drift_delay_s) / 3600`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LampDrift {
@@ -176,4 +178,9 @@ pub struct LampDrift {
     pub warm_up_tau_s: f64,
     /// Change of the output per hour, fraction of the settled output (e.g. -0.01).
     pub drift_per_hour: f64,
+    /// Seconds after switch-on before the linear drift starts (default 0): e.g. the rig's
+    /// warm-up wait, so that a short simulated run starts near the settled output and drifts
+    /// from there.
+    #[serde(default)]
+    pub drift_delay_s: f64,
 }

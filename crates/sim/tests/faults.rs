@@ -233,3 +233,29 @@ async fn nominal_lamp_ramps_then_holds() {
     assert_eq!(frame.data[0], 64 + 200);
     assert_eq!(frame.data.len(), src.format().width * src.format().height);
 }
+
+#[tokio::test(start_paused = true)]
+async fn lamp_drift_can_start_late_and_be_fast_and_bad_values_are_named() {
+    // 5 % over a 70 s run: the linear drift starts after the rig's 180 s warm-up wait.
+    let text =
+        "[lamp_drift]\nstart_fraction = 0.9\nwarm_up_tau_s = 60.0\ndrift_per_hour = -2.6\ndrift_delay_s = 180.0\n";
+    let mut rig = rig(&devices(""), 1, &FaultScenario::from_toml(text, "drift.toml").unwrap());
+    let clock = rig.world.clock().clone();
+    rig.lamp.set_on(true).await.unwrap();
+    let on = clock.now_s();
+    let expect = |t: f64| 1.0 - 0.1 * (-t / 60.0).exp() - 2.6 * (t - 180.0).max(0.0) / 3600.0;
+    for wait in [100.0, 80.0, 70.0] {
+        clock.sleep_s(wait).await;
+        let t = clock.now_s() - on;
+        let got = rig.world.truth().lamp_intensity;
+        assert!((got - expect(t)).abs() < 1e-9, "t = {t}: {got} vs {}", expect(t));
+    }
+    assert!((expect(180.0) - expect(250.0)) > 0.045, "about 5 % over the 70 s after the warm-up");
+    let bad =
+        "[lamp_drift]\nstart_fraction = 0.9\nwarm_up_tau_s = 60.0\ndrift_per_hour = -20.0\ndrift_delay_s = -1.0\n";
+    let err = FaultScenario::from_toml(bad, "bad.toml").err().unwrap().to_string();
+    assert!(
+        err.contains("faults.lamp_drift.drift_per_hour = -20") && err.contains("faults.lamp_drift.drift_delay_s = -1"),
+        "{err}"
+    );
+}
