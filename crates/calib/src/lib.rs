@@ -12,9 +12,9 @@
 //! `docs/rectification.md`.
 #![warn(missing_docs)]
 
+pub mod dark_flat;
 pub mod exposure;
 pub mod hdr;
-pub mod dark_flat;
 pub mod light;
 pub mod metric;
 pub mod radiometry;

@@ -479,7 +479,10 @@ pub fn run(
     let exposure_s = plan::exposure_s(&plan, &v, file)?;
 
     // The dataset: new, or the same plan's to resume; anything else is refused by the store.
-    let manifest = plan::manifest(&plan, &v, &req.plan_text, file, &list)?;
+    let mut manifest = plan::manifest(&plan, &v, &req.plan_text, file, &list)?;
+    let color_file = btfrig_calibrate::color::processing_color(&v.rig, plan.rig_config_path(file).as_deref())
+        .map_err(|e| RunError::Rig(format!("the rig's colour calibration: {e}")))?;
+    manifest.calibration = Some(calibration_record(&v.rig, color_file.as_ref(), req.light.as_ref()));
     let ds_err = |source| RunError::Dataset { dir: req.out.clone(), source };
     let (dataset, resumed, run_skips, repaired) = match Dataset::create(&req.out, manifest) {
         Ok(d) => (d, false, BTreeMap::new(), None),
@@ -518,11 +521,8 @@ pub fn run(
         skipped,
         critical_path_s: schedule.critical_path_s,
         naive_order_hardware_s: schedule.naive_order_hardware_s,
-        // The colour calibration's held-out CIEDE2000 (an unreadable file fails the run below).
-        color_held_out: btfrig_calibrate::color::processing_color(&v.rig, plan.rig_config_path(file).as_deref())
-            .ok()
-            .flatten()
-            .map(|f| (f.statistics.held_out_mean, f.statistics.held_out_max)),
+        // The colour calibration's held-out CIEDE2000.
+        color_held_out: color_file.as_ref().map(|f| (f.statistics.held_out_mean, f.statistics.held_out_max)),
     };
     if to_do == 0 {
         return Ok(summarise(&fixed, &dataset, &previous, None, RunOutcome::NothingToDo));
@@ -567,16 +567,10 @@ pub fn run(
     let camera = btfrig_calibrate::processing_camera(&v.rig, plan.rig_config_path(file).as_deref())
         .map_err(|e| RunError::Rig(format!("the rig's camera calibration: {e}")))?;
     // The colour calibration textures are converted with (`[camera] color_calibration`).
-    let color = btfrig_calibrate::color::processing_color(&v.rig, plan.rig_config_path(file).as_deref())
-        .map_err(|e| RunError::Rig(format!("the rig's colour calibration: {e}")))?
-        .map(|f| {
-            let model = f.to_model().expect("checked when read");
-            btfrig_pipeline::color::ColorCorrection {
-                name: f.source.plan.clone(),
-                white_balance: f.white_balance,
-                model,
-            }
-        });
+    let color = color_file.map(|f| {
+        let model = f.to_model().expect("checked when read");
+        btfrig_pipeline::color::ColorCorrection { name: f.source.plan.clone(), white_balance: f.white_balance, model }
+    });
     let commands = control.take().ok_or_else(|| RunError::Rig("this RunControl already drives a run".into()))?;
     let dataset = Arc::new(dataset);
     let rt = virtual_time_runtime()?;
@@ -655,6 +649,38 @@ struct Fixed {
     naive_order_hardware_s: f64,
     /// Held-out CIEDE2000 (mean, max) of the colour calibration in use.
     color_held_out: Option<(f64, f64)>,
+}
+
+/// What the manifest records of the calibrations a run processes its frames with
+/// (`docs/dataset-format.md`): which geometric and colour calibration the rig config names,
+/// the colour model and its held-out error, the light calibration; `null` where the run uses
+/// the rig model's own values.
+fn calibration_record(
+    rig: &btfrig_core::config::RigConfig,
+    color: Option<&btfrig_calibrate::color::ColorCalibrationFile>,
+    light: Option<&btfrig_pipeline::light::LightCorrection>,
+) -> serde_json::Value {
+    json!({
+        "geometry": rig.camera.calibration,
+        "color": color.map(|f| json!({
+            "reference": rig.camera.color_calibration,
+            "model": f.model,
+            "output": f.output,
+            "white_balance": f.white_balance,
+            "charts": f.source.charts.iter().map(|c| serde_json::to_value(c).unwrap_or_default()).collect::<Vec<_>>(),
+            "fit_patches": f.source.fit_patches,
+            "held_out_patches": f.source.held_out_patches,
+            "held_out_delta_e00_mean": f.statistics.held_out_mean,
+            "held_out_delta_e00_max": f.statistics.held_out_max,
+        })),
+        "light": light.map(|l| json!({
+            "light": l.reference.light,
+            "white_rate_e_per_s": l.reference.white_rate,
+            "plate_albedo": l.reference.plate_albedo,
+            "drift_corrected": l.correct_drift,
+        })),
+        "dark_flat": null,
+    })
 }
 
 fn summarise(

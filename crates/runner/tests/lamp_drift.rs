@@ -68,6 +68,20 @@ fn run_one(name: &str, faults: Option<&str>, light: Option<LightCorrection>) -> 
     let steps = if req.light.is_some() { 12 } else { 0 };
     assert!(report["lamp"]["steps"].as_array().is_some_and(|a| a.len() == steps), "{}", report["lamp"]);
     assert!(report["lamp"]["brightness_err_abs_max"].as_f64().is_some(), "{}", report["lamp"]);
+    // The manifest records the calibrations the frames were processed with.
+    let manifest: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("dataset/manifest.json")).unwrap()).unwrap();
+    let cal = &manifest["calibration"];
+    assert_eq!(cal["geometry"], "builtin:bonn-gonio-sim-geometry", "{cal}");
+    assert_eq!(cal["color"]["reference"], "builtin:bonn-gonio-sim-color", "{cal}");
+    assert!(cal["color"]["held_out_delta_e00_mean"].as_f64().is_some_and(|d| d > 0.0 && d < 1.5), "{cal}");
+    match &req.light {
+        Some(l) => {
+            assert_eq!(cal["light"]["light"], l.reference.light.as_str(), "{cal}");
+            assert_eq!(cal["light"]["drift_corrected"], l.correct_drift, "{cal}");
+        }
+        None => assert!(cal["light"].is_null(), "{cal}"),
+    }
     (s.hardware_s, s.lamp.expect("a simulated run measures brightness"))
 }
 
