@@ -1,0 +1,612 @@
+//! Demultiplexing `x = S⁻¹ m` per column of a pattern-major stack, three ways.
+//!
+//! With `N = n + 1` and the closed form `S⁻¹ = 2/N (2 Sᵀ − J)`:
+//!
+//! * **Fast Walsh–Hadamard** (Sylvester orders, `O(n log n)` per column). With
+//!   `H[a][b] = (−1)^popcount(a & b)` of order `N` and `x = (0, m_0, …, m_{n−1})`,
+//!   `(H x)_{j+1} = Σm − 2 (Sᵀ m)_j`, so
+//!   `S⁻¹ m = −(2/N) · (H x)_{1..N}` and `S m = ((H x)_0 − (H x)_{1..N}) / 2`.
+//!   The transform runs in place on the tile's rows (radix-4 passes, one radix-2 pass when
+//!   `log₂ N` is odd), each butterfly an element-wise add/subtract of two runs of `tile`
+//!   values, so it vectorises over pixels and never transposes.
+//! * **FFT circular convolution** (cyclic Paley and twin-prime orders, `O(n log n)` per column).
+//!   `S[i][j] = s[(j − i) mod n]`, so `Sᵀ m = s ⊛ m` (circular convolution) and
+//!   `S m = s ⋆ m` (circular correlation). With the DFT `K = F s` and `M = F m`:
+//!   `F(S⁻¹ m) = G · M` with `G_k = 2/N · (2 K_k − n δ_k)` (the `J` term only touches bin 0,
+//!   where `M_0 = Σm`), and `F(S m) = conj(K) · M`. Two real columns ride in one complex
+//!   FFT (real and imaginary part; `G` and `K` are the spectra of real sequences, so the two
+//!   stay apart). The tile is transposed into the FFT buffer and back.
+//! * **Dense** (any order, `O(n²)` per column): `Y = S⁻¹ X` as a matrix product
+//!   (nalgebra → matrixmultiply) on the gathered tile, either pattern-major (`X` is
+//!   `tile × n` column-major: a plain copy of the tile's runs, `Y = X S⁻ᵀ`) or pixel-major
+//!   (`X` is `n × tile`: a transposing gather, `Y = S⁻¹ X`).
+//!
+//! Accumulation is f32 (the data type) or f64 ([`Accumulate`]); the f64 variants gather the
+//! tile into an f64 scratch and round once at the end. `tests/demux.rs` measures f32 against
+//! f64 and both against the dense f64 closed form.
+
+use std::sync::Arc;
+
+use nalgebra::{DMatrix, DMatrixView, DMatrixViewMut};
+use rustfft::num_complex::Complex;
+use rustfft::{Fft, FftNum, FftPlanner};
+
+use crate::error::MuxError;
+use crate::smatrix::{Construction, SMatrix};
+use crate::tile::{check_shape, for_each_tile, Par};
+
+/// Which algorithm applies `S⁻¹` (or `S`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Method {
+    /// Fast Walsh–Hadamard transform (Sylvester orders only).
+    Fwht,
+    /// FFT circular convolution (cyclic orders only).
+    Fft,
+    /// Dense matrix product with the closed-form inverse, in the given tile layout.
+    Dense(DenseLayout),
+}
+
+impl Method {
+    /// Short name for tables: `fwht`, `fft`, `dense-pattern`, `dense-pixel`.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Method::Fwht => "fwht",
+            Method::Fft => "fft",
+            Method::Dense(DenseLayout::PatternMajor) => "dense-pattern",
+            Method::Dense(DenseLayout::PixelMajor) => "dense-pixel",
+        }
+    }
+
+    /// The fast method for a construction: FWHT for Sylvester, FFT for the cyclic ones.
+    pub fn fast_for(c: Construction) -> Method {
+        if c.is_cyclic() {
+            Method::Fft
+        } else {
+            Method::Fwht
+        }
+    }
+}
+
+/// Memory layout of a tile handed to the dense matrix product.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DenseLayout {
+    /// The tile's runs copied as they are: `X` is `tile × n` column-major, `Y = X S⁻ᵀ`.
+    PatternMajor,
+    /// Transposed on gather: `X` is `n × tile` column-major (each pixel's vector
+    /// contiguous), `Y = S⁻¹ X`.
+    PixelMajor,
+}
+
+/// Floating-point type the arithmetic runs in (data are always f32).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Accumulate {
+    /// f32 throughout.
+    #[default]
+    F32,
+    /// Gather the tile to f64, round once at the end.
+    F64,
+}
+
+/// Tuning of a [`Demuxer`]; `Default` picks the fast method for the construction and a tile
+/// size that keeps a tile within about 256 KiB.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct DemuxParams {
+    /// The method; `None` = [`Method::fast_for`] the construction.
+    pub method: Option<Method>,
+    /// Columns per tile; 0 = automatic.
+    pub tile: usize,
+    /// Accumulation precision.
+    pub accumulate: Accumulate,
+}
+
+/// A plan that applies `S⁻¹` (demultiplex) or `S` (multiplex) to every column of a
+/// pattern-major stack. Build once per S-matrix, reuse for every view.
+pub struct Demuxer {
+    n: usize,
+    construction: Construction,
+    method: Method,
+    tile: usize,
+    accumulate: Accumulate,
+    kernel: Kernel,
+}
+
+impl std::fmt::Debug for Demuxer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Demuxer")
+            .field("n", &self.n)
+            .field("construction", &self.construction)
+            .field("method", &self.method)
+            .field("tile", &self.tile)
+            .field("accumulate", &self.accumulate)
+            .finish_non_exhaustive()
+    }
+}
+
+enum Kernel {
+    Fwht,
+    Fft32(FftKernel<f32>),
+    Fft64(FftKernel<f64>),
+    /// `inv`/`fwd` are `S⁻¹`/`S`, transposed for the pattern-major layout.
+    Dense {
+        layout: DenseLayout,
+        inv: DMatrix<f64>,
+        fwd: DMatrix<f64>,
+        inv32: DMatrix<f32>,
+        fwd32: DMatrix<f32>,
+    },
+}
+
+struct FftKernel<F: FftNum> {
+    fwd: Arc<dyn Fft<F>>,
+    inv: Arc<dyn Fft<F>>,
+    /// Spectrum multiplier of the demultiplex (normalisation included).
+    g_demux: Vec<Complex<F>>,
+    /// Spectrum multiplier of the multiplex `S m`.
+    g_mux: Vec<Complex<F>>,
+    scratch_len: usize,
+}
+
+/// Per-thread workspace of a [`Demuxer`] (one block per thread of the [`Par`] it was made
+/// for). Make it with [`Demuxer::scratch`]; reuse across calls.
+#[derive(Debug, Default)]
+pub struct DemuxScratch {
+    blocks: Vec<BlockScratch>,
+}
+
+#[derive(Debug, Default)]
+struct BlockScratch {
+    r32: Vec<f32>,
+    r64: Vec<f64>,
+    c32: Vec<Complex<f32>>,
+    c64: Vec<Complex<f64>>,
+    f32s: Vec<Complex<f32>>,
+    f64s: Vec<Complex<f64>>,
+    x32: Vec<f32>,
+    y32: Vec<f32>,
+    x64: Vec<f64>,
+    y64: Vec<f64>,
+}
+
+impl DemuxScratch {
+    /// Number of per-thread blocks.
+    pub fn blocks(&self) -> usize {
+        self.blocks.len()
+    }
+}
+
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Dir {
+    Demux,
+    Mux,
+}
+
+impl Demuxer {
+    /// Plans the demultiplexing of `s` with `params`; [`MuxError::MethodUnsupported`] when
+    /// the method does not fit the construction (FWHT needs Sylvester, FFT a cyclic order).
+    pub fn new(s: &SMatrix, params: &DemuxParams) -> Result<Demuxer, MuxError> {
+        let c = s.construction();
+        let n = s.order();
+        let method = params.method.unwrap_or(Method::fast_for(c));
+        let kernel = match method {
+            Method::Fwht => {
+                if c.is_cyclic() {
+                    return Err(MuxError::MethodUnsupported {
+                        method: "fwht",
+                        construction: c.name(),
+                        order: n,
+                        allowed: "Sylvester orders 2^k - 1",
+                    });
+                }
+                Kernel::Fwht
+            }
+            Method::Fft => {
+                let Some(row) = s.first_row() else {
+                    return Err(MuxError::MethodUnsupported {
+                        method: "fft",
+                        construction: c.name(),
+                        order: n,
+                        allowed: "cyclic constructions (Paley, twin prime)",
+                    });
+                };
+                match params.accumulate {
+                    Accumulate::F32 => Kernel::Fft32(FftKernel::new(row)),
+                    Accumulate::F64 => Kernel::Fft64(FftKernel::new(row)),
+                }
+            }
+            Method::Dense(layout) => {
+                let mut inv = DMatrix::from_row_slice(n, n, &s.inverse_dense());
+                let dense: Vec<f64> = s.to_dense().into_iter().map(f64::from).collect();
+                let mut fwd = DMatrix::from_row_slice(n, n, &dense);
+                if layout == DenseLayout::PatternMajor {
+                    // Y = X Aᵀ: keep the transposes.
+                    inv = inv.transpose();
+                    fwd = fwd.transpose();
+                }
+                let inv32 = inv.map(|v| v as f32);
+                let fwd32 = fwd.map(|v| v as f32);
+                Kernel::Dense { layout, inv, fwd, inv32, fwd32 }
+            }
+        };
+        let tile = if params.tile > 0 {
+            params.tile
+        } else {
+            match method {
+                // About 256 KiB of f32 per tile (the rows of N = n + 1 runs).
+                Method::Fwht => ((65536 / (n + 1)).clamp(16, 1024) / 16) * 16,
+                Method::Fft => 128,
+                Method::Dense(_) => 512,
+            }
+        };
+        Ok(Demuxer { n, construction: c, method, tile, accumulate: params.accumulate, kernel })
+    }
+
+    /// The order.
+    pub fn order(&self) -> usize {
+        self.n
+    }
+
+    /// The method in use.
+    pub fn method(&self) -> Method {
+        self.method
+    }
+
+    /// Columns per tile.
+    pub fn tile(&self) -> usize {
+        self.tile
+    }
+
+    /// The accumulation precision.
+    pub fn accumulate(&self) -> Accumulate {
+        self.accumulate
+    }
+
+    /// A workspace for calls with `par`.
+    pub fn scratch(&self, par: Par) -> DemuxScratch {
+        let (n, t) = (self.n, self.tile);
+        let blocks = (0..par.blocks())
+            .map(|_| {
+                let mut b = BlockScratch::default();
+                match (&self.kernel, self.accumulate) {
+                    (Kernel::Fwht, Accumulate::F32) => b.r32 = vec![0.0; t],
+                    (Kernel::Fwht, Accumulate::F64) => b.r64 = vec![0.0; (n + 1) * t],
+                    (Kernel::Fft32(k), _) => {
+                        b.c32 = vec![Complex::default(); t.div_ceil(2) * n];
+                        b.f32s = vec![Complex::default(); k.scratch_len];
+                    }
+                    (Kernel::Fft64(k), _) => {
+                        b.c64 = vec![Complex::default(); t.div_ceil(2) * n];
+                        b.f64s = vec![Complex::default(); k.scratch_len];
+                    }
+                    (Kernel::Dense { .. }, Accumulate::F32) => {
+                        b.x32 = vec![0.0; t * n];
+                        b.y32 = vec![0.0; t * n];
+                    }
+                    (Kernel::Dense { .. }, Accumulate::F64) => {
+                        b.x64 = vec![0.0; t * n];
+                        b.y64 = vec![0.0; t * n];
+                    }
+                }
+                b
+            })
+            .collect();
+        DemuxScratch { blocks }
+    }
+
+    /// Demultiplexes in place: `data` holds `n` frames of `cols` values (pattern-major) and
+    /// afterwards `n` single-source images of `cols` values, image `j` where frame `j` was.
+    pub fn demux_in_place(
+        &self,
+        data: &mut [f32],
+        cols: usize,
+        scratch: &mut DemuxScratch,
+        par: Par,
+    ) -> Result<(), MuxError> {
+        self.run(data, cols, scratch, par, Dir::Demux)
+    }
+
+    /// Multiplexes in place: `n` single-source images in, the `n` pattern frames `S x` out
+    /// (for simulation and tests).
+    pub fn multiplex_in_place(
+        &self,
+        data: &mut [f32],
+        cols: usize,
+        scratch: &mut DemuxScratch,
+        par: Par,
+    ) -> Result<(), MuxError> {
+        self.run(data, cols, scratch, par, Dir::Mux)
+    }
+
+    /// Demultiplexes a copy of `frames` (owning convenience; sequential).
+    pub fn demux(&self, frames: &[f32], cols: usize) -> Result<Vec<f32>, MuxError> {
+        let mut out = frames.to_vec();
+        let mut scratch = self.scratch(Par::Seq);
+        self.demux_in_place(&mut out, cols, &mut scratch, Par::Seq)?;
+        Ok(out)
+    }
+
+    /// Multiplexes a copy of `images` (owning convenience; sequential).
+    pub fn multiplex(&self, images: &[f32], cols: usize) -> Result<Vec<f32>, MuxError> {
+        let mut out = images.to_vec();
+        let mut scratch = self.scratch(Par::Seq);
+        self.multiplex_in_place(&mut out, cols, &mut scratch, Par::Seq)?;
+        Ok(out)
+    }
+
+    fn run(
+        &self,
+        data: &mut [f32],
+        cols: usize,
+        scratch: &mut DemuxScratch,
+        par: Par,
+        dir: Dir,
+    ) -> Result<(), MuxError> {
+        check_shape("demux stack", data.len(), self.n, cols)?;
+        if scratch.blocks.len() != par.blocks() {
+            *scratch = self.scratch(par);
+        }
+        let (n, acc) = (self.n, self.accumulate);
+        let blocks = &mut scratch.blocks[..];
+        match &self.kernel {
+            Kernel::Fwht => for_each_tile(data, n, cols, self.tile, blocks, |rows, s| match acc {
+                Accumulate::F32 => fwht_tile_f32(rows, &mut s.r32, dir),
+                Accumulate::F64 => fwht_tile_f64(rows, &mut s.r64, dir),
+            }),
+            Kernel::Fft32(k) => {
+                for_each_tile(data, n, cols, self.tile, blocks, |rows, s| k.tile(rows, &mut s.c32, &mut s.f32s, dir))
+            }
+            Kernel::Fft64(k) => {
+                for_each_tile(data, n, cols, self.tile, blocks, |rows, s| k.tile(rows, &mut s.c64, &mut s.f64s, dir))
+            }
+            Kernel::Dense { layout, inv, fwd, inv32, fwd32 } => {
+                let layout = *layout;
+                for_each_tile(data, n, cols, self.tile, blocks, |rows, s| match acc {
+                    Accumulate::F32 => {
+                        let a = if dir == Dir::Demux { inv32 } else { fwd32 };
+                        dense_tile(rows, a, layout, &mut s.x32, &mut s.y32)
+                    }
+                    Accumulate::F64 => {
+                        let a = if dir == Dir::Demux { inv } else { fwd };
+                        dense_tile(rows, a, layout, &mut s.x64, &mut s.y64)
+                    }
+                })
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The arithmetic the kernels are generic over.
+pub(crate) trait Real:
+    FftNum + Copy + std::ops::Add<Output = Self> + std::ops::Sub<Output = Self> + std::ops::Mul<Output = Self>
+{
+    fn of_f32(x: f32) -> Self;
+    fn of_f64(x: f64) -> Self;
+    fn to_f32(self) -> f32;
+}
+
+impl Real for f32 {
+    #[inline(always)]
+    fn of_f32(x: f32) -> f32 {
+        x
+    }
+    #[inline(always)]
+    fn of_f64(x: f64) -> f32 {
+        x as f32
+    }
+    #[inline(always)]
+    fn to_f32(self) -> f32 {
+        self
+    }
+}
+
+impl Real for f64 {
+    #[inline(always)]
+    fn of_f32(x: f32) -> f64 {
+        f64::from(x)
+    }
+    #[inline(always)]
+    fn of_f64(x: f64) -> f64 {
+        x
+    }
+    #[inline(always)]
+    fn to_f32(self) -> f32 {
+        self as f32
+    }
+}
+
+/// In-place unnormalised Walsh–Hadamard transform across the rows `v` (`v.len()` a power of
+/// two), element-wise along the runs.
+pub(crate) fn wht_rows<T: Real>(v: &mut [&mut [T]]) {
+    let n = v.len();
+    debug_assert!(n.is_power_of_two());
+    let mut h = 1;
+    while 4 * h <= n {
+        for start in (0..n).step_by(4 * h) {
+            for i in start..start + h {
+                let (lo, rest) = v.split_at_mut(i + h);
+                let (b, rest) = rest.split_at_mut(h);
+                let (c, d) = rest.split_at_mut(h);
+                radix4(&mut lo[i], &mut b[0], &mut c[0], &mut d[0]);
+            }
+        }
+        h *= 4;
+    }
+    if 2 * h <= n {
+        for i in 0..h {
+            let (lo, hi) = v.split_at_mut(i + h);
+            radix2(&mut lo[i], &mut hi[0]);
+        }
+    }
+}
+
+#[inline(always)]
+fn radix2<T: Real>(a: &mut [T], b: &mut [T]) {
+    let len = a.len();
+    let b = &mut b[..len];
+    for k in 0..len {
+        let (x, y) = (a[k], b[k]);
+        a[k] = x + y;
+        b[k] = x - y;
+    }
+}
+
+#[inline(always)]
+fn radix4<T: Real>(a: &mut [T], b: &mut [T], c: &mut [T], d: &mut [T]) {
+    let len = a.len();
+    let (b, c, d) = (&mut b[..len], &mut c[..len], &mut d[..len]);
+    for k in 0..len {
+        let (w, x, y, z) = (a[k], b[k], c[k], d[k]);
+        let (s0, d0, s1, d1) = (w + x, w - x, y + z, y - z);
+        a[k] = s0 + s1;
+        b[k] = d0 + d1;
+        c[k] = s0 - s1;
+        d[k] = d0 - d1;
+    }
+}
+
+fn fwht_tile_f32(rows: &mut [&mut [f32]], zero: &mut [f32], dir: Dir) {
+    let t = rows[0].len();
+    let big = rows.len() + 1;
+    let zero = &mut zero[..t];
+    zero.fill(0.0);
+    let mut v: Vec<&mut [f32]> = Vec::with_capacity(big);
+    v.push(zero);
+    for r in rows.iter_mut() {
+        v.push(&mut r[..]);
+    }
+    wht_rows(&mut v);
+    let (head, tail) = v.split_at_mut(1);
+    match dir {
+        Dir::Demux => {
+            let c = -2.0 / big as f32;
+            for r in tail.iter_mut() {
+                r.iter_mut().for_each(|x| *x *= c);
+            }
+        }
+        Dir::Mux => {
+            let h0 = &head[0];
+            for r in tail.iter_mut() {
+                r.iter_mut().zip(h0.iter()).for_each(|(x, s)| *x = 0.5 * (*s - *x));
+            }
+        }
+    }
+}
+
+fn fwht_tile_f64(rows: &mut [&mut [f32]], buf: &mut [f64], dir: Dir) {
+    let t = rows[0].len();
+    let big = rows.len() + 1;
+    let buf = &mut buf[..big * t];
+    buf[..t].fill(0.0);
+    for (dst, src) in buf[t..].chunks_mut(t).zip(rows.iter()) {
+        dst.iter_mut().zip(src.iter()).for_each(|(d, s)| *d = f64::from(*s));
+    }
+    let mut v: Vec<&mut [f64]> = buf.chunks_mut(t).collect();
+    wht_rows(&mut v);
+    let h0: Vec<f64> = v[0].to_vec();
+    for (dst, src) in rows.iter_mut().zip(v[1..].iter()) {
+        match dir {
+            Dir::Demux => {
+                let c = -2.0 / big as f64;
+                dst.iter_mut().zip(src.iter()).for_each(|(d, s)| *d = (c * s) as f32);
+            }
+            Dir::Mux => {
+                dst.iter_mut().zip(src.iter().zip(&h0)).for_each(|(d, (s, z))| *d = (0.5 * (z - s)) as f32);
+            }
+        }
+    }
+}
+
+impl<F: Real> FftKernel<F> {
+    fn new(first_row: &[u8]) -> FftKernel<F> {
+        let n = first_row.len();
+        let mut planner = FftPlanner::<F>::new();
+        let fwd = planner.plan_fft_forward(n);
+        let inv = planner.plan_fft_inverse(n);
+        // The kernel spectrum in f64 whatever F is: K_k = Σ_j s_j e^{-2πi jk/n}.
+        let mut k64: Vec<Complex<f64>> = first_row.iter().map(|&b| Complex::new(f64::from(b), 0.0)).collect();
+        FftPlanner::<f64>::new().plan_fft_forward(n).process(&mut k64);
+        let nf = n as f64;
+        let c = 2.0 / (nf + 1.0) / nf;
+        let g_demux = k64
+            .iter()
+            .enumerate()
+            .map(|(k, v)| {
+                let re = if k == 0 { 2.0 * v.re - nf } else { 2.0 * v.re };
+                Complex::new(F::of_f64(c * re), F::of_f64(c * 2.0 * v.im))
+            })
+            .collect();
+        let g_mux = k64.iter().map(|v| Complex::new(F::of_f64(v.re / nf), F::of_f64(-v.im / nf))).collect();
+        let scratch_len = fwd.get_inplace_scratch_len().max(inv.get_inplace_scratch_len());
+        FftKernel { fwd, inv, g_demux, g_mux, scratch_len }
+    }
+
+    fn tile(&self, rows: &mut [&mut [f32]], buf: &mut [Complex<F>], scratch: &mut [Complex<F>], dir: Dir) {
+        let n = rows.len();
+        let t = rows[0].len();
+        let h = t.div_ceil(2);
+        let buf = &mut buf[..h * n];
+        // Gather: column q in the real part, column q + h in the imaginary part.
+        for (p, r) in rows.iter().enumerate() {
+            let (re, im) = r.split_at(h);
+            for q in 0..h {
+                let i = im.get(q).map_or(F::zero(), |&v| F::of_f32(v));
+                buf[q * n + p] = Complex::new(F::of_f32(re[q]), i);
+            }
+        }
+        self.fwd.process_with_scratch(buf, scratch);
+        let g = if dir == Dir::Demux { &self.g_demux } else { &self.g_mux };
+        for chunk in buf.chunks_mut(n) {
+            chunk.iter_mut().zip(g.iter()).for_each(|(x, g)| *x = *x * *g);
+        }
+        self.inv.process_with_scratch(buf, scratch);
+        for (p, r) in rows.iter_mut().enumerate() {
+            let (re, im) = r.split_at_mut(h);
+            for q in 0..h {
+                let v = buf[q * n + p];
+                re[q] = v.re.to_f32();
+                if let Some(x) = im.get_mut(q) {
+                    *x = v.im.to_f32();
+                }
+            }
+        }
+    }
+}
+
+/// Dense tile product `Y = A X` per column, in the given layout.
+fn dense_tile<T>(rows: &mut [&mut [f32]], a: &DMatrix<T>, layout: DenseLayout, x: &mut [T], y: &mut [T])
+where
+    T: Real + nalgebra::RealField,
+{
+    let n = rows.len();
+    let t = rows[0].len();
+    let (x, y) = (&mut x[..t * n], &mut y[..t * n]);
+    match layout {
+        DenseLayout::PatternMajor => {
+            for (dst, src) in x.chunks_mut(t).zip(rows.iter()) {
+                dst.iter_mut().zip(src.iter()).for_each(|(d, s)| *d = T::of_f32(*s));
+            }
+            let xm = DMatrixView::from_slice(x, t, n);
+            let mut ym = DMatrixViewMut::from_slice(y, t, n);
+            // Y (t x n) = X (t x n) · Aᵀ; `a` holds Aᵀ for this layout.
+            ym.gemm(T::one(), &xm, a, T::zero());
+            for (dst, src) in rows.iter_mut().zip(y.chunks(t)) {
+                dst.iter_mut().zip(src.iter()).for_each(|(d, s)| *d = s.to_f32());
+            }
+        }
+        DenseLayout::PixelMajor => {
+            for (p, src) in rows.iter().enumerate() {
+                for (q, v) in src.iter().enumerate() {
+                    x[q * n + p] = T::of_f32(*v);
+                }
+            }
+            let xm = DMatrixView::from_slice(x, n, t);
+            let mut ym = DMatrixViewMut::from_slice(y, n, t);
+            ym.gemm(T::one(), a, &xm, T::zero());
+            for (p, dst) in rows.iter_mut().enumerate() {
+                for (q, d) in dst.iter_mut().enumerate() {
+                    *d = y[q * n + p].to_f32();
+                }
+            }
+        }
+    }
+}
