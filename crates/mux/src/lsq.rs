@@ -20,7 +20,8 @@
 //!
 //! **Detection** ([`detect_faults`], from the nominal demultiplexed images on a sample of
 //! columns): per source the mean `μ_j` of `c_j / a_j`, its standard error and `z = μ/se`, and
-//! `μ_j / median(μ)`. A source darker than `suspect_ratio` of the median is *dead* when `|z|` is
+//! `μ_j / median(μ)`. A source darker than `suspect_ratio` of the median, and significantly so
+//! (`median − μ_j >= z_zero · se_j`, so noise alone never makes a suspect), is *dead* when `|z|` is
 //! below `z_zero` (statistically no light), *stuck* when rescaling by `(n+1)/2` brings it back
 //! into the plausible range of the others and (if the code has always-off slots) the slots
 //! show the matching offset `c_v ≈ c_j`, else *dim* (reported, left alone).
@@ -446,13 +447,14 @@ pub fn detect_faults(
         let (m, sd) = mean_sd(x);
         z_of(m, sd, count)
     });
-    let stats: Vec<(usize, f64, f64, Vec<f64>)> = physical
+    // (source, mean, z, standard error, raw sample).
+    let stats: Vec<(usize, f64, f64, f64, Vec<f64>)> = physical
         .iter()
         .map(|&j| {
             let raw = sample(j);
             let scaled: Vec<f64> = raw.iter().map(|v| v / intensities[j]).collect();
             let (m, sd) = mean_sd(&scaled);
-            (j, m, z_of(m, sd, count), raw)
+            (j, m, z_of(m, sd, count), sd / (count as f64).sqrt(), raw)
         })
         .collect();
     let mut means: Vec<f64> = stats.iter().map(|s| s.1).collect();
@@ -463,9 +465,11 @@ pub fn detect_faults(
     }
     let half = (n as f64 + 1.0) / 2.0;
     let mut faults = Vec::new();
-    for (j, m, z, raw) in &stats {
+    for (j, m, z, se, raw) in &stats {
         let rel = m / median;
-        if rel >= params.suspect_ratio {
+        // A suspect is darker than suspect_ratio of the median, and significantly so (noise
+        // alone must not make a source look dark).
+        if rel >= params.suspect_ratio || (median - m) < params.z_zero * se {
             continue;
         }
         let corr = slot_img.as_ref().map(|x| correlation(raw, x));

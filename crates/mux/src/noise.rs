@@ -211,9 +211,9 @@ pub fn predict(sensor: &SensorNoise, scene: &SceneLight, mode: Mode) -> Result<P
     validate(sensor, scene)?;
     let n = scene.sources;
     let budget = n as f64 * scene.exposure_s;
-    // (frames, physical lit per frame, design MSE factor tr[(WᵀW)⁻¹]/n).
-    let (frames, lit, factor) = match mode {
-        Mode::Single => (n, 1.0, 1.0),
+    // (frames, mean physical lit per frame, most lit in a frame, design MSE factor tr[(WᵀW)⁻¹]/n).
+    let (frames, lit, lit_max, factor) = match mode {
+        Mode::Single => (n, 1.0, 1.0, 1.0),
         Mode::SMatrix { order } => {
             if order < n {
                 return Err(MuxError::OutOfRange {
@@ -223,7 +223,7 @@ pub fn predict(sensor: &SensorNoise, scene: &SceneLight, mode: Mode) -> Result<P
                 });
             }
             let half = order.div_ceil(2) as f64;
-            (order, half * n as f64 / order as f64, design_factor(order, half))
+            (order, half * n as f64 / order as f64, half.min(n as f64), design_factor(order, half))
         }
         Mode::Grouped { order, groups } => {
             if order * groups < n || order < 1 {
@@ -234,15 +234,15 @@ pub fn predict(sensor: &SensorNoise, scene: &SceneLight, mode: Mode) -> Result<P
                 });
             }
             let half = order.div_ceil(2) as f64;
-            (order * groups, half * n as f64 / (order * groups) as f64, design_factor(order, half))
+            (order * groups, half * n as f64 / (order * groups) as f64, half.min(n as f64), design_factor(order, half))
         }
     };
     let rate = scene.led_e_per_s * scene.brightness;
     let peak = scene.led_e_per_s * scene.brightness_max;
     let t_share = budget / frames as f64;
-    // Saturation: lit · peak · t + dark · t <= well_fraction · full well (conservative: the
-    // brightest source's level for every lit source).
-    let t_sat = scene.well_fraction * sensor.full_well_e / (lit.max(1.0) * peak + sensor.dark_current_e_per_s);
+    // Saturation: the fullest frame, lit_max · peak · t + dark · t <= well_fraction · full
+    // well (conservative: the brightest source's level for every lit source).
+    let t_sat = scene.well_fraction * sensor.full_well_e / (lit_max * peak + sensor.dark_current_e_per_s);
     let t = t_share.min(t_sat);
     let kappa2 = sensor.kappa2(t);
     let q = rate * t;
