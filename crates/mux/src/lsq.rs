@@ -23,8 +23,8 @@
 //! `μ_j / median(μ)`. A source darker than `suspect_ratio` of the median, and significantly so
 //! (`median − μ_j >= z_zero · se_j`, so noise alone never makes a suspect), is *dead* when `|z|` is
 //! below `z_zero` (statistically no light), *stuck* when rescaling by `(n+1)/2` brings it back
-//! into the plausible range of the others and (if the code has always-off slots) the slots
-//! show the matching offset `c_v ≈ c_j`, else *dim* (reported, left alone).
+//! into the plausible range of the others and (if the code has always-off slots) the slots'
+//! mean is consistent with the matching offset `c_v ≈ c_j`, else *dim* (reported, left alone).
 //!
 //! **Solving around**: [`Demultiplexer::run`] demultiplexes with the fast path, detects, and
 //! if there are faults re-solves in the demultiplexed domain: `î = W_f⁺ m = (W_f⁺ S) c`.
@@ -294,7 +294,7 @@ fn apply_tile<T: Real + nalgebra::RealField>(
 }
 
 /// What a fault is.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum FaultKind {
     /// Never lights.
     Dead,
@@ -325,11 +325,20 @@ pub struct FaultEvidence {
     pub z: f64,
     /// `relative_brightness · (n+1)/2`: the brightness if it is stuck.
     pub stuck_brightness: f64,
-    /// Correlation over the sampled columns between the source's nominal image and the mean
-    /// of the always-off slots' images (a stuck LED shows up in them), if the code has slots.
-    pub off_slot_correlation: Option<f64>,
+    /// Mean of the always-off slots' images over the mean of this source's nominal image (both
+    /// before dividing by intensities): about 1 for a stuck LED, if the code has slots.
+    pub off_slot_ratio: Option<f64>,
     /// `mean / standard error` of the always-off slots' mean image, if any.
     pub off_slot_z: Option<f64>,
+    /// `(slot mean − source mean) / standard error of the difference`: within `z_zero` when
+    /// the slots show the offset a stuck LED leaves, if any.
+    pub off_slot_consistency_z: Option<f64>,
+    /// Several LEDs showed only the common offset a stuck LED leaves: a stuck LED and dead
+    /// LEDs cannot be told apart by the data (the stuck light is the same constant in every
+    /// frame whichever LED emits it), so the most plausible one (restored brightness closest
+    /// to the median) is called stuck and the others dead. The other LEDs' images are the same
+    /// whichever is chosen.
+    pub ambiguous: bool,
 }
 
 /// A detected fault.
@@ -355,8 +364,11 @@ impl std::fmt::Display for Fault {
             e.z,
             e.stuck_brightness
         )?;
-        if let (Some(c), Some(z)) = (e.off_slot_correlation, e.off_slot_z) {
-            write!(f, ", always-off slots: correlation {c:.3}, z = {z:.1}")?;
+        if let (Some(c), Some(z)) = (e.off_slot_ratio, e.off_slot_z) {
+            write!(f, ", always-off slots: {c:.2} of its level (z = {z:.1})")?;
+        }
+        if e.ambiguous {
+            write!(f, " (ambiguous: several LEDs show only the stuck offset; which one is stuck cannot be told)")?;
         }
         Ok(())
     }
@@ -365,7 +377,8 @@ impl std::fmt::Display for Fault {
 /// Tuning of [`detect_faults`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FaultParams {
-    /// Columns sampled (evenly spaced; default 4096).
+    /// Columns sampled (evenly spaced; default 65536: the stuck signature is small, 2/(n+1)
+    /// of the LED's image, and needs many columns to stand out of the noise).
     pub sample_cols: usize,
     /// `|z|` below this = statistically no light (default 5).
     pub z_zero: f64,
@@ -375,20 +388,11 @@ pub struct FaultParams {
     /// Range of brightness relative to the median a restored stuck LED must fall in
     /// (default 0.1..10).
     pub plausible: (f64, f64),
-    /// Least correlation with the always-off slots a stuck LED must show when the code has
-    /// slots (default 0.5).
-    pub min_off_slot_correlation: f64,
 }
 
 impl Default for FaultParams {
     fn default() -> Self {
-        FaultParams {
-            sample_cols: 4096,
-            z_zero: 5.0,
-            suspect_ratio: 0.1,
-            plausible: (0.1, 10.0),
-            min_off_slot_correlation: 0.5,
-        }
+        FaultParams { sample_cols: 65536, z_zero: 5.0, suspect_ratio: 0.1, plausible: (0.1, 10.0) }
     }
 }
 
@@ -443,10 +447,7 @@ pub fn detect_faults(
         }
         acc
     });
-    let slot_z = slot_img.as_ref().map(|x| {
-        let (m, sd) = mean_sd(x);
-        z_of(m, sd, count)
-    });
+    let slot_stats = slot_img.as_ref().map(|x| mean_sd(x));
     // (source, mean, z, standard error, raw sample).
     let stats: Vec<(usize, f64, f64, f64, Vec<f64>)> = physical
         .iter()
@@ -472,19 +473,24 @@ pub fn detect_faults(
         if rel >= params.suspect_ratio || (median - m) < params.z_zero * se {
             continue;
         }
-        let corr = slot_img.as_ref().map(|x| correlation(raw, x));
+        let (raw_m, raw_sd) = mean_sd(raw);
+        let slot = slot_stats.map(|(sm, ssd)| {
+            let se_diff = ((ssd * ssd + raw_sd * raw_sd) / count as f64).sqrt();
+            let cz = if se_diff > 0.0 { (sm - raw_m) / se_diff } else { 0.0 };
+            (sm / raw_m, z_of(sm, ssd, count), cz)
+        });
         let evidence = FaultEvidence {
             relative_brightness: rel,
             z: *z,
             stuck_brightness: rel * half,
-            off_slot_correlation: corr,
-            off_slot_z: slot_z,
+            off_slot_ratio: slot.map(|s| s.0),
+            off_slot_z: slot.map(|s| s.1),
+            off_slot_consistency_z: slot.map(|s| s.2),
+            ambiguous: false,
         };
         let plausible = (params.plausible.0..=params.plausible.1).contains(&(rel * half));
-        let slots_agree = match (corr, slot_z) {
-            (Some(c), Some(sz)) => c >= params.min_off_slot_correlation && sz >= params.z_zero,
-            _ => true,
-        };
+        // A stuck LED leaves the same offset in the always-off slots as in its own image.
+        let slots_agree = slot.is_none_or(|s| s.2.abs() < params.z_zero);
         let kind = if z.abs() < params.z_zero {
             FaultKind::Dead
         } else if plausible && slots_agree {
@@ -494,17 +500,26 @@ pub fn detect_faults(
         };
         faults.push(Fault { source: *j, kind, evidence });
     }
-    Ok(faults)
-}
-
-fn correlation(a: &[f64], b: &[f64]) -> f64 {
-    let (ma, sa) = mean_sd(a);
-    let (mb, sb) = mean_sd(b);
-    if !(sa > 0.0 && sb > 0.0) {
-        return 0.0;
+    // At most one stuck LED is identifiable: keep the most plausible, call the rest dead.
+    let stuck: Vec<usize> = (0..faults.len()).filter(|&k| faults[k].kind == FaultKind::Stuck).collect();
+    if stuck.len() > 1 {
+        let best = stuck
+            .iter()
+            .copied()
+            .min_by(|&a, &b| {
+                let la = faults[a].evidence.stuck_brightness.ln().abs();
+                let lb = faults[b].evidence.stuck_brightness.ln().abs();
+                la.total_cmp(&lb)
+            })
+            .unwrap_or(stuck[0]);
+        for &k in &stuck {
+            faults[k].evidence.ambiguous = true;
+            if k != best {
+                faults[k].kind = FaultKind::Dead;
+            }
+        }
     }
-    let n = a.len().max(2) as f64;
-    a.iter().zip(b).map(|(x, y)| (x - ma) * (y - mb)).sum::<f64>() / ((n - 1.0) * sa * sb)
+    Ok(faults)
 }
 
 /// Tuning of the [`Demultiplexer`].

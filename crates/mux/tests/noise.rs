@@ -7,7 +7,7 @@ mod common;
 
 use btfrig_mux::noise::{break_even_ratio, design_factor, lit_gain, optimal_lit, s_matrix_gain};
 use btfrig_mux::{
-    choose, predict, ChooseParams, DemultiplexerParams, Demultiplexer, Mode, MuxError, SMatrix, SceneLight, SensorNoise,
+    choose, predict, ChooseParams, Demultiplexer, DemultiplexerParams, Mode, MuxError, SMatrix, SceneLight, SensorNoise,
 };
 use common::Sensor;
 use rand::Rng;
@@ -55,10 +55,8 @@ fn optimal_lit_count_matches_the_reference_table_at_n_199() {
     for (rho, c_star, c_brute, g_opt, g_s) in table {
         let c = optimal_lit(199, rho);
         assert!((c - c_star).abs() < 0.06, "rho {rho}: C* {c} vs {c_star}");
-        let (best_c, best_g) = (1..199usize)
-            .map(|c| (c, lit_gain(199, c as f64, rho)))
-            .max_by(|a, b| a.1.total_cmp(&b.1))
-            .unwrap();
+        let (best_c, best_g) =
+            (1..199usize).map(|c| (c, lit_gain(199, c as f64, rho))).max_by(|a, b| a.1.total_cmp(&b.1)).unwrap();
         assert_eq!(best_c, c_brute, "rho {rho}");
         assert!((best_g - g_opt).abs() < 0.006, "rho {rho}: G {best_g} vs {g_opt}");
         assert!((s_matrix_gain(199, rho) - g_s).abs() < 0.006, "rho {rho}: G_S vs {g_s}");
@@ -151,7 +149,15 @@ fn photon_noise_dominated_prediction_matches_and_the_chooser_picks_single_light(
 /// padded with always-off slots) at `exposure` relative to the single-light exposure, and
 /// returns the RMS error of the demultiplexed images against truth (rescaled to the single
 /// exposure).
-fn grouped_error(sources: usize, m: usize, truth: &[f64], pixels: usize, exposure: f64, sensor: &Sensor, seed: u64) -> f64 {
+fn grouped_error(
+    sources: usize,
+    m: usize,
+    truth: &[f64],
+    pixels: usize,
+    exposure: f64,
+    sensor: &Sensor,
+    seed: u64,
+) -> f64 {
     let s = SMatrix::of_order(m).unwrap();
     let w: Vec<f64> = s.to_dense().into_iter().map(f64::from).collect();
     let (mut sum, mut count) = (0.0, 0usize);
@@ -209,7 +215,10 @@ fn saturation_limited_scene_chooses_smaller_groups_and_the_simulation_agrees() {
     let e_full = grouped_error(n, 63, &truth, pixels, full.exposure_s / scene.exposure_s, &sensor, 2000);
     let e_group = grouped_error(n, order, &truth, pixels, c.best.exposure_s / scene.exposure_s, &sensor, 3000);
     let (g_full, g_group) = (e_single / e_full, e_single / e_group);
-    eprintln!("measured: full {g_full:.3} (predicted {:.3}), groups {groups} x {order} {g_group:.3} (predicted {:.3})", full.gain, c.best.gain);
+    eprintln!(
+        "measured: full {g_full:.3} (predicted {:.3}), groups {groups} x {order} {g_group:.3} (predicted {:.3})",
+        full.gain, c.best.gain
+    );
     assert!((g_full / full.gain - 1.0).abs() < 0.15, "full: measured {g_full}, predicted {}", full.gain);
     assert!((g_group / c.best.gain - 1.0).abs() < 0.15, "groups: measured {g_group}, predicted {}", c.best.gain);
     assert!(g_group > g_full && g_group > 1.0);
@@ -218,7 +227,14 @@ fn saturation_limited_scene_chooses_smaller_groups_and_the_simulation_agrees() {
 #[test]
 fn bad_noise_inputs_are_named() {
     let ns = SensorNoise { read_noise_e: -1.0, dn_per_e: 1.0, full_well_e: 1e4, dark_current_e_per_s: 0.0 };
-    let scene = SceneLight { sources: 10, led_e_per_s: 1.0, brightness: 1.0, brightness_max: 1.0, exposure_s: 1.0, well_fraction: 0.9 };
+    let scene = SceneLight {
+        sources: 10,
+        led_e_per_s: 1.0,
+        brightness: 1.0,
+        brightness_max: 1.0,
+        exposure_s: 1.0,
+        well_fraction: 0.9,
+    };
     let e = predict(&ns, &scene, Mode::Single).unwrap_err();
     assert!(matches!(e, MuxError::OutOfRange { what: "read_noise_e", .. }), "{e}");
     let ns = SensorNoise { read_noise_e: 1.0, ..ns };

@@ -5,7 +5,7 @@
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use rand_distr::{Distribution, Normal, Poisson};
+use rand_distr::{Distribution, Poisson};
 
 pub fn rng(seed: u64) -> ChaCha8Rng {
     ChaCha8Rng::seed_from_u64(seed)
@@ -29,16 +29,17 @@ impl Sensor {
     /// One photosite reading of mean `lambda` electrons, returned in electrons:
     /// `round(k · (min(Poisson(λ), well) + N(0, σ²))) / k`.
     pub fn read(&self, lambda: f64, r: &mut ChaCha8Rng) -> f64 {
+        let z: f64 = r.sample(rand_distr::StandardNormal);
+        // As the renderer: exact Poisson below 1000 e-, Gaussian (exact mean and variance) above.
         let shot = if lambda <= 0.0 {
             0.0
-        } else if lambda < 1e7 {
+        } else if lambda < 1000.0 {
             Poisson::new(lambda).unwrap().sample(r)
         } else {
-            lambda + lambda.sqrt() * Normal::new(0.0, 1.0).unwrap().sample(r)
+            lambda + lambda.sqrt() * r.sample::<f64, _>(rand_distr::StandardNormal)
         };
-        let e = shot.min(self.full_well_e) + self.read_noise_e * Normal::new(0.0, 1.0).unwrap().sample(r);
-        let dn = (e * self.dn_per_e).round().max(-1e9);
-        dn / self.dn_per_e
+        let e = shot.min(self.full_well_e) + self.read_noise_e * z;
+        (e * self.dn_per_e).round() / self.dn_per_e
     }
 }
 
@@ -90,4 +91,10 @@ pub fn bias_rows(a: &[f32], b: &[f64], cols: usize, rows: impl Iterator<Item = u
         }
     }
     s / k.max(1) as f64
+}
+
+/// Readings of the mean electron counts `lambda` (any layout).
+pub fn read_all(lambda: &[f64], sensor: &Sensor, seed: u64) -> Vec<f32> {
+    let mut r = rng(seed);
+    lambda.iter().map(|&l| sensor.read(l, &mut r) as f32).collect()
 }
