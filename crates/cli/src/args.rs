@@ -280,6 +280,9 @@ pub enum BenchCommand {
     Registration(BenchRegistrationArgs),
     /// Colour-correction models: fit and apply time against held-out CIEDE2000 (docs/color.md).
     Color(crate::bench_color::BenchColorArgs),
+    /// Demultiplexing S-matrix captures: fast transform vs dense inverse vs least squares,
+    /// time and error, against a plain memory pass (docs/multiplexing.md).
+    Demux(crate::bench_demux::BenchDemuxArgs),
 }
 
 /// `btfrig bench registration` (implemented in `bench_cmd.rs`).

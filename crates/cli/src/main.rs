@@ -3,6 +3,7 @@
 mod args;
 mod bench_cmd;
 mod bench_color;
+mod bench_demux;
 mod bench_registration;
 mod calibrate_cmd;
 mod calibrate_color_cmd;
@@ -47,6 +48,7 @@ fn main() -> std::process::ExitCode {
         }
         Command::Bench(BenchCommand::Registration(a)) => done(bench_cmd::registration(&a)),
         Command::Bench(BenchCommand::Color(a)) => done(bench_color::bench(&a)),
+        Command::Bench(BenchCommand::Demux(a)) => done(bench_demux::bench(&a)),
     };
     match result {
         Ok(code) => code,

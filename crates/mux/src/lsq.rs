@@ -258,6 +258,43 @@ impl LeastSquares {
         Ok(())
     }
 
+    /// Solves in place when frames and sources are as many (`data` is `n × cols`): each tile
+    /// is copied to scratch and overwritten with the images, so no second stack is needed.
+    pub fn solve_in_place(&self, data: &mut [f32], cols: usize, par: Par) -> Result<(), MuxError> {
+        if self.frames != self.sources {
+            return Err(MuxError::Shape {
+                what: "in-place least squares",
+                len: self.frames,
+                expected: self.sources,
+                shape: "frames must equal sources to solve in place".into(),
+            });
+        }
+        check_shape("least-squares stack", data.len(), self.frames, cols)?;
+        let pt = self.pinv.transpose();
+        let pt32 = pt.map(|v| v as f32);
+        let (f, u, t, acc) = (self.frames, self.pinv.nrows(), self.tile, self.accumulate);
+        let mut scratch: Vec<(Vec<f64>, Vec<f64>, Vec<f32>, Vec<f32>, Vec<f32>)> = (0..par.blocks())
+            .map(|_| match acc {
+                Accumulate::F64 => (vec![0.0; t * f], vec![0.0; t * u], Vec::new(), Vec::new(), vec![0.0; t * f]),
+                Accumulate::F32 => (Vec::new(), Vec::new(), vec![0.0; t * f], vec![0.0; t * u], vec![0.0; t * f]),
+            })
+            .collect();
+        let unknown = &self.unknown;
+        for_each_tile(data, f, cols, t, &mut scratch, |rows, s| {
+            let tt = rows[0].len();
+            let copy = &mut s.4[..tt * f];
+            for (dst, src) in copy.chunks_mut(tt).zip(rows.iter()) {
+                dst.copy_from_slice(src);
+            }
+            let tin: Vec<&[f32]> = copy.chunks(tt).collect();
+            match acc {
+                Accumulate::F64 => apply_tile(&tin, rows, unknown, &pt, &mut s.0, &mut s.1),
+                Accumulate::F32 => apply_tile(&tin, rows, unknown, &pt32, &mut s.2, &mut s.3),
+            }
+        });
+        Ok(())
+    }
+
     /// Owning [`LeastSquares::solve_into`] (sequential).
     pub fn solve(&self, frames: &[f32], cols: usize) -> Result<Vec<f32>, MuxError> {
         let mut out = vec![0.0; self.sources * cols];
@@ -377,7 +414,7 @@ impl std::fmt::Display for Fault {
 /// Tuning of [`detect_faults`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FaultParams {
-    /// Columns sampled (evenly spaced; default 65536: the stuck signature is small, 2/(n+1)
+    /// Columns sampled (runs of 256 contiguous columns, evenly spread; default 65536: the stuck signature is small, 2/(n+1)
     /// of the LED's image, and needs many columns to stand out of the noise).
     pub sample_cols: usize,
     /// `|z|` below this = statistically no light (default 5).
@@ -431,7 +468,11 @@ pub fn detect_faults(
         return Ok(Vec::new());
     }
     let count = params.sample_cols.clamp(2, cols.max(2)).min(cols);
-    let idx: Vec<usize> = (0..count).map(|k| k * cols / count).collect();
+    // Runs of 256 contiguous columns, evenly spread (whole cache lines, not one value each).
+    let run = 256.min(count);
+    let runs = count / run;
+    let idx: Vec<usize> = (0..runs).flat_map(|b| (0..run).map(move |k| b * (cols / runs) + k)).collect();
+    let count = idx.len();
     let sample = |j: usize| -> Vec<f64> { idx.iter().map(|&c| f64::from(demuxed[j * cols + c])).collect() };
     let max_a = intensities.iter().cloned().fold(0.0, f64::max);
     let physical: Vec<usize> = (0..n).filter(|&j| intensities[j] > 0.0).collect();

@@ -12,7 +12,13 @@ fn configs(s: &SMatrix) -> Vec<DemuxParams> {
     let mut v = Vec::new();
     for method in [fast, Method::Dense(DenseLayout::PatternMajor), Method::Dense(DenseLayout::PixelMajor)] {
         for accumulate in [Accumulate::F32, Accumulate::F64] {
-            v.push(DemuxParams { method: Some(method), tile: 0, accumulate });
+            v.push(DemuxParams { method: Some(method), tile: 0, accumulate, fft_len: 0 });
+            if method == Method::Fft {
+                // The prime length itself and an odd padded length, besides the automatic one.
+                let n = s.order();
+                v.push(DemuxParams { method: Some(method), tile: 0, accumulate, fft_len: n });
+                v.push(DemuxParams { method: Some(method), tile: 0, accumulate, fft_len: 2 * n + 1 });
+            }
         }
     }
     v
@@ -116,6 +122,11 @@ fn fast_methods_refuse_the_wrong_construction_and_shapes_are_checked() {
     let e = Demuxer::new(&sy, &DemuxParams { method: Some(Method::Fft), ..Default::default() }).unwrap_err();
     assert!(e.to_string().contains("cyclic"), "{e}");
     let d = Demuxer::new(&sy, &DemuxParams::default()).unwrap();
+    let e = Demuxer::new(&p, &DemuxParams { fft_len: 200, ..Default::default() }).unwrap_err();
+    assert!(e.to_string().contains("at least 2n - 1 = 301"), "{e}");
+    assert_eq!(btfrig_mux::demux::fft_len(151, 0), 320);
+    assert_eq!(btfrig_mux::demux::fft_len(199, 0), 400);
+    assert_eq!(btfrig_mux::demux::fft_len(15, 0), 15);
     let e = d.demux(&[0.0; 255 * 3 + 1], 3).unwrap_err();
     assert!(e.to_string().contains("766 values, expected 765"), "{e}");
     // Zero columns is fine.

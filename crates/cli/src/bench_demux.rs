@@ -1,0 +1,413 @@
+//! `btfrig bench demux`: demultiplexing one view group of S-matrix captures (pattern-major,
+//! one f32 image per pattern, `megapixels` × `channels` values each) by the fast transform
+//! (FWHT for Sylvester orders, FFT circular convolution for the cyclic ones, f32 and f64
+//! accumulation), by the dense closed-form inverse as a matrix product in several tile
+//! layouts, by least squares with calibrated intensities (SVD pseudo-inverse applied as a
+//! matrix product), and by the high-level demultiplexer (fast path plus fault check); time
+//! (median of `repeat`) and error against the known single-light images side by side, with
+//! one plain read-and-write pass over the same stack as the memory-bandwidth floor.
+//!
+//! The single-light images are a hash of (LED, column) in [0, 1), so nothing but the one
+//! stack is held in memory (n × megapixels × channels × 4 bytes: 3.1 GB at n = 255, 1 MP RGB);
+//! before each method the stack is refilled with the images and multiplexed by the fast
+//! forward transform (not timed).
+
+use std::time::Instant;
+
+use btfrig_mux::{
+    Accumulate, Demultiplexer, DemultiplexerParams, DemuxParams, Demuxer, DenseLayout, LeastSquares, LsParams, Method,
+    Par, PatternModel, SMatrix, SourceState,
+};
+use rayon::prelude::*;
+
+/// `btfrig bench demux`.
+#[derive(Debug, clap::Args)]
+pub struct BenchDemuxArgs {
+    /// S-matrix orders (Sylvester 2^k-1, Paley primes = 3 mod 4, twin primes).
+    #[arg(long, value_delimiter = ',', default_values_t = vec![255, 151, 199])]
+    pub orders: Vec<usize>,
+    /// Megapixels per image.
+    #[arg(long, default_value_t = 1.0)]
+    pub megapixels: f64,
+    /// Channels per pixel.
+    #[arg(long, default_value_t = 3)]
+    pub channels: usize,
+    /// Timed repetitions per method (the median is reported).
+    #[arg(long, default_value_t = 3)]
+    pub repeat: usize,
+    /// Threads (0 = all cores).
+    #[arg(long, default_value_t = 0)]
+    pub threads: usize,
+    /// Skip the dense and least-squares methods (the slow ones).
+    #[arg(long)]
+    pub fast_only: bool,
+    /// Print JSON instead of a table.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// One method's measurements.
+#[derive(Debug, Clone)]
+pub struct Row {
+    /// Method name.
+    pub method: String,
+    /// Layout and tile.
+    pub layout: String,
+    /// Accumulation.
+    pub accumulate: &'static str,
+    /// Median time, ms.
+    pub ms: f64,
+    /// Extra one-off time (factorisation), ms.
+    pub setup_ms: f64,
+    /// Largest |result − truth| (truth in [0, 1)); `None` for the memory pass.
+    pub max_err: Option<f64>,
+    /// RMS of result − truth.
+    pub rms_err: Option<f64>,
+    /// Is it a dense matrix product (for the "best dense" comparison)?
+    pub dense: bool,
+}
+
+/// The result for one order.
+#[derive(Debug, Clone)]
+pub struct OrderResult {
+    /// The order.
+    pub n: usize,
+    /// Its construction.
+    pub construction: &'static str,
+    /// Values per image.
+    pub cols: usize,
+    /// Rows, memory pass first.
+    pub rows: Vec<Row>,
+}
+
+impl OrderResult {
+    /// The memory-pass time.
+    pub fn floor_ms(&self) -> f64 {
+        self.rows[0].ms
+    }
+
+    /// The fastest dense row.
+    pub fn best_dense(&self) -> Option<&Row> {
+        self.rows.iter().filter(|r| r.dense).min_by(|a, b| a.ms.total_cmp(&b.ms))
+    }
+
+    /// The fast path, f32.
+    pub fn fast(&self) -> Option<&Row> {
+        self.rows.iter().find(|r| (r.method == "fwht" || r.method == "fft") && r.accumulate == "f32")
+    }
+}
+
+fn splitmix64(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// The known single-light value of LED `j` at column `c`, in [0, 1).
+fn truth(j: usize, c: usize) -> f32 {
+    ((splitmix64(((j as u64) << 40) ^ c as u64) >> 40) as f32) / 16_777_216.0
+}
+
+fn fill_truth(data: &mut [f32], cols: usize, scale: &[f64]) {
+    data.par_chunks_mut(cols).enumerate().for_each(|(j, row)| {
+        let a = scale[j] as f32;
+        row.iter_mut().enumerate().for_each(|(c, v)| *v = a * truth(j, c));
+    });
+}
+
+fn errors(data: &[f32], cols: usize) -> (f64, f64) {
+    let (max, sum) = data
+        .par_chunks(cols)
+        .enumerate()
+        .map(|(j, row)| {
+            row.iter().enumerate().fold((0.0f64, 0.0f64), |(m, s), (c, v)| {
+                let d = f64::from(*v) - f64::from(truth(j, c));
+                (m.max(d.abs()), s + d * d)
+            })
+        })
+        .reduce(|| (0.0, 0.0), |a, b| (a.0.max(b.0), a.1 + b.1));
+    (max, (sum / data.len().max(1) as f64).sqrt())
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// Runs the benchmark for one order.
+pub fn run_order(n: usize, cols: usize, repeat: usize, fast_only: bool) -> anyhow::Result<OrderResult> {
+    let s = SMatrix::of_order(n)?;
+    let par = Par::Rayon(0);
+    let fast = Demuxer::new(&s, &DemuxParams::default())?;
+    let mut fast_scratch = fast.scratch(par);
+    let ones = vec![1.0; n];
+    let mut data = vec![0.0f32; n * cols];
+    // Refill with the (scaled) truth and multiplex: the captures.
+    let mut prepare = |data: &mut [f32], scale: &[f64]| -> anyhow::Result<()> {
+        fill_truth(data, cols, scale);
+        fast.multiplex_in_place(data, cols, &mut fast_scratch, par)?;
+        Ok(())
+    };
+    let mut rows = Vec::new();
+
+    // The floor: one read-modify-write pass over the whole stack (pages touched first, one
+    // untimed pass to warm up).
+    prepare(&mut data, &ones)?;
+    let k = std::hint::black_box(1.0f32);
+    data.par_chunks_mut(1 << 16).for_each(|c| c.iter_mut().for_each(|v| *v *= k));
+    let ms = median(
+        (0..repeat)
+            .map(|_| {
+                let t = Instant::now();
+                data.par_chunks_mut(1 << 16).for_each(|c| c.iter_mut().for_each(|v| *v *= k));
+                t.elapsed().as_secs_f64() * 1e3
+            })
+            .collect(),
+    );
+    rows.push(Row {
+        method: "memory pass".into(),
+        layout: "read+write".into(),
+        accumulate: "-",
+        ms,
+        setup_ms: 0.0,
+        max_err: None,
+        rms_err: None,
+        dense: false,
+    });
+
+    let fast_method = Method::fast_for(s.construction());
+    let mut configs: Vec<(DemuxParams, bool)> = vec![
+        (DemuxParams { method: Some(fast_method), accumulate: Accumulate::F32, ..Default::default() }, false),
+        (DemuxParams { method: Some(fast_method), accumulate: Accumulate::F64, ..Default::default() }, false),
+    ];
+    if fast_method == Method::Fft && btfrig_mux::demux::fft_len(n, 0) != n {
+        // The FFT at the prime length itself, for comparison with the padded default.
+        configs.push((DemuxParams { method: Some(Method::Fft), fft_len: n, ..Default::default() }, false));
+    }
+    if !fast_only {
+        for (layout, tile) in [
+            (DenseLayout::PatternMajor, 256),
+            (DenseLayout::PatternMajor, 1024),
+            (DenseLayout::PixelMajor, 256),
+            (DenseLayout::PixelMajor, 1024),
+        ] {
+            configs.push((DemuxParams { method: Some(Method::Dense(layout)), tile, ..Default::default() }, true));
+        }
+    }
+    for (p, dense) in configs {
+        let d = Demuxer::new(&s, &p)?;
+        let mut sc = d.scratch(par);
+        prepare(&mut data, &ones)?;
+        let mut times = Vec::new();
+        let mut err = (0.0, 0.0);
+        for rep in 0..repeat {
+            let t = Instant::now();
+            d.demux_in_place(&mut data, cols, &mut sc, par)?;
+            times.push(t.elapsed().as_secs_f64() * 1e3);
+            if rep == 0 {
+                err = errors(&data, cols);
+            }
+        }
+        let layout = match d.method() {
+            Method::Dense(DenseLayout::PatternMajor) => format!("pattern-major tile {}", d.tile()),
+            Method::Dense(DenseLayout::PixelMajor) => format!("pixel-major tile {}", d.tile()),
+            Method::Fft => format!("tile {}, length {}", d.tile(), btfrig_mux::demux::fft_len(n, p.fft_len)),
+            _ => format!("in place, tile {}", d.tile()),
+        };
+        rows.push(Row {
+            method: if dense { "dense S^-1".into() } else { d.method().name().into() },
+            layout,
+            accumulate: if p.accumulate == Accumulate::F32 { "f32" } else { "f64" },
+            ms: median(times),
+            setup_ms: 0.0,
+            max_err: Some(err.0),
+            rms_err: Some(err.1),
+            dense,
+        });
+    }
+
+    // The high-level path: fast demultiplex, fault check on 65536 columns, scaling.
+    {
+        let dm = Demultiplexer::new(s.clone(), ones.clone(), DemultiplexerParams { par, ..Default::default() })?;
+        prepare(&mut data, &ones)?;
+        let mut times = Vec::new();
+        let mut err = (0.0, 0.0);
+        let mut buf = std::mem::take(&mut data);
+        for rep in 0..repeat {
+            let t = Instant::now();
+            let out = dm.run(buf, cols)?;
+            times.push(t.elapsed().as_secs_f64() * 1e3);
+            anyhow::ensure!(out.report().faults.is_empty(), "order {n}: false fault {:?}", out.report().faults);
+            buf = out.into_parts().0;
+            if rep == 0 {
+                err = errors(&buf, cols);
+            }
+        }
+        data = buf;
+        rows.push(Row {
+            method: "demultiplexer".into(),
+            layout: format!("{} + fault check", fast_method.name()),
+            accumulate: "f32",
+            ms: median(times),
+            setup_ms: 0.0,
+            max_err: Some(err.0),
+            rms_err: Some(err.1),
+            dense: false,
+        });
+    }
+
+    if !fast_only {
+        // Least squares with calibrated intensities 0.8..1.2: W = S diag(a), SVD pseudo-inverse.
+        let a: Vec<f64> =
+            (0..n).map(|j| 0.8 + 0.4 * (splitmix64(j as u64 ^ 0xA5A5) >> 11) as f64 / (1u64 << 53) as f64).collect();
+        let t = Instant::now();
+        let model = PatternModel::from_smatrix(&s, &a)?;
+        let ls = LeastSquares::new(&model, &vec![SourceState::Nominal; n], &LsParams::default())?;
+        let setup_ms = t.elapsed().as_secs_f64() * 1e3;
+        prepare(&mut data, &a)?;
+        let mut times = Vec::new();
+        let mut err = (0.0, 0.0);
+        for rep in 0..repeat {
+            let t = Instant::now();
+            ls.solve_in_place(&mut data, cols, par)?;
+            times.push(t.elapsed().as_secs_f64() * 1e3);
+            if rep == 0 {
+                err = errors(&data, cols);
+            }
+        }
+        rows.push(Row {
+            method: "least squares".into(),
+            layout: format!("pattern-major tile {}, cond {:.1}", LsParams::default().tile, ls.condition()),
+            accumulate: "f32",
+            ms: median(times),
+            setup_ms,
+            max_err: Some(err.0),
+            rms_err: Some(err.1),
+            dense: false,
+        });
+    }
+    Ok(OrderResult { n, construction: s.construction().name(), cols, rows })
+}
+
+fn load_average() -> String {
+    std::fs::read_to_string("/proc/loadavg")
+        .ok()
+        .and_then(|s| s.split_whitespace().next().map(str::to_string))
+        .unwrap_or_else(|| "?".into())
+}
+
+/// Runs the benchmark and prints a table (or JSON).
+pub fn bench(a: &BenchDemuxArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(a.megapixels > 0.0 && a.megapixels <= 16.0, "--megapixels {}: allowed (0, 16]", a.megapixels);
+    anyhow::ensure!((1..=4).contains(&a.channels), "--channels {}: allowed 1..=4", a.channels);
+    anyhow::ensure!((1..=50).contains(&a.repeat), "--repeat {}: allowed 1..=50", a.repeat);
+    anyhow::ensure!(!a.orders.is_empty(), "--orders: give at least one order");
+    for &n in &a.orders {
+        anyhow::ensure!((3..=4095).contains(&n), "--orders {n}: allowed 3..=4095");
+        SMatrix::of_order(n)?;
+    }
+    let cols = ((a.megapixels * 1e6) as usize).max(1) * a.channels;
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(a.threads).build()?;
+    let threads = pool.current_num_threads();
+    let load_before = load_average();
+    let results: Vec<OrderResult> = pool.install(|| {
+        a.orders.iter().map(|&n| run_order(n, cols, a.repeat, a.fast_only)).collect::<anyhow::Result<_>>()
+    })?;
+    if a.json {
+        let orders: Vec<serde_json::Value> = results
+            .iter()
+            .map(|r| {
+                let rows: Vec<serde_json::Value> = r
+                    .rows
+                    .iter()
+                    .map(|w| {
+                        serde_json::json!({
+                            "method": w.method, "layout": w.layout, "accumulate": w.accumulate, "ms": w.ms,
+                            "setup_ms": w.setup_ms, "x_floor": w.ms / r.floor_ms(), "max_err": w.max_err,
+                            "rms_err": w.rms_err, "dense": w.dense,
+                        })
+                    })
+                    .collect();
+                serde_json::json!({
+                    "n": r.n, "construction": r.construction, "values_per_image": r.cols,
+                    "stack_bytes": r.n * r.cols * 4, "floor_ms": r.floor_ms(),
+                    "fast_over_best_dense": r.fast().zip(r.best_dense()).map(|(f, d)| d.ms / f.ms),
+                    "fast_x_floor": r.fast().map(|f| f.ms / r.floor_ms()), "rows": rows,
+                })
+            })
+            .collect();
+        let out = serde_json::json!({
+            "megapixels": a.megapixels, "channels": a.channels, "threads": threads, "repeat": a.repeat,
+            "load_average_before": load_before, "load_average_after": load_average(), "orders": orders,
+        });
+        println!("{}", serde_json::to_string_pretty(&out)?);
+        return Ok(());
+    }
+    println!(
+        "demux benchmark: {} MP x {} channels (f32), pattern-major stack, {threads} threads, median of {}, \
+         load average {load_before} before",
+        a.megapixels, a.channels, a.repeat
+    );
+    for r in &results {
+        println!();
+        println!(
+            "order {} ({}): {} values per image, stack {:.2} GB",
+            r.n,
+            r.construction,
+            r.cols,
+            (r.n * r.cols * 4) as f64 / 1e9
+        );
+        println!(
+            "{:<14} {:<34} {:>4} {:>10} {:>8} {:>9} {:>10} {:>10}",
+            "method", "layout", "acc", "time (ms)", "x floor", "setup ms", "max err", "rms err"
+        );
+        for w in &r.rows {
+            let e = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.2e}"));
+            println!(
+                "{:<14} {:<34} {:>4} {:>10.1} {:>8.2} {:>9.1} {:>10} {:>10}",
+                w.method,
+                w.layout,
+                w.accumulate,
+                w.ms,
+                w.ms / r.floor_ms(),
+                w.setup_ms,
+                e(w.max_err),
+                e(w.rms_err)
+            );
+        }
+        if let (Some(f), Some(d)) = (r.fast(), r.best_dense()) {
+            println!(
+                "fast ({}) {:.1} ms: {:.2}x faster than the best dense ({}, {:.1} ms), {:.2}x the memory pass",
+                f.method,
+                f.ms,
+                d.ms / f.ms,
+                d.layout,
+                d.ms,
+                f.ms / r.floor_ms()
+            );
+        }
+    }
+    println!();
+    println!("load average {} after; errors against the known single-light images (values in [0, 1))", load_average());
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tiny_bench_measures_every_method_and_errors_are_small() {
+        for n in [7, 11, 19] {
+            let r = run_order(n, 3000, 1, false).unwrap();
+            assert!(r.rows.len() >= 9, "{:?}", r.rows);
+            for w in &r.rows[1..] {
+                let e = w.max_err.unwrap();
+                assert!(e < 1e-5, "order {n} {} {}: {e}", w.method, w.layout);
+                assert!(w.ms >= 0.0);
+            }
+            assert!(r.best_dense().is_some() && r.fast().is_some());
+        }
+    }
+}
