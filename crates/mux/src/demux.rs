@@ -273,7 +273,7 @@ impl Demuxer {
             match method {
                 // About 256 KiB of f32 per tile (the rows of N = n + 1 runs).
                 Method::Fwht => ((65536 / (n + 1)).clamp(16, 1024) / 16) * 16,
-                Method::Fft => 128,
+                Method::Fft => 256,
                 Method::Dense(_) => 512,
             }
         };
@@ -466,7 +466,7 @@ pub(crate) fn wht_rows<T: Real>(v: &mut [&mut [T]]) {
                 let (lo, rest) = v.split_at_mut(i + h);
                 let (b, rest) = rest.split_at_mut(h);
                 let (c, d) = rest.split_at_mut(h);
-                radix4(&mut lo[i], &mut b[0], &mut c[0], &mut d[0]);
+                radix4(lo[i], b[0], c[0], d[0]);
             }
         }
         h *= 4;
@@ -474,7 +474,7 @@ pub(crate) fn wht_rows<T: Real>(v: &mut [&mut [T]]) {
     if 2 * h <= n {
         for i in 0..h {
             let (lo, hi) = v.split_at_mut(i + h);
-            radix2(&mut lo[i], &mut hi[0]);
+            radix2(lo[i], hi[0]);
         }
     }
 }
@@ -598,11 +598,22 @@ impl<F: Real> FftKernel<F> {
                 col[n..].fill(Complex::new(F::zero(), F::zero()));
             }
         }
-        for (p, r) in rows.iter().enumerate() {
-            let (re, im) = r.split_at(h);
+        // Blocks of 8 rows: each write is a run of 8 consecutive complex values (whole cache
+        // lines) instead of one value per column 8·len bytes apart.
+        let hi = t - h; // columns in the imaginary parts (h or h − 1)
+        for (b, block) in rows.chunks(8).enumerate() {
+            let p0 = 8 * b;
             for q in 0..h {
-                let i = im.get(q).map_or(F::zero(), |&v| F::of_f32(v));
-                buf[q * len + p] = Complex::new(F::of_f32(re[q]), i);
+                let dst = &mut buf[q * len + p0..q * len + p0 + block.len()];
+                if q < hi {
+                    for (d, r) in dst.iter_mut().zip(block) {
+                        *d = Complex::new(F::of_f32(r[q]), F::of_f32(r[q + h]));
+                    }
+                } else {
+                    for (d, r) in dst.iter_mut().zip(block) {
+                        *d = Complex::new(F::of_f32(r[q]), F::zero());
+                    }
+                }
             }
         }
         self.fwd.process_with_scratch(buf, scratch);
@@ -613,17 +624,21 @@ impl<F: Real> FftKernel<F> {
             chunk.iter_mut().zip(g.iter()).for_each(|(x, g)| *x = *x * *g);
         }
         self.inv.process_with_scratch(buf, scratch);
-        let c = F::of_f64(2.0 / (n as f64 + 1.0));
-        for (p, r) in rows.iter_mut().enumerate() {
-            let (re, im) = r.split_at_mut(h);
+        let c = F::of_f64(if dir == Dir::Demux { 2.0 / (n as f64 + 1.0) } else { 0.0 });
+        for (b, block) in rows.chunks_mut(8).enumerate() {
+            let p0 = 8 * b;
             for q in 0..h {
-                let mut v = buf[q * len + p];
-                if dir == Dir::Demux {
-                    v = Complex::new(v.re - c * sums[q].re, v.im - c * sums[q].im);
-                }
-                re[q] = v.re.to_f32();
-                if let Some(x) = im.get_mut(q) {
-                    *x = v.im.to_f32();
+                let (sr, si) = (c * sums[q].re, c * sums[q].im);
+                let src = &buf[q * len + p0..q * len + p0 + block.len()];
+                if q < hi {
+                    for (v, r) in src.iter().zip(block.iter_mut()) {
+                        r[q] = (v.re - sr).to_f32();
+                        r[q + h] = (v.im - si).to_f32();
+                    }
+                } else {
+                    for (v, r) in src.iter().zip(block.iter_mut()) {
+                        r[q] = (v.re - sr).to_f32();
+                    }
                 }
             }
         }

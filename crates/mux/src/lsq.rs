@@ -119,6 +119,11 @@ impl Default for LsParams {
     }
 }
 
+/// Per-thread buffers of a tile product: (x f64, y f64, x f32, y f32).
+type ApplyScratch = (Vec<f64>, Vec<f64>, Vec<f32>, Vec<f32>);
+/// [`ApplyScratch`] plus the copy of the tile's input runs.
+type InPlaceScratch = (Vec<f64>, Vec<f64>, Vec<f32>, Vec<f32>, Vec<f32>);
+
 /// A factored least-squares solve `î = W⁺ m` for a pattern matrix and source states.
 #[derive(Debug, Clone)]
 pub struct LeastSquares {
@@ -184,7 +189,7 @@ impl LeastSquares {
         let (Some(uu), Some(vt)) = (svd.u.as_ref(), svd.v_t.as_ref()) else {
             unreachable!("SVD computed with U and V");
         };
-        if !(condition <= params.max_condition) {
+        if condition.is_nan() || condition > params.max_condition {
             let weakest =
                 vt.row(imin).iter().enumerate().max_by(|a, b| a.1.abs().total_cmp(&b.1.abs())).map_or(0, |x| x.0);
             return Err(MuxError::IllConditioned {
@@ -244,7 +249,7 @@ impl LeastSquares {
         let pt = self.pinv.transpose();
         let pt32 = pt.map(|v| v as f32);
         let (f, u, t) = (self.frames, self.pinv.nrows(), self.tile);
-        let mut scratch: Vec<(Vec<f64>, Vec<f64>, Vec<f32>, Vec<f32>)> = (0..par.blocks())
+        let mut scratch: Vec<ApplyScratch> = (0..par.blocks())
             .map(|_| match self.accumulate {
                 Accumulate::F64 => (vec![0.0; t * f], vec![0.0; t * u], Vec::new(), Vec::new()),
                 Accumulate::F32 => (Vec::new(), Vec::new(), vec![0.0; t * f], vec![0.0; t * u]),
@@ -273,7 +278,7 @@ impl LeastSquares {
         let pt = self.pinv.transpose();
         let pt32 = pt.map(|v| v as f32);
         let (f, u, t, acc) = (self.frames, self.pinv.nrows(), self.tile, self.accumulate);
-        let mut scratch: Vec<(Vec<f64>, Vec<f64>, Vec<f32>, Vec<f32>, Vec<f32>)> = (0..par.blocks())
+        let mut scratch: Vec<InPlaceScratch> = (0..par.blocks())
             .map(|_| match acc {
                 Accumulate::F64 => (vec![0.0; t * f], vec![0.0; t * u], Vec::new(), Vec::new(), vec![0.0; t * f]),
                 Accumulate::F32 => (Vec::new(), Vec::new(), vec![0.0; t * f], vec![0.0; t * u], vec![0.0; t * f]),
@@ -502,7 +507,7 @@ pub fn detect_faults(
     let mut means: Vec<f64> = stats.iter().map(|s| s.1).collect();
     means.sort_by(f64::total_cmp);
     let median = means[means.len() / 2];
-    if !(median > 0.0) {
+    if median.is_nan() || median <= 0.0 {
         return Ok(Vec::new());
     }
     let half = (n as f64 + 1.0) / 2.0;
@@ -689,7 +694,7 @@ impl Demultiplexer {
             let qt32 = qt.map(|v| v as f32);
             let (u, t, acc) = (q.nrows(), self.params.ls.tile.max(1), self.params.ls.accumulate);
             let unknown = &ls.unknown;
-            let mut sc: Vec<(Vec<f64>, Vec<f64>, Vec<f32>, Vec<f32>)> = (0..par.blocks())
+            let mut sc: Vec<ApplyScratch> = (0..par.blocks())
                 .map(|_| match acc {
                     Accumulate::F64 => (vec![0.0; t * n], vec![0.0; t * u], Vec::new(), Vec::new()),
                     Accumulate::F32 => (Vec::new(), Vec::new(), vec![0.0; t * n], vec![0.0; t * u]),
@@ -716,18 +721,23 @@ impl Demultiplexer {
         } else {
             // The fast path is exact: î_j = c_j / a_j; std of c_j per unit frame noise 2√n/(n+1).
             let base = 2.0 * (n as f64).sqrt() / (n as f64 + 1.0);
-            let mut excluded = Vec::new();
-            let mut noise_gain = vec![0.0; n];
-            for (j, img) in frames.chunks_mut(cols.max(1)).enumerate().take(n) {
+            let keep = |a: f64| a > self.params.ls.min_relative_intensity * max_a;
+            let excluded: Vec<usize> = (0..n).filter(|&j| !keep(self.intensities[j])).collect();
+            let noise_gain: Vec<f64> = self.intensities.iter().map(|&a| if keep(a) { base / a } else { 0.0 }).collect();
+            let scale = |(j, img): (usize, &mut [f32])| {
                 let a = self.intensities[j];
-                if a > self.params.ls.min_relative_intensity * max_a {
+                if !keep(a) {
+                    img.fill(0.0);
+                } else if a != 1.0 {
                     let inv = (1.0 / a) as f32;
                     img.iter_mut().for_each(|v| *v *= inv);
-                    noise_gain[j] = base / a;
-                } else {
-                    img.fill(0.0);
-                    excluded.push(j);
                 }
+            };
+            if par.blocks() > 1 {
+                use rayon::prelude::*;
+                frames.par_chunks_mut(cols.max(1)).enumerate().for_each(scale);
+            } else {
+                frames.chunks_mut(cols.max(1)).enumerate().for_each(scale);
             }
             DemuxReport { method: self.demuxer.method(), faults, excluded, re_solved, condition: None, noise_gain }
         };

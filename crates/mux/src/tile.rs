@@ -38,7 +38,7 @@ pub(crate) fn check_shape(
     rows: usize,
     cols: usize,
 ) -> Result<(), crate::MuxError> {
-    let expected = rows.checked_mul(cols).unwrap_or(usize::MAX);
+    let expected = rows.saturating_mul(cols);
     if data_len != expected {
         return Err(crate::MuxError::Shape {
             what,
@@ -92,6 +92,9 @@ where
     }
 }
 
+/// One thread's column block of an input and an output stack: the rows' runs.
+type IoBlock<'a, 'b> = (Vec<&'a [f32]>, Vec<&'b mut [f32]>);
+
 /// Like [`for_each_tile`] with a read-only input stack and a separate output stack
 /// (`out_rows × cols`).
 #[allow(clippy::too_many_arguments)]
@@ -114,8 +117,7 @@ pub(crate) fn for_each_tile_io<S, F>(
     let tile = tile.max(1);
     let nb = scratches.len().max(1).min(cols.div_ceil(tile));
     let width = cols.div_ceil(nb).div_ceil(tile) * tile;
-    let mut blocks: Vec<(Vec<&[f32]>, Vec<&mut [f32]>)> =
-        (0..nb).map(|_| (Vec::with_capacity(rows), Vec::with_capacity(out_rows))).collect();
+    let mut blocks: Vec<IoBlock> = (0..nb).map(|_| (Vec::with_capacity(rows), Vec::with_capacity(out_rows))).collect();
     for row in input.chunks(cols) {
         let mut rest = row;
         for b in blocks.iter_mut() {
@@ -134,7 +136,7 @@ pub(crate) fn for_each_tile_io<S, F>(
             rest = tail;
         }
     }
-    let run = |((ins, mut outs), scratch): ((Vec<&[f32]>, Vec<&mut [f32]>), &mut S)| {
+    let run = |((ins, mut outs), scratch): (IoBlock, &mut S)| {
         let bw = ins.first().map_or(0, |r| r.len());
         let mut t0 = 0;
         while t0 < bw {

@@ -19,7 +19,6 @@ enum Inject {
 
 struct Scene {
     n: usize,
-    leds: usize,
     pixels: usize,
     intensities: Vec<f64>,
     truth: Vec<f64>,
@@ -35,7 +34,7 @@ fn scene(n: usize, leds: usize, pixels: usize, bright: usize, seed: u64) -> Scen
     let mut dir: Vec<f64> = (0..n).map(|j| if j < leds { r.gen_range(0.5..1.5) } else { 0.0 }).collect();
     dir[bright] = 1.5;
     let truth = (0..n * pixels).map(|k| dir[k / pixels] * texture[k % pixels]).collect();
-    Scene { n, leds, pixels, intensities, truth }
+    Scene { n, pixels, intensities, truth }
 }
 
 /// Mean electrons of every frame the rig really took: `S (a ∘ i)` by the fast multiplex, then

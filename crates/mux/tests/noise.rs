@@ -30,7 +30,7 @@ fn s_matrix_gains_match_the_reference_table() {
         assert!((SMatrix::of_order(n).unwrap().gain_read_noise() - g).abs() < 6e-4);
         // The design bound at C = (n+1)/2 is the S-matrix MSE 4n/(n+1)² exactly.
         let exact = 4.0 * n as f64 / ((n + 1) as f64).powi(2);
-        assert!((design_factor(n, ((n + 1) / 2) as f64) - exact).abs() < 1e-12 * exact);
+        assert!((design_factor(n, n.div_ceil(2) as f64) - exact).abs() < 1e-12 * exact);
         // Break-even and the photon-limited limit √((n+1)/(2n)).
         assert!((s_matrix_gain(n, break_even_ratio(n)) - 1.0).abs() < 1e-12);
         let lim = (((n + 1) as f64) / (2.0 * n as f64)).sqrt();
