@@ -339,7 +339,15 @@ impl Runner {
         let attempts = 1 + self.step_retries.get(&index).copied().unwrap_or(0);
         let mut frames = frames.into_iter();
         let frame = frames.next().expect("a step delivers at least one frame");
-        let cf = CapturedFrame { index, key: step.key, frame, bracket: frames.collect(), attempts, joints: step.joints, times };
+        let cf = CapturedFrame {
+            index,
+            key: step.key,
+            frame,
+            bracket: frames.collect(),
+            attempts,
+            joints: step.joints,
+            times,
+        };
         if self.frames.send(cf).await.is_err() {
             return Err(Stop::ConsumerGone);
         }
@@ -405,7 +413,12 @@ impl Runner {
 
     /// Shows the control the step's frames and takes the exposures it asks for, at the pose
     /// the devices are at, until it is satisfied.
-    async fn inspect_here(&mut self, index: usize, frames: &mut Vec<RawFrame>, times: &mut StepTimes) -> Result<(), Stop> {
+    async fn inspect_here(
+        &mut self,
+        index: usize,
+        frames: &mut Vec<RawFrame>,
+        times: &mut StepTimes,
+    ) -> Result<(), Stop> {
         let step = self.steps[index];
         while self.exposure.inspects() && frames.len() < MAX_EXPOSURES_PER_STEP {
             let Some(e) = self.exposure.next(&step, frames) else { break };
