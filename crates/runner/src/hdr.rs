@@ -4,8 +4,9 @@
 //!
 //! Per step: the base exposure is predicted from the last capture of the same view (its
 //! metered base, scaled by the ratio of the lamp's cosine at the sample between the two
-//! lights; the first capture of a view takes the plan's white-reference exposure), within
-//! three stops of the white-reference exposure. The engine takes it, and the frame is metered
+//! lights; the first capture of a view takes the plan's white-reference exposure), at most
+//! three stops shorter than the white-reference exposure and never longer (the holder plate
+//! and its markers must not saturate in the base). The engine takes it, and the frame is metered
 //! on the sample's footprint (`btfrig_calib::exposure`) when it arrives; the adaptive policy
 //! asks for shorter exposures while the sample saturates and longer ones while it is
 //! underexposed, up to `max_exposures`. With `mode = "bracket"` every step takes the base
@@ -28,7 +29,7 @@ use serde_json::json;
 /// planning the next one).
 const STEPS_KEPT: usize = 4;
 
-/// The base exposure stays within this many stops (factor 2 each) of the white reference.
+/// The base exposure may be this many stops (factor 2 each) shorter than the white reference.
 const BASE_STOPS: i32 = 3;
 
 /// The multipliers of the base exposure that always bracketing takes: the plan's stops, or for
@@ -102,7 +103,10 @@ impl HdrControl {
         let cos = self.light_cos.get(&key).copied().unwrap_or(1.0).max(0.05);
         let span = 2f64.powi(BASE_STOPS);
         let predicted = self.base_by_view.get(&key.view).map_or(self.reference_s, |b| b / cos);
-        self.clamp(predicted.clamp(self.reference_s / span, self.reference_s * span))
+        // Never longer than the white reference: the holder plate (registration, the lamp's
+        // drift patch) and the markers must not saturate in the base exposure, and the
+        // metering sees only the sample. A dim sample gets longer exposures in its bracket.
+        self.clamp(predicted.clamp(self.reference_s / span, self.reference_s))
     }
 }
 
