@@ -39,6 +39,12 @@ fn calibrated_s_matrix_solve_recovers_the_images_over_orders() {
             let got = ls.solve(&frames, cols).unwrap();
             let worst = got.iter().zip(&truth).map(|(g, t)| (g - t).abs()).fold(0.0f32, f32::max);
             assert!(worst < 2e-5 * (n as f32).sqrt() * 10.0, "order {n} {acc:?}: {worst}");
+            // In place (square system), any thread count: the same numbers.
+            for par in [btfrig_mux::Par::Seq, btfrig_mux::Par::Rayon(2)] {
+                let mut inplace = frames.clone();
+                ls.solve_in_place(&mut inplace, cols, par).unwrap();
+                assert_eq!(inplace, got, "order {n} {acc:?} {par:?}");
+            }
         }
         // The high-level path (fast demux, then divide by a) gives the same.
         let dm = Demultiplexer::new(s, a.clone(), DemultiplexerParams::default()).unwrap();
