@@ -68,7 +68,15 @@ pub(crate) struct HdrControl {
     /// Per view: the last metered base exposure times its light's cosine.
     base_by_view: HashMap<u32, f64>,
     /// Footprint and meterings of the steps in flight, oldest first.
-    steps: VecDeque<(StepKey, Footprint, Vec<(f64, Metering)>)>,
+    steps: VecDeque<InFlight>,
+}
+
+/// A step whose frames are being inspected: its footprint and the meterings of its frames.
+struct InFlight {
+    key: StepKey,
+    footprint: Footprint,
+    /// `(exposure_s, metering)` per frame metered so far, in the order taken.
+    taken: Vec<(f64, Metering)>,
 }
 
 impl HdrControl {
@@ -111,20 +119,20 @@ impl HdrControl {
 }
 
 /// The footprint and meterings of `step`, made on first use (the oldest kept step dropped).
-fn entry<'a>(
-    steps: &'a mut VecDeque<(StepKey, Footprint, Vec<(f64, Metering)>)>,
-    rig: &HdrRig,
-    step: &EngineStep,
-) -> &'a mut (StepKey, Footprint, Vec<(f64, Metering)>) {
+fn entry<'a>(steps: &'a mut VecDeque<InFlight>, rig: &HdrRig, step: &EngineStep) -> &'a mut InFlight {
     let key = step.key;
-    let i = match steps.iter().position(|(k, ..)| *k == key) {
+    let i = match steps.iter().position(|s| s.key == key) {
         Some(i) => i,
         None => {
             if steps.len() >= STEPS_KEPT {
                 steps.pop_front();
             }
             let pose = rig.gonio.scene_pose(&step.joints);
-            steps.push_back((key, sample_footprint(&rig.camera, &pose, rig.region), Vec::new()));
+            steps.push_back(InFlight {
+                key,
+                footprint: sample_footprint(&rig.camera, &pose, rig.region),
+                taken: Vec::new(),
+            });
             steps.len() - 1
         }
     };
@@ -146,7 +154,7 @@ impl ExposureControl for HdrControl {
 
     fn next(&mut self, step: &EngineStep, frames: &[RawFrame]) -> Option<f64> {
         let rig = &self.rig;
-        let (_, fp, taken) = entry(&mut self.steps, rig, step);
+        let InFlight { footprint: fp, taken, .. } = entry(&mut self.steps, rig, step);
         for f in &frames[taken.len().min(frames.len())..] {
             // A frame that cannot be metered (size or metadata) ends the bracket: the pipeline
             // reports the frame's own problem.
@@ -162,7 +170,7 @@ impl ExposureControl for HdrControl {
             _ => None,
         };
         if next.is_none() {
-            self.steps.retain(|(k, ..)| *k != step.key);
+            self.steps.retain(|s| s.key != step.key);
         }
         next
     }
