@@ -8,8 +8,10 @@ pub enum MuxError {
     /// No S-matrix construction of this order is implemented.
     #[error(
         "no S-matrix construction of order {order}: available are Sylvester 2^k-1, Paley primes p = 3 mod 4 \
-         and twin primes p(p+2); nearest available orders: below {below:?}, above {above:?} \
-         (or use SMatrix::for_sources to pad with always-off slots)"
+         and twin primes p(p+2); nearest available orders: below {}, above {} \
+         (or use SMatrix::for_sources to pad with always-off slots)",
+        order_or_none(.below),
+        order_or_none(.above)
     )]
     NoConstruction {
         /// The requested order.
@@ -110,4 +112,8 @@ pub enum MuxError {
         /// What is allowed.
         allowed: &'static str,
     },
+}
+
+fn order_or_none(o: &Option<usize>) -> String {
+    o.map_or_else(|| "none".to_string(), |v| v.to_string())
 }

@@ -102,7 +102,7 @@ fn an_order_without_construction_names_the_nearest_available_ones() {
             Err(MuxError::NoConstruction { order, below: b, above: a }) => {
                 assert_eq!((order, b, a), (n, Some(below), Some(above)), "order {n}");
                 let text = MuxError::NoConstruction { order, below: b, above: a }.to_string();
-                assert!(text.contains(&below.to_string()) && text.contains(&above.to_string()), "{text}");
+                assert!(text.contains(&format!("below {below}, above {above}")), "{text}");
             }
             other => panic!("order {n}: {other:?}"),
         }
