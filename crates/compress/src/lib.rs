@@ -37,10 +37,15 @@
 pub mod build;
 pub mod cluster;
 pub mod color;
+pub mod dataset;
 pub mod error;
+pub mod eval;
+pub mod file;
 pub mod linalg;
 pub mod model;
 pub mod rsvd;
+pub mod sparse;
+pub mod ubo;
 
 pub use build::{build, check_finite, BuildStats, Builder, MemorySource, ModelParams, RowSource};
 pub use color::ColorModel;
