@@ -129,13 +129,7 @@ struct PartBuilder<T: Real> {
 }
 
 impl<T: Real> PartBuilder<T> {
-    fn new(
-        layout: &Layout,
-        channel: usize,
-        rows: PartRows,
-        cols: Option<Vec<u32>>,
-        p: &RsvdParams,
-    ) -> Result<Self> {
+    fn new(layout: &Layout, channel: usize, rows: PartRows, cols: Option<Vec<u32>>, p: &RsvdParams) -> Result<Self> {
         let nl = layout.n_light();
         let mut rowmap = vec![u32::MAX; layout.n_angular()];
         let mut next = 0u32;
@@ -151,7 +145,15 @@ impl<T: Real> PartBuilder<T> {
         }
         let ncols = cols.as_ref().map_or(layout.texels(), Vec::len);
         let rsvd = StreamingRsvd::new(next as usize, ncols, p)?;
-        Ok(PartBuilder { channel, rows, cols, rowmap, rsvd, mean: vec![0.0; next as usize], buf: vec![T::zero(); ncols] })
+        Ok(PartBuilder {
+            channel,
+            rows,
+            cols,
+            rowmap,
+            rsvd,
+            mean: vec![0.0; next as usize],
+            buf: vec![T::zero(); ncols],
+        })
     }
 
     fn push(&mut self, a: usize, d: &[[f32; 3]]) {
@@ -222,7 +224,13 @@ impl<T: Real> Builder<T> {
         match params.method {
             Method::Fmf => {
                 for c in 0..3 {
-                    parts.push(PartBuilder::new(&layout, c, PartRows::All, None, &params.rsvd(params.terms[c], c as u64))?);
+                    parts.push(PartBuilder::new(
+                        &layout,
+                        c,
+                        PartRows::All,
+                        None,
+                        &params.rsvd(params.terms[c], c as u64),
+                    )?);
                 }
             }
             Method::Pvmf => {
@@ -309,7 +317,8 @@ impl<T: Real> Builder<T> {
 
     /// Ends a pass; `Ok(true)` if another pass over every capture is needed.
     pub fn end_pass(&mut self) -> Result<bool> {
-        let missing: Vec<usize> = (0..self.layout.n_angular()).filter(|&a| self.layout.measured[a] && !self.seen[a]).collect();
+        let missing: Vec<usize> =
+            (0..self.layout.n_angular()).filter(|&a| self.layout.measured[a] && !self.seen[a]).collect();
         if !missing.is_empty() {
             let first = missing
                 .iter()
@@ -445,8 +454,7 @@ impl<T: Real> Builder<T> {
                         sv[x * k + j] = svd.sv[(x, j)] as f32;
                     }
                 }
-                let mut part =
-                    Part { rows: pb.rows, k, mean, u, s: svd.s.iter().map(|&s| s as f32).collect(), sv };
+                let mut part = Part { rows: pb.rows, k, mean, u, s: svd.s.iter().map(|&s| s as f32).collect(), sv };
                 if precision == Precision::F16 {
                     for v in part.mean.iter_mut().chain(part.u.iter_mut()).chain(part.sv.iter_mut()) {
                         *v = half::f16::from_f32(*v).to_f32();
@@ -455,7 +463,8 @@ impl<T: Real> Builder<T> {
                 Ok((pb.channel, part))
             })
             .collect::<Result<_>>()?;
-        let mut channels = vec![Channel { parts: Vec::new() }, Channel { parts: Vec::new() }, Channel { parts: Vec::new() }];
+        let mut channels =
+            vec![Channel { parts: Vec::new() }, Channel { parts: Vec::new() }, Channel { parts: Vec::new() }];
         for (c, p) in built {
             channels[c].parts.push(p);
         }
@@ -494,10 +503,13 @@ pub fn check_finite(light: u32, view: u32, texels: &[[f32; 3]], width: usize) ->
     Ok(())
 }
 
+/// The callback a [`RowSource`] feeds: `(light, view, texels)`.
+pub type RowSink<'a> = dyn FnMut(u32, u32, &[[f32; 3]]) -> Result<()> + 'a;
+
 /// Something that can deliver every measured capture of a BTF, once per call.
 pub trait RowSource {
     /// Calls `f(light, view, texels)` once for every measured capture, in any order.
-    fn for_each(&mut self, f: &mut dyn FnMut(u32, u32, &[[f32; 3]]) -> Result<()>) -> Result<()>;
+    fn for_each(&mut self, f: &mut RowSink<'_>) -> Result<()>;
 }
 
 /// What a build cost.
@@ -543,7 +555,7 @@ pub struct MemorySource<'a> {
 }
 
 impl RowSource for MemorySource<'_> {
-    fn for_each(&mut self, f: &mut dyn FnMut(u32, u32, &[[f32; 3]]) -> Result<()>) -> Result<()> {
+    fn for_each(&mut self, f: &mut RowSink<'_>) -> Result<()> {
         for (a, t) in self.textures.iter().enumerate() {
             if let Some(t) = t {
                 let (l, v) = self.layout.pair(a);

@@ -100,11 +100,7 @@ fn yuv([r, g, b]: [f32; 3]) -> [f32; 3] {
 #[inline]
 fn rgb_of_yuv([y, u, v]: [f32; 3]) -> [f32; 3] {
     let m = YUV_TO_RGB;
-    [
-        y + m[0][2] as f32 * v,
-        y + m[1][1] as f32 * u + m[1][2] as f32 * v,
-        y + m[2][1] as f32 * u,
-    ]
+    [y + m[0][2] as f32 * v, y + m[1][1] as f32 * u + m[1][2] as f32 * v, y + m[2][1] as f32 * u]
 }
 
 #[cfg(test)]

@@ -9,7 +9,7 @@ use btfrig_core::Direction;
 use btfrig_store::{journal, Manifest, StepId, JOURNAL_FILE, MANIFEST_FILE, TEXTURES_DIR};
 use rayon::prelude::*;
 
-use crate::build::{check_finite, RowSource};
+use crate::build::{check_finite, RowSink, RowSource};
 use crate::error::{CompressError, Result};
 use crate::model::Layout;
 
@@ -41,7 +41,9 @@ impl DatasetSource {
         let text = std::fs::read(&mp).map_err(io(mp.clone()))?;
         let manifest: Manifest = serde_json::from_slice(&text).map_err(|e| fail(format!("{MANIFEST_FILE}: {e}")))?;
         if !manifest.textures {
-            return Err(fail("the dataset keeps raw frames only (manifest textures = false): nothing to compress".into()));
+            return Err(fail(
+                "the dataset keeps raw frames only (manifest textures = false): nothing to compress".into(),
+            ));
         }
         let jp = dir.join(JOURNAL_FILE);
         let jb = std::fs::read(&jp).map_err(io(jp.clone()))?;
@@ -105,7 +107,7 @@ impl DatasetSource {
 }
 
 impl RowSource for DatasetSource {
-    fn for_each(&mut self, f: &mut dyn FnMut(u32, u32, &[[f32; 3]]) -> Result<()>) -> Result<()> {
+    fn for_each(&mut self, f: &mut RowSink<'_>) -> Result<()> {
         for chunk in self.steps.chunks(self.chunk.max(1)) {
             let read: Vec<Result<Vec<[f32; 3]>>> = chunk.par_iter().map(|&s| self.read(s)).collect();
             for (s, t) in chunk.iter().zip(read) {
@@ -114,4 +116,57 @@ impl RowSource for DatasetSource {
         }
         Ok(())
     }
+}
+
+/// Writes an in-memory BTF as a new dataset in `dir` (synthetic and simulated BTFs for
+/// benchmarks and tests): a manifest with the layout's samplings (unmeasured pairs listed as
+/// skipped, reason `not-measured`), one journaled float or half EXR texture per measured
+/// pair. `textures[a]` is the texture of angular index `a`.
+pub fn write_dataset(
+    dir: &Path,
+    layout: &Layout,
+    textures: &mut dyn FnMut(usize) -> Vec<[f32; 3]>,
+    rig_name: &str,
+    note: &str,
+    half: bool,
+) -> Result<()> {
+    use btfrig_store::{
+        Dataset, RigInfo, Samplings, SkippedStep, StepTiming, TextureFormat, TextureRegion, TextureSpec,
+    };
+    let store = |e: btfrig_store::StoreError| CompressError::Dataset { dir: dir.into(), what: e.to_string() };
+    let mut samplings = Samplings::full(layout.light.directions(), layout.view.directions());
+    for a in 0..layout.n_angular() {
+        if !layout.measured[a] {
+            let (l, v) = layout.pair(a);
+            samplings
+                .skipped
+                .push(SkippedStep { step: StepId { light: l as u32, view: v as u32 }, reason: "not-measured".into() });
+        }
+    }
+    let texture = TextureSpec {
+        width: layout.width as u32,
+        height: layout.height as u32,
+        region: TextureRegion { center_m: [0.0, 0.0], size_m: [0.05, 0.05] },
+        format: if half { TextureFormat::ExrHalf } else { TextureFormat::ExrFloat },
+    };
+    let plan = format!("# written by btfrig_compress::dataset::write_dataset\n# {note}\n");
+    let manifest = btfrig_store::Manifest::new(
+        RigInfo { name: rig_name.into(), config_toml: String::new() },
+        &plan,
+        samplings,
+        texture,
+        false,
+        0,
+    );
+    let ds = Dataset::create(dir, manifest).map_err(store)?;
+    for a in 0..layout.n_angular() {
+        if layout.measured[a] {
+            let (l, v) = layout.pair(a);
+            let step = StepId { light: l as u32, view: v as u32 };
+            let t = textures(a);
+            let f = ds.write_texture(step, &t, layout.width, layout.height).map_err(store)?;
+            ds.commit_step(step, vec![f], 1, StepTiming::default()).map_err(store)?;
+        }
+    }
+    Ok(())
 }

@@ -332,7 +332,10 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<Model> {
     let mut next = |r: &mut Reader, want_len: usize, want_name: &str| -> Result<Vec<f32>> {
         let a = arrays.next().ok_or_else(|| fail(format!("array {want_name} missing from the header")))?;
         if a.name != want_name || a.len != want_len {
-            return Err(fail(format!("array {} of {} values where {want_name} of {want_len} is expected", a.name, a.len)));
+            return Err(fail(format!(
+                "array {} of {} values where {want_name} of {want_len} is expected",
+                a.name, a.len
+            )));
         }
         let size = match a.dtype.as_str() {
             "f16" => 2,
@@ -369,7 +372,13 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<Model> {
     let clusters = if matches!(method, Method::Pcmf { .. }) {
         let a = arrays.next().ok_or_else(|| fail("array clusters missing".into()))?;
         if a.name != "clusters" || a.dtype != "u16" || a.len != layout.texels() {
-            return Err(fail(format!("array {} ({}, {}) where clusters (u16, {}) is expected", a.name, a.dtype, a.len, layout.texels())));
+            return Err(fail(format!(
+                "array {} ({}, {}) where clusters (u16, {}) is expected",
+                a.name,
+                a.dtype,
+                a.len,
+                layout.texels()
+            )));
         }
         let data = r.checked(a.len * 2, "clusters")?;
         Some(data.chunks_exact(2).map(|b| u16::from_le_bytes([b[0], b[1]])).collect::<Vec<u16>>())
@@ -382,7 +391,8 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<Model> {
     if r.pos != bytes.len() {
         return Err(fail(format!("{} trailing bytes after the last array (offset {})", bytes.len() - r.pos, r.pos)));
     }
-    let mut model = Model { method, color, log_eps: h.log_eps, precision, layout, channels, clusters, cluster_col: Vec::new() };
+    let mut model =
+        Model { method, color, log_eps: h.log_eps, precision, layout, channels, clusters, cluster_col: Vec::new() };
     model.index_clusters();
     validate_shapes(&model).map_err(fail)?;
     Ok(model)

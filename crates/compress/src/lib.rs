@@ -33,6 +33,8 @@
 //! ```
 #![warn(missing_docs)]
 #![allow(non_snake_case)]
+// Index loops over several arrays at once read closer to the formulas than zipped iterators.
+#![allow(clippy::needless_range_loop)]
 
 pub mod build;
 pub mod cluster;
@@ -47,7 +49,7 @@ pub mod rsvd;
 pub mod sparse;
 pub mod ubo;
 
-pub use build::{build, check_finite, BuildStats, Builder, MemorySource, ModelParams, RowSource};
+pub use build::{build, check_finite, BuildStats, Builder, MemorySource, ModelParams, RowSink, RowSource};
 pub use color::ColorModel;
 pub use error::{CompressError, Result};
 pub use model::{Channel, Layout, Method, Model, Part, PartRows, Precision, Query};

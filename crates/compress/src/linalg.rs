@@ -149,12 +149,8 @@ pub fn select_rows(u: &DMatrix<f64>, count: usize) -> Vec<usize> {
     let mut norms: Vec<f64> = (0..m).map(|r| res.row(r).norm_squared()).collect();
     let top = norms.iter().cloned().fold(0.0, f64::max);
     while chosen.len() < count.min(k) {
-        let (best, &bn) = norms
-            .iter()
-            .enumerate()
-            .filter(|(r, _)| !taken[*r])
-            .max_by(|a, b| a.1.total_cmp(b.1))
-            .expect("rows left");
+        let (best, &bn) =
+            norms.iter().enumerate().filter(|(r, _)| !taken[*r]).max_by(|a, b| a.1.total_cmp(b.1)).expect("rows left");
         if bn <= 1e-20 * top.max(f64::MIN_POSITIVE) {
             break; // the remaining rows are in the span of the chosen ones
         }
@@ -187,12 +183,8 @@ pub fn select_rows(u: &DMatrix<f64>, count: usize) -> Vec<usize> {
     let mut g = ata.try_inverse().unwrap_or_else(|| DMatrix::identity(k, k) / delta);
     let mut lev: Vec<f64> = (0..m).map(|r| (u.row(r) * &g * u.row(r).transpose())[(0, 0)]).collect();
     while chosen.len() < count {
-        let (best, _) = lev
-            .iter()
-            .enumerate()
-            .filter(|(r, _)| !taken[*r])
-            .max_by(|a, b| a.1.total_cmp(b.1))
-            .expect("rows left");
+        let (best, _) =
+            lev.iter().enumerate().filter(|(r, _)| !taken[*r]).max_by(|a, b| a.1.total_cmp(b.1)).expect("rows left");
         taken[best] = true;
         chosen.push(best);
         let x = u.row(best).transpose();

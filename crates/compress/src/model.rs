@@ -120,7 +120,11 @@ impl Layout {
         }
         let a = self.index(l, v);
         if !self.measured[a] {
-            return Err(CompressError::UnknownCapture { light, view, why: "the pair is not among the measured ones".into() });
+            return Err(CompressError::UnknownCapture {
+                light,
+                view,
+                why: "the pair is not among the measured ones".into(),
+            });
         }
         Ok(a)
     }
@@ -304,11 +308,7 @@ impl Model {
 
     /// Stored values (means, bases, coefficients, singular values) over all channels.
     pub fn stored_values(&self) -> usize {
-        self.channels
-            .iter()
-            .flat_map(|c| &c.parts)
-            .map(|p| p.mean.len() + p.u.len() + p.sv.len() + p.s.len())
-            .sum()
+        self.channels.iter().flat_map(|c| &c.parts).map(|p| p.mean.len() + p.u.len() + p.sv.len() + p.s.len()).sum()
     }
 
     /// Bytes of the factors at the model's precision plus the cluster map (2 bytes per
@@ -383,11 +383,14 @@ impl Model {
     }
 }
 
+/// Per channel, per part: the interpolated mean and basis row, if the part has weight.
+type ActiveRows = Vec<Vec<Option<(f32, Vec<f32>)>>>;
+
 /// Interpolated angular factors of one (view, light) direction pair.
 pub struct Query<'a> {
     model: &'a Model,
     /// Per channel, per part: interpolated mean and basis row, if the part has weight.
-    active: Vec<Vec<Option<(f32, Vec<f32>)>>>,
+    active: ActiveRows,
 }
 
 impl Query<'_> {

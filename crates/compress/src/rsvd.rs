@@ -185,8 +185,9 @@ impl<T: Real> StreamingRsvd<T> {
         let width = (params.rank + params.oversample).min(rows).min(cols).max(1);
         let rank = params.rank.min(width);
         let mut rng = ChaCha8Rng::seed_from_u64(params.seed);
-        let omega_t =
-            DMatrix::from_fn(width, cols, |_, _| T::of_f64(<StandardNormal as Distribution<f64>>::sample(&StandardNormal, &mut rng)));
+        let omega_t = DMatrix::from_fn(width, cols, |_, _| {
+            T::of_f64(<StandardNormal as Distribution<f64>>::sample(&StandardNormal, &mut rng))
+        });
         let batch_n = params.batch.min(rows);
         Ok(StreamingRsvd {
             rows,
@@ -326,11 +327,7 @@ impl<T: Real> StreamingRsvd<T> {
     /// The rank-`k` factorization after the last pass.
     pub fn finish(self) -> Result<Svd> {
         if self.pass < self.passes() {
-            return Err(CompressError::State(format!(
-                "finish after {} of {} passes",
-                self.pass,
-                self.passes()
-            )));
+            return Err(CompressError::State(format!("finish after {} of {} passes", self.pass, self.passes())));
         }
         let z = Self::to64(&self.z);
         let q = Self::to64(&self.q);
@@ -426,7 +423,8 @@ mod tests {
                 sv[j] = 0.0;
             }
             let x = svd_full.u.unwrap() * DMatrix::from_diagonal(&sv) * svd_full.v_t.unwrap();
-            let svd = rsvd_dense(&x, &RsvdParams { rank: 8, oversample: 4, power_iters: 1, batch: 5, seed: 3 }).unwrap();
+            let svd =
+                rsvd_dense(&x, &RsvdParams { rank: 8, oversample: 4, power_iters: 1, batch: 5, seed: 3 }).unwrap();
             assert!((&x - rebuild(&svd)).norm() < 1e-9 * x.norm(), "{m}x{n}");
             assert!(svd.s[3..].iter().all(|&s| s < 1e-7 * svd.s[0]), "{:?}", svd.s);
             assert!(svd.u.iter().chain(svd.sv.iter()).all(|v| v.is_finite()));
@@ -473,6 +471,9 @@ mod tests {
         assert!(matches!(s.end_pass(), Ok(true)));
         // finish before the last pass
         assert!(matches!(s.finish(), Err(CompressError::State(_))));
-        assert!(matches!(StreamingRsvd::<f64>::new(3, 4, &RsvdParams::rank(0)), Err(CompressError::BadParameter { .. })));
+        assert!(matches!(
+            StreamingRsvd::<f64>::new(3, 4, &RsvdParams::rank(0)),
+            Err(CompressError::BadParameter { .. })
+        ));
     }
 }

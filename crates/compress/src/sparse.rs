@@ -114,10 +114,21 @@ pub fn reconstruct(basis: &Model, source: &mut dyn RowSource, ridge: f64) -> Res
     source.for_each(&mut |l, v, tex| {
         let (lu, vu) = (l as usize, v as usize);
         if lu >= layout.n_light() || vu >= layout.n_view() {
-            return Err(CompressError::UnknownCapture { light: l, view: v, why: "outside the basis' samplings".into() });
+            return Err(CompressError::UnknownCapture {
+                light: l,
+                view: v,
+                why: "outside the basis' samplings".into(),
+            });
         }
         if tex.len() != n {
-            return Err(CompressError::WrongTextureSize { light: l, view: v, got: tex.len(), expected: n, width: layout.width, height: layout.height });
+            return Err(CompressError::WrongTextureSize {
+                light: l,
+                view: v,
+                got: tex.len(),
+                expected: n,
+                width: layout.width,
+                height: layout.height,
+            });
         }
         check_finite(l, v, tex, layout.width)?;
         let a = layout.index(lu, vu);
@@ -146,33 +157,33 @@ pub fn reconstruct(basis: &Model, source: &mut dyn RowSource, ridge: f64) -> Res
     for c in 0..3 {
         let p = &basis.channels[c].parts[0];
         let um = basis_rows(basis, &rows, c);
-        let lambda: Vec<f64> = p
-            .s
-            .iter()
-            .map(|&s| {
-                let tau2 = f64::from(s).powi(2) / n as f64;
-                if ridge == 0.0 {
-                    0.0
-                } else {
-                    ridge / tau2.max(1e-30)
-                }
-            })
-            .collect();
+        let lambda: Vec<f64> =
+            p.s.iter()
+                .map(|&s| {
+                    let tau2 = f64::from(s).powi(2) / n as f64;
+                    if ridge == 0.0 {
+                        0.0
+                    } else {
+                        ridge / tau2.max(1e-30)
+                    }
+                })
+                .collect();
         // (U_M^T U_M + Λ)^{-1} rhs: the k x k normal system (see `linalg::ridge_solve`).
         let ata = um.transpose() * &um;
         let mut nmat = ata.clone();
         for (j, l) in lambda.iter().enumerate() {
             nmat[(j, j)] += l;
         }
-        let coeff = nalgebra::Cholesky::new(nmat)
-            .map(|ch| ch.solve(&rhs[c]))
-            .ok_or_else(|| {
-                bad(
-                    "captures",
-                    rows.len(),
-                    format!("at least {} well-spread captures for {} terms without regularisation (use ridge > 0)", p.k, p.k),
-                )
-            })?;
+        let coeff = nalgebra::Cholesky::new(nmat).map(|ch| ch.solve(&rhs[c])).ok_or_else(|| {
+            bad(
+                "captures",
+                rows.len(),
+                format!(
+                    "at least {} well-spread captures for {} terms without regularisation (use ridge > 0)",
+                    p.k, p.k
+                ),
+            )
+        })?;
         let mut sv = vec![0.0f32; n * p.k];
         for x in 0..n {
             for j in 0..p.k {

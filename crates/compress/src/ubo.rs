@@ -112,7 +112,13 @@ impl Ubo {
         let mut plane_sv = 0u64;
         for f in &self.factors {
             if f.u.len() != rows * f.k || f.sv.len() != n * f.k || f.s.len() != f.k {
-                return e(format!("factor sizes: U {} (want {}), SV {} (want {})", f.u.len(), rows * f.k, f.sv.len(), n * f.k));
+                return e(format!(
+                    "factor sizes: U {} (want {}), SV {} (want {})",
+                    f.u.len(),
+                    rows * f.k,
+                    f.sv.len(),
+                    n * f.k
+                ));
             }
             plane_u += (rows * f.k) as u64 * u64::from(self.scalar_size);
             plane_sv += (n * f.k) as u64 * u64::from(self.scalar_size);
@@ -258,7 +264,9 @@ impl Ubo {
         } else if sig == FMF1_SIGNATURE {
             UboFormat::Fmf1
         } else {
-            return Err(r.fail(format!("signature {:?}: expected !DFMF08FCR or !FMF12FCER", String::from_utf8_lossy(&sig))));
+            return Err(
+                r.fail(format!("signature {:?}: expected !DFMF08FCR or !FMF12FCER", String::from_utf8_lossy(&sig)))
+            );
         };
         let meta_start = r.pos;
         let size = r.u32()? as usize;
@@ -470,12 +478,7 @@ pub fn to_dfmf(model: &Model, rank: Option<usize>, scalar_size: u8) -> Result<(U
             let k = s.len();
             terms = terms.max(k);
             let sv = &v * DMatrix::from_diagonal(&nalgebra::DVector::from_vec(s.clone()));
-            factors.push(Factors {
-                k,
-                s: s.iter().map(|&x| x as f32).collect(),
-                u: row_major(&u),
-                sv: row_major(&sv),
-            });
+            factors.push(Factors { k, s: s.iter().map(|&x| x as f32).collect(), u: row_major(&u), sv: row_major(&sv) });
         }
     } else {
         // Log colour: decode and refit per RGB channel.
@@ -591,7 +594,10 @@ pub fn compare(model: &Model, ubo: &Ubo) -> ExportFit {
             }
         }
     }
-    ExportFit { terms: ubo.factors.iter().map(|f| f.k).max().unwrap_or(0), rel_rmse: (e / t.max(f64::MIN_POSITIVE)).sqrt() }
+    ExportFit {
+        terms: ubo.factors.iter().map(|f| f.k).max().unwrap_or(0),
+        rel_rmse: (e / t.max(f64::MIN_POSITIVE)).sqrt(),
+    }
 }
 
 fn row_major(m: &DMatrix<f64>) -> Vec<f32> {
