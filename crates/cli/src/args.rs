@@ -3,6 +3,8 @@
 
 use clap::{Args, Parser, Subcommand};
 
+pub use crate::compress_cmd::SparseCommand;
+
 /// btfrig: runs the rigs that measure bidirectional texture functions.
 #[derive(Debug, Parser)]
 #[command(name = "btfrig", version, about, propagate_version = true)]
@@ -39,6 +41,11 @@ pub enum Command {
     /// Calibrations of the rig.
     #[command(subcommand)]
     Calibrate(CalibrateCommand),
+    /// Compress a dataset into a linear BTF model file: FMF, PVMF or PCMF (docs/compression.md).
+    Compress(crate::compress_cmd::CompressArgs),
+    /// Sparse acquisition with a linear basis: choose the captures, reconstruct the full BTF.
+    #[command(subcommand)]
+    Sparse(crate::compress_cmd::SparseCommand),
 }
 
 /// `btfrig calibrate ...`.
@@ -244,11 +251,14 @@ pub enum PlanCommand {
 /// `btfrig dataset ...`.
 #[derive(Debug, Subcommand)]
 pub enum DatasetCommand {
-    /// What a dataset holds: rig, plan, samplings, progress, size, timing.
+    /// What a dataset holds: rig, plan, samplings, progress, size, timing, and the model
+    /// files next to it; or, given a `.btfm` model file, what the model holds.
     Info {
-        /// The dataset directory.
+        /// The dataset directory (or a model file).
         dir: std::path::PathBuf,
     },
+    /// Export the dataset's compressed model to a Bonn `.btf` container (docs/compression.md).
+    Export(crate::compress_cmd::ExportArgs),
     /// Check every file's size and hash, completeness, and orphans; exit 1 on any problem.
     Verify {
         /// The dataset directory.
@@ -280,6 +290,10 @@ pub enum BenchCommand {
     Registration(BenchRegistrationArgs),
     /// Colour-correction models: fit and apply time against held-out CIEDE2000 (docs/color.md).
     Color(crate::bench_color::BenchColorArgs),
+    /// BTF compression on a simulated 81 x 81 BTF: per model and setting, ratio, build time,
+    /// decode throughput and relative RMSE against the measured data and the ground truth;
+    /// sparse acquisition (docs/compression.md).
+    Compress(crate::bench_compress::BenchCompressArgs),
 }
 
 /// `btfrig bench registration` (implemented in `bench_cmd.rs`).
