@@ -156,13 +156,11 @@ fn bonn(every: usize) -> anyhow::Result<Sampling> {
 pub fn simulate(
     cfg: &btfrig_core::config::RigConfig,
     material: &btfrig_render::material::MaterialSpec,
-    size: usize,
-    k: usize,
-    every: usize,
+    a: &BenchCompressArgs,
     seed: u64,
     cache: &Path,
-    quiet: bool,
 ) -> anyhow::Result<SimBtf> {
+    let (size, k, every, quiet) = (a.size, a.subsamples, a.every, a.json);
     let scene = RigScene::new(cfg, material)?;
     let (light, view) = (bonn(every)?, bonn(every)?);
     let mut layout = Layout::full(light.clone(), view.clone(), size, size);
@@ -370,7 +368,7 @@ pub fn bench(a: &BenchCompressArgs) -> anyhow::Result<()> {
     }
     for (mi, name) in materials.iter().enumerate() {
         let spec = crate::material::load(Some(name))?.with_texels(a.size.max(64));
-        let btf = simulate(&cfg, &spec, a.size, a.subsamples, a.every, a.seed, &cache, a.json)?;
+        let btf = simulate(&cfg, &spec, a, a.seed, &cache)?;
         let noise = {
             let mut e = ErrorSums::default();
             for r in (0..btf.layout.n_angular()).filter(|&x| btf.layout.measured[x]) {
@@ -464,7 +462,7 @@ fn sparse_bench(
 ) -> anyhow::Result<serde_json::Value> {
     let mut other = spec.clone();
     other.seed = other.seed.wrapping_add(1);
-    let train = simulate(cfg, &other, a.size, a.subsamples, a.every, a.seed + 1, cache, a.json)?;
+    let train = simulate(cfg, &other, a, a.seed + 1, cache)?;
     let count = a.sparse_captures.unwrap_or(test.layout.n_measured() / 10);
     let mut out = Vec::new();
     if !a.json {

@@ -346,7 +346,8 @@ pub struct SelectArgs {
     /// Captures to choose.
     #[arg(long)]
     pub captures: usize,
-    /// A plan to copy: the output is this plan plus the `[sparse]` table.
+    /// A plan to copy: the output is this plan plus the `[sparse]` table (its relative paths
+    /// then resolve against the output file's directory).
     #[arg(long)]
     pub plan: Option<PathBuf>,
     /// Plan file to write.

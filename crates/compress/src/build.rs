@@ -237,7 +237,10 @@ impl<T: Real> Builder<T> {
                 for c in 0..3 {
                     for v in 0..layout.n_view() {
                         if (0..layout.n_light()).any(|l| layout.measured[layout.index(l, v)]) {
-                            let p = params.rsvd(params.terms[c], (c * 100_000 + v) as u64);
+                            // 243 parts at once: small batches keep the buffers (batch x texels
+                            // per part) below the sketches themselves.
+                            let mut p = params.rsvd(params.terms[c], (c * 100_000 + v) as u64);
+                            p.batch = p.batch.min(8);
                             parts.push(PartBuilder::new(&layout, c, PartRows::View(v), None, &p)?);
                         } else {
                             return Err(CompressError::Dataset {
