@@ -429,38 +429,100 @@ impl DarkFlat {
                 // A flat near 0 (a dead or fully vignetted photosite) would blow up: treat it
                 // as a defect below.
                 let f = flat.gain[i];
-                *o = if f > 0.05 {
+                *o = if f > MIN_FLAT {
                     ((f64::from(frame.data[i]) - d.dark_dn(i, t, g)) / f64::from(f)) as f32
                 } else {
                     f32::NAN
                 };
             }
         });
-        let step = if frame.meta.bayer.is_some() { 2 } else { 1 };
-        let bad = |i: usize| d.defect[i] || !out[i].is_finite();
-        let fixes: Vec<(usize, f32)> = (0..w * h)
-            .into_par_iter()
-            .filter(|&i| bad(i))
-            .map(|i| {
-                let (x, y) = ((i % w) as isize, (i / w) as isize);
-                let (mut sum, mut k) = (0.0f32, 0u32);
-                for (dx, dy) in [(-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (1, 1), (-1, 1), (1, -1)] {
-                    let (xx, yy) = (x + dx * step, y + dy * step);
-                    if xx >= 0 && yy >= 0 && (xx as usize) < w && (yy as usize) < h {
-                        let j = yy as usize * w + xx as usize;
-                        if !bad(j) {
-                            sum += out[j];
-                            k += 1;
-                        }
+        replace_defects(&mut out, w, h, frame.meta.bayer.is_some(), &d.defect);
+        Ok(out)
+    }
+
+    /// The dark model and the flat for `f_number` as the per-photosite calibration of an HDR
+    /// merge or a metering ([`crate::hdr::PhotositeCalibration`]); photosites the merge cannot
+    /// trust (defects, a flat near 0) are for [`MeasuredCalibration::replace_defects`] to
+    /// fill afterwards.
+    pub fn merge_calibration(&self, f_number: Option<f64>) -> Result<MeasuredCalibration<'_>, DarkFlatError> {
+        let d = &self.dark;
+        let flat = self.flat_for(f_number)?;
+        if (flat.width, flat.height) != (d.width, d.height) {
+            return Err(DarkFlatError::SizeMismatch {
+                got_w: flat.width,
+                got_h: flat.height,
+                cal_w: d.width,
+                cal_h: d.height,
+            });
+        }
+        Ok(MeasuredCalibration { dark: d, flat })
+    }
+}
+
+/// A flat below this is a dead or fully vignetted photosite: its value is replaced, not divided.
+const MIN_FLAT: f32 = 0.05;
+
+/// A measured dark model and master flat seen through [`crate::hdr::PhotositeCalibration`].
+#[derive(Debug, Clone, Copy)]
+pub struct MeasuredCalibration<'a> {
+    dark: &'a DarkModel,
+    flat: &'a FlatField,
+}
+
+impl MeasuredCalibration<'_> {
+    /// Replaces the values of defective photosites (and of those with a flat near 0, or a
+    /// non-finite value) in a row-major per-photosite image of the calibration's size by the
+    /// mean of their good same-colour neighbours, as [`DarkFlat::corrected_dn`] does.
+    pub fn replace_defects(&self, values: &mut [f32], bayer: bool) {
+        let bad: Vec<bool> = self.dark.defect.iter().zip(&self.flat.gain).map(|(&d, &f)| d || f <= MIN_FLAT).collect();
+        replace_defects(values, self.dark.width, self.dark.height, bayer, &bad);
+    }
+}
+
+impl crate::hdr::PhotositeCalibration for MeasuredCalibration<'_> {
+    fn dark_dn(&self, x: usize, y: usize, meta: &btfrig_core::frame::FrameMeta) -> f64 {
+        self.dark.dark_dn(y * self.dark.width + x, meta.exposure_s, meta.gain)
+    }
+    fn dark_electrons(&self, x: usize, y: usize, meta: &btfrig_core::frame::FrameMeta) -> f64 {
+        f64::from(self.dark.rate_e_per_s[y * self.dark.width + x]).max(0.0) * meta.exposure_s
+    }
+    fn flat(&self, x: usize, y: usize) -> f64 {
+        let f = self.flat.gain[y * self.flat.width + x];
+        // Replaced afterwards (replace_defects); 1 keeps the merge finite meanwhile.
+        if f > MIN_FLAT {
+            f64::from(f)
+        } else {
+            1.0
+        }
+    }
+}
+
+/// Replaces `values[i]` where `defect[i]` or the value is not finite by the mean of the good
+/// same-colour neighbours two photosites away (one for a mono sensor), 0 if there is none.
+fn replace_defects(values: &mut [f32], w: usize, h: usize, bayer: bool, defect: &[bool]) {
+    let step = if bayer { 2 } else { 1 };
+    let bad = |i: usize| defect[i] || !values[i].is_finite();
+    let fixes: Vec<(usize, f32)> = (0..w * h)
+        .into_par_iter()
+        .filter(|&i| bad(i))
+        .map(|i| {
+            let (x, y) = ((i % w) as isize, (i / w) as isize);
+            let (mut sum, mut k) = (0.0f32, 0u32);
+            for (dx, dy) in [(-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (1, 1), (-1, 1), (1, -1)] {
+                let (xx, yy) = (x + dx * step, y + dy * step);
+                if xx >= 0 && yy >= 0 && (xx as usize) < w && (yy as usize) < h {
+                    let j = yy as usize * w + xx as usize;
+                    if !bad(j) {
+                        sum += values[j];
+                        k += 1;
                     }
                 }
-                (i, if k > 0 { sum / k as f32 } else { 0.0 })
-            })
-            .collect();
-        for (i, v) in fixes {
-            out[i] = v;
-        }
-        Ok(out)
+            }
+            (i, if k > 0 { sum / k as f32 } else { 0.0 })
+        })
+        .collect();
+    for (i, v) in fixes {
+        values[i] = v;
     }
 }
 
@@ -540,6 +602,15 @@ mod tests {
         let f = frame(w, h, 2.0, 2.0, |x, y| (dark_dn(x, y, 2.0, 2.0) + 600.0 * rel(x, y) / 0.995).round() as u16);
         let r = photosite_rates(&f, &cal).unwrap();
         assert!(r.iter().all(|&v| (v - 300.0).abs() < 1.0), "{r:?}");
+        // The same calibration in an HDR merge: a bracket of the scene at 2 s and 0.25 s gives
+        // the same rates (the hot photosite replaced by its neighbours afterwards).
+        let short = frame(w, h, 0.25, 2.0, |x, y| (dark_dn(x, y, 0.25, 2.0) + 75.0 * rel(x, y) / 0.995).round() as u16);
+        let mc = cal.merge_calibration(Some(8.0)).unwrap();
+        let noise = crate::hdr::NoiseModel { electrons_per_dn: 2.0, read_noise_e: 3.0 };
+        let mut m = crate::hdr::merge_bracket(&[&f, &short], &mc, &noise, &Default::default()).unwrap();
+        mc.replace_defects(&mut m.rate, true);
+        assert!(m.rate.iter().all(|&v| (v - 300.0).abs() < 1.0), "{:?}", m.rate);
+        assert!(cal.merge_calibration(Some(4.0)).is_err());
         // Errors name the problem.
         let mut other = f.clone();
         other.meta.f_number = Some(4.0);

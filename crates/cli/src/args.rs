@@ -164,6 +164,10 @@ pub struct RunArgs {
     /// and its drift measured on the plate per frame and corrected (docs/light.md).
     #[arg(long, value_name = "FILE")]
     pub light: Option<std::path::PathBuf>,
+    /// Dark/flat calibration directory (`btfrig calibrate radiometric --out DIR`): every frame
+    /// is corrected with its dark model and master flat before demosaicing (docs/dark-flat.md).
+    #[arg(long, value_name = "DIR")]
+    pub dark_flat: Option<std::path::PathBuf>,
 }
 
 /// `btfrig sim ...`.

@@ -166,6 +166,50 @@ impl EngineSettings {
     }
 }
 
+/// Chooses the exposures of each step (HDR brackets, `docs/hdr.md`). The engine asks for the
+/// step's planned exposures before the first trigger and, if the control [`inspects`], shows
+/// it the step's frames once they are read and takes more exposures while it asks for them.
+///
+/// An inspected step still overlaps its last read-out with the move to the next pose: the
+/// frames are inspected when they arrive, and if more exposures are needed the devices go back
+/// to the step's pose for them (a return trip, counted in [`StepTimes::bracket_s`]), so a step
+/// that one exposure holds costs no more than without inspection. Calls run on the engine's
+/// task: keep them cheap (metering a footprint, not processing a frame).
+///
+/// [`inspects`]: ExposureControl::inspects
+pub trait ExposureControl: Send {
+    /// The exposures (seconds) to take at the step's pose before any frame is inspected, in
+    /// order; the first is the base exposure the step's frame is converted with. Empty is
+    /// taken as the step's own `exposure_s`.
+    fn planned(&mut self, step: &EngineStep) -> Vec<f64>;
+
+    /// Whether [`ExposureControl::next`] is called at all.
+    fn inspects(&self) -> bool {
+        false
+    }
+
+    /// With every frame of the step read so far (in the order taken): the next exposure, or
+    /// `None` when the step is complete. The engine stops asking after
+    /// [`MAX_EXPOSURES_PER_STEP`] frames.
+    fn next(&mut self, step: &EngineStep, frames: &[RawFrame]) -> Option<f64> {
+        let _ = (step, frames);
+        None
+    }
+}
+
+/// Most frames the engine takes for one step, whatever the [`ExposureControl`] asks.
+pub const MAX_EXPOSURES_PER_STEP: usize = 16;
+
+/// One exposure per step, the step's own `exposure_s`: the default control.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct SingleExposure;
+
+impl ExposureControl for SingleExposure {
+    fn planned(&mut self, step: &EngineStep) -> Vec<f64> {
+        vec![step.exposure_s]
+    }
+}
+
 /// When the parts of one step happened, seconds on the rig clock.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct StepTimes {
@@ -179,6 +223,10 @@ pub struct StepTimes {
     pub trigger_end_s: f64,
     /// Frame on the host.
     pub transfer_end_s: f64,
+    /// Rig time the step's exposures beyond the first took: their triggers and read-outs, and
+    /// the return trips to the step's pose for exposures asked for after inspection, seconds
+    /// (0 for one exposure).
+    pub bracket_s: f64,
 }
 
 /// A frame the engine delivers, exactly once per step.
@@ -188,8 +236,11 @@ pub struct CapturedFrame {
     pub index: usize,
     /// Which capture.
     pub key: StepKey,
-    /// The raw frame with its metadata.
+    /// The raw frame with its metadata: the step's first (base) exposure.
     pub frame: RawFrame,
+    /// The step's further exposures, in the order taken (empty for one exposure): an HDR
+    /// bracket of the same pose, see [`ExposureControl`].
+    pub bracket: Vec<RawFrame>,
     /// 1 + retries spent on this step (any operation).
     pub attempts: u32,
     /// The joint state the devices were commanded to.
@@ -329,8 +380,8 @@ pub struct Engine;
 
 impl Engine {
     /// Spawns the task that executes `schedule` on `devices`, skipping the steps whose keys
-    /// are in `done`. Frames go into `frames` (bounded: the engine waits for a slow
-    /// consumer). Must be called inside a tokio runtime.
+    /// are in `done`, one exposure per step ([`SingleExposure`]). Frames go into `frames`
+    /// (bounded: the engine waits for a slow consumer). Must be called inside a tokio runtime.
     pub fn spawn(
         devices: Devices,
         schedule: Vec<EngineStep>,
@@ -338,10 +389,23 @@ impl Engine {
         settings: EngineSettings,
         frames: mpsc::Sender<CapturedFrame>,
     ) -> RunHandle {
+        Self::spawn_with_exposure(devices, schedule, done, settings, frames, Box::new(SingleExposure))
+    }
+
+    /// [`Engine::spawn`] with the exposures of each step chosen by `exposure`.
+    pub fn spawn_with_exposure(
+        devices: Devices,
+        schedule: Vec<EngineStep>,
+        done: HashSet<StepKey>,
+        settings: EngineSettings,
+        frames: mpsc::Sender<CapturedFrame>,
+        exposure: Box<dyn ExposureControl>,
+    ) -> RunHandle {
         let (cmd_tx, cmd_rx) = mpsc::unbounded_channel();
         let (ev_tx, ev_rx) = broadcast::channel(4096);
         let (state_tx, state_rx) = watch::channel(RunState::Running);
-        let runner = run::Runner::new(devices, schedule, done, settings, frames, ev_tx.clone(), state_tx, cmd_rx);
+        let runner =
+            run::Runner::new(devices, schedule, done, settings, frames, ev_tx.clone(), state_tx, cmd_rx, exposure);
         let task = tokio::spawn(runner.run());
         RunHandle { cmd: cmd_tx, events: ev_tx, first_events: Some(ev_rx), state: state_rx, task }
     }

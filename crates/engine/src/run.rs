@@ -9,8 +9,8 @@ use btfrig_hw::{Camera, DeviceError, ErrorKind, MoveOptions, Rail, Robot, Shared
 use tokio::sync::{broadcast, mpsc, watch};
 
 use crate::{
-    CapturedFrame, Command, Devices, EngineSettings, EngineStep, Event, PauseReason, RunOutcome, RunState, RunSummary,
-    StepKey, StepTimes,
+    CapturedFrame, Command, Devices, EngineSettings, EngineStep, Event, ExposureControl, PauseReason, RunOutcome,
+    RunState, RunSummary, StepKey, StepTimes, MAX_EXPOSURES_PER_STEP,
 };
 
 /// Device calls without a timeout argument (settings, reconnect) are guarded with this many
@@ -43,10 +43,12 @@ enum Stop {
     ConsumerGone,
 }
 
-/// A step triggered but not yet read out.
+/// A step whose last exposure is triggered but not yet read out.
 struct Pending {
     index: usize,
     times: StepTimes,
+    /// Its earlier exposures, already read.
+    frames: Vec<RawFrame>,
 }
 
 /// Runs `fut`, but gives up `limit_s` (rig clock) later with a `Timeout` of `device`.
@@ -187,6 +189,7 @@ pub(crate) struct Runner {
     start_s: f64,
     pause_req: bool,
     abort_req: bool,
+    exposure: Box<dyn ExposureControl>,
 }
 
 impl Runner {
@@ -200,6 +203,7 @@ impl Runner {
         events: broadcast::Sender<Event>,
         state: watch::Sender<RunState>,
         cmd: mpsc::UnboundedReceiver<Command>,
+        exposure: Box<dyn ExposureControl>,
     ) -> Self {
         Runner {
             dev,
@@ -222,6 +226,7 @@ impl Runner {
             start_s: 0.0,
             pause_req: false,
             abort_req: false,
+            exposure,
         }
     }
 
@@ -328,10 +333,21 @@ impl Runner {
         self.emit(Event::Progress { done: self.done_count(), total: self.steps.len(), eta_s });
     }
 
-    async fn deliver(&mut self, index: usize, frame: RawFrame, times: StepTimes) -> Result<(), Stop> {
+    /// Hands the step's frames (first exposure first) to the consumer.
+    async fn deliver(&mut self, index: usize, frames: Vec<RawFrame>, times: StepTimes) -> Result<(), Stop> {
         let step = self.steps[index];
         let attempts = 1 + self.step_retries.get(&index).copied().unwrap_or(0);
-        let cf = CapturedFrame { index, key: step.key, frame, attempts, joints: step.joints, times };
+        let mut frames = frames.into_iter();
+        let frame = frames.next().expect("a step delivers at least one frame");
+        let cf = CapturedFrame {
+            index,
+            key: step.key,
+            frame,
+            bracket: frames.collect(),
+            attempts,
+            joints: step.joints,
+            times,
+        };
         if self.frames.send(cf).await.is_err() {
             return Err(Stop::ConsumerGone);
         }
@@ -351,32 +367,37 @@ impl Runner {
         Ok(())
     }
 
-    /// Move, exposure, trigger and read of step `index`, one after the other; a failed
-    /// read-out is repeated from the trigger.
-    async fn sequential_step(&mut self, index: usize) -> Result<(), Stop> {
+    /// The step's planned exposures (at least one, at most [`MAX_EXPOSURES_PER_STEP`]).
+    fn planned(&mut self, index: usize) -> Vec<f64> {
         let step = self.steps[index];
+        let mut planned = self.exposure.planned(&step);
+        if planned.is_empty() {
+            planned.push(step.exposure_s);
+        }
+        planned.truncate(MAX_EXPOSURES_PER_STEP);
+        planned
+    }
+
+    /// One exposure of step `index` at the pose the devices are at: exposure setting,
+    /// trigger and read-out; a failed read-out is repeated from the trigger.
+    async fn capture_here(&mut self, index: usize, exposure_s: f64, times: &mut StepTimes) -> Result<RawFrame, Stop> {
         let s = self.s.clone();
         let clock = self.dev.clock.clone();
         let fail = |error| Stop::Failed(Failure { index, error });
-        let mut times = StepTimes { move_start_s: clock.now_s(), ..StepTimes::default() };
-        let (r, log) = move_both(&s, &clock, &mut *self.dev.robot, &mut *self.dev.rail, &step.joints).await;
-        times.move_end_s = clock.now_s();
-        self.absorb(index, log);
-        r.map_err(fail)?;
-        let (r, log) = set_exposure(&s, &clock, &mut *self.dev.camera, step.exposure_s).await;
+        let (r, log) = set_exposure(&s, &clock, &mut *self.dev.camera, exposure_s).await;
         self.absorb(index, log);
         r.map_err(fail)?;
         let mut k = 0;
         loop {
             times.trigger_start_s = clock.now_s();
-            let (r, log) = trigger(&s, &clock, &mut *self.dev.camera, step.exposure_s).await;
+            let (r, log) = trigger(&s, &clock, &mut *self.dev.camera, exposure_s).await;
             times.trigger_end_s = clock.now_s();
             self.absorb(index, log);
             r.map_err(fail)?;
             match read_once(&s, &clock, &mut *self.dev.camera).await {
                 Ok(frame) => {
                     times.transfer_end_s = clock.now_s();
-                    return self.deliver(index, frame, times).await;
+                    return Ok(frame);
                 }
                 Err(e) if e.is_retryable() && k < s.max_retries => {
                     let wait = s.backoff_for(k);
@@ -390,14 +411,60 @@ impl Runner {
         }
     }
 
-    /// Reads out the pending frame; on a retryable failure captures the step again.
+    /// Shows the control the step's frames and takes the exposures it asks for, at the pose
+    /// the devices are at, until it is satisfied.
+    async fn inspect_here(
+        &mut self,
+        index: usize,
+        frames: &mut Vec<RawFrame>,
+        times: &mut StepTimes,
+    ) -> Result<(), Stop> {
+        let step = self.steps[index];
+        while self.exposure.inspects() && frames.len() < MAX_EXPOSURES_PER_STEP {
+            let Some(e) = self.exposure.next(&step, frames) else { break };
+            let started = self.now();
+            let frame = self.capture_here(index, e, times).await?;
+            frames.push(frame);
+            times.bracket_s += self.now() - started;
+        }
+        Ok(())
+    }
+
+    /// Move, then every exposure of step `index` one after the other (trigger and read).
+    async fn sequential_step(&mut self, index: usize) -> Result<(), Stop> {
+        let step = self.steps[index];
+        let s = self.s.clone();
+        let clock = self.dev.clock.clone();
+        let fail = |error| Stop::Failed(Failure { index, error });
+        let mut times = StepTimes { move_start_s: clock.now_s(), ..StepTimes::default() };
+        let (r, log) = move_both(&s, &clock, &mut *self.dev.robot, &mut *self.dev.rail, &step.joints).await;
+        times.move_end_s = clock.now_s();
+        self.absorb(index, log);
+        r.map_err(fail)?;
+        let planned = self.planned(index);
+        let mut frames = Vec::with_capacity(planned.len());
+        let mut first_end = None;
+        for e in planned {
+            frames.push(self.capture_here(index, e, &mut times).await?);
+            first_end.get_or_insert(times.trigger_end_s);
+        }
+        times.bracket_s = times.trigger_end_s - first_end.unwrap_or(times.trigger_end_s);
+        self.inspect_here(index, &mut frames, &mut times).await?;
+        self.deliver(index, frames, times).await
+    }
+
+    /// Reads out the pending frame (the devices are still at its pose), takes the exposures an
+    /// inspection asks for; on a retryable failure captures the step again.
     async fn finish_pending(&mut self, p: Pending) -> Result<(), Stop> {
         let s = self.s.clone();
         let clock = self.dev.clock.clone();
         match read_once(&s, &clock, &mut *self.dev.camera).await {
             Ok(frame) => {
-                let times = StepTimes { transfer_end_s: clock.now_s(), ..p.times };
-                self.deliver(p.index, frame, times).await
+                let mut times = StepTimes { transfer_end_s: clock.now_s(), ..p.times };
+                let mut frames = p.frames;
+                frames.push(frame);
+                self.inspect_here(p.index, &mut frames, &mut times).await?;
+                self.deliver(p.index, frames, times).await
             }
             Err(e) if e.is_retryable() => {
                 self.note_retry(p.index, format!("{e}; capturing step {} again", p.index));
@@ -409,12 +476,17 @@ impl Runner {
     }
 
     /// Step `index` with overlap: the read-out of `pending` runs while robot and rail move
-    /// to this step's pose; then the trigger. Returns this step, triggered, as pending.
+    /// to this step's pose; if the exposure control asks for more exposures of the pending
+    /// step once it sees its frames, the devices go back to that step's pose for them and
+    /// then return here. Then this step's planned exposures: all but the last are read at the
+    /// pose, the last is triggered and returned as pending.
     async fn overlapped_step(&mut self, index: usize, pending: Option<Pending>) -> Result<Pending, Stop> {
         let step = self.steps[index];
         let s = self.s.clone();
         let clock = self.dev.clock.clone();
         let fail = |error| Stop::Failed(Failure { index, error });
+        let planned = self.planned(index);
+        let first_exposure = planned[0];
         let mut times = StepTimes { move_start_s: clock.now_s(), ..StepTimes::default() };
 
         let Devices { robot, rail, camera, .. } = &mut self.dev;
@@ -434,7 +506,7 @@ impl Runner {
                 }
             }
             // The exposure command runs on the camera after the transfer, during the move.
-            (read, Some(set_exposure(&s, &clock, &mut **camera, step.exposure_s).await))
+            (read, Some(set_exposure(&s, &clock, &mut **camera, first_exposure).await))
         };
         let (((moved, move_log), move_end), (read, exposure)) = tokio::join!(moving, camera_work);
         times.move_end_s = move_end;
@@ -443,25 +515,57 @@ impl Runner {
         let mut moved = moved;
         let mut exposure = exposure;
         if let (Some(p), Some(read)) = (pending, read) {
-            match read {
+            let back_here = match read {
                 Ok((frame, t)) => {
-                    let times = StepTimes { transfer_end_s: t, ..p.times };
-                    self.deliver(p.index, frame, times).await?;
+                    let mut p_times = StepTimes { transfer_end_s: t, ..p.times };
+                    let mut frames = p.frames;
+                    frames.push(frame);
+                    let p_step = self.steps[p.index];
+                    let more = if self.exposure.inspects() && frames.len() < MAX_EXPOSURES_PER_STEP {
+                        self.exposure.next(&p_step, &frames)
+                    } else {
+                        None
+                    };
+                    if let Some(e) = more {
+                        // The return trip: back to the pending step's pose for the exposures
+                        // its frames turned out to need, then here again.
+                        let (started, before) = (clock.now_s(), p_times.bracket_s);
+                        let p_fail = |error| Stop::Failed(Failure { index: p.index, error });
+                        let (r, log) =
+                            move_both(&s, &clock, &mut *self.dev.robot, &mut *self.dev.rail, &p_step.joints).await;
+                        self.absorb(p.index, log);
+                        r.map_err(p_fail)?;
+                        frames.push(self.capture_here(p.index, e, &mut p_times).await?);
+                        self.inspect_here(p.index, &mut frames, &mut p_times).await?;
+                        times.move_start_s = clock.now_s();
+                        let (r, log) =
+                            move_both(&s, &clock, &mut *self.dev.robot, &mut *self.dev.rail, &step.joints).await;
+                        times.move_end_s = clock.now_s();
+                        self.absorb(index, log);
+                        moved = r;
+                        exposure = Some(set_exposure(&s, &clock, &mut *self.dev.camera, first_exposure).await);
+                        // The whole trip (inspect_here counted its own captures already).
+                        p_times.bracket_s = before + clock.now_s() - started;
+                    }
+                    self.deliver(p.index, frames, p_times).await?;
+                    false
                 }
                 Err(e) if e.is_retryable() => {
                     self.note_retry(p.index, format!("{e}; capturing step {} again", p.index));
                     self.reconnect_camera_if(p.index, &e).await;
-                    self.reconnect_camera_if(p.index, &e).await;
                     self.sequential_step(p.index).await?;
-                    // Back to this step's pose, now without overlap.
-                    times.move_start_s = clock.now_s();
-                    let (r, log) = move_both(&s, &clock, &mut *self.dev.robot, &mut *self.dev.rail, &step.joints).await;
-                    times.move_end_s = clock.now_s();
-                    self.absorb(index, log);
-                    moved = r;
-                    exposure = Some(set_exposure(&s, &clock, &mut *self.dev.camera, step.exposure_s).await);
+                    true
                 }
                 Err(error) => return Err(Stop::Failed(Failure { index: p.index, error })),
+            };
+            if back_here {
+                // Back to this step's pose, now without overlap.
+                times.move_start_s = clock.now_s();
+                let (r, log) = move_both(&s, &clock, &mut *self.dev.robot, &mut *self.dev.rail, &step.joints).await;
+                times.move_end_s = clock.now_s();
+                self.absorb(index, log);
+                moved = r;
+                exposure = Some(set_exposure(&s, &clock, &mut *self.dev.camera, first_exposure).await);
             }
         }
         moved.map_err(fail)?;
@@ -469,12 +573,26 @@ impl Runner {
             self.absorb(index, log);
             r.map_err(fail)?;
         }
+        // Every planned exposure but the last is read at the pose; the last is left pending.
+        let (&last, earlier) = planned.split_last().expect("at least one planned exposure");
+        let mut frames = Vec::with_capacity(planned.len());
+        let mut first_end = None;
+        for &e in earlier {
+            frames.push(self.capture_here(index, e, &mut times).await?);
+            first_end.get_or_insert(times.trigger_end_s);
+        }
+        if !earlier.is_empty() {
+            let (r, log) = set_exposure(&s, &clock, &mut *self.dev.camera, last).await;
+            self.absorb(index, log);
+            r.map_err(fail)?;
+        }
         times.trigger_start_s = clock.now_s();
-        let (r, log) = trigger(&s, &clock, &mut *self.dev.camera, step.exposure_s).await;
+        let (r, log) = trigger(&s, &clock, &mut *self.dev.camera, last).await;
         times.trigger_end_s = clock.now_s();
         self.absorb(index, log);
         r.map_err(fail)?;
-        Ok(Pending { index, times })
+        times.bracket_s = times.trigger_end_s - first_end.unwrap_or(times.trigger_end_s);
+        Ok(Pending { index, times, frames })
     }
 
     fn summary(&self) -> RunSummary {

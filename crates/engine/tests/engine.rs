@@ -10,8 +10,8 @@ use btfrig_core::frame::RawFrame;
 use btfrig_core::kinematics::Gonio;
 use btfrig_core::sampling::Sampling;
 use btfrig_engine::{
-    CapturedFrame, Devices, Engine, EngineSettings, EngineStep, Event, PauseReason, RunHandle, RunOutcome, RunState,
-    StepKey,
+    CapturedFrame, Devices, Engine, EngineSettings, EngineStep, Event, ExposureControl, PauseReason, RunHandle,
+    RunOutcome, RunState, RunSummary, StepKey,
 };
 use btfrig_hw::CaptureSettings;
 use btfrig_hw::{AxisLimits, Device, DeviceError, DeviceInfo, ErrorKind, MoveOptions, Rail, TokioClock};
@@ -521,6 +521,86 @@ async fn slow_consumer_backpressure_delays_the_run_without_losing_frames() {
     assert_eq!(consumer.await.unwrap(), 10);
     // With a 1-frame channel the engine can be at most ~2 frames ahead of the consumer.
     assert!(sum.hardware_s > 8.0 * 12.0, "{} s", sum.hardware_s);
+}
+
+/// Brackets of three kinds on the 40-step schedule: light 1 plans two exposures at the pose,
+/// light 2 asks for two more after inspecting its frames (a return trip under overlap), light
+/// 3 is inspected and needs nothing more.
+struct TestBrackets;
+
+impl ExposureControl for TestBrackets {
+    fn planned(&mut self, step: &EngineStep) -> Vec<f64> {
+        match step.key.light {
+            1 => vec![EXPOSURE_S, EXPOSURE_S / 8.0],
+            _ => vec![EXPOSURE_S],
+        }
+    }
+    fn inspects(&self) -> bool {
+        true
+    }
+    fn next(&mut self, step: &EngineStep, frames: &[RawFrame]) -> Option<f64> {
+        (step.key.light == 2 && frames.len() < 3).then(|| frames.last().unwrap().meta.exposure_s / 8.0)
+    }
+}
+
+async fn run_brackets(overlap: bool, control: Option<TestBrackets>) -> (RunSummary, Vec<CapturedFrame>) {
+    let cfg = cfg();
+    let steps = EngineStep::from_schedule(&forty(&cfg));
+    let (devices, _world) = rig(&cfg, &FaultScenario::none()).await;
+    let (tx, frames) = consumer(4);
+    let settings = EngineSettings { overlap, ..EngineSettings::default() };
+    let handle = match control {
+        Some(c) => Engine::spawn_with_exposure(devices, steps, HashSet::new(), settings, tx, Box::new(c)),
+        None => Engine::spawn(devices, steps, HashSet::new(), settings, tx),
+    };
+    let RunOutcome::Finished(sum) = handle.join().await else { panic!("not finished") };
+    (sum, frames.await.unwrap())
+}
+
+#[tokio::test(start_paused = true)]
+async fn brackets_are_taken_at_the_step_pose_and_cost_only_their_own_time() {
+    let steps = EngineStep::from_schedule(&forty(&cfg()));
+    for overlap in [true, false] {
+        let (single, _) = run_brackets(overlap, None).await;
+        let (sum, frames) = run_brackets(overlap, Some(TestBrackets)).await;
+        assert_eq!(frames.len(), 40);
+        let mut extra = 0.0;
+        for f in &frames {
+            let s = &steps[f.index];
+            let all: Vec<&RawFrame> = std::iter::once(&f.frame).chain(&f.bracket).collect();
+            let exposures: Vec<f64> = all.iter().map(|fr| fr.meta.exposure_s).collect();
+            let want = match s.key.light {
+                1 => vec![EXPOSURE_S, EXPOSURE_S / 8.0],
+                2 => vec![EXPOSURE_S, EXPOSURE_S / 8.0, EXPOSURE_S / 64.0],
+                _ => vec![EXPOSURE_S],
+            };
+            assert_eq!(exposures, want, "step {}", f.index);
+            // Every exposure at this step's pose (return trips included), in time order, the
+            // last one the recorded trigger.
+            for fr in &all {
+                let want = [s.joints.rail.to_degrees(), s.joints.robot[0].to_degrees(), s.joints.robot[1].to_degrees()];
+                for (got, want) in pose_of(fr).iter().zip(want) {
+                    assert!((got - want).abs() < 0.8, "step {}: exposure at {:?}", f.index, pose_of(fr));
+                }
+            }
+            assert!(all.windows(2).all(|w| w[0].meta.timestamp_s < w[1].meta.timestamp_s));
+            let t = &f.times;
+            let last = all.last().unwrap().meta.timestamp_s;
+            assert!(t.trigger_start_s <= last && last <= t.trigger_end_s, "{t:?} {last}");
+            assert_eq!(t.bracket_s > 0.0, all.len() > 1, "step {}: {t:?}", f.index);
+            extra += t.bracket_s;
+        }
+        // A bracket costs the rig its own time and nothing else: the inspected single-exposure
+        // steps keep the overlap of their read-out with the next move.
+        let added = sum.hardware_s - single.hardware_s;
+        println!(
+            "overlap {overlap}: single exposures {:.2} s, with brackets {:.2} s (+{added:.2} s), bracket time {extra:.2} s",
+            single.hardware_s, sum.hardware_s
+        );
+        assert!((added - extra).abs() < 0.01 * single.hardware_s, "added {added} s, brackets {extra} s");
+        // Light 2 (5 steps) costs two exposures each with a return trip under overlap.
+        assert!(extra > 5.0 * 2.0 * 5.0, "{extra}");
+    }
 }
 
 #[test]

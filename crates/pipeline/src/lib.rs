@@ -51,7 +51,7 @@ use btfrig_register::{texel_position_error_with_cameras, FrameError, PlateRegist
 use btfrig_render::demosaic::demosaic_bilinear;
 use btfrig_render::rig_scene::RigScene;
 use btfrig_sim::{FrameSource, SensorFormat, TrueState};
-use btfrig_store::{Dataset, StepId, StepTiming, StoreError};
+use btfrig_store::{Dataset, StepExtra, StepHdr, StepId, StepTiming, StoreError};
 pub use btfrig_store::{PoseSource, StepRegistration};
 use tokio::sync::{mpsc, watch};
 
@@ -212,6 +212,14 @@ pub enum PipelineError {
     /// A dark/flat calibration given to [`Processor::with_dark_flat`] does not fit the camera.
     #[error("dark/flat calibration: {0}")]
     DarkFlatSetup(btfrig_calib::dark_flat::DarkFlatError),
+    /// An HDR bracket could not be merged.
+    #[error("step {step}: HDR merge: {source}")]
+    Hdr {
+        /// Which capture.
+        step: StepId,
+        /// What was wrong.
+        source: btfrig_calib::hdr::HdrError,
+    },
     /// The light calibration is unusable.
     #[error("light calibration: {0}")]
     Light(#[from] btfrig_calib::light::LightError),
@@ -304,6 +312,8 @@ pub struct Processed {
     pub lamp_factor: Option<light::LampFactor>,
     /// `sum(texture) / sum(truth at the nominal lamp) - 1`; `None` without a truth.
     pub brightness_err: Option<f64>,
+    /// For a merged bracket: photosites saturated in every exposure; `None` for one frame.
+    pub saturated_photosites: Option<u64>,
 }
 
 impl Processed {
@@ -317,6 +327,7 @@ impl Processed {
             error_nominal: None,
             lamp_factor: None,
             brightness_err: None,
+            saturated_photosites: None,
         }
     }
 }
@@ -341,6 +352,17 @@ pub struct Processor {
     dark_flat: Option<Arc<dark_flat::DarkFlat>>,
     /// The light calibration and the plate points of the drift patch.
     light: Option<(light::LightCorrection, Vec<nalgebra::Point2<f64>>)>,
+    /// With HDR on: what each step's journal record says of its exposures.
+    hdr: Option<HdrRecording>,
+}
+
+/// What the journal records of each step's exposures when the plan has HDR on
+/// ([`Processor::with_hdr_recording`], `btfrig_store::StepHdr`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct HdrRecording {
+    /// The bracket always bracketing would take, as multipliers of the step's base exposure
+    /// (first 1): the counterfactual of the report's time saved.
+    pub always_stops: Vec<f64>,
 }
 
 /// When the next preview may be made.
@@ -409,6 +431,7 @@ impl Processor {
             color: None,
             dark_flat: None,
             light: None,
+            hdr: None,
         })
     }
 
@@ -477,6 +500,31 @@ impl Processor {
         let points = light::patch_points(&correction, &self.plate);
         self.light = Some((correction, points));
         Ok(self)
+    }
+
+    /// The same processor journaling each step's exposures ([`HdrRecording`]); `None`: HDR off.
+    pub fn with_hdr_recording(mut self, hdr: Option<HdrRecording>) -> Self {
+        self.hdr = hdr;
+        self
+    }
+
+    /// What is journaled of each step's exposures, with HDR on.
+    pub fn hdr_recording(&self) -> Option<&HdrRecording> {
+        self.hdr.as_ref()
+    }
+
+    /// Photosites that see the sample (the footprint of its region from the nominal pose of
+    /// `commanded`, `btfrig_calib::exposure::sample_footprint`) and are saturated in every one
+    /// of `frames`.
+    pub fn saturated_on_sample(&self, frames: &[&RawFrame], commanded: &JointState) -> u64 {
+        let Some(first) = frames.first() else { return 0 };
+        let fp =
+            btfrig_calib::exposure::sample_footprint(&self.camera, &self.scene.pose(commanded), self.settings.region);
+        if (fp.width, fp.height) != (first.width, first.height) {
+            return 0;
+        }
+        let saturated = |i: usize| frames.iter().all(|f| f.data.get(i).is_some_and(|&v| v >= f.meta.white_level));
+        fp.mask.iter().enumerate().filter(|&(i, &m)| m && saturated(i)).count() as u64
     }
 
     /// The light correction, if any.
@@ -562,18 +610,43 @@ impl Processor {
         commanded: &JointState,
         truth: Option<(JointState, f64)>,
     ) -> Result<Processed, PipelineError> {
+        self.process_bracket(step, &[frame], commanded, truth)
+    }
+
+    /// [`Processor::process`] of an HDR bracket (`frames`: the exposures of one pose, the base
+    /// exposure first): with more than one frame they are merged per photosite into signal
+    /// rate (`btfrig_calib::hdr::merge_bracket`, with the measured dark model and flat if the
+    /// processor has them), expressed in the base exposure's normalised DN and demosaiced; the
+    /// rest is the single-frame path with the base frame's radiometry. One frame takes the
+    /// single-frame path unchanged (no merge).
+    pub fn process_bracket(
+        &self,
+        step: StepId,
+        frames: &[&RawFrame],
+        commanded: &JointState,
+        truth: Option<(JointState, f64)>,
+    ) -> Result<Processed, PipelineError> {
         let err = |source| PipelineError::Rectify { step, source };
+        let Some(&frame) = frames.first() else {
+            return Err(PipelineError::Hdr { step, source: btfrig_calib::hdr::HdrError::Empty });
+        };
         let mut stage_s = BTreeMap::new();
         let t = Instant::now();
+        let mut saturated_photosites = None;
         // For a mono sensor this only normalises to [0, 1] with equal channels.
-        let dm = match &self.dark_flat {
-            Some(cal) => {
+        let dm = match (&self.dark_flat, frames.len()) {
+            (_, 2..) => {
+                let (dm, saturated) = self.demosaic_merged(step, frames)?;
+                saturated_photosites = Some(saturated);
+                dm
+            }
+            (Some(cal), _) => {
                 dark_flat::demosaic_corrected(frame, cal).map_err(|source| PipelineError::DarkFlat { step, source })?
             }
-            None => demosaic_bilinear(frame),
+            (None, _) => demosaic_bilinear(frame),
         };
         let image = LinearImage { width: dm.width, height: dm.height, data: dm.data };
-        stage_s.insert("demosaic".to_string(), t.elapsed().as_secs_f64());
+        stage_s.insert(if frames.len() > 1 { "hdr_merge" } else { "demosaic" }.to_string(), t.elapsed().as_secs_f64());
 
         let nominal = self.scene.pose(commanded);
         let cam = &self.camera;
@@ -603,6 +676,10 @@ impl Processor {
 
         let t = Instant::now();
         let mut radiometry = self.radiometry(frame);
+        if saturated_photosites.is_some() {
+            // The merge subtracted the dark signal.
+            radiometry.dark_e_per_s = 0.0;
+        }
         let mut lamp_factor = None;
         if let Some((l, points)) = &self.light {
             let d = self.scene.gonio().geometry().lamp_distance_m;
@@ -673,7 +750,47 @@ impl Processor {
             error_nominal,
             lamp_factor,
             brightness_err,
+            saturated_photosites,
         })
+    }
+
+    /// Merges a bracket (base exposure first) and demosaics it in the base exposure's
+    /// normalised DN (`(DN - dark) / (white - black)` of a frame at the base's exposure and
+    /// gain, above 1 where the base saturated); also returns the photosites saturated in
+    /// every exposure.
+    fn demosaic_merged(
+        &self,
+        step: StepId,
+        frames: &[&RawFrame],
+    ) -> Result<(btfrig_render::demosaic::CameraRgbImage, u64), PipelineError> {
+        use btfrig_calib::hdr::{merge_bracket, MergeOptions, NoiseModel, NominalCalibration};
+        let base = frames[0];
+        let sensor = self.scene.sensor();
+        let noise = NoiseModel { electrons_per_dn: sensor.electrons_per_dn, read_noise_e: sensor.read_noise_e };
+        let opts = MergeOptions::default();
+        let hdr_err = |source| PipelineError::Hdr { step, source };
+        let merged = match &self.dark_flat {
+            Some(cal) => {
+                let mc = cal
+                    .merge_calibration(base.meta.f_number)
+                    .map_err(|source| PipelineError::DarkFlat { step, source })?;
+                let mut m = merge_bracket(frames, &mc, &noise, &opts).map_err(hdr_err)?;
+                mc.replace_defects(&mut m.rate, base.meta.bayer.is_some());
+                m
+            }
+            None => {
+                let nominal = NominalCalibration {
+                    dark_current_e_per_s: sensor.dark_current_e_per_s,
+                    electrons_per_dn: sensor.electrons_per_dn,
+                };
+                merge_bracket(frames, &nominal, &noise, &opts).map_err(hdr_err)?
+            }
+        };
+        let range = (f64::from(base.meta.white_level) - f64::from(base.meta.black_level)).max(1.0);
+        let scale = base.meta.exposure_s * sensor.dn_per_electron(base.meta.gain.max(1.0)) / range;
+        let values: Vec<f32> = merged.rate.iter().map(|&r| (f64::from(r) * scale) as f32).collect();
+        let dm = btfrig_render::demosaic::demosaic_bilinear_values(base.width, base.height, base.meta.bayer, &values);
+        Ok((dm, merged.saturated_everywhere() as u64))
     }
 
     /// Registers `image` (its green channel: half of a Bayer sensor's photosites) against the
@@ -838,7 +955,8 @@ pub async fn run<S>(
 where
     S: btfrig_store::Storage + Send + Sync + 'static,
 {
-    type Output = (StepId, Vec<btfrig_store::FileRecord>, u32, StepTiming, Processed, Option<MadePreview>);
+    type Output =
+        (StepId, Vec<btfrig_store::FileRecord>, u32, StepTiming, Processed, Option<MadePreview>, Option<StepHdr>);
     type Job = tokio::task::JoinHandle<Result<Output, PipelineError>>;
     enum Next {
         Frame(Option<CapturedFrame>),
@@ -872,20 +990,23 @@ where
                     let out = *pr.outputs();
                     let mut files = Vec::new();
                     let mut stage_s = BTreeMap::new();
+                    let frames: Vec<&RawFrame> = std::iter::once(&f.frame).chain(&f.bracket).collect();
                     if out.raw_frames {
                         let tw = Instant::now();
-                        files.push(ds.write_raw(step, &f.frame)?);
+                        for (k, fr) in frames.iter().enumerate() {
+                            files.push(ds.write_raw_exposure(step, k, fr)?);
+                        }
                         stage_s.insert("write_raw".to_string(), tw.elapsed().as_secs_f64());
                     }
                     let claim = claim_preview(&pr);
                     let preview_due = claim.is_some();
                     let nothing = Processed::nothing;
                     let mut p = if out.textures {
-                        pr.process(step, &f.frame, &f.joints, t)?
+                        pr.process_bracket(step, &frames, &f.joints, t)?
                     } else if preview_due {
                         // Only for the preview: its failure must not fail the step, and without
                         // textures there is nothing to compare with the truth.
-                        pr.process(step, &f.frame, &f.joints, None).unwrap_or_else(|_| nothing())
+                        pr.process_bracket(step, &frames, &f.joints, None).unwrap_or_else(|_| nothing())
                     } else {
                         nothing()
                     };
@@ -907,13 +1028,19 @@ where
                     };
                     let preview = claim.map(|c| make_preview(c, step, &p.texels, n));
                     p.texels = Vec::new();
-                    Ok((step, files, f.attempts, timing, p, preview))
+                    let hdr = pr.hdr_recording().map(|h| StepHdr {
+                        exposures_s: frames.iter().map(|fr| fr.meta.exposure_s).collect(),
+                        bracket_s: f.times.bracket_s,
+                        saturated_photosites: pr.saturated_on_sample(&frames, &f.joints),
+                        always_s: h.always_stops.iter().map(|k| k * f.frame.meta.exposure_s).collect(),
+                    });
+                    Ok((step, files, f.attempts, timing, p, preview, hdr))
                 });
                 in_flight.push_back((step, job));
             }
             Next::Done(r) => {
                 let (step, _) = in_flight.pop_front().expect("a job was awaited");
-                let (step, files, attempts, timing, p, preview) =
+                let (step, files, attempts, timing, p, preview, hdr) =
                     match r.map_err(|e| PipelineError::Join { step, reason: e.to_string() }).and_then(|r| r) {
                         Ok(out) => out,
                         Err(e) => return Err(drain(in_flight, e).await),
@@ -924,7 +1051,7 @@ where
                 // A texture's pose record goes with it; a preview-only frame wrote no texture.
                 let registration = if processor.outputs().textures { p.registration.clone() } else { None };
                 let written = match tokio::task::spawn_blocking(move || {
-                    ds.commit_step_with(step, files, attempts, timing, registration)?;
+                    ds.commit_step_with(step, files, attempts, timing, StepExtra { registration, hdr })?;
                     Ok::<_, StoreError>(preview.map(|made| {
                         let t = Instant::now();
                         let ok = match &made.preview {

@@ -53,9 +53,18 @@ fn fixture() -> Fixture {
                 trigger_start_s: 1.0,
                 trigger_end_s: 2.0,
                 transfer_end_s: 3.0,
+                bracket_s: 0.0,
             };
             let key = StepKey { light: l as u32, view: v as u32 };
-            frames.push(CapturedFrame { index: frames.len(), key, frame, attempts: 1, joints, times });
+            frames.push(CapturedFrame {
+                index: frames.len(),
+                key,
+                frame,
+                bracket: Vec::new(),
+                attempts: 1,
+                joints,
+                times,
+            });
         }
     }
     Fixture { scene, lights, views, frames }

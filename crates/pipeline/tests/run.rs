@@ -49,11 +49,20 @@ fn every_frame_is_written_and_committed_once_and_the_dataset_verifies() {
                 trigger_start_s: 1.0,
                 trigger_end_s: 2.0,
                 transfer_end_s: 3.0,
+                bracket_s: 0.0,
             };
             let key = StepKey { light: l as u32, view: v as u32 };
             // The second frame took a retry.
             let attempts = if frames.len() == 1 { 2 } else { 1 };
-            frames.push(CapturedFrame { index: frames.len(), key, frame, attempts, joints, times: t });
+            frames.push(CapturedFrame {
+                index: frames.len(),
+                key,
+                frame,
+                bracket: Vec::new(),
+                attempts,
+                joints,
+                times: t,
+            });
         }
     }
     let rt = tokio::runtime::Builder::new_current_thread().enable_time().build().unwrap();

@@ -11,6 +11,7 @@
 
 #![warn(missing_docs)]
 
+mod hdr;
 mod light;
 pub mod plan;
 pub mod report;
@@ -35,6 +36,7 @@ use btfrig_store::{Dataset, RunReport, StoreError};
 use serde_json::json;
 use tokio::sync::mpsc;
 
+pub use crate::hdr::{journal_hdr, HdrFigures};
 use crate::report::Session;
 
 /// Frames the engine may hold ready ahead of the pipeline (back-pressure beyond that).
@@ -121,6 +123,19 @@ pub struct RunRequest {
     /// measured on the plate and corrected (`btfrig_pipeline::light`); `None`: the lamp's
     /// power and colour come from the rig model.
     pub light: Option<btfrig_pipeline::light::LightCorrection>,
+    /// A measured dark model and master flats every frame is corrected with before
+    /// demosaicing (`docs/dark-flat.md`); `None`: the sensor model's black level, dark current
+    /// and the lens model's vignetting.
+    pub dark_flat: Option<DarkFlatInput>,
+}
+
+/// A dark/flat calibration for a run, with where it came from (recorded in the manifest).
+#[derive(Debug, Clone)]
+pub struct DarkFlatInput {
+    /// Where the calibration was read from (e.g. the directory `btfrig calibrate radiometric` wrote).
+    pub source: String,
+    /// The dark model and master flats.
+    pub calibration: Arc<btfrig_pipeline::dark_flat::DarkFlat>,
 }
 
 impl RunRequest {
@@ -140,7 +155,14 @@ impl RunRequest {
             stop_on_fault: true,
             compare_nominal: false,
             light: None,
+            dark_flat: None,
         }
+    }
+
+    /// With a dark/flat calibration (see [`RunRequest::dark_flat`]).
+    pub fn with_dark_flat(mut self, dark_flat: Option<DarkFlatInput>) -> RunRequest {
+        self.dark_flat = dark_flat;
+        self
     }
 
     /// With a light calibration (see [`RunRequest::light`]).
@@ -397,6 +419,9 @@ pub struct RunSummary {
     pub peak_rss_mib: Option<f64>,
     /// This session's lamp figures, with a light calibration only (`RunRequest::light`).
     pub lamp: Option<btfrig_pipeline::light::LampTotals>,
+    /// HDR figures over every journaled capture, with HDR on (`[exposure] hdr = "adaptive"`
+    /// or `mode = "bracket"`).
+    pub hdr: Option<HdrFigures>,
 }
 
 /// The process's peak resident set size in MiB, from `/proc/self/status` (Linux).
@@ -441,6 +466,11 @@ impl RunSummary {
             "dataset": self.dataset.display().to_string(),
         });
         light::add_summary_fields(&mut v, self.lamp.as_ref());
+        if let (Some(h), Some(o)) = (&self.hdr, v.as_object_mut()) {
+            if let Some(fields) = h.to_json().as_object() {
+                o.extend(fields.clone());
+            }
+        }
         v
     }
 }
@@ -477,12 +507,17 @@ pub fn run(
     };
     let material = plan::material(&plan, &v, file)?;
     let exposure_s = plan::exposure_s(&plan, &v, file)?;
+    let hdr = match &v.exposure {
+        btfrig_core::plan::ExposurePolicy::Auto { hdr, .. } if hdr.is_on() => Some(hdr.clone()),
+        _ => None,
+    };
 
     // The dataset: new, or the same plan's to resume; anything else is refused by the store.
     let mut manifest = plan::manifest(&plan, &v, &req.plan_text, file, &list)?;
     let color_file = btfrig_calibrate::color::processing_color(&v.rig, plan.rig_config_path(file).as_deref())
         .map_err(|e| RunError::Rig(format!("the rig's colour calibration: {e}")))?;
-    manifest.calibration = Some(calibration_record(&v.rig, color_file.as_ref(), req.light.as_ref()));
+    manifest.calibration =
+        Some(calibration_record(&v.rig, color_file.as_ref(), req.light.as_ref(), req.dark_flat.as_ref()));
     let ds_err = |source| RunError::Dataset { dir: req.out.clone(), source };
     let (dataset, resumed, run_skips, repaired) = match Dataset::create(&req.out, manifest) {
         Ok(d) => (d, false, BTreeMap::new(), None),
@@ -523,6 +558,10 @@ pub fn run(
         naive_order_hardware_s: schedule.naive_order_hardware_s,
         // The colour calibration's held-out CIEDE2000.
         color_held_out: color_file.as_ref().map(|f| (f.statistics.held_out_mean, f.statistics.held_out_max)),
+        per_exposure_overhead_s: btfrig_calib::exposure::per_exposure_overhead_s(
+            &v.rig.timing.camera,
+            plan::frame_bytes(&v),
+        ),
     };
     if to_do == 0 {
         return Ok(summarise(&fixed, &dataset, &previous, None, RunOutcome::NothingToDo));
@@ -571,6 +610,11 @@ pub fn run(
         let model = f.to_model().expect("checked when read");
         btfrig_pipeline::color::ColorCorrection { name: f.source.plan.clone(), white_balance: f.white_balance, model }
     });
+    let light_cos: std::collections::HashMap<StepKey, f64> = schedule
+        .captures
+        .iter()
+        .map(|c| (StepKey { light: c.light_index as u32, view: c.view_index as u32 }, c.light.theta.cos()))
+        .collect();
     let commands = control.take().ok_or_else(|| RunError::Rig("this RunControl already drives a run".into()))?;
     let dataset = Arc::new(dataset);
     let rt = virtual_time_runtime()?;
@@ -597,6 +641,8 @@ pub fn run(
         stop_on_fault: req.stop_on_fault,
         compare_nominal: req.compare_nominal,
         light: req.light.clone(),
+        dark_flat: req.dark_flat.as_ref().map(|d| d.calibration.clone()),
+        hdr: hdr.map(|settings| SessionHdr { settings, reference_s: exposure_s, light_cos }),
         on_event,
     }));
     let SessionResult { outcome, hardware_s, engine_retries, warnings, totals } = session?;
@@ -649,6 +695,8 @@ struct Fixed {
     naive_order_hardware_s: f64,
     /// Held-out CIEDE2000 (mean, max) of the colour calibration in use.
     color_held_out: Option<(f64, f64)>,
+    /// What one more exposure costs the camera beyond its own time, seconds.
+    per_exposure_overhead_s: f64,
 }
 
 /// What the manifest records of the calibrations a run processes its frames with
@@ -659,6 +707,7 @@ fn calibration_record(
     rig: &btfrig_core::config::RigConfig,
     color: Option<&btfrig_calibrate::color::ColorCalibrationFile>,
     light: Option<&btfrig_pipeline::light::LightCorrection>,
+    dark_flat: Option<&DarkFlatInput>,
 ) -> serde_json::Value {
     json!({
         "geometry": rig.camera.calibration,
@@ -679,7 +728,13 @@ fn calibration_record(
             "plate_albedo": l.reference.plate_albedo,
             "drift_corrected": l.correct_drift,
         })),
-        "dark_flat": null,
+        "dark_flat": dark_flat.map(|d| json!({
+            "source": d.source,
+            "width": d.calibration.dark.width,
+            "height": d.calibration.dark.height,
+            "defects": d.calibration.dark.defects(),
+            "f_numbers": d.calibration.flats.iter().map(|f| f.f_number).collect::<Vec<_>>(),
+        })),
     })
 }
 
@@ -725,6 +780,7 @@ fn summarise(
         unreported_captures: captures.saturating_sub(t.captures),
         peak_rss_mib: peak_rss_mib(),
         lamp: None,
+        hdr: journal_hdr(dataset, fixed.per_exposure_overhead_s),
     }
 }
 
@@ -748,6 +804,9 @@ fn report_of(s: &RunSummary, previous: &[Session], this: &Session, sessions: Vec
     put("color_delta_e00_max", json!(s.color_delta_e00_max));
     if let Some(l) = &s.lamp {
         put("lamp", light::lamp_json(l));
+    }
+    if let Some(h) = &s.hdr {
+        put("hdr", h.to_json());
     }
     put(
         "registration",
@@ -798,7 +857,17 @@ struct SessionInput<'a> {
     stop_on_fault: bool,
     compare_nominal: bool,
     light: Option<btfrig_pipeline::light::LightCorrection>,
+    dark_flat: Option<Arc<btfrig_pipeline::dark_flat::DarkFlat>>,
+    hdr: Option<SessionHdr>,
     on_event: &'a mut dyn FnMut(&RunEvent),
+}
+
+/// HDR on: the plan's settings, the white-reference exposure (the first guess at each view)
+/// and each step's light cosine.
+struct SessionHdr {
+    settings: btfrig_core::plan::HdrSettings,
+    reference_s: f64,
+    light_cos: std::collections::HashMap<StepKey, f64>,
 }
 
 struct SessionResult {
@@ -849,6 +918,8 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
         stop_on_fault,
         compare_nominal,
         light,
+        dark_flat,
+        hdr,
         on_event,
     } = input;
     let scene = Arc::new(RigScene::new(rig, material).map_err(|e| RunError::Rig(e.to_string()))?);
@@ -873,6 +944,27 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
         .map_err(|e| RunError::Rig(format!("preparing the simulated rig: {e}")))?;
     let devices = Devices { robot: sim.robot, rail: sim.rail, camera: sim.camera, clock: sim.world.clock().clone() };
     let _lamp = sim.lamp; // stays on for the whole run
+    let exposure_control: Box<dyn btfrig_engine::ExposureControl> = match &hdr {
+        Some(h) => {
+            let sensor = scene.sensor();
+            let hdr_rig = hdr::HdrRig {
+                camera: camera.clone(),
+                gonio: Gonio::new(rig.geometry.clone()).map_err(|e| RunError::Rig(e.to_string()))?,
+                region: process.region,
+                noise: btfrig_calib::hdr::NoiseModel {
+                    electrons_per_dn: sensor.electrons_per_dn,
+                    read_noise_e: sensor.read_noise_e,
+                },
+                nominal: btfrig_calib::hdr::NominalCalibration {
+                    dark_current_e_per_s: sensor.dark_current_e_per_s,
+                    electrons_per_dn: sensor.electrons_per_dn,
+                },
+                exposure_range_s: devices.camera.capabilities().exposure_range_s,
+            };
+            Box::new(hdr::HdrControl::new(&h.settings, hdr_rig, h.reference_s, h.light_cos.clone()))
+        }
+        None => Box::new(btfrig_engine::SingleExposure),
+    };
     let processor = Arc::new(
         Processor::new(scene, &rig.plate, process)
             .and_then(|p| p.with_camera(camera))
@@ -880,17 +972,30 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
                 Some(l) => p.with_light(l),
                 None => Ok(p),
             })
+            .and_then(|p| match dark_flat {
+                Some(cal) => p.with_dark_flat(cal),
+                None => Ok(p),
+            })
             .map_err(|e| RunError::Rig(e.to_string()))?
             .with_outputs(outputs)
             .with_color_correction(color)
-            .with_nominal_comparison(compare_nominal),
+            .with_nominal_comparison(compare_nominal)
+            .with_hdr_recording(
+                hdr.as_ref().map(|h| btfrig_pipeline::HdrRecording { always_stops: hdr::always_stops(&h.settings) }),
+            ),
     );
     let index_of: std::collections::HashMap<StepKey, usize> =
         steps.iter().enumerate().map(|(i, s)| (s.key, i)).collect();
     let (tx, rx) = mpsc::channel(FRAME_CHANNEL);
-    let mut handle = Engine::spawn(devices, steps, done, settings, tx);
+    let mut handle = Engine::spawn_with_exposure(devices, steps, done, settings, tx, exposure_control);
     let mut events = handle.events();
-    let lookup: btfrig_pipeline::TruthLookup = Arc::new(move |f| truth.take(f.frame.meta.timestamp_s));
+    let lookup: btfrig_pipeline::TruthLookup = Arc::new(move |f| {
+        // The further exposures of a bracket were rendered at the same true pose: drop them.
+        for b in &f.bracket {
+            truth.take(b.meta.timestamp_s);
+        }
+        truth.take(f.frame.meta.timestamp_s)
+    });
     // The pipeline's totals as of its last commit (kept if it stops at an error) and its
     // fallbacks, which become warnings on the listening side.
     let last_totals = Arc::new(Mutex::new(btfrig_pipeline::Totals::default()));

@@ -92,7 +92,7 @@ pub fn material(plan: &Plan, v: &ValidatedPlan, file: &Path) -> Result<MaterialS
 pub fn exposure_s(plan: &Plan, v: &ValidatedPlan, file: &Path) -> Result<f64, RunError> {
     Ok(match v.exposure {
         ExposurePolicy::Fixed { exposure_s, .. } => exposure_s,
-        ExposurePolicy::Auto { white_fraction } => {
+        ExposurePolicy::Auto { white_fraction, .. } => {
             let scene = RigScene::new(&v.rig, &material(plan, v, file)?)
                 .map_err(|e| RunError::Input { what: "rig scene".into(), message: e.to_string() })?;
             scene.exposure_for_white(white_fraction, 1e-6, 3600.0)

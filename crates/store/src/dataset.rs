@@ -12,7 +12,7 @@ use crate::hash::content_hash;
 use crate::journal::{self, Journal, Record, StepRecord, TornTail};
 use crate::manifest::{Manifest, TextureFormat, TimingSummary};
 use crate::storage::{parent, FsStorage, Storage};
-use crate::{FileRecord, RunReport, StepId, StepRegistration, StepTiming};
+use crate::{FileRecord, RunReport, StepExtra, StepId, StepTiming};
 
 /// The manifest's file name.
 pub const MANIFEST_FILE: &str = "manifest.json";
@@ -56,6 +56,11 @@ fn texture_path(step: StepId) -> String {
 
 fn raw_path(step: StepId) -> String {
     format!("{RAW_DIR}/{}.exr", step.stem())
+}
+
+/// Exposure `k >= 1` of an HDR bracket (exposure 0 is [`raw_path`]).
+fn raw_exposure_path(step: StepId, k: usize) -> String {
+    format!("{RAW_DIR}/{}_e{k}.exr", step.stem())
 }
 
 fn io_err<S: Storage + ?Sized>(s: &S, op: &'static str, path: &str) -> impl FnOnce(std::io::Error) -> StoreError {
@@ -411,8 +416,14 @@ impl<S: Storage> Dataset<S> {
     /// one 32-bit float channel holding the DNs exactly, lossless, the frame's metadata as JSON
     /// in the header), durably. Fails unless the manifest asks for raw frames.
     pub fn write_raw(&self, step: StepId, frame: &RawFrame) -> Result<FileRecord, StoreError> {
+        self.write_raw_exposure(step, 0, frame)
+    }
+
+    /// Writes exposure `k` of `step`'s HDR bracket as [`Dataset::write_raw`] does: exposure 0
+    /// (the base) to `raw/<stem>.exr`, exposure `k >= 1` to `raw/<stem>_e<k>.exr`.
+    pub fn write_raw_exposure(&self, step: StepId, k: usize, frame: &RawFrame) -> Result<FileRecord, StoreError> {
         self.check_open(step, &self.journal())?;
-        let path = raw_path(step);
+        let path = if k == 0 { raw_path(step) } else { raw_exposure_path(step, k) };
         if !self.manifest.raw_frames {
             return Err(StoreError::BadInput {
                 what: self.storage.display(&path),
@@ -435,18 +446,18 @@ impl<S: Storage> Dataset<S> {
         attempts: u32,
         timing: StepTiming,
     ) -> Result<(), StoreError> {
-        self.commit_step_with(step, files, attempts, timing, None)
+        self.commit_step_with(step, files, attempts, timing, StepExtra::default())
     }
 
-    /// [`Dataset::commit_step`] with how the step's sample pose was found, journaled in the
-    /// same record.
+    /// [`Dataset::commit_step`] with how the step's sample pose was found and its exposures,
+    /// journaled in the same record.
     pub fn commit_step_with(
         &self,
         step: StepId,
         files: Vec<FileRecord>,
         attempts: u32,
         timing: StepTiming,
-        registration: Option<StepRegistration>,
+        extra: StepExtra,
     ) -> Result<(), StoreError> {
         let mut journal = self.journal();
         self.check_open(step, &journal)?;
@@ -476,7 +487,8 @@ impl<S: Storage> Dataset<S> {
                 });
             }
         }
-        journal.append(&self.storage, Record::Step(StepRecord { step, files, attempts, timing, registration }))
+        let StepExtra { registration, hdr } = extra;
+        journal.append(&self.storage, Record::Step(StepRecord { step, files, attempts, timing, registration, hdr }))
     }
 
     /// Replaces [`PREVIEW_FILE`] with `png` (temporary file, rename: a reader never sees a

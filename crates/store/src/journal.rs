@@ -20,7 +20,7 @@ use serde::{Deserialize, Serialize};
 use crate::error::StoreError;
 use crate::hash::sha256;
 use crate::storage::{parent, Storage};
-use crate::{FileRecord, StepId, StepRegistration, StepTiming};
+use crate::{FileRecord, StepHdr, StepId, StepRegistration, StepTiming};
 
 /// `format` field of the header record.
 pub const JOURNAL_FORMAT: &str = "btfrig-journal";
@@ -68,6 +68,9 @@ pub struct StepRecord {
     /// for steps that wrote no texture).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub registration: Option<StepRegistration>,
+    /// Its exposures when the plan has HDR on (absent otherwise and in older journals).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hdr: Option<StepHdr>,
 }
 
 /// Frames one record: length, checksum, JSON, newline.
@@ -312,6 +315,7 @@ mod tests {
             attempts: 1,
             timing: StepTiming::default(),
             registration: None,
+            hdr: None,
         })
     }
 

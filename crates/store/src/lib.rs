@@ -148,6 +148,32 @@ pub struct StepRegistration {
     pub reason: Option<String>,
 }
 
+/// The exposures of a step captured with HDR on (`docs/hdr.md`): journaled with the step so
+/// the report counts captures by exposures exactly, after a kill too.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StepHdr {
+    /// Exposure times in the order taken, seconds; the first is the base exposure the
+    /// texture's radiometry refers to.
+    pub exposures_s: Vec<f64>,
+    /// Rig time the exposures beyond the first took, return trips to the pose included, s.
+    pub bracket_s: f64,
+    /// Photosites saturated in every exposure (their merged values are lower bounds).
+    pub saturated_photosites: u64,
+    /// Exposure times always bracketing would have taken (the counterfactual the report's
+    /// `hdr_time_saved_s` compares with), seconds.
+    pub always_s: Vec<f64>,
+}
+
+/// What a step's journal record holds besides its files, attempts and timing.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct StepExtra {
+    /// How its sample pose was found.
+    pub registration: Option<StepRegistration>,
+    /// Its exposures, with HDR on.
+    pub hdr: Option<StepHdr>,
+}
+
 /// The run report (`report.json`), written by [`Dataset::finish`]. Unknown fields are kept
 /// in `extra` so later versions can add figures.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]

@@ -6,7 +6,8 @@ mod common;
 use std::collections::BTreeSet;
 
 use btfrig_store::{
-    info, plan_hash, verify, Dataset, Problem, RunReport, StepId, StepTiming, StoreError, TextureFormat, JOURNAL_FILE,
+    info, plan_hash, verify, Dataset, Problem, RunReport, StepExtra, StepHdr, StepId, StepTiming, StoreError,
+    TextureFormat, JOURNAL_FILE,
 };
 use common::{manifest, raw_frame, texels, TempDir, H, W};
 
@@ -87,6 +88,39 @@ fn round_trip_create_write_commit_reopen() {
         Err(StoreError::PlanMismatch { found, .. }) => assert_eq!(found, plan_hash(PLAN)),
         other => panic!("{other:?}"),
     }
+}
+
+#[test]
+fn an_hdr_bracket_keeps_every_raw_exposure_and_its_record() {
+    let tmp = TempDir::new("bracket");
+    let dir = tmp.path().join("ds");
+    let ds = Dataset::create(&dir, manifest(PLAN, TextureFormat::ExrFloat, true)).unwrap();
+    let s = step(0, 1);
+    let mut short = raw_frame(s);
+    short.meta.exposure_s /= 8.0;
+    short.data.iter_mut().for_each(|v| *v /= 8);
+    let files = vec![
+        ds.write_texture(s, &texels(s), W, H).unwrap(),
+        ds.write_raw_exposure(s, 0, &raw_frame(s)).unwrap(),
+        ds.write_raw_exposure(s, 1, &short).unwrap(),
+    ];
+    assert_eq!(files[1].path, format!("raw/{}.exr", s.stem()));
+    assert_eq!(files[2].path, format!("raw/{}_e1.exr", s.stem()));
+    let hdr = StepHdr {
+        exposures_s: vec![raw_frame(s).meta.exposure_s, short.meta.exposure_s],
+        bracket_s: 5.8,
+        saturated_photosites: 0,
+        always_s: vec![0.01, 0.00125, 0.00015625],
+    };
+    ds.commit_step_with(s, files, 1, timing(), StepExtra { registration: None, hdr: Some(hdr.clone()) }).unwrap();
+    drop(ds);
+    let (ds, _) = Dataset::open_for_resume(&dir, &plan_hash(PLAN)).unwrap();
+    assert_eq!(ds.step_record(s).unwrap().hdr, Some(hdr));
+    assert_eq!(btfrig_imageio::read_raw_exr(&dir.join(format!("raw/{}_e1.exr", s.stem()))).unwrap(), short);
+    // Every exposure is checked by verify like any journaled file.
+    std::fs::write(dir.join(format!("raw/{}_e1.exr", s.stem())), b"damaged").unwrap();
+    let problems = verify(&dir).problems;
+    assert!(problems.iter().any(|p| format!("{p:?}").contains("_e1.exr")), "{problems:?}");
 }
 
 #[test]

@@ -36,9 +36,9 @@ use serde::{Deserialize, Serialize};
 pub use error::{PlanError, PlanErrors};
 
 pub use validate::{
-    CaptureList, ExistingDataset, ExposurePolicy, MaterialRef, OnRegistrationFailure, OutputFormat, Outputs,
-    PlanContext, Region, RegistrationMethod, RegistrationPolicy, ResampleFilter, SkipReason, TextureSettings,
-    UnreachablePair, ValidatedPlan,
+    CaptureList, ExistingDataset, ExposurePolicy, HdrMode, HdrSettings, MaterialRef, OnRegistrationFailure,
+    OutputFormat, Outputs, PlanContext, Region, RegistrationMethod, RegistrationPolicy, ResampleFilter, SkipReason,
+    TextureSettings, UnreachablePair, ValidatedPlan,
 };
 
 /// The rig config name that selects the embedded default simulated gonioreflectometer.
@@ -376,7 +376,7 @@ pub enum ExposureSpec {
         #[serde(default = "ExposureSpec::default_gain")]
         gain: f64,
     },
-    /// HDR bracketing, always: validated, not executed yet (`docs/hdr.md`).
+    /// HDR bracketing, always: the metered base exposure times each multiplier (`docs/hdr.md`).
     Bracket {
         /// Exposure multipliers of the bracket relative to the metered base (1 to 8 of
         /// them, each in `1/1024 ..= 64`).

@@ -274,7 +274,7 @@ fn hdr_settings_default_off_keep_the_hash_and_name_bad_values() {
     assert_eq!(hash(spelled), hash(""));
     assert_ne!(hash("[exposure]\nmode = \"auto\"\nmax_exposures = 4\n"), hash(""));
     assert!(validate(&format!("{MINIMAL}{spelled}")).is_ok());
-    // Every bad value is named; "adaptive" is valid but not executed yet.
+    // Every bad value is named.
     let e = validate(&format!(
         "{MINIMAL}[exposure]\nmode = \"auto\"\nhdr = \"adaptive\"\nmax_exposures = 9\nstop_ratio = 0.9\n\
          saturated_max_fraction = -1\ndark_max_fraction = 2\n"
@@ -286,10 +286,17 @@ fn hdr_settings_default_off_keep_the_hash_and_name_bad_values() {
         "exposure.stop_ratio = 0.9",
         "exposure.saturated_max_fraction = -1",
         "exposure.dark_max_fraction = 2",
-        "exposure.hdr = \"adaptive\" is not supported yet",
     ] {
         assert!(e.contains(field), "{field} missing in {e}");
     }
+    // Valid HDR settings resolve to what the runner executes.
+    let v =
+        validate(&format!("{MINIMAL}[exposure]\nmode = \"auto\"\nhdr = \"adaptive\"\nmax_exposures = 4\n")).unwrap();
+    let ExposurePolicy::Auto { white_fraction, hdr } = v.exposure else { panic!("{:?}", v.exposure) };
+    assert_eq!((white_fraction, hdr.mode, hdr.max_exposures), (0.6, HdrMode::Adaptive, 4));
+    let v = validate(&format!("{MINIMAL}[exposure]\nmode = \"bracket\"\nstops = [1.0, 0.125]\n")).unwrap();
+    let ExposurePolicy::Auto { hdr, .. } = v.exposure else { panic!("{:?}", v.exposure) };
+    assert_eq!(hdr.mode, HdrMode::Always(vec![1.0, 0.125]));
     let e = validate(&format!("{MINIMAL}[exposure]\nmode = \"auto\"\nhdr = \"sometimes\"\n")).unwrap_err().to_string();
     assert!(e.contains("exposure.hdr = \"sometimes\" is unknown"), "{e}");
     let e = validate(&format!("{MINIMAL}[exposure]\nmode = \"bracket\"\nstops = [1.0, 0.0, 100.0]\n"))

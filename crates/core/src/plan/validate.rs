@@ -193,12 +193,16 @@ pub struct TextureSettings {
 }
 
 /// Resolved exposure policy.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub enum ExposurePolicy {
-    /// Per capture, so a white reference lands at this fraction of full scale.
+    /// Per capture, so a white reference lands at this fraction of full scale; with HDR on,
+    /// metered per capture and bracketed (`docs/hdr.md`).
     Auto {
         /// Target fraction of full scale.
         white_fraction: f64,
+        /// Bracketing (`mode = "bracket"` resolves to `Auto` at the default white fraction
+        /// with [`HdrMode::Always`]).
+        hdr: HdrSettings,
     },
     /// The same exposure and gain for every capture.
     Fixed {
@@ -207,6 +211,50 @@ pub enum ExposurePolicy {
         /// Analogue gain.
         gain: f64,
     },
+}
+
+/// How a capture's exposures are chosen (`[exposure]` of `mode = "auto"` / `"bracket"`).
+#[derive(Debug, Clone, PartialEq)]
+pub enum HdrMode {
+    /// One exposure per capture (the default).
+    Off,
+    /// One metered exposure, more where the sample's range needs them.
+    Adaptive,
+    /// Always the metered base times each of these multipliers (the first is the base's).
+    Always(Vec<f64>),
+}
+
+/// Resolved HDR settings.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HdrSettings {
+    /// The mode.
+    pub mode: HdrMode,
+    /// Most exposures per capture (adaptive).
+    pub max_exposures: u32,
+    /// Ratio between neighbouring exposures of an adaptive bracket.
+    pub stop_ratio: f64,
+    /// Largest tolerated saturated fraction of the sample's photosites in every exposure.
+    pub saturated_max_fraction: f64,
+    /// Largest tolerated underexposed fraction in every exposure.
+    pub dark_max_fraction: f64,
+}
+
+impl HdrSettings {
+    /// HDR off, with the plan format's defaults for the other fields.
+    pub fn off() -> HdrSettings {
+        HdrSettings {
+            mode: HdrMode::Off,
+            max_exposures: 3,
+            stop_ratio: 0.125,
+            saturated_max_fraction: 1e-4,
+            dark_max_fraction: 0.02,
+        }
+    }
+
+    /// Whether a capture may take more than one exposure.
+    pub fn is_on(&self) -> bool {
+        self.mode != HdrMode::Off
+    }
 }
 
 /// Resolved outputs.
@@ -1063,8 +1111,9 @@ fn resolve_exposure(e: &ExposureSpec, rig: Option<&RigConfig>, errors: &mut Vec<
                     "0.05..=0.95 (fraction of full scale)",
                 ));
             }
-            resolve_hdr(hdr, *max_exposures, *stop_ratio, *saturated_max_fraction, *dark_max_fraction, errors);
-            (errors.len() == n_before).then_some(ExposurePolicy::Auto { white_fraction })
+            let hdr =
+                resolve_hdr(hdr, *max_exposures, *stop_ratio, *saturated_max_fraction, *dark_max_fraction, errors);
+            (errors.len() == n_before).then(|| ExposurePolicy::Auto { white_fraction, hdr: hdr.expect("checked") })
         }
         &ExposureSpec::Fixed { exposure_s, gain } => {
             let t_range = rig.and_then(|r| option_range(r, "exposure_range_s")).unwrap_or([1e-6, 3600.0]);
@@ -1092,6 +1141,7 @@ fn resolve_exposure(e: &ExposureSpec, rig: Option<&RigConfig>, errors: &mut Vec<
             ok.then_some(ExposurePolicy::Fixed { exposure_s, gain })
         }
         ExposureSpec::Bracket { stops } => {
+            let n_before = errors.len();
             match stops.as_deref() {
                 None | Some([]) => errors.push(PlanError::invalid(
                     "exposure.stops",
@@ -1110,20 +1160,19 @@ fn resolve_exposure(e: &ExposureSpec, rig: Option<&RigConfig>, errors: &mut Vec<
                     }
                 }
             }
-            // The bracket policy and merge exist (btfrig-calib); the engine does not capture
-            // several exposures per step yet (docs/hdr.md).
-            errors.push(PlanError::unsupported(
-                "exposure.mode",
-                "\"bracket\"",
-                "\"auto\" or \"fixed\" (HDR bracketing comes later)",
-            ));
-            None
+            (errors.len() == n_before).then(|| ExposurePolicy::Auto {
+                white_fraction: 0.6,
+                hdr: HdrSettings {
+                    mode: HdrMode::Always(stops.clone().unwrap_or_default()),
+                    max_exposures: stops.as_ref().map_or(1, |v| v.len() as u32),
+                    ..HdrSettings::off()
+                },
+            })
         }
     }
 }
 
-/// Checks the HDR fields of `mode = "auto"`. `hdr = "adaptive"` passes the range checks and
-/// is then reported as not supported yet: the engine does not capture brackets (docs/hdr.md).
+/// Checks the HDR fields of `mode = "auto"`; `None` after an error.
 fn resolve_hdr(
     hdr: &str,
     max_exposures: u32,
@@ -1131,7 +1180,8 @@ fn resolve_hdr(
     saturated_max_fraction: f64,
     dark_max_fraction: f64,
     errors: &mut Vec<PlanError>,
-) {
+) -> Option<HdrSettings> {
+    let n_before = errors.len();
     if !(1..=8).contains(&max_exposures) {
         errors.push(PlanError::out_of_range("exposure.max_exposures", max_exposures, "1 ..= 8"));
     }
@@ -1144,15 +1194,21 @@ fn resolve_hdr(
     if !(dark_max_fraction.is_finite() && (0.0..=1.0).contains(&dark_max_fraction)) {
         errors.push(PlanError::out_of_range("exposure.dark_max_fraction", dark_max_fraction, "0 ..= 1"));
     }
-    match hdr {
-        "off" => {}
-        "adaptive" => errors.push(PlanError::unsupported(
-            "exposure.hdr",
-            "\"adaptive\"",
-            "\"off\" (the engine does not capture brackets yet; the policy and merge are in btfrig-calib, docs/hdr.md)",
-        )),
-        other => errors.push(PlanError::unknown("exposure.hdr", other, "\"off\", \"adaptive\"")),
-    }
+    let mode = match hdr {
+        "off" => HdrMode::Off,
+        "adaptive" => HdrMode::Adaptive,
+        other => {
+            errors.push(PlanError::unknown("exposure.hdr", other, "\"off\", \"adaptive\""));
+            HdrMode::Off
+        }
+    };
+    (errors.len() == n_before).then_some(HdrSettings {
+        mode,
+        max_exposures,
+        stop_ratio,
+        saturated_max_fraction,
+        dark_max_fraction,
+    })
 }
 
 fn resolve_outputs(o: &OutputsSpec, errors: &mut Vec<PlanError>) -> Option<Outputs> {
