@@ -453,3 +453,107 @@ pub fn reconstruct(a: &ReconstructArgs) -> anyhow::Result<()> {
     );
     Ok(())
 }
+
+/// The pipeline's texture sink over a [`btfrig_compress::sink::StreamingCompressor`].
+struct SinkAdapter(std::sync::Arc<btfrig_compress::sink::StreamingCompressor>);
+
+impl btfrig_pipeline::TextureSink for SinkAdapter {
+    fn accept(&self, step: btfrig_store::StepId, texels: &[[f32; 3]]) {
+        self.0.accept(step.light, step.view, texels);
+    }
+}
+
+/// A model built while a run captures (`btfrig run --compress`, `btfrig demo`).
+pub struct Streaming {
+    compressor: std::sync::Arc<btfrig_compress::sink::StreamingCompressor>,
+    dir: PathBuf,
+    params: ModelParams,
+}
+
+/// Textures queued between the pipeline and the compression worker.
+pub const SINK_CAPACITY: usize = 16;
+
+/// The default model of a run's sink: FMF in YUV with 16/8/8 terms, f16.
+pub fn default_stream_params() -> ModelParams {
+    let mut p = ModelParams::new(Method::Fmf);
+    p.terms = [16, 8, 8];
+    p
+}
+
+impl Streaming {
+    /// A compressor for the run into `dir`, and its sink for the run request.
+    pub fn start(
+        dir: &Path,
+        params: ModelParams,
+    ) -> anyhow::Result<(Self, std::sync::Arc<dyn btfrig_pipeline::TextureSink>)> {
+        let c =
+            std::sync::Arc::new(btfrig_compress::sink::StreamingCompressor::new(dir, params.clone(), SINK_CAPACITY)?);
+        let sink: std::sync::Arc<dyn btfrig_pipeline::TextureSink> = std::sync::Arc::new(SinkAdapter(c.clone()));
+        Ok((Streaming { compressor: c, dir: dir.into(), params }, sink))
+    }
+
+    /// Finishes the model (the remaining passes over the dataset), writes it next to the
+    /// dataset (`<DIR>.<method>.btfm`, never replacing a file: a new name then), measures
+    /// it against the dataset; the figures as JSON.
+    pub fn finish(self) -> anyhow::Result<serde_json::Value> {
+        let (model, report) = self.compressor.finish()?;
+        let mut out = default_model_path(&self.dir, self.params.method.name());
+        let mut n = 1;
+        while out.exists() {
+            n += 1;
+            out = default_model_path(&self.dir, &format!("{}-{n}", self.params.method.name()));
+        }
+        let mut src = DatasetSource::open(&self.dir)?;
+        let t = std::time::Instant::now();
+        let rel = btfrig_compress::eval::error_against(&model, &mut src)?.rel_rmse();
+        let eval_s = t.elapsed().as_secs_f64();
+        let captures = src.layout().n_measured();
+        let raw = (captures * model.layout.texels() * 3 * 2) as f64;
+        let source = serde_json::json!({"dataset": self.dir.display().to_string(), "captures": captures,
+            "params": self.params, "streaming": report, "rel_rmse_vs_dataset": rel});
+        let bytes = file::write(&out, &model, source, false)?;
+        Ok(serde_json::json!({
+            "compression_model": out.display().to_string(),
+            "compression_method": self.params.method.name(),
+            "compression_terms": self.params.terms,
+            "compression_ratio": raw / bytes as f64,
+            "compression_rel_rmse": rel,
+            "compression_file_bytes": bytes,
+            "compression_sink_blocked_s": report.blocked_s,
+            "compression_sink_max_queue": report.max_queue,
+            "compression_sink_capacity": report.capacity,
+            "compression_streamed": report.streamed,
+            "compression_from_disk": report.from_disk,
+            "compression_pass1_busy_s": report.pass1_busy_s,
+            "compression_finish_s": report.finish_s,
+            "compression_eval_s": eval_s,
+            "compression_passes": report.passes,
+            "compression_builder_peak_bytes": report.builder_peak_bytes,
+        }))
+    }
+}
+
+/// One line per compression figure, for the run and demo summaries.
+pub fn print_streaming(v: &serde_json::Value) {
+    let f = |k: &str| v[k].as_f64().unwrap_or(f64::NAN);
+    println!(
+        "  compression       {} -> {} ({:.1} : 1, relative RMSE {:.5} against the textures)",
+        v["compression_method"].as_str().unwrap_or("?"),
+        v["compression_model"].as_str().unwrap_or("?"),
+        f("compression_ratio"),
+        f("compression_rel_rmse")
+    );
+    println!(
+        "  streaming         {} textures streamed ({} read back), pipeline waited {:.3} s on the sink (queue max {} of {}), \
+         pass 1 busy {:.1} s; after the run: {} passes in {:.1} s, builder peak {:.1} MB",
+        v["compression_streamed"],
+        v["compression_from_disk"],
+        f("compression_sink_blocked_s"),
+        v["compression_sink_max_queue"],
+        v["compression_sink_capacity"],
+        f("compression_pass1_busy_s"),
+        v["compression_passes"],
+        f("compression_finish_s"),
+        f("compression_builder_peak_bytes") / 1e6
+    );
+}

@@ -293,6 +293,12 @@ impl<T: Real> Builder<T> {
         self.peak_bytes
     }
 
+    /// True if capture `(light, view)` was pushed in the current pass.
+    pub fn seen(&self, light: u32, view: u32) -> bool {
+        let (l, v) = (light as usize, view as usize);
+        l < self.layout.n_light() && v < self.layout.n_view() && self.seen[self.layout.index(l, v)]
+    }
+
     /// Feeds the texture of capture `(light, view)` (row-major linear RGB, `width x height`).
     pub fn push(&mut self, light: u32, view: u32, texels: &[[f32; 3]]) -> Result<()> {
         let a = self.layout.check(light, view)?;

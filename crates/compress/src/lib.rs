@@ -46,6 +46,7 @@ pub mod file;
 pub mod linalg;
 pub mod model;
 pub mod rsvd;
+pub mod sink;
 pub mod sparse;
 pub mod ubo;
 

@@ -371,7 +371,7 @@ impl Model {
                 }
             }
         }
-        let active = self
+        let active: ActiveRows = self
             .channels
             .iter()
             .map(|ch| {
@@ -395,7 +395,13 @@ impl Model {
                     .collect()
             })
             .collect();
-        Query { model: self, active }
+        let listed = (0..3)
+            .map(|c: usize| {
+                let act: &Vec<Option<(f32, Vec<f32>)>> = &active[c];
+                act.iter().enumerate().filter(|(_, a)| a.is_some()).map(|(i, _)| i).collect()
+            })
+            .collect();
+        Query { model: self, active, listed }
     }
 }
 
@@ -407,6 +413,8 @@ pub struct Query<'a> {
     model: &'a Model,
     /// Per channel, per part: interpolated mean and basis row, if the part has weight.
     active: ActiveRows,
+    /// Per channel, the parts with weight.
+    listed: Vec<Vec<usize>>,
 }
 
 impl Query<'_> {
@@ -428,11 +436,13 @@ impl Query<'_> {
                         None => 0.0,
                     }
                 }
-                None => ch
-                    .parts
+                None => self.listed[c]
                     .iter()
-                    .zip(&self.active[c])
-                    .filter_map(|(p, a)| a.as_ref().map(|(mu, u)| mu + dot(u, &p.sv[x * p.k..(x + 1) * p.k])))
+                    .map(|&pi| {
+                        let p = &ch.parts[pi];
+                        let (mu, u) = self.active[c][pi].as_ref().expect("listed parts are active");
+                        mu + dot(u, &p.sv[x * p.k..(x + 1) * p.k])
+                    })
                     .sum(),
             }
         });
