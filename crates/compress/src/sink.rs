@@ -25,6 +25,8 @@ use crate::error::{CompressError, Result};
 use crate::model::{Layout, Model};
 
 type Item = (u32, u32, Vec<[f32; 3]>);
+/// The worker thread: pass 1 of the builder (none if no texture arrived).
+type Worker = JoinHandle<Result<Option<Builder<f32>>>>;
 
 #[derive(Default)]
 struct Counters {
@@ -64,7 +66,7 @@ pub struct StreamingCompressor {
     params: ModelParams,
     capacity: usize,
     tx: Mutex<Option<SyncSender<Item>>>,
-    worker: Mutex<Option<JoinHandle<Result<Option<Builder<f32>>>>>>,
+    worker: Mutex<Option<Worker>>,
     counters: Arc<Counters>,
 }
 

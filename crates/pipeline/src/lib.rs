@@ -972,16 +972,8 @@ pub async fn run<S>(
 where
     S: btfrig_store::Storage + Send + Sync + 'static,
 {
-    type Output = (
-        StepId,
-        Vec<btfrig_store::FileRecord>,
-        u32,
-        StepTiming,
-        Processed,
-        Option<MadePreview>,
-        Option<StepHdr>,
-        Vec<[f32; 3]>,
-    );
+    type Output =
+        (StepId, Vec<btfrig_store::FileRecord>, u32, StepTiming, Processed, Option<MadePreview>, Option<StepHdr>);
     type Job = tokio::task::JoinHandle<Result<Output, PipelineError>>;
     enum Next {
         Frame(Option<CapturedFrame>),
@@ -1053,22 +1045,22 @@ where
                     };
                     let preview = claim.map(|c| make_preview(c, step, &p.texels, n));
                     // The sink gets the texture after the commit; without one it is dropped here.
-                    let sink_texels =
-                        if pr.sink.is_some() && out.textures { std::mem::take(&mut p.texels) } else { Vec::new() };
-                    p.texels = Vec::new();
+                    if pr.sink.is_none() || !out.textures {
+                        p.texels = Vec::new();
+                    }
                     let hdr = pr.hdr_recording().map(|h| StepHdr {
                         exposures_s: frames.iter().map(|fr| fr.meta.exposure_s).collect(),
                         bracket_s: f.times.bracket_s,
                         saturated_photosites: pr.saturated_on_sample(&frames, &f.joints),
                         always_s: h.always_stops.iter().map(|k| k * f.frame.meta.exposure_s).collect(),
                     });
-                    Ok((step, files, f.attempts, timing, p, preview, hdr, sink_texels))
+                    Ok((step, files, f.attempts, timing, p, preview, hdr))
                 });
                 in_flight.push_back((step, job));
             }
             Next::Done(r) => {
                 let (step, _) = in_flight.pop_front().expect("a job was awaited");
-                let (step, files, attempts, timing, p, preview, hdr, sink_texels) =
+                let (step, files, attempts, timing, mut p, preview, hdr) =
                     match r.map_err(|e| PipelineError::Join { step, reason: e.to_string() }).and_then(|r| r) {
                         Ok(out) => out,
                         Err(e) => return Err(drain(in_flight, e).await),
@@ -1079,6 +1071,7 @@ where
                 // A texture's pose record goes with it; a preview-only frame wrote no texture.
                 let registration = if processor.outputs().textures { p.registration.clone() } else { None };
                 let sink = processor.sink.clone();
+                let sink_texels = std::mem::take(&mut p.texels);
                 let written = match tokio::task::spawn_blocking(move || {
                     ds.commit_step_with(step, files, attempts, timing, StepExtra { registration, hdr })?;
                     if let Some(s) = sink.filter(|_| !sink_texels.is_empty()) {
