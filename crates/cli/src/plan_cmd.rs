@@ -63,6 +63,44 @@ pub fn show(file: &Path) -> anyhow::Result<()> {
         println!("skipped by the plan: {n} ({reason})");
     }
     println!("{}", schedule.dry_run(disk));
+    if let btfrig_core::plan::ExposurePolicy::Auto { hdr, .. } = &v.exposure {
+        if let Some(line) = hdr_estimate(hdr, &v, frame_bytes, exposure_s, schedule.captures.len()) {
+            println!("{line}");
+        }
+    }
     println!("planning took {planning_s:.2} s");
     Ok(())
+}
+
+/// What HDR may add to the estimate: each further exposure costs its time plus the camera's
+/// per-exposure overhead (and an adaptive one two moves, not estimated here).
+fn hdr_estimate(
+    hdr: &btfrig_core::plan::HdrSettings,
+    v: &btfrig_core::plan::ValidatedPlan,
+    frame_bytes: u64,
+    exposure_s: f64,
+    captures: usize,
+) -> Option<String> {
+    use btfrig_core::plan::HdrMode;
+    let overhead = btfrig_calib::exposure::per_exposure_overhead_s(&v.rig.timing.camera, frame_bytes);
+    let per = |stops: &[f64]| stops.iter().skip(1).map(|k| k * exposure_s + overhead).sum::<f64>();
+    match &hdr.mode {
+        HdrMode::Off => None,
+        HdrMode::Always(stops) => {
+            let added = per(stops) * captures as f64;
+            Some(format!(
+                "HDR bracket      {} exposures per capture (stops {stops:?}): +{} ({added:.0} s), not in the estimate above",
+                stops.len(),
+                btfrig_planner::format_hms(added)
+            ))
+        }
+        HdrMode::Adaptive => {
+            let stops: Vec<f64> = (0..hdr.max_exposures).map(|k| hdr.stop_ratio.powi(k as i32)).collect();
+            Some(format!(
+                "HDR adaptive     1 to {} exposures per capture, decided on the frames: each further exposure {overhead:.2} s + its time plus a return trip; at most +{:.0} s if every capture needed all (not in the estimate above)",
+                hdr.max_exposures,
+                per(&stops) * captures as f64
+            ))
+        }
+    }
 }

@@ -975,6 +975,8 @@ where
     type Output =
         (StepId, Vec<btfrig_store::FileRecord>, u32, StepTiming, Processed, Option<MadePreview>, Option<StepHdr>);
     type Job = tokio::task::JoinHandle<Result<Output, PipelineError>>;
+    // One value per turn of the loop, never stored: the size difference does not matter.
+    #[allow(clippy::large_enum_variant)]
     enum Next {
         Frame(Option<CapturedFrame>),
         Done(Result<Result<Output, PipelineError>, tokio::task::JoinError>),

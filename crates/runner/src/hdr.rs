@@ -4,8 +4,9 @@
 //!
 //! Per step: the base exposure is predicted from the last capture of the same view (its
 //! metered base, scaled by the ratio of the lamp's cosine at the sample between the two
-//! lights; the first capture of a view takes the plan's white-reference exposure), within
-//! three stops of the white-reference exposure. The engine takes it, and the frame is metered
+//! lights; the first capture of a view takes the plan's white-reference exposure), at most
+//! three stops shorter than the white-reference exposure and never longer (the holder plate
+//! and its markers must not saturate in the base). The engine takes it, and the frame is metered
 //! on the sample's footprint (`btfrig_calib::exposure`) when it arrives; the adaptive policy
 //! asks for shorter exposures while the sample saturates and longer ones while it is
 //! underexposed, up to `max_exposures`. With `mode = "bracket"` every step takes the base
@@ -28,7 +29,7 @@ use serde_json::json;
 /// planning the next one).
 const STEPS_KEPT: usize = 4;
 
-/// The base exposure stays within this many stops (factor 2 each) of the white reference.
+/// The base exposure may be this many stops (factor 2 each) shorter than the white reference.
 const BASE_STOPS: i32 = 3;
 
 /// The multipliers of the base exposure that always bracketing takes: the plan's stops, or for
@@ -67,7 +68,15 @@ pub(crate) struct HdrControl {
     /// Per view: the last metered base exposure times its light's cosine.
     base_by_view: HashMap<u32, f64>,
     /// Footprint and meterings of the steps in flight, oldest first.
-    steps: VecDeque<(StepKey, Footprint, Vec<(f64, Metering)>)>,
+    steps: VecDeque<InFlight>,
+}
+
+/// A step whose frames are being inspected: its footprint and the meterings of its frames.
+struct InFlight {
+    key: StepKey,
+    footprint: Footprint,
+    /// `(exposure_s, metering)` per frame metered so far, in the order taken.
+    taken: Vec<(f64, Metering)>,
 }
 
 impl HdrControl {
@@ -102,25 +111,28 @@ impl HdrControl {
         let cos = self.light_cos.get(&key).copied().unwrap_or(1.0).max(0.05);
         let span = 2f64.powi(BASE_STOPS);
         let predicted = self.base_by_view.get(&key.view).map_or(self.reference_s, |b| b / cos);
-        self.clamp(predicted.clamp(self.reference_s / span, self.reference_s * span))
+        // Never longer than the white reference: the holder plate (registration, the lamp's
+        // drift patch) and the markers must not saturate in the base exposure, and the
+        // metering sees only the sample. A dim sample gets longer exposures in its bracket.
+        self.clamp(predicted.clamp(self.reference_s / span, self.reference_s))
     }
 }
 
 /// The footprint and meterings of `step`, made on first use (the oldest kept step dropped).
-fn entry<'a>(
-    steps: &'a mut VecDeque<(StepKey, Footprint, Vec<(f64, Metering)>)>,
-    rig: &HdrRig,
-    step: &EngineStep,
-) -> &'a mut (StepKey, Footprint, Vec<(f64, Metering)>) {
+fn entry<'a>(steps: &'a mut VecDeque<InFlight>, rig: &HdrRig, step: &EngineStep) -> &'a mut InFlight {
     let key = step.key;
-    let i = match steps.iter().position(|(k, ..)| *k == key) {
+    let i = match steps.iter().position(|s| s.key == key) {
         Some(i) => i,
         None => {
             if steps.len() >= STEPS_KEPT {
                 steps.pop_front();
             }
             let pose = rig.gonio.scene_pose(&step.joints);
-            steps.push_back((key, sample_footprint(&rig.camera, &pose, rig.region), Vec::new()));
+            steps.push_back(InFlight {
+                key,
+                footprint: sample_footprint(&rig.camera, &pose, rig.region),
+                taken: Vec::new(),
+            });
             steps.len() - 1
         }
     };
@@ -142,7 +154,7 @@ impl ExposureControl for HdrControl {
 
     fn next(&mut self, step: &EngineStep, frames: &[RawFrame]) -> Option<f64> {
         let rig = &self.rig;
-        let (_, fp, taken) = entry(&mut self.steps, rig, step);
+        let InFlight { footprint: fp, taken, .. } = entry(&mut self.steps, rig, step);
         for f in &frames[taken.len().min(frames.len())..] {
             // A frame that cannot be metered (size or metadata) ends the bracket: the pipeline
             // reports the frame's own problem.
@@ -158,7 +170,7 @@ impl ExposureControl for HdrControl {
             _ => None,
         };
         if next.is_none() {
-            self.steps.retain(|(k, ..)| *k != step.key);
+            self.steps.retain(|s| s.key != step.key);
         }
         next
     }

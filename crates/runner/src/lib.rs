@@ -531,6 +531,20 @@ pub fn run(
         _ => None,
     };
 
+    if let Some(d) = &req.dark_flat {
+        // Refused before the dataset exists: a calibration of another camera corrects nothing.
+        let (w, h) = (v.rig.camera.width_px, v.rig.camera.height_px);
+        let (cw, ch) = (d.calibration.dark.width, d.calibration.dark.height);
+        if (cw, ch) != (w, h) {
+            return Err(RunError::Input {
+                what: format!("dark/flat calibration {}", d.source),
+                message: format!(
+                    "it is of a {cw}x{ch} sensor, the rig's camera {} is {w}x{h}: calibrate this rig's camera (btfrig calibrate radiometric --rig ...)",
+                    v.rig.rig.name
+                ),
+            });
+        }
+    }
     // The dataset: new, or the same plan's to resume; anything else is refused by the store.
     let mut manifest = plan::manifest(&plan, &v, &req.plan_text, file, &list)?;
     let color_file = btfrig_calibrate::color::processing_color(&v.rig, plan.rig_config_path(file).as_deref())
