@@ -3,6 +3,8 @@
 
 use clap::{Args, Parser, Subcommand};
 
+pub use crate::compress_cmd::SparseCommand;
+
 /// btfrig: runs the rigs that measure bidirectional texture functions.
 #[derive(Debug, Parser)]
 #[command(name = "btfrig", version, about, propagate_version = true)]
@@ -39,6 +41,11 @@ pub enum Command {
     /// Calibrations of the rig.
     #[command(subcommand)]
     Calibrate(CalibrateCommand),
+    /// Compress a dataset into a linear BTF model file: FMF, PVMF or PCMF (docs/compression.md).
+    Compress(crate::compress_cmd::CompressArgs),
+    /// Sparse acquisition with a linear basis: choose the captures, reconstruct the full BTF.
+    #[command(subcommand)]
+    Sparse(crate::compress_cmd::SparseCommand),
 }
 
 /// `btfrig calibrate ...`.
@@ -161,6 +168,11 @@ pub struct RunArgs {
     /// is corrected with its dark model and master flat before demosaicing (docs/dark-flat.md).
     #[arg(long, value_name = "DIR")]
     pub dark_flat: Option<std::path::PathBuf>,
+    /// Build a linear model of the BTF while the run captures (fmf, pvmf or pcmf with the
+    /// `btfrig compress` defaults; fmf: YUV 16/8/8 terms) and write it next to the dataset
+    /// (docs/compression.md).
+    #[arg(long, value_name = "METHOD")]
+    pub compress: Option<String>,
 }
 
 /// `btfrig sim ...`.
@@ -248,11 +260,14 @@ pub enum PlanCommand {
 /// `btfrig dataset ...`.
 #[derive(Debug, Subcommand)]
 pub enum DatasetCommand {
-    /// What a dataset holds: rig, plan, samplings, progress, size, timing.
+    /// What a dataset holds: rig, plan, samplings, progress, size, timing, and the model
+    /// files next to it; or, given a `.btfm` model file, what the model holds.
     Info {
-        /// The dataset directory.
+        /// The dataset directory (or a model file).
         dir: std::path::PathBuf,
     },
+    /// Export the dataset's compressed model to a Bonn `.btf` container (docs/compression.md).
+    Export(crate::compress_cmd::ExportArgs),
     /// Check every file's size and hash, completeness, and orphans; exit 1 on any problem.
     Verify {
         /// The dataset directory.
@@ -287,6 +302,10 @@ pub enum BenchCommand {
     /// Demultiplexing S-matrix captures: fast transform vs dense inverse vs least squares,
     /// time and error, against a plain memory pass (docs/multiplexing.md).
     Demux(crate::bench_demux::BenchDemuxArgs),
+    /// BTF compression on a simulated 81 x 81 BTF: per model and setting, ratio, build time,
+    /// decode throughput and relative RMSE against the measured data and the ground truth;
+    /// sparse acquisition (docs/compression.md).
+    Compress(crate::bench_compress::BenchCompressArgs),
 }
 
 /// `btfrig bench registration` (implemented in `bench_cmd.rs`).

@@ -2,9 +2,22 @@
 
 use std::path::Path;
 
-/// Prints what a dataset holds.
+/// Prints what a dataset holds, and the compressed models next to it; or what a model file
+/// (`.btfm`) holds.
 pub fn info(dir: &Path) -> anyhow::Result<()> {
+    if dir.is_file() {
+        println!("{}", crate::compress_cmd::describe(dir)?);
+        return Ok(());
+    }
     print!("{}", btfrig_store::info(dir)?);
+    for m in crate::compress_cmd::models_next_to(dir) {
+        println!();
+        match crate::compress_cmd::describe(&m) {
+            Ok(s) => print!("{s}"),
+            Err(e) => print!("model     {}: unreadable: {e}", m.display()),
+        }
+    }
+    println!();
     Ok(())
 }
 

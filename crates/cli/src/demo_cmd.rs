@@ -29,9 +29,17 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<ExitCode> {
         // The lamp's power and colour from a light calibration run first, its drift corrected
         // per frame (docs/light.md).
         .with_light(Some(crate::calibrate_light_cmd::calibrated_lamp(&crate::rig::load(a.rig.as_deref())?)?));
+    // The default model is built while the demo captures (docs/compression.md).
+    let (streaming, sink) = crate::compress_cmd::Streaming::start(&out, crate::compress_cmd::default_stream_params())?;
+    let req = req.with_sink(Some(sink));
     let s = crate::run_cmd::execute(&req)?;
+    let compression = if s.outcome == btfrig_runner::RunOutcome::Finished { Some(streaming.finish()?) } else { None };
     if a.json {
-        println!("{}", s.to_json());
+        let mut j = s.to_json();
+        if let (Some(obj), Some(c)) = (j.as_object_mut(), compression.as_ref().and_then(|c| c.as_object())) {
+            obj.extend(c.clone());
+        }
+        println!("{j}");
     } else {
         let skipped: Vec<String> = s.skipped.iter().map(|(r, n)| format!("{n} {r}")).collect();
         let stages: Vec<String> = s.stage_s.iter().map(|(k, v)| format!("{k} {v:.2} s")).collect();
@@ -64,6 +72,9 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<ExitCode> {
         );
         if let Some((lo, hi)) = s.lamp.as_ref().and_then(|l| l.factor_range()) {
             println!("  lamp factor       {lo:.4} .. {hi:.4}: lamp output against the light calibration, measured on the plate per frame and divided out");
+        }
+        if let Some(c) = &compression {
+            crate::compress_cmd::print_streaming(c);
         }
         println!("  retries           {}, warnings {}", s.retries, s.warnings.len());
         println!("  dataset           {}", s.dataset.display());

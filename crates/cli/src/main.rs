@@ -4,12 +4,14 @@ mod args;
 mod bench_cmd;
 mod bench_color;
 mod bench_demux;
+mod bench_compress;
 mod bench_registration;
 mod calibrate_cmd;
 mod calibrate_color_cmd;
 mod calibrate_light_cmd;
 mod calibrate_radiometric_cmd;
 mod captures_cmd;
+mod compress_cmd;
 mod dataset_cmd;
 mod demo_cmd;
 mod kinematics_cmd;
@@ -39,6 +41,10 @@ fn main() -> std::process::ExitCode {
         Command::Plan(PlanCommand::Show { file }) => done(plan_cmd::show(&file)),
         Command::Dataset(DatasetCommand::Info { dir }) => done(dataset_cmd::info(&dir)),
         Command::Dataset(DatasetCommand::Verify { dir }) => done(dataset_cmd::verify(&dir)),
+        Command::Dataset(DatasetCommand::Export(a)) => done(compress_cmd::export(&a)),
+        Command::Compress(a) => done(compress_cmd::compress(&a)),
+        Command::Sparse(args::SparseCommand::Select(a)) => done(compress_cmd::select(&a)),
+        Command::Sparse(args::SparseCommand::Reconstruct(a)) => done(compress_cmd::reconstruct(&a)),
         Command::Calibrate(CalibrateCommand::Geometry(a)) => done(calibrate_cmd::geometry(&a)),
         Command::Calibrate(CalibrateCommand::Color(a)) => done(calibrate_color_cmd::color(&a)),
         Command::Calibrate(CalibrateCommand::Radiometric(a)) => done(calibrate_radiometric_cmd::run(&a)),
@@ -49,6 +55,7 @@ fn main() -> std::process::ExitCode {
         Command::Bench(BenchCommand::Registration(a)) => done(bench_cmd::registration(&a)),
         Command::Bench(BenchCommand::Color(a)) => done(bench_color::bench(&a)),
         Command::Bench(BenchCommand::Demux(a)) => done(bench_demux::bench(&a)),
+        Command::Bench(BenchCommand::Compress(a)) => done(bench_compress::bench(&a)),
     };
     match result {
         Ok(code) => code,

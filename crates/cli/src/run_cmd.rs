@@ -24,12 +24,32 @@ pub fn run(a: &RunArgs) -> anyhow::Result<ExitCode> {
         .with_faults(a.faults.clone())
         .with_light(a.light.as_deref().map(crate::calibrate_light_cmd::load).transpose()?)
         .with_dark_flat(a.dark_flat.as_deref().map(load_dark_flat).transpose()?);
+    let streaming = match a.compress.as_deref() {
+        None => None,
+        Some(m) => {
+            let params = match m {
+                "fmf" => crate::compress_cmd::default_stream_params(),
+                "pvmf" => btfrig_compress::ModelParams::new(btfrig_compress::Method::Pvmf),
+                "pcmf" => btfrig_compress::ModelParams::new(btfrig_compress::Method::Pcmf { clusters: 32 }),
+                m => anyhow::bail!("--compress {m:?}: allowed fmf, pvmf, pcmf"),
+            };
+            Some(crate::compress_cmd::Streaming::start(&a.out, params)?)
+        }
+    };
+    let req = req.with_sink(streaming.as_ref().map(|s| s.1.clone()));
     let summary = execute(&req)?;
     if summary.outcome == RunOutcome::NothingToDo {
         println!("{}: all {} captures already done; nothing to do", a.out.display(), summary.captures);
         return Ok(ExitCode::SUCCESS);
     }
     print_summary(&summary);
+    if let Some((s, _)) = streaming {
+        if summary.outcome == RunOutcome::Finished {
+            crate::compress_cmd::print_streaming(&s.finish()?);
+        } else {
+            println!("  compression       not built: the run did not finish (resume it, or `btfrig compress` later)");
+        }
+    }
     Ok(finish(&summary, &format!("btfrig run --plan {} --out {}", a.plan.display(), a.out.display())))
 }
 

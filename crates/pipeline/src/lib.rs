@@ -354,6 +354,16 @@ pub struct Processor {
     light: Option<(light::LightCorrection, Vec<nalgebra::Point2<f64>>)>,
     /// With HDR on: what each step's journal record says of its exposures.
     hdr: Option<HdrRecording>,
+    /// Receives every committed texture ([`Processor::with_sink`]).
+    sink: Option<Arc<dyn TextureSink>>,
+}
+
+/// Receives every committed texture, after its journal commit, in commit order, on a
+/// blocking thread: e.g. the streaming compressor of `btfrig-compress`. It must return
+/// quickly (queue the work): the pipeline waits for it.
+pub trait TextureSink: Send + Sync {
+    /// The texture (row-major linear RGB, `size x size`) of the committed `step`.
+    fn accept(&self, step: StepId, texels: &[[f32; 3]]);
 }
 
 /// What the journal records of each step's exposures when the plan has HDR on
@@ -432,7 +442,14 @@ impl Processor {
             dark_flat: None,
             light: None,
             hdr: None,
+            sink: None,
         })
+    }
+
+    /// The same processor handing every committed texture to `sink` (none: `None`).
+    pub fn with_sink(mut self, sink: Option<Arc<dyn TextureSink>>) -> Self {
+        self.sink = sink;
+        self
     }
 
     /// The same processor registering and rectifying with `camera` (a calibration of the rig's
@@ -1029,7 +1046,10 @@ where
                         stage_s: p.stage_s.clone(),
                     };
                     let preview = claim.map(|c| make_preview(c, step, &p.texels, n));
-                    p.texels = Vec::new();
+                    // The sink gets the texture after the commit; without one it is dropped here.
+                    if pr.sink.is_none() || !out.textures {
+                        p.texels = Vec::new();
+                    }
                     let hdr = pr.hdr_recording().map(|h| StepHdr {
                         exposures_s: frames.iter().map(|fr| fr.meta.exposure_s).collect(),
                         bracket_s: f.times.bracket_s,
@@ -1042,7 +1062,7 @@ where
             }
             Next::Done(r) => {
                 let (step, _) = in_flight.pop_front().expect("a job was awaited");
-                let (step, files, attempts, timing, p, preview, hdr) =
+                let (step, files, attempts, timing, mut p, preview, hdr) =
                     match r.map_err(|e| PipelineError::Join { step, reason: e.to_string() }).and_then(|r| r) {
                         Ok(out) => out,
                         Err(e) => return Err(drain(in_flight, e).await),
@@ -1052,8 +1072,13 @@ where
                 // that does not count.
                 // A texture's pose record goes with it; a preview-only frame wrote no texture.
                 let registration = if processor.outputs().textures { p.registration.clone() } else { None };
+                let sink = processor.sink.clone();
+                let sink_texels = std::mem::take(&mut p.texels);
                 let written = match tokio::task::spawn_blocking(move || {
                     ds.commit_step_with(step, files, attempts, timing, StepExtra { registration, hdr })?;
+                    if let Some(s) = sink.filter(|_| !sink_texels.is_empty()) {
+                        s.accept(step, &sink_texels);
+                    }
                     Ok::<_, StoreError>(preview.map(|made| {
                         let t = Instant::now();
                         let ok = match &made.preview {

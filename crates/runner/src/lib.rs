@@ -127,6 +127,18 @@ pub struct RunRequest {
     /// demosaicing (`docs/dark-flat.md`); `None`: the sensor model's black level, dark current
     /// and the lens model's vignetting.
     pub dark_flat: Option<DarkFlatInput>,
+    /// Receives every committed texture (e.g. `btfrig-compress`'s streaming compressor).
+    pub sink: Option<TextureSinkHandle>,
+}
+
+/// A [`btfrig_pipeline::TextureSink`] in a [`RunRequest`].
+#[derive(Clone)]
+pub struct TextureSinkHandle(pub Arc<dyn btfrig_pipeline::TextureSink>);
+
+impl std::fmt::Debug for TextureSinkHandle {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("TextureSink")
+    }
 }
 
 /// A dark/flat calibration for a run, with where it came from (recorded in the manifest).
@@ -156,7 +168,14 @@ impl RunRequest {
             compare_nominal: false,
             light: None,
             dark_flat: None,
+            sink: None,
         }
+    }
+
+    /// With a sink for the committed textures (see [`RunRequest::sink`]).
+    pub fn with_sink(mut self, sink: Option<Arc<dyn btfrig_pipeline::TextureSink>>) -> RunRequest {
+        self.sink = sink.map(TextureSinkHandle);
+        self
     }
 
     /// With a dark/flat calibration (see [`RunRequest::dark_flat`]).
@@ -656,6 +675,7 @@ pub fn run(
         compare_nominal: req.compare_nominal,
         light: req.light.clone(),
         dark_flat: req.dark_flat.as_ref().map(|d| d.calibration.clone()),
+        sink: req.sink.as_ref().map(|s| s.0.clone()),
         hdr: hdr.map(|settings| SessionHdr { settings, reference_s: exposure_s, light_cos }),
         on_event,
     }));
@@ -872,6 +892,7 @@ struct SessionInput<'a> {
     compare_nominal: bool,
     light: Option<btfrig_pipeline::light::LightCorrection>,
     dark_flat: Option<Arc<btfrig_pipeline::dark_flat::DarkFlat>>,
+    sink: Option<Arc<dyn btfrig_pipeline::TextureSink>>,
     hdr: Option<SessionHdr>,
     on_event: &'a mut dyn FnMut(&RunEvent),
 }
@@ -933,6 +954,7 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
         compare_nominal,
         light,
         dark_flat,
+        sink,
         hdr,
         on_event,
     } = input;
@@ -992,6 +1014,7 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
             })
             .map_err(|e| RunError::Rig(e.to_string()))?
             .with_outputs(outputs)
+            .with_sink(sink)
             .with_color_correction(color)
             .with_nominal_comparison(compare_nominal)
             .with_hdr_recording(

@@ -34,6 +34,7 @@ use serde::de::{self, Deserializer, MapAccess, SeqAccess, Visitor};
 use serde::{Deserialize, Serialize};
 
 pub use error::{PlanError, PlanErrors};
+
 pub use validate::{
     CaptureList, ExistingDataset, ExposurePolicy, HdrMode, HdrSettings, MaterialRef, OnRegistrationFailure,
     OutputFormat, Outputs, PlanContext, Region, RegistrationMethod, RegistrationPolicy, ResampleFilter, SkipReason,
@@ -89,6 +90,21 @@ pub struct Plan {
     /// How each frame's sample pose is found (marker registration or the nominal pose).
     #[serde(default, skip_serializing_if = "RegistrationSpec::is_default")]
     pub registration: RegistrationSpec,
+    /// Sparse acquisition: capture only these pairs of the requested ones (written by
+    /// `btfrig sparse select`); the others are skipped with reason `sparse`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sparse: Option<SparseSpec>,
+}
+
+/// The `[sparse]` table: the subset of the requested pairs a sparse acquisition captures
+/// (chosen so that a linear basis stays well conditioned on it, `btfrig sparse select`).
+/// Part of the content hash: it changes what is captured.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SparseSpec {
+    /// `[light_index, view_index]` pairs into the resolved (filtered) samplings, each once,
+    /// each among the requested pairs and reachable by the rig.
+    pub pairs: Vec<[usize; 2]>,
 }
 
 /// The `[registration]` table: where the pose each frame is rectified with comes from.

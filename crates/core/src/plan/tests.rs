@@ -306,3 +306,22 @@ fn hdr_settings_default_off_keep_the_hash_and_name_bad_values() {
     let e = validate(&format!("{MINIMAL}[exposure]\nmode = \"bracket\"\n")).unwrap_err().to_string();
     assert!(e.contains("exposure.stops = [] is invalid"), "{e}");
 }
+
+#[test]
+fn a_sparse_subset_captures_only_its_pairs_and_changes_the_hash() {
+    let base = "[sampling]\nlight = { preset = \"bonn81\", theta_max_deg = 30 }\nview = { preset = \"bonn81\", theta_max_deg = 30 }\n";
+    let sparse = format!("{base}[sparse]\npairs = [[0, 3], [7, 2], [12, 18]]\n");
+    let ctx = PlanContext::with_builtin_names();
+    let full = Plan::from_toml(base, "full").unwrap();
+    let plan = Plan::from_toml(&sparse, "sparse").unwrap();
+    assert_ne!(full.content_hash(), plan.content_hash(), "the subset is part of the hash");
+    let v = plan.validate(&ctx).unwrap();
+    let list = v.capture_list();
+    let mut got = list.captures.clone();
+    got.sort_unstable();
+    assert_eq!(got, vec![(0, 3), (7, 2), (12, 18)]);
+    let sparse_skips = list.skipped.iter().filter(|(_, r)| *r == SkipReason::Sparse).count();
+    let unreachable = list.skipped.iter().filter(|(_, r)| matches!(r, SkipReason::Unreachable(_))).count();
+    assert_eq!(sparse_skips + unreachable + 3, 19 * 19);
+    assert_eq!(SkipReason::Sparse.label(), "sparse");
+}

@@ -292,6 +292,8 @@ pub enum SkipReason {
     Reciprocal,
     /// Beyond `skip.max_captures`.
     MaxCaptures,
+    /// Not in the `[sparse]` subset.
+    Sparse,
 }
 
 impl SkipReason {
@@ -301,6 +303,7 @@ impl SkipReason {
             SkipReason::Unreachable(k) => format!("unreachable:{}", k.label()),
             SkipReason::Reciprocal => "reciprocal".into(),
             SkipReason::MaxCaptures => "max-captures".into(),
+            SkipReason::Sparse => "sparse".into(),
         }
     }
 }
@@ -345,6 +348,8 @@ pub struct ValidatedPlan {
     pub registration: RegistrationPolicy,
     /// The output directory holds a dataset of this same plan: the run resumes it.
     pub resume: bool,
+    /// The `[sparse]` subset, validated (`None`: no sparse acquisition).
+    pub sparse: Option<std::collections::BTreeSet<(usize, usize)>>,
 }
 
 /// Which requested pairs are captured and which are skipped, from [`ValidatedPlan::capture_list`].
@@ -358,8 +363,8 @@ pub struct CaptureList {
 
 impl ValidatedPlan {
     /// The pairs to capture, in plan order, and the skipped ones with their reasons.
-    /// Unreachable pairs go first, then reciprocals of earlier captures, then everything
-    /// beyond `max_captures`.
+    /// Unreachable pairs go first, then pairs outside the `[sparse]` subset, then reciprocals
+    /// of earlier captures, then everything beyond `max_captures`.
     pub fn capture_list(&self) -> CaptureList {
         let unreachable: std::collections::HashMap<(usize, usize), UnreachableKind> =
             self.unreachable.iter().map(|u| ((u.light, u.view), u.reason.kind())).collect();
@@ -369,6 +374,10 @@ impl ValidatedPlan {
         for &p in &self.pairs {
             if let Some(k) = unreachable.get(&p) {
                 skipped.push((p, SkipReason::Unreachable(*k)));
+                continue;
+            }
+            if self.sparse.as_ref().is_some_and(|s| !s.contains(&p)) {
+                skipped.push((p, SkipReason::Sparse));
                 continue;
             }
             let (l, v) = (self.light.get(p.0), self.view.get(p.1));
@@ -468,6 +477,12 @@ impl Plan {
             }
         }
 
+        let sparse = match (&self.sparse, &light, &view, &pairs) {
+            (Some(sp), Some((l, _)), Some((v, _)), Some(pairs)) => {
+                resolve_sparse(sp, l.len(), v.len(), pairs, &unreachable, &mut errors)
+            }
+            _ => None,
+        };
         if !errors.is_empty() {
             return Err(PlanErrors { origin: String::new(), errors });
         }
@@ -492,6 +507,7 @@ impl Plan {
             run,
             registration: registration.expect("no errors"),
             resume,
+            sparse,
         })
     }
 
@@ -503,6 +519,64 @@ impl Plan {
             e
         })
     }
+}
+
+/// Checks the `[sparse]` subset: not empty, every pair in range, once, among the requested
+/// pairs and reachable.
+fn resolve_sparse(
+    sp: &super::SparseSpec,
+    n_light: usize,
+    n_view: usize,
+    pairs: &[(usize, usize)],
+    unreachable: &[UnreachablePair],
+    errors: &mut Vec<PlanError>,
+) -> Option<std::collections::BTreeSet<(usize, usize)>> {
+    if sp.pairs.is_empty() {
+        errors.push(PlanError::invalid("sparse.pairs", "[]", "no pairs", "at least one [light, view] pair"));
+        return None;
+    }
+    let requested: std::collections::HashSet<(usize, usize)> = pairs.iter().copied().collect();
+    let blocked: std::collections::HashMap<(usize, usize), &Unreachable> =
+        unreachable.iter().map(|u| ((u.light, u.view), &u.reason)).collect();
+    let mut first_at: std::collections::HashMap<(usize, usize), usize> = std::collections::HashMap::new();
+    let before = errors.len();
+    for (i, &[l, v]) in sp.pairs.iter().enumerate() {
+        let field = format!("sparse.pairs[{i}]");
+        if l >= n_light || v >= n_view {
+            errors.push(PlanError::out_of_range(
+                field,
+                format!("[{l}, {v}]"),
+                format!("light 0..={}, view 0..={} (indices into the filtered samplings)", n_light - 1, n_view - 1),
+            ));
+            continue;
+        }
+        if let Some(&j) = first_at.get(&(l, v)) {
+            errors.push(PlanError::invalid(
+                field,
+                format!("[{l}, {v}]"),
+                format!("repeats sparse.pairs[{j}]"),
+                "each pair once",
+            ));
+            continue;
+        }
+        first_at.insert((l, v), i);
+        if !requested.contains(&(l, v)) {
+            errors.push(PlanError::invalid(
+                field,
+                format!("[{l}, {v}]"),
+                "is not among the requested pairs (sampling.pairs)",
+                "a subset of the requested pairs",
+            ));
+        } else if let Some(r) = blocked.get(&(l, v)) {
+            errors.push(PlanError::invalid(
+                field,
+                format!("[{l}, {v}]"),
+                format!("the rig cannot reach it ({r})"),
+                "pairs the rig can reach",
+            ));
+        }
+    }
+    (errors.len() == before).then(|| first_at.into_keys().collect())
 }
 
 fn resolve_rig(plan: &Plan, ctx: &PlanContext, errors: &mut Vec<PlanError>) -> Option<RigConfig> {

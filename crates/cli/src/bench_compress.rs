@@ -1,0 +1,541 @@
+//! `btfrig bench compress`: linear BTF models on a simulated 81 x 81 BTF (docs/compression.md).
+//!
+//! The "measured" BTF is the renderer's ground truth (area-averaged over `--subsamples`^2
+//! point samples per texel, as a radiance factor, exactly what the pipeline compares its
+//! textures with) plus the sensor's noise at the level of a real capture: the rig's sensor
+//! at the plans' auto exposure (a white reflector at 60 % of full scale), photon shot noise
+//! and read noise per channel value, Gaussian, drawn from a generator seeded by (seed,
+//! capture). It leaves out what rectification adds (interpolation blur, registration
+//! error, demosaic correlation): a full 6480-capture pipeline run at 128 texels takes hours
+//! here, and those errors are the pipeline's own figure (`texture_rel_rmse`), not the
+//! compression's. Truths are cached in `target/bench-cache` (half floats, as datasets store
+//! textures).
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::Context;
+use btfrig_compress::eval::{decode_throughput, ErrorSums};
+use btfrig_compress::sparse::{self, Strategy};
+use btfrig_compress::{build, file, ColorModel, Layout, Method, Model, ModelParams, Precision, RowSink, RowSource};
+use btfrig_core::sampling::Sampling;
+use btfrig_render::rig_scene::RigScene;
+use half::f16;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
+use rayon::prelude::*;
+use sha2::Digest;
+
+/// `btfrig bench compress`.
+#[derive(Debug, clap::Args)]
+pub struct BenchCompressArgs {
+    /// Materials (default: lacquered-wood corduroy).
+    #[arg(long, num_args = 1..)]
+    pub material: Vec<String>,
+    /// Texels per side.
+    #[arg(long, default_value_t = 128)]
+    pub size: usize,
+    /// Point samples per texel axis of the ground truth (the pipeline uses 4 at 128 texels;
+    /// 1 renders 16 times faster).
+    #[arg(long, default_value_t = 1)]
+    pub subsamples: usize,
+    /// Keep every k-th Bonn direction for lights and views (1: all 81 x 81).
+    #[arg(long, default_value_t = 1)]
+    pub every: usize,
+    /// Rig config file (default: the embedded simulated gonioreflectometer).
+    #[arg(long)]
+    pub rig: Option<PathBuf>,
+    /// Seed of the sensor noise.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Fewer settings (FMF 8, PCMF 32 x 8, FMF of PCMF's storage).
+    #[arg(long)]
+    pub quick: bool,
+    /// Skip sparse acquisition (which renders a second sample of lacquered-wood).
+    #[arg(long)]
+    pub no_sparse: bool,
+    /// Sparse acquisition: captures used (default: 10 % of the measured ones).
+    #[arg(long)]
+    pub sparse_captures: Option<usize>,
+    /// Also write the first material's measured BTF here as a dataset (for `btfrig compress`,
+    /// `dataset export`).
+    #[arg(long)]
+    pub dataset_out: Option<PathBuf>,
+    /// Cache of rendered truths (default: target/bench-cache).
+    #[arg(long)]
+    pub cache: Option<PathBuf>,
+    /// Print one JSON object.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// A simulated BTF: the truth (half floats per measured angular index) and the noise model.
+pub struct SimBtf {
+    /// Samplings, size, measured pairs.
+    pub layout: Layout,
+    /// Truth per angular index, RGB interleaved.
+    pub truth: Vec<Option<Vec<f16>>>,
+    /// Electrons of a white reflector (per channel value).
+    pub white_e: f64,
+    /// Read noise, electrons.
+    pub read_e: f64,
+    /// Noise seed.
+    pub seed: u64,
+}
+
+impl SimBtf {
+    /// The truth of angular index `a`.
+    pub fn truth_row(&self, a: usize) -> Option<Vec<[f32; 3]>> {
+        self.truth[a]
+            .as_ref()
+            .map(|t| t.chunks_exact(3).map(|c| [c[0].to_f32(), c[1].to_f32(), c[2].to_f32()]).collect())
+    }
+
+    /// The measured texture of angular index `a`: truth + shot and read noise.
+    pub fn measured_row(&self, a: usize) -> Option<Vec<[f32; 3]>> {
+        let mut t = self.truth_row(a)?;
+        let mut rng = ChaCha8Rng::seed_from_u64(self.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ a as u64);
+        for p in &mut t {
+            for v in p.iter_mut() {
+                let sigma = ((f64::from(*v).max(0.0) * self.white_e + self.read_e * self.read_e).sqrt()) / self.white_e;
+                let z: f64 = StandardNormal.sample(&mut rng);
+                *v += (sigma * z) as f32;
+            }
+        }
+        Some(t)
+    }
+
+    /// Bytes of the measured captures at half precision (the dataset's storage).
+    pub fn raw_bytes(&self) -> usize {
+        self.layout.n_measured() * self.layout.texels() * 3 * 2
+    }
+}
+
+/// Feeds the measured (or true) textures, optionally only the pairs in `only`.
+pub struct SimSource<'a> {
+    /// The BTF.
+    pub btf: &'a SimBtf,
+    /// Noise added.
+    pub measured: bool,
+    /// Angular indices fed (`None`: every measured one).
+    pub only: Option<&'a [bool]>,
+}
+
+impl RowSource for SimSource<'_> {
+    fn for_each(&mut self, f: &mut RowSink<'_>) -> btfrig_compress::Result<()> {
+        let rows: Vec<usize> = (0..self.btf.layout.n_angular())
+            .filter(|&a| self.btf.layout.measured[a] && self.only.is_none_or(|o| o[a]))
+            .collect();
+        for chunk in rows.chunks(16) {
+            let tex: Vec<Vec<[f32; 3]>> = chunk
+                .par_iter()
+                .map(|&a| {
+                    if self.measured { self.btf.measured_row(a) } else { self.btf.truth_row(a) }.expect("measured")
+                })
+                .collect();
+            for (&a, t) in chunk.iter().zip(&tex) {
+                let (l, v) = self.btf.layout.pair(a);
+                f(l as u32, v as u32, t)?;
+            }
+        }
+        Ok(())
+    }
+}
+
+fn bonn(every: usize) -> anyhow::Result<Sampling> {
+    let b = Sampling::bonn81();
+    if every == 1 {
+        return Ok(b);
+    }
+    let d: Vec<_> = b.directions().iter().step_by(every).copied().collect();
+    Ok(Sampling::from_list("bonn81-every", d)?)
+}
+
+/// Renders (or loads from the cache) the truth of `material` and returns the simulated BTF.
+pub fn simulate(
+    cfg: &btfrig_core::config::RigConfig,
+    material: &btfrig_render::material::MaterialSpec,
+    a: &BenchCompressArgs,
+    seed: u64,
+    cache: &Path,
+) -> anyhow::Result<SimBtf> {
+    let (size, k, every, quiet) = (a.size, a.subsamples, a.every, a.json);
+    let scene = RigScene::new(cfg, material)?;
+    let (light, view) = (bonn(every)?, bonn(every)?);
+    let mut layout = Layout::full(light.clone(), view.clone(), size, size);
+    let sensor = scene.sensor();
+    let full_e = f64::from(sensor.white_level(1.0) - sensor.black_level_dn) / sensor.dn_per_electron(1.0);
+    let white_e = 0.6 * full_e;
+    let read_e = sensor.read_noise_e;
+    let key = format!("{cfg:?}|{material:?}|{size}|{k}|{every}");
+    let hash: String = sha2::Sha256::digest(key.as_bytes()).iter().take(8).map(|b| format!("{b:02x}")).collect();
+    std::fs::create_dir_all(cache).with_context(|| format!("cannot create {}", cache.display()))?;
+    let path = cache.join(format!("compress-truth-{}-{size}-k{k}-e{every}-{hash}.f16", material.name));
+    let m = layout.n_angular();
+    let n = size * size;
+    if let Ok(bytes) = std::fs::read(&path) {
+        if bytes.len() == m + m * n * 6 || bytes.len() >= m {
+            let mut truth = Vec::with_capacity(m);
+            let mut off = m;
+            let mut ok = true;
+            for a in 0..m {
+                if bytes[a] == 1 {
+                    if bytes.len() < off + n * 6 {
+                        ok = false;
+                        break;
+                    }
+                    let row =
+                        bytes[off..off + n * 6].chunks_exact(2).map(|c| f16::from_le_bytes([c[0], c[1]])).collect();
+                    off += n * 6;
+                    truth.push(Some(row));
+                } else {
+                    layout.measured[a] = false;
+                    truth.push(None);
+                }
+            }
+            if ok && off == bytes.len() {
+                if !quiet {
+                    eprintln!("truth     {} from cache {}", material.name, path.display());
+                }
+                return Ok(SimBtf { layout, truth, white_e, read_e, seed });
+            }
+            layout.measured.fill(true);
+        }
+    }
+    let t = Instant::now();
+    let scale = (scene.sensor().dn_per_electron(1.0) / scene.white_signal_dn(1.0, 1.0)) as f32;
+    let mut truth = Vec::with_capacity(m);
+    for a in 0..m {
+        let (l, v) = layout.pair(a);
+        match scene.gonio().ik(light.get(l), view.get(v)) {
+            Ok(joints) => {
+                let gt = scene.renderer().ground_truth(&scene.pose(&joints), size * k, size * k, None).box_average(k);
+                truth
+                    .push(Some(gt.data.iter().flat_map(|p| p.map(|c| f16::from_f32(c * scale))).collect::<Vec<f16>>()));
+            }
+            Err(_) => {
+                layout.measured[a] = false;
+                truth.push(None);
+            }
+        }
+        if !quiet && a % 500 == 499 {
+            eprintln!("truth     {}: {}/{m} pairs rendered, {:.0} s", material.name, a + 1, t.elapsed().as_secs_f64());
+        }
+    }
+    let mut bytes = Vec::with_capacity(m + layout.n_measured() * n * 6);
+    bytes.extend(truth.iter().map(|t| u8::from(t.is_some())));
+    for row in truth.iter().flatten() {
+        for v in row {
+            bytes.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    std::fs::write(&path, &bytes).with_context(|| format!("cannot write {}", path.display()))?;
+    if !quiet {
+        eprintln!(
+            "truth     {}: {m} pairs in {:.0} s, cached in {}",
+            material.name,
+            t.elapsed().as_secs_f64(),
+            path.display()
+        );
+    }
+    Ok(SimBtf { layout, truth, white_e, read_e, seed })
+}
+
+/// One benchmark row.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Row {
+    material: String,
+    method: String,
+    color: String,
+    terms: [usize; 3],
+    file_bytes: usize,
+    ratio: f64,
+    build_s: f64,
+    passes: usize,
+    builder_peak_mb: f64,
+    decode_mtexel_s: f64,
+    rel_rmse_measured: f64,
+    rel_rmse_truth: f64,
+}
+
+/// Error of `model` against measured and truth in one pass (each texture decoded once).
+pub fn errors(model: &Model, btf: &SimBtf) -> (ErrorSums, ErrorSums) {
+    let rows: Vec<usize> = (0..btf.layout.n_angular()).filter(|&a| btf.layout.measured[a]).collect();
+    rows.par_iter()
+        .map(|&a| {
+            let d = model.texture(a);
+            let (mut em, mut et) = (ErrorSums::default(), ErrorSums::default());
+            em.add(&d, &btf.measured_row(a).expect("measured"));
+            et.add(&d, &btf.truth_row(a).expect("measured"));
+            (em, et)
+        })
+        .reduce(
+            || (ErrorSums::default(), ErrorSums::default()),
+            |a, b| {
+                (
+                    ErrorSums { sq_err: a.0.sq_err + b.0.sq_err, sq_ref: a.0.sq_ref + b.0.sq_ref },
+                    ErrorSums { sq_err: a.1.sq_err + b.1.sq_err, sq_ref: a.1.sq_ref + b.1.sq_ref },
+                )
+            },
+        )
+}
+
+fn setting(method: Method, color: ColorModel, terms: [usize; 3]) -> ModelParams {
+    let mut p = ModelParams::new(method);
+    p.color = color;
+    p.terms = terms;
+    p.precision = Precision::F16;
+    p
+}
+
+fn run_setting(name: &str, btf: &SimBtf, p: &ModelParams) -> anyhow::Result<(Model, Row)> {
+    let (model, stats) = build::<f32>(btf.layout.clone(), p, &mut SimSource { btf, measured: true, only: None })?;
+    let bytes = file::encode(&model, serde_json::Value::Null).len();
+    let (tput, _) = decode_throughput(&model, 24, 5);
+    let (em, et) = errors(&model, btf);
+    let row = Row {
+        material: name.into(),
+        method: match p.method {
+            Method::Pcmf { clusters } => format!("pcmf-{clusters}"),
+            m => m.name().into(),
+        },
+        color: p.color.name().into(),
+        terms: p.terms,
+        file_bytes: bytes,
+        ratio: btf.raw_bytes() as f64 / bytes as f64,
+        build_s: stats.total_s,
+        passes: stats.passes,
+        builder_peak_mb: stats.peak_bytes as f64 / 1e6,
+        decode_mtexel_s: tput / 1e6,
+        rel_rmse_measured: em.rel_rmse(),
+        rel_rmse_truth: et.rel_rmse(),
+    };
+    Ok((model, row))
+}
+
+fn print_row(r: &Row) {
+    println!(
+        "{:<15} {:<8} {:<8} {:<10} {:>8.2} {:>7.1} {:>8.1} {:>3} {:>8.1} {:>9.1} {:>10.5} {:>10.5}",
+        r.material,
+        r.method,
+        r.color,
+        format!("{}/{}/{}", r.terms[0], r.terms[1], r.terms[2]),
+        r.file_bytes as f64 / 1e6,
+        r.ratio,
+        r.build_s,
+        r.passes,
+        r.builder_peak_mb,
+        r.decode_mtexel_s,
+        r.rel_rmse_measured,
+        r.rel_rmse_truth
+    );
+}
+
+/// FMF terms (same for the three channels) whose storage is at least `bytes` of payload.
+fn fmf_terms_for(bytes: usize, layout: &Layout, precision: Precision) -> usize {
+    let (m, n) = (layout.n_angular(), layout.texels());
+    let per = |k: usize| 3 * (m * (k + 1) + n * k + k) * precision.bytes();
+    (1..4096).find(|&k| per(k) >= bytes).unwrap_or(4096)
+}
+
+/// Runs the benchmark.
+pub fn bench(a: &BenchCompressArgs) -> anyhow::Result<()> {
+    anyhow::ensure!((8..=1024).contains(&a.size), "--size {}: allowed 8..=1024 texels", a.size);
+    anyhow::ensure!((1..=8).contains(&a.subsamples), "--subsamples {}: allowed 1..=8", a.subsamples);
+    anyhow::ensure!((1..=20).contains(&a.every), "--every {}: allowed 1..=20", a.every);
+    let cfg = crate::rig::load(a.rig.as_deref())?;
+    let cache = a.cache.clone().unwrap_or_else(|| PathBuf::from("target/bench-cache"));
+    let materials = if a.material.is_empty() {
+        vec!["lacquered-wood".to_string(), "corduroy".to_string()]
+    } else {
+        a.material.clone()
+    };
+    let mut rows = Vec::new();
+    let mut measured_err = Vec::new();
+    let mut sparse_out = None;
+    if !a.json {
+        println!(
+            "compression benchmark: Bonn {}x{} directions, {}x{} texels, truth {}x{} samples per texel, {} rayon threads",
+            bonn(a.every)?.len(),
+            bonn(a.every)?.len(),
+            a.size,
+            a.size,
+            a.subsamples,
+            a.subsamples,
+            rayon::current_num_threads()
+        );
+    }
+    for (mi, name) in materials.iter().enumerate() {
+        let spec = crate::material::load(Some(name))?.with_texels(a.size.max(64));
+        let btf = simulate(&cfg, &spec, a, a.seed, &cache)?;
+        let noise = {
+            let mut e = ErrorSums::default();
+            for r in (0..btf.layout.n_angular()).filter(|&x| btf.layout.measured[x]) {
+                e.add(&btf.measured_row(r).expect("m"), &btf.truth_row(r).expect("m"));
+            }
+            e.rel_rmse()
+        };
+        measured_err.push(
+            serde_json::json!({"material": name, "captures": btf.layout.n_measured(), "measured_vs_truth": noise}),
+        );
+        if mi == 0 {
+            if let Some(dir) = &a.dataset_out {
+                let t = Instant::now();
+                btfrig_compress::dataset::write_dataset(
+                    dir,
+                    &btf.layout,
+                    &mut |x| btf.measured_row(x).expect("measured"),
+                    &cfg.rig.name,
+                    &format!("bench compress: simulated measurement of {name}, {} texels, seed {}", a.size, a.seed),
+                    true,
+                )?;
+                if !a.json {
+                    println!("dataset   {} written in {:.0} s", dir.display(), t.elapsed().as_secs_f64());
+                }
+            }
+        }
+        if !a.json {
+            println!();
+            println!(
+                "{name}: {} captures ({} pairs unreachable), raw {:.1} MB at half precision; measured vs truth: relative RMSE {noise:.5}",
+                btf.layout.n_measured(),
+                btf.layout.n_angular() - btf.layout.n_measured(),
+                btf.raw_bytes() as f64 / 1e6
+            );
+            println!(
+                "{:<15} {:<8} {:<8} {:<10} {:>8} {:>7} {:>8} {:>3} {:>8} {:>9} {:>10} {:>10}",
+                "material",
+                "method",
+                "colour",
+                "terms",
+                "MB",
+                "ratio",
+                "build s",
+                "ps",
+                "peak MB",
+                "Mtexel/s",
+                "vs meas.",
+                "vs truth"
+            );
+        }
+        let mut run = |p: ModelParams| -> anyhow::Result<Model> {
+            let (m, r) = run_setting(name, &btf, &p)?;
+            if !a.json {
+                print_row(&r);
+            }
+            rows.push(r);
+            Ok(m)
+        };
+        run(setting(Method::Fmf, ColorModel::Rgb, [8; 3]))?;
+        let pcmf = run(setting(Method::Pcmf { clusters: 32 }, ColorModel::Rgb, [8; 3]))?;
+        let k_eq = fmf_terms_for(pcmf.payload_bytes(), &btf.layout, Precision::F16);
+        run(setting(Method::Fmf, ColorModel::Rgb, [k_eq; 3]))?;
+        if !a.quick {
+            run(setting(Method::Pvmf, ColorModel::Rgb, [8; 3]))?;
+            run(setting(Method::Fmf, ColorModel::Yuv, [32, 16, 16]))?;
+            run(setting(Method::Fmf, ColorModel::YlogUv, [32, 16, 16]))?;
+            run(setting(Method::Pcmf { clusters: 32 }, ColorModel::Yuv, [8, 4, 4]))?;
+        }
+        if name == "lacquered-wood" && !a.no_sparse {
+            sparse_out = Some(sparse_bench(a, &cfg, &spec, &btf, &cache)?);
+        }
+    }
+    if a.json {
+        println!("{}", serde_json::json!({"rows": rows, "measured": measured_err, "sparse": sparse_out}));
+    } else {
+        println!();
+        println!("MB: model file; ratio: raw half-float captures / file; ps: passes over the data; peak MB: the builder's sketches;");
+        println!("Mtexel/s: decode at random direction pairs (interpolated), all threads; vs meas./vs truth: relative RMSE of the");
+        println!("decoded model against the noisy measured textures and the noise-free ground truth, every capture and texel.");
+    }
+    Ok(())
+}
+
+/// Sparse acquisition on lacquered-wood: basis from another sample of the material.
+fn sparse_bench(
+    a: &BenchCompressArgs,
+    cfg: &btfrig_core::config::RigConfig,
+    spec: &btfrig_render::material::MaterialSpec,
+    test: &SimBtf,
+    cache: &Path,
+) -> anyhow::Result<serde_json::Value> {
+    let mut other = spec.clone();
+    other.seed = other.seed.wrapping_add(1);
+    let train = simulate(cfg, &other, a, a.seed + 1, cache)?;
+    let count = a.sparse_captures.unwrap_or(test.layout.n_measured() / 10);
+    let mut out = Vec::new();
+    if !a.json {
+        println!();
+        println!(
+            "sparse acquisition, lacquered-wood: basis = FMF of a full measurement of ANOTHER sample (material seed {}), \
+             captures chosen on it; {count} of {} captures ({:.1} %)",
+            other.seed,
+            test.layout.n_measured(),
+            100.0 * count as f64 / test.layout.n_measured() as f64
+        );
+        println!(
+            "{:<10} {:<11} {:>7} {:>24} {:>10} {:>10}",
+            "basis", "choice", "ridge", "kappa(M U) R/G/B", "vs truth", "full meas."
+        );
+    }
+    let full = {
+        let mut e = ErrorSums::default();
+        for r in (0..test.layout.n_angular()).filter(|&x| test.layout.measured[x]) {
+            e.add(&test.measured_row(r).expect("m"), &test.truth_row(r).expect("m"));
+        }
+        e.rel_rmse()
+    };
+    for k in [16usize, 32] {
+        let (basis, _) = build::<f32>(
+            train.layout.clone(),
+            &setting(Method::Fmf, ColorModel::Rgb, [k; 3]),
+            &mut SimSource { btf: &train, measured: true, only: None },
+        )?;
+        // The projection of the full measurement onto the basis: denoising, and the floor of
+        // any reconstruction with this basis.
+        let den = sparse::denoise(&basis, &mut SimSource { btf: test, measured: true, only: None })?;
+        let (_, den_t) = errors(&den, test);
+        if !a.json {
+            println!(
+                "{:<10} {:<11} {:>7} {:>24} {:>10.5} {:>10.5}",
+                format!("fmf-{k}"),
+                "all (denoise)",
+                0,
+                "-",
+                den_t.rel_rmse(),
+                full
+            );
+        }
+        out.push(serde_json::json!({"basis_terms": k, "choice": "all", "rel_rmse_truth": den_t.rel_rmse(), "full_measured": full}));
+        for (label, strat) in [("max-volume", Strategy::MaxVolume), ("random", Strategy::Random(7))] {
+            let sel = sparse::select(&basis, count, strat)?;
+            let mut only = vec![false; test.layout.n_angular()];
+            for &(l, v) in &sel.pairs {
+                only[test.layout.index(l, v)] = true;
+            }
+            for ridge in [0.0, 1e-4] {
+                let rec = sparse::reconstruct(
+                    &basis,
+                    &mut SimSource { btf: test, measured: true, only: Some(&only) },
+                    ridge,
+                )?;
+                let (_, et) = errors(&rec, test);
+                if !a.json {
+                    println!(
+                        "{:<10} {:<11} {:>7.0e} {:>24} {:>10.5} {:>10.5}",
+                        format!("fmf-{k}"),
+                        label,
+                        ridge,
+                        format!("{:.1}/{:.1}/{:.1}", sel.kappa[0], sel.kappa[1], sel.kappa[2]),
+                        et.rel_rmse(),
+                        full
+                    );
+                }
+                out.push(serde_json::json!({"basis_terms": k, "choice": label, "ridge": ridge, "captures": count,
+                    "kappa": sel.kappa, "rel_rmse_truth": et.rel_rmse(), "full_measured": full}));
+            }
+        }
+    }
+    Ok(serde_json::Value::Array(out))
+}

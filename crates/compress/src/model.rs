@@ -1,0 +1,457 @@
+//! Linear BTF models and their evaluation.
+//!
+//! The BTF of one colour channel is the matrix $B \in \mathbb{R}^{m \times n}$ with one row per
+//! (light, view) pair, angular index $a = v\,n_L + l$ (light fastest, as in the Bonn files),
+//! and one column per texel $x = \text{row}\cdot W + \text{col}$. Every model is a set of
+//! *parts*, each an affine low-rank model of a block of $B$:
+//!
+//! $$B[a, x] \approx \mu_p[a] + \sum_{j<k} U_p[a, j]\,(SV)_p[x, j]$$
+//!
+//! * **FMF** (full matrix factorization): one part, all rows and texels.
+//! * **PVMF** (per-view): one part per view $v$ over its $n_L$ rows.
+//! * **PCMF** (per-cluster, local PCA): one part per cluster of texels $k(x)$, all rows.
+//!
+//! $\mu_p$ is the part's mean ABRDF (PCA centring). Pairs that were not measured (the rig
+//! cannot reach them) get rows interpolated barycentrically from the measured lights of the
+//! same view ([`Layout::fill_weights`]). Any direction pair is answered by interpolating the
+//! angular factors over the samplings' triangulations
+//! ($\tilde U = \sum_{i,j} w_i(v)\,w_j(l)\,U[v_i n_L + l_j]$, at most 9 rows), then one dot
+//! product of length $k$ per texel and channel ([`Model::query`]).
+
+use btfrig_core::sampling::Sampling;
+use btfrig_core::Direction;
+use serde::{Deserialize, Serialize};
+
+use crate::color::ColorModel;
+use crate::error::{CompressError, Result};
+
+/// Which linear model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Method {
+    /// Full matrix factorization.
+    Fmf,
+    /// Per-view matrix factorization.
+    Pvmf,
+    /// Per-cluster matrix factorization with this many clusters.
+    Pcmf {
+        /// Clusters of texels.
+        clusters: usize,
+    },
+}
+
+impl Method {
+    /// Short name (`fmf`, `pvmf`, `pcmf`).
+    pub fn name(&self) -> &'static str {
+        match self {
+            Method::Fmf => "fmf",
+            Method::Pvmf => "pvmf",
+            Method::Pcmf { .. } => "pcmf",
+        }
+    }
+}
+
+/// The shape of a BTF: samplings, texture size, which pairs were measured.
+#[derive(Debug, Clone)]
+pub struct Layout {
+    /// Light directions.
+    pub light: Sampling,
+    /// View directions.
+    pub view: Sampling,
+    /// Texture width, texels.
+    pub width: usize,
+    /// Texture height, texels.
+    pub height: usize,
+    /// Per angular index `a = view * n_light + light`: measured.
+    pub measured: Vec<bool>,
+}
+
+impl Layout {
+    /// A layout in which every pair is measured.
+    pub fn full(light: Sampling, view: Sampling, width: usize, height: usize) -> Self {
+        let m = light.len() * view.len();
+        Layout { light, view, width, height, measured: vec![true; m] }
+    }
+
+    /// Lights.
+    pub fn n_light(&self) -> usize {
+        self.light.len()
+    }
+
+    /// Views.
+    pub fn n_view(&self) -> usize {
+        self.view.len()
+    }
+
+    /// Angular rows `n_light * n_view`.
+    pub fn n_angular(&self) -> usize {
+        self.light.len() * self.view.len()
+    }
+
+    /// Texels per texture.
+    pub fn texels(&self) -> usize {
+        self.width * self.height
+    }
+
+    /// Measured pairs.
+    pub fn n_measured(&self) -> usize {
+        self.measured.iter().filter(|&&m| m).count()
+    }
+
+    /// Angular index of `(light, view)`.
+    pub fn index(&self, light: usize, view: usize) -> usize {
+        view * self.n_light() + light
+    }
+
+    /// `(light, view)` of angular index `a`.
+    pub fn pair(&self, a: usize) -> (usize, usize) {
+        (a % self.n_light(), a / self.n_light())
+    }
+
+    /// Checks that `(light, view)` is a measured pair; its angular index.
+    pub fn check(&self, light: u32, view: u32) -> Result<usize> {
+        let (l, v) = (light as usize, view as usize);
+        if l >= self.n_light() || v >= self.n_view() {
+            return Err(CompressError::UnknownCapture {
+                light,
+                view,
+                why: format!("allowed light 0..{}, view 0..{}", self.n_light(), self.n_view()),
+            });
+        }
+        let a = self.index(l, v);
+        if !self.measured[a] {
+            return Err(CompressError::UnknownCapture {
+                light,
+                view,
+                why: "the pair is not among the measured ones".into(),
+            });
+        }
+        Ok(a)
+    }
+
+    /// For every unmeasured angular index, the measured indices and weights its row is
+    /// interpolated from: barycentric weights of its light direction over the measured
+    /// lights of its view; if that view has none, of its view direction over the measured
+    /// views of its light; else the nearest measured pair.
+    pub fn fill_weights(&self) -> Vec<(usize, Vec<(usize, f64)>)> {
+        let nl = self.n_light();
+        let mut out = Vec::new();
+        let mut per_view: Vec<Option<(Vec<usize>, Option<Sampling>)>> = vec![None; self.n_view()];
+        for a in 0..self.n_angular() {
+            if self.measured[a] {
+                continue;
+            }
+            let (l, v) = self.pair(a);
+            let entry = per_view[v].get_or_insert_with(|| {
+                let lights: Vec<usize> = (0..nl).filter(|&j| self.measured[self.index(j, v)]).collect();
+                let dirs: Vec<Direction> = lights.iter().map(|&j| self.light.get(j)).collect();
+                let s = if dirs.is_empty() { None } else { Sampling::from_list("measured", dirs).ok() };
+                (lights, s)
+            });
+            if let (lights, Some(s)) = entry {
+                let w = s.interpolate(self.light.get(l));
+                out.push((a, w.iter().map(|(i, w)| (self.index(lights[i], v), w)).collect()));
+                continue;
+            }
+            let views: Vec<usize> = (0..self.n_view()).filter(|&j| self.measured[self.index(l, j)]).collect();
+            if !views.is_empty() {
+                let dirs: Vec<Direction> = views.iter().map(|&j| self.view.get(j)).collect();
+                if let Ok(s) = Sampling::from_list("measured", dirs) {
+                    let w = s.interpolate(self.view.get(v));
+                    out.push((a, w.iter().map(|(i, w)| (self.index(l, views[i]), w)).collect()));
+                    continue;
+                }
+            }
+            let (ld, vd) = (self.light.get(l), self.view.get(v));
+            let best = (0..self.n_angular()).filter(|&b| self.measured[b]).min_by(|&x, &y| {
+                let d = |b: usize| {
+                    let (bl, bv) = self.pair(b);
+                    ld.angle_to(self.light.get(bl)) + vd.angle_to(self.view.get(bv))
+                };
+                d(x).total_cmp(&d(y))
+            });
+            if let Some(b) = best {
+                out.push((a, vec![(b, 1.0)]));
+            }
+        }
+        out
+    }
+}
+
+/// Which angular rows a part covers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PartRows {
+    /// Every angular index (FMF, PCMF); part row = angular index.
+    All,
+    /// The lights of one view (PVMF); part row = light index.
+    View(usize),
+}
+
+/// One affine low-rank block of one channel (see the module documentation).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Part {
+    /// Rows covered.
+    pub rows: PartRows,
+    /// Terms.
+    pub k: usize,
+    /// Mean ABRDF, one value per part row.
+    pub mean: Vec<f32>,
+    /// Angular basis, part rows x k, row-major.
+    pub u: Vec<f32>,
+    /// Singular values (informational: `sv` already holds them).
+    pub s: Vec<f32>,
+    /// Texel coefficients `V S`, part columns x k, row-major.
+    pub sv: Vec<f32>,
+}
+
+impl Part {
+    /// Number of part rows.
+    pub fn n_rows(&self) -> usize {
+        self.mean.len()
+    }
+
+    /// Number of part columns (texels).
+    pub fn n_cols(&self) -> usize {
+        self.sv.len().checked_div(self.k).unwrap_or(0)
+    }
+
+    /// Part row of angular index `a` (`None`: not covered).
+    #[inline]
+    pub fn row_of(&self, a: usize, n_light: usize) -> Option<usize> {
+        match self.rows {
+            PartRows::All => Some(a),
+            PartRows::View(v) => (a / n_light == v).then_some(a % n_light),
+        }
+    }
+
+    /// Value at part row `r`, part column `c`.
+    #[inline]
+    pub fn value(&self, r: usize, c: usize) -> f32 {
+        let k = self.k;
+        let u = &self.u[r * k..(r + 1) * k];
+        let sv = &self.sv[c * k..(c + 1) * k];
+        self.mean[r] + dot(u, sv)
+    }
+}
+
+/// Dot product with eight independent accumulators, so the compiler can vectorise it (a
+/// plain `sum()` of `f32` must keep its order and runs one lane at a time).
+#[inline]
+pub fn dot(a: &[f32], b: &[f32]) -> f32 {
+    let n = a.len().min(b.len());
+    let (a, b) = (&a[..n], &b[..n]);
+    let mut acc = [0.0f32; 8];
+    let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
+    let (ra, rb) = (ca.remainder(), cb.remainder());
+    for (x, y) in ca.zip(cb) {
+        for j in 0..8 {
+            acc[j] += x[j] * y[j];
+        }
+    }
+    let mut s = 0.0f32;
+    for (x, y) in ra.iter().zip(rb) {
+        s += x * y;
+    }
+    s + ((acc[0] + acc[4]) + (acc[1] + acc[5])) + ((acc[2] + acc[6]) + (acc[3] + acc[7]))
+}
+
+/// One colour channel of a model.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Channel {
+    /// The parts (1 for FMF, one per view for PVMF, one per cluster for PCMF).
+    pub parts: Vec<Part>,
+}
+
+/// Numeric precision of a model's stored factors.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Precision {
+    /// IEEE binary16 (as the Bonn files): 2 bytes per value.
+    F16,
+    /// IEEE binary32.
+    F32,
+}
+
+impl Precision {
+    /// Bytes per stored value.
+    pub fn bytes(self) -> usize {
+        match self {
+            Precision::F16 => 2,
+            Precision::F32 => 4,
+        }
+    }
+}
+
+/// A built linear BTF model (see the module documentation).
+#[derive(Debug, Clone)]
+pub struct Model {
+    /// The model kind.
+    pub method: Method,
+    /// Colour model of the channels.
+    pub color: ColorModel,
+    /// `eps` of the log colour model.
+    pub log_eps: f32,
+    /// Storage precision (the factors in memory are already rounded to it).
+    pub precision: Precision,
+    /// Samplings, size, measured pairs.
+    pub layout: Layout,
+    /// The three channels.
+    pub channels: Vec<Channel>,
+    /// PCMF: cluster of every texel.
+    pub clusters: Option<Vec<u16>>,
+    /// PCMF: column of every texel within its cluster's part.
+    pub cluster_col: Vec<u32>,
+}
+
+impl Model {
+    /// Computes `cluster_col` from `clusters` (call after changing `clusters`).
+    pub fn index_clusters(&mut self) {
+        self.cluster_col.clear();
+        if let Some(c) = &self.clusters {
+            let kc = c.iter().map(|&x| x as usize + 1).max().unwrap_or(0);
+            let mut next = vec![0u32; kc];
+            for &x in c {
+                self.cluster_col.push(next[x as usize]);
+                next[x as usize] += 1;
+            }
+        }
+    }
+
+    /// Terms per channel (of the first part).
+    pub fn terms(&self) -> [usize; 3] {
+        std::array::from_fn(|c| self.channels.get(c).and_then(|ch| ch.parts.first()).map_or(0, |p| p.k))
+    }
+
+    /// Stored values (means, bases, coefficients, singular values) over all channels.
+    pub fn stored_values(&self) -> usize {
+        self.channels.iter().flat_map(|c| &c.parts).map(|p| p.mean.len() + p.u.len() + p.sv.len() + p.s.len()).sum()
+    }
+
+    /// Bytes of the factors at the model's precision plus the cluster map (2 bytes per
+    /// texel): what storage comparisons use (the file adds a header, see [`crate::file`]).
+    pub fn payload_bytes(&self) -> usize {
+        self.stored_values() * self.precision.bytes() + self.clusters.as_ref().map_or(0, |c| 2 * c.len())
+    }
+
+    /// The stored channel values of texel `x` at angular index `a`.
+    #[inline]
+    pub fn channels_at(&self, a: usize, x: usize) -> [f32; 3] {
+        let nl = self.layout.n_light();
+        std::array::from_fn(|c| {
+            let ch = &self.channels[c];
+            match &self.clusters {
+                Some(cl) => ch.parts[cl[x] as usize].value(a, self.cluster_col[x] as usize),
+                None => ch.parts.iter().filter_map(|p| p.row_of(a, nl).map(|r| p.value(r, x))).sum(),
+            }
+        })
+    }
+
+    /// Linear RGB of texel `x` at measured (or filled) angular index `a`.
+    pub fn texel(&self, a: usize, x: usize) -> [f32; 3] {
+        self.color.inverse(self.channels_at(a, x), self.log_eps)
+    }
+
+    /// The whole texture of angular index `a` (row-major RGB).
+    pub fn texture(&self, a: usize) -> Vec<[f32; 3]> {
+        use rayon::prelude::*;
+        (0..self.layout.texels()).into_par_iter().map(|x| self.texel(a, x)).collect()
+    }
+
+    /// A query for arbitrary directions: the interpolated angular factors, ready to evaluate
+    /// any texel ([`Query::texel`], [`Query::texture`]).
+    pub fn query(&self, view: Direction, light: Direction) -> Query<'_> {
+        let wv = self.layout.view.interpolate(view);
+        let wl = self.layout.light.interpolate(light);
+        let nl = self.layout.n_light();
+        let mut combos = Vec::with_capacity(9);
+        for (v, a) in wv.iter() {
+            for (l, b) in wl.iter() {
+                if a * b > 0.0 {
+                    combos.push((v * nl + l, (a * b) as f32));
+                }
+            }
+        }
+        let active: ActiveRows = self
+            .channels
+            .iter()
+            .map(|ch| {
+                ch.parts
+                    .iter()
+                    .map(|p| {
+                        let mut mean = 0.0f32;
+                        let mut u = vec![0.0f32; p.k];
+                        let mut any = false;
+                        for &(a, w) in &combos {
+                            if let Some(r) = p.row_of(a, nl) {
+                                any = true;
+                                mean += w * p.mean[r];
+                                for (d, s) in u.iter_mut().zip(&p.u[r * p.k..(r + 1) * p.k]) {
+                                    *d += w * s;
+                                }
+                            }
+                        }
+                        any.then_some((mean, u))
+                    })
+                    .collect()
+            })
+            .collect();
+        let listed = (0..3)
+            .map(|c: usize| {
+                let act: &Vec<Option<(f32, Vec<f32>)>> = &active[c];
+                act.iter().enumerate().filter(|(_, a)| a.is_some()).map(|(i, _)| i).collect()
+            })
+            .collect();
+        Query { model: self, active, listed }
+    }
+}
+
+/// Per channel, per part: the interpolated mean and basis row, if the part has weight.
+type ActiveRows = Vec<Vec<Option<(f32, Vec<f32>)>>>;
+
+/// Interpolated angular factors of one (view, light) direction pair.
+pub struct Query<'a> {
+    model: &'a Model,
+    /// Per channel, per part: interpolated mean and basis row, if the part has weight.
+    active: ActiveRows,
+    /// Per channel, the parts with weight.
+    listed: Vec<Vec<usize>>,
+}
+
+impl Query<'_> {
+    /// Linear RGB of texel `x`.
+    #[inline]
+    pub fn texel(&self, x: usize) -> [f32; 3] {
+        let m = self.model;
+        let d = std::array::from_fn(|c| {
+            let ch = &m.channels[c];
+            match &m.clusters {
+                Some(cl) => {
+                    let p = cl[x] as usize;
+                    match &self.active[c][p] {
+                        Some((mu, u)) => {
+                            let k = ch.parts[p].k;
+                            let col = m.cluster_col[x] as usize;
+                            mu + dot(u, &ch.parts[p].sv[col * k..(col + 1) * k])
+                        }
+                        None => 0.0,
+                    }
+                }
+                None => self.listed[c]
+                    .iter()
+                    .map(|&pi| {
+                        let p = &ch.parts[pi];
+                        let (mu, u) = self.active[c][pi].as_ref().expect("listed parts are active");
+                        mu + dot(u, &p.sv[x * p.k..(x + 1) * p.k])
+                    })
+                    .sum(),
+            }
+        });
+        m.color.inverse(d, m.log_eps)
+    }
+
+    /// The whole texture (row-major RGB).
+    pub fn texture(&self) -> Vec<[f32; 3]> {
+        use rayon::prelude::*;
+        (0..self.model.layout.texels()).into_par_iter().map(|x| self.texel(x)).collect()
+    }
+}
