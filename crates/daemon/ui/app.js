@@ -485,6 +485,7 @@
     closeEvents();
     renderRun(run);
     refreshRig();
+    refreshDatasets();
   }
 
   async function control(verb) {

@@ -1,0 +1,186 @@
+// Browser test of the operator page, in Debian's headless Chromium driven by playwright-core.
+// usage: node tests/web/ui.test.mjs BASE_URL SCREENSHOT.png   (tests/web/run.sh starts the
+// daemon, installs what is missing and calls this). Exit 0: every check passed.
+//
+// 1. as a viewer: Start is refused, the page shows the problem+json message (403);
+// 2. as an operator (#token=operator-token): the token leaves the address bar, devices and
+//    plans load, plan "demo" is chosen, Start; the progress bar advances at least twice and
+//    the preview image changes (new blob, different bytes) at least once;
+// 3. Pause: the state shows "paused", Pause is disabled and Resume enabled; screenshot;
+// 4. Abort (two clicks: the page asks for a confirmation): the state shows "aborted".
+import { createRequire } from "node:module";
+import fs from "node:fs";
+import os from "node:os";
+import path from "node:path";
+
+const [base, shot] = process.argv.slice(2);
+if (!base || !shot) {
+  console.error("usage: node ui.test.mjs BASE_URL SCREENSHOT.png");
+  process.exit(2);
+}
+const webdeps = process.env.BTFRIG_WEBDEPS;
+if (!webdeps) {
+  console.error("BTFRIG_WEBDEPS (the folder holding node_modules/playwright-core) is not set");
+  process.exit(2);
+}
+const { chromium } = createRequire(path.join(webdeps, "package.json"))("playwright-core");
+
+const TIMEOUT_MS = Number(process.env.BTFRIG_WEB_TIMEOUT_MS || 120000);
+let failures = 0;
+let passes = 0;
+function check(ok, what, extra) {
+  if (ok) {
+    passes++;
+    console.log(`ok - ${what}`);
+  } else {
+    failures++;
+    console.log(`not ok - ${what}${extra ? `: ${extra}` : ""}`);
+  }
+  return ok;
+}
+const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
+const text = (page, sel) => page.locator(sel).innerText();
+
+const profile = fs.mkdtempSync(path.join(os.tmpdir(), "btfrig-chromium-"));
+const context = await chromium.launchPersistentContext(profile, {
+  executablePath: process.env.CHROMIUM || "/usr/bin/chromium",
+  headless: true,
+  args: ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+    "--disable-background-networking", "--disable-component-update", "--disable-sync"],
+  viewport: { width: 1280, height: 900 },
+});
+const pageErrors = [];
+const external = [];
+
+async function newPage(label) {
+  const page = await context.newPage();
+  page.on("pageerror", (e) => pageErrors.push(`${label}: ${e.message}`));
+  page.on("console", (m) => { if (m.type() === "error") console.log(`# ${label} console: ${m.text()}`); });
+  // Nothing but the daemon itself may be asked for anything.
+  page.on("request", (r) => { if (!r.url().startsWith(base) && !r.url().startsWith("blob:") && !r.url().startsWith("data:")) external.push(r.url()); });
+  return page;
+}
+
+let page;
+try {
+  // ---- 1. a viewer cannot start a run, and is told why ----
+  const viewer = await newPage("viewer");
+  await viewer.goto(`${base}/#token=viewer-token`);
+  await viewer.locator('#plan option[value="demo"]').waitFor({ state: "attached", timeout: 20000 });
+  await viewer.selectOption("#plan", "demo");
+  await viewer.locator("#start:not([disabled])").waitFor({ timeout: 20000 });
+  await viewer.click("#start");
+  await viewer.locator("#error:not([hidden])").waitFor({ timeout: 10000 });
+  const denied = await text(viewer, "#error-text");
+  check(denied.trim().length > 0, "viewer's Start is refused with the daemon's message shown", denied);
+  console.log(`# viewer sees: ${denied}`);
+  check((await text(viewer, "#run-state")) !== "starting", "viewer started no run");
+  await viewer.close();
+
+  // ---- 2. an operator starts plan demo ----
+  page = await newPage("operator");
+  await page.goto(`${base}/#token=operator-token`);
+  check(!page.url().includes("operator-token"), "token removed from the address bar", page.url());
+  check(await page.evaluate(() => sessionStorage.getItem("btfrig.token")) === "operator-token", "token kept in sessionStorage");
+  await page.locator('#plan option[value="demo"]').waitFor({ state: "attached", timeout: 20000 });
+  await page.locator("#devices tbody tr[data-device]").first().waitFor({ timeout: 20000 });
+  const devices = await page.locator("#devices tbody tr[data-device]").count();
+  check(devices > 0, `device table lists ${devices} devices`);
+  await page.selectOption("#plan", "demo");
+  await page.locator("#start:not([disabled])").waitFor({ timeout: 20000 });
+  const progress0 = await page.$eval("#progress", (p) => p.value);
+  await page.click("#start");
+
+  let advances = 0;
+  let lastValue = progress0;
+  const values = [progress0];
+  const srcs = new Set();
+  const hashes = new Set();
+  let lastSrc = await page.$eval("#preview", (i) => i.getAttribute("src") || "");
+  const t0 = Date.now();
+  let ended = null;
+  while (Date.now() - t0 < TIMEOUT_MS) {
+    const s = await page.evaluate(async (prevSrc) => {
+      const p = document.getElementById("progress");
+      const img = document.getElementById("preview");
+      const src = img.getAttribute("src") || "";
+      let hash = null;
+      if (src && src !== prevSrc) {
+        // The bytes behind the image: FNV-1a of the blob the page fetched.
+        const buf = new Uint8Array(await (await fetch(src)).arrayBuffer());
+        let h = 0x811c9dc5;
+        for (const b of buf) h = Math.imul(h ^ b, 16777619) >>> 0;
+        hash = `${buf.length}:${h.toString(16)}`;
+      }
+      return { value: p.value, max: p.max, src, hash, state: document.getElementById("run-state").textContent,
+        error: document.getElementById("error").hidden ? null : document.getElementById("error-text").textContent };
+    }, lastSrc);
+    if (s.value > lastValue) {
+      advances++;
+      values.push(s.value);
+    }
+    lastValue = s.value;
+    if (s.src && s.src !== lastSrc) {
+      srcs.add(s.src);
+      if (s.hash) hashes.add(s.hash);
+      lastSrc = s.src;
+    }
+    if (s.error) console.log(`# page shows an error: ${s.error}`);
+    if (advances >= 2 && hashes.size >= 2) break;
+    if (["finished", "aborted", "failed"].includes(s.state)) {
+      ended = s.state;
+      break;
+    }
+    await sleep(100);
+  }
+  console.log(`# progress values seen: ${values.join(", ")} (max ${await page.$eval("#progress", (p) => p.max)}); preview images: ${srcs.size}, distinct bytes: ${hashes.size}`);
+  check(!ended, "run still going while the page was watched", `it ended as ${ended}`);
+  check(advances >= 2, `progress bar advanced ${advances} times`);
+  check(hashes.size >= 2, `preview image changed (${hashes.size} distinct images)`);
+  check(/\S/.test(await text(page, "#eta")) && (await text(page, "#eta")) !== "–", `ETA shown: ${await text(page, "#eta")}`);
+
+  // ---- 3. pause ----
+  await page.locator("#pause:not([disabled])").waitFor({ timeout: 10000 });
+  await page.click("#pause");
+  let paused = false;
+  try {
+    await page.waitForFunction(() => document.getElementById("run-state").textContent === "paused", null, { timeout: 30000 });
+    paused = true;
+  } catch (_) { /* reported below */ }
+  check(paused, "state shows paused", await text(page, "#run-state"));
+  if (paused) {
+    await page.locator("#resume:not([disabled])").waitFor({ timeout: 5000 }).catch(() => {});
+    check(await page.$eval("#pause", (b) => b.disabled), "Pause disabled while paused");
+    check(!(await page.$eval("#resume", (b) => b.disabled)), "Resume enabled while paused");
+    const v1 = await page.$eval("#progress", (p) => p.value);
+    await sleep(1500);
+    const v2 = await page.$eval("#progress", (p) => p.value);
+    check(v2 === v1, `progress holds while paused (${v1} -> ${v2})`);
+  }
+  check(await page.$eval("#error", (e) => e.hidden), "no error shown to the operator", await text(page, "#error-text").catch(() => ""));
+  fs.mkdirSync(path.dirname(shot), { recursive: true });
+  await page.screenshot({ path: shot, fullPage: true });
+  console.log(`# screenshot: ${shot}`);
+
+  // ---- 4. abort (the page asks for a second click) ----
+  await page.locator("#abort:not([disabled])").waitFor({ timeout: 10000 });
+  await page.click("#abort");
+  check((await text(page, "#abort")).toLowerCase().includes("confirm"), "Abort asks for a confirmation");
+  await page.click("#abort");
+  let aborted = false;
+  try {
+    await page.waitForFunction(() => document.getElementById("run-state").textContent === "aborted", null, { timeout: 30000 });
+    aborted = true;
+  } catch (_) { /* reported below */ }
+  check(aborted, "state shows aborted", await text(page, "#run-state"));
+} catch (e) {
+  check(false, "browser test ran to the end", e.stack || String(e));
+  if (page) await page.screenshot({ path: shot.replace(/\.png$/, "-failure.png"), fullPage: true }).catch(() => {});
+} finally {
+  check(pageErrors.length === 0, "no script errors on the page", pageErrors.join("; "));
+  check(external.length === 0, "no request left the daemon", external.join(", "));
+  await context.close();
+  fs.rmSync(profile, { recursive: true, force: true });
+}
+console.log(`${passes} passed, ${failures} failed`);
+process.exit(failures ? 1 : 0);
