@@ -1,0 +1,108 @@
+#!/usr/bin/env bash
+# Schemathesis (PyPI) against the OpenAPI document that `btfrig serve` serves: every
+# operation, generated valid and invalid requests, with the admin token (so requests reach
+# the handlers, not only the auth layer). Fails on any 5xx and on any response the document
+# does not describe (status code, content type, body schema).
+#
+# usage: tests/api/schemathesis.sh [PATH/TO/btfrig]
+#   binary: the argument, else $BTFRIG_BIN, else target/release/btfrig
+#   ST_MAX_EXAMPLES (default 40): generated test cases per operation and phase
+#   ST_SEED (default 6): the random seed, so a failure can be replayed
+#
+# Installs schemathesis (pinned below) into the venv target/pydeps/schemathesis when it is
+# missing or another version. Reports: target/api/ (JUnit XML, server log).
+#
+# Runs it starts: the generated requests may start runs (POST /api/v1/runs with a plan the
+# document gives as an example), pause and resume them. None outlives the script: after
+# Schemathesis every run that is not finished is aborted through the API, then the server is
+# stopped (SIGTERM, then SIGKILL) and its temporary data directory removed. The event stream
+# GET /api/v1/runs/{id}/events is left out: an endless text/event-stream body is nothing a
+# schema check can read (tests/web and the API integration test cover it).
+set -euo pipefail
+
+ST_VERSION=4.32.5
+here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
+root="$(cd "$here/../.." && pwd)"
+target="${CARGO_TARGET_DIR:-$root/target}"
+venv="$target/pydeps/schemathesis"
+out="$target/api"
+mkdir -p "$out"
+
+# ---- schemathesis ----
+have="$("$venv/bin/python" -c 'import importlib.metadata as m; print(m.version("schemathesis"))' 2>/dev/null || true)"
+if [ "$have" != "$ST_VERSION" ]; then
+    echo "# installing schemathesis==$ST_VERSION into $venv" >&2
+    python3 -m venv "$venv"
+    "$venv/bin/python" -m pip install --quiet --disable-pip-version-check "schemathesis==$ST_VERSION" >&2
+fi
+
+# ---- the server ----
+bin="${1:-${BTFRIG_BIN:-$target/release/btfrig}}"
+[ -x "$bin" ] || { echo "no btfrig binary at $bin (cargo build --release -p btfrig-cli)" >&2; exit 1; }
+data="$(mktemp -d "${TMPDIR:-/tmp}/btfrig-st-data.XXXXXX")"
+log="$out/server.log"
+"$bin" serve --listen 127.0.0.1:0 --data "$data" --auth "$root/tests/api/auth.toml" >"$log" 2>&1 &
+pid=$!
+url=""
+stop_server() {
+    if kill -0 "$pid" 2>/dev/null; then
+        kill -TERM "$pid" 2>/dev/null || true
+        for _ in $(seq 100); do kill -0 "$pid" 2>/dev/null || break; sleep 0.1; done
+        kill -KILL "$pid" 2>/dev/null || true
+    fi
+    wait "$pid" 2>/dev/null || true
+}
+cleanup() {
+    stop_server
+    rm -rf "$data"
+}
+trap cleanup EXIT
+
+for _ in $(seq 300); do
+    url="$(sed -n '1s/^listening on \(http:\/\/[^ ]*\).*/\1/p' "$log" 2>/dev/null || true)"
+    [ -n "$url" ] && break
+    kill -0 "$pid" 2>/dev/null || { echo "the server exited:" >&2; cat "$log" >&2; exit 1; }
+    sleep 0.1
+done
+[ -n "$url" ] || { echo "the server printed no 'listening on' line in 30 s:" >&2; cat "$log" >&2; exit 1; }
+url="${url%/}"
+echo "# server at $url (log $log)" >&2
+
+# ---- the run ----
+status=0
+"$venv/bin/st" run "$url/api/v1/openapi.json" \
+    --header "Authorization: Bearer admin-token" \
+    --checks not_a_server_error,status_code_conformance,content_type_conformance,response_schema_conformance \
+    --max-examples "${ST_MAX_EXAMPLES:-40}" \
+    --seed "${ST_SEED:-6}" \
+    --exclude-path-regex '/events$' \
+    --request-timeout 20 \
+    --workers 2 \
+    --no-color \
+    --generation-database none \
+    --report junit --report-junit-path "$out/schemathesis.junit.xml" || status=$?
+
+# ---- leave no run going ----
+python3 - "$url" <<'EOF' || status=1
+import json, sys, urllib.request
+base = sys.argv[1] + "/api/v1"
+def call(method, path):
+    req = urllib.request.Request(base + path, method=method, headers={"Authorization": "Bearer admin-token"})
+    with urllib.request.urlopen(req, timeout=20) as r:
+        return json.load(r)
+runs = call("GET", "/runs")["runs"]
+left = [r for r in runs if r["state"] not in ("finished", "aborted", "failed")]
+for r in left:
+    try:
+        call("POST", f"/runs/{r['id']}/abort")
+    except Exception as e:  # noqa: BLE001 - reported, the server is stopped anyway
+        print(f"# aborting {r['id']} ({r['state']}): {e}")
+print(f"# runs started during the run: {len(runs)}; aborted afterwards: {len(left)}")
+EOF
+stop_server
+if grep -qi "panick" "$log"; then
+    echo "the server panicked:" >&2
+    grep -i -A3 "panick" "$log" >&2
+    status=1
+fi
+exit "$status"
