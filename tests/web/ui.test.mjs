@@ -127,7 +127,7 @@ try {
     }
     if (s.error) console.log(`# page shows an error: ${s.error}`);
     if (advances >= 2 && hashes.size >= 2) break;
-    if (["finished", "aborted", "failed"].includes(s.state)) {
+    if (["finished", "aborted", "interrupted", "failed"].includes(s.state)) {
       ended = s.state;
       break;
     }

@@ -13,7 +13,8 @@
 (() => {
   const API = "/api/v1";
   const TOKEN_KEY = "btfrig.token";
-  const TERMINAL = new Set(["finished", "aborted", "failed"]);
+  // "interrupted": the daemon was shut down during the run (resumable, like "aborted").
+  const TERMINAL = new Set(["finished", "aborted", "interrupted", "failed"]);
   const MAX_WARNINGS = 50;
 
   const $ = (id) => document.getElementById(id);
@@ -292,8 +293,10 @@
   async function pickRun() {
     try {
       const r = await api("GET", "/runs");
-      const runs = Array.isArray(r.runs) ? r.runs : [];
+      const runs = Array.isArray(r.runs) ? r.runs.slice() : [];
       if (runs.length === 0 || state.runId) return;
+      // Latest last: by start time where the daemon gives one, else in the list's order.
+      runs.sort((a, b) => (Number(a.started_unix_s) || 0) - (Number(b.started_unix_s) || 0));
       const active = runs.filter(isActive);
       const run = active.length ? active[active.length - 1] : runs[runs.length - 1];
       state.runId = run.id;
