@@ -46,6 +46,30 @@ pub enum Command {
     /// Sparse acquisition with a linear basis: choose the captures, reconstruct the full BTF.
     #[command(subcommand)]
     Sparse(crate::compress_cmd::SparseCommand),
+    /// The control daemon: HTTP API, live events, preview and the operator page
+    /// (docs/http-api.md). SIGTERM pauses the run under way resumably and exits.
+    Serve(ServeArgs),
+}
+
+/// `btfrig serve`.
+#[derive(Debug, Args)]
+pub struct ServeArgs {
+    /// Rig config; default the embedded simulated gonioreflectometer.
+    #[arg(long)]
+    pub rig: Option<std::path::PathBuf>,
+    /// Address to listen on (port 0: any free port; the first stdout line names it).
+    #[arg(long, default_value = "127.0.0.1:8080")]
+    pub listen: std::net::SocketAddr,
+    /// Data directory: datasets and calibrations go here, and nothing outside it is served.
+    #[arg(long, default_value = "btfrig-data")]
+    pub data: std::path::PathBuf,
+    /// Auth file with [[token]] name, token, role (viewer | operator | admin); without it one
+    /// random admin token is generated and written to DATA/daemon-token.
+    #[arg(long)]
+    pub auth: Option<std::path::PathBuf>,
+    /// Directory of plan files offered by name; default the embedded plans (demo, ...).
+    #[arg(long)]
+    pub plans: Option<std::path::PathBuf>,
 }
 
 /// `btfrig calibrate ...`.

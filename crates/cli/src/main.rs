@@ -19,6 +19,7 @@ mod material;
 mod plan_cmd;
 mod rig;
 mod run_cmd;
+mod serve_cmd;
 mod session;
 mod sim_cmd;
 
@@ -45,6 +46,7 @@ fn main() -> std::process::ExitCode {
         Command::Compress(a) => done(compress_cmd::compress(&a)),
         Command::Sparse(args::SparseCommand::Select(a)) => done(compress_cmd::select(&a)),
         Command::Sparse(args::SparseCommand::Reconstruct(a)) => done(compress_cmd::reconstruct(&a)),
+        Command::Serve(a) => done(serve_cmd::serve(&a)),
         Command::Calibrate(CalibrateCommand::Geometry(a)) => done(calibrate_cmd::geometry(&a)),
         Command::Calibrate(CalibrateCommand::Color(a)) => done(calibrate_color_cmd::color(&a)),
         Command::Calibrate(CalibrateCommand::Radiometric(a)) => done(calibrate_radiometric_cmd::run(&a)),

@@ -250,6 +250,7 @@ impl Progress {
             RunEvent::Resumed => {
                 let _ = writeln!(err, "resumed");
             }
+            RunEvent::Committed { .. } => {}
             RunEvent::Stopping { reason } => {
                 let _ = writeln!(err, "\nstopping ({reason}): committing the frames in flight");
             }

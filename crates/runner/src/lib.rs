@@ -11,6 +11,7 @@
 
 #![warn(missing_docs)]
 
+pub mod dry_run;
 mod hdr;
 mod light;
 pub mod plan;
@@ -308,6 +309,17 @@ pub enum RunEvent {
     },
     /// The engine goes on after a pause.
     Resumed,
+    /// The pipeline committed a capture (textures, journal, preview written).
+    Committed {
+        /// Captures committed by this session so far.
+        committed: u64,
+        /// Previews written by this session so far (`preview.png` replaced each time).
+        previews: u64,
+        /// Captures delivered by the engine and not yet committed (the pipeline's queue).
+        queued: u64,
+        /// Seconds per pipeline stage summed over this session's commits.
+        stage_s: BTreeMap<String, f64>,
+    },
     /// The session is ending: the frames in flight are processed and committed first.
     Stopping {
         /// Why.
@@ -1037,6 +1049,7 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
     // fallbacks, which become warnings on the listening side.
     let last_totals = Arc::new(Mutex::new(btfrig_pipeline::Totals::default()));
     let (fallback_tx, mut fallback_rx) = mpsc::unbounded_channel::<String>();
+    let (commit_tx, mut commit_rx) = mpsc::unbounded_channel::<(u64, u64, BTreeMap<String, f64>)>();
     let kept = last_totals.clone();
     let pipeline = btfrig_pipeline::run(dataset, processor, rx, lookup, move |t| {
         let mut k = kept.lock().unwrap_or_else(|e| e.into_inner());
@@ -1044,8 +1057,10 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
             let _ = fallback_tx
                 .send(format!("step {step}: registration failed, rectified with the nominal pose: {reason}"));
         }
+        let _ = commit_tx.send((t.committed, t.previews, t.stage_s.clone()));
         *k = t.clone();
     });
+    let mut delivered: u64 = 0;
     let listen = async {
         let mut stop: Option<RunOutcome> = None;
         let mut warnings = Vec::new();
@@ -1054,6 +1069,7 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
             tokio::select! {
                 ev = events.recv() => match ev {
                     Ok(Event::StepDone { key, attempts, .. }) => {
+                        delivered += 1;
                         on_event(&RunEvent::StepDone { light: key.light, view: key.view, attempts })
                     }
                     Ok(Event::Progress { done, total, eta_s }) => on_event(&RunEvent::Progress { done, total, eta_s }),
@@ -1089,6 +1105,12 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
                     on_event(&RunEvent::Warning(w.clone()));
                     warnings.push(w);
                 }
+                Some((committed, previews, stage_s)) = commit_rx.recv() => on_event(&RunEvent::Committed {
+                    committed,
+                    previews,
+                    queued: delivered.saturating_sub(committed),
+                    stage_s,
+                }),
                 c = commands.recv(), if commands_open => match c {
                     None => commands_open = false,
                     Some(Command::Pause) => handle.pause(),
@@ -1107,10 +1129,13 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
         (stop, warnings)
     };
     let (totals, (mut stop, mut warnings)) = tokio::join!(pipeline, listen);
-    // Fallbacks of the frames committed after the engine finished.
+    // Fallbacks and commits of the frames committed after the engine finished.
     while let Ok(w) = fallback_rx.try_recv() {
         on_event(&RunEvent::Warning(w.clone()));
         warnings.push(w);
+    }
+    while let Ok((committed, previews, stage_s)) = commit_rx.try_recv() {
+        on_event(&RunEvent::Committed { committed, previews, queued: delivered.saturating_sub(committed), stage_s });
     }
     // A registration failure under `on_failure = "fail"` ends the session like a device
     // fault: paused on that step, resumable, the report written.

@@ -1,0 +1,715 @@
+//! The HTTP API under `/api/v1`: thin handlers over [`crate::runs`], the runner and the
+//! store; the OpenAPI document is generated from the annotations here.
+
+use std::path::{Component, Path, PathBuf};
+use std::sync::Arc;
+
+use axum::body::Body;
+use axum::extract::rejection::JsonRejection;
+use axum::extract::{FromRequest, FromRequestParts, Request, State};
+use axum::http::request::Parts;
+use axum::http::{header, HeaderValue, StatusCode};
+use axum::response::sse::{Event, KeepAlive, Sse};
+use axum::response::{IntoResponse, Response};
+use axum::Json;
+use serde::{Deserialize, Serialize};
+use utoipa::{OpenApi, ToSchema};
+
+use crate::auth::{Caller, Role};
+use crate::problem::Problem;
+use crate::runs::{Control, RunState, RunStatus, ServerEvent, StartRequest};
+use crate::AppState;
+
+type Shared = State<Arc<AppState>>;
+
+// ---- extractors -------------------------------------------------------------------------
+
+/// The caller, with at least role viewer / operator / admin; 401 or 403 otherwise.
+pub struct Viewer(pub Caller);
+/// See [`Viewer`].
+pub struct Operator(pub Caller);
+/// See [`Viewer`].
+pub struct Admin(pub Caller);
+
+macro_rules! role_extractor {
+    ($t:ident, $role:expr) => {
+        impl FromRequestParts<Arc<AppState>> for $t {
+            type Rejection = Problem;
+            async fn from_request_parts(parts: &mut Parts, state: &Arc<AppState>) -> Result<Self, Problem> {
+                state.auth.check(&parts.method, &parts.uri, &parts.headers, $role).map($t)
+            }
+        }
+    };
+}
+role_extractor!(Viewer, Role::Viewer);
+role_extractor!(Operator, Role::Operator);
+role_extractor!(Admin, Role::Admin);
+
+/// A JSON body whose every rejection is a problem document (axum's are plain text).
+pub struct ApiJson<T>(pub T);
+
+impl<T: serde::de::DeserializeOwned, S: Send + Sync> FromRequest<S> for ApiJson<T> {
+    type Rejection = Problem;
+    async fn from_request(req: Request, state: &S) -> Result<Self, Problem> {
+        match Json::<T>::from_request(req, state).await {
+            Ok(Json(v)) => Ok(ApiJson(v)),
+            Err(e) => Err(match &e {
+                JsonRejection::MissingJsonContentType(_) => Problem::new(
+                    StatusCode::UNSUPPORTED_MEDIA_TYPE,
+                    "the body must be JSON: send Content-Type: application/json",
+                ),
+                JsonRejection::BytesRejection(_) if e.status() == StatusCode::PAYLOAD_TOO_LARGE => {
+                    Problem::new(StatusCode::PAYLOAD_TOO_LARGE, format!("the body is larger than {} bytes", crate::BODY_LIMIT))
+                }
+                JsonRejection::JsonDataError(d) => Problem::unprocessable(format!("the body does not fit the schema: {}", d.body_text())),
+                _ => Problem::bad_request(format!("the body is not valid JSON: {}", e.body_text())),
+            }),
+        }
+    }
+}
+
+/// A path parameter, with a problem document when it does not parse.
+pub struct ApiPath<T>(pub T);
+
+impl<T: serde::de::DeserializeOwned + Send, S: Send + Sync> FromRequestParts<S> for ApiPath<T> {
+    type Rejection = Problem;
+    async fn from_request_parts(parts: &mut Parts, state: &S) -> Result<Self, Problem> {
+        axum::extract::Path::<T>::from_request_parts(parts, state)
+            .await
+            .map(|axum::extract::Path(v)| ApiPath(v))
+            .map_err(|e| Problem::bad_request(format!("bad path parameter: {}", e.body_text())))
+    }
+}
+
+// ---- schemas ----------------------------------------------------------------------------
+
+/// The rig and its devices.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct RigStatus {
+    /// The rig config.
+    pub rig: RigSummary,
+    /// One entry per device.
+    pub devices: Vec<DeviceStatus>,
+    /// Who holds the rig, when someone does.
+    pub busy: Option<Busy>,
+}
+
+/// The rig config's identity.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct RigSummary {
+    /// The rig config's name.
+    pub name: String,
+    /// `gonioreflectometer`, `dome`, ...
+    pub kind: String,
+    /// Where the config came from.
+    pub source: String,
+}
+
+/// One device.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct DeviceStatus {
+    /// `robot`, `rail`, `turntable`, `lamp`, `led_array`, `camera`.
+    pub name: String,
+    /// The backend (`sim`, ...).
+    pub kind: String,
+    /// `idle`, `in use`, `paused`.
+    pub state: String,
+    /// What the device is doing or what it is.
+    pub detail: String,
+}
+
+/// Who holds the rig.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct Busy {
+    /// The run (or calibration) id.
+    pub run_id: String,
+    /// The token name that started it.
+    pub owner: String,
+}
+
+/// The plans the daemon offers by name.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct PlanList {
+    /// By name.
+    pub plans: Vec<PlanEntry>,
+}
+
+/// A named plan.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct PlanEntry {
+    /// What `{"plan": name}` refers to.
+    pub name: String,
+    /// Captures it makes.
+    pub captures: u64,
+    /// The plan's description.
+    pub description: String,
+}
+
+/// A plan by name or as TOML text (exactly one).
+#[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct PlanBody {
+    /// A name from `GET /api/v1/plans`.
+    pub plan: Option<String>,
+    /// A whole plan file (docs/plan-format.md).
+    pub plan_text: Option<String>,
+}
+
+/// What validating or dry-running a plan found.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct PlanCheck {
+    /// True when the plan can run on this rig.
+    pub valid: bool,
+    /// Captures it makes (0 when invalid).
+    pub captures: u64,
+    /// Estimated hardware time, seconds (dry run only).
+    pub estimate_s: Option<f64>,
+    /// Hardware time of the naive order, seconds (dry run only).
+    pub naive_order_s: Option<f64>,
+    /// Lower bound on any order, seconds (dry run only).
+    pub lower_bound_s: Option<f64>,
+    /// Estimated disk space, bytes (dry run only).
+    pub disk_bytes: Option<u64>,
+    /// The dry run as `btfrig plan show` prints it (dry run only).
+    pub text: Option<String>,
+    /// Every problem, each naming its field.
+    pub errors: Vec<String>,
+}
+
+/// Start a run.
+#[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct StartRun {
+    /// A name from `GET /api/v1/plans`.
+    pub plan: Option<String>,
+    /// A whole plan file.
+    pub plan_text: Option<String>,
+    /// The dataset's name under the data directory (letters, digits, `.`, `_`, `-`; at most
+    /// 64). An existing dataset of the same plan is resumed; default: a new name.
+    pub dataset: Option<String>,
+}
+
+/// Every run of this daemon.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct RunList {
+    /// Oldest first.
+    pub runs: Vec<RunStatus>,
+}
+
+/// The datasets under the data directory.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct DatasetList {
+    /// By name.
+    pub datasets: Vec<DatasetEntry>,
+}
+
+/// A dataset.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct DatasetEntry {
+    /// Its directory name.
+    pub name: String,
+    /// `finished`, `aborted`, `interrupted`, `paused` (its last report), `running`, or
+    /// `incomplete` (no report yet).
+    pub state: String,
+    /// Captures done as of its last report.
+    pub captures: u64,
+    /// The plan's name.
+    pub plan: String,
+}
+
+/// Start a calibration.
+#[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct StartCalibration {
+    /// `color` (ColorChecker and SG charts on the rig; docs/color.md).
+    pub kind: String,
+    /// Seed of the simulated rig; default the rig config's.
+    pub seed: Option<u64>,
+}
+
+/// A calibration and, when done, its result.
+#[derive(Debug, Clone, Serialize, ToSchema)]
+pub struct Calibration {
+    /// `c1`, `c2`, ...
+    pub id: String,
+    /// What is calibrated.
+    pub kind: String,
+    /// `running`, `finished`, `failed`.
+    pub state: String,
+    /// Who started it.
+    pub owner: String,
+    /// Why it failed.
+    pub message: Option<String>,
+    /// The chosen model and its held-out CIEDE2000 when finished.
+    #[schema(value_type = Option<Object>)]
+    pub result: Option<serde_json::Value>,
+    /// The calibration file written, relative to the data directory.
+    pub file: Option<String>,
+}
+
+/// The list of calibrations.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct CalibrationList {
+    /// Oldest first.
+    pub calibrations: Vec<Calibration>,
+}
+
+/// `/healthz`.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct Health {
+    /// `ok`.
+    pub status: String,
+}
+
+/// What `POST /api/v1/rig/stop` did.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct Stopped {
+    /// The run asked to stop, if one held the rig.
+    pub run_id: Option<String>,
+}
+
+// ---- OpenAPI ----------------------------------------------------------------------------
+
+#[derive(OpenApi)]
+#[openapi(
+    info(title = "btfrig daemon", description = "Controls a BTF measurement rig: runs, events, previews, datasets, calibrations. docs/http-api.md."),
+    paths(
+        healthz, rig_status, rig_stop, list_plans, validate_plan, dry_run_plan, start_run, list_runs, get_run,
+        pause_run, resume_run, abort_run, run_events, preview, list_datasets, get_dataset, get_dataset_file,
+        start_calibration, list_calibrations, get_calibration
+    ),
+    components(schemas(Problem, RunStatus, RunState)),
+    modifiers(&BearerScheme)
+)]
+/// The OpenAPI document, generated from the handlers above.
+pub struct ApiDoc;
+
+struct BearerScheme;
+
+impl utoipa::Modify for BearerScheme {
+    fn modify(&self, openapi: &mut utoipa::openapi::OpenApi) {
+        use utoipa::openapi::security::{HttpAuthScheme, HttpBuilder, SecurityScheme};
+        let components = openapi.components.get_or_insert_with(Default::default);
+        components.add_security_scheme("bearer", SecurityScheme::Http(HttpBuilder::new().scheme(HttpAuthScheme::Bearer).build()));
+    }
+}
+
+/// `GET /api/v1/openapi.json`.
+pub async fn openapi() -> Response {
+    match ApiDoc::openapi().to_json() {
+        Ok(s) => ([(header::CONTENT_TYPE, "application/json")], s).into_response(),
+        Err(e) => Problem::internal(format!("cannot serialise the OpenAPI document: {e}")).into_response(),
+    }
+}
+
+// ---- handlers ---------------------------------------------------------------------------
+
+#[utoipa::path(get, path = "/healthz", tag = "daemon", responses((status = 200, description = "The daemon answers", body = Health)))]
+/// Liveness.
+pub async fn healthz() -> Json<Health> {
+    Json(Health { status: "ok".into() })
+}
+
+#[utoipa::path(get, path = "/api/v1/rig", tag = "rig", security(("bearer" = [])),
+    responses((status = 200, description = "The rig and its devices", body = RigStatus),
+        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
+        (status = 403, description = "Role too low", body = Problem, content_type = "application/problem+json")))]
+/// The rig, its devices and who holds it.
+pub async fn rig_status(State(s): Shared, _v: Viewer) -> Json<RigStatus> {
+    Json(s.rig_status())
+}
+
+#[utoipa::path(post, path = "/api/v1/rig/stop", tag = "rig", security(("bearer" = [])),
+    responses((status = 200, description = "The current run (if any) is asked to stop after the step under way", body = Stopped),
+        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
+        (status = 403, description = "Needs role admin", body = Problem, content_type = "application/problem+json")))]
+/// Stops the rig: aborts whatever run holds it, whoever owns it (admin).
+pub async fn rig_stop(State(s): Shared, _a: Admin) -> Json<Stopped> {
+    let run_id = s.runs.current().and_then(|r| r.control(Control::Abort).ok().map(|st| st.id));
+    Json(Stopped { run_id })
+}
+
+#[utoipa::path(get, path = "/api/v1/plans", tag = "plans", security(("bearer" = [])),
+    responses((status = 200, description = "Plans by name", body = PlanList),
+        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
+        (status = 403, description = "Role too low", body = Problem, content_type = "application/problem+json")))]
+/// The plans the daemon offers by name.
+pub async fn list_plans(State(s): Shared, _v: Viewer) -> Json<PlanList> {
+    Json(PlanList {
+        plans: s
+            .plans
+            .iter()
+            .map(|p| PlanEntry { name: p.name.clone(), captures: p.captures, description: p.description.clone() })
+            .collect(),
+    })
+}
+
+#[utoipa::path(post, path = "/api/v1/plans/validate", tag = "plans", security(("bearer" = [])), request_body = PlanBody,
+    responses((status = 200, description = "Whether the plan is valid, with every problem", body = PlanCheck),
+        (status = 400, description = "Malformed body", body = Problem, content_type = "application/problem+json"),
+        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
+        (status = 403, description = "Role too low", body = Problem, content_type = "application/problem+json"),
+        (status = 413, description = "Body too large", body = Problem, content_type = "application/problem+json"),
+        (status = 415, description = "Not JSON", body = Problem, content_type = "application/problem+json"),
+        (status = 422, description = "Body does not fit the schema", body = Problem, content_type = "application/problem+json")))]
+/// Validates a plan against this rig.
+pub async fn validate_plan(State(s): Shared, _v: Viewer, ApiJson(b): ApiJson<PlanBody>) -> Json<PlanCheck> {
+    Json(s.check_plan(b, false).await)
+}
+
+#[utoipa::path(post, path = "/api/v1/plans/dry-run", tag = "plans", security(("bearer" = [])), request_body = PlanBody,
+    responses((status = 200, description = "The dry run: captures, time and disk estimates", body = PlanCheck),
+        (status = 400, description = "Malformed body", body = Problem, content_type = "application/problem+json"),
+        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
+        (status = 403, description = "Role too low", body = Problem, content_type = "application/problem+json"),
+        (status = 413, description = "Body too large", body = Problem, content_type = "application/problem+json"),
+        (status = 415, description = "Not JSON", body = Problem, content_type = "application/problem+json"),
+        (status = 422, description = "Body does not fit the schema", body = Problem, content_type = "application/problem+json")))]
+/// Validates and plans a plan: what `btfrig plan show` prints.
+pub async fn dry_run_plan(State(s): Shared, _v: Viewer, ApiJson(b): ApiJson<PlanBody>) -> Json<PlanCheck> {
+    Json(s.check_plan(b, true).await)
+}
+
+#[utoipa::path(post, path = "/api/v1/runs", tag = "runs", security(("bearer" = [])), request_body = StartRun,
+    responses((status = 201, description = "Started", body = RunStatus),
+        (status = 400, description = "Malformed body", body = Problem, content_type = "application/problem+json"),
+        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
+        (status = 403, description = "Needs role operator", body = Problem, content_type = "application/problem+json"),
+        (status = 404, description = "No plan of that name", body = Problem, content_type = "application/problem+json"),
+        (status = 409, description = "The rig is held (the detail says by whom), or the dataset holds another plan", body = Problem, content_type = "application/problem+json"),
+        (status = 413, description = "Body too large", body = Problem, content_type = "application/problem+json"),
+        (status = 415, description = "Not JSON", body = Problem, content_type = "application/problem+json"),
+        (status = 422, description = "The plan or dataset name is not acceptable", body = Problem, content_type = "application/problem+json")))]
+/// Starts a run of a plan (or resumes the same plan's dataset).
+pub async fn start_run(State(s): Shared, Operator(c): Operator, ApiJson(b): ApiJson<StartRun>) -> Result<Response, Problem> {
+    let (plan_text, plan_path, given_name) = s.plan_source(b.plan, b.plan_text)?;
+    let rig_name = s.rig.rig.name.clone();
+    let (text, path) = (plan_text.clone(), plan_path.clone());
+    let validated = tokio::task::spawn_blocking(move || btfrig_runner::plan::load_text(&text, &path))
+        .await
+        .map_err(|e| Problem::internal(format!("plan validation crashed: {e}")))?
+        .map_err(|e| Problem::unprocessable(e.to_string()))?;
+    let (_, v) = validated;
+    if v.rig.rig.name != rig_name {
+        return Err(Problem::unprocessable(format!(
+            "the plan is for rig {:?}; this daemon drives {rig_name:?}",
+            v.rig.rig.name
+        )));
+    }
+    if v.capture_list().captures.is_empty() {
+        return Err(Problem::unprocessable("the plan captures nothing"));
+    }
+    let plan_name = given_name.unwrap_or_else(|| v.name.clone());
+    let dataset = match b.dataset {
+        Some(d) => {
+            check_name(&d).map_err(Problem::unprocessable)?;
+            d
+        }
+        None => s.new_dataset_name(&plan_name),
+    };
+    s.check_dataset_plan(&dataset, &plan_text)?;
+    let run = s.runs.start(StartRequest { plan_text, plan_name, plan_path, dataset, owner: c.name }, || {
+        s.calibrations.running().map(|c| format!("calibration {} of {}", c.id, c.owner))
+    })?;
+    let status = run.status();
+    let mut r = (StatusCode::CREATED, Json(&status)).into_response();
+    if let Ok(v) = HeaderValue::from_str(&format!("/api/v1/runs/{}", status.id)) {
+        r.headers_mut().insert(header::LOCATION, v);
+    }
+    Ok(r)
+}
+
+#[utoipa::path(get, path = "/api/v1/runs", tag = "runs", security(("bearer" = [])),
+    responses((status = 200, description = "Every run of this daemon", body = RunList),
+        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
+        (status = 403, description = "Role too low", body = Problem, content_type = "application/problem+json")))]
+/// Every run of this daemon, oldest first.
+pub async fn list_runs(State(s): Shared, _v: Viewer) -> Json<RunList> {
+    Json(RunList { runs: s.runs.all().iter().map(|r| r.status()).collect() })
+}
+
+#[utoipa::path(get, path = "/api/v1/runs/{id}", tag = "runs", security(("bearer" = [])),
+    params(("id" = String, Path, description = "Run id, or `current`")),
+    responses((status = 200, description = "Status with progress and ETA", body = RunStatus),
+        (status = 400, description = "Bad path", body = Problem, content_type = "application/problem+json"),
+        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
+        (status = 403, description = "Role too low", body = Problem, content_type = "application/problem+json"),
+        (status = 404, description = "No such run", body = Problem, content_type = "application/problem+json")))]
+/// A run's status (`current`: the run holding the rig, else the latest).
+pub async fn get_run(State(s): Shared, _v: Viewer, ApiPath(id): ApiPath<String>) -> Result<Json<RunStatus>, Problem> {
+    Ok(Json(s.run(&id)?.status()))
+}
+
+async fn control(s: &AppState, c: &Caller, id: &str, what: Control) -> Result<Json<RunStatus>, Problem> {
+    let run = s.run(id)?;
+    let st = run.status();
+    if st.owner != c.name && c.role < Role::Admin {
+        return Err(Problem::new(
+            StatusCode::FORBIDDEN,
+            format!("run {} belongs to {}; only {} or an admin may {:?} it", st.id, st.owner, st.owner, what),
+        ));
+    }
+    run.control(what)?;
+    Ok(Json(run.status()))
+}
+
+#[utoipa::path(post, path = "/api/v1/runs/{id}/pause", tag = "runs", security(("bearer" = [])),
+    params(("id" = String, Path, description = "Run id, or `current`")),
+    responses((status = 200, description = "Pausing after the step under way", body = RunStatus),
+        (status = 400, description = "Bad path", body = Problem, content_type = "application/problem+json"),
+        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
+        (status = 403, description = "Needs role operator, and the run's owner or an admin", body = Problem, content_type = "application/problem+json"),
+        (status = 404, description = "No such run", body = Problem, content_type = "application/problem+json"),
+        (status = 409, description = "The run's state does not allow it", body = Problem, content_type = "application/problem+json")))]
+/// Pauses a run after the step under way.
+pub async fn pause_run(State(s): Shared, Operator(c): Operator, ApiPath(id): ApiPath<String>) -> Result<Json<RunStatus>, Problem> {
+    control(&s, &c, &id, Control::Pause).await
+}
+
+#[utoipa::path(post, path = "/api/v1/runs/{id}/resume", tag = "runs", security(("bearer" = [])),
+    params(("id" = String, Path, description = "Run id, or `current`")),
+    responses((status = 200, description = "Resuming (a failed step is tried again)", body = RunStatus),
+        (status = 400, description = "Bad path", body = Problem, content_type = "application/problem+json"),
+        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
+        (status = 403, description = "Needs role operator, and the run's owner or an admin", body = Problem, content_type = "application/problem+json"),
+        (status = 404, description = "No such run", body = Problem, content_type = "application/problem+json"),
+        (status = 409, description = "The run is not paused", body = Problem, content_type = "application/problem+json")))]
+/// Resumes a paused run.
+pub async fn resume_run(State(s): Shared, Operator(c): Operator, ApiPath(id): ApiPath<String>) -> Result<Json<RunStatus>, Problem> {
+    control(&s, &c, &id, Control::Resume).await
+}
+
+#[utoipa::path(post, path = "/api/v1/runs/{id}/abort", tag = "runs", security(("bearer" = [])),
+    params(("id" = String, Path, description = "Run id, or `current`")),
+    responses((status = 200, description = "Ending after the step under way; the dataset stays resumable", body = RunStatus),
+        (status = 400, description = "Bad path", body = Problem, content_type = "application/problem+json"),
+        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
+        (status = 403, description = "Needs role operator, and the run's owner or an admin", body = Problem, content_type = "application/problem+json"),
+        (status = 404, description = "No such run", body = Problem, content_type = "application/problem+json"),
+        (status = 409, description = "The run is over or already stopping", body = Problem, content_type = "application/problem+json")))]
+/// Aborts a run after the step under way.
+pub async fn abort_run(State(s): Shared, Operator(c): Operator, ApiPath(id): ApiPath<String>) -> Result<Json<RunStatus>, Problem> {
+    control(&s, &c, &id, Control::Abort).await
+}
+
+#[utoipa::path(get, path = "/api/v1/runs/{id}/events", tag = "runs", security(("bearer" = [])),
+    params(("id" = String, Path, description = "Run id, or `current`")),
+    responses((status = 200, description = "Server-Sent Events: `status` (RunStatus), `warning` ({message}), `end` (RunStatus); the first event is the current status", content_type = "text/event-stream", body = String),
+        (status = 400, description = "Bad path", body = Problem, content_type = "application/problem+json"),
+        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
+        (status = 403, description = "Role too low", body = Problem, content_type = "application/problem+json"),
+        (status = 404, description = "No such run", body = Problem, content_type = "application/problem+json")))]
+/// The run's progress as Server-Sent Events, until it ends.
+pub async fn run_events(State(s): Shared, _v: Viewer, ApiPath(id): ApiPath<String>) -> Result<Response, Problem> {
+    let run = s.run(&id)?;
+    let rx = run.subscribe();
+    let first = run.status();
+    let metrics = s.metrics.clone();
+    let initial = if first.state.is_over() { ServerEvent::End(Box::new(first)) } else { ServerEvent::Status(Box::new(first)) };
+    // State: the next event to send (the initial status first), the receiver, and whether the end was sent.
+    let stream = futures_util::stream::unfold((Some(initial), rx, false), move |(pending, mut rx, ended)| {
+        let metrics = metrics.clone();
+        async move {
+            if ended {
+                return None;
+            }
+            let ev = match pending {
+                Some(e) => e,
+                None => loop {
+                    match rx.recv().await {
+                        Ok(e) => break e,
+                        Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => metrics.events_dropped(n),
+                        Err(tokio::sync::broadcast::error::RecvError::Closed) => return None,
+                    }
+                },
+            };
+            let (sse, end) = match &ev {
+                ServerEvent::Status(st) => (Event::default().event("status").json_data(st), false),
+                ServerEvent::Warning(w) => (Event::default().event("warning").json_data(serde_json::json!({ "message": w })), false),
+                ServerEvent::End(st) => (Event::default().event("end").json_data(st), true),
+            };
+            let sse = sse.unwrap_or_else(|e| Event::default().event("error").data(e.to_string()));
+            Some((Ok::<_, std::convert::Infallible>(sse), (None, rx, end)))
+        }
+    });
+    Ok(Sse::new(stream).keep_alive(KeepAlive::default()).into_response())
+}
+
+#[utoipa::path(get, path = "/api/v1/preview", tag = "runs", security(("bearer" = [])),
+    responses((status = 200, description = "8-bit sRGB PNG of the latest processed capture; header X-Preview-Seq counts previews", content_type = "image/png", body = Vec<u8>),
+        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
+        (status = 403, description = "Role too low", body = Problem, content_type = "application/problem+json"),
+        (status = 404, description = "No preview yet", body = Problem, content_type = "application/problem+json")))]
+/// The latest preview frame of the current (or latest) run.
+pub async fn preview(State(s): Shared, _v: Viewer) -> Result<Response, Problem> {
+    let run = s.runs.latest().ok_or_else(|| Problem::not_found("no run yet, so no preview"))?;
+    let path = run.dataset_dir().join(btfrig_store::PREVIEW_FILE);
+    let seq = run.status().preview_seq;
+    let bytes = tokio::fs::read(&path)
+        .await
+        .map_err(|_| Problem::not_found(format!("run {} has no preview yet", run.status().id)))?;
+    let mut r = ([(header::CONTENT_TYPE, "image/png"), (header::CACHE_CONTROL, "no-store")], bytes).into_response();
+    r.headers_mut().insert("x-preview-seq", HeaderValue::from(seq));
+    Ok(r)
+}
+
+#[utoipa::path(get, path = "/api/v1/datasets", tag = "datasets", security(("bearer" = [])),
+    responses((status = 200, description = "Datasets under the data directory", body = DatasetList),
+        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
+        (status = 403, description = "Role too low", body = Problem, content_type = "application/problem+json")))]
+/// The datasets under the data directory.
+pub async fn list_datasets(State(s): Shared, _v: Viewer) -> Result<Json<DatasetList>, Problem> {
+    let st = s.clone();
+    let list = tokio::task::spawn_blocking(move || st.datasets())
+        .await
+        .map_err(|e| Problem::internal(format!("listing datasets crashed: {e}")))?;
+    Ok(Json(DatasetList { datasets: list }))
+}
+
+#[utoipa::path(get, path = "/api/v1/datasets/{name}", tag = "datasets", security(("bearer" = [])),
+    params(("name" = String, Path, description = "Dataset name")),
+    responses((status = 200, description = "The dataset's manifest (docs/dataset-format.md)", body = Object),
+        (status = 400, description = "Bad path", body = Problem, content_type = "application/problem+json"),
+        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
+        (status = 403, description = "Role too low", body = Problem, content_type = "application/problem+json"),
+        (status = 404, description = "No such dataset", body = Problem, content_type = "application/problem+json")))]
+/// A dataset's manifest.
+pub async fn get_dataset(State(s): Shared, _v: Viewer, ApiPath(name): ApiPath<String>) -> Result<Response, Problem> {
+    let file = s.dataset_file(&name, btfrig_store::MANIFEST_FILE)?;
+    let bytes = tokio::fs::read(&file).await.map_err(|_| Problem::not_found(format!("no dataset named {name:?}")))?;
+    Ok(([(header::CONTENT_TYPE, "application/json")], bytes).into_response())
+}
+
+#[utoipa::path(get, path = "/api/v1/datasets/{name}/files/{path}", tag = "datasets", security(("bearer" = [])),
+    params(("name" = String, Path, description = "Dataset name"), ("path" = String, Path, description = "File path inside the dataset, e.g. textures/l0000_v0000.exr")),
+    responses((status = 200, description = "The file", content_type = "application/octet-stream", body = Vec<u8>),
+        (status = 400, description = "Bad path (absolute, `..`, or outside the dataset)", body = Problem, content_type = "application/problem+json"),
+        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
+        (status = 403, description = "Role too low", body = Problem, content_type = "application/problem+json"),
+        (status = 404, description = "No such file", body = Problem, content_type = "application/problem+json")))]
+/// One file of a dataset; nothing outside the data directory is reachable.
+pub async fn get_dataset_file(
+    State(s): Shared,
+    _v: Viewer,
+    ApiPath((name, path)): ApiPath<(String, String)>,
+) -> Result<Response, Problem> {
+    let file = s.dataset_file(&name, &path)?;
+    let bytes = tokio::fs::read(&file).await.map_err(|_| Problem::not_found(format!("dataset {name:?} has no file {path:?}")))?;
+    let ct = content_type(&file);
+    Ok(([(header::CONTENT_TYPE, ct)], Body::from(bytes)).into_response())
+}
+
+fn content_type(p: &Path) -> &'static str {
+    match p.extension().and_then(|e| e.to_str()) {
+        Some("json") => "application/json",
+        Some("png") => "image/png",
+        Some("toml") | Some("txt") => "text/plain; charset=utf-8",
+        Some("exr") => "image/x-exr",
+        _ => "application/octet-stream",
+    }
+}
+
+#[utoipa::path(post, path = "/api/v1/calibrations", tag = "calibrations", security(("bearer" = [])), request_body = StartCalibration,
+    responses((status = 202, description = "Started; poll GET /api/v1/calibrations/{id}", body = Calibration),
+        (status = 400, description = "Malformed body", body = Problem, content_type = "application/problem+json"),
+        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
+        (status = 403, description = "Needs role admin", body = Problem, content_type = "application/problem+json"),
+        (status = 409, description = "The rig is held", body = Problem, content_type = "application/problem+json"),
+        (status = 413, description = "Body too large", body = Problem, content_type = "application/problem+json"),
+        (status = 415, description = "Not JSON", body = Problem, content_type = "application/problem+json"),
+        (status = 422, description = "Unknown kind", body = Problem, content_type = "application/problem+json")))]
+/// Starts a calibration on the rig (admin).
+pub async fn start_calibration(
+    State(s): Shared,
+    Admin(c): Admin,
+    ApiJson(b): ApiJson<StartCalibration>,
+) -> Result<Response, Problem> {
+    let cal = crate::calibrations::start(&s, &c, b)?;
+    Ok((StatusCode::ACCEPTED, Json(cal)).into_response())
+}
+
+#[utoipa::path(get, path = "/api/v1/calibrations", tag = "calibrations", security(("bearer" = [])),
+    responses((status = 200, description = "Every calibration of this daemon", body = CalibrationList),
+        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
+        (status = 403, description = "Role too low", body = Problem, content_type = "application/problem+json")))]
+/// Every calibration of this daemon.
+pub async fn list_calibrations(State(s): Shared, _v: Viewer) -> Json<CalibrationList> {
+    Json(CalibrationList { calibrations: s.calibrations.all() })
+}
+
+#[utoipa::path(get, path = "/api/v1/calibrations/{id}", tag = "calibrations", security(("bearer" = [])),
+    params(("id" = String, Path, description = "Calibration id")),
+    responses((status = 200, description = "State and result", body = Calibration),
+        (status = 400, description = "Bad path", body = Problem, content_type = "application/problem+json"),
+        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
+        (status = 403, description = "Role too low", body = Problem, content_type = "application/problem+json"),
+        (status = 404, description = "No such calibration", body = Problem, content_type = "application/problem+json")))]
+/// A calibration's state and result.
+pub async fn get_calibration(State(s): Shared, _v: Viewer, ApiPath(id): ApiPath<String>) -> Result<Json<Calibration>, Problem> {
+    s.calibrations.get(&id).map(Json).ok_or_else(|| Problem::not_found(format!("no calibration {id:?}")))
+}
+
+/// `GET /metrics`.
+pub async fn metrics(State(s): Shared) -> Response {
+    let cur = s.runs.current().map(|r| r.status());
+    let state = cur.as_ref().map(|c| state_name(c.state));
+    let text = s.metrics.render(state, cur.as_ref().map(|c| c.fraction));
+    ([(header::CONTENT_TYPE, "text/plain; version=0.0.4")], text).into_response()
+}
+
+fn state_name(s: RunState) -> &'static str {
+    match s {
+        RunState::Starting => "starting",
+        RunState::Running => "running",
+        RunState::Paused => "paused",
+        RunState::Stopping => "stopping",
+        RunState::Finished => "finished",
+        RunState::Aborted => "aborted",
+        RunState::Interrupted => "interrupted",
+        RunState::Failed => "failed",
+    }
+}
+
+/// Anything not routed: 404 as a problem document.
+pub async fn not_found(uri: axum::http::Uri) -> Problem {
+    Problem::not_found(format!("no such endpoint: {}; the API is documented at /api/v1/openapi.json", uri.path()))
+}
+
+/// A method the route does not take.
+pub async fn method_not_allowed() -> Problem {
+    Problem::new(StatusCode::METHOD_NOT_ALLOWED, "this endpoint does not take that method; see /api/v1/openapi.json")
+}
+
+/// A dataset or file name: letters, digits, `.`, `_`, `-`, not starting with `.`, 1 to 64.
+pub fn check_name(name: &str) -> Result<(), String> {
+    let ok = !name.is_empty()
+        && name.len() <= 64
+        && !name.starts_with('.')
+        && name.chars().all(|c| c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-'));
+    if ok {
+        Ok(())
+    } else {
+        Err(format!("dataset name {name:?}: use 1 to 64 letters, digits, '.', '_' or '-', not starting with '.'"))
+    }
+}
+
+/// `rel` as a relative path of plain components (no `..`, root or prefix), or why not.
+pub fn relative_inside(rel: &str) -> Result<PathBuf, Problem> {
+    let p = Path::new(rel);
+    let mut out = PathBuf::new();
+    for c in p.components() {
+        match c {
+            Component::Normal(s) => out.push(s),
+            Component::CurDir => {}
+            _ => {
+                return Err(Problem::bad_request(format!(
+                    "file path {rel:?}: only plain relative paths inside the dataset are allowed (no '..', no leading '/')"
+                )))
+            }
+        }
+    }
+    if out.as_os_str().is_empty() {
+        return Err(Problem::bad_request("empty file path"));
+    }
+    Ok(out)
+}

@@ -1,0 +1,512 @@
+//! The control daemon, `btfrig serve`: an HTTP API (axum) over the run engine, for scripts
+//! and for the operator page it serves.
+//!
+//! Brief overview: [`serve`] loads the rig config, the auth file and the named plans into an
+//! [`AppState`], binds the listen address and answers [`router`]'s routes until SIGTERM or
+//! SIGINT, which interrupts the run under way (frames in flight committed, journal flushed,
+//! dataset resumable) before the daemon exits. Handlers ([`api`]) are thin: runs go through
+//! [`btfrig_runner::run`] and plan checks through [`btfrig_runner::dry_run`], exactly as the
+//! CLI does. Tokens and roles: [`auth`]; errors: [`problem`]; `/metrics`: [`metrics`].
+//! The HTTP API is documented in `docs/http-api.md` and by `/api/v1/openapi.json`.
+
+#![warn(missing_docs)]
+
+pub mod api;
+pub mod auth;
+pub mod calibrations;
+pub mod metrics;
+pub mod problem;
+pub mod runs;
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use axum::extract::DefaultBodyLimit;
+use axum::http::header;
+use axum::response::IntoResponse;
+use axum::routing::{get, post};
+use axum::Router;
+use btfrig_core::config::RigConfig;
+
+use crate::api::{DatasetEntry, DeviceStatus, PlanBody, PlanCheck, RigStatus, RigSummary};
+use crate::auth::Auth;
+use crate::calibrations::Calibrations;
+use crate::metrics::Metrics;
+use crate::problem::Problem;
+use crate::runs::{Run, RunState, Runs};
+
+/// Largest request body accepted (a plan file is a few kB).
+pub const BODY_LIMIT: usize = 256 * 1024;
+
+/// The plans `{"plan": name}` refers to when the daemon is given no plans directory.
+pub const EMBEDDED_PLANS: &[(&str, &str)] = &[
+    ("demo", include_str!("../../../rig-configs/plans/demo.toml")),
+    ("hdr-glossy", include_str!("../../../rig-configs/plans/hdr-glossy.toml")),
+    ("grazing", include_str!("../../../rig-configs/plans/grazing.toml")),
+    ("bonn-full", include_str!("../../../rig-configs/plans/bonn-full.toml")),
+];
+
+/// A plan offered by name.
+#[derive(Debug, Clone)]
+pub struct NamedPlan {
+    /// Its name (the file stem).
+    pub name: String,
+    /// Its text.
+    pub text: String,
+    /// Its file (anchors relative paths in it).
+    pub path: PathBuf,
+    /// Captures it makes.
+    pub captures: u64,
+    /// Its description.
+    pub description: String,
+}
+
+/// How to start the daemon.
+#[derive(Debug, Clone)]
+pub struct ServeConfig {
+    /// The rig config file; `None`: the embedded simulated gonioreflectometer.
+    pub rig: Option<PathBuf>,
+    /// The listen address (default loopback).
+    pub listen: SocketAddr,
+    /// Where datasets and calibrations go.
+    pub data: PathBuf,
+    /// The auth file; `None`: one random admin token, printed on stderr and written to
+    /// `<data>/daemon-token` (mode 0600).
+    pub auth: Option<PathBuf>,
+    /// A directory of plan files offered by name (instead of the embedded ones).
+    pub plans: Option<PathBuf>,
+}
+
+/// Everything the handlers share.
+pub struct AppState {
+    /// Accepted tokens.
+    pub auth: Auth,
+    /// The rig config.
+    pub rig: RigConfig,
+    /// The rig config's file, if not embedded.
+    pub rig_path: Option<PathBuf>,
+    /// Where the rig config came from, for people.
+    pub rig_source: String,
+    /// The data directory.
+    pub data: PathBuf,
+    /// Plans by name.
+    pub plans: Vec<NamedPlan>,
+    /// Runs.
+    pub runs: Runs,
+    /// Calibrations.
+    pub calibrations: Calibrations,
+    /// Counters.
+    pub metrics: Arc<Metrics>,
+}
+
+/// Why the daemon could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum ServeError {
+    /// A file or directory it was given is unusable.
+    #[error("{0}")]
+    Config(String),
+    /// The listen address cannot be bound.
+    #[error("cannot listen on {addr}: {source}")]
+    Bind {
+        /// The address.
+        addr: SocketAddr,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// Serving failed.
+    #[error("serving: {0}")]
+    Io(#[from] std::io::Error),
+}
+
+impl AppState {
+    /// Loads the rig, the auth file and the plans; creates the data directory. Returns the
+    /// generated admin token when no auth file is given.
+    pub fn load(cfg: &ServeConfig) -> Result<(AppState, Option<String>), ServeError> {
+        let bad = |m: String| ServeError::Config(m);
+        let (rig, rig_source) = match &cfg.rig {
+            None => {
+                let (name, text) = btfrig_core::plan::BUILTIN_RIGS
+                    .iter()
+                    .find(|(n, _)| *n == btfrig_core::plan::BUILTIN_RIG)
+                    .ok_or_else(|| bad("no embedded rig".into()))?;
+                (RigConfig::from_toml(text, name).map_err(|e| bad(e.to_string()))?, name.to_string())
+            }
+            Some(p) => {
+                let text = std::fs::read_to_string(p).map_err(|e| bad(format!("--rig {}: {e}", p.display())))?;
+                (RigConfig::from_toml(&text, &p.display().to_string()).map_err(|e| bad(e.to_string()))?, p.display().to_string())
+            }
+        };
+        std::fs::create_dir_all(&cfg.data).map_err(|e| bad(format!("--data {}: cannot create it: {e}", cfg.data.display())))?;
+        let (auth, generated) = match &cfg.auth {
+            Some(p) => {
+                let text = std::fs::read_to_string(p).map_err(|e| bad(format!("--auth {}: {e}", p.display())))?;
+                (Auth::from_toml(&text, &p.display().to_string()).map_err(bad)?, None)
+            }
+            None => {
+                let (a, token) = Auth::generated("admin");
+                write_secret(&cfg.data.join("daemon-token"), &token).map_err(bad)?;
+                (a, Some(token))
+            }
+        };
+        let plans = load_plans(cfg.plans.as_deref(), &cfg.data, &rig.rig.name).map_err(bad)?;
+        let metrics = Arc::new(Metrics::default());
+        let state = AppState {
+            auth,
+            rig,
+            rig_path: cfg.rig.clone(),
+            rig_source,
+            data: cfg.data.clone(),
+            plans,
+            runs: Runs::new(cfg.data.clone(), metrics.clone()),
+            calibrations: Calibrations::default(),
+            metrics,
+        };
+        Ok((state, generated))
+    }
+
+    fn rig_status(&self) -> RigStatus {
+        let current = self.runs.current().map(|r| r.status());
+        let cal = self.calibrations.running();
+        let state = match (&current, &cal) {
+            (Some(s), _) if s.state == RunState::Paused => "paused".to_string(),
+            (Some(_), _) | (_, Some(_)) => "in use".to_string(),
+            _ => "idle".to_string(),
+        };
+        let d = &self.rig.devices;
+        let cam = &self.rig.camera;
+        let mut devices = vec![
+            ("robot", &d.robot, "sample orientation, 3 joints".to_string()),
+            ("rail", &d.rail, "camera rail".to_string()),
+            ("lamp", &d.lamp, "light source".to_string()),
+            ("camera", &d.camera, format!("{} x {} px", cam.width_px, cam.height_px)),
+        ];
+        if let Some(t) = &d.turntable {
+            devices.push(("turntable", t, "turntable".into()));
+        }
+        if let Some(l) = &d.led_array {
+            devices.push(("led_array", l, "LED array".into()));
+        }
+        let busy_detail = current.as_ref().map(|s| format!("; run {} at {}/{}", s.id, s.done, s.total)).unwrap_or_default();
+        RigStatus {
+            rig: RigSummary { name: self.rig.rig.name.clone(), kind: format!("{:?}", self.rig.rig.kind).to_lowercase(), source: self.rig_source.clone() },
+            devices: devices
+                .into_iter()
+                .map(|(name, e, detail)| DeviceStatus {
+                    name: name.into(),
+                    kind: e.kind.clone(),
+                    state: state.clone(),
+                    detail: format!("{detail}{busy_detail}"),
+                })
+                .collect(),
+            busy: current
+                .map(|s| api::Busy { run_id: s.id, owner: s.owner })
+                .or(cal.map(|c| api::Busy { run_id: c.id, owner: c.owner })),
+        }
+    }
+
+    /// The plan a body names: (text, file, name given).
+    fn plan_source(&self, plan: Option<String>, text: Option<String>) -> Result<(String, PathBuf, Option<String>), Problem> {
+        match (plan, text) {
+            (Some(name), None) => {
+                let p = self.plans.iter().find(|p| p.name == name).ok_or_else(|| {
+                    let names: Vec<&str> = self.plans.iter().map(|p| p.name.as_str()).collect();
+                    Problem::not_found(format!("no plan named {name:?}; the daemon offers {names:?}"))
+                })?;
+                Ok((p.text.clone(), p.path.clone(), Some(p.name.clone())))
+            }
+            (None, Some(text)) => Ok((text, self.data.join("api-plan.toml"), None)),
+            _ => Err(Problem::unprocessable("give exactly one of \"plan\" (a name from GET /api/v1/plans) and \"plan_text\" (a plan file's TOML)")),
+        }
+    }
+
+    async fn check_plan(self: &Arc<Self>, b: PlanBody, dry: bool) -> PlanCheck {
+        let invalid = |errors: Vec<String>| PlanCheck {
+            valid: false,
+            captures: 0,
+            estimate_s: None,
+            naive_order_s: None,
+            lower_bound_s: None,
+            disk_bytes: None,
+            text: None,
+            errors,
+        };
+        let (text, path, _) = match self.plan_source(b.plan, b.plan_text) {
+            Ok(p) => p,
+            Err(e) => return invalid(vec![e.detail]),
+        };
+        let rig = self.rig.rig.name.clone();
+        let job = tokio::task::spawn_blocking(move || -> Result<PlanCheck, Vec<String>> {
+            let errors = |e: btfrig_runner::RunError| match e {
+                btfrig_runner::RunError::Plan(p) => p.errors.iter().map(|e| e.to_string()).collect(),
+                e => vec![e.to_string()],
+            };
+            let (_, v) = btfrig_runner::plan::load_text(&text, &path).map_err(errors)?;
+            if v.rig.rig.name != rig {
+                return Err(vec![format!("the plan is for rig {:?}; this daemon drives {rig:?}", v.rig.rig.name)]);
+            }
+            let captures = v.capture_list().captures.len() as u64;
+            if !dry {
+                return Ok(PlanCheck { valid: true, captures, estimate_s: None, naive_order_s: None, lower_bound_s: None, disk_bytes: None, text: None, errors: vec![] });
+            }
+            let d = btfrig_runner::dry_run::dry_run(&text, &path).map_err(errors)?;
+            let mut shown = d.schedule.to_string();
+            if let Some(h) = &d.hdr {
+                shown.push('\n');
+                shown.push_str(h);
+            }
+            Ok(PlanCheck {
+                valid: true,
+                captures,
+                estimate_s: Some(d.schedule.hardware_s),
+                naive_order_s: Some(d.schedule.naive_order_hardware_s),
+                lower_bound_s: Some(d.schedule.critical_path_s),
+                disk_bytes: Some(d.schedule.disk_bytes()),
+                text: Some(shown),
+                errors: vec![],
+            })
+        });
+        match job.await {
+            Ok(Ok(c)) => c,
+            Ok(Err(errors)) => invalid(errors),
+            Err(e) => invalid(vec![format!("the plan check crashed: {e}")]),
+        }
+    }
+
+    fn new_dataset_name(&self, plan: &str) -> String {
+        let stem: String = plan.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '-' }).take(40).collect();
+        let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
+        let mut name = format!("{stem}-{secs}");
+        let mut k = 2;
+        while self.data.join(&name).exists() {
+            name = format!("{stem}-{secs}-{k}");
+            k += 1;
+        }
+        name
+    }
+
+    /// 409 when `dataset` exists and holds another plan (the store would refuse it later).
+    fn check_dataset_plan(&self, dataset: &str, plan_text: &str) -> Result<(), Problem> {
+        let dir = self.data.join(dataset);
+        if !dir.exists() {
+            return Ok(());
+        }
+        let manifest = std::fs::read(dir.join(btfrig_store::MANIFEST_FILE)).ok();
+        let hash = manifest
+            .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
+            .and_then(|v| v["plan"]["hash"].as_str().map(String::from));
+        match hash {
+            Some(h) if h == btfrig_store::plan_hash(plan_text) => Ok(()),
+            Some(_) => Err(Problem::conflict(format!(
+                "dataset {dataset:?} holds another plan's captures: choose another dataset name, or its own plan to resume it"
+            ))),
+            None => Err(Problem::conflict(format!("{dataset:?} exists and is not a dataset: choose another name"))),
+        }
+    }
+
+    fn run(&self, id: &str) -> Result<Arc<Run>, Problem> {
+        let r = if id == "current" { self.runs.current().or_else(|| self.runs.latest()) } else { self.runs.get(id) };
+        r.ok_or_else(|| Problem::not_found(format!("no run {id:?}")))
+    }
+
+    fn datasets(&self) -> Vec<DatasetEntry> {
+        let current = self.runs.current().map(|r| r.status().dataset);
+        let mut out = Vec::new();
+        let Ok(dir) = std::fs::read_dir(&self.data) else { return out };
+        for e in dir.flatten() {
+            let name = e.file_name().to_string_lossy().to_string();
+            let path = e.path();
+            let Ok(m) = std::fs::read(path.join(btfrig_store::MANIFEST_FILE)) else { continue };
+            let plan = serde_json::from_slice::<serde_json::Value>(&m)
+                .ok()
+                .and_then(|v| v["plan"]["text"].as_str().and_then(plan_name_of))
+                .unwrap_or_default();
+            let report = std::fs::read(path.join(btfrig_store::REPORT_FILE))
+                .ok()
+                .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok());
+            let (mut state, captures) = match &report {
+                Some(r) => (
+                    r["status"].as_str().unwrap_or("incomplete").to_string(),
+                    r["summary"]["captures"].as_u64().or(r["captures"].as_u64()).unwrap_or(0),
+                ),
+                None => ("incomplete".into(), 0),
+            };
+            if current.as_deref() == Some(name.as_str()) {
+                state = "running".into();
+            }
+            out.push(DatasetEntry { name, state, captures, plan });
+        }
+        out.sort_by(|a, b| a.name.cmp(&b.name));
+        out
+    }
+
+    /// `rel` inside dataset `name`, refusing anything that leaves it (also through links).
+    fn dataset_file(&self, name: &str, rel: &str) -> Result<PathBuf, Problem> {
+        api::check_name(name).map_err(Problem::bad_request)?;
+        let rel = api::relative_inside(rel)?;
+        let root = self.data.join(name);
+        let root = root.canonicalize().map_err(|_| Problem::not_found(format!("no dataset named {name:?}")))?;
+        let file = root.join(&rel);
+        let real = file.canonicalize().map_err(|_| Problem::not_found(format!("dataset {name:?} has no file {:?}", rel.display())))?;
+        if !real.starts_with(&root) || !real.is_file() {
+            return Err(Problem::not_found(format!("dataset {name:?} has no file {:?}", rel.display())));
+        }
+        Ok(real)
+    }
+}
+
+fn plan_name_of(text: &str) -> Option<String> {
+    let v: toml::Value = toml::from_str(text).ok()?;
+    v.get("name")?.as_str().map(String::from)
+}
+
+fn write_secret(path: &Path, secret: &str) -> Result<(), String> {
+    use std::io::Write;
+    let mut o = std::fs::OpenOptions::new();
+    o.write(true).create(true).truncate(true);
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::OpenOptionsExt;
+        o.mode(0o600);
+    }
+    let mut f = o.open(path).map_err(|e| format!("cannot write the token file {}: {e}", path.display()))?;
+    writeln!(f, "{secret}").map_err(|e| format!("cannot write the token file {}: {e}", path.display()))
+}
+
+fn load_plans(dir: Option<&Path>, data: &Path, rig: &str) -> Result<Vec<NamedPlan>, String> {
+    let mut sources: Vec<(String, String, PathBuf)> = Vec::new();
+    match dir {
+        None => {
+            for (name, text) in EMBEDDED_PLANS {
+                sources.push((name.to_string(), text.to_string(), data.join(format!("{name}.toml"))));
+            }
+        }
+        Some(d) => {
+            let entries = std::fs::read_dir(d).map_err(|e| format!("--plans {}: {e}", d.display()))?;
+            for e in entries.flatten() {
+                let p = e.path();
+                if p.extension().and_then(|x| x.to_str()) != Some("toml") {
+                    continue;
+                }
+                let name = p.file_stem().map(|s| s.to_string_lossy().to_string()).unwrap_or_default();
+                let text = std::fs::read_to_string(&p).map_err(|e| format!("{}: {e}", p.display()))?;
+                sources.push((name, text, p));
+            }
+        }
+    }
+    let mut plans = Vec::new();
+    for (name, text, path) in sources {
+        // Plans for other rigs, or that do not validate, are not offered (logged).
+        match btfrig_runner::plan::load_text(&text, &path) {
+            Ok((plan, v)) if v.rig.rig.name == rig => plans.push(NamedPlan {
+                name,
+                captures: v.capture_list().captures.len() as u64,
+                description: plan.description.clone(),
+                text,
+                path,
+            }),
+            Ok((_, v)) => tracing::info!("plan {name}: for rig {}, not offered", v.rig.rig.name),
+            Err(e) => tracing::warn!("plan {name}: not offered: {e}"),
+        }
+    }
+    plans.sort_by(|a, b| a.name.cmp(&b.name));
+    Ok(plans)
+}
+
+const INDEX_HTML: &str = include_str!("../ui/index.html");
+const APP_JS: &str = include_str!("../ui/app.js");
+const STYLE_CSS: &str = include_str!("../ui/style.css");
+
+/// Every route of the daemon.
+pub fn router(state: Arc<AppState>) -> Router {
+    let api = Router::new()
+        .route("/openapi.json", get(api::openapi))
+        .route("/rig", get(api::rig_status))
+        .route("/rig/stop", post(api::rig_stop))
+        .route("/plans", get(api::list_plans))
+        .route("/plans/validate", post(api::validate_plan))
+        .route("/plans/dry-run", post(api::dry_run_plan))
+        .route("/runs", get(api::list_runs).post(api::start_run))
+        .route("/runs/{id}", get(api::get_run))
+        .route("/runs/{id}/pause", post(api::pause_run))
+        .route("/runs/{id}/resume", post(api::resume_run))
+        .route("/runs/{id}/abort", post(api::abort_run))
+        .route("/runs/{id}/events", get(api::run_events))
+        .route("/preview", get(api::preview))
+        .route("/datasets", get(api::list_datasets))
+        .route("/datasets/{name}", get(api::get_dataset))
+        .route("/datasets/{name}/files/{*path}", get(api::get_dataset_file))
+        .route("/calibrations", get(api::list_calibrations).post(api::start_calibration))
+        .route("/calibrations/{id}", get(api::get_calibration));
+    let metrics = state.metrics.clone();
+    Router::new()
+        .nest("/api/v1", api)
+        .route("/", get(|| async { ([(header::CONTENT_TYPE, "text/html; charset=utf-8")], INDEX_HTML) }))
+        .route("/ui/app.js", get(|| async { ([(header::CONTENT_TYPE, "text/javascript; charset=utf-8")], APP_JS) }))
+        .route("/ui/style.css", get(|| async { ([(header::CONTENT_TYPE, "text/css; charset=utf-8")], STYLE_CSS) }))
+        .route("/healthz", get(api::healthz))
+        .route("/metrics", get(api::metrics))
+        .fallback(api::not_found)
+        .method_not_allowed_fallback(api::method_not_allowed)
+        .layer(DefaultBodyLimit::max(BODY_LIMIT))
+        .layer(axum::middleware::map_response(move |r: axum::response::Response| {
+            let metrics = metrics.clone();
+            async move {
+                metrics.http(r.status().as_u16());
+                r
+            }
+        }))
+        .with_state(state)
+}
+
+/// Runs the daemon until SIGTERM or SIGINT. Prints `listening on http://ADDR` first (with
+/// the real port when asked for port 0).
+pub async fn serve(cfg: ServeConfig) -> Result<(), ServeError> {
+    let (state, generated) = AppState::load(&cfg)?;
+    let state = Arc::new(state);
+    let listener = tokio::net::TcpListener::bind(cfg.listen).await.map_err(|source| ServeError::Bind { addr: cfg.listen, source })?;
+    let addr = listener.local_addr()?;
+    println!("listening on http://{addr}");
+    if let Some(t) = generated {
+        eprintln!(
+            "no --auth file: admin token {t} (also in {}); give an auth file for viewer/operator tokens (docs/http-api.md)",
+            cfg.data.join("daemon-token").display()
+        );
+    }
+    eprintln!("rig {} ({}), data {}, {} named plans", state.rig.rig.name, state.rig_source, cfg.data.display(), state.plans.len());
+    let app = router(state.clone());
+    let shutdown_state = state.clone();
+    axum::serve(listener, app)
+        .with_graceful_shutdown(async move {
+            shutdown_signal().await;
+            eprintln!("shutting down: interrupting the run under way (its dataset stays resumable)");
+            let s = shutdown_state.clone();
+            let _ = tokio::task::spawn_blocking(move || s.runs.interrupt_and_wait()).await;
+        })
+        .await?;
+    Ok(())
+}
+
+async fn shutdown_signal() {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{signal, SignalKind};
+        let mut term = match signal(SignalKind::terminate()) {
+            Ok(s) => s,
+            Err(_) => return std::future::pending().await,
+        };
+        tokio::select! {
+            _ = term.recv() => {}
+            _ = tokio::signal::ctrl_c() => {}
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = tokio::signal::ctrl_c().await;
+    }
+}
+
+/// A problem response for `IntoResponse` users outside this crate.
+pub fn problem_response(p: Problem) -> axum::response::Response {
+    p.into_response()
+}
