@@ -1,0 +1,262 @@
+//! `btfrig serve` on the simulated rig, driven through its HTTP API only: a whole small run
+//! (start, events, pause, resume, completion, dataset download), tokens and roles on every
+//! write endpoint (401, 403, 409), and SIGTERM pausing a run resumably.
+
+mod support;
+
+use std::time::Duration;
+
+use support::http::{request, Daemon, EventStream};
+use support::{read_journal, scratch};
+
+const AUTH: &str = r#"
+[[token]]
+name = "viewer"
+token = "viewer-token"
+role = "viewer"
+[[token]]
+name = "ada"
+token = "operator-ada"
+role = "operator"
+[[token]]
+name = "bob"
+token = "operator-bob"
+role = "operator"
+[[token]]
+name = "root"
+token = "admin-token"
+role = "admin"
+"#;
+
+/// A small plan on the embedded rig: `n` captures of 32-texel textures.
+fn plan(n: usize) -> String {
+    format!(
+        r#"name = "serve-test"
+description = "small plan for the daemon tests"
+[rig]
+config = "builtin:bonn-gonio-sim"
+material = "corduroy"
+seed = 11
+[sampling]
+light = {{ preset = "bonn81", theta_max_deg = 30 }}
+view = {{ preset = "bonn81", theta_max_deg = 30 }}
+[texture]
+size = 32
+region = {{ u = [0.25, 0.75], v = [0.25, 0.75] }}
+[exposure]
+mode = "auto"
+[outputs]
+preview = true
+texture_previews = true
+[skip]
+max_captures = {n}
+"#
+    )
+}
+
+fn start_body(n: usize, dataset: &str) -> String {
+    serde_json::json!({ "plan_text": plan(n), "dataset": dataset }).to_string()
+}
+
+fn setup(name: &str) -> (std::path::PathBuf, std::path::PathBuf) {
+    let dir = scratch(name);
+    let auth = dir.join("auth.toml");
+    std::fs::write(&auth, AUTH).unwrap();
+    let data = dir.join("data");
+    (auth, data)
+}
+
+fn daemon(auth: &std::path::Path, data: &std::path::Path) -> Daemon {
+    Daemon::start(&["--auth", auth.to_str().unwrap(), "--data", data.to_str().unwrap()])
+}
+
+#[test]
+fn a_whole_run_through_the_api_with_events_pause_resume_and_download() {
+    let (auth, data) = setup("serve_whole_run");
+    let d = daemon(&auth, &data);
+    // The OpenAPI document is served and names the run endpoints.
+    let doc = request(d.port, "GET", "/api/v1/openapi.json", None, None).json();
+    assert!(doc["paths"]["/api/v1/runs/{id}/pause"]["post"].is_object(), "{}", doc["paths"]);
+
+    let r = d.post("/api/v1/runs", "operator-ada", &start_body(10, "whole"));
+    assert_eq!(r.status, 201, "{}", r.text());
+    let id = r.json()["id"].as_str().unwrap().to_string();
+    assert_eq!(r.header("location"), Some(format!("/api/v1/runs/{id}").as_str()));
+
+    // Events in a thread while the test steers the run.
+    let port = d.port;
+    let path = format!("/api/v1/runs/{id}/events");
+    let events = std::thread::spawn(move || {
+        let mut s = EventStream::open(port, &path, "viewer-token");
+        assert_eq!(s.status, 200);
+        let mut out = Vec::new();
+        while let Some((name, data)) = s.next_event() {
+            let end = name == "end";
+            out.push((name, serde_json::from_str::<serde_json::Value>(&data).unwrap_or(serde_json::Value::Null)));
+            if end {
+                break;
+            }
+        }
+        out
+    });
+
+    // Another operator cannot start a second run, nor steer ada's.
+    let busy = d.post("/api/v1/runs", "operator-bob", &start_body(10, "other"));
+    assert_eq!(busy.status, 409, "{}", busy.text());
+    assert!(busy.json()["detail"].as_str().unwrap().contains("ada"), "409 names who holds the rig: {}", busy.text());
+    assert_eq!(busy.header("content-type"), Some("application/problem+json"));
+    assert!(!data.join("other").exists(), "a refused start creates nothing");
+    assert_eq!(d.post(&format!("/api/v1/runs/{id}/pause"), "operator-bob", "").status, 403);
+
+    d.wait_run(&id, "viewer-token", 120, "capturing", |s| s["done"].as_u64().unwrap_or(0) >= 2);
+    let p = d.post(&format!("/api/v1/runs/{id}/pause"), "operator-ada", "");
+    assert_eq!(p.status, 200, "{}", p.text());
+    let paused = d.wait_run(&id, "viewer-token", 60, "paused", |s| s["state"] == "paused");
+    // Paused means paused: no capture is made until resumed.
+    std::thread::sleep(Duration::from_millis(1500));
+    let still = d.get(&format!("/api/v1/runs/{id}"), "viewer-token").json();
+    assert_eq!(still["state"], "paused");
+    assert_eq!(still["done"], paused["done"], "captures went on while paused");
+    assert_eq!(d.post(&format!("/api/v1/runs/{id}/pause"), "operator-ada", "").status, 409, "pausing a paused run");
+    let rs = d.post(&format!("/api/v1/runs/{id}/resume"), "operator-ada", "");
+    assert_eq!(rs.status, 200, "{}", rs.text());
+    let end = d.wait_run(&id, "viewer-token", 300, "finished", |s| s["state"] == "finished");
+    assert_eq!(end["done"], 10);
+    assert_eq!(end["total"], 10);
+    assert_eq!(end["summary"]["captures"], 10);
+
+    let ev = events.join().unwrap();
+    let states: Vec<&str> = ev.iter().filter_map(|(_, v)| v["state"].as_str()).collect();
+    assert!(states.contains(&"running") && states.contains(&"paused"), "states seen: {states:?}");
+    let (last, last_v) = ev.last().unwrap();
+    assert_eq!(last, "end");
+    assert_eq!(last_v["state"], "finished");
+    let dones: Vec<u64> = ev.iter().filter_map(|(_, v)| v["done"].as_u64()).collect();
+    assert!(dones.windows(2).all(|w| w[0] <= w[1]), "progress never goes back: {dones:?}");
+    assert!(dones.iter().filter(|&&d| d > 0).count() >= 3, "progress events: {dones:?}");
+
+    // Preview, datasets, manifest and files, byte for byte as on disk.
+    let pv = d.get("/api/v1/preview", "viewer-token");
+    assert_eq!(pv.status, 200);
+    assert_eq!(&pv.body[..8], b"\x89PNG\r\n\x1a\n");
+    assert!(pv.header("x-preview-seq").unwrap().parse::<u64>().unwrap() >= 1);
+    let list = d.get("/api/v1/datasets", "viewer-token").json();
+    let entry = list["datasets"].as_array().unwrap().iter().find(|e| e["name"] == "whole").expect("dataset listed").clone();
+    assert_eq!(entry["state"], "finished");
+    assert_eq!(entry["plan"], "serve-test");
+    let manifest = d.get("/api/v1/datasets/whole", "viewer-token").json();
+    assert_eq!(manifest["plan"]["text"], plan(10));
+    let journal = read_journal(&data.join("whole"));
+    let committed = journal.committed();
+    assert_eq!(committed.len(), 10);
+    for files in committed.values().take(3) {
+        for (file, _) in files {
+            let got = d.get(&format!("/api/v1/datasets/whole/files/{file}"), "viewer-token");
+            assert_eq!(got.status, 200, "{file}");
+            assert_eq!(got.body, std::fs::read(data.join("whole").join(file)).unwrap(), "{file} downloaded byte for byte");
+        }
+    }
+    // No way out of the data directory.
+    std::fs::write(data.parent().unwrap().join("secret.txt"), "no").unwrap();
+    for bad in ["..%2F..%2Fsecret.txt", "%2Fetc%2Fpasswd", "../../secret.txt", "textures/../../../secret.txt"] {
+        let r = d.get(&format!("/api/v1/datasets/whole/files/{bad}"), "viewer-token");
+        assert!(matches!(r.status, 400 | 404), "{bad}: {} {}", r.status, r.text());
+        assert!(!r.text().contains("no\n") && r.body != b"no", "{bad} leaked a file outside");
+    }
+    assert!(matches!(d.get("/api/v1/datasets/..%2Fsecret.txt", "viewer-token").status, 400 | 404));
+    // A finished run takes no more commands.
+    assert_eq!(d.post(&format!("/api/v1/runs/{id}/abort"), "operator-ada", "").status, 409);
+    let m = request(d.port, "GET", "/metrics", None, None).text();
+    assert!(m.contains("btfrig_captures_total 10"), "{m}");
+}
+
+#[test]
+fn every_write_endpoint_answers_401_403_and_409() {
+    let (auth, data) = setup("serve_auth");
+    let d = daemon(&auth, &data);
+    // (path, body, the role below the one needed, or None when viewer suffices)
+    let writes: &[(&str, String, Option<&str>)] = &[
+        ("/api/v1/runs", start_body(40, "auth-run"), Some("viewer-token")),
+        ("/api/v1/runs/r1/pause", String::new(), Some("viewer-token")),
+        ("/api/v1/runs/r1/resume", String::new(), Some("viewer-token")),
+        ("/api/v1/runs/r1/abort", String::new(), Some("viewer-token")),
+        ("/api/v1/rig/stop", String::new(), Some("operator-ada")),
+        ("/api/v1/calibrations", r#"{"kind":"color"}"#.into(), Some("operator-ada")),
+        ("/api/v1/plans/validate", r#"{"plan":"demo"}"#.into(), None),
+        ("/api/v1/plans/dry-run", r#"{"plan":"demo"}"#.into(), None),
+    ];
+    for (path, body, below) in writes {
+        let none = request(d.port, "POST", path, None, Some(body));
+        assert_eq!(none.status, 401, "{path} without a token: {}", none.text());
+        assert_eq!(none.header("content-type"), Some("application/problem+json"), "{path}");
+        assert_eq!(none.header("www-authenticate"), Some("Bearer"));
+        let bad = request(d.port, "POST", path, Some("not-a-known-token"), Some(body));
+        assert_eq!(bad.status, 401, "{path} with an unknown token");
+        // The query token is for GET only.
+        let q = request(d.port, "POST", &format!("{path}?access_token=admin-token"), None, Some(body));
+        assert_eq!(q.status, 401, "{path}: a query token must not authorise a write");
+        if let Some(t) = below {
+            let r = request(d.port, "POST", path, Some(t), Some(body));
+            assert_eq!(r.status, 403, "{path} with a lower role: {}", r.text());
+            assert!(r.json()["detail"].as_str().unwrap().contains("needs role"), "{}", r.text());
+        }
+    }
+    assert!(!data.join("auth-run").exists(), "refused requests created nothing");
+    // 409: with ada's run holding the rig, every start (run or calibration) is refused with who holds it.
+    let r = d.post("/api/v1/runs", "operator-ada", &start_body(40, "auth-run"));
+    assert_eq!(r.status, 201, "{}", r.text());
+    for (path, body, token) in [
+        ("/api/v1/runs", start_body(5, "second"), "operator-bob"),
+        ("/api/v1/runs", start_body(5, "second"), "admin-token"),
+        ("/api/v1/calibrations", r#"{"kind":"color"}"#.to_string(), "admin-token"),
+    ] {
+        let c = d.post(path, token, &body);
+        assert_eq!(c.status, 409, "{path}: {}", c.text());
+        assert!(c.json()["detail"].as_str().unwrap().contains("ada"), "{}", c.text());
+    }
+    assert_eq!(d.post("/api/v1/runs/r1/resume", "operator-ada", "").status, 409, "resume of a running run");
+    // Ownership: bob may not abort ada's run; an admin may stop the rig.
+    assert_eq!(d.post("/api/v1/runs/r1/abort", "operator-bob", "").status, 403);
+    let stop = d.post("/api/v1/rig/stop", "admin-token", "");
+    assert_eq!(stop.status, 200);
+    assert_eq!(stop.json()["run_id"], "r1");
+    d.wait_run("r1", "viewer-token", 120, "aborted", |s| s["state"] == "aborted");
+    // Bad bodies are problem documents, not panics.
+    for (body, status) in [("{", 400), (r#"{"plan": 3}"#, 422), (r#"{"plan":"demo","plan_text":"x"}"#, 422), (r#"{"plan":"nope"}"#, 404)] {
+        let r = d.post("/api/v1/runs", "operator-ada", body);
+        assert_eq!(r.status, status, "{body}: {}", r.text());
+        assert_eq!(r.header("content-type"), Some("application/problem+json"));
+    }
+    let big = format!(r#"{{"plan_text":"{}"}}"#, "x".repeat(300 * 1024));
+    assert_eq!(d.post("/api/v1/runs", "operator-ada", &big).status, 413);
+    let invalid = d.post("/api/v1/runs", "operator-ada", r#"{"plan_text":"[sampling]\nlight = \"nope\"\n"}"#);
+    assert_eq!(invalid.status, 422, "{}", invalid.text());
+    let r = d.post("/api/v1/runs", "operator-ada", &serde_json::json!({"plan":"demo","dataset":"../x"}).to_string());
+    assert_eq!(r.status, 422, "{}", r.text());
+    // The dataset of another plan is not overwritten.
+    let r = d.post("/api/v1/runs", "operator-ada", &start_body(7, "auth-run"));
+    assert_eq!(r.status, 409, "{}", r.text());
+}
+
+#[test]
+fn sigterm_pauses_the_run_resumably_and_the_same_request_resumes_it() {
+    let (auth, data) = setup("serve_sigterm");
+    let d = daemon(&auth, &data);
+    let r = d.post("/api/v1/runs", "operator-ada", &start_body(16, "kept"));
+    assert_eq!(r.status, 201, "{}", r.text());
+    d.wait_run("r1", "viewer-token", 120, "capturing", |s| s["done"].as_u64().unwrap_or(0) >= 3);
+    let status = d.terminate();
+    assert!(status.success(), "btfrig serve exit after SIGTERM: {status}");
+    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(data.join("kept/report.json")).unwrap()).unwrap();
+    assert_eq!(report["status"], "interrupted", "{report}");
+    let before = read_journal(&data.join("kept")).committed().len();
+    assert!((3..16).contains(&before), "captured before SIGTERM: {before}");
+
+    let d = daemon(&auth, &data);
+    let r = d.post("/api/v1/runs", "operator-ada", &start_body(16, "kept"));
+    assert_eq!(r.status, 201, "{}", r.text());
+    let s = d.wait_run("r1", "viewer-token", 300, "finished", |s| s["state"] == "finished");
+    assert_eq!(s["done"], 16);
+    assert_eq!(s["summary"]["captures_this_session"].as_u64().unwrap() as usize, 16 - before, "{s}");
+    assert_eq!(read_journal(&data.join("kept")).committed().len(), 16);
+}
