@@ -330,6 +330,12 @@ pub enum BenchCommand {
     /// decode throughput and relative RMSE against the measured data and the ground truth;
     /// sparse acquisition (docs/compression.md).
     Compress(crate::bench_compress::BenchCompressArgs),
+    /// The daemon under load: a simulated run through `btfrig serve` with and without a
+    /// second process sending status requests; p99 latency and the run's slowdown.
+    Serve(crate::bench_serve::BenchServeArgs),
+    /// The load generator of `bench serve` (a second process); not for direct use.
+    #[command(hide = true)]
+    ServeLoad(crate::bench_serve::ServeLoadArgs),
 }
 
 /// `btfrig bench registration` (implemented in `bench_cmd.rs`).

@@ -6,6 +6,7 @@ mod bench_color;
 mod bench_demux;
 mod bench_compress;
 mod bench_registration;
+mod bench_serve;
 mod calibrate_cmd;
 mod calibrate_color_cmd;
 mod calibrate_light_cmd;
@@ -58,6 +59,8 @@ fn main() -> std::process::ExitCode {
         Command::Bench(BenchCommand::Color(a)) => done(bench_color::bench(&a)),
         Command::Bench(BenchCommand::Demux(a)) => done(bench_demux::bench(&a)),
         Command::Bench(BenchCommand::Compress(a)) => done(bench_compress::bench(&a)),
+        Command::Bench(BenchCommand::Serve(a)) => done(bench_serve::bench(&a)),
+        Command::Bench(BenchCommand::ServeLoad(a)) => done(bench_serve::load(&a)),
     };
     match result {
         Ok(code) => code,

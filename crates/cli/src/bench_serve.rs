@@ -1,0 +1,302 @@
+//! `btfrig bench serve`: a simulated run through `btfrig serve`, alternately without load
+//! and with a second process sending status requests at a fixed rate; prints the requests'
+//! latency percentiles and the run's wall time with and without load, side by side.
+//!
+//! The load is open-loop: request k is due at k / rate seconds and its latency is measured
+//! from when it was due, so a stalled server cannot hide its stall by slowing the sender
+//! (coordinated omission). Requests use keep-alive HTTP/1.1 connections, one per sender thread.
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::TcpStream;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context};
+
+/// `btfrig bench serve`.
+#[derive(Debug, clap::Args)]
+pub struct BenchServeArgs {
+    /// Status requests per second from the second process.
+    #[arg(long, default_value_t = 200.0)]
+    pub rate: f64,
+    /// Captures per run (the embedded demo plan, capped).
+    #[arg(long, default_value_t = 30)]
+    pub captures: usize,
+    /// Pairs of runs (without load, with load), alternated so drift hits both alike.
+    #[arg(long, default_value_t = 3)]
+    pub pairs: usize,
+    /// Endpoint the load requests.
+    #[arg(long, default_value = "/api/v1/runs/current")]
+    pub path: String,
+    /// Print one JSON object instead of the table.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `btfrig bench serve-load` (the second process).
+#[derive(Debug, clap::Args)]
+pub struct ServeLoadArgs {
+    /// The daemon's port on 127.0.0.1.
+    #[arg(long)]
+    pub port: u16,
+    /// Bearer token.
+    #[arg(long)]
+    pub token: String,
+    /// Requests per second.
+    #[arg(long)]
+    pub rate: f64,
+    /// Endpoint.
+    #[arg(long)]
+    pub path: String,
+    /// Sender threads (connections).
+    #[arg(long, default_value_t = 4)]
+    pub connections: usize,
+}
+
+const AUTH: &str = "[[token]]\nname = \"bench\"\ntoken = \"bench-operator-token\"\nrole = \"operator\"\n";
+const TOKEN: &str = "bench-operator-token";
+
+/// Runs the benchmark.
+pub fn bench(a: &BenchServeArgs) -> anyhow::Result<()> {
+    if !(a.rate > 0.0 && a.rate <= 5000.0) {
+        bail!("--rate {}: give a rate in (0, 5000] requests per second", a.rate);
+    }
+    if a.captures == 0 || a.pairs == 0 {
+        bail!("--captures and --pairs must be at least 1");
+    }
+    let dir = std::env::temp_dir().join(format!("btfrig-bench-serve-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    let auth = dir.join("auth.toml");
+    std::fs::write(&auth, AUTH)?;
+    let exe = std::env::current_exe()?;
+    let mut daemon = Command::new(&exe)
+        .args(["serve", "--listen", "127.0.0.1:0", "--data"])
+        .arg(dir.join("data"))
+        .arg("--auth")
+        .arg(&auth)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .context("starting btfrig serve")?;
+    let result = (|| {
+        let mut line = String::new();
+        BufReader::new(daemon.stdout.take().context("daemon stdout")?).read_line(&mut line)?;
+        let port: u16 = line.trim().rsplit(':').next().and_then(|p| p.parse().ok()).with_context(|| format!("daemon said {line:?}"))?;
+        let plan = crate::demo_cmd::DEMO_PLAN.replace("max_captures = 60", &format!("max_captures = {}", a.captures));
+        let mut rows = Vec::new();
+        for pair in 0..a.pairs {
+            for loaded in [false, true] {
+                let load = if loaded {
+                    Some(
+                        Command::new(&exe)
+                            .args(["bench", "serve-load", "--port", &port.to_string(), "--token", TOKEN])
+                            .args(["--rate", &a.rate.to_string(), "--path", &a.path])
+                            .stdin(Stdio::piped())
+                            .stdout(Stdio::piped())
+                            .spawn()
+                            .context("starting the load process")?,
+                    )
+                } else {
+                    None
+                };
+                let wall = run_once(port, &plan, &format!("bench-{pair}-{}", if loaded { "load" } else { "idle" }))?;
+                let stats = match load {
+                    Some(mut child) => {
+                        drop(child.stdin.take()); // EOF: stop and report
+                        let out = child.wait_with_output()?;
+                        let v: serde_json::Value = serde_json::from_slice(&out.stdout)
+                            .with_context(|| format!("load process said {:?}", String::from_utf8_lossy(&out.stdout)))?;
+                        Some(v)
+                    }
+                    None => None,
+                };
+                rows.push((loaded, wall, stats));
+            }
+        }
+        Ok::<_, anyhow::Error>(rows)
+    })();
+    let _ = daemon.kill();
+    let _ = daemon.wait();
+    let _ = std::fs::remove_dir_all(&dir);
+    let rows = result?;
+    let idle: Vec<f64> = rows.iter().filter(|r| !r.0).map(|r| r.1).collect();
+    let busy: Vec<f64> = rows.iter().filter(|r| r.0).map(|r| r.1).collect();
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    // Each loaded run against the idle run just before it, then the median: drift of the
+    // machine's load between pairs cancels.
+    let mut ratios: Vec<f64> = idle.iter().zip(&busy).map(|(i, b)| b / i - 1.0).collect();
+    ratios.sort_by(|a, b| a.total_cmp(b));
+    let slowdown = ratios[ratios.len() / 2];
+    let loads: Vec<&serde_json::Value> = rows.iter().filter_map(|r| r.2.as_ref()).collect();
+    let worst_p99 = loads.iter().filter_map(|v| v["p99_ms"].as_f64()).fold(0.0, f64::max);
+    let errors: u64 = loads.iter().filter_map(|v| v["errors"].as_u64()).sum();
+    if a.json {
+        println!(
+            "{}",
+            serde_json::json!({
+                "rate": a.rate, "captures": a.captures, "pairs": a.pairs,
+                "run_wall_s_idle": idle, "run_wall_s_loaded": busy,
+                "slowdown": slowdown, "slowdown_per_pair": ratios, "p99_ms_worst": worst_p99, "load": loads, "errors": errors,
+            })
+        );
+        return Ok(());
+    }
+    println!(
+        "bench serve: {} captures per run (demo plan), {} requests/s to {} from a second process, {} pairs",
+        a.captures, a.rate, a.path, a.pairs
+    );
+    println!("{:<6} {:>10} {:>9} {:>9} {:>9} {:>9} {:>9} {:>7}", "run", "wall s", "requests", "rate/s", "p50 ms", "p99 ms", "max ms", "errors");
+    for (loaded, wall, stats) in &rows {
+        match stats {
+            Some(v) => println!(
+                "{:<6} {:>10.2} {:>9} {:>9.1} {:>9.2} {:>9.2} {:>9.2} {:>7}",
+                "load",
+                wall,
+                v["requests"],
+                v["rate"].as_f64().unwrap_or(0.0),
+                v["p50_ms"].as_f64().unwrap_or(f64::NAN),
+                v["p99_ms"].as_f64().unwrap_or(f64::NAN),
+                v["max_ms"].as_f64().unwrap_or(f64::NAN),
+                v["errors"]
+            ),
+            None => {
+                let _ = loaded;
+                println!("{:<6} {:>10.2}", "idle", wall)
+            }
+        }
+    }
+    println!(
+        "p99 latency (worst run) {worst_p99:.2} ms (target < 20); run slowdown under load {:+.2} % (median of the pairs {}; mean wall {:.2} s vs {:.2} s; target < 2 %); {errors} failed requests",
+        100.0 * slowdown,
+        ratios.iter().map(|r| format!("{:+.2} %", 100.0 * r)).collect::<Vec<_>>().join(", "),
+        mean(&busy),
+        mean(&idle)
+    );
+    Ok(())
+}
+
+/// Starts the plan, waits for it to finish, returns the runner's wall time of the session.
+fn run_once(port: u16, plan: &str, dataset: &str) -> anyhow::Result<f64> {
+    let body = serde_json::json!({ "plan_text": plan, "dataset": dataset }).to_string();
+    let mut c = Conn::open(port)?;
+    let (status, text) = c.call("POST", "/api/v1/runs", Some(&body))?;
+    if status != 201 {
+        bail!("starting the run: {status} {text}");
+    }
+    let id = serde_json::from_str::<serde_json::Value>(&text)?["id"].as_str().unwrap_or_default().to_string();
+    loop {
+        std::thread::sleep(Duration::from_millis(250));
+        let (_, text) = c.call("GET", &format!("/api/v1/runs/{id}"), None)?;
+        let v: serde_json::Value = serde_json::from_str(&text)?;
+        match v["state"].as_str() {
+            Some("finished") => return v["summary"]["wall_s"].as_f64().context("summary.wall_s"),
+            Some("failed" | "aborted" | "interrupted") => bail!("the run ended {}: {}", v["state"], v["message"]),
+            _ => {}
+        }
+    }
+}
+
+/// One keep-alive HTTP/1.1 connection.
+struct Conn {
+    r: BufReader<TcpStream>,
+    w: TcpStream,
+}
+
+impl Conn {
+    fn open(port: u16) -> anyhow::Result<Conn> {
+        let s = TcpStream::connect(("127.0.0.1", port))?;
+        s.set_nodelay(true)?;
+        s.set_read_timeout(Some(Duration::from_secs(30)))?;
+        Ok(Conn { r: BufReader::new(s.try_clone()?), w: s })
+    }
+
+    fn call(&mut self, method: &str, path: &str, body: Option<&str>) -> anyhow::Result<(u16, String)> {
+        let mut req = format!("{method} {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nAuthorization: Bearer {TOKEN}\r\n");
+        match body {
+            Some(b) => req.push_str(&format!("Content-Type: application/json\r\nContent-Length: {}\r\n\r\n{b}", b.len())),
+            None => req.push_str("\r\n"),
+        }
+        self.w.write_all(req.as_bytes())?;
+        let mut line = String::new();
+        self.r.read_line(&mut line)?;
+        let status: u16 = line.split_whitespace().nth(1).and_then(|s| s.parse().ok()).with_context(|| format!("status line {line:?}"))?;
+        let mut len = 0usize;
+        loop {
+            line.clear();
+            self.r.read_line(&mut line)?;
+            let l = line.trim_end();
+            if l.is_empty() {
+                break;
+            }
+            if let Some((k, v)) = l.split_once(':') {
+                if k.eq_ignore_ascii_case("content-length") {
+                    len = v.trim().parse().unwrap_or(0);
+                }
+            }
+        }
+        let mut buf = vec![0; len];
+        self.r.read_exact(&mut buf)?;
+        Ok((status, String::from_utf8_lossy(&buf).into_owned()))
+    }
+}
+
+/// The load process: sends until stdin closes, then prints its statistics as JSON.
+pub fn load(a: &ServeLoadArgs) -> anyhow::Result<()> {
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let s = stop.clone();
+    std::thread::spawn(move || {
+        let mut sink = Vec::new();
+        let _ = std::io::stdin().read_to_end(&mut sink);
+        s.store(true, std::sync::atomic::Ordering::Relaxed);
+    });
+    let start = Instant::now();
+    let per_thread = a.rate / a.connections as f64;
+    let threads: Vec<_> = (0..a.connections)
+        .map(|k| {
+            let (stop, path, port, rate) = (stop.clone(), a.path.clone(), a.port, a.rate);
+            std::thread::spawn(move || -> (Vec<f64>, u64) {
+                let mut lat = Vec::new();
+                let mut errors = 0;
+                let Ok(mut c) = Conn::open(port) else { return (lat, 1) };
+                // Thread k starts k / rate late, so the threads' requests interleave evenly.
+                let offset = k as f64 / rate;
+                let mut i = 0u64;
+                while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                    let due = start + Duration::from_secs_f64(offset + i as f64 / per_thread);
+                    if let Some(wait) = due.checked_duration_since(Instant::now()) {
+                        std::thread::sleep(wait);
+                    }
+                    match c.call("GET", &path, None) {
+                        Ok((200 | 404, _)) => lat.push(due.elapsed().as_secs_f64() * 1e3),
+                        _ => {
+                            errors += 1;
+                            if let Ok(n) = Conn::open(port) {
+                                c = n;
+                            }
+                        }
+                    }
+                    i += 1;
+                }
+                (lat, errors)
+            })
+        })
+        .collect();
+    let mut lat = Vec::new();
+    let mut errors = 0;
+    for t in threads {
+        let (l, e) = t.join().map_err(|_| anyhow::anyhow!("a sender thread panicked"))?;
+        lat.extend(l);
+        errors += e;
+    }
+    let secs = start.elapsed().as_secs_f64();
+    lat.sort_by(|a, b| a.total_cmp(b));
+    let pct = |p: f64| if lat.is_empty() { f64::NAN } else { lat[((lat.len() - 1) as f64 * p).round() as usize] };
+    println!(
+        "{}",
+        serde_json::json!({
+            "requests": lat.len(), "errors": errors, "seconds": secs, "rate": lat.len() as f64 / secs,
+            "p50_ms": pct(0.5), "p90_ms": pct(0.9), "p99_ms": pct(0.99), "max_ms": lat.last().copied(),
+        })
+    );
+    Ok(())
+}
