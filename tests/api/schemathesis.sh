@@ -12,12 +12,13 @@
 # Installs schemathesis (pinned below) into the venv target/pydeps/schemathesis when it is
 # missing or another version. Reports: target/api/ (JUnit XML, server log).
 #
-# Runs it starts: the generated requests may start runs (POST /api/v1/runs with a plan the
-# document gives as an example), pause and resume them. None outlives the script: after
-# Schemathesis every run that is not finished is aborted through the API, then the server is
-# stopped (SIGTERM, then SIGKILL) and its temporary data directory removed. The event stream
-# GET /api/v1/runs/{id}/events is left out: an endless text/event-stream body is nothing a
-# schema check can read (tests/web and the API integration test cover it).
+# State: before Schemathesis, tests/api/rig.py starts plan demo into dataset st-seed (run r1)
+# and pauses it; tests/api/schemathesis.toml mixes those identifiers into the generated path
+# parameters and plan names into bodies, so requests reach the handlers' logic. The generated
+# requests may resume, pause, abort and start runs (and calibrations). None outlives the
+# script: afterwards rig.py aborts every run that is not over and waits for it, then the server
+# is stopped (SIGTERM, then SIGKILL after 10 s) and its temporary data directory removed. The
+# event stream is read up to its first event (max-stream-events in the config).
 set -euo pipefail
 
 ST_VERSION=4.32.5
@@ -68,37 +69,23 @@ done
 url="${url%/}"
 echo "# server at $url (log $log)" >&2
 
+# ---- a known state: run r1 of plan demo, paused after a few captures, dataset st-seed ----
+python3 "$here/rig.py" seed "$url"
+
 # ---- the run ----
 status=0
-"$venv/bin/st" run "$url/api/v1/openapi.json" \
+"$venv/bin/st" --config-file "$here/schemathesis.toml" --no-color run "$url/api/v1/openapi.json" \
     --header "Authorization: Bearer admin-token" \
     --checks not_a_server_error,status_code_conformance,content_type_conformance,response_schema_conformance \
     --max-examples "${ST_MAX_EXAMPLES:-40}" \
     --seed "${ST_SEED:-6}" \
-    --exclude-path-regex '/events$' \
     --request-timeout 20 \
     --workers 2 \
-    --no-color \
     --generation-database none \
     --report junit --report-junit-path "$out/schemathesis.junit.xml" || status=$?
 
 # ---- leave no run going ----
-python3 - "$url" <<'EOF' || status=1
-import json, sys, urllib.request
-base = sys.argv[1] + "/api/v1"
-def call(method, path):
-    req = urllib.request.Request(base + path, method=method, headers={"Authorization": "Bearer admin-token"})
-    with urllib.request.urlopen(req, timeout=20) as r:
-        return json.load(r)
-runs = call("GET", "/runs")["runs"]
-left = [r for r in runs if r["state"] not in ("finished", "aborted", "failed")]
-for r in left:
-    try:
-        call("POST", f"/runs/{r['id']}/abort")
-    except Exception as e:  # noqa: BLE001 - reported, the server is stopped anyway
-        print(f"# aborting {r['id']} ({r['state']}): {e}")
-print(f"# runs started during the run: {len(runs)}; aborted afterwards: {len(left)}")
-EOF
+python3 "$here/rig.py" cleanup "$url" || status=1
 stop_server
 if grep -qi "panick" "$log"; then
     echo "the server panicked:" >&2
