@@ -16,7 +16,7 @@ use crate::line::{ascii, decimal, format_decimal, LineDecoder};
 use crate::{DecodeError, EncodeError};
 
 /// Longest line, bytes (without the line end).
-pub const MAX_LINE: usize = 200;
+pub const MAX_LINE: usize = 256;
 /// Largest angle magnitude sent, radians.
 pub const MAX_ANGLE: f64 = 1e3;
 /// Tag of replies the controller cannot attribute to a request.
