@@ -14,8 +14,10 @@ use btfrig_hw::ErrorKind;
 use crate::line::{ascii, decimal, format_decimal, LineDecoder, LineFramer};
 use crate::{DecodeError, EncodeError};
 
-/// Longest line either side sends or accepts (GRBL's `LINE_BUFFER_SIZE` is 80 incl. end).
-pub const MAX_LINE: usize = 96;
+/// Longest line either side sends or accepts. GRBL's command buffer is 80 bytes; status
+/// reports here carry positions at full `f64` precision (so host and controller agree bit
+/// for bit), which takes up to about 140 bytes.
+pub const MAX_LINE: usize = 160;
 /// Largest coordinate or feed magnitude sent; beyond it the line is refused.
 pub const MAX_VALUE: f64 = 1e6;
 
