@@ -120,6 +120,11 @@ impl GrblAxis {
         self.link.connects
     }
 
+    /// Undecodable lines skipped in the current session (garbage on the line).
+    pub fn skipped_lines(&mut self) -> u64 {
+        self.link.skipped()
+    }
+
     fn err(&self, kind: ErrorKind, msg: impl Into<String>) -> DeviceError {
         DeviceError::new(&self.cfg.name, kind, msg)
     }

@@ -162,6 +162,11 @@ impl<D: Send + 'static> Link<D> {
         *self.slot() = None;
     }
 
+    /// Lines or frames skipped as undecodable in the current session.
+    pub fn skipped(&mut self) -> u64 {
+        self.slot().as_ref().map_or(0, |s| s.skipped)
+    }
+
     fn slot(&mut self) -> &mut Option<Session<D>> {
         self.session.get_mut().unwrap_or_else(|p| p.into_inner())
     }

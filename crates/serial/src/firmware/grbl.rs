@@ -67,6 +67,9 @@ pub enum Fault {
     /// Unplug and replug the adapter: the old tty goes away (the host's port fails), a new
     /// one appears behind the same symlink. The controller keeps power and state.
     Unplug,
+    /// Apply the fault right after accepting the next move line (`ok` sent, motion
+    /// started): deterministic "mid-move" faults without timing.
+    OnNextMove(Box<Fault>),
 }
 
 enum Event {
@@ -103,6 +106,7 @@ impl GrblFirmware {
             settings: BTreeMap::from([(20, 1.0), (22, 1.0)]),
             tx: tx.clone(),
             link: link.to_path_buf(),
+            armed: Vec::new(),
         };
         let task = tokio::spawn(emu.run(rx));
         Ok(GrblFirmware { tx, link: link.to_path_buf(), task })
@@ -202,6 +206,8 @@ struct Emulator {
     settings: BTreeMap<u16, f64>,
     tx: mpsc::UnboundedSender<Event>,
     link: PathBuf,
+    /// Faults to apply after the next accepted move.
+    armed: Vec<Fault>,
 }
 
 impl Emulator {
@@ -356,6 +362,9 @@ impl Emulator {
                     self.start(Job::Move(next));
                 }
                 self.reply(Response::Ok);
+                for f in std::mem::take(&mut self.armed) {
+                    self.fault(f);
+                }
             }
         }
     }
@@ -364,6 +373,7 @@ impl Emulator {
         match f {
             Fault::Garbage(b) => self.wire.write(&b),
             Fault::Alarm(code) => self.raise(code),
+            Fault::OnNextMove(f) => self.armed.push(*f),
             Fault::Unplug => {
                 let generation = self.wire.generation + 1;
                 match Wire::open(&self.link, generation, self.tx.clone()) {
