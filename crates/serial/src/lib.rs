@@ -17,4 +17,5 @@
 pub mod firmware;
 pub mod grbl;
 pub mod pty;
+pub mod robot;
 pub mod transport;

@@ -8,20 +8,15 @@
 //! its move underneath and the report shows it after `~`).
 
 use std::collections::{BTreeMap, VecDeque};
-use std::io::{Read, Write};
-use std::os::fd::AsFd;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
 
 use btfrig_hw::{AxisLimits, DeviceError, MoveOptions, Rail, Turntable};
 use btfrig_protocols::grbl::{Command, CommandDecoder, Response, State, Status};
 use btfrig_protocols::DecodeError;
-use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 
-use crate::pty::PtyPort;
+use super::Wire;
 
 /// The device behind the controller.
 pub enum AxisDevice {
@@ -77,6 +72,13 @@ enum Event {
     Fault(Fault),
 }
 
+/// Bytes from the tty and injected faults share one channel, so a fault injected before a
+/// request is handled before it.
+fn forwarder(tx: &mpsc::UnboundedSender<Event>) -> impl Fn(u64, Vec<u8>) -> bool + Send + 'static {
+    let tx = tx.clone();
+    move |g, b| tx.send(Event::Bytes(g, b)).is_ok()
+}
+
 /// Handle on a running emulator; dropping it stops the emulator.
 pub struct GrblFirmware {
     tx: mpsc::UnboundedSender<Event>,
@@ -90,7 +92,7 @@ impl GrblFirmware {
     pub fn spawn(device: AxisDevice, link: &Path) -> std::io::Result<GrblFirmware> {
         let (tx, rx) = mpsc::unbounded_channel();
         let limits = device.limits();
-        let wire = Wire::open(link, 0, tx.clone())?;
+        let wire = Wire::open(link, 0, forwarder(&tx))?;
         let emu = Emulator {
             device: Some(device),
             limits,
@@ -126,60 +128,6 @@ impl GrblFirmware {
 impl Drop for GrblFirmware {
     fn drop(&mut self) {
         self.task.abort();
-    }
-}
-
-/// One plugged-in pty: the writer, and a reader thread that forwards bytes.
-struct Wire {
-    port: PtyPort,
-    writer: std::fs::File,
-    stop: Arc<AtomicBool>,
-    generation: u64,
-}
-
-impl Wire {
-    fn open(link: &Path, generation: u64, tx: mpsc::UnboundedSender<Event>) -> std::io::Result<Wire> {
-        let port = PtyPort::open(link)?;
-        let writer = port.master_file()?;
-        let mut reader = port.master_file()?;
-        let stop = Arc::new(AtomicBool::new(false));
-        let stop2 = stop.clone();
-        std::thread::spawn(move || {
-            let mut buf = [0u8; 512];
-            while !stop2.load(Ordering::Relaxed) {
-                let ready = {
-                    let mut fds = [PollFd::new(reader.as_fd(), PollFlags::POLLIN)];
-                    poll(&mut fds, PollTimeout::from(10u8)).unwrap_or(0) > 0
-                        && fds[0].revents().is_some_and(|r| r.contains(PollFlags::POLLIN))
-                };
-                if !ready {
-                    // Nothing, or no host has the slave open (POLLHUP): wait and look again.
-                    std::thread::sleep(std::time::Duration::from_millis(2));
-                    continue;
-                }
-                match reader.read(&mut buf) {
-                    Ok(n) if n > 0 => {
-                        if tx.send(Event::Bytes(generation, buf[..n].to_vec())).is_err() {
-                            return;
-                        }
-                    }
-                    // EIO while the host has the slave closed: not an error for a controller.
-                    _ => std::thread::sleep(std::time::Duration::from_millis(2)),
-                }
-            }
-        });
-        Ok(Wire { port, writer, stop, generation })
-    }
-
-    fn write(&mut self, bytes: &[u8]) {
-        // A write with no host attached may fail; a controller would just drop it.
-        let _ = self.writer.write_all(bytes);
-    }
-}
-
-impl Drop for Wire {
-    fn drop(&mut self) {
-        self.stop.store(true, Ordering::Relaxed);
     }
 }
 
@@ -376,7 +324,7 @@ impl Emulator {
             Fault::OnNextMove(f) => self.armed.push(*f),
             Fault::Unplug => {
                 let generation = self.wire.generation + 1;
-                match Wire::open(&self.link, generation, self.tx.clone()) {
+                match Wire::open(&self.link, generation, forwarder(&self.tx)) {
                     Ok(w) => {
                         tracing::info!("emulated controller replugged as {}", w.port.slave_path());
                         self.wire = w; // drops the old tty: the host's port fails
