@@ -146,6 +146,10 @@
 
   const isActive = (run) => !!run && !TERMINAL.has(run.state);
 
+  // The simulated rig runs in virtual time: its ETA is rig time, not a time of day.
+  const simulated = () => !!state.rig && Array.isArray(state.rig.devices) &&
+    state.rig.devices.some((d) => /\bsim/i.test(String(d.kind)));
+
   // ---- rig and devices -----------------------------------------------------------------
 
   function renderRig(r) {
@@ -252,15 +256,16 @@
     if (run.state === "finished") ui.eta.textContent = "done";
     else if (TERMINAL.has(run.state)) ui.eta.textContent = "–";
     else if (run.eta_s === null || run.eta_s === undefined) ui.eta.textContent = "estimating…";
+    else if (simulated()) ui.eta.textContent = `${fmtDuration(run.eta_s)} of rig time (simulated rig)`;
     else ui.eta.textContent = `${fmtDuration(run.eta_s)} (about ${fmtClock(run.eta_s)})`;
     ui.runMessage.textContent = run.message || "–";
     for (const w of run.warnings || []) addWarning(w);
     if (typeof run.preview_seq === "number" && run.preview_seq > 0 && run.preview_seq !== state.previewSeq) {
       loadPreview();
     }
+    if (!prev || prev.state !== run.state) refreshDatasets();
     if (TERMINAL.has(run.state)) {
       closeEvents();
-      if (!prev || prev.state !== run.state) refreshDatasets();
     } else {
       openEvents();
     }
