@@ -10,7 +10,9 @@
 #   ST_SEED (default 6): the random seed, so a failure can be replayed
 #
 # Installs schemathesis (pinned below) into the venv target/pydeps/schemathesis when it is
-# missing or another version. Reports: target/api/ (JUnit XML, server log).
+# missing or another version. Reports: target/api/ (JUnit XML, server log, failure cache:
+# replay a failure with `ST_CACHE_DIR=target/api/cache target/pydeps/schemathesis/bin/st
+# --config-file tests/api/schemathesis.toml replay ID`).
 #
 # State: before Schemathesis, tests/api/rig.py starts plan demo into dataset st-seed (run r1)
 # and pauses it; tests/api/schemathesis.toml mixes those identifiers into the generated path
@@ -74,7 +76,7 @@ python3 "$here/rig.py" seed "$url"
 
 # ---- the run ----
 status=0
-"$venv/bin/st" --config-file "$here/schemathesis.toml" --no-color run "$url/api/v1/openapi.json" \
+ST_CACHE_DIR="$out/cache" "$venv/bin/st" --config-file "$here/schemathesis.toml" --no-color run "$url/api/v1/openapi.json" \
     --header "Authorization: Bearer admin-token" \
     --checks not_a_server_error,status_code_conformance,content_type_conformance,response_schema_conformance \
     --max-examples "${ST_MAX_EXAMPLES:-40}" \
