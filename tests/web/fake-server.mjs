@@ -160,7 +160,7 @@ const server = http.createServer(async (req, res) => {
   if (req.method === "GET" && route === "/plans") return send(res, 200, { plans: PLANS });
   if (req.method === "POST" && (route === "/plans/validate" || route === "/plans/dry-run")) {
     const b = await body(req);
-    const plan = b && PLANS.find((x) => x.name === b.plan);
+    const plan = b && (b.plan_text ? { captures: 60 } : PLANS.find((x) => x.name === b.plan));
     if (!plan) return send(res, 200, { valid: false, captures: 0, estimate_s: null, errors: ["no such plan"] });
     return send(res, 200, { valid: true, captures: plan.captures, estimate_s: plan.captures * 0.4, errors: [] });
   }
@@ -168,7 +168,8 @@ const server = http.createServer(async (req, res) => {
   if (req.method === "POST" && route === "/runs") {
     if (!need("operator")) return;
     const b = await body(req);
-    const plan = b && PLANS.find((x) => x.name === b.plan);
+    const plan = b && (b.plan_text ? { name: (/^name = "(.*)"/m.exec(b.plan_text) || [])[1] || "file", captures: 60 }
+      : PLANS.find((x) => x.name === b.plan));
     if (!plan) return problem(res, 422, "Unknown plan", `there is no plan named ${JSON.stringify(b && b.plan)}`);
     if (current) return problem(res, 409, "The rig is busy", `run ${current.id} of ${current.owner} holds the rig`);
     const id = `run-${runs.length + 1}`;

@@ -7,7 +7,9 @@
 //    plans load, plan "demo" is chosen, Start; the progress bar advances at least twice and
 //    the preview image changes (new blob, different bytes) at least once;
 // 3. Pause: the state shows "paused", Pause is disabled and Resume enabled; screenshot;
-// 4. Abort (two clicks: the page asks for a confirmation): the state shows "aborted".
+// 4. Abort (two clicks: the page asks for a confirmation): the state shows "aborted";
+// 5. a plan file (demo.toml with the simulator's "flaky" faults) through the file field:
+//    the dry run says valid, Start runs it (plan_text), a warning appears in the list, Abort.
 import { createRequire } from "node:module";
 import fs from "node:fs";
 import os from "node:os";
@@ -25,6 +27,7 @@ if (!webdeps) {
 }
 const { chromium } = createRequire(path.join(webdeps, "package.json"))("playwright-core");
 
+const repo = path.resolve(path.dirname(new URL(import.meta.url).pathname), "..", "..");
 const TIMEOUT_MS = Number(process.env.BTFRIG_WEB_TIMEOUT_MS || 120000);
 let failures = 0;
 let passes = 0;
@@ -174,6 +177,37 @@ try {
     aborted = true;
   } catch (_) { /* reported below */ }
   check(aborted, "state shows aborted", await text(page, "#run-state"));
+
+  // ---- 5. a plan file (plan_text) with the simulator's "flaky" faults: warnings listed ----
+  const demo = fs.readFileSync(path.join(repo, "rig-configs/plans/demo.toml"), "utf8");
+  const flaky = demo.replace(/^name = .*$/m, 'name = "demo-flaky"').replace(/^fault_scenario = .*$/m, 'fault_scenario = "flaky"');
+  check(flaky.includes('fault_scenario = "flaky"'), "flaky variant of demo.toml made");
+  await page.setInputFiles("#plan-file", { name: "demo-flaky.toml", mimeType: "text/plain", buffer: Buffer.from(flaky) });
+  await page.locator("#plan-file-clear:not([hidden])").waitFor({ timeout: 5000 });
+  await page.click("#dry-run");
+  await page.waitForFunction(() => /^(valid|invalid)/.test(document.getElementById("plan-info").textContent), null, { timeout: 30000 });
+  const info = await text(page, "#plan-info");
+  check(info.startsWith("valid"), `dry run of the plan file: ${info}`);
+  await page.locator("#start:not([disabled])").waitFor({ timeout: 20000 });
+  await page.click("#start");
+  await page.waitForFunction(() => document.getElementById("run-plan").textContent === "demo-flaky", null, { timeout: 20000 });
+  let warned = false;
+  try {
+    await page.locator("#warnings li:not(.empty)").first().waitFor({ timeout: TIMEOUT_MS });
+    warned = true;
+  } catch (_) { /* reported below */ }
+  check(warned, "a warning of the flaky run is listed", await text(page, "#warnings"));
+  if (warned) console.log(`# first warning: ${(await text(page, "#warnings li:not(.empty)")).split("\n")[0]}`);
+  await page.screenshot({ path: shot.replace(/\.png$/, "-warnings.png"), fullPage: true });
+  await page.locator("#abort:not([disabled])").waitFor({ timeout: 10000 });
+  await page.click("#abort");
+  await page.click("#abort");
+  let aborted2 = false;
+  try {
+    await page.waitForFunction(() => document.getElementById("run-state").textContent === "aborted", null, { timeout: 30000 });
+    aborted2 = true;
+  } catch (_) { /* reported below */ }
+  check(aborted2, "flaky run aborted", await text(page, "#run-state"));
 } catch (e) {
   check(false, "browser test ran to the end", e.stack || String(e));
   if (page) await page.screenshot({ path: shot.replace(/\.png$/, "-failure.png"), fullPage: true }).catch(() => {});

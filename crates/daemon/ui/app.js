@@ -23,7 +23,8 @@
     token: $("token"), tokenForm: $("token-form"), connection: $("connection"),
     error: $("error"), errorText: $("error-text"), errorClose: $("error-close"),
     rigName: $("rig-name"), rigKind: $("rig-kind"),
-    plan: $("plan"), dataset: $("dataset"), planInfo: $("plan-info"),
+    plan: $("plan"), planFile: $("plan-file"), planFileClear: $("plan-file-clear"),
+    dataset: $("dataset"), planInfo: $("plan-info"),
     dryRun: $("dry-run"), start: $("start"), pause: $("pause"), resume: $("resume"), abort: $("abort"),
     runState: $("run-state"), runId: $("run-id"), runOwner: $("run-owner"), runPlan: $("run-plan"),
     runDataset: $("run-dataset"), progress: $("progress"), progressText: $("progress-text"),
@@ -36,6 +37,7 @@
   const state = {
     token: "",
     plans: [],
+    planFile: null,     // {name, text} of a plan file chosen instead of a named plan
     rig: null,          // last GET /rig
     run: null,          // last RunStatus of the current run
     runId: null,
@@ -212,16 +214,50 @@
   }
 
   function showPlanInfo() {
+    if (state.planFile) {
+      ui.planInfo.textContent = `plan file ${state.planFile.name} (${state.planFile.text.length} bytes): Dry run checks it`;
+      return;
+    }
     const p = state.plans.find((x) => x.name === ui.plan.value);
     ui.planInfo.textContent = p ? `${p.description || ""}` : "";
   }
 
+  // What to run: the chosen file's text, else the selected named plan.
+  function planBody() {
+    if (state.planFile) return { plan_text: state.planFile.text };
+    return ui.plan.value ? { plan: ui.plan.value } : null;
+  }
+
+  async function choosePlanFile() {
+    const f = ui.planFile.files && ui.planFile.files[0];
+    if (!f) return clearPlanFile();
+    if (f.size > 1024 * 1024) {
+      showError(new Error(`${f.name} is ${f.size} bytes; a plan file is a small TOML file`));
+      return clearPlanFile();
+    }
+    state.planFile = { name: f.name, text: await f.text() };
+    ui.plan.disabled = true;
+    ui.planFileClear.hidden = false;
+    showPlanInfo();
+    updateButtons();
+  }
+
+  function clearPlanFile() {
+    state.planFile = null;
+    ui.planFile.value = "";
+    ui.plan.disabled = false;
+    ui.planFileClear.hidden = true;
+    showPlanInfo();
+    updateButtons();
+  }
+
   async function dryRun() {
-    if (!ui.plan.value) return;
+    const body = planBody();
+    if (!body) return;
     clearError();
     ui.planInfo.textContent = "checking…";
     try {
-      const r = await api("POST", "/plans/dry-run", { plan: ui.plan.value });
+      const r = await api("POST", "/plans/dry-run", body);
       if (r.valid) {
         const est = r.estimate_s === null || r.estimate_s === undefined ? "no estimate" : `about ${fmtDuration(r.estimate_s)}`;
         ui.planInfo.textContent = `valid: ${r.captures} captures, ${est}`;
@@ -388,15 +424,18 @@
 
   function addWarning(text) {
     text = String(text);
-    const key = `${state.runId || ""}\u0000${text}`;
+    const run = state.runId || "";
+    const key = `${run}\u0000${text}`;
     if (state.warningSeen.has(key)) return;
     state.warningSeen.add(key);
-    state.warnings.unshift({ text, at: new Date() });
+    state.warnings.unshift({ text, run, at: new Date() });
     state.warnings.length = Math.min(state.warnings.length, MAX_WARNINGS);
     ui.warnings.replaceChildren();
     for (const w of state.warnings) {
       const li = el("li");
-      li.append(el("time", w.at.toLocaleTimeString(), "muted"), document.createTextNode(" " + w.text));
+      li.append(el("time", w.at.toLocaleTimeString(), "muted"), " ");
+      if (w.run) li.append(el("span", w.run, "run"), " ");
+      li.append(w.text);
       ui.warnings.append(li);
     }
   }
@@ -461,8 +500,9 @@
     const busy = !!(state.rig && state.rig.busy) || isActive(run);
     const s = run ? run.state : null;
     const working = state.inFlight > 0;
-    ui.start.disabled = working || busy || !ui.plan.value;
-    ui.dryRun.disabled = working || !ui.plan.value;
+    const plan = !!(state.planFile || ui.plan.value);
+    ui.start.disabled = working || busy || !plan;
+    ui.dryRun.disabled = working || !plan;
     ui.pause.disabled = working || !(s === "running" || s === "starting");
     ui.resume.disabled = working || s !== "paused";
     ui.abort.disabled = working || !(s === "running" || s === "starting" || s === "paused");
@@ -484,7 +524,8 @@
   }
 
   async function start() {
-    const body = { plan: ui.plan.value };
+    const body = planBody();
+    if (!body) return;
     const ds = ui.dataset.value.trim();
     if (ds) body.dataset = ds;
     const run = await api("POST", "/runs", body);
@@ -569,6 +610,8 @@
   ui.tokenForm.addEventListener("submit", useToken);
   ui.errorClose.addEventListener("click", clearError);
   ui.plan.addEventListener("change", () => { showPlanInfo(); updateButtons(); });
+  ui.planFile.addEventListener("change", () => { choosePlanFile().catch(showError); });
+  ui.planFileClear.addEventListener("click", clearPlanFile);
   ui.dryRun.addEventListener("click", () => action(dryRun));
   ui.start.addEventListener("click", () => action(start));
   ui.pause.addEventListener("click", () => action(() => control("pause")));
