@@ -407,7 +407,7 @@
       state.previewSeq = isFinite(seq) ? seq : state.run ? state.run.preview_seq : null;
       ui.preview.src = url;
       ui.preview.dataset.seq = String(state.previewSeq);
-      ui.previewCaption.textContent = `capture #${state.previewSeq}, ${new Date().toLocaleTimeString()}`;
+      ui.previewCaption.textContent = `preview #${state.previewSeq}, ${new Date().toLocaleTimeString()}`;
       if (old) setTimeout(() => URL.revokeObjectURL(old), 2000);
     } catch (e) {
       if (e.status !== 0) showError(e);
