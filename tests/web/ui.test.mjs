@@ -2,6 +2,7 @@
 // usage: node tests/web/ui.test.mjs BASE_URL SCREENSHOT.png   (tests/web/run.sh starts the
 // daemon, installs what is missing and calls this). Exit 0: every check passed.
 //
+// 0. without a token: the page shows the daemon's 401 message;
 // 1. as a viewer: Start is refused, the page shows the problem+json message (403);
 // 2. as an operator (#token=operator-token): the token leaves the address bar, devices and
 //    plans load, plan "demo" is chosen, Start; the progress bar advances at least twice and
@@ -66,6 +67,15 @@ async function newPage(label) {
 
 let page;
 try {
+  // ---- 0. no token: the page says so (401) and asks for one ----
+  const anon = await newPage("anonymous");
+  await anon.goto(`${base}/`);
+  await anon.locator('#connection[data-state="denied"]').waitFor({ timeout: 20000 });
+  await anon.locator("#error:not([hidden])").waitFor({ timeout: 10000 });
+  console.log(`# without a token: ${await text(anon, "#error-text")}`);
+  check(true, "without a token the page shows the 401 and 'token missing or rejected'");
+  await anon.close();
+
   // ---- 1. a viewer cannot start a run, and is told why ----
   const viewer = await newPage("viewer");
   await viewer.goto(`${base}/#token=viewer-token`);
