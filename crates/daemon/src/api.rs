@@ -268,6 +268,50 @@ pub struct Stopped {
     pub run_id: Option<String>,
 }
 
+// Response sets shared by many operations (every error is a problem document).
+
+/// 401 and 403.
+#[derive(utoipa::IntoResponses)]
+#[allow(dead_code)]
+pub enum AuthErrors {
+    /// No or unknown token.
+    #[response(status = 401, description = "No or unknown token", content_type = "application/problem+json")]
+    Unauthorized(Problem),
+    /// Role too low (or another operator's run).
+    #[response(status = 403, description = "Role too low, or another operator's run", content_type = "application/problem+json")]
+    Forbidden(Problem),
+}
+
+/// What a JSON body can be refused with.
+#[derive(utoipa::IntoResponses)]
+#[allow(dead_code)]
+pub enum BodyErrors {
+    /// Not JSON.
+    #[response(status = 400, description = "Malformed JSON", content_type = "application/problem+json")]
+    Malformed(Problem),
+    /// Over the limit.
+    #[response(status = 413, description = "Body too large", content_type = "application/problem+json")]
+    TooLarge(Problem),
+    /// No JSON content type.
+    #[response(status = 415, description = "Not application/json", content_type = "application/problem+json")]
+    NotJson(Problem),
+    /// Does not fit the schema (or, on start, an unacceptable plan or dataset name).
+    #[response(status = 422, description = "Does not fit the schema, or the plan or dataset name is not acceptable", content_type = "application/problem+json")]
+    Unprocessable(Problem),
+}
+
+/// A path parameter that does not parse, or names nothing.
+#[derive(utoipa::IntoResponses)]
+#[allow(dead_code)]
+pub enum PathErrors {
+    /// Bad path.
+    #[response(status = 400, description = "Bad path", content_type = "application/problem+json")]
+    BadPath(Problem),
+    /// Nothing there.
+    #[response(status = 404, description = "No such resource", content_type = "application/problem+json")]
+    NotFound(Problem),
+}
+
 // ---- OpenAPI ----------------------------------------------------------------------------
 
 #[derive(OpenApi)]
@@ -312,8 +356,7 @@ pub async fn healthz() -> Json<Health> {
 
 #[utoipa::path(get, path = "/api/v1/rig", tag = "rig", security(("bearer" = [])),
     responses((status = 200, description = "The rig and its devices", body = RigStatus),
-        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
-        (status = 403, description = "Role too low", body = Problem, content_type = "application/problem+json")))]
+        AuthErrors))]
 /// The rig, its devices and who holds it.
 pub async fn rig_status(State(s): Shared, _v: Viewer) -> Json<RigStatus> {
     Json(s.rig_status())
@@ -321,8 +364,7 @@ pub async fn rig_status(State(s): Shared, _v: Viewer) -> Json<RigStatus> {
 
 #[utoipa::path(post, path = "/api/v1/rig/stop", tag = "rig", security(("bearer" = [])),
     responses((status = 200, description = "The current run (if any) is asked to stop after the step under way", body = Stopped),
-        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
-        (status = 403, description = "Needs role admin", body = Problem, content_type = "application/problem+json")))]
+        AuthErrors))]
 /// Stops the rig: aborts whatever run holds it, whoever owns it (admin).
 pub async fn rig_stop(State(s): Shared, _a: Admin) -> Json<Stopped> {
     let run_id = s.runs.current().and_then(|r| r.control(Control::Abort).ok().map(|st| st.id));
@@ -331,8 +373,7 @@ pub async fn rig_stop(State(s): Shared, _a: Admin) -> Json<Stopped> {
 
 #[utoipa::path(get, path = "/api/v1/plans", tag = "plans", security(("bearer" = [])),
     responses((status = 200, description = "Plans by name", body = PlanList),
-        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
-        (status = 403, description = "Role too low", body = Problem, content_type = "application/problem+json")))]
+        AuthErrors))]
 /// The plans the daemon offers by name.
 pub async fn list_plans(State(s): Shared, _v: Viewer) -> Json<PlanList> {
     Json(PlanList {
@@ -346,12 +387,8 @@ pub async fn list_plans(State(s): Shared, _v: Viewer) -> Json<PlanList> {
 
 #[utoipa::path(post, path = "/api/v1/plans/validate", tag = "plans", security(("bearer" = [])), request_body = PlanBody,
     responses((status = 200, description = "Whether the plan is valid, with every problem", body = PlanCheck),
-        (status = 400, description = "Malformed body", body = Problem, content_type = "application/problem+json"),
-        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
-        (status = 403, description = "Role too low", body = Problem, content_type = "application/problem+json"),
-        (status = 413, description = "Body too large", body = Problem, content_type = "application/problem+json"),
-        (status = 415, description = "Not JSON", body = Problem, content_type = "application/problem+json"),
-        (status = 422, description = "Body does not fit the schema", body = Problem, content_type = "application/problem+json")))]
+        AuthErrors,
+        BodyErrors))]
 /// Validates a plan against this rig.
 pub async fn validate_plan(State(s): Shared, _v: Viewer, ApiJson(b): ApiJson<PlanBody>) -> Json<PlanCheck> {
     Json(s.check_plan(b, false).await)
@@ -359,12 +396,8 @@ pub async fn validate_plan(State(s): Shared, _v: Viewer, ApiJson(b): ApiJson<Pla
 
 #[utoipa::path(post, path = "/api/v1/plans/dry-run", tag = "plans", security(("bearer" = [])), request_body = PlanBody,
     responses((status = 200, description = "The dry run: captures, time and disk estimates", body = PlanCheck),
-        (status = 400, description = "Malformed body", body = Problem, content_type = "application/problem+json"),
-        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
-        (status = 403, description = "Role too low", body = Problem, content_type = "application/problem+json"),
-        (status = 413, description = "Body too large", body = Problem, content_type = "application/problem+json"),
-        (status = 415, description = "Not JSON", body = Problem, content_type = "application/problem+json"),
-        (status = 422, description = "Body does not fit the schema", body = Problem, content_type = "application/problem+json")))]
+        AuthErrors,
+        BodyErrors))]
 /// Validates and plans a plan: what `btfrig plan show` prints.
 pub async fn dry_run_plan(State(s): Shared, _v: Viewer, ApiJson(b): ApiJson<PlanBody>) -> Json<PlanCheck> {
     Json(s.check_plan(b, true).await)
@@ -372,14 +405,10 @@ pub async fn dry_run_plan(State(s): Shared, _v: Viewer, ApiJson(b): ApiJson<Plan
 
 #[utoipa::path(post, path = "/api/v1/runs", tag = "runs", security(("bearer" = [])), request_body = StartRun,
     responses((status = 201, description = "Started", body = RunStatus),
-        (status = 400, description = "Malformed body", body = Problem, content_type = "application/problem+json"),
-        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
-        (status = 403, description = "Needs role operator", body = Problem, content_type = "application/problem+json"),
+        AuthErrors,
         (status = 404, description = "No plan of that name", body = Problem, content_type = "application/problem+json"),
         (status = 409, description = "The rig is held (the detail says by whom), or the dataset holds another plan", body = Problem, content_type = "application/problem+json"),
-        (status = 413, description = "Body too large", body = Problem, content_type = "application/problem+json"),
-        (status = 415, description = "Not JSON", body = Problem, content_type = "application/problem+json"),
-        (status = 422, description = "The plan or dataset name is not acceptable", body = Problem, content_type = "application/problem+json")))]
+        BodyErrors))]
 /// Starts a run of a plan (or resumes the same plan's dataset).
 pub async fn start_run(State(s): Shared, Operator(c): Operator, ApiJson(b): ApiJson<StartRun>) -> Result<Response, Problem> {
     let (plan_text, plan_path, given_name) = s.plan_source(b.plan, b.plan_text)?;
@@ -421,8 +450,7 @@ pub async fn start_run(State(s): Shared, Operator(c): Operator, ApiJson(b): ApiJ
 
 #[utoipa::path(get, path = "/api/v1/runs", tag = "runs", security(("bearer" = [])),
     responses((status = 200, description = "Every run of this daemon", body = RunList),
-        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
-        (status = 403, description = "Role too low", body = Problem, content_type = "application/problem+json")))]
+        AuthErrors))]
 /// Every run of this daemon, oldest first.
 pub async fn list_runs(State(s): Shared, _v: Viewer) -> Json<RunList> {
     Json(RunList { runs: s.runs.all().iter().map(|r| r.status()).collect() })
@@ -431,10 +459,8 @@ pub async fn list_runs(State(s): Shared, _v: Viewer) -> Json<RunList> {
 #[utoipa::path(get, path = "/api/v1/runs/{id}", tag = "runs", security(("bearer" = [])),
     params(("id" = String, Path, description = "Run id, or `current`")),
     responses((status = 200, description = "Status with progress and ETA", body = RunStatus),
-        (status = 400, description = "Bad path", body = Problem, content_type = "application/problem+json"),
-        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
-        (status = 403, description = "Role too low", body = Problem, content_type = "application/problem+json"),
-        (status = 404, description = "No such run", body = Problem, content_type = "application/problem+json")))]
+        AuthErrors,
+        PathErrors))]
 /// A run's status (`current`: the run holding the rig, else the latest).
 pub async fn get_run(State(s): Shared, _v: Viewer, ApiPath(id): ApiPath<String>) -> Result<Json<RunStatus>, Problem> {
     Ok(Json(s.run(&id)?.status()))
@@ -456,10 +482,8 @@ async fn control(s: &AppState, c: &Caller, id: &str, what: Control) -> Result<Js
 #[utoipa::path(post, path = "/api/v1/runs/{id}/pause", tag = "runs", security(("bearer" = [])),
     params(("id" = String, Path, description = "Run id, or `current`")),
     responses((status = 200, description = "Pausing after the step under way", body = RunStatus),
-        (status = 400, description = "Bad path", body = Problem, content_type = "application/problem+json"),
-        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
-        (status = 403, description = "Needs role operator, and the run's owner or an admin", body = Problem, content_type = "application/problem+json"),
-        (status = 404, description = "No such run", body = Problem, content_type = "application/problem+json"),
+        AuthErrors,
+        PathErrors,
         (status = 409, description = "The run's state does not allow it", body = Problem, content_type = "application/problem+json")))]
 /// Pauses a run after the step under way.
 pub async fn pause_run(State(s): Shared, Operator(c): Operator, ApiPath(id): ApiPath<String>) -> Result<Json<RunStatus>, Problem> {
@@ -469,10 +493,8 @@ pub async fn pause_run(State(s): Shared, Operator(c): Operator, ApiPath(id): Api
 #[utoipa::path(post, path = "/api/v1/runs/{id}/resume", tag = "runs", security(("bearer" = [])),
     params(("id" = String, Path, description = "Run id, or `current`")),
     responses((status = 200, description = "Resuming (a failed step is tried again)", body = RunStatus),
-        (status = 400, description = "Bad path", body = Problem, content_type = "application/problem+json"),
-        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
-        (status = 403, description = "Needs role operator, and the run's owner or an admin", body = Problem, content_type = "application/problem+json"),
-        (status = 404, description = "No such run", body = Problem, content_type = "application/problem+json"),
+        AuthErrors,
+        PathErrors,
         (status = 409, description = "The run is not paused", body = Problem, content_type = "application/problem+json")))]
 /// Resumes a paused run.
 pub async fn resume_run(State(s): Shared, Operator(c): Operator, ApiPath(id): ApiPath<String>) -> Result<Json<RunStatus>, Problem> {
@@ -482,10 +504,8 @@ pub async fn resume_run(State(s): Shared, Operator(c): Operator, ApiPath(id): Ap
 #[utoipa::path(post, path = "/api/v1/runs/{id}/abort", tag = "runs", security(("bearer" = [])),
     params(("id" = String, Path, description = "Run id, or `current`")),
     responses((status = 200, description = "Ending after the step under way; the dataset stays resumable", body = RunStatus),
-        (status = 400, description = "Bad path", body = Problem, content_type = "application/problem+json"),
-        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
-        (status = 403, description = "Needs role operator, and the run's owner or an admin", body = Problem, content_type = "application/problem+json"),
-        (status = 404, description = "No such run", body = Problem, content_type = "application/problem+json"),
+        AuthErrors,
+        PathErrors,
         (status = 409, description = "The run is over or already stopping", body = Problem, content_type = "application/problem+json")))]
 /// Aborts a run after the step under way.
 pub async fn abort_run(State(s): Shared, Operator(c): Operator, ApiPath(id): ApiPath<String>) -> Result<Json<RunStatus>, Problem> {
@@ -495,10 +515,8 @@ pub async fn abort_run(State(s): Shared, Operator(c): Operator, ApiPath(id): Api
 #[utoipa::path(get, path = "/api/v1/runs/{id}/events", tag = "runs", security(("bearer" = [])),
     params(("id" = String, Path, description = "Run id, or `current`")),
     responses((status = 200, description = "Server-Sent Events: `status` (RunStatus), `warning` ({message}), `end` (RunStatus); the first event is the current status", content_type = "text/event-stream", body = String),
-        (status = 400, description = "Bad path", body = Problem, content_type = "application/problem+json"),
-        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
-        (status = 403, description = "Role too low", body = Problem, content_type = "application/problem+json"),
-        (status = 404, description = "No such run", body = Problem, content_type = "application/problem+json")))]
+        AuthErrors,
+        PathErrors))]
 /// The run's progress as Server-Sent Events, until it ends.
 pub async fn run_events(State(s): Shared, _v: Viewer, ApiPath(id): ApiPath<String>) -> Result<Response, Problem> {
     let run = s.run(&id)?;
@@ -537,8 +555,7 @@ pub async fn run_events(State(s): Shared, _v: Viewer, ApiPath(id): ApiPath<Strin
 
 #[utoipa::path(get, path = "/api/v1/preview", tag = "runs", security(("bearer" = [])),
     responses((status = 200, description = "8-bit sRGB PNG of the latest processed capture; header X-Preview-Seq counts previews", content_type = "image/png", body = Vec<u8>),
-        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
-        (status = 403, description = "Role too low", body = Problem, content_type = "application/problem+json"),
+        AuthErrors,
         (status = 404, description = "No preview yet", body = Problem, content_type = "application/problem+json")))]
 /// The latest preview frame of the current (or latest) run.
 pub async fn preview(State(s): Shared, _v: Viewer) -> Result<Response, Problem> {
@@ -555,8 +572,7 @@ pub async fn preview(State(s): Shared, _v: Viewer) -> Result<Response, Problem> 
 
 #[utoipa::path(get, path = "/api/v1/datasets", tag = "datasets", security(("bearer" = [])),
     responses((status = 200, description = "Datasets under the data directory", body = DatasetList),
-        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
-        (status = 403, description = "Role too low", body = Problem, content_type = "application/problem+json")))]
+        AuthErrors))]
 /// The datasets under the data directory.
 pub async fn list_datasets(State(s): Shared, _v: Viewer) -> Result<Json<DatasetList>, Problem> {
     let st = s.clone();
@@ -569,10 +585,8 @@ pub async fn list_datasets(State(s): Shared, _v: Viewer) -> Result<Json<DatasetL
 #[utoipa::path(get, path = "/api/v1/datasets/{name}", tag = "datasets", security(("bearer" = [])),
     params(("name" = String, Path, description = "Dataset name")),
     responses((status = 200, description = "The dataset's manifest (docs/dataset-format.md)", body = Object),
-        (status = 400, description = "Bad path", body = Problem, content_type = "application/problem+json"),
-        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
-        (status = 403, description = "Role too low", body = Problem, content_type = "application/problem+json"),
-        (status = 404, description = "No such dataset", body = Problem, content_type = "application/problem+json")))]
+        AuthErrors,
+        PathErrors))]
 /// A dataset's manifest.
 pub async fn get_dataset(State(s): Shared, _v: Viewer, ApiPath(name): ApiPath<String>) -> Result<Response, Problem> {
     let file = s.dataset_file(&name, btfrig_store::MANIFEST_FILE)?;
@@ -584,8 +598,7 @@ pub async fn get_dataset(State(s): Shared, _v: Viewer, ApiPath(name): ApiPath<St
     params(("name" = String, Path, description = "Dataset name"), ("path" = String, Path, description = "File path inside the dataset, e.g. textures/l0000_v0000.exr")),
     responses((status = 200, description = "The file", content_type = "application/octet-stream", body = Vec<u8>),
         (status = 400, description = "Bad path (absolute, `..`, or outside the dataset)", body = Problem, content_type = "application/problem+json"),
-        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
-        (status = 403, description = "Role too low", body = Problem, content_type = "application/problem+json"),
+        AuthErrors,
         (status = 404, description = "No such file", body = Problem, content_type = "application/problem+json")))]
 /// One file of a dataset; nothing outside the data directory is reachable.
 pub async fn get_dataset_file(
@@ -611,13 +624,9 @@ fn content_type(p: &Path) -> &'static str {
 
 #[utoipa::path(post, path = "/api/v1/calibrations", tag = "calibrations", security(("bearer" = [])), request_body = StartCalibration,
     responses((status = 202, description = "Started; poll GET /api/v1/calibrations/{id}", body = Calibration),
-        (status = 400, description = "Malformed body", body = Problem, content_type = "application/problem+json"),
-        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
-        (status = 403, description = "Needs role admin", body = Problem, content_type = "application/problem+json"),
+        AuthErrors,
         (status = 409, description = "The rig is held", body = Problem, content_type = "application/problem+json"),
-        (status = 413, description = "Body too large", body = Problem, content_type = "application/problem+json"),
-        (status = 415, description = "Not JSON", body = Problem, content_type = "application/problem+json"),
-        (status = 422, description = "Unknown kind", body = Problem, content_type = "application/problem+json")))]
+        BodyErrors))]
 /// Starts a calibration on the rig (admin).
 pub async fn start_calibration(
     State(s): Shared,
@@ -630,8 +639,7 @@ pub async fn start_calibration(
 
 #[utoipa::path(get, path = "/api/v1/calibrations", tag = "calibrations", security(("bearer" = [])),
     responses((status = 200, description = "Every calibration of this daemon", body = CalibrationList),
-        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
-        (status = 403, description = "Role too low", body = Problem, content_type = "application/problem+json")))]
+        AuthErrors))]
 /// Every calibration of this daemon.
 pub async fn list_calibrations(State(s): Shared, _v: Viewer) -> Json<CalibrationList> {
     Json(CalibrationList { calibrations: s.calibrations.all() })
@@ -640,10 +648,8 @@ pub async fn list_calibrations(State(s): Shared, _v: Viewer) -> Json<Calibration
 #[utoipa::path(get, path = "/api/v1/calibrations/{id}", tag = "calibrations", security(("bearer" = [])),
     params(("id" = String, Path, description = "Calibration id")),
     responses((status = 200, description = "State and result", body = Calibration),
-        (status = 400, description = "Bad path", body = Problem, content_type = "application/problem+json"),
-        (status = 401, description = "No or unknown token", body = Problem, content_type = "application/problem+json"),
-        (status = 403, description = "Role too low", body = Problem, content_type = "application/problem+json"),
-        (status = 404, description = "No such calibration", body = Problem, content_type = "application/problem+json")))]
+        AuthErrors,
+        PathErrors))]
 /// A calibration's state and result.
 pub async fn get_calibration(State(s): Shared, _v: Viewer, ApiPath(id): ApiPath<String>) -> Result<Json<Calibration>, Problem> {
     s.calibrations.get(&id).map(Json).ok_or_else(|| Problem::not_found(format!("no calibration {id:?}")))
