@@ -310,7 +310,7 @@ impl AppState {
     }
 
     fn datasets(&self) -> Vec<DatasetEntry> {
-        let current = self.runs.current().map(|r| r.status().dataset);
+        let current = self.runs.current().map(|r| r.status());
         let mut out = Vec::new();
         let Ok(dir) = std::fs::read_dir(&self.data) else { return out };
         for e in dir.flatten() {
@@ -331,8 +331,10 @@ impl AppState {
                 ),
                 None => ("incomplete".into(), 0),
             };
-            if current.as_deref() == Some(name.as_str()) {
+            let mut captures = captures;
+            if let Some(c) = current.as_ref().filter(|c| c.dataset == name) {
                 state = "running".into();
+                captures = c.done;
             }
             out.push(DatasetEntry { name, state, captures, plan });
         }
