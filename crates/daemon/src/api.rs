@@ -186,6 +186,7 @@ pub struct StartRun {
     pub plan_text: Option<String>,
     /// The dataset's name under the data directory (letters, digits, `.`, `_`, `-`; at most
     /// 64). An existing dataset of the same plan is resumed; default: a new name.
+    #[schema(pattern = "^[A-Za-z0-9_-][A-Za-z0-9._-]{0,63}$")]
     pub dataset: Option<String>,
 }
 
@@ -222,6 +223,7 @@ pub struct DatasetEntry {
 #[serde(deny_unknown_fields)]
 pub struct StartCalibration {
     /// `color` (ColorChecker and SG charts on the rig; docs/color.md).
+    #[schema(example = "color")]
     pub kind: String,
     /// Seed of the simulated rig; default the rig config's.
     pub seed: Option<u64>,
@@ -318,7 +320,7 @@ pub enum PathErrors {
 #[openapi(
     info(title = "btfrig daemon", description = "Controls a BTF measurement rig: runs, events, previews, datasets, calibrations. docs/http-api.md."),
     paths(
-        healthz, rig_status, rig_stop, list_plans, validate_plan, dry_run_plan, start_run, list_runs, get_run,
+        healthz, me, rig_status, rig_stop, list_plans, validate_plan, dry_run_plan, start_run, list_runs, get_run,
         pause_run, resume_run, abort_run, run_events, preview, list_datasets, get_dataset, get_dataset_file,
         start_calibration, list_calibrations, get_calibration
     ),
@@ -338,12 +340,53 @@ impl utoipa::Modify for BearerScheme {
     }
 }
 
+/// The served document: [`ApiDoc`] with the bodies utoipa cannot describe — the event
+/// stream (an event name and JSON data per event) and files of any type.
+pub fn document() -> serde_json::Value {
+    let mut doc = serde_json::to_value(ApiDoc::openapi()).unwrap_or_default();
+    let paths = &mut doc["paths"];
+    paths["/api/v1/runs/{id}/events"]["get"]["responses"]["200"]["content"]["text/event-stream"]["schema"] = serde_json::json!({
+        "type": "object",
+        "required": ["event", "data"],
+        "properties": {
+            "event": { "type": "string", "enum": ["status", "warning", "end"] },
+            "data": { "type": "string", "contentMediaType": "application/json" }
+        },
+        "oneOf": [
+            { "properties": { "event": { "enum": ["status", "end"] },
+                "data": { "contentMediaType": "application/json", "contentSchema": { "$ref": "#/components/schemas/RunStatus" } } } },
+            { "properties": { "event": { "const": "warning" },
+                "data": { "contentMediaType": "application/json",
+                    "contentSchema": { "type": "object", "required": ["message"], "properties": { "message": { "type": "string" } } } } } }
+        ]
+    });
+    // A dataset file is JSON, PNG, EXR, TOML or the journal: its type follows its name.
+    paths["/api/v1/datasets/{name}/files/{path}"]["get"]["responses"]["200"]["content"] = serde_json::json!({ "*/*": {} });
+    paths["/api/v1/preview"]["get"]["responses"]["200"]["content"] = serde_json::json!({ "image/png": {} });
+    doc
+}
+
 /// `GET /api/v1/openapi.json`.
 pub async fn openapi() -> Response {
-    match ApiDoc::openapi().to_json() {
-        Ok(s) => ([(header::CONTENT_TYPE, "application/json")], s).into_response(),
-        Err(e) => Problem::internal(format!("cannot serialise the OpenAPI document: {e}")).into_response(),
-    }
+    static DOC: std::sync::OnceLock<String> = std::sync::OnceLock::new();
+    let text = DOC.get_or_init(|| document().to_string());
+    ([(header::CONTENT_TYPE, "application/json")], text.clone()).into_response()
+}
+
+/// Who the token is.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct Me {
+    /// The token's name.
+    pub name: String,
+    /// Its role.
+    pub role: Role,
+}
+
+#[utoipa::path(get, path = "/api/v1/me", tag = "daemon", security(("bearer" = [])),
+    responses((status = 200, description = "The caller's name and role", body = Me), AuthErrors))]
+/// The caller's name and role (a page greys out what the role may not do).
+pub async fn me(_s: Shared, Viewer(c): Viewer) -> Json<Me> {
+    Json(Me { name: c.name, role: c.role })
 }
 
 // ---- handlers ---------------------------------------------------------------------------
@@ -663,7 +706,8 @@ pub async fn metrics(State(s): Shared) -> Response {
     ([(header::CONTENT_TYPE, "text/plain; version=0.0.4")], text).into_response()
 }
 
-fn state_name(s: RunState) -> &'static str {
+/// The state as the API spells it.
+pub fn state_name(s: RunState) -> &'static str {
     match s {
         RunState::Starting => "starting",
         RunState::Running => "running",

@@ -333,7 +333,7 @@ impl AppState {
             };
             let mut captures = captures;
             if let Some(c) = current.as_ref().filter(|c| c.dataset == name) {
-                state = "running".into();
+                state = api::state_name(c.state).into();
                 captures = c.done;
             }
             out.push(DatasetEntry { name, state, captures, plan });
@@ -423,6 +423,7 @@ const STYLE_CSS: &str = include_str!("../ui/style.css");
 pub fn router(state: Arc<AppState>) -> Router {
     let api = Router::new()
         .route("/openapi.json", get(api::openapi))
+        .route("/me", get(api::me))
         .route("/rig", get(api::rig_status))
         .route("/rig/stop", post(api::rig_stop))
         .route("/plans", get(api::list_plans))
