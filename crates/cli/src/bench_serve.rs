@@ -48,8 +48,9 @@ pub struct ServeLoadArgs {
     /// Endpoint.
     #[arg(long)]
     pub path: String,
-    /// Sender threads (connections).
-    #[arg(long, default_value_t = 4)]
+    /// Sender threads (connections). One suffices at hundreds per second (each request takes
+    /// well under a millisecond) and costs the machine least.
+    #[arg(long, default_value_t = 1)]
     pub connections: usize,
 }
 
@@ -113,12 +114,28 @@ pub fn bench(a: &BenchServeArgs) -> anyhow::Result<()> {
                 rows.push((loaded, wall, stats));
             }
         }
-        Ok::<_, anyhow::Error>(rows)
+        // CPU per request with no run: the daemon's share and the load process's own.
+        let daemon_pid = daemon.id().to_string();
+        let before = cpu_s(&daemon_pid);
+        let mut child = Command::new(&exe)
+            .args(["bench", "serve-load", "--port", &port.to_string(), "--token", TOKEN])
+            .args(["--rate", &a.rate.to_string(), "--path", &a.path])
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .spawn()?;
+        std::thread::sleep(Duration::from_secs(5));
+        drop(child.stdin.take());
+        let out = child.wait_with_output()?;
+        let idle_load: serde_json::Value = serde_json::from_slice(&out.stdout)?;
+        let daemon_cpu = before.zip(cpu_s(&daemon_pid)).map(|(b, e)| e - b);
+        let n = idle_load["requests"].as_f64().unwrap_or(0.0).max(1.0);
+        let cpu = (daemon_cpu.map(|c| c / n * 1e6), idle_load["cpu_s"].as_f64().map(|c| c / n * 1e6));
+        Ok::<_, anyhow::Error>((rows, cpu))
     })();
     let _ = daemon.kill();
     let _ = daemon.wait();
     let _ = std::fs::remove_dir_all(&dir);
-    let rows = result?;
+    let (rows, (daemon_us, client_us)) = result?;
     let idle: Vec<f64> = rows.iter().filter(|r| !r.0).map(|r| r.1).collect();
     let busy: Vec<f64> = rows.iter().filter(|r| r.0).map(|r| r.1).collect();
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
@@ -136,7 +153,8 @@ pub fn bench(a: &BenchServeArgs) -> anyhow::Result<()> {
             serde_json::json!({
                 "rate": a.rate, "captures": a.captures, "pairs": a.pairs,
                 "run_wall_s_idle": idle, "run_wall_s_loaded": busy,
-                "slowdown": slowdown, "slowdown_per_pair": ratios, "p99_ms_worst": worst_p99, "load": loads, "errors": errors,
+                "slowdown": slowdown, "slowdown_per_pair": ratios,
+                "daemon_cpu_us_per_request": daemon_us, "load_cpu_us_per_request": client_us, "p99_ms_worst": worst_p99, "load": loads, "errors": errors,
             })
         );
         return Ok(());
@@ -165,6 +183,14 @@ pub fn bench(a: &BenchServeArgs) -> anyhow::Result<()> {
             }
         }
     }
+    let us = |v: Option<f64>| v.map_or("?".to_string(), |v| format!("{v:.0}"));
+    println!(
+        "CPU per status request (no run): daemon {} us, load process {} us; at {} requests/s that is {:.2} % of the 2 cores",
+        us(daemon_us),
+        us(client_us),
+        a.rate,
+        (daemon_us.unwrap_or(0.0) + client_us.unwrap_or(0.0)) * a.rate / 1e6 / 2.0 * 100.0
+    );
     println!(
         "p99 latency (worst run) {worst_p99:.2} ms (target < 20); run slowdown under load {:+.2} % (median of the pairs {}; mean wall {:.2} s vs {:.2} s; target < 2 %); {errors} failed requests",
         100.0 * slowdown,
@@ -175,10 +201,20 @@ pub fn bench(a: &BenchServeArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// User + system CPU seconds of process `pid` so far (Linux `/proc/PID/stat`).
+fn cpu_s(pid: &str) -> Option<f64> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    // Fields after the command name (which may hold spaces) : state is field 3, utime 14, stime 15.
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0) // USER_HZ is 100 on Linux
+}
+
 /// Starts the plan, waits for it to finish, returns the runner's wall time of the session.
 fn run_once(port: u16, plan: &str, dataset: &str) -> anyhow::Result<f64> {
     let body = serde_json::json!({ "plan_text": plan, "dataset": dataset }).to_string();
-    let mut c = Conn::open(port)?;
+    let mut c = Conn::open(port, TOKEN)?;
     let (status, text) = c.call("POST", "/api/v1/runs", Some(&body))?;
     if status != 201 {
         bail!("starting the run: {status} {text}");
@@ -200,18 +236,19 @@ fn run_once(port: u16, plan: &str, dataset: &str) -> anyhow::Result<f64> {
 struct Conn {
     r: BufReader<TcpStream>,
     w: TcpStream,
+    token: String,
 }
 
 impl Conn {
-    fn open(port: u16) -> anyhow::Result<Conn> {
+    fn open(port: u16, token: &str) -> anyhow::Result<Conn> {
         let s = TcpStream::connect(("127.0.0.1", port))?;
         s.set_nodelay(true)?;
         s.set_read_timeout(Some(Duration::from_secs(30)))?;
-        Ok(Conn { r: BufReader::new(s.try_clone()?), w: s })
+        Ok(Conn { r: BufReader::new(s.try_clone()?), w: s, token: token.to_string() })
     }
 
     fn call(&mut self, method: &str, path: &str, body: Option<&str>) -> anyhow::Result<(u16, String)> {
-        let mut req = format!("{method} {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nAuthorization: Bearer {TOKEN}\r\n");
+        let mut req = format!("{method} {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nAuthorization: Bearer {}\r\n", self.token);
         match body {
             Some(b) => req.push_str(&format!("Content-Type: application/json\r\nContent-Length: {}\r\n\r\n{b}", b.len())),
             None => req.push_str("\r\n"),
@@ -253,11 +290,11 @@ pub fn load(a: &ServeLoadArgs) -> anyhow::Result<()> {
     let per_thread = a.rate / a.connections as f64;
     let threads: Vec<_> = (0..a.connections)
         .map(|k| {
-            let (stop, path, port, rate) = (stop.clone(), a.path.clone(), a.port, a.rate);
+            let (stop, path, port, rate, token) = (stop.clone(), a.path.clone(), a.port, a.rate, a.token.clone());
             std::thread::spawn(move || -> (Vec<f64>, u64) {
                 let mut lat = Vec::new();
                 let mut errors = 0;
-                let Ok(mut c) = Conn::open(port) else { return (lat, 1) };
+                let Ok(mut c) = Conn::open(port, &token) else { return (lat, 1) };
                 // Thread k starts k / rate late, so the threads' requests interleave evenly.
                 let offset = k as f64 / rate;
                 let mut i = 0u64;
@@ -270,7 +307,7 @@ pub fn load(a: &ServeLoadArgs) -> anyhow::Result<()> {
                         Ok((200 | 404, _)) => lat.push(due.elapsed().as_secs_f64() * 1e3),
                         _ => {
                             errors += 1;
-                            if let Ok(n) = Conn::open(port) {
+                            if let Ok(n) = Conn::open(port, &token) {
                                 c = n;
                             }
                         }
@@ -296,6 +333,7 @@ pub fn load(a: &ServeLoadArgs) -> anyhow::Result<()> {
         serde_json::json!({
             "requests": lat.len(), "errors": errors, "seconds": secs, "rate": lat.len() as f64 / secs,
             "p50_ms": pct(0.5), "p90_ms": pct(0.9), "p99_ms": pct(0.99), "max_ms": lat.last().copied(),
+            "cpu_s": cpu_s("self"),
         })
     );
     Ok(())

@@ -98,6 +98,7 @@ pub enum ServerEvent {
 
 /// One run.
 pub struct Run {
+    id: String,
     status: Mutex<RunStatus>,
     warnings: Mutex<VecDeque<String>>,
     control: RunControl,
@@ -110,6 +111,16 @@ impl Run {
     /// The current status.
     pub fn status(&self) -> RunStatus {
         self.status.lock().unwrap_or_else(|e| e.into_inner()).clone()
+    }
+
+    /// The run's id.
+    pub fn id(&self) -> &str {
+        &self.id
+    }
+
+    /// Where the run is, without copying the status (status requests come hundreds a second).
+    pub fn state(&self) -> RunState {
+        self.status.lock().unwrap_or_else(|e| e.into_inner()).state
     }
 
     /// The dataset directory.
@@ -258,7 +269,7 @@ impl Runs {
 
     /// The run holding the rig, if any.
     pub fn current(&self) -> Option<Arc<Run>> {
-        self.lock().runs.iter().rev().find(|r| !r.status().state.is_over()).cloned()
+        self.lock().runs.iter().rev().find(|r| !r.state().is_over()).cloned()
     }
 
     /// The latest run, over or not.
@@ -273,14 +284,14 @@ impl Runs {
 
     /// The run with `id`.
     pub fn get(&self, id: &str) -> Option<Arc<Run>> {
-        self.lock().runs.iter().find(|r| r.status().id == id).cloned()
+        self.lock().runs.iter().find(|r| r.id == id).cloned()
     }
 
     /// Runs `hold` (which marks the rig held by a calibration, or refuses) while no run can
     /// start; 409 if a run holds the rig.
     pub fn hold_for_calibration<T>(&self, hold: impl FnOnce() -> Result<T, Problem>) -> Result<T, Problem> {
         let inner = self.lock();
-        if let Some(busy) = inner.runs.iter().find(|r| !r.status().state.is_over()) {
+        if let Some(busy) = inner.runs.iter().find(|r| !r.state().is_over()) {
             let s = busy.status();
             return Err(Problem::conflict(format!("the rig is held by run {} of {}", s.id, s.owner)));
         }
@@ -294,7 +305,7 @@ impl Runs {
         if let Some(who) = calibrating() {
             return Err(Problem::conflict(format!("the rig is held by {who}; wait for it to end")));
         }
-        if let Some(busy) = inner.runs.iter().find(|r| !r.status().state.is_over()) {
+        if let Some(busy) = inner.runs.iter().find(|r| !r.state().is_over()) {
             let s = busy.status();
             return Err(Problem::conflict(format!(
                 "the rig is held by run {} of {} (plan {}, {:?}, {}/{} captures); wait for it to end or abort it",
@@ -306,6 +317,7 @@ impl Runs {
         let dataset_dir = self.data.join(&req.dataset);
         let (events, _) = broadcast::channel(256);
         let run = Arc::new(Run {
+            id: id.clone(),
             status: Mutex::new(RunStatus {
                 id,
                 state: RunState::Starting,
@@ -334,7 +346,7 @@ impl Runs {
         let metrics = self.metrics.clone();
         metrics.run_started();
         let thread = std::thread::Builder::new()
-            .name(format!("run-{}", run.status().id))
+            .name(format!("run-{}", run.id))
             .spawn(move || {
                 let control = worker.control.clone();
                 let result = btfrig_runner::run(&request, &control, &mut |e| worker.on_event(e, &metrics));
