@@ -83,7 +83,7 @@ pub fn bench(a: &BenchServeArgs) -> anyhow::Result<()> {
         let mut line = String::new();
         BufReader::new(daemon.stdout.take().context("daemon stdout")?).read_line(&mut line)?;
         let port: u16 = line.trim().rsplit(':').next().and_then(|p| p.parse().ok()).with_context(|| format!("daemon said {line:?}"))?;
-        let plan = crate::demo_cmd::DEMO_PLAN.replace("max_captures = 60", &format!("max_captures = {}", a.captures));
+        let plan = include_str!("../../../rig-configs/plans/demo.toml").replace("max_captures = 60", &format!("max_captures = {}", a.captures));
         let mut rows = Vec::new();
         for pair in 0..a.pairs {
             for loaded in [false, true] {

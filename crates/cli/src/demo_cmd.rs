@@ -10,7 +10,7 @@ use btfrig_runner::RunRequest;
 use crate::args::DemoArgs;
 
 /// The quick demo plan.
-pub(crate) const DEMO_PLAN: &str = include_str!("../../../rig-configs/plans/demo.toml");
+const DEMO_PLAN: &str = include_str!("../../../rig-configs/plans/demo.toml");
 /// The whole Bonn 81 x 81 plan (`--full`).
 const FULL_PLAN: &str = include_str!("../../../rig-configs/plans/bonn-full.toml");
 

@@ -17,6 +17,7 @@ use utoipa::{OpenApi, ToSchema};
 
 use crate::auth::{Caller, Role};
 use crate::problem::Problem;
+use crate::calibrations::{Calibration, StartCalibration};
 use crate::runs::{Control, RunState, RunStatus, ServerEvent, StartRequest};
 use crate::AppState;
 
@@ -216,37 +217,6 @@ pub struct DatasetEntry {
     pub captures: u64,
     /// The plan's name.
     pub plan: String,
-}
-
-/// Start a calibration.
-#[derive(Debug, Deserialize, ToSchema)]
-#[serde(deny_unknown_fields)]
-pub struct StartCalibration {
-    /// `color` (ColorChecker and SG charts on the rig; docs/color.md).
-    #[schema(example = "color")]
-    pub kind: String,
-    /// Seed of the simulated rig; default the rig config's.
-    pub seed: Option<u64>,
-}
-
-/// A calibration and, when done, its result.
-#[derive(Debug, Clone, Serialize, ToSchema)]
-pub struct Calibration {
-    /// `c1`, `c2`, ...
-    pub id: String,
-    /// What is calibrated.
-    pub kind: String,
-    /// `running`, `finished`, `failed`.
-    pub state: String,
-    /// Who started it.
-    pub owner: String,
-    /// Why it failed.
-    pub message: Option<String>,
-    /// The chosen model and its held-out CIEDE2000 when finished.
-    #[schema(value_type = Option<Object>)]
-    pub result: Option<serde_json::Value>,
-    /// The calibration file written, relative to the data directory.
-    pub file: Option<String>,
 }
 
 /// The list of calibrations.

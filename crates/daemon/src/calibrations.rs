@@ -3,10 +3,43 @@
 
 use std::sync::{Arc, Mutex};
 
-use crate::api::{Calibration, StartCalibration};
+use serde::{Deserialize, Serialize};
+use utoipa::ToSchema;
+
 use crate::auth::Caller;
 use crate::problem::Problem;
 use crate::AppState;
+
+/// Start a calibration.
+#[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct StartCalibration {
+    /// `color` (ColorChecker and SG charts on the rig; docs/color.md).
+    #[schema(example = "color")]
+    pub kind: String,
+    /// Seed of the simulated rig; default the rig config's.
+    pub seed: Option<u64>,
+}
+
+/// A calibration and, when done, its result.
+#[derive(Debug, Clone, Serialize, ToSchema)]
+pub struct Calibration {
+    /// `c1`, `c2`, ...
+    pub id: String,
+    /// What is calibrated.
+    pub kind: String,
+    /// `running`, `finished`, `failed`.
+    pub state: String,
+    /// Who started it.
+    pub owner: String,
+    /// Why it failed.
+    pub message: Option<String>,
+    /// The chosen model and its held-out CIEDE2000 when finished.
+    #[schema(value_type = Option<Object>)]
+    pub result: Option<serde_json::Value>,
+    /// The calibration file written, relative to the data directory.
+    pub file: Option<String>,
+}
 
 /// Every calibration of this daemon.
 #[derive(Default)]
