@@ -7,9 +7,10 @@
 //! `btfrig_protocols::ptp`, waiting on the injected rig clock; [`responder::PtpResponder`]
 //! plays the camera firmware in-process (in tests and the serial demo rig: the simulator's
 //! camera), with faults to inject (an ObjectAdded event that never comes, a damaged
-//! download). A USB transport over a real camera is not here yet (`docs/serial.md`).
+//! download). [`usb::UsbPtpTransport`] is the transport over a real camera (nusb); untested without one (`docs/serial.md`).
 #![warn(missing_docs)]
 
 pub mod camera;
 pub mod responder;
 pub mod transport;
+pub mod usb;
