@@ -137,7 +137,9 @@ pub struct DemoArgs {
     /// of the quick demo plan (rig-configs/plans/demo.toml).
     #[arg(long)]
     pub full: bool,
-    /// Rig config file instead of the plan's embedded simulated gonioreflectometer.
+    /// Rig config file instead of the plan's embedded simulated gonioreflectometer, or an
+    /// embedded rig by name: `gonio-serial` (the same rig through the serial and PTP
+    /// backends and emulated firmware on pseudo-terminals, docs/serial.md).
     #[arg(long)]
     pub rig: Option<std::path::PathBuf>,
     /// Material name (see `btfrig sim materials`) or a material TOML file, instead of the plan's.

@@ -190,12 +190,21 @@ impl GrblAxis {
         sent.map_err(|e| self.link_err(e))?;
         let start = self.clock.now_s();
         let wall_deadline = Instant::now() + wait;
+        // The first wait covers a prompt answer; a line answered only when done (`$H`) is
+        // then awaited in short slices with rig-clock sleeps between, so a virtual rig clock
+        // can advance (tokio does not advance paused time while a blocking read runs).
+        let mut slice = Duration::from_millis(50);
+        let mut first = true;
         loop {
+            if !std::mem::take(&mut first) {
+                self.clock.sleep_s(self.cfg.poll_s).await;
+                slice = Duration::from_millis(1);
+            }
             let got = self
                 .link
                 .run(move |s| {
                     let mut alarms = Vec::new();
-                    await_response(s, Duration::from_millis(50), &mut alarms, |r| match r {
+                    await_response(s, slice, &mut alarms, |r| match r {
                         Response::Ok => Some(LineEnd::Ok),
                         Response::Error(n) => Some(LineEnd::Error(*n)),
                         Response::Alarm(n) => Some(LineEnd::Alarm(*n)),
