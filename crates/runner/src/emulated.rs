@@ -189,7 +189,9 @@ pub async fn connect(devices: &DevicesConfig, sim: SimDevices, clock: SharedCloc
         let joint_limits = sim.robot.joint_limits();
         fw.robot = Some(RobotFirmware::spawn(sim.robot, &link).map_err(|e| io("robot", e))?);
         let cfg = SerialRobotConfig { name: "robot".into(), joint_limits, poll_s: o.poll_s, reply_timeout: o.reply_timeout };
-        Box::new(SerialRobot::new(cfg, serial(&link, 115_200), clock.clone()))
+        let mut r = SerialRobot::new(cfg, serial(&link, 115_200), clock.clone());
+        r.identify().await.map_err(|e| dev("robot", e))?;
+        Box::new(r)
     } else {
         sim.robot
     };
@@ -260,4 +262,70 @@ pub async fn connect(devices: &DevicesConfig, sim: SimDevices, clock: SharedCloc
         sim.camera
     };
     Ok(Connected { robot, rail, turntable, lamp, led_array, camera, firmware: fw })
+}
+
+/// One device as `btfrig hw probe` reports it.
+#[derive(Debug, Clone)]
+pub struct Probed {
+    /// Role (`robot`, `rail`, ...).
+    pub role: &'static str,
+    /// Backend kind in the rig config.
+    pub kind: String,
+    /// What the backend connects to (`<dir>/robot`, a PTP responder, ...), for emulated ones.
+    pub link: Option<String>,
+    /// Identity the device reported.
+    pub info: btfrig_hw::DeviceInfo,
+    /// Its health, or the error asking for it.
+    pub health: String,
+}
+
+/// Starts every emulated device of `rig` (behind its firmware on a pty) and asks each
+/// device, through its real backend, for its identity and health. Builds its own
+/// virtual-time runtime: call from a plain thread.
+pub fn probe(rig: &btfrig_core::config::RigConfig) -> Result<Vec<Probed>, String> {
+    check(&rig.devices)?;
+    let mut sim_cfg = rig.clone();
+    sim_cfg.devices = rig.devices.simulated().ok_or("a device is real hardware: probing real ports by rig config is not supported yet")?;
+    let rt = crate::virtual_time_runtime().map_err(|e| e.to_string())?;
+    rt.block_on(async {
+        let clock: SharedClock = Arc::new(btfrig_hw::ScaledClock::new(1e-3).map_err(|e| e.to_string())?);
+        let source = Arc::new(btfrig_sim::FlatFrameSource::new(8, 6, 100.0));
+        let sim = btfrig_sim::SimRig::from_rig_config(&sim_cfg, &btfrig_sim::FaultScenario::none(), clock.clone(), source).map_err(|e| e.to_string())?;
+        let btfrig_sim::SimRig { robot, rail, turntable, lamp, led_array, camera, .. } = sim;
+        let mut c = connect(&rig.devices, SimDevices { robot, rail, turntable, lamp, led_array, camera }, clock, 30.0).await?;
+        let dir = c.firmware.dir().map(|d| d.display().to_string());
+        let entry = |role: &str| rig.devices.entries().into_iter().find(|(r, _)| *r == role).map(|(_, e)| e.clone());
+        let mut out = Vec::new();
+        let mut add = |role: &'static str, info: btfrig_hw::DeviceInfo, health: Result<btfrig_hw::Health, btfrig_hw::DeviceError>| {
+            let e = entry(role);
+            let emulated = e.as_ref().is_some_and(|e| e.is_emulated());
+            let link = match (emulated, role, &dir) {
+                (true, "camera", _) => Some("in-process PTP responder".to_string()),
+                (true, r, Some(d)) => Some(format!("{d}/{}", if r == "led_array" { "leds" } else { r })),
+                _ => None,
+            };
+            let health = match health {
+                Ok(h) => format!("{h:?}"),
+                Err(e) => format!("error: {e}"),
+            };
+            out.push(Probed { role, kind: e.map(|e| e.kind).unwrap_or_default(), link, info, health });
+        };
+        let h = c.robot.health().await;
+        add("robot", c.robot.info().clone(), h);
+        let h = c.rail.health().await;
+        add("rail", c.rail.info().clone(), h);
+        if let Some(t) = c.turntable.as_mut() {
+            let h = t.health().await;
+            add("turntable", t.info().clone(), h);
+        }
+        let h = c.lamp.health().await;
+        add("lamp", c.lamp.info().clone(), h);
+        if let Some(l) = c.led_array.as_mut() {
+            let h = l.health().await;
+            add("led_array", l.info().clone(), h);
+        }
+        let h = c.camera.health().await;
+        add("camera", c.camera.info().clone(), h);
+        Ok(out)
+    })
 }
