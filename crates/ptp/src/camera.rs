@@ -62,8 +62,18 @@ struct Answer {
 
 impl PtpCamera {
     /// Opens a session on `transport`.
-    pub async fn open(cfg: PtpCameraConfig, transport: Box<dyn PtpTransport>, clock: SharedClock) -> Result<Self, DeviceError> {
-        let info = DeviceInfo { name: cfg.name.clone(), backend: "ptp".into(), model: String::new(), serial: None, firmware: None };
+    pub async fn open(
+        cfg: PtpCameraConfig,
+        transport: Box<dyn PtpTransport>,
+        clock: SharedClock,
+    ) -> Result<Self, DeviceError> {
+        let info = DeviceInfo {
+            name: cfg.name.clone(),
+            backend: "ptp".into(),
+            model: String::new(),
+            serial: None,
+            firmware: None,
+        };
         let settings = CaptureSettings { exposure_s: 0.0, gain: 1.0, f_number: None };
         let mut cam = PtpCamera {
             info,
@@ -78,7 +88,8 @@ impl PtpCamera {
             missed_events: 0,
         };
         let a = cam.transact(Operation::GetDeviceInfo, None, cam.cfg.op_timeout_s, "device info").await?;
-        let d = PtpInfo::decode(&a.data.unwrap_or_default()).map_err(|e| cam.err(ErrorKind::CorruptData, format!("device info: {e}")))?;
+        let d = PtpInfo::decode(&a.data.unwrap_or_default())
+            .map_err(|e| cam.err(ErrorKind::CorruptData, format!("device info: {e}")))?;
         cam.info.model = format!("{} {}", d.manufacturer, d.model);
         cam.info.serial = Some(d.serial_number);
         cam.info.firmware = Some(d.device_version);
@@ -114,7 +125,8 @@ impl PtpCamera {
     }
 
     async fn open_session(&mut self) -> Result<(), DeviceError> {
-        match self.transact(Operation::OpenSession { session_id: 1 }, None, self.cfg.op_timeout_s, "open session").await {
+        match self.transact(Operation::OpenSession { session_id: 1 }, None, self.cfg.op_timeout_s, "open session").await
+        {
             Ok(_) => Ok(()),
             Err(e) if e.message().contains(rc_text(rc::SESSION_ALREADY_OPEN)) => Ok(()),
             Err(e) => Err(e),
@@ -122,23 +134,41 @@ impl PtpCamera {
     }
 
     async fn get_prop(&mut self, p: u16) -> Result<PropValue, DeviceError> {
-        let a = self.transact(Operation::GetDevicePropValue { prop: p }, None, self.cfg.op_timeout_s, "get property").await?;
-        PropValue::decode(p, &a.data.unwrap_or_default()).map_err(|e| self.err(ErrorKind::CorruptData, format!("property {p:#06x}: {e}")))
+        let a = self
+            .transact(Operation::GetDevicePropValue { prop: p }, None, self.cfg.op_timeout_s, "get property")
+            .await?;
+        PropValue::decode(p, &a.data.unwrap_or_default())
+            .map_err(|e| self.err(ErrorKind::CorruptData, format!("property {p:#06x}: {e}")))
     }
 
     async fn set_prop(&mut self, v: PropValue, what: &str) -> Result<(), DeviceError> {
-        self.transact(Operation::SetDevicePropValue { prop: v.prop() }, Some(v.encode()), self.cfg.op_timeout_s, what).await.map(|_| ())
+        self.transact(Operation::SetDevicePropValue { prop: v.prop() }, Some(v.encode()), self.cfg.op_timeout_s, what)
+            .await
+            .map(|_| ())
     }
 
     /// One transaction: command (and data out), then data in and the response of this
     /// transaction within `timeout_s` on the rig clock. A non-OK response is the mapped error.
-    async fn transact(&mut self, opn: Operation, data_out: Option<Vec<u8>>, timeout_s: f64, what: &str) -> Result<Answer, DeviceError> {
+    async fn transact(
+        &mut self,
+        opn: Operation,
+        data_out: Option<Vec<u8>>,
+        timeout_s: f64,
+        what: &str,
+    ) -> Result<Answer, DeviceError> {
         self.tid = self.tid.checked_add(1).unwrap_or(1);
         let tid = self.tid;
-        let send = |c: Container| c.encode().map_err(|e| DeviceError::new(&self.cfg.name, ErrorKind::OutOfRange, format!("{what}: {e}")));
+        let send = |c: Container| {
+            c.encode().map_err(|e| DeviceError::new(&self.cfg.name, ErrorKind::OutOfRange, format!("{what}: {e}")))
+        };
         let mut bytes = send(opn.to_container(tid))?;
         if let Some(d) = data_out {
-            bytes.extend(send(Container { kind: ContainerKind::Data, code: opn.code(), transaction_id: tid, payload: d })?);
+            bytes.extend(send(Container {
+                kind: ContainerKind::Data,
+                code: opn.code(),
+                transaction_id: tid,
+                payload: d,
+            })?);
         }
         let t = self.transport.get_mut().unwrap_or_else(|p| p.into_inner());
         if let Err(e) = t.bulk_out(bytes).await {
@@ -149,10 +179,13 @@ impl PtpCamera {
         loop {
             while let Some(c) = self.bulk.next() {
                 match c {
-                    Ok(c) if c.transaction_id != tid => tracing::debug!("ptp: dropped a container of transaction {}", c.transaction_id),
+                    Ok(c) if c.transaction_id != tid => {
+                        tracing::debug!("ptp: dropped a container of transaction {}", c.transaction_id)
+                    }
                     Ok(c) if c.kind == ContainerKind::Data => data = Some(c.payload),
                     Ok(c) if c.kind == ContainerKind::Response => {
-                        let response = Response::from_container(&c).map_err(|e| self.err(ErrorKind::CorruptData, format!("{what}: {e}")))?;
+                        let response = Response::from_container(&c)
+                            .map_err(|e| self.err(ErrorKind::CorruptData, format!("{what}: {e}")))?;
                         if response.code != rc::OK {
                             return Err(self.err(
                                 response_kind(response.code),
@@ -303,11 +336,15 @@ impl Camera for PtpCamera {
         let Some(handle) = self.pending.take() else {
             return Err(self.err(ErrorKind::Other, "read_frame: no frame was triggered"));
         };
-        let a = self.transact(Operation::GetObject { handle }, None, timeout_s + self.cfg.read_margin_s, "read_frame").await?;
+        let a = self
+            .transact(Operation::GetObject { handle }, None, timeout_s + self.cfg.read_margin_s, "read_frame")
+            .await?;
         let frame = raw::decode(&a.data.unwrap_or_default())
             .map_err(|e| self.err(ErrorKind::CorruptData, format!("read_frame: object {handle}: {e}")));
         // The object is on the camera's card either way; free it (a failure here loses nothing).
-        if let Err(e) = self.transact(Operation::DeleteObject { handle }, None, self.cfg.op_timeout_s, "delete object").await {
+        if let Err(e) =
+            self.transact(Operation::DeleteObject { handle }, None, self.cfg.op_timeout_s, "delete object").await
+        {
             tracing::warn!("{e}");
         }
         frame

@@ -13,8 +13,8 @@ use std::collections::HashMap;
 
 use btfrig_hw::{Camera, DeviceError, ErrorKind};
 use btfrig_protocols::ptp::{
-    ev, op, prop, raw, rc, Container, ContainerDecoder, ContainerKind, DeviceInfo, Event, Operation, PropValue, Response,
-    FORMAT_BTFRIG_RAW,
+    ev, op, prop, raw, rc, Container, ContainerDecoder, ContainerKind, DeviceInfo, Event, Operation, PropValue,
+    Response, FORMAT_BTFRIG_RAW,
 };
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
@@ -219,8 +219,12 @@ impl Responder {
                 let v = match p {
                     prop::BTFRIG_EXPOSURE_S => Some(PropValue::ExposureS(s.exposure_s)),
                     prop::BTFRIG_GAIN => Some(PropValue::Gain(s.gain)),
-                    prop::EXPOSURE_TIME => Some(PropValue::ExposureTime((s.exposure_s * 1e4).round().min(f64::from(u32::MAX)) as u32)),
-                    prop::EXPOSURE_INDEX => Some(PropValue::ExposureIndex((s.gain * 100.0).round().min(65535.0) as u16)),
+                    prop::EXPOSURE_TIME => {
+                        Some(PropValue::ExposureTime((s.exposure_s * 1e4).round().min(f64::from(u32::MAX)) as u32))
+                    }
+                    prop::EXPOSURE_INDEX => {
+                        Some(PropValue::ExposureIndex((s.gain * 100.0).round().min(65535.0) as u16))
+                    }
                     prop::F_NUMBER => s.f_number.map(|f| PropValue::FNumber((f * 100.0).round().min(65535.0) as u16)),
                     _ => None,
                 };
@@ -307,7 +311,13 @@ impl Responder {
                 op::SET_DEVICE_PROP_VALUE,
             ],
             events: vec![ev::OBJECT_ADDED],
-            properties: vec![prop::BTFRIG_EXPOSURE_S, prop::BTFRIG_GAIN, prop::F_NUMBER, prop::EXPOSURE_TIME, prop::EXPOSURE_INDEX],
+            properties: vec![
+                prop::BTFRIG_EXPOSURE_S,
+                prop::BTFRIG_GAIN,
+                prop::F_NUMBER,
+                prop::EXPOSURE_TIME,
+                prop::EXPOSURE_INDEX,
+            ],
             capture_formats: vec![FORMAT_BTFRIG_RAW],
             image_formats: vec![FORMAT_BTFRIG_RAW],
             manufacturer: self.cfg.manufacturer.clone(),

@@ -20,7 +20,8 @@ fn cfg() -> RigConfig {
 }
 
 fn sim_rig(clock: SharedClock) -> SimRig {
-    SimRig::from_rig_config(&cfg(), &FaultScenario::none(), clock, Arc::new(FlatFrameSource::new(8, 6, 1000.0))).unwrap()
+    SimRig::from_rig_config(&cfg(), &FaultScenario::none(), clock, Arc::new(FlatFrameSource::new(8, 6, 1000.0)))
+        .unwrap()
 }
 
 /// The simulator's camera behind a PTP responder, and the backend on it.
@@ -92,7 +93,8 @@ async fn engine_retries_a_capture_whose_object_added_never_came() {
     let gonio = Gonio::new(cfg.geometry.clone()).unwrap();
     let s = Sampling::bonn81();
     let pairs = (0..8).flat_map(|l| (10..15).map(move |v| (l, v))).collect();
-    let req = PlanRequest::new(&gonio, &s, &s, &cfg.timing, 0.01, cfg.timing.camera.frame_bytes.unwrap()).with_pairs(PairSelection::List(pairs));
+    let req = PlanRequest::new(&gonio, &s, &s, &cfg.timing, 0.01, cfg.timing.camera.frame_bytes.unwrap())
+        .with_pairs(PairSelection::List(pairs));
     let steps = EngineStep::from_schedule(&plan(&req).unwrap());
     assert_eq!(steps.len(), 40);
 

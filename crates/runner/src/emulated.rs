@@ -38,7 +38,9 @@ pub fn link_options(role: &str, entry: &DeviceEntry) -> Result<LinkOptions, Stri
     let mut o = LinkOptions { poll_s: 0.01, reply_timeout: Duration::from_millis(2000), units: AxisUnits::Radians };
     let Some(t) = entry.options.get("link").and_then(|l| l.as_table()) else { return Ok(o) };
     let f = |k: &str, v: &toml::Value| {
-        v.as_float().or_else(|| v.as_integer().map(|i| i as f64)).ok_or_else(|| format!("devices.{role}.link.{k} must be a number"))
+        v.as_float()
+            .or_else(|| v.as_integer().map(|i| i as f64))
+            .ok_or_else(|| format!("devices.{role}.link.{k} must be a number"))
     };
     for (k, v) in t {
         match k.as_str() {
@@ -46,13 +48,18 @@ pub fn link_options(role: &str, entry: &DeviceEntry) -> Result<LinkOptions, Stri
             "poll_s" => {
                 o.poll_s = f(k, v)?;
                 if !(o.poll_s > 0.0 && o.poll_s <= 10.0) {
-                    return Err(format!("devices.{role}.link.poll_s = {} is out of range: allowed (0, 10] s", o.poll_s));
+                    return Err(format!(
+                        "devices.{role}.link.poll_s = {} is out of range: allowed (0, 10] s",
+                        o.poll_s
+                    ));
                 }
             }
             "reply_timeout_ms" => {
                 let ms = f(k, v)?;
                 if !(1.0..=60_000.0).contains(&ms) {
-                    return Err(format!("devices.{role}.link.reply_timeout_ms = {ms} is out of range: allowed [1, 60000]"));
+                    return Err(format!(
+                        "devices.{role}.link.reply_timeout_ms = {ms} is out of range: allowed [1, 60000]"
+                    ));
                 }
                 o.reply_timeout = Duration::from_secs_f64(ms / 1000.0);
             }
@@ -63,7 +70,12 @@ pub fn link_options(role: &str, entry: &DeviceEntry) -> Result<LinkOptions, Stri
                     _ => return Err(format!("devices.{role}.link.units = {v} is unknown: allowed \"rad\", \"deg\"")),
                 }
             }
-            other => return Err(format!("devices.{role}.link.{other} is unknown: allowed emulated, poll_s, reply_timeout_ms{}", if role == "rail" || role == "turntable" { ", units" } else { "" })),
+            other => {
+                return Err(format!(
+                    "devices.{role}.link.{other} is unknown: allowed emulated, poll_s, reply_timeout_ms{}",
+                    if role == "rail" || role == "turntable" { ", units" } else { "" }
+                ))
+            }
         }
     }
     Ok(o)
@@ -128,7 +140,11 @@ impl Firmware {
 
     /// How many emulators run.
     pub fn count(&self) -> usize {
-        usize::from(self.robot.is_some()) + self.axes.len() + usize::from(self.lamp.is_some()) + usize::from(self.leds.is_some()) + usize::from(self.camera.is_some())
+        usize::from(self.robot.is_some())
+            + self.axes.len()
+            + usize::from(self.lamp.is_some())
+            + usize::from(self.leds.is_some())
+            + usize::from(self.camera.is_some())
     }
 }
 
@@ -169,7 +185,12 @@ fn serial(path: &std::path::Path, baud: u32) -> Arc<SerialConnector> {
 /// emulated and connects the real backend to it; other devices pass through. Call inside
 /// the tokio runtime the devices run on; `read_timeout_s` is the engine's read-out timeout
 /// (the emulated camera gives up on a read-out after it too).
-pub async fn connect(devices: &DevicesConfig, sim: SimDevices, clock: SharedClock, read_timeout_s: f64) -> Result<Connected, String> {
+pub async fn connect(
+    devices: &DevicesConfig,
+    sim: SimDevices,
+    clock: SharedClock,
+    read_timeout_s: f64,
+) -> Result<Connected, String> {
     check(devices)?;
     let mut fw = Firmware::default();
     if devices.any_emulated() {
@@ -181,14 +202,16 @@ pub async fn connect(devices: &DevicesConfig, sim: SimDevices, clock: SharedCloc
     }
     let dir = fw.dir.clone().unwrap_or_default();
     let io = |what: &str, e: std::io::Error| format!("emulated {what} firmware: {e}");
-    let dev = |what: &str, e: btfrig_hw::DeviceError| format!("connecting the {what} backend to its emulated firmware: {e}");
+    let dev =
+        |what: &str, e: btfrig_hw::DeviceError| format!("connecting the {what} backend to its emulated firmware: {e}");
 
     let robot: Box<dyn Robot> = if devices.robot.is_emulated() {
         let o = link_options("robot", &devices.robot)?;
         let link = dir.join("robot");
         let joint_limits = sim.robot.joint_limits();
         fw.robot = Some(RobotFirmware::spawn(sim.robot, &link).map_err(|e| io("robot", e))?);
-        let cfg = SerialRobotConfig { name: "robot".into(), joint_limits, poll_s: o.poll_s, reply_timeout: o.reply_timeout };
+        let cfg =
+            SerialRobotConfig { name: "robot".into(), joint_limits, poll_s: o.poll_s, reply_timeout: o.reply_timeout };
         let mut r = SerialRobot::new(cfg, serial(&link, 115_200), clock.clone());
         r.identify().await.map_err(|e| dev("robot", e))?;
         Box::new(r)
@@ -199,7 +222,9 @@ pub async fn connect(devices: &DevicesConfig, sim: SimDevices, clock: SharedCloc
         let o = link_options("rail", &devices.rail)?;
         let link = dir.join("rail");
         let limits = sim.rail.limits();
-        fw.axes.push(GrblFirmware::spawn_with_units(AxisDevice::Rail(sim.rail), &link, o.units).map_err(|e| io("rail", e))?);
+        fw.axes.push(
+            GrblFirmware::spawn_with_units(AxisDevice::Rail(sim.rail), &link, o.units).map_err(|e| io("rail", e))?,
+        );
         let cfg = GrblAxisConfig {
             name: "rail".into(),
             model: "GRBL rail (emulated)".into(),
@@ -218,7 +243,10 @@ pub async fn connect(devices: &DevicesConfig, sim: SimDevices, clock: SharedCloc
             let o = link_options("turntable", e)?;
             let link = dir.join("turntable");
             let limits = t.limits();
-            fw.axes.push(GrblFirmware::spawn_with_units(AxisDevice::Turntable(t), &link, o.units).map_err(|e| io("turntable", e))?);
+            fw.axes.push(
+                GrblFirmware::spawn_with_units(AxisDevice::Turntable(t), &link, o.units)
+                    .map_err(|e| io("turntable", e))?,
+            );
             let cfg = GrblAxisConfig {
                 name: "turntable".into(),
                 model: "GRBL turntable (emulated)".into(),
@@ -235,7 +263,10 @@ pub async fn connect(devices: &DevicesConfig, sim: SimDevices, clock: SharedCloc
     let lamp: Box<dyn Lamp> = if devices.lamp.is_emulated() {
         let o = link_options("lamp", &devices.lamp)?;
         let link = dir.join("lamp");
-        fw.lamp = Some(LampFirmware::spawn(sim.lamp, LampFirmwareConfig::default(), clock.clone(), &link).map_err(|e| io("lamp", e))?);
+        fw.lamp = Some(
+            LampFirmware::spawn(sim.lamp, LampFirmwareConfig::default(), clock.clone(), &link)
+                .map_err(|e| io("lamp", e))?,
+        );
         let cfg = SerialLampConfig { name: "lamp".into(), poll_s: o.poll_s, reply_timeout: o.reply_timeout };
         Box::new(SerialLamp::open(cfg, serial(&link, 9600), clock.clone()).await.map_err(|e| dev("lamp", e))?)
     } else {
@@ -247,7 +278,11 @@ pub async fn connect(devices: &DevicesConfig, sim: SimDevices, clock: SharedCloc
             let link = dir.join("leds");
             fw.leds = Some(LedFirmware::spawn(l, &link).map_err(|e| io("LED", e))?);
             let cfg = SerialLedConfig { name: "led_array".into(), poll_s: o.poll_s, reply_timeout: o.reply_timeout };
-            Some(Box::new(SerialLedArray::open(cfg, serial(&link, 460_800), clock.clone()).await.map_err(|e| dev("LED array", e))?))
+            Some(Box::new(
+                SerialLedArray::open(cfg, serial(&link, 460_800), clock.clone())
+                    .await
+                    .map_err(|e| dev("LED array", e))?,
+            ))
         }
         (l, _) => l,
     };
@@ -285,18 +320,26 @@ pub struct Probed {
 pub fn probe(rig: &btfrig_core::config::RigConfig) -> Result<Vec<Probed>, String> {
     check(&rig.devices)?;
     let mut sim_cfg = rig.clone();
-    sim_cfg.devices = rig.devices.simulated().ok_or("a device is real hardware: probing real ports by rig config is not supported yet")?;
+    sim_cfg.devices = rig
+        .devices
+        .simulated()
+        .ok_or("a device is real hardware: probing real ports by rig config is not supported yet")?;
     let rt = crate::virtual_time_runtime().map_err(|e| e.to_string())?;
     rt.block_on(async {
         let clock: SharedClock = Arc::new(btfrig_hw::ScaledClock::new(1e-3).map_err(|e| e.to_string())?);
         let source = Arc::new(btfrig_sim::FlatFrameSource::new(8, 6, 100.0));
-        let sim = btfrig_sim::SimRig::from_rig_config(&sim_cfg, &btfrig_sim::FaultScenario::none(), clock.clone(), source).map_err(|e| e.to_string())?;
+        let sim =
+            btfrig_sim::SimRig::from_rig_config(&sim_cfg, &btfrig_sim::FaultScenario::none(), clock.clone(), source)
+                .map_err(|e| e.to_string())?;
         let btfrig_sim::SimRig { robot, rail, turntable, lamp, led_array, camera, .. } = sim;
-        let mut c = connect(&rig.devices, SimDevices { robot, rail, turntable, lamp, led_array, camera }, clock, 30.0).await?;
+        let mut c =
+            connect(&rig.devices, SimDevices { robot, rail, turntable, lamp, led_array, camera }, clock, 30.0).await?;
         let dir = c.firmware.dir().map(|d| d.display().to_string());
         let entry = |role: &str| rig.devices.entries().into_iter().find(|(r, _)| *r == role).map(|(_, e)| e.clone());
         let mut out = Vec::new();
-        let mut add = |role: &'static str, info: btfrig_hw::DeviceInfo, health: Result<btfrig_hw::Health, btfrig_hw::DeviceError>| {
+        let mut add = |role: &'static str,
+                       info: btfrig_hw::DeviceInfo,
+                       health: Result<btfrig_hw::Health, btfrig_hw::DeviceError>| {
             let e = entry(role);
             let emulated = e.as_ref().is_some_and(|e| e.is_emulated());
             let link = match (emulated, role, &dir) {

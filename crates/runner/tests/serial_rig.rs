@@ -27,7 +27,10 @@ fn textures(dataset: &Path) -> BTreeMap<String, String> {
     let mut out = BTreeMap::new();
     for e in std::fs::read_dir(&dir).unwrap() {
         let p = e.unwrap().path();
-        out.insert(p.file_name().unwrap().to_string_lossy().into_owned(), btfrig_store::content_hash(&std::fs::read(&p).unwrap()));
+        out.insert(
+            p.file_name().unwrap().to_string_lossy().into_owned(),
+            btfrig_store::content_hash(&std::fs::read(&p).unwrap()),
+        );
     }
     out
 }
@@ -50,7 +53,7 @@ fn serial_path_gives_the_direct_path_textures() {
     assert_eq!(direct_tex.len(), 12, "{direct_tex:?}");
     assert_eq!(serial_tex, direct_tex, "texture hashes differ between the serial and the direct path");
     println!(
-        "direct: rig {:.3} s, wall {:.2} s; serial: rig {:.3} s (+{:.3} s), wall {:.2} s (+{:.2} s); retries {} / {}",
+        "direct: rig {:.6} s, wall {:.2} s; serial: rig {:.6} s (+{:.6} s), wall {:.2} s (+{:.2} s); retries {} / {}",
         direct.hardware_s,
         direct.wall_s,
         serial.hardware_s,

@@ -11,7 +11,9 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use async_trait::async_trait;
-use btfrig_hw::{Device, DeviceError, DeviceInfo, ErrorKind, Health, Lamp, LampCapabilities, LampStatus, SharedClock, WarmUp};
+use btfrig_hw::{
+    Device, DeviceError, DeviceInfo, ErrorKind, Health, Lamp, LampCapabilities, LampStatus, SharedClock, WarmUp,
+};
 use btfrig_protocols::lamp::{error_kind, reply_decoder, LampState, Reply, Request, Warm};
 use btfrig_protocols::line::LineDecoder;
 
@@ -39,7 +41,11 @@ pub struct SerialLamp {
 }
 
 /// Reads replies until one decodes or `wait` passes. Undecodable lines are counted.
-fn await_reply(s: &mut Session<LineDecoder<Reply>>, wait: Duration, mut pick: impl FnMut(&Reply) -> bool) -> Result<Reply, LinkError> {
+fn await_reply(
+    s: &mut Session<LineDecoder<Reply>>,
+    wait: Duration,
+    mut pick: impl FnMut(&Reply) -> bool,
+) -> Result<Reply, LinkError> {
     let deadline = Instant::now() + wait;
     loop {
         while let Some(r) = s.decoder.next() {
@@ -61,8 +67,18 @@ fn await_reply(s: &mut Session<LineDecoder<Reply>>, wait: Duration, mut pick: im
 
 impl SerialLamp {
     /// Connects on `connector`, reads the controller's identity and capabilities.
-    pub async fn open(cfg: SerialLampConfig, connector: Arc<dyn Connector>, clock: SharedClock) -> Result<Self, DeviceError> {
-        let info = DeviceInfo { name: cfg.name.clone(), backend: "serial-lamp".into(), model: "btfrig lamp controller".into(), serial: None, firmware: None };
+    pub async fn open(
+        cfg: SerialLampConfig,
+        connector: Arc<dyn Connector>,
+        clock: SharedClock,
+    ) -> Result<Self, DeviceError> {
+        let info = DeviceInfo {
+            name: cfg.name.clone(),
+            backend: "serial-lamp".into(),
+            model: "btfrig lamp controller".into(),
+            serial: None,
+            firmware: None,
+        };
         let caps = LampCapabilities { has_shutter: false, intensity_range: None, warm_up_s: 0.0 };
         let mut lamp = SerialLamp { info, cfg, caps, link: Link::new(connector, reply_decoder), clock, resync: true };
         if let Reply::Identity(f) = lamp.request(Request::Identify, "identify").await? {
@@ -71,7 +87,10 @@ impl SerialLamp {
             lamp.info.firmware = f.get(3).cloned();
         }
         match lamp.request(Request::Capabilities, "capabilities").await? {
-            Reply::Capabilities(c) => lamp.caps = LampCapabilities { has_shutter: c.shutter, intensity_range: c.dim_range, warm_up_s: c.warm_up_s },
+            Reply::Capabilities(c) => {
+                lamp.caps =
+                    LampCapabilities { has_shutter: c.shutter, intensity_range: c.dim_range, warm_up_s: c.warm_up_s }
+            }
             other => return Err(lamp.unexpected("capabilities", &other)),
         }
         Ok(lamp)
@@ -120,7 +139,9 @@ impl SerialLamp {
             }
         };
         match reply {
-            Reply::Error { code, message } => Err(self.err(error_kind(code), format!("{what}: controller ERR {code}: {message}"))),
+            Reply::Error { code, message } => {
+                Err(self.err(error_kind(code), format!("{what}: controller ERR {code}: {message}")))
+            }
             other => Ok(other),
         }
     }
@@ -137,7 +158,9 @@ impl SerialLamp {
         let start = self.clock.now_s();
         loop {
             match self.state().await {
-                Err(e) if e.kind() == ErrorKind::Busy && self.clock.now_s() - start < 60.0 => self.clock.sleep_s(self.cfg.poll_s).await,
+                Err(e) if e.kind() == ErrorKind::Busy && self.clock.now_s() - start < 60.0 => {
+                    self.clock.sleep_s(self.cfg.poll_s).await
+                }
                 Err(e) => return Err(self.err(e.kind(), format!("{what}: {}", e.message()))),
                 Ok(s) => return Ok(s),
             }
@@ -217,7 +240,10 @@ impl Lamp for SerialLamp {
                 Warm::Warming(left) if elapsed + left > timeout_s => {
                     self.clock.sleep_s((timeout_s - elapsed).max(0.0)).await;
                     let left = left - (timeout_s - elapsed).max(0.0);
-                    return Err(self.err(ErrorKind::Timeout, format!("wait_ready: still warming up after {timeout_s} s ({left:.0} s left)")));
+                    return Err(self.err(
+                        ErrorKind::Timeout,
+                        format!("wait_ready: still warming up after {timeout_s} s ({left:.0} s left)"),
+                    ));
                 }
                 Warm::Warming(left) => self.clock.sleep_s(left).await,
             }
@@ -234,7 +260,9 @@ impl Lamp for SerialLamp {
     async fn set_intensity(&mut self, fraction: f64) -> Result<(), DeviceError> {
         match self.caps.intensity_range {
             None => Err(DeviceError::unsupported(&self.cfg.name, "intensity control")),
-            Some((lo, hi)) if !(lo..=hi).contains(&fraction) => Err(DeviceError::out_of_range(&self.cfg.name, "intensity", fraction, format!("[{lo}, {hi}]"))),
+            Some((lo, hi)) if !(lo..=hi).contains(&fraction) => {
+                Err(DeviceError::out_of_range(&self.cfg.name, "intensity", fraction, format!("[{lo}, {hi}]")))
+            }
             Some(_) => self.set(Request::SetIntensity(fraction), "set_intensity").await.map(|_| ()),
         }
     }

@@ -11,7 +11,9 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use async_trait::async_trait;
-use btfrig_hw::{Device, DeviceError, DeviceInfo, ErrorKind, Health, LedArray, LedCapabilities, LedPattern, SharedClock};
+use btfrig_hw::{
+    Device, DeviceError, DeviceInfo, ErrorKind, Health, LedArray, LedCapabilities, LedPattern, SharedClock,
+};
 use btfrig_protocols::led::{nack_kind, reply_decoder, Decoder, LedStatus, Reply, Request};
 
 use crate::transport::{Connector, Link, LinkError};
@@ -39,8 +41,18 @@ pub struct SerialLedArray {
 
 impl SerialLedArray {
     /// Connects on `connector` and reads the controller's LED count and steps.
-    pub async fn open(cfg: SerialLedConfig, connector: Arc<dyn Connector>, clock: SharedClock) -> Result<Self, DeviceError> {
-        let info = DeviceInfo { name: cfg.name.clone(), backend: "serial-led".into(), model: "btfrig LED dome controller".into(), serial: None, firmware: None };
+    pub async fn open(
+        cfg: SerialLedConfig,
+        connector: Arc<dyn Connector>,
+        clock: SharedClock,
+    ) -> Result<Self, DeviceError> {
+        let info = DeviceInfo {
+            name: cfg.name.clone(),
+            backend: "serial-led".into(),
+            model: "btfrig LED dome controller".into(),
+            serial: None,
+            firmware: None,
+        };
         let caps = LedCapabilities { count: 0, intensity_steps: 2 };
         let mut led = SerialLedArray { info, cfg, caps, link: Link::new(connector, reply_decoder), clock, seq: 0 };
         match led.request(Request::GetInfo, "info").await? {
@@ -179,7 +191,8 @@ impl LedArray for SerialLedArray {
             return Err(DeviceError::out_of_range(&self.cfg.name, &format!("intensity of LED {i}"), v, "[0, 1]"));
         }
         let top = f64::from(self.caps.intensity_steps - 1);
-        let values: Vec<u16> = pattern.intensities.iter().map(|v| (v * top).round().min(f64::from(u16::MAX)) as u16).collect();
+        let values: Vec<u16> =
+            pattern.intensities.iter().map(|v| (v * top).round().min(f64::from(u16::MAX)) as u16).collect();
         self.request(Request::SetPattern(values.clone()), "set_pattern").await?;
         self.request(Request::Trigger, "set_pattern (trigger)").await?;
         let start = self.clock.now_s();
@@ -189,7 +202,10 @@ impl LedArray for SerialLedArray {
                 // Read back: a failure while lighting is latched and answers this request.
                 return match self.request(Request::GetPattern, "set_pattern (read back)").await? {
                     Reply::Pattern(lit) if lit == values => Ok(()),
-                    Reply::Pattern(_) => Err(self.err(ErrorKind::CorruptData, "set_pattern: the controller lit another pattern than sent")),
+                    Reply::Pattern(_) => {
+                        Err(self
+                            .err(ErrorKind::CorruptData, "set_pattern: the controller lit another pattern than sent"))
+                    }
                     other => Err(self.unexpected("set_pattern (read back)", &other)),
                 };
             }

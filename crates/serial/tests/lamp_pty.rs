@@ -31,7 +31,8 @@ async fn bench(name: &str) -> Bench {
     let source = Arc::new(FlatFrameSource::new(4, 4, 100.0));
     let mut timing = TimingConfig::bonn();
     timing.lamp.warm_up_s = 20.0;
-    let rig = SimRig::build(&DevicesConfig::default(), &timing, 5, &FaultScenario::none(), clock.clone(), source).unwrap();
+    let rig =
+        SimRig::build(&DevicesConfig::default(), &timing, 5, &FaultScenario::none(), clock.clone(), source).unwrap();
     let dir = std::env::temp_dir().join(format!("btfrig-lamp-{name}-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let link = dir.join("lamp");
@@ -60,7 +61,10 @@ async fn warm_up_shutter_intensity_hours_and_garbage() {
     assert!(b.world.truth().lamp_on);
     let s = b.lamp.status().await.unwrap();
     assert!(s.on);
-    assert!(matches!(s.warm_up, WarmUp::WarmingUp { remaining_s } if remaining_s > 0.0 && remaining_s <= 20.0), "{s:?}");
+    assert!(
+        matches!(s.warm_up, WarmUp::WarmingUp { remaining_s } if remaining_s > 0.0 && remaining_s <= 20.0),
+        "{s:?}"
+    );
     let e = b.lamp.wait_ready(1.0).await.unwrap_err();
     assert_eq!(e.kind(), ErrorKind::Timeout, "{e}");
     assert!(e.is_retryable());

@@ -28,8 +28,10 @@ impl Drop for Bench {
 async fn bench(name: &str) -> Bench {
     let clock: SharedClock = Arc::new(ScaledClock::new(100.0).unwrap());
     let source = Arc::new(FlatFrameSource::new(4, 4, 100.0));
-    let devices: DevicesConfig = toml::from_str("[led_array]\nkind = \"sim\"\ncount = 198\nintensity_steps = 4096\n").unwrap();
-    let mut rig = SimRig::build(&devices, &TimingConfig::bonn(), 3, &FaultScenario::none(), clock.clone(), source).unwrap();
+    let devices: DevicesConfig =
+        toml::from_str("[led_array]\nkind = \"sim\"\ncount = 198\nintensity_steps = 4096\n").unwrap();
+    let mut rig =
+        SimRig::build(&devices, &TimingConfig::bonn(), 3, &FaultScenario::none(), clock.clone(), source).unwrap();
     let dir = std::env::temp_dir().join(format!("btfrig-led-{name}-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let link = dir.join("leds");

@@ -55,7 +55,10 @@ pub struct LampFirmwareConfig {
 
 impl Default for LampFirmwareConfig {
     fn default() -> Self {
-        LampFirmwareConfig { hours: 100.0, identity: ["btfrig".into(), "emulated-lamp".into(), "EMU-L1".into(), "1.0".into()] }
+        LampFirmwareConfig {
+            hours: 100.0,
+            identity: ["btfrig".into(), "emulated-lamp".into(), "EMU-L1".into(), "1.0".into()],
+        }
     }
 }
 
@@ -68,7 +71,12 @@ pub struct LampFirmware {
 impl LampFirmware {
     /// Serves `device` on a new pseudo-terminal behind `link` (call inside a tokio runtime);
     /// `clock` is the rig clock burner hours are counted on.
-    pub fn spawn(device: Box<dyn Lamp>, cfg: LampFirmwareConfig, clock: SharedClock, link: &Path) -> std::io::Result<LampFirmware> {
+    pub fn spawn(
+        device: Box<dyn Lamp>,
+        cfg: LampFirmwareConfig,
+        clock: SharedClock,
+        link: &Path,
+    ) -> std::io::Result<LampFirmware> {
         let (tx, rx) = mpsc::unbounded_channel();
         let emu = Emulator {
             caps: device.capabilities(),
@@ -216,30 +224,36 @@ impl Emulator {
             Request::Identify => unreachable!("answered above"),
             Request::Capabilities => {
                 let c = &self.caps;
-                self.send(Reply::Capabilities(LampCaps { shutter: c.has_shutter, dim_range: c.intensity_range, warm_up_s: c.warm_up_s }))
+                self.send(Reply::Capabilities(LampCaps {
+                    shutter: c.has_shutter,
+                    dim_range: c.intensity_range,
+                    warm_up_s: c.warm_up_s,
+                }))
             }
             Request::QueryHours => {
                 let h = self.hours();
                 self.send(Reply::Hours(h))
             }
-            Request::QueryOn | Request::QueryShutter | Request::QueryIntensity | Request::Status => match self.status().await {
-                Ok(s) => self.send(match req {
-                    Request::QueryOn => Reply::On(s.on),
-                    Request::QueryShutter => Reply::ShutterOpen(s.shutter_open),
-                    Request::QueryIntensity => Reply::Intensity(s.intensity),
-                    _ => Reply::Status(LampState {
-                        on: s.on,
-                        shutter_open: s.shutter_open,
-                        intensity: s.intensity,
-                        warm: match s.warm_up {
-                            WarmUp::Off => Warm::Off,
-                            WarmUp::WarmingUp { remaining_s } => Warm::Warming(remaining_s),
-                            WarmUp::Ready => Warm::Ready,
-                        },
+            Request::QueryOn | Request::QueryShutter | Request::QueryIntensity | Request::Status => {
+                match self.status().await {
+                    Ok(s) => self.send(match req {
+                        Request::QueryOn => Reply::On(s.on),
+                        Request::QueryShutter => Reply::ShutterOpen(s.shutter_open),
+                        Request::QueryIntensity => Reply::Intensity(s.intensity),
+                        _ => Reply::Status(LampState {
+                            on: s.on,
+                            shutter_open: s.shutter_open,
+                            intensity: s.intensity,
+                            warm: match s.warm_up {
+                                WarmUp::Off => Warm::Off,
+                                WarmUp::WarmingUp { remaining_s } => Warm::Warming(remaining_s),
+                                WarmUp::Ready => Warm::Ready,
+                            },
+                        }),
                     }),
-                }),
-                Err(e) => self.err(code_of(&e), e.message().to_string()),
-            },
+                    Err(e) => self.err(code_of(&e), e.message().to_string()),
+                }
+            }
             Request::SetOn(_) | Request::SetShutterOpen(_) | Request::SetIntensity(_) => self.setting(req),
         }
     }
@@ -250,7 +264,9 @@ impl Emulator {
         }
         match req {
             Request::SetShutterOpen(_) if !self.caps.has_shutter => return self.err(codes::UNSUPPORTED, "no shutter"),
-            Request::SetIntensity(_) if self.caps.intensity_range.is_none() => return self.err(codes::UNSUPPORTED, "fixed output"),
+            Request::SetIntensity(_) if self.caps.intensity_range.is_none() => {
+                return self.err(codes::UNSUPPORTED, "fixed output")
+            }
             Request::SetIntensity(f) => {
                 let (lo, hi) = self.caps.intensity_range.unwrap_or((1.0, 1.0));
                 if !(lo..=hi).contains(&f) {

@@ -154,10 +154,17 @@ impl Emulator {
         };
         let busy = self.job.is_some();
         match req {
-            Request::GetInfo => self.send(seq, Reply::Info { count: self.count as u16, steps: self.steps, firmware: (1, 0) }),
+            Request::GetInfo => {
+                self.send(seq, Reply::Info { count: self.count as u16, steps: self.steps, firmware: (1, 0) })
+            }
             Request::GetStatus => {
                 let lit = self.lit.iter().filter(|&&v| v > 0).count() as u16;
-                let s = LedStatus { staged: self.staged.is_some() || busy, over_temperature: self.over_temperature, driver_fault: self.driver_fault, lit };
+                let s = LedStatus {
+                    staged: self.staged.is_some() || busy,
+                    over_temperature: self.over_temperature,
+                    driver_fault: self.driver_fault,
+                    lit,
+                };
                 self.send(seq, Reply::Status(s))
             }
             Request::GetTemperature => {
@@ -168,7 +175,9 @@ impl Emulator {
                 let t = if self.over_temperature { 85.0 } else { t };
                 self.send(seq, Reply::Temperature((t * 100.0).round().clamp(-32768.0, 32767.0) as i16))
             }
-            Request::SetPattern(_) | Request::Trigger if self.over_temperature => self.send(seq, Reply::Nack(codes::OVER_TEMPERATURE)),
+            Request::SetPattern(_) | Request::Trigger if self.over_temperature => {
+                self.send(seq, Reply::Nack(codes::OVER_TEMPERATURE))
+            }
             _ if busy => self.send(seq, Reply::Nack(codes::BUSY)),
             _ if self.latched.is_some() => {
                 let code = self.latched.take().unwrap_or(codes::UNKNOWN_KIND);
@@ -186,7 +195,9 @@ impl Emulator {
                 }
             }
             Request::Trigger => {
-                let Some(values) = self.staged.take() else { return self.send(seq, Reply::Nack(codes::NOTHING_STAGED)) };
+                let Some(values) = self.staged.take() else {
+                    return self.send(seq, Reply::Nack(codes::NOTHING_STAGED));
+                };
                 self.light(values);
                 self.send(seq, Reply::Ack);
                 for f in std::mem::take(&mut self.armed) {
