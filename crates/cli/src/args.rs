@@ -46,9 +46,25 @@ pub enum Command {
     /// Sparse acquisition with a linear basis: choose the captures, reconstruct the full BTF.
     #[command(subcommand)]
     Sparse(crate::compress_cmd::SparseCommand),
+    /// Hardware: list serial ports and USB devices, and query a rig's devices.
+    #[command(subcommand)]
+    Hw(HwCommand),
     /// The control daemon: HTTP API, live events, preview and the operator page
     /// (docs/http-api.md). SIGTERM pauses the run under way resumably and exits.
     Serve(ServeArgs),
+}
+
+/// `btfrig hw ...`.
+#[derive(Debug, Subcommand)]
+pub enum HwCommand {
+    /// List serial ports and USB devices (PTP cameras marked); with `--rig`, connect each
+    /// device of that rig through its backend and print its identity and health (emulated
+    /// devices: behind their firmware on pseudo-terminals, docs/serial.md).
+    Probe {
+        /// Rig config file, or an embedded rig by name (`gonio-serial`).
+        #[arg(long)]
+        rig: Option<std::path::PathBuf>,
+    },
 }
 
 /// `btfrig serve`.
@@ -137,7 +153,9 @@ pub struct DemoArgs {
     /// of the quick demo plan (rig-configs/plans/demo.toml).
     #[arg(long)]
     pub full: bool,
-    /// Rig config file instead of the plan's embedded simulated gonioreflectometer.
+    /// Rig config file instead of the plan's embedded simulated gonioreflectometer, or an
+    /// embedded rig by name: `gonio-serial` (the same rig through the serial and PTP
+    /// backends and emulated firmware on pseudo-terminals, docs/serial.md).
     #[arg(long)]
     pub rig: Option<std::path::PathBuf>,
     /// Material name (see `btfrig sim materials`) or a material TOML file, instead of the plan's.

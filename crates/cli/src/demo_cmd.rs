@@ -43,7 +43,8 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<ExitCode> {
     } else {
         let skipped: Vec<String> = s.skipped.iter().map(|(r, n)| format!("{n} {r}")).collect();
         let stages: Vec<String> = s.stage_s.iter().map(|(k, v)| format!("{k} {v:.2} s")).collect();
-        println!("btfrig demo: plan {name:?} on the simulated gonioreflectometer");
+        let on = a.rig.as_ref().map_or("the simulated gonioreflectometer".to_string(), |r| format!("rig {}", r.display()));
+        println!("btfrig demo: plan {name:?} on {on}");
         println!("  captures          {} of {} planned", s.captures, s.planned_captures);
         println!("  skipped           {}", if skipped.is_empty() { "none".into() } else { skipped.join(", ") });
         println!(
@@ -94,7 +95,11 @@ fn with_overrides(text: &str, rig: Option<&Path>, material: Option<&str>, cwd: &
     let section = doc.entry("rig").or_insert_with(|| toml::Value::Table(toml::Table::new()));
     let section = section.as_table_mut().context("the embedded plan's [rig]")?;
     if let Some(r) = rig {
-        section.insert("config".into(), toml::Value::String(cwd.join(r).display().to_string()));
+        let config = match crate::rig::builtin(r) {
+            Some(name) => name.to_string(),
+            None => cwd.join(r).display().to_string(),
+        };
+        section.insert("config".into(), toml::Value::String(config));
     }
     if let Some(m) = material {
         let m = if m.ends_with(".toml") { cwd.join(m).display().to_string() } else { m.to_string() };

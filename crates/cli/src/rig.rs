@@ -10,6 +10,10 @@ use btfrig_core::plan::{BUILTIN_RIG, BUILTIN_RIGS};
 /// (the same text plans name as `builtin:bonn-gonio-sim`), so the binary works from any
 /// directory.
 pub fn load(path: Option<&Path>) -> anyhow::Result<RigConfig> {
+    if let Some(name) = path.and_then(builtin) {
+        let (_, text) = BUILTIN_RIGS.iter().find(|(n, _)| *n == name).expect("builtin() names an embedded rig");
+        return Ok(RigConfig::from_toml(text, &format!("<embedded {name}>"))?);
+    }
     match path {
         None => {
             let (_, text) = BUILTIN_RIGS
@@ -23,4 +27,17 @@ pub fn load(path: Option<&Path>) -> anyhow::Result<RigConfig> {
             Ok(RigConfig::from_toml(&text, &p.display().to_string())?)
         }
     }
+}
+
+/// The embedded rig that `--rig NAME` names when NAME is not a file: `builtin:NAME`,
+/// `builtin:bonn-NAME` (`--rig gonio-serial` = `builtin:bonn-gonio-serial`).
+pub fn builtin(path: &Path) -> Option<&'static str> {
+    if path.exists() {
+        return None;
+    }
+    let name = path.to_str()?.trim_start_matches("builtin:");
+    BUILTIN_RIGS
+        .iter()
+        .map(|(n, _)| *n)
+        .find(|n| *n == format!("builtin:{name}") || *n == format!("builtin:bonn-{name}"))
 }

@@ -65,6 +65,11 @@ pub mod codes {
     pub const OVER_TEMPERATURE: u8 = 6;
     /// `Trigger` with nothing staged.
     pub const NOTHING_STAGED: u8 = 7;
+    /// Still lighting the previously triggered pattern; retry after a status poll.
+    pub const BUSY: u8 = 8;
+    /// Lighting the triggered pattern failed (a driver channel fault); the answer to the
+    /// request after the trigger.
+    pub const DRIVER_FAULT: u8 = 9;
 }
 
 /// How the host should treat a `Nack` code.
@@ -72,7 +77,7 @@ pub fn nack_kind(code: u8) -> ErrorKind {
     match code {
         codes::BAD_CRC | codes::BAD_LENGTH => ErrorKind::CorruptData,
         codes::WRONG_COUNT | codes::VALUE_TOO_HIGH => ErrorKind::OutOfRange,
-        codes::OVER_TEMPERATURE => ErrorKind::Busy,
+        codes::OVER_TEMPERATURE | codes::BUSY => ErrorKind::Busy,
         _ => ErrorKind::Other,
     }
 }
@@ -485,5 +490,6 @@ mod tests {
         assert!(nack_kind(codes::BAD_CRC).is_retryable());
         assert_eq!(nack_kind(codes::VALUE_TOO_HIGH), ErrorKind::OutOfRange);
         assert!(!nack_kind(codes::NOTHING_STAGED).is_retryable());
+        assert_eq!(nack_kind(codes::BUSY), ErrorKind::Busy);
     }
 }

@@ -144,8 +144,10 @@ pub fn format_decimal(field: &'static str, v: f64, max_abs: f64) -> Result<Strin
         });
     }
     // Display never uses an exponent, but prints tiny values with many zeros; round
-    // magnitudes below 1e-12 to zero, which no device resolves anyway.
-    let v = if v.abs() < 1e-12 { 0.0 } else { v };
+    // magnitudes below 1e-30 to zero (at most ~50 characters per number). Not 1e-12: the
+    // planner's inverse kinematics yields joint targets such as 4.2e-17 rad (cos(pi/2)
+    // residues), and a host and an emulated controller must agree on them bit for bit.
+    let v = if v.abs() < 1e-30 { 0.0 } else { v };
     Ok(format!("{v}"))
 }
 
@@ -196,7 +198,7 @@ mod tests {
 
     #[test]
     fn format_decimal_round_trips_exactly() {
-        for v in [0.1, -1.0 / 3.0, 123.456_789_012_345_67, 1e-9, 179.999_999_999_999_97] {
+        for v in [0.1, -1.0 / 3.0, 123.456_789_012_345_67, 1e-9, 179.999_999_999_999_97, -4.163_336_342_344_337_6e-17, 1.110_223_024_625_156_8e-16] {
             let s = format_decimal("v", v, 1e9).unwrap();
             assert_eq!(decimal("v", &s).unwrap(), v, "{s}");
         }

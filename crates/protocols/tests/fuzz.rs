@@ -29,9 +29,9 @@ fn pushes(bytes: &[u8], cuts: &[usize]) -> Vec<Vec<u8>> {
     out
 }
 
-/// A number that survives the text codecs (which send |v| < 1e-12 as 0).
+/// A number that survives the text codecs (which send |v| < 1e-30 as 0).
 fn num(range: std::ops::Range<f64>) -> impl Strategy<Value = f64> {
-    range.prop_map(|v| if v.abs() < 1e-12 { 0.0 } else { v })
+    range.prop_map(|v| if v.abs() < 1e-30 { 0.0 } else { v })
 }
 
 fn grbl_command() -> impl Strategy<Value = grbl::Command> {

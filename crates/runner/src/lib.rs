@@ -12,6 +12,7 @@
 #![warn(missing_docs)]
 
 pub mod dry_run;
+pub mod emulated;
 mod hdr;
 mod light;
 pub mod plan;
@@ -985,13 +986,30 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
         source = Arc::new(occluder);
     }
     let truth = Arc::new(TruthLog::new(source));
-    let mut sim =
-        SimRig::from_rig_config(rig, faults, sim_clock(), truth.clone()).map_err(|e| RunError::Rig(e.to_string()))?;
-    btfrig_sim::capture::prepare(&mut sim)
-        .await
-        .map_err(|e| RunError::Rig(format!("preparing the simulated rig: {e}")))?;
-    let devices = Devices { robot: sim.robot, rail: sim.rail, camera: sim.camera, clock: sim.world.clock().clone() };
-    let _lamp = sim.lamp; // stays on for the whole run
+    // An emulated device is the simulator's behind emulated firmware and its real backend.
+    emulated::check(&rig.devices).map_err(RunError::Rig)?;
+    let mut sim_cfg = rig.clone();
+    sim_cfg.devices = rig.devices.simulated().ok_or_else(|| RunError::Rig("a device is real hardware: only simulated and emulated rigs run plans so far".into()))?;
+    let sim =
+        SimRig::from_rig_config(&sim_cfg, faults, sim_clock(), truth.clone()).map_err(|e| RunError::Rig(e.to_string()))?;
+    let clock = sim.world.clock().clone();
+    let SimRig { robot, rail, turntable, lamp, led_array, camera: sim_camera, .. } = sim;
+    let parts = emulated::SimDevices { robot, rail, turntable, lamp, led_array, camera: sim_camera };
+    let emulated::Connected { mut robot, mut rail, mut lamp, camera: rig_camera, firmware: _firmware, .. } =
+        emulated::connect(&rig.devices, parts, clock.clone(), settings.read_timeout_s).await.map_err(RunError::Rig)?;
+    // Home, ignite and warm up (as btfrig_sim::capture::prepare), through the backends.
+    let prepare = async {
+        let opts = btfrig_hw::MoveOptions::default();
+        let (r, t) = tokio::join!(robot.home(opts), rail.home(opts));
+        r?;
+        t?;
+        lamp.set_on(true).await?;
+        let warm_up = lamp.capabilities().warm_up_s;
+        lamp.wait_ready(warm_up + 60.0).await
+    };
+    prepare.await.map_err(|e| RunError::Rig(format!("preparing the simulated rig: {e}")))?;
+    let devices = Devices { robot, rail, camera: rig_camera, clock };
+    let _lamp = lamp; // stays on for the whole run
     let exposure_control: Box<dyn btfrig_engine::ExposureControl> = match &hdr {
         Some(h) => {
             let sensor = scene.sensor();

@@ -2,6 +2,8 @@
 //! pseudo-terminal in a real protocol, with hooks to inject link faults.
 
 pub mod grbl;
+pub mod lamp;
+pub mod led;
 pub mod robot;
 
 use std::io::{Read, Write};

@@ -17,6 +17,37 @@ use btfrig_protocols::grbl::{alarm_kind, alarm_text, error_kind, error_text, Axi
 
 use crate::transport::{Connector, Link, LinkError, Session};
 
+/// What one controller unit of the axis is. GRBL itself is unit-agnostic (its `$100`
+/// steps per unit decide); a rotary axis is commonly set up in degrees. Set up in radians,
+/// targets cross the line bit for bit (numbers are the shortest decimal that parses back),
+/// while `rad.to_degrees().to_radians()` is not always the same `f64`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum AxisUnits {
+    /// One unit = one degree.
+    #[default]
+    Degrees,
+    /// One unit = one radian.
+    Radians,
+}
+
+impl AxisUnits {
+    /// Radians to controller units.
+    pub fn to_wire(self, rad: f64) -> f64 {
+        match self {
+            AxisUnits::Degrees => rad.to_degrees(),
+            AxisUnits::Radians => rad,
+        }
+    }
+
+    /// Controller units to radians.
+    pub fn from_wire(self, v: f64) -> f64 {
+        match self {
+            AxisUnits::Degrees => v.to_radians(),
+            AxisUnits::Radians => v,
+        }
+    }
+}
+
 /// Options of a GRBL axis backend.
 #[derive(Debug, Clone)]
 pub struct GrblAxisConfig {
@@ -32,6 +63,8 @@ pub struct GrblAxisConfig {
     pub poll_s: f64,
     /// How long a line may wait for its answer, wall-clock (link latency is physical).
     pub reply_timeout: Duration,
+    /// The controller's unit (as its emulator or `$100` is set up).
+    pub units: AxisUnits,
 }
 
 /// A rail or turntable on a GRBL-style controller.
@@ -157,12 +190,21 @@ impl GrblAxis {
         sent.map_err(|e| self.link_err(e))?;
         let start = self.clock.now_s();
         let wall_deadline = Instant::now() + wait;
+        // The first wait covers a prompt answer; a line answered only when done (`$H`) is
+        // then awaited in short slices with rig-clock sleeps between, so a virtual rig clock
+        // can advance (tokio does not advance paused time while a blocking read runs).
+        let mut slice = Duration::from_millis(50);
+        let mut first = true;
         loop {
+            if !std::mem::take(&mut first) {
+                self.clock.sleep_s(self.cfg.poll_s).await;
+                slice = Duration::from_millis(1);
+            }
             let got = self
                 .link
                 .run(move |s| {
                     let mut alarms = Vec::new();
-                    await_response(s, Duration::from_millis(50), &mut alarms, |r| match r {
+                    await_response(s, slice, &mut alarms, |r| match r {
                         Response::Ok => Some(LineEnd::Ok),
                         Response::Error(n) => Some(LineEnd::Error(*n)),
                         Response::Alarm(n) => Some(LineEnd::Alarm(*n)),
@@ -217,7 +259,7 @@ impl GrblAxis {
 
     async fn do_move(&mut self, angle_rad: f64, opts: MoveOptions) -> Result<f64, DeviceError> {
         let start = self.clock.now_s();
-        let cmd = Command::Move { rapid: true, axis: self.cfg.axis, target: angle_rad.to_degrees(), feed: None };
+        let cmd = Command::Move { rapid: true, axis: self.cfg.axis, target: self.cfg.units.to_wire(angle_rad), feed: None };
         let end = self.line(cmd, 0.0).await?;
         self.check_end(end, "move_to_rad").await?;
         loop {
@@ -226,7 +268,7 @@ impl GrblAxis {
                 return Err(self.alarm_err(n, "move_to_rad"));
             }
             match st.state {
-                State::Idle => return Ok(st.mpos.get(self.cfg.axis.index()).copied().unwrap_or(f64::NAN).to_radians()),
+                State::Idle => return Ok(self.cfg.units.from_wire(st.mpos.get(self.cfg.axis.index()).copied().unwrap_or(f64::NAN))),
                 State::Alarm => return Err(self.err(ErrorKind::Other, "move_to_rad: controller in alarm state")),
                 _ => {}
             }
@@ -242,7 +284,7 @@ impl GrblAxis {
         if st.state == State::Alarm {
             return Err(self.err(ErrorKind::NotHomed, "position_rad: controller locked (alarm); home first"));
         }
-        Ok(st.mpos.get(self.cfg.axis.index()).copied().unwrap_or(f64::NAN).to_radians())
+        Ok(self.cfg.units.from_wire(st.mpos.get(self.cfg.axis.index()).copied().unwrap_or(f64::NAN)))
     }
 
     async fn do_stop(&mut self) -> Result<(), DeviceError> {

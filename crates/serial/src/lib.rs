@@ -16,6 +16,8 @@
 
 pub mod firmware;
 pub mod grbl;
+pub mod lamp;
+pub mod led;
 pub mod pty;
 pub mod robot;
 pub mod transport;

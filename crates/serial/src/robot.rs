@@ -44,6 +44,16 @@ impl SerialRobot {
         SerialRobot { info, cfg, link: Link::new(connector, reply_decoder), clock, tag: 0 }
     }
 
+    /// Asks the controller who it is (`ID`) and keeps it in [`Device::info`].
+    pub async fn identify(&mut self) -> Result<(), DeviceError> {
+        if let Reply::Id { model, serial, firmware } = self.request(Request::Id, "identify").await? {
+            self.info.model = model;
+            self.info.serial = Some(serial);
+            self.info.firmware = Some(firmware);
+        }
+        Ok(())
+    }
+
     /// Times the port was (re)opened.
     pub fn connects(&self) -> u64 {
         self.link.connects

@@ -9,7 +9,7 @@ use btfrig_core::config::{devices::DevicesConfig, timing::TimingConfig};
 use btfrig_hw::{Device, ErrorKind, MoveOptions, Rail, ScaledClock, SharedClock};
 use btfrig_protocols::grbl::Axis;
 use btfrig_serial::firmware::grbl::{AxisDevice, Fault, GrblFirmware};
-use btfrig_serial::grbl::{GrblAxis, GrblAxisConfig};
+use btfrig_serial::grbl::{AxisUnits, GrblAxis, GrblAxisConfig};
 use btfrig_serial::transport::SerialConnector;
 use btfrig_sim::{FaultScenario, FlatFrameSource, SimRig, SimWorld};
 
@@ -33,6 +33,10 @@ impl Drop for TempDir {
 }
 
 fn bench(name: &str) -> Bench {
+    bench_in(name, AxisUnits::Degrees)
+}
+
+fn bench_in(name: &str, units: AxisUnits) -> Bench {
     let clock: SharedClock = Arc::new(ScaledClock::new(SPEED).unwrap());
     let source = Arc::new(FlatFrameSource::new(4, 4, 100.0));
     let rig = SimRig::build(&DevicesConfig::default(), &TimingConfig::bonn(), 7, &FaultScenario::none(), clock.clone(), source)
@@ -41,7 +45,7 @@ fn bench(name: &str) -> Bench {
     std::fs::create_dir_all(&dir).unwrap();
     let link = dir.join("rail");
     let limits = rig.rail.limits();
-    let firmware = GrblFirmware::spawn(AxisDevice::Rail(rig.rail), &link).unwrap();
+    let firmware = GrblFirmware::spawn_with_units(AxisDevice::Rail(rig.rail), &link, units).unwrap();
     let cfg = GrblAxisConfig {
         name: "rail".into(),
         model: "emulated GRBL".into(),
@@ -49,6 +53,7 @@ fn bench(name: &str) -> Bench {
         limits,
         poll_s: 0.05,
         reply_timeout: Duration::from_secs(2),
+        units,
     };
     let connector = Arc::new(SerialConnector { path: link.to_string_lossy().into_owned(), baud: 115_200 });
     Bench { axis: GrblAxis::new(cfg, connector, clock.clone()), firmware, world: rig.world, clock, _dir: TempDir(dir) }
@@ -151,4 +156,16 @@ async fn controller_alarm_is_a_clear_non_retryable_error() {
     retried!(b, b.axis.home(OPTS).await).unwrap();
     let reported = b.axis.move_to_rad(90f64.to_radians(), OPTS).await.unwrap();
     assert!((reported - 90f64.to_radians()).abs() < 1e-12);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn radian_units_cross_bit_for_bit() {
+    // 0.1 rad: to_degrees().to_radians() is not the same f64, so a degree axis would
+    // command the simulator a neighbouring value (and its jitter, keyed by the bits, differs).
+    let target = 0.1f64;
+    assert_ne!(target.to_degrees().to_radians(), target);
+    let mut b = bench_in("radians", AxisUnits::Radians);
+    b.axis.home(OPTS).await.unwrap();
+    assert_eq!(b.axis.move_to_rad(target, OPTS).await.unwrap(), target);
+    assert_eq!(b.world.commanded().rail, target);
 }

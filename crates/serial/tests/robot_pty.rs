@@ -55,6 +55,10 @@ async fn exact_targets_errors_and_garbage() {
     assert_eq!(got, target);
     assert_eq!(b.world.commanded().robot, target);
     assert_eq!(b.robot.skipped_lines(), 2, "two garbage lines skipped");
+    // An inverse-kinematics residue (cos(pi/2)-sized) crosses exactly too, not as 0.
+    let tiny = [15f64.to_radians(), -4.163_336_342_344_337_6e-17, 60f64.to_radians()];
+    assert_eq!(b.robot.move_to_rad(tiny, OPTS).await.unwrap(), tiny);
+    assert_eq!(b.world.commanded().robot, tiny);
     let e = b.robot.move_to_rad([0.0, 2.0, 0.0], OPTS).await.unwrap_err();
     assert_eq!(e.kind(), ErrorKind::OutOfRange, "{e}");
     assert!(e.to_string().contains("joint 1"), "{e}");

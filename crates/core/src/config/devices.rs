@@ -32,6 +32,28 @@ impl DeviceEntry {
     pub fn sim() -> Self {
         DeviceEntry { kind: "sim".into(), options: toml::Table::new() }
     }
+
+    /// Whether this is a real backend talking to emulated firmware in front of a simulated
+    /// device: a `[devices.<role>.link]` table with `emulated = true`. The entry's other
+    /// options are then the simulated device's (`kind = "sim"` options), the `link` table the
+    /// backend's (docs/serial.md).
+    pub fn is_emulated(&self) -> bool {
+        self.kind != "sim" && self.options.get("link").and_then(|l| l.get("emulated")).and_then(|e| e.as_bool()) == Some(true)
+    }
+
+    /// The simulated device of this entry: itself if simulated, the simulated device behind
+    /// the emulated firmware if emulated (`kind = "sim"`, the `link` table removed); `None`
+    /// for a real device.
+    pub fn simulated(&self) -> Option<DeviceEntry> {
+        if self.kind == "sim" {
+            return Some(self.clone());
+        }
+        self.is_emulated().then(|| {
+            let mut options = self.options.clone();
+            options.remove("link");
+            DeviceEntry { kind: "sim".into(), options }
+        })
+    }
 }
 
 /// The `[devices]` section. Robot, rail, lamp and camera default to simulated devices;
@@ -73,6 +95,30 @@ impl Default for DevicesConfig {
 }
 
 impl DevicesConfig {
+    /// Whether any device is emulated ([`DeviceEntry::is_emulated`]).
+    pub fn any_emulated(&self) -> bool {
+        self.entries().iter().any(|(_, e)| e.is_emulated())
+    }
+
+    /// The all-simulated rig underneath: every emulated device replaced by its simulated
+    /// device ([`DeviceEntry::simulated`]); `None` if a device is real.
+    pub fn simulated(&self) -> Option<DevicesConfig> {
+        Some(DevicesConfig {
+            robot: self.robot.simulated()?,
+            rail: self.rail.simulated()?,
+            turntable: match &self.turntable {
+                Some(t) => Some(t.simulated()?),
+                None => None,
+            },
+            lamp: self.lamp.simulated()?,
+            led_array: match &self.led_array {
+                Some(l) => Some(l.simulated()?),
+                None => None,
+            },
+            camera: self.camera.simulated()?,
+        })
+    }
+
     /// Every present device as (role name, entry), in a fixed order.
     pub fn entries(&self) -> Vec<(&'static str, &DeviceEntry)> {
         let mut v = vec![("robot", &self.robot), ("rail", &self.rail)];

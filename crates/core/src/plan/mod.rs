@@ -45,7 +45,10 @@ pub use validate::{
 pub const BUILTIN_RIG: &str = "builtin:bonn-gonio-sim";
 
 /// The embedded rig configs: (name as written in a plan, TOML text).
-pub const BUILTIN_RIGS: &[(&str, &str)] = &[(BUILTIN_RIG, include_str!("../../../../rig-configs/bonn-gonio-sim.toml"))];
+pub const BUILTIN_RIGS: &[(&str, &str)] = &[
+    (BUILTIN_RIG, include_str!("../../../../rig-configs/bonn-gonio-sim.toml")),
+    ("builtin:bonn-gonio-serial", include_str!("../../../../rig-configs/bonn-gonio-serial.toml")),
+];
 
 /// Names of the fault scenarios shipped in `sim/faults/` (file stems). The caller may pass
 /// others in [`PlanContext::known_faults`] (e.g. after listing the directory).

@@ -614,7 +614,8 @@ fn resolve_rig(plan: &Plan, ctx: &PlanContext, errors: &mut Vec<PlanError>) -> O
 }
 
 fn is_simulated(rig: &RigConfig) -> bool {
-    rig.devices.camera.kind == "sim"
+    // An emulated camera (PTP firmware in front of the simulator's) renders the material too.
+    rig.devices.camera.simulated().is_some()
 }
 
 fn resolve_material(

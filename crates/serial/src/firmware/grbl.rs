@@ -17,6 +17,7 @@ use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 
 use super::Wire;
+use crate::grbl::AxisUnits;
 
 /// The device behind the controller.
 pub enum AxisDevice {
@@ -90,6 +91,11 @@ impl GrblFirmware {
     /// Serves `device` on a new pseudo-terminal behind the symlink `link`. Call inside a
     /// tokio runtime (the emulator is a task on it).
     pub fn spawn(device: AxisDevice, link: &Path) -> std::io::Result<GrblFirmware> {
+        Self::spawn_with_units(device, link, AxisUnits::Degrees)
+    }
+
+    /// [`GrblFirmware::spawn`] with the axis set up in `units` (the backend must agree).
+    pub fn spawn_with_units(device: AxisDevice, link: &Path, units: AxisUnits) -> std::io::Result<GrblFirmware> {
         let (tx, rx) = mpsc::unbounded_channel();
         let limits = device.limits();
         let wire = Wire::open(link, 0, forwarder(&tx))?;
@@ -101,6 +107,7 @@ impl GrblFirmware {
             wire,
             decoder: CommandDecoder::new(),
             pos_deg: 0.0,
+            units,
             homed: false,
             alarm: None,
             hold: false,
@@ -147,6 +154,8 @@ struct Emulator {
     wire: Wire,
     decoder: CommandDecoder,
     pos_deg: f64,
+    /// Controller units of `pos_deg` and targets (degrees unless set up otherwise).
+    units: AxisUnits,
     homed: bool,
     alarm: Option<u16>,
     hold: bool,
@@ -207,10 +216,11 @@ impl Emulator {
     fn start(&mut self, job: Job) {
         let Some(mut dev) = self.device.take() else { return };
         self.homing = matches!(job, Job::Home);
+        let units = self.units;
         self.job = Some(tokio::spawn(async move {
             let r = match job {
                 Job::Home => dev.home().await,
-                Job::Move(deg) => dev.move_to(deg.to_radians()).await.map(|_| ()),
+                Job::Move(deg) => dev.move_to(units.from_wire(deg)).await.map(|_| ()),
             };
             (dev, job, r)
         }));
@@ -223,7 +233,7 @@ impl Emulator {
             (Job::Home, Ok(())) => {
                 self.homed = true;
                 self.alarm = None;
-                self.pos_deg = 0f64.clamp(self.limits.min_rad, self.limits.max_rad).to_degrees();
+                self.pos_deg = self.units.to_wire(0f64.clamp(self.limits.min_rad, self.limits.max_rad));
                 self.reply(Response::Ok);
             }
             (Job::Move(deg), Ok(())) => self.pos_deg = deg,
@@ -301,7 +311,7 @@ impl Emulator {
                     return self.reply(Response::Error(9));
                 }
                 let soft_limits = self.settings.get(&20).copied().unwrap_or(0.0) != 0.0;
-                if soft_limits && !self.limits.contains(target.to_radians()) {
+                if soft_limits && !self.limits.contains(self.units.from_wire(target)) {
                     return self.raise(2);
                 }
                 self.queue.push_back(target);

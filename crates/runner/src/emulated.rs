@@ -1,0 +1,374 @@
+//! Emulated rigs: the real serial and PTP backends driving the simulator's devices through
+//! emulated firmware (`kind = "serial"` / `"ptp"` with `[devices.<role>.link] emulated =
+//! true`, docs/serial.md). Each emulated device's firmware is served on a pseudo-terminal
+//! (the camera: an in-process PTP responder) and the backend opens it like real hardware.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Duration;
+
+use btfrig_core::config::devices::{DeviceEntry, DevicesConfig};
+use btfrig_hw::{Camera, Lamp, LedArray, Rail, Robot, SharedClock, Turntable};
+use btfrig_protocols::grbl::Axis;
+use btfrig_ptp::camera::{PtpCamera, PtpCameraConfig};
+use btfrig_ptp::responder::{PtpResponder, ResponderConfig};
+use btfrig_serial::firmware::grbl::{AxisDevice, GrblFirmware};
+use btfrig_serial::firmware::lamp::{LampFirmware, LampFirmwareConfig};
+use btfrig_serial::firmware::led::LedFirmware;
+use btfrig_serial::firmware::robot::RobotFirmware;
+use btfrig_serial::grbl::{AxisUnits, GrblAxis, GrblAxisConfig};
+use btfrig_serial::lamp::{SerialLamp, SerialLampConfig};
+use btfrig_serial::led::{SerialLedArray, SerialLedConfig};
+use btfrig_serial::robot::{SerialRobot, SerialRobotConfig};
+use btfrig_serial::transport::SerialConnector;
+
+/// The backend options of an emulated device (`[devices.<role>.link]`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct LinkOptions {
+    /// Status poll interval while the device works, rig seconds.
+    pub poll_s: f64,
+    /// How long a reply may take, wall clock.
+    pub reply_timeout: Duration,
+    /// GRBL axis unit (rail, turntable).
+    pub units: AxisUnits,
+}
+
+/// The link options of `entry` (`devices.<role>`), or a message naming the bad key.
+pub fn link_options(role: &str, entry: &DeviceEntry) -> Result<LinkOptions, String> {
+    let mut o = LinkOptions { poll_s: 0.01, reply_timeout: Duration::from_millis(2000), units: AxisUnits::Radians };
+    let Some(t) = entry.options.get("link").and_then(|l| l.as_table()) else { return Ok(o) };
+    let f = |k: &str, v: &toml::Value| {
+        v.as_float()
+            .or_else(|| v.as_integer().map(|i| i as f64))
+            .ok_or_else(|| format!("devices.{role}.link.{k} must be a number"))
+    };
+    for (k, v) in t {
+        match k.as_str() {
+            "emulated" => {}
+            "poll_s" => {
+                o.poll_s = f(k, v)?;
+                if !(o.poll_s > 0.0 && o.poll_s <= 10.0) {
+                    return Err(format!(
+                        "devices.{role}.link.poll_s = {} is out of range: allowed (0, 10] s",
+                        o.poll_s
+                    ));
+                }
+            }
+            "reply_timeout_ms" => {
+                let ms = f(k, v)?;
+                if !(1.0..=60_000.0).contains(&ms) {
+                    return Err(format!(
+                        "devices.{role}.link.reply_timeout_ms = {ms} is out of range: allowed [1, 60000]"
+                    ));
+                }
+                o.reply_timeout = Duration::from_secs_f64(ms / 1000.0);
+            }
+            "units" if role == "rail" || role == "turntable" => {
+                o.units = match v.as_str() {
+                    Some("rad") => AxisUnits::Radians,
+                    Some("deg") => AxisUnits::Degrees,
+                    _ => return Err(format!("devices.{role}.link.units = {v} is unknown: allowed \"rad\", \"deg\"")),
+                }
+            }
+            other => {
+                return Err(format!(
+                    "devices.{role}.link.{other} is unknown: allowed emulated, poll_s, reply_timeout_ms{}",
+                    if role == "rail" || role == "turntable" { ", units" } else { "" }
+                ))
+            }
+        }
+    }
+    Ok(o)
+}
+
+/// Checks every emulated device's kind and link options; the kinds are `"serial"` for
+/// robot, rail, turntable, lamp and LED array, `"ptp"` for the camera.
+pub fn check(devices: &DevicesConfig) -> Result<(), String> {
+    for (role, e) in devices.entries() {
+        if e.kind == "sim" {
+            continue;
+        }
+        let want = if role == "camera" { "ptp" } else { "serial" };
+        if e.kind != want {
+            return Err(format!("devices.{role}.kind = {:?} is unknown: allowed \"sim\", {want:?}", e.kind));
+        }
+        if !e.is_emulated() {
+            return Err(format!(
+                "devices.{role}: a {want} device on real hardware cannot run a simulated plan; set [devices.{role}.link] emulated = true (real ports: `btfrig hw probe`)"
+            ));
+        }
+        link_options(role, e)?;
+    }
+    Ok(())
+}
+
+/// The devices of a rig, some through emulated firmware, and what keeps that firmware
+/// running (drop it after the devices).
+pub struct Connected {
+    /// The robot.
+    pub robot: Box<dyn Robot>,
+    /// The rail.
+    pub rail: Box<dyn Rail>,
+    /// The turntable, if any.
+    pub turntable: Option<Box<dyn Turntable>>,
+    /// The lamp.
+    pub lamp: Box<dyn Lamp>,
+    /// The LED array, if any.
+    pub led_array: Option<Box<dyn LedArray>>,
+    /// The camera.
+    pub camera: Box<dyn Camera>,
+    /// The firmware emulators and their pty directory.
+    pub firmware: Firmware,
+}
+
+/// Running emulators; dropping stops them and removes the pty links.
+#[derive(Default)]
+pub struct Firmware {
+    robot: Option<RobotFirmware>,
+    axes: Vec<GrblFirmware>,
+    lamp: Option<LampFirmware>,
+    leds: Option<LedFirmware>,
+    camera: Option<PtpResponder>,
+    dir: Option<PathBuf>,
+}
+
+impl Firmware {
+    /// The directory of the pty links (`robot`, `rail`, ...), if any device is emulated.
+    pub fn dir(&self) -> Option<&std::path::Path> {
+        self.dir.as_deref()
+    }
+
+    /// How many emulators run.
+    pub fn count(&self) -> usize {
+        usize::from(self.robot.is_some())
+            + self.axes.len()
+            + usize::from(self.lamp.is_some())
+            + usize::from(self.leds.is_some())
+            + usize::from(self.camera.is_some())
+    }
+}
+
+impl Drop for Firmware {
+    fn drop(&mut self) {
+        self.robot = None;
+        self.axes.clear();
+        self.lamp = None;
+        self.leds = None;
+        self.camera = None;
+        if let Some(d) = &self.dir {
+            let _ = std::fs::remove_dir_all(d);
+        }
+    }
+}
+
+/// The simulated devices, as built from [`DevicesConfig::simulated`].
+pub struct SimDevices {
+    /// The robot.
+    pub robot: Box<dyn Robot>,
+    /// The rail.
+    pub rail: Box<dyn Rail>,
+    /// The turntable.
+    pub turntable: Option<Box<dyn Turntable>>,
+    /// The lamp.
+    pub lamp: Box<dyn Lamp>,
+    /// The LED array.
+    pub led_array: Option<Box<dyn LedArray>>,
+    /// The camera.
+    pub camera: Box<dyn Camera>,
+}
+
+fn serial(path: &std::path::Path, baud: u32) -> Arc<SerialConnector> {
+    Arc::new(SerialConnector { path: path.to_string_lossy().into_owned(), baud })
+}
+
+/// Puts emulated firmware in front of each simulated device whose entry in `devices` is
+/// emulated and connects the real backend to it; other devices pass through. Call inside
+/// the tokio runtime the devices run on; `read_timeout_s` is the engine's read-out timeout
+/// (the emulated camera gives up on a read-out after it too).
+pub async fn connect(
+    devices: &DevicesConfig,
+    sim: SimDevices,
+    clock: SharedClock,
+    read_timeout_s: f64,
+) -> Result<Connected, String> {
+    check(devices)?;
+    let mut fw = Firmware::default();
+    if devices.any_emulated() {
+        static N: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+        let n = N.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let dir = std::env::temp_dir().join(format!("btfrig-emulated-{}-{n}", std::process::id()));
+        std::fs::create_dir_all(&dir).map_err(|e| format!("pty directory {}: {e}", dir.display()))?;
+        fw.dir = Some(dir);
+    }
+    let dir = fw.dir.clone().unwrap_or_default();
+    let io = |what: &str, e: std::io::Error| format!("emulated {what} firmware: {e}");
+    let dev =
+        |what: &str, e: btfrig_hw::DeviceError| format!("connecting the {what} backend to its emulated firmware: {e}");
+
+    let robot: Box<dyn Robot> = if devices.robot.is_emulated() {
+        let o = link_options("robot", &devices.robot)?;
+        let link = dir.join("robot");
+        let joint_limits = sim.robot.joint_limits();
+        fw.robot = Some(RobotFirmware::spawn(sim.robot, &link).map_err(|e| io("robot", e))?);
+        let cfg =
+            SerialRobotConfig { name: "robot".into(), joint_limits, poll_s: o.poll_s, reply_timeout: o.reply_timeout };
+        let mut r = SerialRobot::new(cfg, serial(&link, 115_200), clock.clone());
+        r.identify().await.map_err(|e| dev("robot", e))?;
+        Box::new(r)
+    } else {
+        sim.robot
+    };
+    let rail: Box<dyn Rail> = if devices.rail.is_emulated() {
+        let o = link_options("rail", &devices.rail)?;
+        let link = dir.join("rail");
+        let limits = sim.rail.limits();
+        fw.axes.push(
+            GrblFirmware::spawn_with_units(AxisDevice::Rail(sim.rail), &link, o.units).map_err(|e| io("rail", e))?,
+        );
+        let cfg = GrblAxisConfig {
+            name: "rail".into(),
+            model: "GRBL rail (emulated)".into(),
+            axis: Axis::X,
+            limits,
+            poll_s: o.poll_s,
+            reply_timeout: o.reply_timeout,
+            units: o.units,
+        };
+        Box::new(GrblAxis::new(cfg, serial(&link, 115_200), clock.clone()))
+    } else {
+        sim.rail
+    };
+    let turntable: Option<Box<dyn Turntable>> = match (sim.turntable, &devices.turntable) {
+        (Some(t), Some(e)) if e.is_emulated() => {
+            let o = link_options("turntable", e)?;
+            let link = dir.join("turntable");
+            let limits = t.limits();
+            fw.axes.push(
+                GrblFirmware::spawn_with_units(AxisDevice::Turntable(t), &link, o.units)
+                    .map_err(|e| io("turntable", e))?,
+            );
+            let cfg = GrblAxisConfig {
+                name: "turntable".into(),
+                model: "GRBL turntable (emulated)".into(),
+                axis: Axis::X,
+                limits,
+                poll_s: o.poll_s,
+                reply_timeout: o.reply_timeout,
+                units: o.units,
+            };
+            Some(Box::new(GrblAxis::new(cfg, serial(&link, 115_200), clock.clone())))
+        }
+        (t, _) => t,
+    };
+    let lamp: Box<dyn Lamp> = if devices.lamp.is_emulated() {
+        let o = link_options("lamp", &devices.lamp)?;
+        let link = dir.join("lamp");
+        fw.lamp = Some(
+            LampFirmware::spawn(sim.lamp, LampFirmwareConfig::default(), clock.clone(), &link)
+                .map_err(|e| io("lamp", e))?,
+        );
+        let cfg = SerialLampConfig { name: "lamp".into(), poll_s: o.poll_s, reply_timeout: o.reply_timeout };
+        Box::new(SerialLamp::open(cfg, serial(&link, 9600), clock.clone()).await.map_err(|e| dev("lamp", e))?)
+    } else {
+        sim.lamp
+    };
+    let led_array: Option<Box<dyn LedArray>> = match (sim.led_array, &devices.led_array) {
+        (Some(l), Some(e)) if e.is_emulated() => {
+            let o = link_options("led_array", e)?;
+            let link = dir.join("leds");
+            fw.leds = Some(LedFirmware::spawn(l, &link).map_err(|e| io("LED", e))?);
+            let cfg = SerialLedConfig { name: "led_array".into(), poll_s: o.poll_s, reply_timeout: o.reply_timeout };
+            Some(Box::new(
+                SerialLedArray::open(cfg, serial(&link, 460_800), clock.clone())
+                    .await
+                    .map_err(|e| dev("LED array", e))?,
+            ))
+        }
+        (l, _) => l,
+    };
+    let camera: Box<dyn Camera> = if devices.camera.is_emulated() {
+        let capabilities = sim.camera.capabilities();
+        let rcfg = ResponderConfig { read_timeout_s, ..ResponderConfig::default() };
+        let (responder, transport) = PtpResponder::spawn(sim.camera, rcfg);
+        fw.camera = Some(responder);
+        let cfg = PtpCameraConfig { name: "camera".into(), capabilities, op_timeout_s: 10.0, read_margin_s: 1.0 };
+        Box::new(PtpCamera::open(cfg, Box::new(transport), clock.clone()).await.map_err(|e| dev("camera", e))?)
+    } else {
+        sim.camera
+    };
+    Ok(Connected { robot, rail, turntable, lamp, led_array, camera, firmware: fw })
+}
+
+/// One device as `btfrig hw probe` reports it.
+#[derive(Debug, Clone)]
+pub struct Probed {
+    /// Role (`robot`, `rail`, ...).
+    pub role: &'static str,
+    /// Backend kind in the rig config.
+    pub kind: String,
+    /// What the backend connects to (`<dir>/robot`, a PTP responder, ...), for emulated ones.
+    pub link: Option<String>,
+    /// Identity the device reported.
+    pub info: btfrig_hw::DeviceInfo,
+    /// Its health, or the error asking for it.
+    pub health: String,
+}
+
+/// Starts every emulated device of `rig` (behind its firmware on a pty) and asks each
+/// device, through its real backend, for its identity and health. Builds its own
+/// virtual-time runtime: call from a plain thread.
+pub fn probe(rig: &btfrig_core::config::RigConfig) -> Result<Vec<Probed>, String> {
+    check(&rig.devices)?;
+    let mut sim_cfg = rig.clone();
+    sim_cfg.devices = rig
+        .devices
+        .simulated()
+        .ok_or("a device is real hardware: probing real ports by rig config is not supported yet")?;
+    let rt = crate::virtual_time_runtime().map_err(|e| e.to_string())?;
+    rt.block_on(async {
+        let clock: SharedClock = Arc::new(btfrig_hw::ScaledClock::new(1e-3).map_err(|e| e.to_string())?);
+        let source = Arc::new(btfrig_sim::FlatFrameSource::new(8, 6, 100.0));
+        let sim =
+            btfrig_sim::SimRig::from_rig_config(&sim_cfg, &btfrig_sim::FaultScenario::none(), clock.clone(), source)
+                .map_err(|e| e.to_string())?;
+        let btfrig_sim::SimRig { robot, rail, turntable, lamp, led_array, camera, .. } = sim;
+        let mut c =
+            connect(&rig.devices, SimDevices { robot, rail, turntable, lamp, led_array, camera }, clock, 30.0).await?;
+        let dir = c.firmware.dir().map(|d| d.display().to_string());
+        let entry = |role: &str| rig.devices.entries().into_iter().find(|(r, _)| *r == role).map(|(_, e)| e.clone());
+        let mut out = Vec::new();
+        let mut add = |role: &'static str,
+                       info: btfrig_hw::DeviceInfo,
+                       health: Result<btfrig_hw::Health, btfrig_hw::DeviceError>| {
+            let e = entry(role);
+            let emulated = e.as_ref().is_some_and(|e| e.is_emulated());
+            let link = match (emulated, role, &dir) {
+                (true, "camera", _) => Some("in-process PTP responder".to_string()),
+                (true, r, Some(d)) => Some(format!("{d}/{}", if r == "led_array" { "leds" } else { r })),
+                _ => None,
+            };
+            let health = match health {
+                Ok(h) => format!("{h:?}"),
+                Err(e) => format!("error: {e}"),
+            };
+            out.push(Probed { role, kind: e.map(|e| e.kind).unwrap_or_default(), link, info, health });
+        };
+        let h = c.robot.health().await;
+        add("robot", c.robot.info().clone(), h);
+        let h = c.rail.health().await;
+        add("rail", c.rail.info().clone(), h);
+        if let Some(t) = c.turntable.as_mut() {
+            let h = t.health().await;
+            add("turntable", t.info().clone(), h);
+        }
+        let h = c.lamp.health().await;
+        add("lamp", c.lamp.info().clone(), h);
+        if let Some(l) = c.led_array.as_mut() {
+            let h = l.health().await;
+            add("led_array", l.info().clone(), h);
+        }
+        let h = c.camera.health().await;
+        add("camera", c.camera.info().clone(), h);
+        Ok(out)
+    })
+}
