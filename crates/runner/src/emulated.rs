@@ -121,11 +121,44 @@ pub struct Connected {
     pub firmware: Firmware,
 }
 
+/// A fault for one emulated device's firmware (tests: [`crate::RunRequest::link_faults`]).
+/// Faults apply when injected; wrap one in `OnNextMove` to fire it right after the next
+/// move is accepted, and nest `OnNextMove` n times for the n-th move (homing is not a move).
+#[derive(Debug, Clone)]
+pub enum LinkFault {
+    /// To the rail's GRBL controller.
+    Rail(btfrig_serial::firmware::grbl::Fault),
+    /// To the turntable's GRBL controller.
+    Turntable(btfrig_serial::firmware::grbl::Fault),
+    /// To the robot controller.
+    Robot(btfrig_serial::firmware::robot::Fault),
+    /// To the camera's PTP responder.
+    Camera(btfrig_ptp::responder::Fault),
+}
+
+impl LinkFault {
+    /// The fault `f` on the `n`-th move from now (n >= 1).
+    pub fn on_move_grbl(n: usize, f: btfrig_serial::firmware::grbl::Fault) -> btfrig_serial::firmware::grbl::Fault {
+        use btfrig_serial::firmware::grbl::Fault;
+        (0..n).fold(f, |f, _| Fault::OnNextMove(Box::new(f)))
+    }
+
+    /// The fault `f` on the robot's `n`-th move from now (n >= 1).
+    pub fn on_move_robot(
+        n: usize,
+        f: btfrig_serial::firmware::robot::Fault,
+    ) -> btfrig_serial::firmware::robot::Fault {
+        use btfrig_serial::firmware::robot::Fault;
+        (0..n).fold(f, |f, _| Fault::OnNextMove(Box::new(f)))
+    }
+}
+
 /// Running emulators; dropping stops them and removes the pty links.
 #[derive(Default)]
 pub struct Firmware {
     robot: Option<RobotFirmware>,
-    axes: Vec<GrblFirmware>,
+    rail: Option<GrblFirmware>,
+    turntable: Option<GrblFirmware>,
     lamp: Option<LampFirmware>,
     leds: Option<LedFirmware>,
     camera: Option<PtpResponder>,
@@ -138,10 +171,23 @@ impl Firmware {
         self.dir.as_deref()
     }
 
+    /// Injects `fault` into its device's emulator, or says that device is not emulated.
+    pub fn inject(&self, fault: &LinkFault) -> Result<(), String> {
+        let missing = |role: &str| format!("link fault {fault:?}: the {role} is not emulated in this rig");
+        match fault {
+            LinkFault::Rail(f) => self.rail.as_ref().ok_or_else(|| missing("rail"))?.inject(f.clone()),
+            LinkFault::Turntable(f) => self.turntable.as_ref().ok_or_else(|| missing("turntable"))?.inject(f.clone()),
+            LinkFault::Robot(f) => self.robot.as_ref().ok_or_else(|| missing("robot"))?.inject(f.clone()),
+            LinkFault::Camera(f) => self.camera.as_ref().ok_or_else(|| missing("camera"))?.inject(f.clone()),
+        }
+        Ok(())
+    }
+
     /// How many emulators run.
     pub fn count(&self) -> usize {
         usize::from(self.robot.is_some())
-            + self.axes.len()
+            + usize::from(self.rail.is_some())
+            + usize::from(self.turntable.is_some())
             + usize::from(self.lamp.is_some())
             + usize::from(self.leds.is_some())
             + usize::from(self.camera.is_some())
@@ -151,7 +197,8 @@ impl Firmware {
 impl Drop for Firmware {
     fn drop(&mut self) {
         self.robot = None;
-        self.axes.clear();
+        self.rail = None;
+        self.turntable = None;
         self.lamp = None;
         self.leds = None;
         self.camera = None;
@@ -222,7 +269,7 @@ pub async fn connect(
         let o = link_options("rail", &devices.rail)?;
         let link = dir.join("rail");
         let limits = sim.rail.limits();
-        fw.axes.push(
+        fw.rail = Some(
             GrblFirmware::spawn_with_units(AxisDevice::Rail(sim.rail), &link, o.units).map_err(|e| io("rail", e))?,
         );
         let cfg = GrblAxisConfig {
@@ -243,7 +290,7 @@ pub async fn connect(
             let o = link_options("turntable", e)?;
             let link = dir.join("turntable");
             let limits = t.limits();
-            fw.axes.push(
+            fw.turntable = Some(
                 GrblFirmware::spawn_with_units(AxisDevice::Turntable(t), &link, o.units)
                     .map_err(|e| io("turntable", e))?,
             );

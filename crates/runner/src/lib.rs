@@ -131,6 +131,12 @@ pub struct RunRequest {
     pub dark_flat: Option<DarkFlatInput>,
     /// Receives every committed texture (e.g. `btfrig-compress`'s streaming compressor).
     pub sink: Option<TextureSinkHandle>,
+    /// Faults injected into the emulated firmware of an emulated rig right after its backends
+    /// connect, before the rig is prepared (fault tests, `crates/runner/tests/serial_faults.rs`;
+    /// see [`emulated::LinkFault`]). Like [`RunRequest::faults`] it is not part of the plan,
+    /// so the same request without them resumes a dataset they paused. Empty by default;
+    /// a fault for a device that is not emulated is an error.
+    pub link_faults: Vec<emulated::LinkFault>,
 }
 
 /// A [`btfrig_pipeline::TextureSink`] in a [`RunRequest`].
@@ -171,6 +177,7 @@ impl RunRequest {
             light: None,
             dark_flat: None,
             sink: None,
+            link_faults: Vec::new(),
         }
     }
 
@@ -201,6 +208,12 @@ impl RunRequest {
     /// With a fault-scenario override (see [`RunRequest::faults`]).
     pub fn with_faults(mut self, faults: Option<String>) -> RunRequest {
         self.faults = faults;
+        self
+    }
+
+    /// With faults for the emulated firmware (see [`RunRequest::link_faults`]).
+    pub fn with_link_faults(mut self, faults: Vec<emulated::LinkFault>) -> RunRequest {
+        self.link_faults = faults;
         self
     }
 }
@@ -690,6 +703,7 @@ pub fn run(
         dark_flat: req.dark_flat.as_ref().map(|d| d.calibration.clone()),
         sink: req.sink.as_ref().map(|s| s.0.clone()),
         hdr: hdr.map(|settings| SessionHdr { settings, reference_s: exposure_s, light_cos }),
+        link_faults: &req.link_faults,
         on_event,
     }));
     let SessionResult { outcome, hardware_s, engine_retries, warnings, totals } = session?;
@@ -907,6 +921,7 @@ struct SessionInput<'a> {
     dark_flat: Option<Arc<btfrig_pipeline::dark_flat::DarkFlat>>,
     sink: Option<Arc<dyn btfrig_pipeline::TextureSink>>,
     hdr: Option<SessionHdr>,
+    link_faults: &'a [emulated::LinkFault],
     on_event: &'a mut dyn FnMut(&RunEvent),
 }
 
@@ -969,6 +984,7 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
         dark_flat,
         sink,
         hdr,
+        link_faults,
         on_event,
     } = input;
     let scene = Arc::new(RigScene::new(rig, material).map_err(|e| RunError::Rig(e.to_string()))?);
@@ -997,6 +1013,9 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
     let parts = emulated::SimDevices { robot, rail, turntable, lamp, led_array, camera: sim_camera };
     let emulated::Connected { mut robot, mut rail, mut lamp, camera: rig_camera, firmware: _firmware, .. } =
         emulated::connect(&rig.devices, parts, clock.clone(), settings.read_timeout_s).await.map_err(RunError::Rig)?;
+    for f in link_faults {
+        _firmware.inject(f).map_err(RunError::Rig)?;
+    }
     // Home, ignite and warm up (as btfrig_sim::capture::prepare), through the backends.
     let prepare = async {
         let opts = btfrig_hw::MoveOptions::default();
