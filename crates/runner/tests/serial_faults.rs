@@ -79,3 +79,73 @@ fn rail_port_closed_mid_move_is_retried_and_nothing_is_lost() {
     let s = finished_with("rail-unplug", vec![LinkFault::Rail(LinkFault::on_move_grbl(3, grbl::Fault::Unplug))]);
     assert!(s.retries >= 1, "{s:?}");
 }
+
+#[test]
+fn robot_port_closed_mid_move_is_retried_and_nothing_is_lost() {
+    let s = finished_with("robot-unplug", vec![LinkFault::Robot(LinkFault::on_move_robot(4, robot::Fault::Unplug))]);
+    assert!(s.retries >= 1, "{s:?}");
+}
+
+#[test]
+fn garbage_on_the_lines_is_skipped() {
+    let noise = || b"\xff\xfe\x00 noise\r\n<Bogus|MPos:x,y>\r\nok ok ok what\r\n".to_vec();
+    finished_with(
+        "garbage",
+        vec![
+            LinkFault::Rail(grbl::Fault::Garbage(noise())),
+            LinkFault::Rail(LinkFault::on_move_grbl(2, grbl::Fault::Garbage(noise()))),
+            LinkFault::Robot(robot::Fault::Garbage(noise())),
+            LinkFault::Robot(LinkFault::on_move_robot(3, robot::Fault::Garbage(noise()))),
+        ],
+    );
+}
+
+#[test]
+fn camera_without_object_added_is_retried() {
+    let s = finished_with("no-object-added", vec![LinkFault::Camera(btfrig_ptp::responder::Fault::DropObjectAdded)]);
+    assert!(s.retries >= 1, "{s:?}");
+    assert!(s.warnings.iter().any(|w| w.contains("ObjectAdded")), "{:?}", s.warnings);
+}
+
+/// A fault no retry helps pauses the run naming `device`; the captures committed before it
+/// stay (the reference textures), and the same request without the fault resumes to the end.
+fn paused_then_resumed(name: &str, fault: LinkFault, device: &str, says: &str) {
+    let reference = reference();
+    let dir = scratch(name);
+    let ds = dir.join("dataset");
+    let req = request(&dir);
+    assert!(req.stop_on_fault);
+    let s = run(&req.clone().with_link_faults(vec![fault]), &RunControl::new(), &mut |_| {}).unwrap();
+    let RunOutcome::Paused { reason, fault: Some(f) } = &s.outcome else { panic!("{s:?}") };
+    println!("{name}: paused after {} captures: {reason}", s.captures);
+    assert_eq!(f.device, device, "{f:?}");
+    assert!(reason.contains(device) && reason.contains(says), "{reason}");
+    assert!(s.captures >= 1 && s.captures < 12, "{s:?}");
+    assert_eq!(journal_commits(&ds), s.captures as usize);
+    let before = textures(&ds);
+    assert_eq!(before.len(), s.captures as usize);
+    for (k, v) in &before {
+        assert_eq!(reference.get(k), Some(v), "{k} differs from the fault-free run");
+    }
+    let r = run(&req, &RunControl::new(), &mut |_| {}).unwrap();
+    assert_eq!(r.outcome, RunOutcome::Finished, "{r:?}");
+    assert_eq!((r.captures, r.captures_this_session, r.sessions), (12, 12 - s.captures, 2), "{r:?}");
+    assert_eq!(journal_commits(&ds), 12);
+    assert!(btfrig_store::verify(&ds).is_ok());
+    assert_eq!(&textures(&ds), reference, "resumed textures differ from the fault-free run");
+}
+
+#[test]
+fn grbl_alarm_pauses_and_the_run_resumes() {
+    paused_then_resumed("alarm", LinkFault::Rail(LinkFault::on_move_grbl(5, grbl::Fault::Alarm(1))), "rail", "ALARM:1");
+}
+
+#[test]
+fn robot_drive_fault_pauses_and_the_run_resumes() {
+    paused_then_resumed(
+        "drive-fault",
+        LinkFault::Robot(LinkFault::on_move_robot(5, robot::Fault::DriveFault)),
+        "robot",
+        "drive fault",
+    );
+}
