@@ -163,6 +163,7 @@ pub struct Firmware {
     leds: Option<LedFirmware>,
     camera: Option<PtpResponder>,
     dir: Option<PathBuf>,
+    skipped: Vec<(&'static str, Arc<std::sync::atomic::AtomicU64>)>,
 }
 
 impl Firmware {
@@ -181,6 +182,16 @@ impl Firmware {
             LinkFault::Camera(f) => self.camera.as_ref().ok_or_else(|| missing("camera"))?.inject(f.clone()),
         }
         Ok(())
+    }
+
+    /// Undecodable lines or frames each serial backend skipped so far (garbage on the line),
+    /// for the devices that skipped any; the runner turns them into warnings.
+    pub fn skipped_lines(&self) -> Vec<(&'static str, u64)> {
+        self.skipped
+            .iter()
+            .map(|(r, n)| (*r, n.load(std::sync::atomic::Ordering::Relaxed)))
+            .filter(|(_, n)| *n > 0)
+            .collect()
     }
 
     /// How many emulators run.
@@ -260,6 +271,7 @@ pub async fn connect(
         let cfg =
             SerialRobotConfig { name: "robot".into(), joint_limits, poll_s: o.poll_s, reply_timeout: o.reply_timeout };
         let mut r = SerialRobot::new(cfg, serial(&link, 115_200), clock.clone());
+        fw.skipped.push(("robot", r.skipped_counter()));
         r.identify().await.map_err(|e| dev("robot", e))?;
         Box::new(r)
     } else {
@@ -281,7 +293,9 @@ pub async fn connect(
             reply_timeout: o.reply_timeout,
             units: o.units,
         };
-        Box::new(GrblAxis::new(cfg, serial(&link, 115_200), clock.clone()))
+        let a = GrblAxis::new(cfg, serial(&link, 115_200), clock.clone());
+        fw.skipped.push(("rail", a.skipped_counter()));
+        Box::new(a)
     } else {
         sim.rail
     };
@@ -303,7 +317,9 @@ pub async fn connect(
                 reply_timeout: o.reply_timeout,
                 units: o.units,
             };
-            Some(Box::new(GrblAxis::new(cfg, serial(&link, 115_200), clock.clone())))
+            let a = GrblAxis::new(cfg, serial(&link, 115_200), clock.clone());
+            fw.skipped.push(("turntable", a.skipped_counter()));
+            Some(Box::new(a))
         }
         (t, _) => t,
     };
@@ -315,7 +331,9 @@ pub async fn connect(
                 .map_err(|e| io("lamp", e))?,
         );
         let cfg = SerialLampConfig { name: "lamp".into(), poll_s: o.poll_s, reply_timeout: o.reply_timeout };
-        Box::new(SerialLamp::open(cfg, serial(&link, 9600), clock.clone()).await.map_err(|e| dev("lamp", e))?)
+        let l = SerialLamp::open(cfg, serial(&link, 9600), clock.clone()).await.map_err(|e| dev("lamp", e))?;
+        fw.skipped.push(("lamp", l.skipped_counter()));
+        Box::new(l)
     } else {
         sim.lamp
     };
@@ -325,11 +343,11 @@ pub async fn connect(
             let link = dir.join("leds");
             fw.leds = Some(LedFirmware::spawn(l, &link).map_err(|e| io("LED", e))?);
             let cfg = SerialLedConfig { name: "led_array".into(), poll_s: o.poll_s, reply_timeout: o.reply_timeout };
-            Some(Box::new(
-                SerialLedArray::open(cfg, serial(&link, 460_800), clock.clone())
-                    .await
-                    .map_err(|e| dev("LED array", e))?,
-            ))
+            let l = SerialLedArray::open(cfg, serial(&link, 460_800), clock.clone())
+                .await
+                .map_err(|e| dev("LED array", e))?;
+            fw.skipped.push(("led_array", l.skipped_counter()));
+            Some(Box::new(l))
         }
         (l, _) => l,
     };

@@ -1198,6 +1198,12 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
         EngineOutcome::Finished(s) => s,
         EngineOutcome::Aborted { summary, .. } => summary,
     };
+    // Garbage the serial backends skipped (an emulated rig): worth a look at the cabling.
+    for (role, n) in _firmware.skipped_lines() {
+        let w = format!("{role}: {n} undecodable line(s) skipped on the serial link (noise on the line?)");
+        on_event(&RunEvent::Warning(w.clone()));
+        warnings.push(w);
+    }
     Ok(SessionResult {
         outcome: stop.unwrap_or(RunOutcome::Finished),
         hardware_s: summary.hardware_s,

@@ -54,6 +54,7 @@ fn reference() -> &'static BTreeMap<String, String> {
         let s = run(&request(&dir), &RunControl::new(), &mut |_| {}).unwrap();
         assert_eq!(s.outcome, RunOutcome::Finished, "{s:?}");
         assert_eq!((s.captures, s.retries), (12, 0), "{s:?}");
+        assert!(s.warnings.is_empty(), "{:?}", s.warnings);
         textures(&dir.join("dataset"))
     })
 }
@@ -89,7 +90,7 @@ fn robot_port_closed_mid_move_is_retried_and_nothing_is_lost() {
 #[test]
 fn garbage_on_the_lines_is_skipped() {
     let noise = || b"\xff\xfe\x00 noise\r\n<Bogus|MPos:x,y>\r\nok ok ok what\r\n".to_vec();
-    finished_with(
+    let s = finished_with(
         "garbage",
         vec![
             LinkFault::Rail(grbl::Fault::Garbage(noise())),
@@ -98,6 +99,15 @@ fn garbage_on_the_lines_is_skipped() {
             LinkFault::Robot(LinkFault::on_move_robot(3, robot::Fault::Garbage(noise()))),
         ],
     );
+    // Skipped, not retried, and reported per device.
+    assert_eq!(s.retries, 0, "{s:?}");
+    for role in ["rail", "robot"] {
+        assert!(
+            s.warnings.iter().any(|w| w.starts_with(&format!("{role}: ")) && w.contains("undecodable line(s) skipped")),
+            "{role}: {:?}",
+            s.warnings
+        );
+    }
 }
 
 #[test]

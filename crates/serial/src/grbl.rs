@@ -158,6 +158,11 @@ impl GrblAxis {
         self.link.skipped()
     }
 
+    /// Undecodable input skipped over all sessions (see `Link::skipped_counter`).
+    pub fn skipped_counter(&self) -> std::sync::Arc<std::sync::atomic::AtomicU64> {
+        self.link.skipped_counter()
+    }
+
     fn err(&self, kind: ErrorKind, msg: impl Into<String>) -> DeviceError {
         DeviceError::new(&self.cfg.name, kind, msg)
     }

@@ -64,6 +64,11 @@ impl SerialRobot {
         self.link.skipped()
     }
 
+    /// Undecodable input skipped over all sessions (see `Link::skipped_counter`).
+    pub fn skipped_counter(&self) -> std::sync::Arc<std::sync::atomic::AtomicU64> {
+        self.link.skipped_counter()
+    }
+
     fn err(&self, kind: ErrorKind, msg: impl Into<String>) -> DeviceError {
         DeviceError::new(&self.cfg.name, kind, msg)
     }

@@ -144,12 +144,19 @@ pub struct Link<D> {
     new_decoder: fn() -> D,
     /// Times the link was (re)opened.
     pub connects: u64,
+    skipped_total: Arc<std::sync::atomic::AtomicU64>,
 }
 
 impl<D: Send + 'static> Link<D> {
     /// A link that connects on first use.
     pub fn new(connector: Arc<dyn Connector>, new_decoder: fn() -> D) -> Self {
-        Link { connector, session: std::sync::Mutex::new(None), new_decoder, connects: 0 }
+        Link {
+            connector,
+            session: std::sync::Mutex::new(None),
+            new_decoder,
+            connects: 0,
+            skipped_total: Arc::default(),
+        }
     }
 
     /// What the link connects to.
@@ -167,6 +174,12 @@ impl<D: Send + 'static> Link<D> {
         self.slot().as_ref().map_or(0, |s| s.skipped)
     }
 
+    /// Lines or frames skipped as undecodable over all sessions, as a counter that stays
+    /// readable after the backend is boxed behind a device trait (the runner reports it).
+    pub fn skipped_counter(&self) -> Arc<std::sync::atomic::AtomicU64> {
+        self.skipped_total.clone()
+    }
+
     fn slot(&mut self) -> &mut Option<Session<D>> {
         self.session.get_mut().unwrap_or_else(|p| p.into_inner())
     }
@@ -182,6 +195,7 @@ impl<D: Send + 'static> Link<D> {
         let connector = self.connector.clone();
         let new_decoder = self.new_decoder;
         let fresh = session.is_none();
+        let total = self.skipped_total.clone();
         let joined = tokio::task::spawn_blocking(move || {
             let mut s = match session {
                 Some(s) => s,
@@ -191,7 +205,9 @@ impl<D: Send + 'static> Link<D> {
                     Session { io, decoder: new_decoder(), skipped: 0, target }
                 }
             };
+            let before = s.skipped;
             let r = f(&mut s);
+            total.fetch_add(s.skipped.saturating_sub(before), std::sync::atomic::Ordering::Relaxed);
             Ok::<_, LinkError>((s, r))
         })
         .await;
