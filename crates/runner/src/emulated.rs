@@ -144,10 +144,7 @@ impl LinkFault {
     }
 
     /// The fault `f` on the robot's `n`-th move from now (n >= 1).
-    pub fn on_move_robot(
-        n: usize,
-        f: btfrig_serial::firmware::robot::Fault,
-    ) -> btfrig_serial::firmware::robot::Fault {
+    pub fn on_move_robot(n: usize, f: btfrig_serial::firmware::robot::Fault) -> btfrig_serial::firmware::robot::Fault {
         use btfrig_serial::firmware::robot::Fault;
         (0..n).fold(f, |f, _| Fault::OnNextMove(Box::new(f)))
     }
