@@ -13,8 +13,48 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
 use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
+use tokio::sync::mpsc;
+use tokio::task::JoinHandle;
 
 use crate::pty::PtyPort;
+
+/// What an emulator's task receives. Bytes from the tty (tagged with their plug generation)
+/// and injected faults share one channel, so a fault injected before a request is handled
+/// before it.
+pub(crate) enum Event<F> {
+    Bytes(u64, Vec<u8>),
+    Fault(F),
+}
+
+/// The reader thread's sink: forwards the tty's bytes into the emulator's channel.
+pub(crate) fn forwarder<F: Send + 'static>(
+    tx: &mpsc::UnboundedSender<Event<F>>,
+) -> impl Fn(u64, Vec<u8>) -> bool + Send + 'static {
+    let tx = tx.clone();
+    move |g, b| tx.send(Event::Bytes(g, b)).is_ok()
+}
+
+/// The outside of a running emulator: injects faults; dropping it stops the emulator.
+pub(crate) struct Handle<F> {
+    tx: mpsc::UnboundedSender<Event<F>>,
+    task: JoinHandle<()>,
+}
+
+impl<F> Handle<F> {
+    pub(crate) fn new(tx: mpsc::UnboundedSender<Event<F>>, task: JoinHandle<()>) -> Handle<F> {
+        Handle { tx, task }
+    }
+
+    pub(crate) fn inject(&self, fault: F) {
+        let _ = self.tx.send(Event::Fault(fault));
+    }
+}
+
+impl<F> Drop for Handle<F> {
+    fn drop(&mut self) {
+        self.task.abort();
+    }
+}
 
 /// One plugged-in pty: the writer, and a reader thread that forwards what the host sends
 /// (tagged with the plug generation, so bytes from an unplugged tty are told apart).
@@ -61,6 +101,22 @@ impl Wire {
             }
         });
         Ok(Wire { port, writer, stop, generation })
+    }
+
+    /// Unplugs and replugs the adapter: a new tty behind the same `link`, the old one dropped
+    /// (the host's port fails). The controller keeps its state; false if the replug failed.
+    pub(crate) fn replug<F: Send + 'static>(&mut self, link: &Path, tx: &mpsc::UnboundedSender<Event<F>>, who: &str) -> bool {
+        match Wire::open(link, self.generation + 1, forwarder(tx)) {
+            Ok(w) => {
+                tracing::info!("{who} replugged as {}", w.port.slave_path());
+                *self = w;
+                true
+            }
+            Err(e) => {
+                tracing::warn!("{who}: replug failed: {e}");
+                false
+            }
+        }
     }
 
     pub(crate) fn write(&mut self, bytes: &[u8]) {

@@ -16,7 +16,7 @@ use btfrig_protocols::DecodeError;
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 
-use super::Wire;
+use super::{forwarder, Handle, Wire};
 use crate::grbl::AxisUnits;
 
 /// The device behind the controller.
@@ -68,23 +68,12 @@ pub enum Fault {
     OnNextMove(Box<Fault>),
 }
 
-enum Event {
-    Bytes(u64, Vec<u8>),
-    Fault(Fault),
-}
-
-/// Bytes from the tty and injected faults share one channel, so a fault injected before a
-/// request is handled before it.
-fn forwarder(tx: &mpsc::UnboundedSender<Event>) -> impl Fn(u64, Vec<u8>) -> bool + Send + 'static {
-    let tx = tx.clone();
-    move |g, b| tx.send(Event::Bytes(g, b)).is_ok()
-}
+type Event = super::Event<Fault>;
 
 /// Handle on a running emulator; dropping it stops the emulator.
 pub struct GrblFirmware {
-    tx: mpsc::UnboundedSender<Event>,
+    handle: Handle<Fault>,
     link: PathBuf,
-    task: JoinHandle<()>,
 }
 
 impl GrblFirmware {
@@ -118,7 +107,7 @@ impl GrblFirmware {
             armed: Vec::new(),
         };
         let task = tokio::spawn(emu.run(rx));
-        Ok(GrblFirmware { tx, link: link.to_path_buf(), task })
+        Ok(GrblFirmware { handle: Handle::new(tx, task), link: link.to_path_buf() })
     }
 
     /// The path the host opens.
@@ -128,13 +117,7 @@ impl GrblFirmware {
 
     /// Injects a fault.
     pub fn inject(&self, fault: Fault) {
-        let _ = self.tx.send(Event::Fault(fault));
-    }
-}
-
-impl Drop for GrblFirmware {
-    fn drop(&mut self) {
-        self.task.abort();
+        self.handle.inject(fault);
     }
 }
 
@@ -333,14 +316,8 @@ impl Emulator {
             Fault::Alarm(code) => self.raise(code),
             Fault::OnNextMove(f) => self.armed.push(*f),
             Fault::Unplug => {
-                let generation = self.wire.generation + 1;
-                match Wire::open(&self.link, generation, forwarder(&self.tx)) {
-                    Ok(w) => {
-                        tracing::info!("emulated controller replugged as {}", w.port.slave_path());
-                        self.wire = w; // drops the old tty: the host's port fails
-                        self.decoder = CommandDecoder::new();
-                    }
-                    Err(e) => tracing::warn!("emulated controller: replug failed: {e}"),
+                if self.wire.replug(&self.link, &self.tx, "emulated GRBL controller") {
+                    self.decoder = CommandDecoder::new();
                 }
             }
         }

@@ -17,7 +17,7 @@ use btfrig_protocols::line::LineDecoder;
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 
-use super::Wire;
+use super::{forwarder, Handle, Wire};
 
 /// Faults a test injects.
 #[derive(Debug, Clone)]
@@ -34,15 +34,7 @@ pub enum Fault {
     OnNextSetting(Box<Fault>),
 }
 
-enum Event {
-    Bytes(u64, Vec<u8>),
-    Fault(Fault),
-}
-
-fn forwarder(tx: &mpsc::UnboundedSender<Event>) -> impl Fn(u64, Vec<u8>) -> bool + Send + 'static {
-    let tx = tx.clone();
-    move |g, b| tx.send(Event::Bytes(g, b)).is_ok()
-}
+type Event = super::Event<Fault>;
 
 /// Options of the emulated controller.
 #[derive(Debug, Clone)]
@@ -64,8 +56,7 @@ impl Default for LampFirmwareConfig {
 
 /// Handle on a running lamp controller emulator; dropping it stops it.
 pub struct LampFirmware {
-    tx: mpsc::UnboundedSender<Event>,
-    task: JoinHandle<()>,
+    handle: Handle<Fault>,
 }
 
 impl LampFirmware {
@@ -95,18 +86,12 @@ impl LampFirmware {
             tx: tx.clone(),
             link: link.to_path_buf(),
         };
-        Ok(LampFirmware { tx, task: tokio::spawn(emu.run(rx)) })
+        Ok(LampFirmware { handle: Handle::new(tx, tokio::spawn(emu.run(rx))) })
     }
 
     /// Injects a fault.
     pub fn inject(&self, fault: Fault) {
-        let _ = self.tx.send(Event::Fault(fault));
-    }
-}
-
-impl Drop for LampFirmware {
-    fn drop(&mut self) {
-        self.task.abort();
+        self.handle.inject(fault);
     }
 }
 
@@ -297,13 +282,11 @@ impl Emulator {
             Fault::Refuse(code, text) => self.refuse = Some((code, text)),
             Fault::Swallow => self.swallow = true,
             Fault::OnNextSetting(f) => self.armed.push(*f),
-            Fault::Unplug => match Wire::open(&self.link, self.wire.generation + 1, forwarder(&self.tx)) {
-                Ok(w) => {
-                    self.wire = w;
+            Fault::Unplug => {
+                if self.wire.replug(&self.link, &self.tx, "emulated lamp controller") {
                     self.decoder = request_decoder();
                 }
-                Err(e) => tracing::warn!("emulated lamp controller: replug failed: {e}"),
-            },
+            }
         }
     }
 }

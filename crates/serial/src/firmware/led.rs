@@ -15,7 +15,7 @@ use btfrig_protocols::DecodeError;
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 
-use super::Wire;
+use super::{forwarder, Handle, Wire};
 
 /// Faults a test injects.
 #[derive(Debug, Clone)]
@@ -35,20 +35,11 @@ pub enum Fault {
     OnNextTrigger(Box<Fault>),
 }
 
-enum Event {
-    Bytes(u64, Vec<u8>),
-    Fault(Fault),
-}
-
-fn forwarder(tx: &mpsc::UnboundedSender<Event>) -> impl Fn(u64, Vec<u8>) -> bool + Send + 'static {
-    let tx = tx.clone();
-    move |g, b| tx.send(Event::Bytes(g, b)).is_ok()
-}
+type Event = super::Event<Fault>;
 
 /// Handle on a running LED controller emulator; dropping it stops it.
 pub struct LedFirmware {
-    tx: mpsc::UnboundedSender<Event>,
-    task: JoinHandle<()>,
+    handle: Handle<Fault>,
 }
 
 impl LedFirmware {
@@ -73,18 +64,12 @@ impl LedFirmware {
             tx: tx.clone(),
             link: link.to_path_buf(),
         };
-        Ok(LedFirmware { tx, task: tokio::spawn(emu.run(rx)) })
+        Ok(LedFirmware { handle: Handle::new(tx, tokio::spawn(emu.run(rx))) })
     }
 
     /// Injects a fault.
     pub fn inject(&self, fault: Fault) {
-        let _ = self.tx.send(Event::Fault(fault));
-    }
-}
-
-impl Drop for LedFirmware {
-    fn drop(&mut self) {
-        self.task.abort();
+        self.handle.inject(fault);
     }
 }
 
@@ -230,13 +215,11 @@ impl Emulator {
             Fault::Cooled => self.over_temperature = false,
             Fault::DriverFault => self.driver_fault = true,
             Fault::OnNextTrigger(f) => self.armed.push(*f),
-            Fault::Unplug => match Wire::open(&self.link, self.wire.generation + 1, forwarder(&self.tx)) {
-                Ok(w) => {
-                    self.wire = w;
+            Fault::Unplug => {
+                if self.wire.replug(&self.link, &self.tx, "emulated LED controller") {
                     self.decoder = request_decoder();
                 }
-                Err(e) => tracing::warn!("emulated LED controller: replug failed: {e}"),
-            },
+            }
         }
     }
 }

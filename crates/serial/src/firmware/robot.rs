@@ -11,7 +11,7 @@ use btfrig_protocols::{robot::JointLimit, DecodeError};
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 
-use super::Wire;
+use super::{forwarder, Handle, Wire};
 
 /// Faults a test injects.
 #[derive(Debug, Clone)]
@@ -26,20 +26,11 @@ pub enum Fault {
     OnNextMove(Box<Fault>),
 }
 
-enum Event {
-    Bytes(u64, Vec<u8>),
-    Fault(Fault),
-}
-
-fn forwarder(tx: &mpsc::UnboundedSender<Event>) -> impl Fn(u64, Vec<u8>) -> bool + Send + 'static {
-    let tx = tx.clone();
-    move |g, b| tx.send(Event::Bytes(g, b)).is_ok()
-}
+type Event = super::Event<Fault>;
 
 /// Handle on a running robot controller emulator; dropping it stops it.
 pub struct RobotFirmware {
-    tx: mpsc::UnboundedSender<Event>,
-    task: JoinHandle<()>,
+    handle: Handle<Fault>,
 }
 
 impl RobotFirmware {
@@ -61,18 +52,12 @@ impl RobotFirmware {
             tx: tx.clone(),
             link: link.to_path_buf(),
         };
-        Ok(RobotFirmware { tx, task: tokio::spawn(emu.run(rx)) })
+        Ok(RobotFirmware { handle: Handle::new(tx, tokio::spawn(emu.run(rx))) })
     }
 
     /// Injects a fault.
     pub fn inject(&self, fault: Fault) {
-        let _ = self.tx.send(Event::Fault(fault));
-    }
-}
-
-impl Drop for RobotFirmware {
-    fn drop(&mut self) {
-        self.task.abort();
+        self.handle.inject(fault);
     }
 }
 
@@ -216,13 +201,11 @@ impl Emulator {
             Fault::Garbage(b) => self.wire.write(&b),
             Fault::DriveFault => self.fault = true,
             Fault::OnNextMove(f) => self.armed.push(*f),
-            Fault::Unplug => match Wire::open(&self.link, self.wire.generation + 1, forwarder(&self.tx)) {
-                Ok(w) => {
-                    self.wire = w;
+            Fault::Unplug => {
+                if self.wire.replug(&self.link, &self.tx, "emulated robot controller") {
                     self.decoder = request_decoder();
                 }
-                Err(e) => tracing::warn!("emulated robot controller: replug failed: {e}"),
-            },
+            }
         }
     }
 }
