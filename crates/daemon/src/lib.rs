@@ -24,7 +24,6 @@ use std::sync::Arc;
 
 use axum::extract::DefaultBodyLimit;
 use axum::http::header;
-use axum::response::IntoResponse;
 use axum::routing::{get, post};
 use axum::Router;
 use btfrig_core::config::RigConfig;
@@ -507,9 +506,4 @@ async fn shutdown_signal() {
     {
         let _ = tokio::signal::ctrl_c().await;
     }
-}
-
-/// A problem response for `IntoResponse` users outside this crate.
-pub fn problem_response(p: Problem) -> axum::response::Response {
-    p.into_response()
 }
