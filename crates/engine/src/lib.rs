@@ -302,6 +302,10 @@ pub struct RunSummary {
     pub hardware_s: f64,
     /// Mean measured time per captured step, seconds.
     pub mean_step_s: f64,
+    /// Wall-clock seconds the engine waited on robot and rail moves beyond the camera work
+    /// that overlaps them. Near zero on simulated devices (moves take rig time only); on
+    /// serial backends it is what their exchanges add to the run (docs/serial.md).
+    pub motion_wait_wall_s: f64,
 }
 
 /// What the engine tells its listeners.

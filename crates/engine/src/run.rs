@@ -190,6 +190,7 @@ pub(crate) struct Runner {
     pause_req: bool,
     abort_req: bool,
     exposure: Box<dyn ExposureControl>,
+    motion_wait_wall_s: f64,
 }
 
 impl Runner {
@@ -227,6 +228,7 @@ impl Runner {
             pause_req: false,
             abort_req: false,
             exposure,
+            motion_wait_wall_s: 0.0,
         }
     }
 
@@ -437,7 +439,9 @@ impl Runner {
         let clock = self.dev.clock.clone();
         let fail = |error| Stop::Failed(Failure { index, error });
         let mut times = StepTimes { move_start_s: clock.now_s(), ..StepTimes::default() };
+        let wall = std::time::Instant::now();
         let (r, log) = move_both(&s, &clock, &mut *self.dev.robot, &mut *self.dev.rail, &step.joints).await;
+        self.motion_wait_wall_s += wall.elapsed().as_secs_f64();
         times.move_end_s = clock.now_s();
         self.absorb(index, log);
         r.map_err(fail)?;
@@ -490,9 +494,10 @@ impl Runner {
         let mut times = StepTimes { move_start_s: clock.now_s(), ..StepTimes::default() };
 
         let Devices { robot, rail, camera, .. } = &mut self.dev;
+        let wall = std::time::Instant::now();
         let moving = async {
             let r = move_both(&s, &clock, &mut **robot, &mut **rail, &step.joints).await;
-            (r, clock.now_s())
+            (r, clock.now_s(), std::time::Instant::now())
         };
         let has_pending = pending.is_some();
         let camera_work = async {
@@ -508,7 +513,11 @@ impl Runner {
             // The exposure command runs on the camera after the transfer, during the move.
             (read, Some(set_exposure(&s, &clock, &mut **camera, first_exposure).await))
         };
-        let (((moved, move_log), move_end), (read, exposure)) = tokio::join!(moving, camera_work);
+        let camera_work = async { (camera_work.await, std::time::Instant::now()) };
+        let (((moved, move_log), move_end, moved_at), ((read, exposure), camera_done_at)) =
+            tokio::join!(moving, camera_work);
+        // Wall time the engine waited on the move after the camera was done with its work.
+        self.motion_wait_wall_s += moved_at.saturating_duration_since(camera_done_at.max(wall)).as_secs_f64();
         times.move_end_s = move_end;
         self.absorb(index, move_log);
 
@@ -608,6 +617,7 @@ impl Runner {
             warnings: self.warnings,
             hardware_s: self.now() - self.start_s,
             mean_step_s: if self.measured_n > 0 { self.measured_sum_s / self.measured_n as f64 } else { 0.0 },
+            motion_wait_wall_s: self.motion_wait_wall_s,
         }
     }
 

@@ -12,7 +12,9 @@
 //! layout and ranges are not in the PTP subset; they come from the configuration
 //! ([`PtpCameraConfig::capabilities`]).
 
-use std::sync::Mutex;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
 
 use async_trait::async_trait;
 use btfrig_core::frame::RawFrame;
@@ -38,6 +40,47 @@ pub struct PtpCameraConfig {
     pub read_margin_s: f64,
 }
 
+/// What the backend moved and how long coding it took, over the camera's life (the run
+/// report's `links`). Shared so it stays readable behind `dyn Camera`.
+#[derive(Debug, Default)]
+pub struct PtpStats {
+    transactions: AtomicU64,
+    bytes_out: AtomicU64,
+    bytes_in: AtomicU64,
+    codec_ns: AtomicU64,
+}
+
+/// A snapshot of [`PtpStats`].
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct PtpTotals {
+    /// Transactions started.
+    pub transactions: u64,
+    /// Bytes sent on bulk-out.
+    pub bytes_out: u64,
+    /// Bytes received on bulk-in and interrupt-in.
+    pub bytes_in: u64,
+    /// Wall seconds spent encoding commands, reassembling containers and decoding raw
+    /// frames: the host-side work PTP adds over handing a frame over in memory. (Waiting for
+    /// the camera is not in it; its transfer time is the rig timing model's.)
+    pub codec_wall_s: f64,
+}
+
+impl PtpStats {
+    /// The counters now.
+    pub fn totals(&self) -> PtpTotals {
+        PtpTotals {
+            transactions: self.transactions.load(Ordering::Relaxed),
+            bytes_out: self.bytes_out.load(Ordering::Relaxed),
+            bytes_in: self.bytes_in.load(Ordering::Relaxed),
+            codec_wall_s: self.codec_ns.load(Ordering::Relaxed) as f64 * 1e-9,
+        }
+    }
+
+    fn codec(&self, since: Instant) {
+        self.codec_ns.fetch_add(since.elapsed().as_nanos() as u64, Ordering::Relaxed);
+    }
+}
+
 /// A camera speaking the PTP subset.
 pub struct PtpCamera {
     info: DeviceInfo,
@@ -53,6 +96,7 @@ pub struct PtpCamera {
     pending: Option<u32>,
     /// Captures whose ObjectAdded never came.
     missed_events: u64,
+    stats: Arc<PtpStats>,
 }
 
 /// What a transaction returned: the data phase (if any) and the response.
@@ -86,6 +130,7 @@ impl PtpCamera {
             settings,
             pending: None,
             missed_events: 0,
+            stats: Arc::default(),
         };
         let a = cam.transact(Operation::GetDeviceInfo, None, cam.cfg.op_timeout_s, "device info").await?;
         let d = PtpInfo::decode(&a.data.unwrap_or_default())
@@ -109,6 +154,11 @@ impl PtpCamera {
             Err(e) => return Err(e),
         };
         Ok(cam)
+    }
+
+    /// The backend's counters (bytes, transactions, coding time).
+    pub fn stats(&self) -> Arc<PtpStats> {
+        self.stats.clone()
     }
 
     /// Captures whose ObjectAdded event never arrived (each a `Timeout` of `trigger`).
@@ -158,6 +208,9 @@ impl PtpCamera {
     ) -> Result<Answer, DeviceError> {
         self.tid = self.tid.checked_add(1).unwrap_or(1);
         let tid = self.tid;
+        let stats = self.stats.clone();
+        stats.transactions.fetch_add(1, Ordering::Relaxed);
+        let coding = Instant::now();
         let send = |c: Container| {
             c.encode().map_err(|e| DeviceError::new(&self.cfg.name, ErrorKind::OutOfRange, format!("{what}: {e}")))
         };
@@ -170,6 +223,8 @@ impl PtpCamera {
                 payload: d,
             })?);
         }
+        stats.codec(coding);
+        stats.bytes_out.fetch_add(bytes.len() as u64, Ordering::Relaxed);
         let t = self.transport.get_mut().unwrap_or_else(|p| p.into_inner());
         if let Err(e) = t.bulk_out(bytes).await {
             return Err(self.lost(what, e));
@@ -177,7 +232,11 @@ impl PtpCamera {
         let deadline = self.clock.now_s() + timeout_s;
         let mut data = None;
         loop {
-            while let Some(c) = self.bulk.next() {
+            let coding = Instant::now();
+            let next = self.bulk.next();
+            stats.codec(coding);
+            let mut next = next;
+            while let Some(c) = next.take() {
                 match c {
                     Ok(c) if c.transaction_id != tid => {
                         tracing::debug!("ptp: dropped a container of transaction {}", c.transaction_id)
@@ -197,6 +256,9 @@ impl PtpCamera {
                     Ok(_) => {}
                     Err(e) => tracing::debug!("ptp: skipped: {e}"),
                 }
+                let coding = Instant::now();
+                next = self.bulk.next();
+                stats.codec(coding);
             }
             let left = deadline - self.clock.now_s();
             if left <= 0.0 {
@@ -206,7 +268,12 @@ impl PtpCamera {
             let clock = self.clock.clone();
             tokio::select! {
                 r = t.bulk_in() => match r {
-                    Ok(b) => self.bulk.push(&b),
+                    Ok(b) => {
+                        stats.bytes_in.fetch_add(b.len() as u64, Ordering::Relaxed);
+                        let coding = Instant::now();
+                        self.bulk.push(&b);
+                        stats.codec(coding);
+                    }
                     Err(e) => return Err(self.lost(what, e)),
                 },
                 () = clock.sleep_s(left) => {}
@@ -233,7 +300,10 @@ impl PtpCamera {
             let clock = self.clock.clone();
             tokio::select! {
                 r = t.interrupt_in() => match r {
-                    Ok(b) => self.events.push(&b),
+                    Ok(b) => {
+                        self.stats.bytes_in.fetch_add(b.len() as u64, Ordering::Relaxed);
+                        self.events.push(&b);
+                    }
                     Err(e) => return Err(self.lost("trigger", e)),
                 },
                 () = clock.sleep_s(left) => {}
@@ -339,7 +409,10 @@ impl Camera for PtpCamera {
         let a = self
             .transact(Operation::GetObject { handle }, None, timeout_s + self.cfg.read_margin_s, "read_frame")
             .await?;
-        let frame = raw::decode(&a.data.unwrap_or_default())
+        let coding = Instant::now();
+        let decoded = raw::decode(&a.data.unwrap_or_default());
+        self.stats.codec(coding);
+        let frame = decoded
             .map_err(|e| self.err(ErrorKind::CorruptData, format!("read_frame: object {handle}: {e}")));
         // The object is on the camera's card either way; free it (a failure here loses nothing).
         if let Err(e) =

@@ -10,7 +10,7 @@ use std::time::Duration;
 use btfrig_core::config::devices::{DeviceEntry, DevicesConfig};
 use btfrig_hw::{Camera, Lamp, LedArray, Rail, Robot, SharedClock, Turntable};
 use btfrig_protocols::grbl::Axis;
-use btfrig_ptp::camera::{PtpCamera, PtpCameraConfig};
+use btfrig_ptp::camera::{PtpCamera, PtpCameraConfig, PtpStats};
 use btfrig_ptp::responder::{PtpResponder, ResponderConfig};
 use btfrig_serial::firmware::grbl::{AxisDevice, GrblFirmware};
 use btfrig_serial::firmware::lamp::{LampFirmware, LampFirmwareConfig};
@@ -20,7 +20,7 @@ use btfrig_serial::grbl::{AxisUnits, GrblAxis, GrblAxisConfig};
 use btfrig_serial::lamp::{SerialLamp, SerialLampConfig};
 use btfrig_serial::led::{SerialLedArray, SerialLedConfig};
 use btfrig_serial::robot::{SerialRobot, SerialRobotConfig};
-use btfrig_serial::transport::SerialConnector;
+use btfrig_serial::transport::{LinkStats, SerialConnector};
 
 /// The backend options of an emulated device (`[devices.<role>.link]`).
 #[derive(Debug, Clone, PartialEq)]
@@ -160,7 +160,55 @@ pub struct Firmware {
     leds: Option<LedFirmware>,
     camera: Option<PtpResponder>,
     dir: Option<PathBuf>,
-    skipped: Vec<(&'static str, Arc<std::sync::atomic::AtomicU64>)>,
+    serial_links: Vec<SerialMeter>,
+    camera_link: Option<Arc<PtpStats>>,
+}
+
+/// A serial backend's counters, with what it is connected to.
+struct SerialMeter {
+    role: &'static str,
+    target: String,
+    baud: u32,
+    stats: Arc<LinkStats>,
+}
+
+/// What talking to one emulated device cost this session (the run report's `links`): the
+/// time the serial and PTP paths add over calling the simulated device in-process.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LinkUse {
+    /// Role (`robot`, `rail`, ..., `camera`).
+    pub role: &'static str,
+    /// What the backend talks to (pty path at a nominal baud rate, or the PTP responder).
+    pub target: String,
+    /// Exchanges (serial) or transactions (PTP).
+    pub exchanges: u64,
+    /// Bytes sent to the device.
+    pub bytes_out: u64,
+    /// Bytes received from it.
+    pub bytes_in: u64,
+    /// Wall seconds spent on this link: serial exchanges as the caller waited for them, PTP
+    /// coding on the host (see `LinkTotals::exchange_wall_s`, `PtpTotals::codec_wall_s`).
+    /// Links overlap each other and the camera's work, so these do not add up to what the
+    /// run lost: that is the report's `link_added_wall_s`.
+    pub wall_s: f64,
+    /// Rig seconds the same bytes would take on a real line at the nominal baud rate
+    /// (serial only; a pty has no baud rate, so the emulated run's rig time does not have it).
+    pub wire_s: Option<f64>,
+}
+
+impl LinkUse {
+    /// As a JSON object (the report's `links` entries).
+    pub fn to_json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "role": self.role,
+            "target": self.target,
+            "exchanges": self.exchanges,
+            "bytes_out": self.bytes_out,
+            "bytes_in": self.bytes_in,
+            "wall_s": self.wall_s,
+            "wire_s": self.wire_s,
+        })
+    }
 }
 
 impl Firmware {
@@ -184,11 +232,46 @@ impl Firmware {
     /// Undecodable lines or frames each serial backend skipped so far (garbage on the line),
     /// for the devices that skipped any; the runner turns them into warnings.
     pub fn skipped_lines(&self) -> Vec<(&'static str, u64)> {
-        self.skipped
+        self.serial_links.iter().map(|m| (m.role, m.stats.totals().skipped)).filter(|(_, n)| *n > 0).collect()
+    }
+
+    /// Wall seconds the camera's PTP coding took so far (on the engine's own path, so it
+    /// adds to the run's wall time); `None` without an emulated camera.
+    pub fn camera_coding_wall_s(&self) -> Option<f64> {
+        self.camera_link.as_ref().map(|c| c.totals().codec_wall_s)
+    }
+
+    /// What each emulated link cost so far, serial links first, then the camera.
+    pub fn link_use(&self) -> Vec<LinkUse> {
+        let mut out: Vec<LinkUse> = self
+            .serial_links
             .iter()
-            .map(|(r, n)| (*r, n.load(std::sync::atomic::Ordering::Relaxed)))
-            .filter(|(_, n)| *n > 0)
-            .collect()
+            .map(|m| {
+                let t = m.stats.totals();
+                LinkUse {
+                    role: m.role,
+                    target: format!("{} at {} baud (nominal)", m.target, m.baud),
+                    exchanges: t.exchanges,
+                    bytes_out: t.bytes_out,
+                    bytes_in: t.bytes_in,
+                    wall_s: t.exchange_wall_s,
+                    wire_s: Some(t.wire_s(m.baud)),
+                }
+            })
+            .collect();
+        if let Some(c) = &self.camera_link {
+            let t = c.totals();
+            out.push(LinkUse {
+                role: "camera",
+                target: "in-process PTP responder".into(),
+                exchanges: t.transactions,
+                bytes_out: t.bytes_out,
+                bytes_in: t.bytes_in,
+                wall_s: t.codec_wall_s,
+                wire_s: None,
+            });
+        }
+        out
     }
 
     /// How many emulators run.
@@ -232,6 +315,19 @@ pub struct SimDevices {
     pub camera: Box<dyn Camera>,
 }
 
+/// Nominal baud rates of the emulated links: what the controllers' real counterparts use
+/// (docs/serial.md); a pty ignores them, the report's `wire_s` uses them.
+const ROBOT_BAUD: u32 = 115_200;
+const GRBL_BAUD: u32 = 115_200;
+const LAMP_BAUD: u32 = 9_600;
+const LED_BAUD: u32 = 460_800;
+
+impl Firmware {
+    fn meter(&mut self, role: &'static str, link: &std::path::Path, baud: u32, stats: Arc<LinkStats>) {
+        self.serial_links.push(SerialMeter { role, target: link.display().to_string(), baud, stats });
+    }
+}
+
 fn serial(path: &std::path::Path, baud: u32) -> Arc<SerialConnector> {
     Arc::new(SerialConnector { path: path.to_string_lossy().into_owned(), baud })
 }
@@ -267,8 +363,8 @@ pub async fn connect(
         fw.robot = Some(RobotFirmware::spawn(sim.robot, &link).map_err(|e| io("robot", e))?);
         let cfg =
             SerialRobotConfig { name: "robot".into(), joint_limits, poll_s: o.poll_s, reply_timeout: o.reply_timeout };
-        let mut r = SerialRobot::new(cfg, serial(&link, 115_200), clock.clone());
-        fw.skipped.push(("robot", r.skipped_counter()));
+        let mut r = SerialRobot::new(cfg, serial(&link, ROBOT_BAUD), clock.clone());
+        fw.meter("robot", &link, ROBOT_BAUD, r.link_stats());
         r.identify().await.map_err(|e| dev("robot", e))?;
         Box::new(r)
     } else {
@@ -290,8 +386,8 @@ pub async fn connect(
             reply_timeout: o.reply_timeout,
             units: o.units,
         };
-        let a = GrblAxis::new(cfg, serial(&link, 115_200), clock.clone());
-        fw.skipped.push(("rail", a.skipped_counter()));
+        let a = GrblAxis::new(cfg, serial(&link, GRBL_BAUD), clock.clone());
+        fw.meter("rail", &link, GRBL_BAUD, a.link_stats());
         Box::new(a)
     } else {
         sim.rail
@@ -314,8 +410,8 @@ pub async fn connect(
                 reply_timeout: o.reply_timeout,
                 units: o.units,
             };
-            let a = GrblAxis::new(cfg, serial(&link, 115_200), clock.clone());
-            fw.skipped.push(("turntable", a.skipped_counter()));
+            let a = GrblAxis::new(cfg, serial(&link, GRBL_BAUD), clock.clone());
+            fw.meter("turntable", &link, GRBL_BAUD, a.link_stats());
             Some(Box::new(a))
         }
         (t, _) => t,
@@ -328,8 +424,8 @@ pub async fn connect(
                 .map_err(|e| io("lamp", e))?,
         );
         let cfg = SerialLampConfig { name: "lamp".into(), poll_s: o.poll_s, reply_timeout: o.reply_timeout };
-        let l = SerialLamp::open(cfg, serial(&link, 9600), clock.clone()).await.map_err(|e| dev("lamp", e))?;
-        fw.skipped.push(("lamp", l.skipped_counter()));
+        let l = SerialLamp::open(cfg, serial(&link, LAMP_BAUD), clock.clone()).await.map_err(|e| dev("lamp", e))?;
+        fw.meter("lamp", &link, LAMP_BAUD, l.link_stats());
         Box::new(l)
     } else {
         sim.lamp
@@ -340,10 +436,10 @@ pub async fn connect(
             let link = dir.join("leds");
             fw.leds = Some(LedFirmware::spawn(l, &link).map_err(|e| io("LED", e))?);
             let cfg = SerialLedConfig { name: "led_array".into(), poll_s: o.poll_s, reply_timeout: o.reply_timeout };
-            let l = SerialLedArray::open(cfg, serial(&link, 460_800), clock.clone())
+            let l = SerialLedArray::open(cfg, serial(&link, LED_BAUD), clock.clone())
                 .await
                 .map_err(|e| dev("LED array", e))?;
-            fw.skipped.push(("led_array", l.skipped_counter()));
+            fw.meter("led_array", &link, LED_BAUD, l.link_stats());
             Some(Box::new(l))
         }
         (l, _) => l,
@@ -354,7 +450,9 @@ pub async fn connect(
         let (responder, transport) = PtpResponder::spawn(sim.camera, rcfg);
         fw.camera = Some(responder);
         let cfg = PtpCameraConfig { name: "camera".into(), capabilities, op_timeout_s: 10.0, read_margin_s: 1.0 };
-        Box::new(PtpCamera::open(cfg, Box::new(transport), clock.clone()).await.map_err(|e| dev("camera", e))?)
+        let c = PtpCamera::open(cfg, Box::new(transport), clock.clone()).await.map_err(|e| dev("camera", e))?;
+        fw.camera_link = Some(c.stats());
+        Box::new(c)
     } else {
         sim.camera
     };

@@ -467,6 +467,16 @@ pub struct RunSummary {
     /// HDR figures over every journaled capture, with HDR on (`[exposure] hdr = "adaptive"`
     /// or `mode = "bracket"`).
     pub hdr: Option<HdrFigures>,
+    /// This session's cost of each emulated device's link (serial and PTP backends against
+    /// emulated firmware); empty on a rig of in-process simulated devices.
+    pub links: Vec<emulated::LinkUse>,
+    /// Wall seconds the engine waited on robot and rail moves this session beyond the camera
+    /// work that overlaps them ([`btfrig_engine::RunSummary::motion_wait_wall_s`]).
+    pub motion_wait_wall_s: f64,
+    /// Wall seconds the emulated links added to this session: the motion wait (near zero
+    /// for in-process simulated devices, whose moves take rig time only) plus the camera's
+    /// PTP coding; `None` without emulated devices (docs/serial.md).
+    pub link_added_wall_s: Option<f64>,
 }
 
 /// The process's peak resident set size in MiB, from `/proc/self/status` (Linux).
@@ -508,6 +518,8 @@ impl RunSummary {
             "sessions": self.sessions,
             "unreported_captures": self.unreported_captures,
             "peak_rss_mib": self.peak_rss_mib,
+            "motion_wait_wall_s": self.motion_wait_wall_s,
+            "link_added_wall_s": self.link_added_wall_s,
             "dataset": self.dataset.display().to_string(),
         });
         light::add_summary_fields(&mut v, self.lamp.as_ref());
@@ -706,7 +718,8 @@ pub fn run(
         link_faults: &req.link_faults,
         on_event,
     }));
-    let SessionResult { outcome, hardware_s, engine_retries, warnings, totals } = session?;
+    let SessionResult { outcome, hardware_s, engine_retries, warnings, totals, links, motion_wait_wall_s, link_added_wall_s } =
+        session?;
     let totals = totals?;
     let mut warnings = warnings;
     warnings.extend(req.light.as_ref().and_then(|l| totals.lamp.warning(l.warn_drift)));
@@ -741,6 +754,9 @@ pub fn run(
     // Brightness against the nominal-lamp truth is measured on every simulated run; factors
     // only with a light calibration.
     summary.lamp = (req.light.is_some() || !totals.lamp.steps.is_empty()).then(|| totals.lamp.clone());
+    summary.links = links;
+    summary.motion_wait_wall_s = motion_wait_wall_s;
+    summary.link_added_wall_s = link_added_wall_s;
     let mut sessions: Vec<serde_json::Value> = previous.iter().map(Session::to_json).collect();
     sessions.push(this.to_json());
     dataset.finish(&report_of(&summary, &previous, &this, sessions)).map_err(RunError::Report)?;
@@ -842,6 +858,9 @@ fn summarise(
         peak_rss_mib: peak_rss_mib(),
         lamp: None,
         hdr: journal_hdr(dataset, fixed.per_exposure_overhead_s),
+        links: Vec::new(),
+        motion_wait_wall_s: 0.0,
+        link_added_wall_s: None,
     }
 }
 
@@ -888,6 +907,11 @@ fn report_of(s: &RunSummary, previous: &[Session], this: &Session, sessions: Vec
     put("captures_without_truth", json!(without_truth));
     put("unreported_captures", json!(s.unreported_captures));
     put("peak_rss_mib", json!(s.peak_rss_mib));
+    put("motion_wait_wall_s", json!(s.motion_wait_wall_s));
+    if !s.links.is_empty() {
+        put("link_added_wall_s", json!(s.link_added_wall_s));
+        put("links", s.links.iter().map(emulated::LinkUse::to_json).collect());
+    }
     put("engine_retries", json!(previous.iter().chain([this]).map(|s| s.retries).sum::<u64>()));
     put("sessions", serde_json::Value::Array(sessions));
     RunReport {
@@ -939,6 +963,9 @@ struct SessionResult {
     engine_retries: u64,
     warnings: Vec<String>,
     totals: Result<btfrig_pipeline::Totals, btfrig_pipeline::PipelineError>,
+    links: Vec<emulated::LinkUse>,
+    motion_wait_wall_s: f64,
+    link_added_wall_s: Option<f64>,
 }
 
 fn fault_of(r: &PauseReason) -> Option<Fault> {
@@ -1011,10 +1038,10 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
     let clock = sim.world.clock().clone();
     let SimRig { robot, rail, turntable, lamp, led_array, camera: sim_camera, .. } = sim;
     let parts = emulated::SimDevices { robot, rail, turntable, lamp, led_array, camera: sim_camera };
-    let emulated::Connected { mut robot, mut rail, mut lamp, camera: rig_camera, firmware: _firmware, .. } =
+    let emulated::Connected { mut robot, mut rail, mut lamp, camera: rig_camera, firmware, .. } =
         emulated::connect(&rig.devices, parts, clock.clone(), settings.read_timeout_s).await.map_err(RunError::Rig)?;
     for f in link_faults {
-        _firmware.inject(f).map_err(RunError::Rig)?;
+        firmware.inject(f).map_err(RunError::Rig)?;
     }
     // Home, ignite and warm up (as btfrig_sim::capture::prepare), through the backends.
     let prepare = async {
@@ -1199,7 +1226,7 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
         EngineOutcome::Aborted { summary, .. } => summary,
     };
     // Garbage the serial backends skipped (an emulated rig): worth a look at the cabling.
-    for (role, n) in _firmware.skipped_lines() {
+    for (role, n) in firmware.skipped_lines() {
         let w = format!("{role}: {n} undecodable line(s) skipped on the serial link (noise on the line?)");
         on_event(&RunEvent::Warning(w.clone()));
         warnings.push(w);
@@ -1210,5 +1237,9 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
         engine_retries: u64::from(summary.retries),
         warnings,
         totals,
+        links: firmware.link_use(),
+        motion_wait_wall_s: summary.motion_wait_wall_s,
+        link_added_wall_s: (firmware.count() > 0)
+            .then(|| summary.motion_wait_wall_s + firmware.camera_coding_wall_s().unwrap_or(0.0)),
     })
 }

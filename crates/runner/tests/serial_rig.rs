@@ -65,4 +65,43 @@ fn serial_path_gives_the_direct_path_textures() {
     );
     // Polling the controllers can only add rig time.
     assert!(serial.hardware_s >= direct.hardware_s, "{} < {}", serial.hardware_s, direct.hardware_s);
+
+    // The report itself says what the links added: every emulated device, bytes both ways,
+    // and wall time that is part of the run's own wall time.
+    assert!(direct.links.is_empty() && direct.link_added_wall_s.is_none(), "{:?}", direct.links);
+    let roles: Vec<&str> = serial.links.iter().map(|l| l.role).collect();
+    assert_eq!(roles, ["robot", "rail", "lamp", "camera"], "{:?}", serial.links);
+    for l in &serial.links {
+        println!(
+            "  {:<6} {:>5} exchanges, {:>9} B out, {:>9} B in, wall {:.3} s, wire at nominal baud {}",
+            l.role,
+            l.exchanges,
+            l.bytes_out,
+            l.bytes_in,
+            l.wall_s,
+            l.wire_s.map_or("-".into(), |w| format!("{w:.3} s"))
+        );
+        assert!(l.exchanges > 0 && l.bytes_out > 0 && l.bytes_in > 0, "{l:?}");
+        assert!(l.wall_s > 0.0, "{l:?}");
+    }
+    // 12 frames came over PTP: at least their pixels (2 bytes a photosite).
+    let camera = serial.links.iter().find(|l| l.role == "camera").unwrap();
+    assert!(camera.bytes_in >= 12 * 2 * 1600 * 1200, "{camera:?}");
+    let added = serial.link_added_wall_s.unwrap();
+    // In-process devices move in rig time only: the engine hardly waits on them in wall time.
+    // Through the links it does, by less than the links' exchanges took in all (they overlap
+    // the camera's work).
+    let sum: f64 = serial.links.iter().map(|l| l.wall_s).sum();
+    println!(
+        "motion wait: direct {:.3} s, serial {:.3} s; links busy {sum:.3} s in all",
+        direct.motion_wait_wall_s, serial.motion_wait_wall_s
+    );
+    assert!(direct.motion_wait_wall_s < 0.05, "in-process moves waited {} s of wall time", direct.motion_wait_wall_s);
+    assert!(added > 0.0 && added <= sum, "{added} not in (0, {sum}]");
+    println!("link_added_wall_s {added:.3} (measured difference in wall time {:+.2} s)", serial.wall_s - direct.wall_s);
+    assert!(added < serial.wall_s, "links added {added} s of a {} s run", serial.wall_s);
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(serial.dataset.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["links"].as_array().map(Vec::len), Some(4), "{report}");
+    assert!((report["link_added_wall_s"].as_f64().unwrap() - added).abs() < 1e-9);
 }

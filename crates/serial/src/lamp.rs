@@ -106,9 +106,9 @@ impl SerialLamp {
         self.link.skipped()
     }
 
-    /// Undecodable input skipped over all sessions (see `Link::skipped_counter`).
-    pub fn skipped_counter(&self) -> std::sync::Arc<std::sync::atomic::AtomicU64> {
-        self.link.skipped_counter()
+    /// The link's counters over all sessions (see [`crate::transport::LinkStats`]).
+    pub fn link_stats(&self) -> std::sync::Arc<crate::transport::LinkStats> {
+        self.link.stats()
     }
 
     fn err(&self, kind: ErrorKind, msg: impl Into<String>) -> DeviceError {

@@ -1,6 +1,7 @@
 //! Byte transports and the link a backend keeps to its controller.
 
 use std::io;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -101,6 +102,55 @@ impl LinkError {
     }
 }
 
+/// What a link has done over all its sessions: the cost of talking to the controller over
+/// a line instead of calling a device in-process (the run report's `links`). Shared as an
+/// `Arc` so it stays readable after the backend is boxed behind a device trait.
+#[derive(Debug, Default)]
+pub struct LinkStats {
+    exchanges: AtomicU64,
+    bytes_out: AtomicU64,
+    bytes_in: AtomicU64,
+    exchange_ns: AtomicU64,
+    skipped: AtomicU64,
+}
+
+/// A snapshot of [`LinkStats`].
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct LinkTotals {
+    /// Blocking exchanges (command and answer, or a status poll).
+    pub exchanges: u64,
+    /// Bytes written to the controller.
+    pub bytes_out: u64,
+    /// Bytes read from the controller (garbage included).
+    pub bytes_in: u64,
+    /// Wall-clock seconds the caller waited on exchanges (thread hand-off, write, the
+    /// controller's answer, decoding); the rig clock's own waits between polls are not in it.
+    pub exchange_wall_s: f64,
+    /// Lines or frames skipped as undecodable.
+    pub skipped: u64,
+}
+
+impl LinkTotals {
+    /// Seconds the bytes take on a line of `baud` (8N1: 10 bits a byte), both directions in
+    /// turn as a half-duplex exchange does: what a real port adds to rig time.
+    pub fn wire_s(&self, baud: u32) -> f64 {
+        (self.bytes_out + self.bytes_in) as f64 * 10.0 / f64::from(baud.max(1))
+    }
+}
+
+impl LinkStats {
+    /// The counters now.
+    pub fn totals(&self) -> LinkTotals {
+        LinkTotals {
+            exchanges: self.exchanges.load(Ordering::Relaxed),
+            bytes_out: self.bytes_out.load(Ordering::Relaxed),
+            bytes_in: self.bytes_in.load(Ordering::Relaxed),
+            exchange_wall_s: self.exchange_ns.load(Ordering::Relaxed) as f64 * 1e-9,
+            skipped: self.skipped.load(Ordering::Relaxed),
+        }
+    }
+}
+
 /// An open transport with its protocol decoder `D` and counters.
 pub struct Session<D> {
     io: Box<dyn Transport>,
@@ -109,11 +159,13 @@ pub struct Session<D> {
     /// Lines or frames skipped as undecodable since connecting.
     pub skipped: u64,
     target: String,
+    stats: Arc<LinkStats>,
 }
 
 impl<D> Session<D> {
     /// Writes `bytes`.
     pub fn send(&mut self, bytes: &[u8]) -> Result<(), LinkError> {
+        self.stats.bytes_out.fetch_add(bytes.len() as u64, Ordering::Relaxed);
         self.io.write_all(bytes).map_err(|source| LinkError::Lost { target: self.target.clone(), source })
     }
 
@@ -125,6 +177,7 @@ impl<D> Session<D> {
             .io
             .read(&mut buf, wait.max(Duration::from_millis(1)))
             .map_err(|source| LinkError::Lost { target: self.target.clone(), source })?;
+        self.stats.bytes_in.fetch_add(n as u64, Ordering::Relaxed);
         push(&mut self.decoder, &buf[..n]);
         Ok(n > 0)
     }
@@ -144,7 +197,7 @@ pub struct Link<D> {
     new_decoder: fn() -> D,
     /// Times the link was (re)opened.
     pub connects: u64,
-    skipped_total: Arc<std::sync::atomic::AtomicU64>,
+    stats: Arc<LinkStats>,
 }
 
 impl<D: Send + 'static> Link<D> {
@@ -155,7 +208,7 @@ impl<D: Send + 'static> Link<D> {
             session: std::sync::Mutex::new(None),
             new_decoder,
             connects: 0,
-            skipped_total: Arc::default(),
+            stats: Arc::default(),
         }
     }
 
@@ -174,10 +227,9 @@ impl<D: Send + 'static> Link<D> {
         self.slot().as_ref().map_or(0, |s| s.skipped)
     }
 
-    /// Lines or frames skipped as undecodable over all sessions, as a counter that stays
-    /// readable after the backend is boxed behind a device trait (the runner reports it).
-    pub fn skipped_counter(&self) -> Arc<std::sync::atomic::AtomicU64> {
-        self.skipped_total.clone()
+    /// The link's counters over all sessions (skipped input, bytes, exchange time).
+    pub fn stats(&self) -> Arc<LinkStats> {
+        self.stats.clone()
     }
 
     fn slot(&mut self) -> &mut Option<Session<D>> {
@@ -195,22 +247,25 @@ impl<D: Send + 'static> Link<D> {
         let connector = self.connector.clone();
         let new_decoder = self.new_decoder;
         let fresh = session.is_none();
-        let total = self.skipped_total.clone();
+        let stats = self.stats.clone();
+        let started = Instant::now();
         let joined = tokio::task::spawn_blocking(move || {
             let mut s = match session {
                 Some(s) => s,
                 None => {
                     let target = connector.describe();
                     let io = connector.connect().map_err(|source| LinkError::Lost { target: target.clone(), source })?;
-                    Session { io, decoder: new_decoder(), skipped: 0, target }
+                    Session { io, decoder: new_decoder(), skipped: 0, target, stats: stats.clone() }
                 }
             };
             let before = s.skipped;
             let r = f(&mut s);
-            total.fetch_add(s.skipped.saturating_sub(before), std::sync::atomic::Ordering::Relaxed);
+            stats.skipped.fetch_add(s.skipped.saturating_sub(before), Ordering::Relaxed);
             Ok::<_, LinkError>((s, r))
         })
         .await;
+        self.stats.exchanges.fetch_add(1, Ordering::Relaxed);
+        self.stats.exchange_ns.fetch_add(started.elapsed().as_nanos() as u64, Ordering::Relaxed);
         let (s, r) = match joined {
             Ok(Ok(pair)) => pair,
             Ok(Err(e)) => return Err(e),
