@@ -8,7 +8,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use btfrig_core::config::devices::{DeviceEntry, DevicesConfig};
-use btfrig_hw::{Camera, Lamp, LedArray, Rail, Robot, SharedClock, Turntable};
+use btfrig_hw::{Camera, Device, Lamp, LedArray, Rail, Robot, SharedClock, Turntable};
 use btfrig_protocols::grbl::Axis;
 use btfrig_ptp::camera::{PtpCamera, PtpCameraConfig, PtpStats};
 use btfrig_ptp::responder::{PtpResponder, ResponderConfig};
@@ -31,11 +31,25 @@ pub struct LinkOptions {
     pub reply_timeout: Duration,
     /// GRBL axis unit (rail, turntable).
     pub units: AxisUnits,
+    /// The port of a real controller (`/dev/serial/by-id/...`); `None` when emulated.
+    pub port: Option<String>,
+    /// Its baud rate (8N1); `None`: the controller's default (robot and GRBL 115200, lamp
+    /// 9600, LED 460800).
+    pub baud: Option<u32>,
 }
+
+/// Baud rates a real serial link may name.
+const BAUD_RATES: [u32; 12] = [1200, 2400, 4800, 9600, 19_200, 38_400, 57_600, 115_200, 230_400, 460_800, 921_600, 1_000_000];
 
 /// The link options of `entry` (`devices.<role>`), or a message naming the bad key.
 pub fn link_options(role: &str, entry: &DeviceEntry) -> Result<LinkOptions, String> {
-    let mut o = LinkOptions { poll_s: 0.01, reply_timeout: Duration::from_millis(2000), units: AxisUnits::Radians };
+    let mut o = LinkOptions {
+        poll_s: 0.01,
+        reply_timeout: Duration::from_millis(2000),
+        units: AxisUnits::Radians,
+        port: None,
+        baud: None,
+    };
     let Some(t) = entry.options.get("link").and_then(|l| l.as_table()) else { return Ok(o) };
     let f = |k: &str, v: &toml::Value| {
         v.as_float()
@@ -63,6 +77,19 @@ pub fn link_options(role: &str, entry: &DeviceEntry) -> Result<LinkOptions, Stri
                 }
                 o.reply_timeout = Duration::from_secs_f64(ms / 1000.0);
             }
+            "port" if role != "camera" => match v.as_str() {
+                Some(p) if !p.trim().is_empty() => o.port = Some(p.to_string()),
+                _ => return Err(format!("devices.{role}.link.port = {v} must be a device path such as \"/dev/ttyUSB0\"")),
+            },
+            "baud" if role != "camera" => match v.as_integer() {
+                Some(b) if BAUD_RATES.iter().any(|&r| i64::from(r) == b) => o.baud = Some(b as u32),
+                _ => {
+                    return Err(format!(
+                        "devices.{role}.link.baud = {v} is not a supported rate: allowed {}",
+                        BAUD_RATES.map(|b| b.to_string()).join(", ")
+                    ))
+                }
+            },
             "units" if role == "rail" || role == "turntable" => {
                 o.units = match v.as_str() {
                     Some("rad") => AxisUnits::Radians,
@@ -72,18 +99,41 @@ pub fn link_options(role: &str, entry: &DeviceEntry) -> Result<LinkOptions, Stri
             }
             other => {
                 return Err(format!(
-                    "devices.{role}.link.{other} is unknown: allowed emulated, poll_s, reply_timeout_ms{}",
+                    "devices.{role}.link.{other} is unknown: allowed emulated, poll_s, reply_timeout_ms{}{}",
+                    if role == "camera" { "" } else { ", port, baud" },
                     if role == "rail" || role == "turntable" { ", units" } else { "" }
                 ))
             }
         }
     }
+    let emulated = t.get("emulated").and_then(toml::Value::as_bool) == Some(true);
+    if emulated && (o.port.is_some() || o.baud.is_some()) {
+        return Err(format!(
+            "devices.{role}.link: emulated = true and a port/baud: an emulated controller is served on a pty of its own; drop one"
+        ));
+    }
     Ok(o)
 }
 
 /// Checks every emulated device's kind and link options; the kinds are `"serial"` for
-/// robot, rail, turntable, lamp and LED array, `"ptp"` for the camera.
+/// robot, rail, turntable, lamp and LED array, `"ptp"` for the camera. Real devices are
+/// refused: runs drive simulated and emulated rigs ([`check_probe`] accepts real ports).
 pub fn check(devices: &DevicesConfig) -> Result<(), String> {
+    check_kinds(devices, false)
+}
+
+/// As [`check`], but real serial devices are allowed too, with a `link.port` each (what
+/// `btfrig hw probe --rig` talks to).
+pub fn check_probe(devices: &DevicesConfig) -> Result<(), String> {
+    check_kinds(devices, true)
+}
+
+/// Whether `entry` is a real serial controller (not simulated, not emulated).
+fn is_real_serial(role: &str, e: &DeviceEntry) -> bool {
+    e.kind == "serial" && role != "camera" && !e.is_emulated()
+}
+
+fn check_kinds(devices: &DevicesConfig, allow_real: bool) -> Result<(), String> {
     for (role, e) in devices.entries() {
         if e.kind == "sim" {
             continue;
@@ -92,12 +142,24 @@ pub fn check(devices: &DevicesConfig) -> Result<(), String> {
         if e.kind != want {
             return Err(format!("devices.{role}.kind = {:?} is unknown: allowed \"sim\", {want:?}", e.kind));
         }
+        let o = link_options(role, e)?;
         if !e.is_emulated() {
-            return Err(format!(
-                "devices.{role}: a {want} device on real hardware cannot run a simulated plan; set [devices.{role}.link] emulated = true (real ports: `btfrig hw probe`)"
-            ));
+            if role == "camera" {
+                return Err(format!(
+                    "devices.camera: a PTP camera over USB is not selectable in a rig config yet; set [devices.camera.link] emulated = true, or kind = \"sim\" (attached cameras: `btfrig hw probe`)"
+                ));
+            }
+            let Some(port) = &o.port else {
+                return Err(format!(
+                    "devices.{role}.link.port is missing: a real {want} controller names its port (e.g. \"/dev/serial/by-id/...\"), or set emulated = true"
+                ));
+            };
+            if !allow_real {
+                return Err(format!(
+                    "devices.{role}: real hardware on {port}: plans run on simulated and emulated rigs only so far (the pipeline needs the simulator's scene); `btfrig hw probe --rig FILE` talks to it"
+                ));
+            }
         }
-        link_options(role, e)?;
     }
     Ok(())
 }
@@ -474,16 +536,33 @@ pub struct Probed {
     pub health: String,
 }
 
-/// Starts every emulated device of `rig` (behind its firmware on a pty) and asks each
-/// device, through its real backend, for its identity and health. Builds its own
-/// virtual-time runtime: call from a plain thread.
+/// Asks every device of `rig` for its identity and health through its real backend:
+/// emulated devices behind their firmware on a pty (started here), real serial controllers
+/// on the ports their `link.port` names (at `link.baud`). Simulated devices answer as
+/// themselves. Builds its own runtime: call from a plain thread.
 pub fn probe(rig: &btfrig_core::config::RigConfig) -> Result<Vec<Probed>, String> {
-    check(&rig.devices)?;
+    check_probe(&rig.devices)?;
+    // Real controllers are probed on their ports; the simulated device built from the same
+    // options stands in for them in the emulated rig and lends its configured limits.
+    let real: Vec<&'static str> =
+        rig.devices.entries().into_iter().filter(|(r, e)| is_real_serial(r, e)).map(|(r, _)| r).collect();
+    let mut devices = rig.devices.clone();
+    let stand_in = |e: &mut DeviceEntry| {
+        e.options.remove("link");
+        e.kind = "sim".into();
+    };
+    for role in &real {
+        match *role {
+            "robot" => stand_in(&mut devices.robot),
+            "rail" => stand_in(&mut devices.rail),
+            "lamp" => stand_in(&mut devices.lamp),
+            "turntable" => devices.turntable.iter_mut().for_each(stand_in),
+            "led_array" => devices.led_array.iter_mut().for_each(stand_in),
+            _ => {}
+        }
+    }
     let mut sim_cfg = rig.clone();
-    sim_cfg.devices = rig
-        .devices
-        .simulated()
-        .ok_or("a device is real hardware: probing real ports by rig config is not supported yet")?;
+    sim_cfg.devices = devices.simulated().ok_or("a device is neither simulated, emulated nor a serial controller")?;
     let rt = crate::virtual_time_runtime().map_err(|e| e.to_string())?;
     rt.block_on(async {
         let clock: SharedClock = Arc::new(btfrig_hw::ScaledClock::new(1e-3).map_err(|e| e.to_string())?);
@@ -492,8 +571,12 @@ pub fn probe(rig: &btfrig_core::config::RigConfig) -> Result<Vec<Probed>, String
             btfrig_sim::SimRig::from_rig_config(&sim_cfg, &btfrig_sim::FaultScenario::none(), clock.clone(), source)
                 .map_err(|e| e.to_string())?;
         let btfrig_sim::SimRig { robot, rail, turntable, lamp, led_array, camera, .. } = sim;
-        let mut c =
-            connect(&rig.devices, SimDevices { robot, rail, turntable, lamp, led_array, camera }, clock, 30.0).await?;
+        let limits = ConfiguredLimits {
+            robot: robot.joint_limits(),
+            rail: rail.limits(),
+            turntable: turntable.as_ref().map(|t| t.limits()),
+        };
+        let mut c = connect(&devices, SimDevices { robot, rail, turntable, lamp, led_array, camera }, clock, 30.0).await?;
         let dir = c.firmware.dir().map(|d| d.display().to_string());
         let entry = |role: &str| rig.devices.entries().into_iter().find(|(r, _)| *r == role).map(|(_, e)| e.clone());
         let mut out = Vec::new();
@@ -529,6 +612,102 @@ pub fn probe(rig: &btfrig_core::config::RigConfig) -> Result<Vec<Probed>, String
         }
         let h = c.camera.health().await;
         add("camera", c.camera.info().clone(), h);
+        // The real controllers replace their stand-ins, in the same order.
+        for p in out.iter_mut().filter(|p| real.contains(&p.role)) {
+            let e = entry(p.role).ok_or_else(|| format!("devices.{}: missing", p.role))?;
+            *p = probe_real(p.role, &e, &limits).await?;
+        }
         Ok(out)
     })
+}
+
+/// Limits a real controller's backend is configured with (from the rig config, through the
+/// simulated device built from the same options).
+struct ConfiguredLimits {
+    robot: [btfrig_hw::AxisLimits; 3],
+    rail: btfrig_hw::AxisLimits,
+    turntable: Option<btfrig_hw::AxisLimits>,
+}
+
+/// Opens the backend of the real serial controller `role` on its port and asks it for its
+/// identity and health (in wall-clock time: real hardware). A port that cannot be opened or
+/// a controller that does not answer is a health error, not a failed probe.
+async fn probe_real(role: &'static str, e: &DeviceEntry, limits: &ConfiguredLimits) -> Result<Probed, String> {
+    let o = link_options(role, e)?;
+    let port = o.port.clone().ok_or_else(|| format!("devices.{role}.link.port is missing"))?;
+    let default_baud = match role {
+        "lamp" => LAMP_BAUD,
+        "led_array" => LED_BAUD,
+        "robot" => ROBOT_BAUD,
+        _ => GRBL_BAUD,
+    };
+    let baud = o.baud.unwrap_or(default_baud);
+    let connector = Arc::new(SerialConnector { path: port.clone(), baud });
+    let clock: SharedClock = Arc::new(btfrig_hw::ScaledClock::new(1.0).map_err(|e| e.to_string())?);
+    let unnamed = |backend: &str| btfrig_hw::DeviceInfo {
+        name: role.into(),
+        backend: backend.into(),
+        model: String::new(),
+        serial: None,
+        firmware: None,
+    };
+    let (info, health) = match role {
+        "robot" => {
+            let cfg = SerialRobotConfig {
+                name: role.into(),
+                joint_limits: limits.robot,
+                poll_s: o.poll_s,
+                reply_timeout: o.reply_timeout,
+            };
+            let mut r = SerialRobot::new(cfg, connector, clock);
+            match r.identify().await {
+                Ok(()) => {
+                    let h = r.health().await;
+                    (r.info().clone(), h)
+                }
+                Err(e) => (r.info().clone(), Err(e)),
+            }
+        }
+        "rail" | "turntable" => {
+            let axis_limits = if role == "rail" { Some(limits.rail) } else { limits.turntable };
+            let cfg = GrblAxisConfig {
+                name: role.into(),
+                model: format!("GRBL {role}"),
+                axis: Axis::X,
+                limits: axis_limits.ok_or_else(|| format!("devices.{role}: no limits configured"))?,
+                poll_s: o.poll_s,
+                reply_timeout: o.reply_timeout,
+                units: o.units,
+            };
+            let mut a = GrblAxis::new(cfg, connector, clock);
+            let h = a.health().await;
+            (a.info().clone(), h)
+        }
+        "lamp" => {
+            let cfg = SerialLampConfig { name: role.into(), poll_s: o.poll_s, reply_timeout: o.reply_timeout };
+            match SerialLamp::open(cfg, connector, clock).await {
+                Ok(mut l) => {
+                    let h = l.health().await;
+                    (l.info().clone(), h)
+                }
+                Err(e) => (unnamed("serial"), Err(e)),
+            }
+        }
+        "led_array" => {
+            let cfg = SerialLedConfig { name: role.into(), poll_s: o.poll_s, reply_timeout: o.reply_timeout };
+            match SerialLedArray::open(cfg, connector, clock).await {
+                Ok(mut l) => {
+                    let h = l.health().await;
+                    (l.info().clone(), h)
+                }
+                Err(e) => (unnamed("serial"), Err(e)),
+            }
+        }
+        other => return Err(format!("devices.{other}: not a serial controller")),
+    };
+    let health = match health {
+        Ok(h) => format!("{h:?}"),
+        Err(e) => format!("error: {e}"),
+    };
+    Ok(Probed { role, kind: e.kind.clone(), link: Some(format!("{port} at {baud} baud")), info, health })
 }
