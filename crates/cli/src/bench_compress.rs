@@ -442,12 +442,20 @@ pub fn bench(a: &BenchCompressArgs) -> anyhow::Result<()> {
         }
     }
     if a.json {
-        println!("{}", serde_json::json!({"rows": rows, "measured": measured_err, "sparse": sparse_out}));
+        println!(
+            "{}",
+            serde_json::json!({"rows": rows, "measured": measured_err, "sparse": sparse_out,
+                "peak_rss_mib": btfrig_runner::peak_rss_mib()})
+        );
     } else {
         println!();
         println!("MB: model file; ratio: raw half-float captures / file; ps: passes over the data; peak MB: the builder's sketches;");
         println!("Mtexel/s: decode at random direction pairs (interpolated), all threads; vs meas./vs truth: relative RMSE of the");
         println!("decoded model against the noisy measured textures and the noise-free ground truth, every capture and texel.");
+        println!(
+            "process peak RSS {} (the whole benchmark: the in-memory truths, every model and its evaluation)",
+            btfrig_runner::peak_rss_mib().map_or("n/a (no /proc/self/status)".into(), |m| format!("{m:.0} MiB"))
+        );
     }
     Ok(())
 }

@@ -502,6 +502,17 @@ impl<'de> Deserialize<'de> for CompressedModelSpec {
 }
 
 impl CompressedModelSpec {
+    /// The model asked for: `Ok(None)` for none, `Err(name)` for a name that is no model
+    /// (validation reports it, naming the allowed values).
+    pub fn model(&self) -> Result<Option<validate::CompressedModel>, &str> {
+        match self {
+            CompressedModelSpec::Flag(false) => Ok(None),
+            CompressedModelSpec::Flag(true) => Ok(Some(validate::CompressedModel::Fmf)),
+            CompressedModelSpec::Method(m) if m == "none" => Ok(None),
+            CompressedModelSpec::Method(m) => validate::CompressedModel::from_name(m).map(Some).ok_or(m.as_str()),
+        }
+    }
+
     /// The value as written in TOML, for messages.
     pub fn display(&self) -> String {
         match self {

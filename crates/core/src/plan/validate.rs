@@ -7,7 +7,7 @@ use crate::kinematics::{Gonio, Unreachable, UnreachableKind};
 use crate::sampling::{Sampling, BONN81_RINGS, BONN_DOME1_RINGS, DUPLICATE_TOLERANCE_RAD};
 
 use super::{
-    is_path_like, CompressedModelSpec, ExposureSpec, FilterSpec, OutputsSpec, PairsSpec, Plan, PlanError, PlanErrors, RegionSpec,
+    is_path_like, ExposureSpec, FilterSpec, OutputsSpec, PairsSpec, Plan, PlanError, PlanErrors, RegionSpec,
     RegistrationSpec, RunSpec, SamplingSpec, SamplingTable, SkipSpec, BUILTIN_FAULT_SCENARIOS, BUILTIN_MATERIAL_NAMES,
     BUILTIN_RIGS,
 };
@@ -1257,22 +1257,14 @@ fn resolve_outputs(o: &OutputsSpec, errors: &mut Vec<PlanError>) -> Option<Outpu
             None
         }
     };
-    let compressed_model = match &o.compressed_model {
-        CompressedModelSpec::Flag(false) => None,
-        CompressedModelSpec::Flag(true) => Some(CompressedModel::Fmf),
-        CompressedModelSpec::Method(m) if m == "none" => None,
-        CompressedModelSpec::Method(m) => match CompressedModel::from_name(m) {
-            Some(c) => Some(c),
-            None => {
-                errors.push(PlanError::unknown(
-                    "outputs.compressed_model",
-                    m,
-                    "\"fmf\", \"pvmf\", \"pcmf\", \"none\", false, or true (= \"fmf\")",
-                ));
-                None
-            }
-        },
-    };
+    let compressed_model = o.compressed_model.model().unwrap_or_else(|m| {
+        errors.push(PlanError::unknown(
+            "outputs.compressed_model",
+            m,
+            "\"fmf\", \"pvmf\", \"pcmf\", \"none\", false, or true (= \"fmf\")",
+        ));
+        None
+    });
     if compressed_model.is_some() && !o.textures {
         errors.push(PlanError::invalid(
             "outputs.compressed_model",
