@@ -38,6 +38,10 @@ pub struct ModelArgs {
     /// Seed of the random test matrices and the clustering.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// PCMF: local-PCA iterations on the data after the first per-cluster models (each one
+    /// reassignment pass and the models again: 1 + 2 + 2 x power-iters passes), 0..=20.
+    #[arg(long, default_value_t = 2)]
+    pub refine_iters: usize,
 }
 
 impl ModelArgs {
@@ -63,6 +67,7 @@ impl ModelArgs {
         p.power_iters = self.power_iters;
         p.oversample = self.oversample;
         p.seed = self.seed;
+        p.refine_iters = self.refine_iters;
         p.validate()?;
         Ok(p)
     }
