@@ -6,7 +6,8 @@
 //! * PVMF: per channel and view one over that view's lights.
 //! * PCMF: first an FMF of channel 0 with `cluster_terms` terms (its passes give every texel
 //!   a coefficient vector), clustering of those vectors ([`crate::cluster`]), then per channel
-//!   and cluster one over that cluster's texels. Twice the passes of FMF.
+//!   and cluster one over that cluster's texels; then `refine_iters` local-PCA iterations on
+//!   the data ([`crate::refine`]: a reassignment pass, then the per-cluster models again).
 //!
 //! Every pass must deliver every measured capture exactly once ([`Builder::push`] checks
 //! indices, size, duplicates and finiteness, naming the capture), and [`Builder::end_pass`]
