@@ -203,7 +203,9 @@ fn r8_plan_compressed_model_is_written_by_the_run() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success(), "a bad compressed_model must be refused");
     assert!(
-        err.contains("outputs.compressed_model") && err.contains("\"zip\"") && err.contains("\"fmf\", \"pvmf\", \"pcmf\""),
+        err.contains("outputs.compressed_model")
+            && err.contains("\"zip\"")
+            && err.contains("\"fmf\", \"pvmf\", \"pcmf\""),
         "{err}"
     );
     let plan = dir.join("model.toml");

@@ -46,7 +46,8 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<ExitCode> {
     } else {
         let skipped: Vec<String> = s.skipped.iter().map(|(r, n)| format!("{n} {r}")).collect();
         let stages: Vec<String> = s.stage_s.iter().map(|(k, v)| format!("{k} {v:.2} s")).collect();
-        let on = a.rig.as_ref().map_or("the simulated gonioreflectometer".to_string(), |r| format!("rig {}", r.display()));
+        let on =
+            a.rig.as_ref().map_or("the simulated gonioreflectometer".to_string(), |r| format!("rig {}", r.display()));
         println!("btfrig demo: plan {name:?} on {on}");
         println!("  captures          {} of {} planned", s.captures, s.planned_captures);
         println!("  skipped           {}", if skipped.is_empty() { "none".into() } else { skipped.join(", ") });

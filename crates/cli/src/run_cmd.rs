@@ -48,7 +48,10 @@ pub fn run(a: &RunArgs) -> anyhow::Result<ExitCode> {
 /// The model a run builds while it captures: `--compress` if given, else the plan's
 /// `outputs.compressed_model`. A plan that does not parse or names no known model builds
 /// none here: the run refuses it with the plan's own validation error.
-pub fn model_to_build(flag: Option<&str>, plan_text: &str) -> anyhow::Result<Option<btfrig_core::plan::CompressedModel>> {
+pub fn model_to_build(
+    flag: Option<&str>,
+    plan_text: &str,
+) -> anyhow::Result<Option<btfrig_core::plan::CompressedModel>> {
     use btfrig_core::plan::{CompressedModel, Plan};
     if let Some(m) = flag {
         return CompressedModel::from_name(m)

@@ -19,10 +19,10 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::cluster::{cluster, ClusterParams};
-use crate::refine::{ClusterModel, Reassign, RefineStep};
 use crate::color::ColorModel;
 use crate::error::{bad, CompressError, Result};
 use crate::model::{Channel, Layout, Method, Model, Part, PartRows, Precision};
+use crate::refine::{ClusterModel, Reassign, RefineStep};
 use crate::rsvd::{Real, RsvdParams, StreamingRsvd};
 
 /// Everything that decides a model.

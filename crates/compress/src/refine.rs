@@ -91,7 +91,13 @@ impl Reassign {
                 m2.push(m.mean.iter().map(|v| v * v).sum::<f64>());
                 um.push(
                     (0..k[c])
-                        .map(|i| if i < m.u.ncols() { (0..r).map(|row| m.u[(row, i)] * m.mean[row]).sum::<f64>() } else { 0.0 })
+                        .map(|i| {
+                            if i < m.u.ncols() {
+                                (0..r).map(|row| m.u[(row, i)] * m.mean[row]).sum::<f64>()
+                            } else {
+                                0.0
+                            }
+                        })
                         .collect(),
                 );
             }
@@ -291,7 +297,8 @@ mod tests {
                         direct += res.norm_squared();
                     }
                     let streamed = acc.error(x, j);
-                    let scale = (0..r).map(|row| (0..3).map(|c| f64::from(b[row][x][c]).powi(2)).sum::<f64>()).sum::<f64>();
+                    let scale =
+                        (0..r).map(|row| (0..3).map(|c| f64::from(b[row][x][c]).powi(2)).sum::<f64>()).sum::<f64>();
                     assert!((streamed - direct).abs() <= 1e-5 * scale, "r {r} x {x} j {j}: {streamed} vs {direct}");
                 }
             }
