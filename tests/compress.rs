@@ -187,3 +187,42 @@ fn sparse_acquisition_end_to_end_on_the_small_rig() {
     eprintln!("sparse reconstruction from 14 of 42 captures: rel RMSE {e:.4} vs the full run (the full run's own 6-term model: {e_full:.4})");
     assert!(e < 0.1, "sparse reconstruction error {e} (full-data model {e_full})");
 }
+
+/// Issue 8: a plan's `outputs.compressed_model` builds the model during `btfrig run` (the
+/// same file `btfrig compress` writes, read by `btfrig dataset info`), and a bad value is
+/// refused naming the allowed ones.
+#[test]
+fn r8_plan_compressed_model_is_written_by_the_run() {
+    let dir = scratch("compress-plan-model");
+    let base_text = std::fs::read_to_string(repo("tests/data/sparse-small.toml")).unwrap();
+    let rig = repo("rig-configs/bonn-gonio-sim-small.toml").canonicalize().unwrap();
+    let base = base_text.replace("../../rig-configs/bonn-gonio-sim-small.toml", &rig.display().to_string());
+    let bad = dir.join("bad.toml");
+    std::fs::write(&bad, format!("{base}\n[outputs]\ncompressed_model = \"zip\"\n")).unwrap();
+    let out = btfrig().args(["run", "--plan"]).arg(&bad).arg("--out").arg(dir.join("bad")).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "a bad compressed_model must be refused");
+    assert!(
+        err.contains("outputs.compressed_model")
+            && err.contains("\"zip\"")
+            && err.contains("\"fmf\", \"pvmf\", \"pcmf\""),
+        "{err}"
+    );
+    let plan = dir.join("model.toml");
+    std::fs::write(&plan, format!("{base}\n[outputs]\ncompressed_model = \"pcmf\"\n")).unwrap();
+    let data = dir.join("data");
+    let run = ok(btfrig().args(["run", "--plan"]).arg(&plan).arg("--out").arg(&data));
+    let model = dir.join("data.pcmf.btfm");
+    assert!(run.contains("compression       pcmf ->") && run.contains("process peak RSS"), "{run}");
+    assert!(model.exists(), "{run}");
+    let info = ok(btfrig().args(["dataset", "info"]).arg(&model));
+    assert!(info.contains("pcmf"), "{info}");
+    // The model of the run is as close to its textures as `btfrig compress` says.
+    let m = btfrig_compress::file::read(&model).unwrap();
+    let mut src = btfrig_compress::dataset::DatasetSource::open(&data).unwrap();
+    let e = btfrig_compress::eval::error_against(&m, &mut src).unwrap().rel_rmse();
+    assert!(e < 0.2, "model of the run: rel RMSE {e} against its textures");
+    // The same plan again: the dataset is complete, nothing is captured or built.
+    let again = ok(btfrig().args(["run", "--plan"]).arg(&plan).arg("--out").arg(&data));
+    assert!(again.contains("nothing to do"), "{again}");
+}

@@ -212,7 +212,7 @@ pub struct RunArgs {
     pub dark_flat: Option<std::path::PathBuf>,
     /// Build a linear model of the BTF while the run captures (fmf, pvmf or pcmf with the
     /// `btfrig compress` defaults; fmf: YUV 16/8/8 terms) and write it next to the dataset
-    /// (docs/compression.md).
+    /// (docs/compression.md). Overrides the plan's `outputs.compressed_model`.
     #[arg(long, value_name = "METHOD")]
     pub compress: Option<String>,
 }

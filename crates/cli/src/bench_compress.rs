@@ -257,6 +257,88 @@ pub struct Row {
     decode_mtexel_s: f64,
     rel_rmse_measured: f64,
     rel_rmse_truth: f64,
+    /// PCMF: texels per cluster.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    cluster_sizes: Vec<usize>,
+    /// PCMF: each local-PCA iteration on the data.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    refine: Vec<btfrig_compress::refine::RefineStep>,
+    /// PCMF: errors of the clusters, smallest first (texels, vs measured, vs truth, noise).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    cluster_errors: Vec<ClusterError>,
+}
+
+/// One cluster's share of a PCMF model's error.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct ClusterError {
+    texels: usize,
+    rel_rmse_measured: f64,
+    rel_rmse_truth: f64,
+    /// Relative RMS of the measured data against the truth on the cluster's texels.
+    noise: f64,
+}
+
+/// Per texel: squared error against measured, squared measured, against truth, squared
+/// truth, squared noise (measured − truth).
+fn texel_errors(model: &Model, btf: &SimBtf) -> Vec<[f64; 5]> {
+    let n = btf.layout.texels();
+    let rows: Vec<usize> = (0..btf.layout.n_angular()).filter(|&a| btf.layout.measured[a]).collect();
+    rows.par_iter()
+        .fold(
+            || vec![[0.0f64; 5]; n],
+            |mut acc, &a| {
+                let d = model.texture(a);
+                let (m, t) = (btf.measured_row(a).expect("measured"), btf.truth_row(a).expect("measured"));
+                for x in 0..n {
+                    for c in 0..3 {
+                        let (dv, mv, tv) = (f64::from(d[x][c]), f64::from(m[x][c]), f64::from(t[x][c]));
+                        let e = &mut acc[x];
+                        e[0] += (dv - mv).powi(2);
+                        e[1] += mv * mv;
+                        e[2] += (dv - tv).powi(2);
+                        e[3] += tv * tv;
+                        e[4] += (mv - tv).powi(2);
+                    }
+                }
+                acc
+            },
+        )
+        .reduce(
+            || vec![[0.0f64; 5]; n],
+            |mut a, b| {
+                for (x, y) in a.iter_mut().zip(&b) {
+                    for i in 0..5 {
+                        x[i] += y[i];
+                    }
+                }
+                a
+            },
+        )
+}
+
+/// Per cluster of a PCMF model, smallest cluster first.
+fn cluster_errors(model: &Model, btf: &SimBtf) -> Vec<ClusterError> {
+    let Some(cl) = &model.clusters else { return Vec::new() };
+    let te = texel_errors(model, btf);
+    let kc = cl.iter().map(|&j| j as usize + 1).max().unwrap_or(0);
+    let mut sums = vec![(0usize, [0.0f64; 5]); kc];
+    for (x, &j) in cl.iter().enumerate() {
+        sums[j as usize].0 += 1;
+        for i in 0..5 {
+            sums[j as usize].1[i] += te[x][i];
+        }
+    }
+    let mut out: Vec<ClusterError> = sums
+        .iter()
+        .map(|(n, e)| ClusterError {
+            texels: *n,
+            rel_rmse_measured: (e[0] / e[1].max(f64::MIN_POSITIVE)).sqrt(),
+            rel_rmse_truth: (e[2] / e[3].max(f64::MIN_POSITIVE)).sqrt(),
+            noise: (e[4] / e[3].max(f64::MIN_POSITIVE)).sqrt(),
+        })
+        .collect();
+    out.sort_by_key(|c| c.texels);
+    out
 }
 
 /// Error of `model` against measured and truth in one pass (each texture decoded once).
@@ -291,13 +373,14 @@ fn setting(method: Method, color: ColorModel, terms: [usize; 3]) -> ModelParams 
 
 fn run_setting(name: &str, btf: &SimBtf, p: &ModelParams) -> anyhow::Result<(Model, Row)> {
     let (model, stats) = build::<f32>(btf.layout.clone(), p, &mut SimSource { btf, measured: true, only: None })?;
+    let cluster_errors = cluster_errors(&model, btf);
     let bytes = file::encode(&model, serde_json::Value::Null).len();
     let (tput, _) = decode_throughput(&model, 24, 5);
     let (em, et) = errors(&model, btf);
     let row = Row {
         material: name.into(),
         method: match p.method {
-            Method::Pcmf { clusters } => format!("pcmf-{clusters}"),
+            Method::Pcmf { clusters } => format!("pcmf-{clusters}/r{}", p.refine_iters),
             m => m.name().into(),
         },
         color: p.color.name().into(),
@@ -310,13 +393,16 @@ fn run_setting(name: &str, btf: &SimBtf, p: &ModelParams) -> anyhow::Result<(Mod
         decode_mtexel_s: tput / 1e6,
         rel_rmse_measured: em.rel_rmse(),
         rel_rmse_truth: et.rel_rmse(),
+        cluster_sizes: stats.cluster_sizes,
+        refine: stats.refine,
+        cluster_errors,
     };
     Ok((model, row))
 }
 
 fn print_row(r: &Row) {
     println!(
-        "{:<15} {:<8} {:<8} {:<10} {:>8.2} {:>7.1} {:>8.1} {:>3} {:>8.1} {:>9.1} {:>10.5} {:>10.5}",
+        "{:<15} {:<11} {:<8} {:<10} {:>8.2} {:>7.1} {:>8.1} {:>3} {:>8.1} {:>9.1} {:>10.5} {:>10.5}",
         r.material,
         r.method,
         r.color,
@@ -330,6 +416,31 @@ fn print_row(r: &Row) {
         r.rel_rmse_measured,
         r.rel_rmse_truth
     );
+    for (i, st) in r.refine.iter().enumerate() {
+        println!(
+            "    local PCA on the data, iteration {}: {} texels moved, model vs measured (before f16) {:.5} -> {:.5} \
+             before refitting; clusters {}..{} texels",
+            i + 1,
+            st.moved,
+            st.rel_err_before,
+            st.rel_err_after,
+            st.min_cluster,
+            st.max_cluster
+        );
+    }
+    if !r.cluster_errors.is_empty() {
+        let ce = &r.cluster_errors;
+        let show = |c: &ClusterError| {
+            format!("{} texels {:.5}/{:.5} (noise {:.5})", c.texels, c.rel_rmse_measured, c.rel_rmse_truth, c.noise)
+        };
+        println!(
+            "    clusters (vs meas./vs truth): smallest {}; {}; median {}; largest {}",
+            show(&ce[0]),
+            show(&ce[1.min(ce.len() - 1)]),
+            show(&ce[ce.len() / 2]),
+            show(&ce[ce.len() - 1])
+        );
+    }
 }
 
 /// FMF terms (same for the three channels) whose storage is at least `bytes` of payload.
@@ -404,7 +515,7 @@ pub fn bench(a: &BenchCompressArgs) -> anyhow::Result<()> {
                 btf.raw_bytes() as f64 / 1e6
             );
             println!(
-                "{:<15} {:<8} {:<8} {:<10} {:>8} {:>7} {:>8} {:>3} {:>8} {:>9} {:>10} {:>10}",
+                "{:<15} {:<11} {:<8} {:<10} {:>8} {:>7} {:>8} {:>3} {:>8} {:>9} {:>10} {:>10}",
                 "material",
                 "method",
                 "colour",
@@ -428,6 +539,11 @@ pub fn bench(a: &BenchCompressArgs) -> anyhow::Result<()> {
             Ok(m)
         };
         run(setting(Method::Fmf, ColorModel::Rgb, [8; 3]))?;
+        // PCMF as k-means in the clustering basis then PCA (no local-PCA iteration on the
+        // data), and with the default iterations: the same storage.
+        let mut plain = setting(Method::Pcmf { clusters: 32 }, ColorModel::Rgb, [8; 3]);
+        plain.refine_iters = 0;
+        run(plain)?;
         let pcmf = run(setting(Method::Pcmf { clusters: 32 }, ColorModel::Rgb, [8; 3]))?;
         let k_eq = fmf_terms_for(pcmf.payload_bytes(), &btf.layout, Precision::F16);
         run(setting(Method::Fmf, ColorModel::Rgb, [k_eq; 3]))?;
@@ -442,12 +558,20 @@ pub fn bench(a: &BenchCompressArgs) -> anyhow::Result<()> {
         }
     }
     if a.json {
-        println!("{}", serde_json::json!({"rows": rows, "measured": measured_err, "sparse": sparse_out}));
+        println!(
+            "{}",
+            serde_json::json!({"rows": rows, "measured": measured_err, "sparse": sparse_out,
+                "peak_rss_mib": btfrig_runner::peak_rss_mib()})
+        );
     } else {
         println!();
         println!("MB: model file; ratio: raw half-float captures / file; ps: passes over the data; peak MB: the builder's sketches;");
         println!("Mtexel/s: decode at random direction pairs (interpolated), all threads; vs meas./vs truth: relative RMSE of the");
         println!("decoded model against the noisy measured textures and the noise-free ground truth, every capture and texel.");
+        println!(
+            "process peak RSS {} (the whole benchmark: the in-memory truths, every model and its evaluation)",
+            btfrig_runner::peak_rss_mib().map_or("n/a (no /proc/self/status)".into(), |m| format!("{m:.0} MiB"))
+        );
     }
     Ok(())
 }

@@ -38,6 +38,10 @@ pub struct ModelArgs {
     /// Seed of the random test matrices and the clustering.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// PCMF: local-PCA iterations on the data after the first per-cluster models (each one
+    /// reassignment pass and the models again: 1 + 2 + 2 x power-iters passes), 0..=20.
+    #[arg(long, default_value_t = 2)]
+    pub refine_iters: usize,
 }
 
 impl ModelArgs {
@@ -63,6 +67,7 @@ impl ModelArgs {
         p.power_iters = self.power_iters;
         p.oversample = self.oversample;
         p.seed = self.seed;
+        p.refine_iters = self.refine_iters;
         p.validate()?;
         Ok(p)
     }
@@ -480,6 +485,18 @@ pub fn default_stream_params() -> ModelParams {
     p
 }
 
+/// The parameters of the model a run builds (`btfrig run --compress`, the plan's
+/// `outputs.compressed_model`): FMF [`default_stream_params`], PVMF and PCMF (32 clusters)
+/// with `btfrig compress`'s defaults.
+pub fn stream_params(m: btfrig_core::plan::CompressedModel) -> ModelParams {
+    use btfrig_core::plan::CompressedModel;
+    match m {
+        CompressedModel::Fmf => default_stream_params(),
+        CompressedModel::Pvmf => ModelParams::new(Method::Pvmf),
+        CompressedModel::Pcmf => ModelParams::new(Method::Pcmf { clusters: 32 }),
+    }
+}
+
 impl Streaming {
     /// A compressor for the run into `dir`, and its sink for the run request.
     pub fn start(
@@ -512,7 +529,11 @@ impl Streaming {
         let source = serde_json::json!({"dataset": self.dir.display().to_string(), "captures": captures,
             "params": self.params, "streaming": report, "rel_rmse_vs_dataset": rel});
         let bytes = file::write(&out, &model, source, false)?;
+        drop(model);
         Ok(serde_json::json!({
+            // The whole process (Linux VmHWM; null elsewhere), the run and every pass of the
+            // model included: read after the model is written.
+            "peak_rss_mib": btfrig_runner::peak_rss_mib(),
             "compression_model": out.display().to_string(),
             "compression_method": self.params.method.name(),
             "compression_terms": self.params.terms,
@@ -545,7 +566,8 @@ pub fn print_streaming(v: &serde_json::Value) {
     );
     println!(
         "  streaming         {} textures streamed ({} read back), pipeline waited {:.3} s on the sink (queue max {} of {}), \
-         pass 1 busy {:.1} s; after the run: {} passes in {:.1} s, builder peak {:.1} MB",
+         pass 1 busy {:.1} s; after the run: {} passes in {:.1} s, builder peak {:.1} MB; process peak RSS {} \
+         (whole run, model included)",
         v["compression_streamed"],
         v["compression_from_disk"],
         f("compression_sink_blocked_s"),
@@ -554,6 +576,7 @@ pub fn print_streaming(v: &serde_json::Value) {
         f("compression_pass1_busy_s"),
         v["compression_passes"],
         f("compression_finish_s"),
-        f("compression_builder_peak_bytes") / 1e6
+        f("compression_builder_peak_bytes") / 1e6,
+        v["peak_rss_mib"].as_f64().map_or("n/a (no /proc/self/status)".into(), |m| format!("{m:.0} MiB"))
     );
 }

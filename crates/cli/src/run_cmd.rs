@@ -24,17 +24,9 @@ pub fn run(a: &RunArgs) -> anyhow::Result<ExitCode> {
         .with_faults(a.faults.clone())
         .with_light(a.light.as_deref().map(crate::calibrate_light_cmd::load).transpose()?)
         .with_dark_flat(a.dark_flat.as_deref().map(load_dark_flat).transpose()?);
-    let streaming = match a.compress.as_deref() {
+    let streaming = match model_to_build(a.compress.as_deref(), &req.plan_text)? {
         None => None,
-        Some(m) => {
-            let params = match m {
-                "fmf" => crate::compress_cmd::default_stream_params(),
-                "pvmf" => btfrig_compress::ModelParams::new(btfrig_compress::Method::Pvmf),
-                "pcmf" => btfrig_compress::ModelParams::new(btfrig_compress::Method::Pcmf { clusters: 32 }),
-                m => anyhow::bail!("--compress {m:?}: allowed fmf, pvmf, pcmf"),
-            };
-            Some(crate::compress_cmd::Streaming::start(&a.out, params)?)
-        }
+        Some(m) => Some(crate::compress_cmd::Streaming::start(&a.out, crate::compress_cmd::stream_params(m))?),
     };
     let req = req.with_sink(streaming.as_ref().map(|s| s.1.clone()));
     let summary = execute(&req)?;
@@ -51,6 +43,22 @@ pub fn run(a: &RunArgs) -> anyhow::Result<ExitCode> {
         }
     }
     Ok(finish(&summary, &format!("btfrig run --plan {} --out {}", a.plan.display(), a.out.display())))
+}
+
+/// The model a run builds while it captures: `--compress` if given, else the plan's
+/// `outputs.compressed_model`. A plan that does not parse or names no known model builds
+/// none here: the run refuses it with the plan's own validation error.
+pub fn model_to_build(
+    flag: Option<&str>,
+    plan_text: &str,
+) -> anyhow::Result<Option<btfrig_core::plan::CompressedModel>> {
+    use btfrig_core::plan::{CompressedModel, Plan};
+    if let Some(m) = flag {
+        return CompressedModel::from_name(m)
+            .map(Some)
+            .ok_or_else(|| anyhow::anyhow!("--compress {m:?}: allowed fmf, pvmf, pcmf"));
+    }
+    Ok(Plan::from_toml(plan_text, "plan").ok().and_then(|p| p.outputs.compressed_model.model().ok().flatten()))
 }
 
 /// Runs a request with the progress display on stderr and Ctrl-C wired to a clean stop.

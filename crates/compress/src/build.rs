@@ -6,7 +6,8 @@
 //! * PVMF: per channel and view one over that view's lights.
 //! * PCMF: first an FMF of channel 0 with `cluster_terms` terms (its passes give every texel
 //!   a coefficient vector), clustering of those vectors ([`crate::cluster`]), then per channel
-//!   and cluster one over that cluster's texels. Twice the passes of FMF.
+//!   and cluster one over that cluster's texels; then `refine_iters` local-PCA iterations on
+//!   the data ([`crate::refine`]: a reassignment pass, then the per-cluster models again).
 //!
 //! Every pass must deliver every measured capture exactly once ([`Builder::push`] checks
 //! indices, size, duplicates and finiteness, naming the capture), and [`Builder::end_pass`]
@@ -21,6 +22,7 @@ use crate::cluster::{cluster, ClusterParams};
 use crate::color::ColorModel;
 use crate::error::{bad, CompressError, Result};
 use crate::model::{Channel, Layout, Method, Model, Part, PartRows, Precision};
+use crate::refine::{ClusterModel, Reassign, RefineStep};
 use crate::rsvd::{Real, RsvdParams, StreamingRsvd};
 
 /// Everything that decides a model.
@@ -46,14 +48,19 @@ pub struct ModelParams {
     pub precision: Precision,
     /// PCMF: terms of the global basis the texels are clustered in.
     pub cluster_terms: usize,
-    /// PCMF: local-PCA reassignment iterations.
+    /// PCMF: local-PCA reassignment iterations in the clustering basis' coefficients.
     pub cluster_iters: usize,
+    /// PCMF: local-PCA iterations on the data itself, after the first per-cluster models:
+    /// each one pass that moves every texel to the cluster whose mean and basis reconstruct
+    /// its ABRDF best (all channels, every measured row), then the per-cluster models again.
+    #[serde(default = "ModelParams::default_refine_iters")]
+    pub refine_iters: usize,
 }
 
 impl ModelParams {
     /// The defaults of `method`: YUV; FMF 32/16/16 terms, PVMF 8/4/4 per view, PCMF 8/4/4 per
     /// cluster; oversampling 10, one power iteration, f16 storage, seed 1; PCMF clusters in a
-    /// 32-term basis with 10 local-PCA iterations.
+    /// 32-term basis with 10 local-PCA iterations, then 2 local-PCA iterations on the data.
     pub fn new(method: Method) -> Self {
         let terms = match method {
             Method::Fmf => [32, 16, 16],
@@ -71,7 +78,12 @@ impl ModelParams {
             precision: Precision::F16,
             cluster_terms: 32,
             cluster_iters: 10,
+            refine_iters: Self::default_refine_iters(),
         }
+    }
+
+    const fn default_refine_iters() -> usize {
+        2
     }
 
     /// Checks every knob.
@@ -87,6 +99,9 @@ impl ModelParams {
             }
             if self.cluster_terms == 0 || self.cluster_terms > 1024 {
                 return Err(bad("cluster_terms", self.cluster_terms, "1..=1024"));
+            }
+            if self.refine_iters > 20 {
+                return Err(bad("refine_iters", self.refine_iters, "0..=20"));
             }
         }
         if !(self.log_eps > 0.0 && self.log_eps <= 1.0) {
@@ -106,11 +121,12 @@ impl ModelParams {
         }
     }
 
-    /// Total passes over the data.
+    /// Total passes over the data (PCMF: the clustering basis, the per-cluster models, and
+    /// per refinement one assignment pass and the models again).
     pub fn passes(&self) -> usize {
         let p = 2 + 2 * self.power_iters;
         match self.method {
-            Method::Pcmf { .. } => 2 * p,
+            Method::Pcmf { .. } => 2 * p + self.refine_iters * (1 + p),
             _ => p,
         }
     }
@@ -198,14 +214,26 @@ impl<T: Real> PartBuilder<T> {
     }
 }
 
+/// What the passes of the current phase feed.
+enum Phase {
+    /// PCMF: the clustering basis (one FMF part of channel 0).
+    Basis,
+    /// The model's parts (FMF, PVMF; PCMF per cluster).
+    Parts,
+    /// PCMF: a reassignment pass over the data ([`crate::refine`]).
+    Assign(Box<Reassign>),
+}
+
 /// Streaming model builder (see the module documentation). `T`: the accumulation type of the
 /// sketches (`f32` by default; `f64` for reference runs).
 pub struct Builder<T: Real = f32> {
     layout: Layout,
     params: ModelParams,
     parts: Vec<PartBuilder<T>>,
-    /// PCMF while the clustering basis is being built.
-    clustering: bool,
+    phase: Phase,
+    /// PCMF: local-PCA iterations on the data still to do.
+    refines_left: usize,
+    refine_log: Vec<RefineStep>,
     clusters: Option<Vec<u16>>,
     seen: Vec<bool>,
     pass: usize,
@@ -220,7 +248,8 @@ impl<T: Real> Builder<T> {
             return Err(bad("measured captures", 0, "at least 1"));
         }
         let mut parts = Vec::new();
-        let clustering = matches!(params.method, Method::Pcmf { .. });
+        let phase = if matches!(params.method, Method::Pcmf { .. }) { Phase::Basis } else { Phase::Parts };
+        let refines_left = if matches!(params.method, Method::Pcmf { .. }) { params.refine_iters } else { 0 };
         match params.method {
             Method::Fmf => {
                 for c in 0..3 {
@@ -256,7 +285,18 @@ impl<T: Real> Builder<T> {
             }
         }
         let seen = vec![false; layout.n_angular()];
-        let mut b = Builder { layout, params, parts, clustering, clusters: None, seen, pass: 0, peak_bytes: 0 };
+        let mut b = Builder {
+            layout,
+            params,
+            parts,
+            phase,
+            refines_left,
+            refine_log: Vec::new(),
+            clusters: None,
+            seen,
+            pass: 0,
+            peak_bytes: 0,
+        };
         b.peak_bytes = b.memory_bytes();
         Ok(b)
     }
@@ -284,6 +324,10 @@ impl<T: Real> Builder<T> {
     /// Bytes held now by the sketches and buffers.
     pub fn memory_bytes(&self) -> usize {
         self.parts.iter().map(PartBuilder::memory_bytes).sum::<usize>()
+            + match &self.phase {
+                Phase::Assign(r) => r.memory_bytes(),
+                _ => 0,
+            }
             + self.seen.len()
             + self.clusters.as_ref().map_or(0, |c| c.len() * 2)
     }
@@ -291,6 +335,21 @@ impl<T: Real> Builder<T> {
     /// Largest [`Builder::memory_bytes`] seen so far.
     pub fn peak_bytes(&self) -> usize {
         self.peak_bytes
+    }
+
+    /// PCMF: what each local-PCA iteration on the data did, so far.
+    pub fn refine_log(&self) -> &[RefineStep] {
+        &self.refine_log
+    }
+
+    /// PCMF: texels per cluster (after the clustering pass; empty before and for FMF, PVMF).
+    pub fn cluster_sizes(&self) -> Vec<usize> {
+        let Some(cl) = &self.clusters else { return Vec::new() };
+        let mut n = vec![0usize; cl.iter().map(|&j| j as usize + 1).max().unwrap_or(0)];
+        for &j in cl {
+            n[j as usize] += 1;
+        }
+        n
     }
 
     /// True if capture `(light, view)` was pushed in the current pass.
@@ -319,7 +378,10 @@ impl<T: Real> Builder<T> {
         check_finite(light, view, texels, self.layout.width)?;
         let (color, eps) = (self.params.color, self.params.log_eps);
         let d: Vec<[f32; 3]> = texels.iter().map(|&t| color.forward(t, eps)).collect();
-        self.parts.par_iter_mut().for_each(|p| p.push(a, &d));
+        match &mut self.phase {
+            Phase::Assign(r) => r.push(a, &d),
+            _ => self.parts.par_iter_mut().for_each(|p| p.push(a, &d)),
+        }
         self.seen[a] = true;
         Ok(())
     }
@@ -346,6 +408,16 @@ impl<T: Real> Builder<T> {
             });
         }
         self.peak_bytes = self.peak_bytes.max(self.memory_bytes());
+        if matches!(self.phase, Phase::Assign(_)) {
+            let Phase::Assign(r) = std::mem::replace(&mut self.phase, Phase::Parts) else { unreachable!() };
+            let (assign, step) = r.finish(self.clusters.as_ref().expect("clusters before reassignment"));
+            self.refine_log.push(step);
+            self.pass += 1;
+            self.seen.fill(false);
+            self.start_parts(&assign)?;
+            self.peak_bytes = self.peak_bytes.max(self.memory_bytes());
+            return Ok(true);
+        }
         let mut more = false;
         for p in &mut self.parts {
             more |= p.rsvd.end_pass()?;
@@ -353,12 +425,40 @@ impl<T: Real> Builder<T> {
         self.pass += 1;
         self.seen.fill(false);
         self.peak_bytes = self.peak_bytes.max(self.memory_bytes());
-        if !more && self.clustering {
+        if !more && matches!(self.phase, Phase::Basis) {
             self.start_clusters()?;
+            self.phase = Phase::Parts;
+            self.peak_bytes = self.peak_bytes.max(self.memory_bytes());
+            return Ok(true);
+        }
+        if !more && self.refines_left > 0 {
+            self.refines_left -= 1;
+            self.start_reassign()?;
             self.peak_bytes = self.peak_bytes.max(self.memory_bytes());
             return Ok(true);
         }
         Ok(more)
+    }
+
+    /// Finishes the per-cluster models and starts a reassignment pass with them.
+    fn start_reassign(&mut self) -> Result<()> {
+        let parts = std::mem::take(&mut self.parts);
+        let rowmap = parts[0].rowmap.clone();
+        let finished: Vec<(usize, ClusterModel)> = parts
+            .into_par_iter()
+            .map(|pb| {
+                let svd = pb.rsvd.finish()?;
+                Ok((pb.channel, ClusterModel { mean: pb.mean, u: svd.u }))
+            })
+            .collect::<Result<_>>()?;
+        let mut models: Vec<Vec<ClusterModel>> = vec![Vec::new(), Vec::new(), Vec::new()];
+        for (c, m) in finished {
+            models[c].push(m);
+        }
+        // The rows of the accumulator's products: the rows of one batch of the sketches.
+        let r = Reassign::new(rowmap, self.layout.texels(), &models, self.params.batch);
+        self.phase = Phase::Assign(Box::new(r));
+        Ok(())
     }
 
     fn start_clusters(&mut self) -> Result<()> {
@@ -375,7 +475,12 @@ impl<T: Real> Builder<T> {
                 seed: self.params.seed,
             },
         );
-        let kc = clusters.min(self.layout.texels());
+        self.start_parts(&assign)
+    }
+
+    /// The per-cluster parts of an assignment (labels from 0; empty clusters dropped).
+    fn start_parts(&mut self, assign: &[u16]) -> Result<()> {
+        let kc = assign.iter().map(|&j| j as usize + 1).max().unwrap_or(1);
         let mut members: Vec<Vec<u32>> = vec![Vec::new(); kc];
         for (x, &j) in assign.iter().enumerate() {
             members[j as usize].push(x as u32);
@@ -390,19 +495,19 @@ impl<T: Real> Builder<T> {
             }
         }
         self.clusters = Some(assign.iter().map(|&j| relabel[j as usize]).collect());
+        self.parts.clear();
         for c in 0..3 {
             for (j, cols) in kept.iter().enumerate() {
                 let p = self.params.rsvd(self.params.terms[c], (1_000 + c * 10_000 + j) as u64);
                 self.parts.push(PartBuilder::new(&self.layout, c, PartRows::All, Some(cols.clone()), &p)?);
             }
         }
-        self.clustering = false;
         Ok(())
     }
 
     /// The model, after the last pass.
     pub fn finish(self) -> Result<Model> {
-        if self.clustering || self.pass < self.params.passes() {
+        if !matches!(self.phase, Phase::Parts) || self.pass < self.params.passes() {
             return Err(CompressError::State(format!("finish after {} of {} passes", self.pass, self.params.passes())));
         }
         let layout = self.layout;
@@ -532,6 +637,10 @@ pub struct BuildStats {
     pub total_s: f64,
     /// Peak bytes held by the builder.
     pub peak_bytes: usize,
+    /// PCMF: texels per cluster of the model.
+    pub cluster_sizes: Vec<usize>,
+    /// PCMF: each local-PCA iteration on the data.
+    pub refine: Vec<RefineStep>,
 }
 
 /// Builds a model from `source`, driving every pass.
@@ -550,6 +659,8 @@ pub fn build<T: Real>(layout: Layout, params: &ModelParams, source: &mut dyn Row
     }
     stats.passes = b.pass();
     stats.peak_bytes = b.peak_bytes();
+    stats.cluster_sizes = b.cluster_sizes();
+    stats.refine = b.refine_log().to_vec();
     let model = b.finish()?;
     stats.total_s = t0.elapsed().as_secs_f64();
     Ok((model, stats))

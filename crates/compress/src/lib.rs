@@ -45,6 +45,7 @@ pub mod eval;
 pub mod file;
 pub mod linalg;
 pub mod model;
+pub mod refine;
 pub mod rsvd;
 pub mod sink;
 pub mod sparse;

@@ -52,16 +52,6 @@ pub enum PlanError {
         /// What would be accepted instead.
         allowed: String,
     },
-    /// A feature the format reserves but the software does not implement yet.
-    #[error("{field} = {value} is not supported yet: allowed {allowed}")]
-    Unsupported {
-        /// Dotted field path.
-        field: String,
-        /// The requested value.
-        value: String,
-        /// What works today.
-        allowed: String,
-    },
     /// With `skip.unreachable = false`, some requested pairs cannot be realised by the rig.
     #[error(
         "{field} = false, but {count} of {total} requested (light, view) pairs cannot be realised by the rig; first: {}; allowed: pairs the rig can reach, or skip.unreachable = true to skip them",
@@ -101,7 +91,6 @@ impl PlanError {
             PlanError::OutOfRange { field, .. }
             | PlanError::Unknown { field, .. }
             | PlanError::Invalid { field, .. }
-            | PlanError::Unsupported { field, .. }
             | PlanError::Unreachable { field, .. }
             | PlanError::OtherDataset { field, .. } => field,
         }
@@ -127,10 +116,6 @@ impl PlanError {
             problem: problem.into(),
             allowed: allowed.into(),
         }
-    }
-
-    pub(crate) fn unsupported(field: impl Into<String>, value: impl fmt::Display, allowed: impl Into<String>) -> Self {
-        PlanError::Unsupported { field: field.into(), value: value.to_string(), allowed: allowed.into() }
     }
 }
 

@@ -36,7 +36,7 @@ use serde::{Deserialize, Serialize};
 pub use error::{PlanError, PlanErrors};
 
 pub use validate::{
-    CaptureList, ExistingDataset, ExposurePolicy, HdrMode, HdrSettings, MaterialRef, OnRegistrationFailure,
+    CaptureList, CompressedModel, ExistingDataset, ExposurePolicy, HdrMode, HdrSettings, MaterialRef, OnRegistrationFailure,
     OutputFormat, Outputs, PlanContext, Region, RegistrationMethod, RegistrationPolicy, ResampleFilter, SkipReason,
     TextureSettings, UnreachablePair, ValidatedPlan,
 };
@@ -459,12 +459,73 @@ pub struct OutputsSpec {
     /// needs `textures`).
     #[serde(default)]
     pub texture_previews: bool,
-    /// Fit a compressed BTF model (reserved: `true` is not supported yet; default false).
+    /// A compressed BTF model the run builds while it captures (docs/compression.md):
+    /// `false` (default) or `"none"`: no model; `"fmf"`, `"pvmf"`, `"pcmf"`: that model,
+    /// written next to the dataset as `<DIR>.<method>.btfm`; `true`: the default model,
+    /// `"fmf"`. A derived output, not part of [`Plan::content_hash`].
     #[serde(default)]
-    pub compressed_model: bool,
+    pub compressed_model: CompressedModelSpec,
     /// Texture file format: `"exr-half"` (default) or `"exr-float"`.
     #[serde(default = "OutputsSpec::default_format")]
     pub format: String,
+}
+
+/// The value of `outputs.compressed_model` as written: a bool or a model name (resolved and
+/// checked by validation into [`CompressedModel`](crate::plan::CompressedModel)).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(untagged)]
+pub enum CompressedModelSpec {
+    /// `false`: none; `true`: the default model (FMF).
+    Flag(bool),
+    /// `"none"`, `"fmf"`, `"pvmf"` or `"pcmf"`.
+    Method(String),
+}
+
+impl<'de> Deserialize<'de> for CompressedModelSpec {
+    // By hand rather than `untagged`, so a wrong type gets a message naming what is allowed.
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V;
+        impl serde::de::Visitor<'_> for V {
+            type Value = CompressedModelSpec;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("false, true, or one of \"fmf\", \"pvmf\", \"pcmf\", \"none\"")
+            }
+            fn visit_bool<E: serde::de::Error>(self, v: bool) -> Result<Self::Value, E> {
+                Ok(CompressedModelSpec::Flag(v))
+            }
+            fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<Self::Value, E> {
+                Ok(CompressedModelSpec::Method(v.to_string()))
+            }
+        }
+        d.deserialize_any(V)
+    }
+}
+
+impl CompressedModelSpec {
+    /// The model asked for: `Ok(None)` for none, `Err(name)` for a name that is no model
+    /// (validation reports it, naming the allowed values).
+    pub fn model(&self) -> Result<Option<validate::CompressedModel>, &str> {
+        match self {
+            CompressedModelSpec::Flag(false) => Ok(None),
+            CompressedModelSpec::Flag(true) => Ok(Some(validate::CompressedModel::Fmf)),
+            CompressedModelSpec::Method(m) if m == "none" => Ok(None),
+            CompressedModelSpec::Method(m) => validate::CompressedModel::from_name(m).map(Some).ok_or(m.as_str()),
+        }
+    }
+
+    /// The value as written in TOML, for messages.
+    pub fn display(&self) -> String {
+        match self {
+            CompressedModelSpec::Flag(b) => b.to_string(),
+            CompressedModelSpec::Method(m) => format!("{m:?}"),
+        }
+    }
+}
+
+impl Default for CompressedModelSpec {
+    fn default() -> Self {
+        CompressedModelSpec::Flag(false)
+    }
 }
 
 impl OutputsSpec {
@@ -483,7 +544,7 @@ impl Default for OutputsSpec {
             textures: true,
             preview: false,
             texture_previews: false,
-            compressed_model: false,
+            compressed_model: CompressedModelSpec::default(),
             format: Self::default_format(),
         }
     }
@@ -595,11 +656,15 @@ impl Plan {
         // failed registration may be resumed with a fallback.
         let registration =
             RegistrationSpec { on_failure: RegistrationSpec::default_on_failure(), ..self.registration.clone() };
+        // `outputs.compressed_model` is a derived output: a run may be resumed with or
+        // without the model, and plans written before the key existed keep their hash.
+        let outputs = OutputsSpec { compressed_model: CompressedModelSpec::default(), ..self.outputs.clone() };
         let canonical = Plan {
             name: String::new(),
             description: String::new(),
             run: RunSpec::default(),
             registration,
+            outputs,
             ..self.clone()
         };
         let text = toml::to_string(&canonical).expect("a plan always serialises");

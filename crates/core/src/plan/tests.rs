@@ -325,3 +325,29 @@ fn a_sparse_subset_captures_only_its_pairs_and_changes_the_hash() {
     assert_eq!(sparse_skips + unreachable + 3, 19 * 19);
     assert_eq!(SkipReason::Sparse.label(), "sparse");
 }
+
+#[test]
+fn compressed_model_names_a_model_and_is_not_content() {
+    let model = |t: &str| validate(&format!("{MINIMAL}[outputs]\ncompressed_model = {t}\n")).map(|v| v.outputs.compressed_model);
+    assert_eq!(validate(MINIMAL).unwrap().outputs.compressed_model, None);
+    assert_eq!(model("false").unwrap(), None);
+    assert_eq!(model("\"none\"").unwrap(), None);
+    assert_eq!(model("true").unwrap(), Some(CompressedModel::Fmf));
+    assert_eq!(model("\"fmf\"").unwrap(), Some(CompressedModel::Fmf));
+    assert_eq!(model("\"pvmf\"").unwrap(), Some(CompressedModel::Pvmf));
+    assert_eq!(model("\"pcmf\"").unwrap(), Some(CompressedModel::Pcmf));
+    let e = model("\"PCMF\"").unwrap_err().to_string();
+    assert!(e.contains("outputs.compressed_model") && e.contains("\"fmf\", \"pvmf\", \"pcmf\""), "{e}");
+    // A wrong type names what is allowed too.
+    let e = model("3").unwrap_err().to_string();
+    assert!(e.contains("line 5") && e.contains("expected false, true, or one of \"fmf\", \"pvmf\", \"pcmf\""), "{e}");
+    // The model is built from the textures.
+    let e = validate(&format!("{MINIMAL}[outputs]\ncompressed_model = \"fmf\"\ntextures = false\nraw_frames = true\n"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("outputs.compressed_model") && e.contains("textures = true"), "{e}");
+    // A derived output: the dataset's content (and so resume) does not depend on it.
+    let hash = |t: &str| Plan::from_toml(&format!("{MINIMAL}{t}"), "h").unwrap().content_hash();
+    assert_eq!(hash("[outputs]\ncompressed_model = \"pcmf\"\n"), hash(""));
+    assert_eq!(hash("[outputs]\ncompressed_model = false\n"), hash(""));
+}

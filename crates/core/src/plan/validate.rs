@@ -270,6 +270,41 @@ pub struct Outputs {
     pub texture_previews: bool,
     /// Texture file format.
     pub format: OutputFormat,
+    /// The compressed model the run builds while it captures, if any.
+    pub compressed_model: Option<CompressedModel>,
+}
+
+/// A compressed BTF model a run builds while it captures (`outputs.compressed_model`; the
+/// models are `btfrig-compress`'s, docs/compression.md).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CompressedModel {
+    /// Full-matrix factorization.
+    Fmf,
+    /// Per-view factorization.
+    Pvmf,
+    /// Per-cluster factorization (local PCA).
+    Pcmf,
+}
+
+impl CompressedModel {
+    /// The name as written in a plan and on the command line (`btfrig compress --method`).
+    pub fn name(self) -> &'static str {
+        match self {
+            CompressedModel::Fmf => "fmf",
+            CompressedModel::Pvmf => "pvmf",
+            CompressedModel::Pcmf => "pcmf",
+        }
+    }
+
+    /// The model called `name` (`"fmf"`, `"pvmf"`, `"pcmf"`).
+    pub fn from_name(name: &str) -> Option<Self> {
+        match name {
+            "fmf" => Some(CompressedModel::Fmf),
+            "pvmf" => Some(CompressedModel::Pvmf),
+            "pcmf" => Some(CompressedModel::Pcmf),
+            _ => None,
+        }
+    }
 }
 
 /// A requested pair the rig cannot realise, with the reason from [`Gonio::ik`].
@@ -1222,11 +1257,20 @@ fn resolve_outputs(o: &OutputsSpec, errors: &mut Vec<PlanError>) -> Option<Outpu
             None
         }
     };
-    if o.compressed_model {
-        errors.push(PlanError::unsupported(
+    let compressed_model = o.compressed_model.model().unwrap_or_else(|m| {
+        errors.push(PlanError::unknown(
             "outputs.compressed_model",
-            true,
-            "false (compression comes in a later version)",
+            m,
+            "\"fmf\", \"pvmf\", \"pcmf\", \"none\", false, or true (= \"fmf\")",
+        ));
+        None
+    });
+    if compressed_model.is_some() && !o.textures {
+        errors.push(PlanError::invalid(
+            "outputs.compressed_model",
+            o.compressed_model.display(),
+            "the model is built from the textures, and textures = false writes none",
+            "compressed_model = false, or textures = true",
         ));
     }
     if !o.textures && !o.raw_frames {
@@ -1251,6 +1295,7 @@ fn resolve_outputs(o: &OutputsSpec, errors: &mut Vec<PlanError>) -> Option<Outpu
         preview: o.preview,
         texture_previews: o.texture_previews,
         format: format.expect("no errors"),
+        compressed_model,
     })
 }
 
