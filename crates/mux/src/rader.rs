@@ -178,8 +178,16 @@ impl<F: Real> Rader<F> {
         self.scratch_len
     }
 
-    /// Applies the circulant to every column of the tile `rows` (`p` runs), in place.
-    pub(crate) fn tile(&self, rows: &mut [&mut [f32]], buf: &mut [Complex<F>], scratch: &mut [Complex<F>], dir: Dir) {
+    /// Applies the circulant to every column of the tile `rows` (`p` runs), in place;
+    /// `local` holds `p × t` values.
+    pub(crate) fn tile(
+        &self,
+        rows: &mut [&mut [f32]],
+        buf: &mut [Complex<F>],
+        scratch: &mut [Complex<F>],
+        local: &mut [f32],
+        dir: Dir,
+    ) {
         let (p, q) = (self.p, self.q);
         debug_assert_eq!(rows.len(), p);
         let half = q / 2;
@@ -190,6 +198,13 @@ impl<F: Real> Rader<F> {
         let mut m0 = [Complex::new(zero, zero); BATCH];
         let mut y0 = [Complex::new(zero, zero); BATCH];
         let mut sum = [Complex::new(zero, zero); BATCH];
+        // The tile's runs first copied whole, in Rader order (slot a = row g^a): each row is
+        // read as one sequential run, so the batches below gather from cache instead of
+        // missing to memory on every 2-line piece of a row taken in permuted order.
+        let local = &mut local[..q * t];
+        for (dst, &r) in local.chunks_exact_mut(t).zip(&self.perm) {
+            dst.copy_from_slice(rows[r]);
+        }
         let mut j0 = 0;
         while j0 < pairs {
             let nb = BATCH.min(pairs - j0);
@@ -198,8 +213,8 @@ impl<F: Real> Rader<F> {
             let buf = &mut buf[..nb * q];
             // Gather in Rader order: buf[j q + a] = column pair j at row g^a. The writes stride
             // q but the batch is in L1; each row contributes one contiguous run.
-            for (a, &r) in self.perm.iter().enumerate() {
-                let run = &rows[r][c0..c1];
+            for (a, src) in local.chunks_exact(t).enumerate() {
+                let run = &src[c0..c1];
                 for (j, v) in run.chunks_exact(2).enumerate() {
                     buf[j * q + a] = Complex::new(F::of_f32(v[0]), F::of_f32(v[1]));
                 }
@@ -259,5 +274,36 @@ impl<F: Real> Rader<F> {
             }
             j0 += nb;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn primitive_roots_generate_the_whole_group() {
+        for p in [3usize, 7, 11, 19, 151, 199, 1019, 2039] {
+            let g = primitive_root(p);
+            let mut seen = vec![false; p];
+            let mut x = 1;
+            for _ in 0..p - 1 {
+                assert!(!seen[x], "p {p} g {g}: {x} repeats");
+                seen[x] = true;
+                x = x * g % p;
+            }
+            assert_eq!(x, 1, "p {p} g {g}");
+        }
+        assert_eq!(primitive_root(151), 6);
+        assert_eq!(primitive_root(199), 3);
+    }
+
+    #[test]
+    fn a_spectrum_that_is_not_two_valued_is_refused() {
+        // A generic circulant (not a quadratic-residue code) has no Rader-domain shortcut.
+        let p = 11;
+        let g: Vec<Complex<f64>> = (0..p).map(|k| Complex::new(k as f64, 0.5 * k as f64)).collect();
+        assert!(Rader::<f32>::new(&g, &g).is_none());
+        assert!(Rader::<f32>::new(&g[..10], &g[..10]).is_none(), "even length");
     }
 }
