@@ -125,7 +125,7 @@ fn fast_methods_refuse_the_wrong_construction_and_shapes_are_checked() {
     let e = Demuxer::new(&p, &DemuxParams { fft_len: 200, ..Default::default() }).unwrap_err();
     assert!(e.to_string().contains("at least 2n - 1 = 301"), "{e}");
     assert_eq!(btfrig_mux::demux::fft_len(151, 0), 150);
-    assert_eq!(btfrig_mux::demux::fft_len(199, 0), 198);
+    assert_eq!(btfrig_mux::demux::fft_len(199, 0), 400, "198 = 2 9 11 is not 5-smooth");
     assert_eq!(btfrig_mux::demux::padded_len(151), 320);
     assert_eq!(btfrig_mux::demux::padded_len(199), 400);
     assert_eq!(btfrig_mux::demux::fft_len(15, 0), 15);
