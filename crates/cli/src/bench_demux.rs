@@ -181,9 +181,19 @@ pub fn run_order(n: usize, cols: usize, repeat: usize, fast_only: bool) -> anyho
         (DemuxParams { method: Some(fast_method), accumulate: Accumulate::F32, ..Default::default() }, false),
         (DemuxParams { method: Some(fast_method), accumulate: Accumulate::F64, ..Default::default() }, false),
     ];
-    if fast_method == Method::Fft && btfrig_mux::demux::fft_len(n, 0) != n {
-        // The FFT at the prime length itself, for comparison with the padded default.
-        configs.push((DemuxParams { method: Some(Method::Fft), fft_len: n, ..Default::default() }, false));
+    if fast_method == Method::Fft {
+        // The other FFT lengths, for comparison with the default: the prime length itself,
+        // zero-padded to a 5-smooth length >= 2n - 1, and (Paley) the Rader length n - 1.
+        let auto = btfrig_mux::demux::fft_len(n, 0);
+        let mut others = vec![n, btfrig_mux::demux::padded_len(n)];
+        if matches!(s.construction(), btfrig_mux::Construction::Paley { .. }) {
+            others.push(n - 1);
+        }
+        others.sort_unstable();
+        others.dedup();
+        for len in others.into_iter().filter(|&l| l != auto) {
+            configs.push((DemuxParams { method: Some(Method::Fft), fft_len: len, ..Default::default() }, false));
+        }
     }
     if !fast_only {
         for (layout, tile) in [
@@ -212,7 +222,17 @@ pub fn run_order(n: usize, cols: usize, repeat: usize, fast_only: bool) -> anyho
         let layout = match d.method() {
             Method::Dense(DenseLayout::PatternMajor) => format!("pattern-major tile {}", d.tile()),
             Method::Dense(DenseLayout::PixelMajor) => format!("pixel-major tile {}", d.tile()),
-            Method::Fft => format!("tile {}, length {}", d.tile(), btfrig_mux::demux::fft_len(n, p.fft_len)),
+            Method::Fft => {
+                let len = btfrig_mux::demux::fft_len(n, p.fft_len);
+                let how = if len + 1 == n {
+                    " (Rader)"
+                } else if len > n {
+                    " (padded)"
+                } else {
+                    ""
+                };
+                format!("tile {}, length {len}{how}", d.tile())
+            }
             _ => format!("in place, tile {}", d.tile()),
         };
         rows.push(Row {

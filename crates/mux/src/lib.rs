@@ -45,6 +45,7 @@ pub mod demux;
 pub mod error;
 pub mod lsq;
 pub mod noise;
+mod rader;
 pub mod smatrix;
 pub mod tile;
 

@@ -124,8 +124,10 @@ fn fast_methods_refuse_the_wrong_construction_and_shapes_are_checked() {
     let d = Demuxer::new(&sy, &DemuxParams::default()).unwrap();
     let e = Demuxer::new(&p, &DemuxParams { fft_len: 200, ..Default::default() }).unwrap_err();
     assert!(e.to_string().contains("at least 2n - 1 = 301"), "{e}");
-    assert_eq!(btfrig_mux::demux::fft_len(151, 0), 320);
-    assert_eq!(btfrig_mux::demux::fft_len(199, 0), 400);
+    assert_eq!(btfrig_mux::demux::fft_len(151, 0), 150);
+    assert_eq!(btfrig_mux::demux::fft_len(199, 0), 400, "198 = 2 9 11 is not 5-smooth");
+    assert_eq!(btfrig_mux::demux::padded_len(151), 320);
+    assert_eq!(btfrig_mux::demux::padded_len(199), 400);
     assert_eq!(btfrig_mux::demux::fft_len(15, 0), 15);
     let e = d.demux(&[0.0; 255 * 3 + 1], 3).unwrap_err();
     assert!(e.to_string().contains("766 values, expected 765"), "{e}");
@@ -166,4 +168,58 @@ fn large_orders_f32_against_f64_accumulation() {
         assert!(e32 < 2e-7 * log * (n as f64).sqrt(), "order {n}: f32 accumulation error {e32:e}");
         eprintln!("order {n} ({}): rel. max error f32 {e32:.2e}, f64 {e64:.2e}", s.construction().name());
     }
+}
+
+/// Every FFT length of the cyclic path against the dense f64 closed form, for the domes'
+/// Paley orders, a large one, and twin-prime orders: the Rader-domain transform (`n − 1`,
+/// Paley only), the zero-padded one, the prime length itself; demultiplex and multiplex, f32
+/// and f64 accumulation.
+#[test]
+fn cyclic_fft_lengths_match_the_dense_f64_closed_form() {
+    let cols = 21;
+    for (seed, s) in [
+        SMatrix::paley(151).unwrap(),
+        SMatrix::paley(199).unwrap(),
+        SMatrix::paley(1019).unwrap(),
+        SMatrix::twin_prime(11).unwrap(),
+        SMatrix::twin_prime(17).unwrap(),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let n = s.order();
+        let paley = matches!(s.construction(), btfrig_mux::Construction::Paley { .. });
+        let data = common::uniform(n, cols, 0.0, 1000.0, 900 + seed as u64);
+        let want = reference(&s, &data, cols, true);
+        let want_mux = reference(&s, &data, cols, false);
+        let mut lens = vec![0, n, btfrig_mux::demux::padded_len(n)];
+        if paley {
+            lens.push(n - 1);
+        }
+        for len in lens {
+            for acc in [Accumulate::F32, Accumulate::F64] {
+                let p = DemuxParams { method: Some(Method::Fft), fft_len: len, accumulate: acc, tile: 0 };
+                let d = Demuxer::new(&s, &p).unwrap();
+                let err = rel_err(&d.demux(&data, cols).unwrap(), &want);
+                let err_mux = rel_err(&d.multiplex(&data, cols).unwrap(), &want_mux);
+                // f32: the Rader-domain transform (length n − 1) to about an ulp times log2(n);
+                // the padded and prime-length ones to the bound of the test above (they mix the
+                // column with its ~n/2 times larger sum). f64: one rounding to f32.
+                let lg = (n as f64).log2();
+                let rader = paley && d.method() == Method::Fft && btfrig_mux::demux::fft_len(n, len) + 1 == n;
+                let tol = match acc {
+                    Accumulate::F32 if rader => 1e-7 * lg,
+                    Accumulate::F32 => 4e-7 * lg * (n as f64).sqrt(),
+                    Accumulate::F64 => 1.2e-7,
+                };
+                assert!(err < tol, "order {n} length {len} {acc:?}: demux rel err {err:e} > {tol:e}");
+                assert!(err_mux < tol, "order {n} length {len} {acc:?}: mux rel err {err_mux:e} > {tol:e}");
+                eprintln!("order {n} fft length {len} {acc:?}: rel. max error demux {err:.2e}, mux {err_mux:.2e}");
+            }
+        }
+    }
+    // The Rader length is for prime orders only.
+    let tp = SMatrix::twin_prime(11).unwrap();
+    let e = Demuxer::new(&tp, &DemuxParams { method: Some(Method::Fft), fft_len: 142, ..Default::default() }).unwrap_err();
+    assert!(e.to_string().contains("at least 2n - 1"), "{e}");
 }
