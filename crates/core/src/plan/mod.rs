@@ -24,6 +24,7 @@
 //! assert_eq!(v.pairs.len(), 81 * 19);
 //! ```
 
+pub mod dome;
 mod error;
 mod validate;
 
