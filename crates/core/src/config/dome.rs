@@ -192,6 +192,13 @@ impl DomeConfig {
         }
     }
 
+    /// The exact light and view directions in the sample frame of camera `c`, the sample at
+    /// `turntable_rad` and LED `led` (what a BTF texel's (light, view) pair is).
+    pub fn sample_directions(&self, c: usize, turntable_rad: f64, led: usize) -> (Direction, Direction) {
+        let pose = self.scene_pose(c, turntable_rad, led);
+        (Direction::from_vector(&pose.lamp_in_sample().coords), Direction::from_vector(&pose.camera_in_sample().coords))
+    }
+
     /// Per-LED power factors around 1 (log-normal with RMS `led_power_spread`), from `seed`.
     pub fn led_power(&self, seed: u64) -> Vec<f64> {
         let mut rng = SplitMix(seed ^ 0x1ed_9043);
