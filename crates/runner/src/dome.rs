@@ -82,8 +82,10 @@ pub struct DomeRunSummary {
     pub exposure_time_s: f64,
     /// Mean relative RMS error of the stored textures against the ground truth.
     pub texture_rel_rmse: Option<f64>,
-    /// The same for the single-light reference textures (same LEDs, same view).
+    /// The same for the single-light reference textures (first view group).
     pub reference_texture_rel_rmse: Option<f64>,
+    /// The same for the demultiplexed textures of the reference LEDs (same LEDs, same view).
+    pub reference_mux_texture_rel_rmse: Option<f64>,
     /// Dead and stuck LEDs the demultiplexer found, e.g. `camera 0 rotation 0: LED 3 stuck`.
     pub faults: Vec<String>,
     /// Warnings (faults solved around, retries, skipped demultiplexing).
@@ -115,6 +117,7 @@ impl DomeRunSummary {
             "exposure_time_s": self.exposure_time_s,
             "texture_rel_rmse": self.texture_rel_rmse,
             "reference_texture_rel_rmse": self.reference_texture_rel_rmse,
+            "reference_mux_texture_rel_rmse": self.reference_mux_texture_rel_rmse,
             "faults": self.faults,
             "warnings": self.warnings,
             "group_bytes": self.group_bytes,
@@ -152,7 +155,10 @@ pub fn load(text: &str, file: &Path) -> Result<(ValidatedDomePlan, RigConfig, St
     Ok((v, rig, rig_text))
 }
 
-fn rel_rmse(a: &[[f32; 3]], truth: &[[f32; 3]]) -> f64 {
+/// Squared error and squared truth summed over a texture: pooled over many textures, their
+/// ratio's root is the relative RMSE (dim grazing LEDs do not dominate it as a mean of
+/// per-texture ratios would).
+fn sq_err(a: &[[f32; 3]], truth: &[[f32; 3]]) -> (f64, f64) {
     let (mut num, mut den) = (0.0f64, 0.0f64);
     for (x, t) in a.iter().zip(truth) {
         for c in 0..3 {
@@ -160,7 +166,12 @@ fn rel_rmse(a: &[[f32; 3]], truth: &[[f32; 3]]) -> f64 {
             den += f64::from(t[c]).powi(2);
         }
     }
-    (num / den.max(1e-30)).sqrt()
+    (num, den)
+}
+
+fn pooled(v: &[(f64, f64)]) -> Option<f64> {
+    let (n, d) = v.iter().fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
+    (d > 0.0).then(|| (n / d).sqrt())
 }
 
 /// SNR of `measured` against `truth` over photosites whose truth exceeds a fifth of its
@@ -358,7 +369,7 @@ struct Consumer<'a, F: Fn(usize, u32) -> u32> {
     references: Vec<(usize, f64, Vec<f32>)>,
     first_group: Option<(Vec<f32>, usize, f64, f64)>,
     out: DomeRunSummary,
-    rmse: Vec<f64>,
+    rmse: Vec<(f64, f64)>,
 }
 
 impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
@@ -465,7 +476,7 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
                 .texture(result.mosaic(j), c, rad, j, exp, gain)
                 .map_err(|e| input("dome pipeline", e))?;
             let truth = self.scene.ground_truth(c, rad, j, self.v.plan.texture_size);
-            self.rmse.push(rel_rmse(&tex, &truth.data));
+            self.rmse.push(sq_err(&tex, &truth.data));
             let size = self.v.plan.texture_size;
             let file = self
                 .dataset
@@ -491,7 +502,7 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
         let Some((mosaics, cols, exp, gain)) = self.first_group.as_ref() else { return Ok(()) };
         let leds = self.schedule.leds;
         let c = source.camera();
-        let (mut g, mut ref_err) = (Vec::new(), Vec::new());
+        let (mut g, mut ref_err, mut mux_err) = (Vec::new(), Vec::new(), Vec::new());
         for (j, ref_exp, sig) in &self.references {
             let mut single = vec![0.0; leds];
             single[*j] = 1.0;
@@ -505,19 +516,20 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
             g.push(snr(demuxed, &truth_mux) / snr(sig, &truth_ref));
             let tex = self.processing.texture(sig, c, rad, *j, *ref_exp, *gain).map_err(|e| input("dome pipeline", e))?;
             let truth = self.scene.ground_truth(c, rad, *j, self.v.plan.texture_size);
-            ref_err.push(rel_rmse(&tex, &truth.data));
+            ref_err.push(sq_err(&tex, &truth.data));
+            let tex = self.processing.texture(demuxed, c, rad, *j, *exp, *gain).map_err(|e| input("dome pipeline", e))?;
+            mux_err.push(sq_err(&tex, &truth.data));
         }
         if !g.is_empty() {
             self.out.multiplex_gain_measured = Some(g.iter().sum::<f64>() / g.len() as f64);
-            self.out.reference_texture_rel_rmse = Some(ref_err.iter().sum::<f64>() / ref_err.len() as f64);
+            self.out.reference_texture_rel_rmse = pooled(&ref_err);
+            self.out.reference_mux_texture_rel_rmse = pooled(&mux_err);
         }
         Ok(())
     }
 
     fn finish(mut self) -> DomeRunSummary {
-        if !self.rmse.is_empty() {
-            self.out.texture_rel_rmse = Some(self.rmse.iter().sum::<f64>() / self.rmse.len() as f64);
-        }
+        self.out.texture_rel_rmse = pooled(&self.rmse);
         self.out
     }
 }
