@@ -616,3 +616,23 @@ fn calibrate_color_reports_held_out_figures_and_writes_a_usable_file() {
     let err = fails(btfrig().args(["calibrate", "color", "--plan"]).arg(&plan).arg("--rig").arg(dir.join("rig.toml")));
     assert!(err.contains("texels = 5"), "{err}");
 }
+
+#[test]
+fn demo_rig_dome_runs_a_multiplexed_dome_measurement_end_to_end() {
+    let dir = scratch("demo-dome");
+    let out = dir.join("run");
+    let stdout = ok(btfrig().args(["demo", "--rig", "dome", "--json", "--out"]).arg(&out));
+    let v: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+    assert_eq!(v["rig"], "led_dome");
+    assert_eq!(v["captures"], 792, "198 LEDs x 2 cameras x 2 rotations");
+    assert_eq!(v["mode"], "s-matrix 199");
+    let (p, m) = (v["multiplex_gain_predicted"].as_f64().unwrap(), v["multiplex_gain_measured"].as_f64().unwrap());
+    assert!(p > 1.5 && m > 1.3 && (m / p - 1.0).abs() < 0.15, "predicted {p}, measured {m}");
+    let saved = v["time_saved_fraction"].as_f64().unwrap();
+    assert!(saved > 0.3 && saved < 1.0, "{saved}");
+    ok(btfrig().args(["dataset", "verify"]).arg(&out));
+    // Gonio-only commands refuse the dome by name.
+    let e = fails(btfrig().args(["kinematics", "check", "--rig", "dome"]));
+    assert!(e.contains("led_dome") && e.contains("gonioreflectometer"), "{e}");
+}
+

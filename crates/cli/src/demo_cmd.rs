@@ -14,8 +14,14 @@ const DEMO_PLAN: &str = include_str!("../../../rig-configs/plans/demo.toml");
 /// The whole Bonn 81 x 81 plan (`--full`).
 const FULL_PLAN: &str = include_str!("../../../rig-configs/plans/bonn-full.toml");
 
+/// The LED dome demo plan (`--rig dome`).
+const DOME_PLAN: &str = include_str!("../../../rig-configs/plans/dome-demo.toml");
+
 /// Runs the demo.
 pub fn run(a: &DemoArgs) -> anyhow::Result<ExitCode> {
+    if crate::rig::load(a.rig.as_deref())?.rig.kind == btfrig_core::config::RigKind::LedDome {
+        return run_dome(a);
+    }
     let (name, text) = if a.full { ("bonn-full", FULL_PLAN) } else { ("demo", DEMO_PLAN) };
     let cwd = std::env::current_dir().context("the working directory")?;
     let text = with_overrides(text, a.rig.as_deref(), a.material.as_deref(), &cwd)?;
@@ -110,4 +116,50 @@ fn with_overrides(text: &str, rig: Option<&Path>, material: Option<&str>, cwd: &
         section.insert("material".into(), toml::Value::String(m));
     }
     Ok(doc.to_string())
+}
+
+/// `btfrig demo --rig dome`: the dome demo plan on the simulated LED dome (docs/multiplexing.md).
+fn run_dome(a: &DemoArgs) -> anyhow::Result<ExitCode> {
+    anyhow::ensure!(!a.full, "--full is the gonioreflectometer's 81 x 81 plan; the dome demo has no --full");
+    let cwd = std::env::current_dir().context("the working directory")?;
+    let text = with_overrides(DOME_PLAN, a.rig.as_deref(), a.material.as_deref(), &cwd)?;
+    let out = crate::captures_cmd::prepare_output(a.out.clone(), "btfrig-demo-dome")?;
+    let req = btfrig_runner::dome::DomeRunRequest {
+        plan_text: text,
+        plan_path: cwd.join("<embedded rig-configs/plans/dome-demo.toml>"),
+        out,
+        faults: None,
+    };
+    let json = a.json;
+    let s = btfrig_runner::dome::run(&req, &mut |line| {
+        if !json {
+            println!("{line}");
+        }
+    })?;
+    if json {
+        println!("{}", s.to_json());
+        return Ok(ExitCode::SUCCESS);
+    }
+    let f = |v: Option<f64>| v.map(|r| format!("{r:.3}")).unwrap_or_else(|| "n/a".into());
+    println!("btfrig demo: plan \"dome-demo\" on the simulated LED dome");
+    println!("  textures          {} ({} LEDs x {} views), {} frames per camera", s.textures, s.leds, s.views, s.frames);
+    println!("  mode              {}: {}", s.mode, s.multiplex_reason);
+    println!(
+        "  SNR gain          predicted {:.3}, measured {} (demultiplexed vs single-light frames, against noise-free renders)",
+        s.multiplex_gain_predicted,
+        f(s.multiplex_gain_measured)
+    );
+    println!("  time saved        {:.1} % of the exposure time single-light capture needs for the same SNR", 100.0 * s.time_saved_fraction);
+    println!("  rig time          {:.1} s ({:.1} s exposing)", s.hardware_s, s.exposure_time_s);
+    println!(
+        "  texture error     {} (single-light references {}): relative RMSE against ground truth",
+        f(s.texture_rel_rmse),
+        f(s.reference_texture_rel_rmse)
+    );
+    println!("  group memory      {:.1} MB per view group", s.group_bytes as f64 / 1e6);
+    println!("  wall time         {:.1} s", s.wall_s);
+    println!("  faults            {}", if s.faults.is_empty() { "none".into() } else { s.faults.join("; ") });
+    println!("  warnings          {}", s.warnings.len());
+    println!("  dataset           {}", s.dataset.display());
+    Ok(ExitCode::SUCCESS)
 }

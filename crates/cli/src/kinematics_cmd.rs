@@ -7,6 +7,7 @@ use btfrig_core::sampling::Sampling;
 /// counts per reason and the worst round-trip error.
 pub fn check(rig: Option<&std::path::Path>, json: bool) -> anyhow::Result<()> {
     let cfg = super::rig::load(rig)?;
+    cfg.require_gonio("kinematics check")?;
     let gonio = Gonio::new(cfg.geometry.clone())?;
     let bonn = Sampling::bonn81();
     let started = std::time::Instant::now();

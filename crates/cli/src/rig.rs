@@ -30,7 +30,8 @@ pub fn load(path: Option<&Path>) -> anyhow::Result<RigConfig> {
 }
 
 /// The embedded rig that `--rig NAME` names when NAME is not a file: `builtin:NAME`,
-/// `builtin:bonn-NAME` (`--rig gonio-serial` = `builtin:bonn-gonio-serial`).
+/// `builtin:bonn-NAME` (`--rig gonio-serial` = `builtin:bonn-gonio-serial`) or
+/// `builtin:bonn-NAME-sim` (`--rig dome` = `builtin:bonn-dome-sim`).
 pub fn builtin(path: &Path) -> Option<&'static str> {
     if path.exists() {
         return None;
@@ -39,5 +40,7 @@ pub fn builtin(path: &Path) -> Option<&'static str> {
     BUILTIN_RIGS
         .iter()
         .map(|(n, _)| *n)
-        .find(|n| *n == format!("builtin:{name}") || *n == format!("builtin:bonn-{name}"))
+        .find(|n| {
+            *n == format!("builtin:{name}") || *n == format!("builtin:bonn-{name}") || *n == format!("builtin:bonn-{name}-sim")
+        })
 }

@@ -58,6 +58,7 @@ use btfrig_hw::{Camera, ErrorKind, Rail, Robot, SharedClock};
 use btfrig_planner::Schedule;
 use tokio::sync::{broadcast, mpsc, watch};
 
+pub mod dome;
 mod run;
 
 /// Identifies a capture: its light and view indices (as `btfrig_store::StepId`).

@@ -30,6 +30,7 @@
 
 pub mod color;
 pub mod dark_flat;
+pub mod dome;
 pub mod light;
 
 use std::collections::{BTreeMap, HashMap, VecDeque};

@@ -26,6 +26,7 @@ use btfrig_core::config::timing::TimingConfig;
 use btfrig_core::kinematics::Gonio;
 use btfrig_core::sampling::Sampling;
 
+pub mod dome;
 pub mod expand;
 pub mod order;
 pub mod summary;

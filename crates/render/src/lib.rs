@@ -43,6 +43,7 @@ pub mod brdf;
 pub mod chart;
 pub mod colour;
 pub mod demosaic;
+pub mod dome_scene;
 pub mod flat_field;
 pub mod ground_truth;
 pub mod heightfield;

@@ -209,6 +209,8 @@ impl RigScene {
         make: impl FnOnce(f64, &crate::scene::Resolver) -> Result<Renderer, SceneError>,
     ) -> Result<RigScene, RigSceneError> {
         cfg.validate()?;
+        // The scene is posed by the gonioreflectometer's kinematics; a dome has DomeScene.
+        cfg.require_gonio("a gonioreflectometer scene (RigScene; a dome uses DomeScene)")?;
         let gonio = Gonio::new(cfg.geometry.clone())?;
         let camera = CachedCamera::new(cfg.camera.to_model()?);
         let sensor = SensorModel::from_config(&cfg.sensor)?;

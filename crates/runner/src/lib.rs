@@ -11,6 +11,7 @@
 
 #![warn(missing_docs)]
 
+pub mod dome;
 pub mod dry_run;
 pub mod emulated;
 mod hdr;

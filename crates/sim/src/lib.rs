@@ -32,6 +32,7 @@
 
 pub mod capture;
 pub mod devices;
+pub mod dome;
 pub mod faults;
 pub mod frame_source;
 pub mod options;

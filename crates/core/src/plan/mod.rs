@@ -24,6 +24,7 @@
 //! assert_eq!(v.pairs.len(), 81 * 19);
 //! ```
 
+pub mod dome;
 mod error;
 mod validate;
 
@@ -48,6 +49,7 @@ pub const BUILTIN_RIG: &str = "builtin:bonn-gonio-sim";
 pub const BUILTIN_RIGS: &[(&str, &str)] = &[
     (BUILTIN_RIG, include_str!("../../../../rig-configs/bonn-gonio-sim.toml")),
     ("builtin:bonn-gonio-serial", include_str!("../../../../rig-configs/bonn-gonio-serial.toml")),
+    ("builtin:bonn-dome-sim", include_str!("../../../../rig-configs/bonn-dome-sim.toml")),
 ];
 
 /// Names of the fault scenarios shipped in `sim/faults/` (file stems). The caller may pass

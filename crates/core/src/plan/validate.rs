@@ -645,6 +645,16 @@ fn resolve_rig(plan: &Plan, ctx: &PlanContext, errors: &mut Vec<PlanError>) -> O
     if let (Some(r), Some(seed)) = (rig.as_mut(), plan.rig.seed) {
         r.rig.seed = seed;
     }
+    // This plan format drives a gonioreflectometer (directions through inverse kinematics);
+    // an LED dome's views and lights are fixed by the rig and run by `btfrig demo --rig dome`.
+    if let Some(r) = rig.as_ref().filter(|r| r.rig.kind != crate::config::RigKind::Gonioreflectometer) {
+        errors.push(PlanError::unsupported(
+            "rig.config",
+            format!("{name:?} (kind = {:?})", r.rig.kind.as_str()),
+            "a gonioreflectometer rig config; LED domes run with `btfrig demo --rig dome` (docs/multiplexing.md)",
+        ));
+        return None;
+    }
     rig
 }
 

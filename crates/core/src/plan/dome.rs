@@ -1,0 +1,227 @@
+//! Measurement plans for an LED dome (`docs/plan-format.md`, "LED dome plans"): which views
+//! (camera x turntable rotation), how the LEDs are captured (multiplexed or one by one) and
+//! the exposure. Lights and views are fixed by the rig, so there is no `[sampling]`.
+
+use serde::{Deserialize, Serialize};
+
+use crate::config::RigConfig;
+use crate::ConfigError;
+
+/// A dome plan, as written in the file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DomePlan {
+    /// Short name, shown in reports.
+    #[serde(default)]
+    pub name: String,
+    /// Which rig config (`"builtin:bonn-dome-sim"` by default), material and seed.
+    #[serde(default = "DomePlan::default_rig")]
+    pub rig: super::RigSpec,
+    /// The views and the capture mode.
+    #[serde(default)]
+    pub dome: DomeCapture,
+    /// Side of the square rectified textures, texels (8..=1024; default 32).
+    #[serde(default = "DomePlan::default_size")]
+    pub texture_size: usize,
+    /// Fault scenario of the simulated rig (default `"none"`).
+    #[serde(default = "DomePlan::default_faults")]
+    pub fault_scenario: String,
+}
+
+/// How each view group is captured.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MultiplexPolicy {
+    /// Multiplex when the noise model predicts a gain (`btfrig_mux::noise::choose`).
+    Auto,
+    /// Always one LED per frame.
+    Off,
+    /// Always the full S-matrix.
+    On,
+}
+
+/// The `[dome]` table of a dome plan.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DomeCapture {
+    /// Camera indices of the arc to use (default: all).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cameras: Option<Vec<usize>>,
+    /// Turntable rotation indices (default: all of `[dome] rotations`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rotations: Option<Vec<u32>>,
+    /// Exposure of a single-light frame, seconds (1e-4..=30); the time budget of a view
+    /// group is `LEDs x exposure_s` in every mode.
+    #[serde(default = "DomeCapture::default_exposure")]
+    pub exposure_s: f64,
+    /// Analogue gain (1..=the sensor's maximum).
+    #[serde(default = "DomeCapture::default_gain")]
+    pub gain: f64,
+    /// `"auto"` (default), `"off"` or `"on"`.
+    #[serde(default = "DomeCapture::default_policy")]
+    pub multiplex: MultiplexPolicy,
+    /// Typical sample albedo for the noise model (0 < b <= 1; default 0.3).
+    #[serde(default = "DomeCapture::default_brightness")]
+    pub sample_brightness: f64,
+    /// Brightest single-LED response relative to white, for saturation (>= sample_brightness; default 1).
+    #[serde(default = "DomeCapture::default_brightness_max")]
+    pub brightness_max: f64,
+    /// Single-LED reference captures taken in the first view group to measure the
+    /// multiplexing gain against (0..=16; default 4; ignored without multiplexing).
+    #[serde(default = "DomeCapture::default_reference")]
+    pub reference_leds: usize,
+}
+
+impl DomeCapture {
+    const fn default_exposure() -> f64 {
+        0.05
+    }
+    const fn default_gain() -> f64 {
+        1.0
+    }
+    const fn default_policy() -> MultiplexPolicy {
+        MultiplexPolicy::Auto
+    }
+    const fn default_brightness() -> f64 {
+        0.3
+    }
+    const fn default_brightness_max() -> f64 {
+        1.0
+    }
+    const fn default_reference() -> usize {
+        4
+    }
+}
+
+impl Default for DomeCapture {
+    fn default() -> Self {
+        DomeCapture {
+            cameras: None,
+            rotations: None,
+            exposure_s: Self::default_exposure(),
+            gain: Self::default_gain(),
+            multiplex: Self::default_policy(),
+            sample_brightness: Self::default_brightness(),
+            brightness_max: Self::default_brightness_max(),
+            reference_leds: Self::default_reference(),
+        }
+    }
+}
+
+/// A dome plan checked against its rig: the resolved views.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ValidatedDomePlan {
+    /// The plan.
+    pub plan: DomePlan,
+    /// Camera indices, in capture order.
+    pub cameras: Vec<usize>,
+    /// Rotation indices, in capture order.
+    pub rotations: Vec<u32>,
+}
+
+impl DomePlan {
+    fn default_rig() -> super::RigSpec {
+        super::RigSpec { config: "builtin:bonn-dome-sim".into(), material: None, seed: None }
+    }
+    const fn default_size() -> usize {
+        32
+    }
+    fn default_faults() -> String {
+        "none".into()
+    }
+
+    /// Parses a dome plan; `origin` names the text in errors.
+    pub fn from_toml(text: &str, origin: &str) -> Result<DomePlan, ConfigError> {
+        toml::from_str(text).map_err(|e| ConfigError::Parse { path: origin.into(), message: e.to_string() })
+    }
+
+    /// The view index of (camera `c`, rotation `k`) in the dataset: `k x cameras + c`, over
+    /// the rig's full arc, so datasets of subsets share indices.
+    pub fn view_index(rig_cameras: usize, c: usize, k: u32) -> u32 {
+        k * rig_cameras as u32 + c as u32
+    }
+
+    /// Checks every value against `rig` (an LED dome) and reports all problems at once.
+    pub fn validate(self, rig: &RigConfig) -> Result<ValidatedDomePlan, ConfigError> {
+        let dome = rig.require_dome("a dome plan")?;
+        let d = &self.dome;
+        let mut e = Vec::new();
+        let cameras: Vec<usize> = d.cameras.clone().unwrap_or_else(|| (0..dome.camera_count()).collect());
+        let rotations: Vec<u32> = d.rotations.clone().unwrap_or_else(|| (0..dome.rotations).collect());
+        let nc = dome.camera_count();
+        if cameras.is_empty() {
+            e.push(ConfigError::out_of_range("dome.cameras", "[]", &format!("camera indices in 0..{nc}")));
+        }
+        for (i, &c) in cameras.iter().enumerate() {
+            if c >= nc || cameras[..i].contains(&c) {
+                e.push(ConfigError::out_of_range(&format!("dome.cameras[{i}]"), c, &format!("distinct indices in 0..{nc}")));
+            }
+        }
+        if rotations.is_empty() {
+            e.push(ConfigError::out_of_range("dome.rotations", "[]", &format!("rotation indices in 0..{}", dome.rotations)));
+        }
+        for (i, &k) in rotations.iter().enumerate() {
+            if k >= dome.rotations || rotations[..i].contains(&k) {
+                e.push(ConfigError::out_of_range(
+                    &format!("dome.rotations[{i}]"),
+                    k,
+                    &format!("distinct indices in 0..{}", dome.rotations),
+                ));
+            }
+        }
+        if !(d.exposure_s.is_finite() && (1e-4..=30.0).contains(&d.exposure_s)) {
+            e.push(ConfigError::out_of_range("dome.exposure_s", d.exposure_s, "1e-4..=30"));
+        }
+        if !(d.gain.is_finite() && d.gain >= 1.0 && d.gain <= rig.sensor.max_analogue_gain) {
+            e.push(ConfigError::out_of_range("dome.gain", d.gain, &format!("1..={}", rig.sensor.max_analogue_gain)));
+        }
+        if !(d.sample_brightness > 0.0 && d.sample_brightness <= 1.0) {
+            e.push(ConfigError::out_of_range("dome.sample_brightness", d.sample_brightness, "0 < b <= 1"));
+        }
+        if !(d.brightness_max.is_finite() && d.brightness_max >= d.sample_brightness) {
+            e.push(ConfigError::out_of_range("dome.brightness_max", d.brightness_max, ">= dome.sample_brightness"));
+        }
+        if d.reference_leds > 16 {
+            e.push(ConfigError::out_of_range("dome.reference_leds", d.reference_leds, "0..=16"));
+        }
+        if !(8..=1024).contains(&self.texture_size) {
+            e.push(ConfigError::out_of_range("texture_size", self.texture_size, "8..=1024"));
+        }
+        if !super::BUILTIN_FAULT_SCENARIOS.contains(&self.fault_scenario.as_str()) {
+            e.push(ConfigError::Unknown {
+                field: "fault_scenario".into(),
+                value: self.fault_scenario.clone(),
+                allowed: super::BUILTIN_FAULT_SCENARIOS.join(", "),
+            });
+        }
+        ConfigError::from_list(e)?;
+        Ok(ValidatedDomePlan { plan: self, cameras, rotations })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rig() -> RigConfig {
+        let text = super::super::BUILTIN_RIGS.iter().find(|(n, _)| *n == "builtin:bonn-dome-sim").unwrap().1;
+        RigConfig::from_toml(text, "dome").unwrap()
+    }
+
+    #[test]
+    fn defaults_take_every_view() {
+        let v = DomePlan::from_toml("", "p").unwrap().validate(&rig()).unwrap();
+        assert_eq!((v.cameras.len(), v.rotations.len()), (11, 12));
+        assert_eq!(DomePlan::view_index(11, 3, 2), 25);
+    }
+
+    #[test]
+    fn bad_values_are_all_named() {
+        let p = DomePlan::from_toml("[dome]\ncameras = [0, 11]\nrotations = [1, 1]\nexposure_s = 0\n", "p").unwrap();
+        let e = p.validate(&rig()).unwrap_err().to_string();
+        assert!(e.contains("dome.cameras[1] = 11 is out of range: allowed distinct indices in 0..11"), "{e}");
+        assert!(e.contains("dome.rotations[1] = 1"), "{e}");
+        assert!(e.contains("dome.exposure_s = 0"), "{e}");
+        assert!(DomePlan::from_toml("[dome]\ncamera = [0]\n", "p").unwrap_err().to_string().contains("camera"));
+    }
+}

@@ -1,0 +1,544 @@
+//! A whole LED dome run as one library call: plan -> schedule (with the multiplexing choice)
+//! -> simulated dome rig -> engine (`btfrig_engine::dome`) -> pipeline
+//! (`btfrig_pipeline::dome`: collect, demultiplex, fault detection, rectify, radiometry) ->
+//! dataset store, plus the figures measured against the simulator's ground truth
+//! (`docs/pipeline.md`, "LED dome").
+//!
+//! Measured gain: in the first view group of the first camera, `reference_leds` LEDs are also
+//! captured alone (single-light frames at the single-light exposure, so both modes spend the
+//! same time per LED). The noise of a demultiplexed single-LED image and of the single-light
+//! frame of the same LED are the RMS differences from the noise-free render of that LED
+//! (`DomeFrameSource::noise_free_dn`, photosites imaging the sample); the gain is the ratio of
+//! their SNRs. Reference frames are only measured, not stored.
+
+use std::collections::{BTreeMap, HashMap, HashSet};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use btfrig_calib::rectify::Filter;
+use btfrig_core::config::RigConfig;
+use btfrig_core::plan::dome::{DomePlan, ValidatedDomePlan};
+use btfrig_core::plan::BUILTIN_RIGS;
+use btfrig_engine::dome::{run_dome as drive, DomeCapture, DomeDevices, DomeSettings};
+use btfrig_hw::{MoveOptions, TokioClock};
+use btfrig_pipeline::dome::{signal_dn, DomeProcessing, GroupCode, GroupStack};
+use btfrig_planner::dome::{plan_dome, DomeMode, DomeSchedule, DomeShot};
+use btfrig_render::dome_scene::DomeScene;
+use btfrig_render::renderer::RenderOptions;
+use btfrig_sim::dome::DomeRig;
+use btfrig_sim::FaultScenario;
+use btfrig_store::{
+    Dataset, DirectionDeg, Manifest, RigInfo, RunReport, Samplings, StepId, StepTiming, StoreError, TextureFormat,
+    TextureRegion, TextureSpec,
+};
+use serde_json::json;
+use tokio::sync::mpsc;
+
+use crate::RunError;
+
+/// A dome run: the plan text (a dome plan, `docs/plan-format.md`), where its relative names
+/// resolve, and the dataset directory.
+#[derive(Debug, Clone)]
+pub struct DomeRunRequest {
+    /// The plan text.
+    pub plan_text: String,
+    /// The plan file (names the plan in errors; relative rig configs and fault files resolve
+    /// from its directory).
+    pub plan_path: PathBuf,
+    /// The dataset directory.
+    pub out: PathBuf,
+    /// Replaces the plan's fault scenario (not part of the plan hash).
+    pub faults: Option<String>,
+}
+
+/// What a dome run did and measured.
+#[derive(Debug, Clone, Default)]
+pub struct DomeRunSummary {
+    /// The dataset directory.
+    pub dataset: PathBuf,
+    /// Single-LED textures committed (light = LED, view = rotation x cameras + camera).
+    pub textures: u64,
+    /// Frames captured (per camera), reference frames included.
+    pub frames: u64,
+    /// LEDs.
+    pub leds: usize,
+    /// Views captured (camera, rotation).
+    pub views: usize,
+    /// `"s-matrix 199"` or `"single-light"`.
+    pub mode: String,
+    /// The planner's one-line reason (`multiplexing with ...` / `multiplexing skipped: ...`).
+    pub multiplex_reason: String,
+    /// Predicted SNR gain of the mode used over single light (1 for single light).
+    pub multiplex_gain_predicted: f64,
+    /// Measured SNR gain against the simulator's noise-free images (`None` without
+    /// multiplexing or reference LEDs).
+    pub multiplex_gain_measured: Option<f64>,
+    /// Exposure time saved against single-light capture reaching the same SNR (predicted).
+    pub time_saved_fraction: f64,
+    /// Rig time of the run (virtual), s.
+    pub hardware_s: f64,
+    /// Rig time spent exposing, s.
+    pub exposure_time_s: f64,
+    /// Relative RMS error of the stored textures against the ground truth, pooled over every
+    /// texture but those of LEDs reported faulty.
+    pub texture_rel_rmse: Option<f64>,
+    /// The same for the single-light reference textures (first view group).
+    pub reference_texture_rel_rmse: Option<f64>,
+    /// The same for the demultiplexed textures of the reference LEDs (same LEDs, same view).
+    pub reference_mux_texture_rel_rmse: Option<f64>,
+    /// Dead and stuck LEDs the demultiplexer found, e.g. `camera 0 rotation 0: LED 3 stuck`.
+    pub faults: Vec<String>,
+    /// Warnings (faults solved around, retries, skipped demultiplexing).
+    pub warnings: Vec<String>,
+    /// Largest memory one view group's stack held, bytes.
+    pub group_bytes: usize,
+    /// Wall time, s.
+    pub wall_s: f64,
+    /// Views skipped because a previous session committed them.
+    pub views_resumed: usize,
+}
+
+impl DomeRunSummary {
+    /// The summary as JSON (what `btfrig demo --rig dome --json` prints).
+    pub fn to_json(&self) -> serde_json::Value {
+        json!({
+            "dataset": self.dataset.display().to_string(),
+            "rig": "led_dome",
+            "captures": self.textures,
+            "frames": self.frames,
+            "leds": self.leds,
+            "views": self.views,
+            "mode": self.mode,
+            "multiplex_reason": self.multiplex_reason,
+            "multiplex_gain_predicted": self.multiplex_gain_predicted,
+            "multiplex_gain_measured": self.multiplex_gain_measured,
+            "time_saved_fraction": self.time_saved_fraction,
+            "hardware_s": self.hardware_s,
+            "exposure_time_s": self.exposure_time_s,
+            "texture_rel_rmse": self.texture_rel_rmse,
+            "reference_texture_rel_rmse": self.reference_texture_rel_rmse,
+            "reference_mux_texture_rel_rmse": self.reference_mux_texture_rel_rmse,
+            "faults": self.faults,
+            "warnings": self.warnings,
+            "group_bytes": self.group_bytes,
+            "views_resumed": self.views_resumed,
+            "wall_s": self.wall_s,
+        })
+    }
+}
+
+fn input(what: &str, e: impl std::fmt::Display) -> RunError {
+    RunError::Input { what: what.into(), message: e.to_string() }
+}
+
+/// Loads and validates a dome plan and its rig config.
+pub fn load(text: &str, file: &Path) -> Result<(ValidatedDomePlan, RigConfig, String), RunError> {
+    let origin = file.display().to_string();
+    let plan = DomePlan::from_toml(text, &origin).map_err(|e| input(&origin, e))?;
+    let name = plan.rig.config.clone();
+    let rig_text = match BUILTIN_RIGS.iter().find(|(n, _)| *n == name) {
+        Some((_, t)) => t.to_string(),
+        None if name.starts_with("builtin:") => {
+            let known: Vec<&str> = BUILTIN_RIGS.iter().map(|(n, _)| *n).collect();
+            return Err(input("rig.config", format!("{name:?} is unknown: allowed {}", known.join(", "))));
+        }
+        None => {
+            let p = file.parent().unwrap_or(Path::new(".")).join(&name);
+            std::fs::read_to_string(&p).map_err(|source| RunError::Read { path: p, source })?
+        }
+    };
+    let mut rig = RigConfig::from_toml(&rig_text, &name).map_err(|e| input("rig.config", e))?;
+    if let Some(seed) = plan.rig.seed {
+        rig.rig.seed = seed;
+    }
+    let v = plan.validate(&rig).map_err(|e| input(&origin, e))?;
+    Ok((v, rig, rig_text))
+}
+
+/// Squared error and squared truth summed over a texture: pooled over many textures, their
+/// ratio's root is the relative RMSE (dim grazing LEDs do not dominate it as a mean of
+/// per-texture ratios would).
+fn sq_err(a: &[[f32; 3]], truth: &[[f32; 3]]) -> (f64, f64) {
+    let (mut num, mut den) = (0.0f64, 0.0f64);
+    for (x, t) in a.iter().zip(truth) {
+        for c in 0..3 {
+            num += f64::from(x[c] - t[c]).powi(2);
+            den += f64::from(t[c]).powi(2);
+        }
+    }
+    (num, den)
+}
+
+fn pooled(v: &[(f64, f64)]) -> Option<f64> {
+    let (n, d) = v.iter().fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
+    (d > 0.0).then(|| (n / d).sqrt())
+}
+
+/// SNR of `measured` against `truth` over photosites whose truth exceeds a fifth of its
+/// maximum (the sample under the LED): mean signal over RMS error.
+fn snr(measured: &[f32], truth: &[f32]) -> f64 {
+    let max = truth.iter().cloned().fold(0.0f32, f32::max);
+    let (mut s, mut e, mut n) = (0.0f64, 0.0f64, 0usize);
+    for (m, t) in measured.iter().zip(truth) {
+        if *t > 0.2 * max {
+            s += f64::from(*t);
+            e += f64::from(m - t).powi(2);
+            n += 1;
+        }
+    }
+    if n == 0 {
+        return f64::NAN;
+    }
+    (s / n as f64) / (e / n as f64).sqrt()
+}
+
+/// Runs a dome plan to its end (see the module docs).
+pub fn run(req: &DomeRunRequest, on_line: &mut dyn FnMut(&str)) -> Result<DomeRunSummary, RunError> {
+    let wall = Instant::now();
+    let (v, rig, rig_text) = load(&req.plan_text, &req.plan_path)?;
+    let base = req.plan_path.parent().unwrap_or(Path::new("."));
+    let fault_name = req.faults.clone().unwrap_or_else(|| v.plan.fault_scenario.clone());
+    let faults = crate::plan::fault_scenario(&fault_name, base, "fault_scenario")?;
+    let material = crate::plan::load_material(v.plan.rig.material.as_deref())?;
+    let scene = Arc::new(DomeScene::new(&rig, &material).map_err(|e| input("dome scene", e))?);
+    let dome = scene.dome().clone();
+    let schedule = plan_dome(&rig, &v, scene.nominal_irradiance()).map_err(|e| input("dome planning", e))?;
+    on_line(&format!("dome plan: {} LEDs x {} views; {}", schedule.leds, v.cameras.len() * v.rotations.len(), schedule.reason));
+
+    // Dataset: light = LED, view = rotation x cameras + camera over the rig's whole arc.
+    let ncams = dome.camera_count();
+    let size = v.plan.texture_size;
+    let views: Vec<(usize, u32)> = v.rotations.iter().flat_map(|&k| v.cameras.iter().map(move |&c| (c, k))).collect();
+    let view_id = |c: usize, k: u32| DomePlan::view_index(ncams, c, k);
+    let mut pairs = Vec::new();
+    for &(c, k) in &views {
+        for j in 0..schedule.leds {
+            pairs.push(StepId { light: j as u32, view: view_id(c, k) });
+        }
+    }
+    let samplings = Samplings {
+        // World directions of the LEDs (= sample frame at rotation 0); the exact per-capture
+        // sample-frame directions are in the report's `dome.directions`.
+        light: dome.led_directions().into_iter().map(DirectionDeg::from).collect(),
+        view: (0..dome.rotations)
+            .flat_map(|k| (0..ncams).map(move |c| (c, k)))
+            .map(|(c, k)| DirectionDeg::from(dome.sample_directions(c, dome.rotation_rad(k), 0).1))
+            .collect(),
+        pairs: Some(pairs.clone()),
+        skipped: Vec::new(),
+    };
+    let side = rig.plate.sample_side_m;
+    let texture = TextureSpec {
+        width: size as u32,
+        height: size as u32,
+        region: TextureRegion { center_m: [0.0, 0.0], size_m: [side, side] },
+        format: TextureFormat::ExrFloat,
+    };
+    let manifest =
+        Manifest::new(RigInfo { name: rig.rig.name.clone(), config_toml: rig_text }, &req.plan_text, samplings, texture, false, rig.rig.seed);
+    let hash = manifest.plan.hash.clone();
+    let dataset = match Dataset::create(&req.out, manifest) {
+        Ok(d) => d,
+        Err(StoreError::AlreadyExists { .. }) => {
+            Dataset::open_for_resume(&req.out, &hash).map_err(|source| RunError::Dataset { dir: req.out.clone(), source })?.0
+        }
+        Err(source) => return Err(RunError::Dataset { dir: req.out.clone(), source }),
+    };
+    let completed = dataset.completed();
+    // A rotation is done when every (LED, camera) of it is committed: the engine skips it.
+    let done: HashSet<u32> = v
+        .rotations
+        .iter()
+        .copied()
+        .filter(|&k| {
+            v.cameras.iter().all(|&c| (0..schedule.leds).all(|j| completed.contains(&StepId { light: j as u32, view: view_id(c, k) })))
+        })
+        .collect();
+
+    let processing = DomeProcessing {
+        dome: dome.clone(),
+        camera: scene.camera().model().clone(),
+        bayer: scene.sensor().bayer,
+        electrons_per_dn: rig.sensor.electrons_per_dn,
+        dark_e_per_s: rig.sensor.dark_current_e_per_s,
+        led_power: scene.led_power().to_vec(),
+        led_colour: scene.led_colour().to_vec(),
+        nominal_irradiance: scene.nominal_irradiance(),
+        white_balance: scene.colour().white_balance(),
+        matrix: scene.color_matrix(),
+        sample_side_m: side,
+        size,
+        filter: Filter::Footprint { max: 4 },
+    };
+    let code = match schedule.mode {
+        DomeMode::Single => GroupCode::Single,
+        DomeMode::Multiplexed { order } => {
+            GroupCode::multiplexed(order, scene.led_power()).map_err(|e| input("demultiplexer", e))?
+        }
+    };
+    if matches!(code, GroupCode::Single) {
+        on_line(&format!("demultiplexing skipped: single-light capture ({})", schedule.reason));
+    }
+
+    let rt = crate::virtual_time_runtime()?;
+    let cameras = v.cameras.clone();
+    let mut state = Consumer::new(&v, &schedule, &processing, &code, &dataset, &scene, &faults, view_id);
+    let outcome: Result<btfrig_engine::dome::DomeRunSummary, RunError> = rt.block_on(async {
+        let clock = TokioClock::shared();
+        let rig_dev = DomeRig::build(&rig, &faults, clock.clone(), scene.clone(), &cameras, RenderOptions::default())
+            .map_err(|e| RunError::Rig(e.to_string()))?;
+        let sources = rig_dev.sources.clone();
+        let mut devices = DomeDevices { turntable: rig_dev.turntable, leds: rig_dev.led_array, cameras: rig_dev.cameras, clock };
+        devices.turntable.home(MoveOptions::default()).await.map_err(|e| RunError::Rig(e.to_string()))?;
+        let (tx, mut rx) = mpsc::channel::<DomeCapture>(4);
+        let steps = schedule.steps.clone();
+        let patterns = schedule.patterns.clone();
+        let (exp, ref_exp) = (schedule.exposure_s, schedule.single_exposure_s);
+        let engine = async move {
+            drive(&mut devices, &steps, &patterns, exp, ref_exp, &done, DomeSettings::default(), tx).await
+        };
+        let consume = async {
+            while let Some(cap) = rx.recv().await {
+                state.take(cap, &sources)?;
+            }
+            Ok::<(), RunError>(())
+        };
+        let (e, c) = tokio::join!(engine, consume);
+        c?;
+        e.map_err(|e| RunError::Rig(e.to_string()))
+    });
+    let engine = outcome?;
+    let mut s = state.finish();
+    s.warnings.splice(0..0, engine.warnings.iter().cloned());
+    s.dataset = req.out.clone();
+    s.leds = schedule.leds;
+    s.views = views.len();
+    s.mode = match schedule.mode {
+        DomeMode::Single => "single-light".into(),
+        DomeMode::Multiplexed { order } => format!("s-matrix {order}"),
+    };
+    s.multiplex_reason = schedule.reason.clone();
+    s.multiplex_gain_predicted = schedule.predicted_gain;
+    s.time_saved_fraction = schedule.time_saved_fraction;
+    s.hardware_s = engine.hardware_s;
+    s.exposure_time_s = engine.exposure_s;
+    s.frames = engine.captured as u64;
+    s.views_resumed = engine.skipped_done / schedule.steps.len().div_ceil(v.rotations.len()).max(1);
+    s.wall_s = wall.elapsed().as_secs_f64();
+
+    let mut extra = BTreeMap::new();
+    // RunReport's own fields are not repeated in its flattened extra.
+    for (k, val) in s.to_json().as_object().expect("an object") {
+        if !["captures", "wall_s", "hardware_s", "warnings", "retries", "skipped", "stage_s"].contains(&k.as_str()) {
+            extra.insert(k.clone(), val.clone());
+        }
+    }
+    extra.insert(
+        "dome".into(),
+        json!({
+            "views": views.iter().map(|&(c, k)| json!({
+                "view": view_id(c, k), "camera": c, "rotation": k,
+                "turntable_deg": 360.0 * f64::from(k) / f64::from(dome.rotations),
+            })).collect::<Vec<_>>(),
+            "directions": "light j, view v: DomeConfig::sample_directions(camera, turntable, j) (sample frame)",
+        }),
+    );
+    let report = RunReport {
+        captures: s.textures,
+        wall_s: s.wall_s,
+        hardware_s: Some(s.hardware_s),
+        stage_s: BTreeMap::new(),
+        skipped: BTreeMap::new(),
+        retries: u64::from(engine.retries),
+        warnings: s.warnings.clone(),
+        extra,
+    };
+    let mut dataset = dataset;
+    dataset.finish(&report).map_err(RunError::Report)?;
+    Ok(s)
+}
+
+/// The pipeline side of a dome run: collects frames per view group, demultiplexes, stores.
+struct Consumer<'a, F: Fn(usize, u32) -> u32> {
+    v: &'a ValidatedDomePlan,
+    schedule: &'a DomeSchedule,
+    processing: &'a DomeProcessing,
+    code: &'a GroupCode,
+    dataset: &'a Dataset,
+    scene: &'a DomeScene,
+    stuck_on: Vec<usize>,
+    view_id: F,
+    stacks: HashMap<usize, GroupStack>,
+    references: Vec<(usize, f64, Vec<f32>)>,
+    first_group: Option<(Vec<f32>, usize, f64, f64)>,
+    out: DomeRunSummary,
+    rmse: Vec<(f64, f64)>,
+}
+
+impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        v: &'a ValidatedDomePlan,
+        schedule: &'a DomeSchedule,
+        processing: &'a DomeProcessing,
+        code: &'a GroupCode,
+        dataset: &'a Dataset,
+        scene: &'a DomeScene,
+        faults: &FaultScenario,
+        view_id: F,
+    ) -> Self {
+        let stuck_on = faults
+            .stuck_leds
+            .iter()
+            .filter(|s| s.state == btfrig_sim::faults::StuckState::On)
+            .map(|s| s.index)
+            .collect();
+        Consumer {
+            v,
+            schedule,
+            processing,
+            code,
+            dataset,
+            scene,
+            stuck_on,
+            view_id,
+            stacks: HashMap::new(),
+            references: Vec::new(),
+            first_group: None,
+            out: DomeRunSummary::default(),
+            rmse: Vec::new(),
+        }
+    }
+
+    fn take(&mut self, cap: DomeCapture, sources: &[Arc<btfrig_sim::dome::DomeFrameSource>]) -> Result<(), RunError> {
+        let leds = self.schedule.leds;
+        let frames_per_group = self.code.frames(leds);
+        let step = cap.step;
+        match step.shot {
+            DomeShot::Reference(j) => {
+                // Only the first camera's reference frame is measured.
+                let f = &cap.frames[0];
+                let sig = signal_dn(f, self.processing.electrons_per_dn, self.processing.dark_e_per_s);
+                self.references.push((j, f.meta.exposure_s, sig));
+                if self.references.len() == self.v.plan.dome.reference_leds.min(leds) {
+                    self.measure(&sources[0], step.turntable_rad)?;
+                }
+            }
+            DomeShot::Pattern(p) => {
+                for (slot, frame) in cap.frames.iter().enumerate() {
+                    let c = self.v.cameras[slot];
+                    let stack = self.stacks.entry(slot).or_insert_with(|| {
+                        GroupStack::new(c, step.rotation, step.turntable_rad, frames_per_group, frame.width, frame.height)
+                    });
+                    self.processing.add(stack, p, frame).map_err(|e| input("dome pipeline", e))?;
+                    self.out.group_bytes = self.out.group_bytes.max(stack.bytes());
+                }
+                if p + 1 == frames_per_group {
+                    for slot in 0..cap.frames.len() {
+                        let stack = self.stacks.remove(&slot).expect("a stack per camera");
+                        self.finish_group(stack, slot == 0, cap.attempts)?;
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn finish_group(&mut self, stack: GroupStack, first_camera: bool, attempts: u32) -> Result<(), RunError> {
+        if !stack.is_complete() {
+            return Err(input("dome pipeline", format!("camera {} rotation {}: group incomplete", stack.camera, stack.rotation)));
+        }
+        let (c, k, rad, exp, gain) = (stack.camera, stack.rotation, stack.turntable_rad, stack.exposure_s, stack.gain);
+        let started = Instant::now();
+        let result = self.processing.demultiplex(stack, self.code).map_err(|e| input("demultiplexing", e))?;
+        if let Some(report) = &result.report {
+            for f in &report.faults {
+                if f.source >= self.schedule.leds {
+                    continue;
+                }
+                let line = format!(
+                    "camera {c} rotation {k}: LED {} {} (z = {:.1}{}), solved around by least squares",
+                    f.source,
+                    f.kind.name(),
+                    f.evidence.z,
+                    if f.evidence.ambiguous { ", ambiguous" } else { "" }
+                );
+                self.out.faults.push(format!("camera {c} rotation {k}: LED {} {}", f.source, f.kind.name()));
+                self.out.warnings.push(line);
+            }
+        }
+        let demux_s = started.elapsed().as_secs_f64();
+        // A stuck LED's own image is recovered only on average (docs/multiplexing.md): it is
+        // stored, but left out of the texture error, which speaks for the healthy LEDs.
+        let faulty: Vec<usize> = result.report.as_ref().map_or(Vec::new(), |r| r.faults.iter().map(|f| f.source).collect());
+        for j in 0..self.schedule.leds {
+            let id = StepId { light: j as u32, view: (self.view_id)(c, k) };
+            if self.dataset.completed().contains(&id) {
+                continue;
+            }
+            let t0 = Instant::now();
+            let tex = self
+                .processing
+                .texture(result.mosaic(j), c, rad, j, exp, gain)
+                .map_err(|e| input("dome pipeline", e))?;
+            let truth = self.scene.ground_truth(c, rad, j, self.v.plan.texture_size);
+            if !faulty.contains(&j) {
+                self.rmse.push(sq_err(&tex, &truth.data));
+            }
+            let size = self.v.plan.texture_size;
+            let file = self
+                .dataset
+                .write_texture(id, &tex, size, size)
+                .map_err(|e| input("dataset", e))?;
+            let timing = StepTiming {
+                started_unix_s: 0.0,
+                wall_s: t0.elapsed().as_secs_f64(),
+                hardware_s: None,
+                stage_s: [("demultiplex".to_string(), demux_s / self.schedule.leds as f64)].into_iter().collect(),
+            };
+            self.dataset.commit_step(id, vec![file], attempts, timing).map_err(|e| input("dataset", e))?;
+            self.out.textures += 1;
+        }
+        if first_camera && self.first_group.is_none() {
+            self.first_group = Some((result.mosaics, result.cols, exp, gain));
+        }
+        Ok(())
+    }
+
+    /// The measured gain and the reference textures' error (module docs).
+    fn measure(&mut self, source: &btfrig_sim::dome::DomeFrameSource, rad: f64) -> Result<(), RunError> {
+        let Some((mosaics, cols, exp, gain)) = self.first_group.as_ref() else { return Ok(()) };
+        let leds = self.schedule.leds;
+        let c = source.camera();
+        let (mut g, mut ref_err, mut mux_err) = (Vec::new(), Vec::new(), Vec::new());
+        for (j, ref_exp, sig) in &self.references {
+            let mut single = vec![0.0; leds];
+            single[*j] = 1.0;
+            let truth_mux = source.noise_free_dn(rad, &single, *exp, *gain);
+            // The reference frame saw the stuck LEDs too.
+            for &s in &self.stuck_on {
+                single[s] = 1.0;
+            }
+            let truth_ref = source.noise_free_dn(rad, &single, *ref_exp, *gain);
+            let demuxed = &mosaics[j * cols..(j + 1) * cols];
+            g.push(snr(demuxed, &truth_mux) / snr(sig, &truth_ref));
+            let tex = self.processing.texture(sig, c, rad, *j, *ref_exp, *gain).map_err(|e| input("dome pipeline", e))?;
+            let truth = self.scene.ground_truth(c, rad, *j, self.v.plan.texture_size);
+            ref_err.push(sq_err(&tex, &truth.data));
+            let tex = self.processing.texture(demuxed, c, rad, *j, *exp, *gain).map_err(|e| input("dome pipeline", e))?;
+            mux_err.push(sq_err(&tex, &truth.data));
+        }
+        if !g.is_empty() {
+            self.out.multiplex_gain_measured = Some(g.iter().sum::<f64>() / g.len() as f64);
+            self.out.reference_texture_rel_rmse = pooled(&ref_err);
+            self.out.reference_mux_texture_rel_rmse = pooled(&mux_err);
+        }
+        Ok(())
+    }
+
+    fn finish(mut self) -> DomeRunSummary {
+        self.out.texture_rel_rmse = pooled(&self.rmse);
+        self.out
+    }
+}
