@@ -42,6 +42,11 @@ fn measure(name: &str, rig: &str) -> (RunSummary, BTreeMap<String, String>) {
     assert_eq!(s.outcome, RunOutcome::Finished, "{s:?}");
     assert_eq!(s.captures, 12);
     assert!(btfrig_store::verify(&dir.join("dataset")).is_ok());
+    // The manifest keeps the embedded rig's text (so a dataset says what measured it).
+    let manifest: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("dataset").join("manifest.json")).unwrap()).unwrap();
+    let builtin = btfrig_core::plan::BUILTIN_RIGS.iter().find(|(n, _)| *n == rig).unwrap().1;
+    assert_eq!(manifest["rig"]["config_toml"].as_str(), Some(builtin), "manifest rig: {}", manifest["rig"]);
     let t = textures(&dir.join("dataset"));
     (s, t)
 }

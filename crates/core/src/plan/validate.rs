@@ -648,10 +648,11 @@ fn resolve_rig(plan: &Plan, ctx: &PlanContext, errors: &mut Vec<PlanError>) -> O
     // This plan format drives a gonioreflectometer (directions through inverse kinematics);
     // an LED dome's views and lights are fixed by the rig and run by `btfrig demo --rig dome`.
     if let Some(r) = rig.as_ref().filter(|r| r.rig.kind != crate::config::RigKind::Gonioreflectometer) {
-        errors.push(PlanError::unsupported(
+        errors.push(PlanError::invalid(
             "rig.config",
             format!("{name:?} (kind = {:?})", r.rig.kind.as_str()),
-            "a gonioreflectometer rig config; LED domes run with `btfrig demo --rig dome` (docs/multiplexing.md)",
+            "this plan format drives a gonioreflectometer",
+            "a gonioreflectometer rig config; LED domes run dome plans (`btfrig demo --rig dome`, docs/plan-format.md)",
         ));
         return None;
     }
