@@ -97,6 +97,8 @@ pub struct DomeRunSummary {
     pub wall_s: f64,
     /// Views skipped because a previous session committed them.
     pub views_resumed: usize,
+    /// Peak resident memory of the process at the end of the run (Linux `VmHWM`), MiB.
+    pub peak_rss_mib: Option<f64>,
 }
 
 impl DomeRunSummary {
@@ -123,6 +125,7 @@ impl DomeRunSummary {
             "warnings": self.warnings,
             "group_bytes": self.group_bytes,
             "views_resumed": self.views_resumed,
+            "peak_rss_mib": self.peak_rss_mib,
             "wall_s": self.wall_s,
         })
     }
@@ -286,10 +289,20 @@ pub fn run(req: &DomeRunRequest, on_line: &mut dyn FnMut(&str)) -> Result<DomeRu
     let mut state = Consumer::new(&v, &schedule, &processing, &code, &dataset, &scene, &faults, view_id);
     let outcome: Result<btfrig_engine::dome::DomeRunSummary, RunError> = rt.block_on(async {
         let clock = TokioClock::shared();
-        let rig_dev = DomeRig::build(&rig, &faults, clock.clone(), scene.clone(), &cameras, RenderOptions::default())
+        // Emulated devices (serial turntable and LED controller) are the simulator's behind
+        // their firmware, driven by the real backends (docs/serial.md).
+        let mut sim_cfg = rig.clone();
+        sim_cfg.devices = rig.devices.simulated().ok_or_else(|| {
+            RunError::Rig("a device is real hardware: only simulated and emulated domes run plans so far".into())
+        })?;
+        let rig_dev = DomeRig::build(&sim_cfg, &faults, clock.clone(), scene.clone(), &cameras, RenderOptions::default())
             .map_err(|e| RunError::Rig(e.to_string()))?;
         let sources = rig_dev.sources.clone();
-        let mut devices = DomeDevices { turntable: rig_dev.turntable, leds: rig_dev.led_array, cameras: rig_dev.cameras, clock };
+        let (turntable, leds, _firmware) =
+            crate::emulated::connect_dome(&rig.devices, rig_dev.turntable, rig_dev.led_array, clock.clone())
+                .await
+                .map_err(RunError::Rig)?;
+        let mut devices = DomeDevices { turntable, leds, cameras: rig_dev.cameras, clock };
         devices.turntable.home(MoveOptions::default()).await.map_err(|e| RunError::Rig(e.to_string()))?;
         let (tx, mut rx) = mpsc::channel::<DomeCapture>(4);
         let steps = schedule.steps.clone();
@@ -326,6 +339,7 @@ pub fn run(req: &DomeRunRequest, on_line: &mut dyn FnMut(&str)) -> Result<DomeRu
     s.frames = engine.captured as u64;
     s.views_resumed = engine.skipped_done / schedule.steps.len().div_ceil(v.rotations.len()).max(1);
     s.wall_s = wall.elapsed().as_secs_f64();
+    s.peak_rss_mib = crate::peak_rss_mib();
 
     let mut extra = BTreeMap::new();
     // RunReport's own fields are not repeated in its flattened extra.

@@ -405,29 +405,19 @@ pub async fn connect(
     read_timeout_s: f64,
 ) -> Result<Connected, String> {
     check(devices)?;
-    let mut fw = Firmware::default();
-    if devices.any_emulated() {
-        static N: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
-        let n = N.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        let dir = std::env::temp_dir().join(format!("btfrig-emulated-{}-{n}", std::process::id()));
-        std::fs::create_dir_all(&dir).map_err(|e| format!("pty directory {}: {e}", dir.display()))?;
-        fw.dir = Some(dir);
-    }
+    let mut fw = Firmware::for_devices(devices)?;
     let dir = fw.dir.clone().unwrap_or_default();
-    let io = |what: &str, e: std::io::Error| format!("emulated {what} firmware: {e}");
-    let dev =
-        |what: &str, e: btfrig_hw::DeviceError| format!("connecting the {what} backend to its emulated firmware: {e}");
 
     let robot: Box<dyn Robot> = if devices.robot.is_emulated() {
         let o = link_options("robot", &devices.robot)?;
         let link = dir.join("robot");
         let joint_limits = sim.robot.joint_limits();
-        fw.robot = Some(RobotFirmware::spawn(sim.robot, &link).map_err(|e| io("robot", e))?);
+        fw.robot = Some(RobotFirmware::spawn(sim.robot, &link).map_err(|e| firmware_io("robot", e))?);
         let cfg =
             SerialRobotConfig { name: "robot".into(), joint_limits, poll_s: o.poll_s, reply_timeout: o.reply_timeout };
         let mut r = SerialRobot::new(cfg, serial(&link, ROBOT_BAUD), clock.clone());
         fw.meter("robot", &link, ROBOT_BAUD, r.link_stats());
-        r.identify().await.map_err(|e| dev("robot", e))?;
+        r.identify().await.map_err(|e| backend_error("robot", e))?;
         Box::new(r)
     } else {
         sim.robot
@@ -437,7 +427,7 @@ pub async fn connect(
         let link = dir.join("rail");
         let limits = sim.rail.limits();
         fw.rail = Some(
-            GrblFirmware::spawn_with_units(AxisDevice::Rail(sim.rail), &link, o.units).map_err(|e| io("rail", e))?,
+            GrblFirmware::spawn_with_units(AxisDevice::Rail(sim.rail), &link, o.units).map_err(|e| firmware_io("rail", e))?,
         );
         let cfg = GrblAxisConfig {
             name: "rail".into(),
@@ -454,57 +444,27 @@ pub async fn connect(
     } else {
         sim.rail
     };
-    let turntable: Option<Box<dyn Turntable>> = match (sim.turntable, &devices.turntable) {
-        (Some(t), Some(e)) if e.is_emulated() => {
-            let o = link_options("turntable", e)?;
-            let link = dir.join("turntable");
-            let limits = t.limits();
-            fw.turntable = Some(
-                GrblFirmware::spawn_with_units(AxisDevice::Turntable(t), &link, o.units)
-                    .map_err(|e| io("turntable", e))?,
-            );
-            let cfg = GrblAxisConfig {
-                name: "turntable".into(),
-                model: "GRBL turntable (emulated)".into(),
-                axis: Axis::X,
-                limits,
-                poll_s: o.poll_s,
-                reply_timeout: o.reply_timeout,
-                units: o.units,
-            };
-            let a = GrblAxis::new(cfg, serial(&link, GRBL_BAUD), clock.clone());
-            fw.meter("turntable", &link, GRBL_BAUD, a.link_stats());
-            Some(Box::new(a))
-        }
-        (t, _) => t,
+    let turntable = match sim.turntable {
+        Some(t) => Some(emulate_turntable(&mut fw, devices, t, &clock)?),
+        None => None,
     };
     let lamp: Box<dyn Lamp> = if devices.lamp.is_emulated() {
         let o = link_options("lamp", &devices.lamp)?;
         let link = dir.join("lamp");
         fw.lamp = Some(
             LampFirmware::spawn(sim.lamp, LampFirmwareConfig::default(), clock.clone(), &link)
-                .map_err(|e| io("lamp", e))?,
+                .map_err(|e| firmware_io("lamp", e))?,
         );
         let cfg = SerialLampConfig { name: "lamp".into(), poll_s: o.poll_s, reply_timeout: o.reply_timeout };
-        let l = SerialLamp::open(cfg, serial(&link, LAMP_BAUD), clock.clone()).await.map_err(|e| dev("lamp", e))?;
+        let l = SerialLamp::open(cfg, serial(&link, LAMP_BAUD), clock.clone()).await.map_err(|e| backend_error("lamp", e))?;
         fw.meter("lamp", &link, LAMP_BAUD, l.link_stats());
         Box::new(l)
     } else {
         sim.lamp
     };
-    let led_array: Option<Box<dyn LedArray>> = match (sim.led_array, &devices.led_array) {
-        (Some(l), Some(e)) if e.is_emulated() => {
-            let o = link_options("led_array", e)?;
-            let link = dir.join("leds");
-            fw.leds = Some(LedFirmware::spawn(l, &link).map_err(|e| io("LED", e))?);
-            let cfg = SerialLedConfig { name: "led_array".into(), poll_s: o.poll_s, reply_timeout: o.reply_timeout };
-            let l = SerialLedArray::open(cfg, serial(&link, LED_BAUD), clock.clone())
-                .await
-                .map_err(|e| dev("LED array", e))?;
-            fw.meter("led_array", &link, LED_BAUD, l.link_stats());
-            Some(Box::new(l))
-        }
-        (l, _) => l,
+    let led_array = match sim.led_array {
+        Some(l) => Some(emulate_leds(&mut fw, devices, l, &clock).await?),
+        None => None,
     };
     let camera: Box<dyn Camera> = if devices.camera.is_emulated() {
         let capabilities = sim.camera.capabilities();
@@ -512,13 +472,104 @@ pub async fn connect(
         let (responder, transport) = PtpResponder::spawn(sim.camera, rcfg);
         fw.camera = Some(responder);
         let cfg = PtpCameraConfig { name: "camera".into(), capabilities, op_timeout_s: 10.0, read_margin_s: 1.0 };
-        let c = PtpCamera::open(cfg, Box::new(transport), clock.clone()).await.map_err(|e| dev("camera", e))?;
+        let c = PtpCamera::open(cfg, Box::new(transport), clock.clone()).await.map_err(|e| backend_error("camera", e))?;
         fw.camera_link = Some(c.stats());
         Box::new(c)
     } else {
         sim.camera
     };
     Ok(Connected { robot, rail, turntable, lamp, led_array, camera, firmware: fw })
+}
+
+fn firmware_io(what: &str, e: std::io::Error) -> String {
+    format!("emulated {what} firmware: {e}")
+}
+
+fn backend_error(what: &str, e: btfrig_hw::DeviceError) -> String {
+    format!("connecting the {what} backend to its emulated firmware: {e}")
+}
+
+impl Firmware {
+    /// No emulators yet, and a new pty directory if any device of `devices` is emulated.
+    fn for_devices(devices: &DevicesConfig) -> Result<Firmware, String> {
+        let mut fw = Firmware::default();
+        if devices.any_emulated() {
+            static N: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+            let n = N.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            let dir = std::env::temp_dir().join(format!("btfrig-emulated-{}-{n}", std::process::id()));
+            std::fs::create_dir_all(&dir).map_err(|e| format!("pty directory {}: {e}", dir.display()))?;
+            fw.dir = Some(dir);
+        }
+        Ok(fw)
+    }
+
+    fn link(&self, name: &str) -> PathBuf {
+        self.dir.clone().unwrap_or_default().join(name)
+    }
+}
+
+/// The turntable `t`, behind emulated GRBL firmware if `devices.turntable` is emulated.
+fn emulate_turntable(
+    fw: &mut Firmware,
+    devices: &DevicesConfig,
+    t: Box<dyn Turntable>,
+    clock: &SharedClock,
+) -> Result<Box<dyn Turntable>, String> {
+    let Some(e) = devices.turntable.as_ref().filter(|e| e.is_emulated()) else { return Ok(t) };
+    let o = link_options("turntable", e)?;
+    let link = fw.link("turntable");
+    let limits = t.limits();
+    fw.turntable = Some(
+        GrblFirmware::spawn_with_units(AxisDevice::Turntable(t), &link, o.units)
+            .map_err(|e| firmware_io("turntable", e))?,
+    );
+    let cfg = GrblAxisConfig {
+        name: "turntable".into(),
+        model: "GRBL turntable (emulated)".into(),
+        axis: Axis::X,
+        limits,
+        poll_s: o.poll_s,
+        reply_timeout: o.reply_timeout,
+        units: o.units,
+    };
+    let a = GrblAxis::new(cfg, serial(&link, GRBL_BAUD), clock.clone());
+    fw.meter("turntable", &link, GRBL_BAUD, a.link_stats());
+    Ok(Box::new(a))
+}
+
+/// The LED array `l`, behind the emulated LED controller if `devices.led_array` is emulated.
+async fn emulate_leds(
+    fw: &mut Firmware,
+    devices: &DevicesConfig,
+    l: Box<dyn LedArray>,
+    clock: &SharedClock,
+) -> Result<Box<dyn LedArray>, String> {
+    let Some(e) = devices.led_array.as_ref().filter(|e| e.is_emulated()) else { return Ok(l) };
+    let o = link_options("led_array", e)?;
+    let link = fw.link("leds");
+    fw.leds = Some(LedFirmware::spawn(l, &link).map_err(|e| firmware_io("LED", e))?);
+    let cfg = SerialLedConfig { name: "led_array".into(), poll_s: o.poll_s, reply_timeout: o.reply_timeout };
+    let l = SerialLedArray::open(cfg, serial(&link, LED_BAUD), clock.clone())
+        .await
+        .map_err(|e| backend_error("LED array", e))?;
+    fw.meter("led_array", &link, LED_BAUD, l.link_stats());
+    Ok(Box::new(l))
+}
+
+/// A dome's turntable and LED array, each behind emulated firmware where its entry in
+/// `devices` is emulated (the cameras stay the simulator's). Call inside the tokio runtime
+/// the devices run on; keep the returned firmware until the devices are dropped.
+pub async fn connect_dome(
+    devices: &DevicesConfig,
+    turntable: Box<dyn Turntable>,
+    leds: Box<dyn LedArray>,
+    clock: SharedClock,
+) -> Result<(Box<dyn Turntable>, Box<dyn LedArray>, Firmware), String> {
+    check(devices)?;
+    let mut fw = Firmware::for_devices(devices)?;
+    let turntable = emulate_turntable(&mut fw, devices, turntable, &clock)?;
+    let leds = emulate_leds(&mut fw, devices, leds, &clock).await?;
+    Ok((turntable, leds, fw))
 }
 
 /// One device as `btfrig hw probe` reports it.

@@ -87,3 +87,36 @@ fn a_photon_noise_dominated_dome_is_captured_single_light_which_is_the_better_mo
     eprintln!("forced s-matrix: predicted {p}, measured {m}");
     assert!(p < 1.0 && m < 1.0, "predicted {p}, measured {m}");
 }
+
+/// Every texture file's content hash, by file name.
+fn texture_hashes(dataset: &Path) -> std::collections::BTreeMap<String, String> {
+    std::fs::read_dir(dataset.join("textures"))
+        .unwrap()
+        .map(|e| {
+            let p = e.unwrap().path();
+            (p.file_name().unwrap().to_string_lossy().into_owned(), btfrig_store::content_hash(&std::fs::read(&p).unwrap()))
+        })
+        .collect()
+}
+
+#[test]
+fn the_serial_dome_gives_the_direct_dome_textures() {
+    // bonn-dome-serial: the turntable on GRBL and the LEDs on the LED controller, both real
+    // backends against emulated firmware on ptys. Two rotations, so the turntable moves.
+    let serial_rig = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../rig-configs/bonn-dome-serial.toml");
+    let body = "[dome]\ncameras = [4]\nrotations = [0, 1]\nreference_leds = 0\nmultiplex = \"on\"\n";
+    let plan_for = |config: &str| {
+        format!("name = \"dome-serial\"\ntexture_size = 16\n[rig]\nconfig = \"{config}\"\nmaterial = \"leather\"\n{body}")
+    };
+    let (d_out, s_out) = (tmp("direct"), tmp("serial"));
+    let direct = go(plan_for("builtin:bonn-dome-sim"), &d_out, None);
+    let serial = go(plan_for(&serial_rig.display().to_string()), &s_out, None);
+    assert_eq!((direct.textures, serial.textures), (396, 396));
+    let (dt, st) = (texture_hashes(&d_out), texture_hashes(&s_out));
+    assert_eq!(dt.len(), 396);
+    assert_eq!(st, dt, "texture hashes differ between the serial and the direct dome");
+    assert!(btfrig_store::verify(&s_out).is_ok());
+    eprintln!("dome rig time: direct {:?}, serial {:?}", direct.to_json()["hardware_s"], serial.to_json()["hardware_s"]);
+    let _ = std::fs::remove_dir_all(&d_out);
+    let _ = std::fs::remove_dir_all(&s_out);
+}

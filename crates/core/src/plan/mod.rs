@@ -50,6 +50,7 @@ pub const BUILTIN_RIGS: &[(&str, &str)] = &[
     (BUILTIN_RIG, include_str!("../../../../rig-configs/bonn-gonio-sim.toml")),
     ("builtin:bonn-gonio-serial", include_str!("../../../../rig-configs/bonn-gonio-serial.toml")),
     ("builtin:bonn-dome-sim", include_str!("../../../../rig-configs/bonn-dome-sim.toml")),
+    ("builtin:bonn-dome-serial", include_str!("../../../../rig-configs/bonn-dome-serial.toml")),
 ];
 
 /// Names of the fault scenarios shipped in `sim/faults/` (file stems). The caller may pass
