@@ -424,23 +424,8 @@ pub async fn connect(
     };
     let rail: Box<dyn Rail> = if devices.rail.is_emulated() {
         let o = link_options("rail", &devices.rail)?;
-        let link = dir.join("rail");
         let limits = sim.rail.limits();
-        fw.rail = Some(
-            GrblFirmware::spawn_with_units(AxisDevice::Rail(sim.rail), &link, o.units).map_err(|e| firmware_io("rail", e))?,
-        );
-        let cfg = GrblAxisConfig {
-            name: "rail".into(),
-            model: "GRBL rail (emulated)".into(),
-            axis: Axis::X,
-            limits,
-            poll_s: o.poll_s,
-            reply_timeout: o.reply_timeout,
-            units: o.units,
-        };
-        let a = GrblAxis::new(cfg, serial(&link, GRBL_BAUD), clock.clone());
-        fw.meter("rail", &link, GRBL_BAUD, a.link_stats());
-        Box::new(a)
+        Box::new(emulate_axis(&mut fw, "rail", AxisDevice::Rail(sim.rail), limits, &o, &clock)?)
     } else {
         sim.rail
     };
@@ -517,15 +502,29 @@ fn emulate_turntable(
 ) -> Result<Box<dyn Turntable>, String> {
     let Some(e) = devices.turntable.as_ref().filter(|e| e.is_emulated()) else { return Ok(t) };
     let o = link_options("turntable", e)?;
-    let link = fw.link("turntable");
     let limits = t.limits();
-    fw.turntable = Some(
-        GrblFirmware::spawn_with_units(AxisDevice::Turntable(t), &link, o.units)
-            .map_err(|e| firmware_io("turntable", e))?,
-    );
+    Ok(Box::new(emulate_axis(fw, "turntable", AxisDevice::Turntable(t), limits, &o, clock)?))
+}
+
+/// `device` (rail or turntable, as `role`) behind emulated GRBL firmware, and the GRBL
+/// backend connected to it.
+fn emulate_axis(
+    fw: &mut Firmware,
+    role: &'static str,
+    device: AxisDevice,
+    limits: btfrig_hw::AxisLimits,
+    o: &LinkOptions,
+    clock: &SharedClock,
+) -> Result<GrblAxis, String> {
+    let link = fw.link(role);
+    let firmware = GrblFirmware::spawn_with_units(device, &link, o.units).map_err(|e| firmware_io(role, e))?;
+    match role {
+        "rail" => fw.rail = Some(firmware),
+        _ => fw.turntable = Some(firmware),
+    }
     let cfg = GrblAxisConfig {
-        name: "turntable".into(),
-        model: "GRBL turntable (emulated)".into(),
+        name: role.into(),
+        model: format!("GRBL {role} (emulated)"),
         axis: Axis::X,
         limits,
         poll_s: o.poll_s,
@@ -533,8 +532,8 @@ fn emulate_turntable(
         units: o.units,
     };
     let a = GrblAxis::new(cfg, serial(&link, GRBL_BAUD), clock.clone());
-    fw.meter("turntable", &link, GRBL_BAUD, a.link_stats());
-    Ok(Box::new(a))
+    fw.meter(role, &link, GRBL_BAUD, a.link_stats());
+    Ok(a)
 }
 
 /// The LED array `l`, behind the emulated LED controller if `devices.led_array` is emulated.

@@ -112,22 +112,12 @@ impl DomeFrameSource {
 
 impl FrameSource for DomeFrameSource {
     fn format(&self) -> SensorFormat {
-        let cam = self.scene.camera().model();
-        let sensor = self.scene.sensor();
-        SensorFormat {
-            width: cam.width,
-            height: cam.height,
-            bit_depth: sensor.bit_depth,
-            bayer: sensor.bayer,
-            black_level: sensor.black_level_dn,
-            white_level: sensor.white_level(1.0),
-        }
+        crate::rendered::sensor_format(self.scene.camera().model(), self.scene.sensor())
     }
 
     fn render(&self, truth: &TrueState, settings: &CaptureSettings, seed: u64) -> RawFrame {
         let sensor = self.scene.sensor();
-        let exposure_s = settings.exposure_s.clamp(0.0, 3600.0);
-        let gain = settings.gain.clamp(1.0, sensor.max_analogue_gain);
+        let (exposure_s, gain) = crate::rendered::sensor_settings(sensor, settings);
         let img = self.radiance(truth.joints.turntable, &truth.leds);
         sensor.capture(&img, exposure_s, gain, seed).expect("exposure and gain were clamped into the sensor's ranges")
     }

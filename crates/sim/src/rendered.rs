@@ -8,6 +8,7 @@ use btfrig_core::frame::RawFrame;
 use btfrig_hw::CaptureSettings;
 use btfrig_render::renderer::{RenderOptions, RenderStats};
 use btfrig_render::rig_scene::RigScene;
+use btfrig_render::sensor::SensorModel;
 
 use crate::{FrameSource, SensorFormat, TrueState};
 
@@ -36,27 +37,32 @@ impl RenderedFrameSource {
     }
 }
 
+/// The frame layout of a rendered camera: its lens's image size and its sensor's format.
+pub(crate) fn sensor_format(cam: &btfrig_core::camera::CameraModel, sensor: &SensorModel) -> SensorFormat {
+    SensorFormat {
+        width: cam.width,
+        height: cam.height,
+        bit_depth: sensor.bit_depth,
+        bayer: sensor.bayer,
+        black_level: sensor.black_level_dn,
+        white_level: sensor.white_level(1.0),
+    }
+}
+
+/// Exposure and gain clamped into the sensor model's ranges. The camera device has already
+/// checked the settings against its own ranges; a device range wider than the sensor's
+/// must not make rendering fail half-way through a run.
+pub(crate) fn sensor_settings(sensor: &SensorModel, settings: &CaptureSettings) -> (f64, f64) {
+    (settings.exposure_s.clamp(0.0, 3600.0), settings.gain.clamp(1.0, sensor.max_analogue_gain))
+}
+
 impl FrameSource for RenderedFrameSource {
     fn format(&self) -> SensorFormat {
-        let cam = self.scene.camera().model();
-        let sensor = self.scene.sensor();
-        SensorFormat {
-            width: cam.width,
-            height: cam.height,
-            bit_depth: sensor.bit_depth,
-            bayer: sensor.bayer,
-            black_level: sensor.black_level_dn,
-            white_level: sensor.white_level(1.0),
-        }
+        sensor_format(self.scene.camera().model(), self.scene.sensor())
     }
 
     fn render(&self, truth: &TrueState, settings: &CaptureSettings, seed: u64) -> RawFrame {
-        let sensor = self.scene.sensor();
-        // The camera device has already checked the settings against its own ranges; clamp
-        // into the sensor model's so that a device range wider than the sensor's cannot
-        // make rendering fail half-way through a run.
-        let exposure_s = settings.exposure_s.clamp(0.0, 3600.0);
-        let gain = settings.gain.clamp(1.0, sensor.max_analogue_gain);
+        let (exposure_s, gain) = sensor_settings(self.scene.sensor(), settings);
         let (frame, stats) = self
             .scene
             .capture(&truth.joints, truth.lamp_intensity, exposure_s, gain, seed, &self.options)
