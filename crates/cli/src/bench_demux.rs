@@ -15,7 +15,7 @@
 use std::time::Instant;
 
 use btfrig_mux::{
-    Accumulate, Demultiplexer, DemultiplexerParams, DemuxParams, Demuxer, DenseLayout, LeastSquares, LsParams, Method,
+    Accumulate, Demultiplexer, DemultiplexerParams, DemuxParams, Demuxer, DenseLayout, FftEngine, LeastSquares, LsParams, Method,
     Par, PatternModel, SMatrix, SourceState,
 };
 use rayon::prelude::*;
@@ -194,6 +194,12 @@ pub fn run_order(n: usize, cols: usize, repeat: usize, fast_only: bool) -> anyho
         for len in others.into_iter().filter(|&l| l != auto) {
             configs.push((DemuxParams { method: Some(Method::Fft), fft_len: len, ..Default::default() }, false));
         }
+        // The same Rader length on rustfft (the tile transposed per column pair): what the
+        // pixel-vectorised transform replaced.
+        configs.push((
+            DemuxParams { method: Some(Method::Fft), fft_engine: FftEngine::RustFft, ..Default::default() },
+            false,
+        ));
     }
     if !fast_only {
         for (layout, tile) in [
@@ -231,7 +237,11 @@ pub fn run_order(n: usize, cols: usize, repeat: usize, fast_only: bool) -> anyho
                 } else {
                     ""
                 };
-                format!("tile {}, length {len}{how}", d.tile())
+                let engine = match d.fft_engine() {
+                    Some(FftEngine::Vector) => "vector",
+                    _ => "rustfft",
+                };
+                format!("{engine}, tile {}, length {len}{how}", d.tile())
             }
             _ => format!("in place, tile {}", d.tile()),
         };

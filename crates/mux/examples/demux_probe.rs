@@ -21,7 +21,7 @@ fn timed<F: FnMut()>(mut f: F) -> f64 {
     }
 }
 
-use btfrig_mux::{Accumulate, DemuxParams, Demuxer, DenseLayout, Method, Par, SMatrix};
+use btfrig_mux::{Accumulate, DemuxParams, Demuxer, DenseLayout, FftEngine, Method, Par, SMatrix};
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
@@ -66,6 +66,10 @@ fn main() {
                 configs.push((
                     format!("fft padded {pl}"),
                     DemuxParams { method: Some(fast), fft_len: pl, ..Default::default() },
+                ));
+                configs.push((
+                    "fft rustfft".into(),
+                    DemuxParams { method: Some(fast), fft_engine: FftEngine::RustFft, ..Default::default() },
                 ));
                 configs.push((
                     "fast f64".into(),

@@ -38,6 +38,7 @@ use crate::error::MuxError;
 use crate::rader::Rader;
 use crate::smatrix::{is_prime, Construction, SMatrix};
 use crate::tile::{check_shape, for_each_tile, Par};
+use crate::vfft::{VecRader, V};
 
 /// Which algorithm applies `S⁻¹` (or `S`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -103,6 +104,19 @@ pub struct DemuxParams {
     pub accumulate: Accumulate,
     /// FFT length of the cyclic path: 0 = automatic ([`fft_len`]), else `n` or `>= 2n − 1`.
     pub fft_len: usize,
+    /// The FFT code of the cyclic path.
+    pub fft_engine: FftEngine,
+}
+
+/// Which code runs the FFTs of the cyclic path.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum FftEngine {
+    /// The pixel-vectorised Rader-domain transform (`crate::vfft`) where it applies (a Paley
+    /// order with `p − 1` 13-smooth, f32), else rustfft.
+    #[default]
+    Vector,
+    /// rustfft, one column pair at a time, the tile transposed into its buffer and back.
+    RustFft,
 }
 
 /// A plan that applies `S⁻¹` (demultiplex) or `S` (multiplex) to every column of a
@@ -132,6 +146,7 @@ enum Kernel {
     Fwht,
     Fft32(FftKernel<f32>),
     Fft64(FftKernel<f64>),
+    FftVec(VecRader),
     /// `inv`/`fwd` are `S⁻¹`/`S`, transposed for the pattern-major layout.
     Dense {
         layout: DenseLayout,
@@ -160,17 +175,16 @@ struct FftKernel<F: FftNum> {
 }
 
 /// The FFT length for a cyclic order `n` (0 = automatic): for a prime (Paley) order whose
-/// `n − 1` is 5-smooth, `n − 1` (the Rader-domain path, `crate::rader`: 151 → 150); else `n`
+/// `n − 1` has no prime factor above 13, `n − 1` (the Rader-domain path, `crate::rader`, on
+/// the pixel-vectorised transform of `crate::vfft` in f32: 151 → 150, 199 → 198); else `n`
 /// itself when it is 5-smooth (rustfft's fast radices), else the smallest 5-smooth
-/// `L >= 2n − 1` (199 → 400). Prime lengths are 3-4x slower in rustfft than such an `L`
-/// (1.19 µs for 151 against 0.38 µs for 320, 2.04 µs for 199 against 0.83 µs for 400, f32,
-/// `examples/fft_lengths.rs`), and lengths with a factor 11 are slow in f32 (0.62 µs for 198):
-/// at n = 199 the Rader path measured slower than the padded one, at 151 about 15 % faster.
+/// `L >= 2n − 1`. Prime lengths are 3-4x slower in rustfft than such an `L` (1.19 µs for 151
+/// against 0.38 µs for 320, f32, `examples/fft_lengths.rs`).
 pub fn fft_len(n: usize, requested: usize) -> usize {
     if requested > 0 {
         return requested;
     }
-    if n > 2 && is_prime(n) && smooth(n - 1) {
+    if n > 2 && is_prime(n) && smooth13(n - 1) {
         return n - 1;
     }
     if smooth(n) {
@@ -181,6 +195,16 @@ pub fn fft_len(n: usize, requested: usize) -> usize {
 
 fn smooth(mut x: usize) -> bool {
     for f in [2, 3, 5] {
+        while x % f == 0 {
+            x /= f;
+        }
+    }
+    x == 1
+}
+
+/// No prime factor above 13 (the radices of `crate::vfft`).
+fn smooth13(mut x: usize) -> bool {
+    for f in [2, 3, 5, 7, 11, 13] {
         while x % f == 0 {
             x /= f;
         }
@@ -212,6 +236,7 @@ struct BlockScratch {
     y32: Vec<f32>,
     x64: Vec<f64>,
     y64: Vec<f64>,
+    v: Vec<V>,
 }
 
 impl DemuxScratch {
@@ -266,6 +291,13 @@ impl Demuxer {
                     });
                 }
                 match params.accumulate {
+                    Accumulate::F32 if params.fft_engine == FftEngine::Vector && rader_ok => {
+                        let k = FftKernel::<f32>::new(row, len);
+                        match k.rader.and_then(VecRader::new) {
+                            Some(v) => Kernel::FftVec(v),
+                            None => Kernel::Fft32(FftKernel::new(row, len)),
+                        }
+                    }
                     Accumulate::F32 => Kernel::Fft32(FftKernel::new(row, len)),
                     Accumulate::F64 => Kernel::Fft64(FftKernel::new(row, len)),
                 }
@@ -292,6 +324,9 @@ impl Demuxer {
                 Method::Fwht => ((65536 / (n + 1)).clamp(16, 1024) / 16) * 16,
                 // The Rader path copies the tile and transforms it in batches of 16 column
                 // pairs; 64 columns measured 5 % faster than 256 at n = 151 (noisy).
+                // 16-column blocks gathered straight from the tile's rows, the block after
+                // next prefetched: 256 columns measured best or within the noise of it.
+                Method::Fft if matches!(kernel, Kernel::FftVec(_)) => 256,
                 Method::Fft if matches!(c, Construction::Paley { .. }) && fft_len(n, params.fft_len) + 1 == n => 64,
                 Method::Fft => 256,
                 Method::Dense(_) => 512,
@@ -308,6 +343,15 @@ impl Demuxer {
     /// The method in use.
     pub fn method(&self) -> Method {
         self.method
+    }
+
+    /// The FFT code in use (`None` off the FFT path).
+    pub fn fft_engine(&self) -> Option<FftEngine> {
+        match self.kernel {
+            Kernel::FftVec(_) => Some(FftEngine::Vector),
+            Kernel::Fft32(_) | Kernel::Fft64(_) => Some(FftEngine::RustFft),
+            _ => None,
+        }
     }
 
     /// Columns per tile.
@@ -335,6 +379,9 @@ impl Demuxer {
                         if k.rader.is_some() {
                             b.x32 = vec![0.0; n * t];
                         }
+                    }
+                    (Kernel::FftVec(k), _) => {
+                        b.v = vec![V::default(); k.scratch_len()];
                     }
                     (Kernel::Fft64(k), _) => {
                         b.c64 = vec![Complex::default(); t.div_ceil(2) * k.len];
@@ -420,6 +467,7 @@ impl Demuxer {
             Kernel::Fft32(k) => {
                 for_each_tile(data, n, cols, self.tile, blocks, |rows, s| k.tile(rows, &mut s.c32, &mut s.f32s, &mut s.x32, dir))
             }
+            Kernel::FftVec(k) => for_each_tile(data, n, cols, self.tile, blocks, |rows, s| k.tile(rows, &mut s.v, dir)),
             Kernel::Fft64(k) => {
                 for_each_tile(data, n, cols, self.tile, blocks, |rows, s| k.tile(rows, &mut s.c64, &mut s.f64s, &mut s.x32, dir))
             }

@@ -48,8 +48,9 @@ pub mod noise;
 mod rader;
 pub mod smatrix;
 pub mod tile;
+mod vfft;
 
-pub use demux::{Accumulate, DemuxParams, DemuxScratch, Demuxer, DenseLayout, Method};
+pub use demux::{Accumulate, DemuxParams, DemuxScratch, Demuxer, DenseLayout, FftEngine, Method};
 pub use error::MuxError;
 pub use lsq::{
     detect_faults, Demultiplexed, Demultiplexer, DemultiplexerParams, DemuxReport, Fault, FaultEvidence, FaultKind,

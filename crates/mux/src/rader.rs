@@ -37,32 +37,32 @@ const BATCH: usize = 16;
 
 /// One direction's precomputed multipliers (all divided by `p q` where they enter the
 /// unnormalised inverse).
-struct Spec<F> {
+pub(crate) struct Spec<F> {
     /// `A_l`.
-    a: Vec<Complex<F>>,
+    pub(crate) a: Vec<Complex<F>>,
     /// `B_l`.
-    b: Vec<Complex<F>>,
+    pub(crate) b: Vec<Complex<F>>,
     /// `T̂_0 += t0 · m_0` and `T̂_{q/2} += th · m_0`.
-    t0: Complex<F>,
-    th: Complex<F>,
+    pub(crate) t0: Complex<F>,
+    pub(crate) th: Complex<F>,
     /// `y_0 = g0 Σm + z0 Û_0 + zh Û_{q/2} + zm m_0`.
-    z0: Complex<F>,
-    zh: Complex<F>,
-    zm: Complex<F>,
+    pub(crate) z0: Complex<F>,
+    pub(crate) zh: Complex<F>,
+    pub(crate) zm: Complex<F>,
     /// `G_0 / p` (real: `G_0` is the sum of a real kernel).
-    g0: F,
+    pub(crate) g0: F,
 }
 
 /// The Rader-domain plan of one prime order.
 pub(crate) struct Rader<F: rustfft::FftNum> {
-    p: usize,
-    q: usize,
+    pub(crate) p: usize,
+    pub(crate) q: usize,
     /// `perm[a] = g^a mod p`.
-    perm: Vec<usize>,
+    pub(crate) perm: Vec<usize>,
     pub(crate) fwd: Arc<dyn Fft<F>>,
     pub(crate) inv: Arc<dyn Fft<F>>,
-    demux: Spec<F>,
-    mux: Spec<F>,
+    pub(crate) demux: Spec<F>,
+    pub(crate) mux: Spec<F>,
     scratch_len: usize,
 }
 

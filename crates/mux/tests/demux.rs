@@ -4,7 +4,7 @@
 
 mod common;
 
-use btfrig_mux::{Accumulate, DemuxParams, Demuxer, DenseLayout, Method, MuxError, Par, SMatrix};
+use btfrig_mux::{Accumulate, DemuxParams, Demuxer, DenseLayout, FftEngine, Method, MuxError, Par, SMatrix};
 
 /// Every method that applies to `s`, with both precisions.
 fn configs(s: &SMatrix) -> Vec<DemuxParams> {
@@ -12,12 +12,15 @@ fn configs(s: &SMatrix) -> Vec<DemuxParams> {
     let mut v = Vec::new();
     for method in [fast, Method::Dense(DenseLayout::PatternMajor), Method::Dense(DenseLayout::PixelMajor)] {
         for accumulate in [Accumulate::F32, Accumulate::F64] {
-            v.push(DemuxParams { method: Some(method), tile: 0, accumulate, fft_len: 0 });
+            v.push(DemuxParams { method: Some(method), tile: 0, accumulate, ..Default::default() });
             if method == Method::Fft {
-                // The prime length itself and an odd padded length, besides the automatic one.
+                // rustfft for the automatic length (the vector transform is the default), the
+                // prime length itself and an odd padded length.
                 let n = s.order();
-                v.push(DemuxParams { method: Some(method), tile: 0, accumulate, fft_len: n });
-                v.push(DemuxParams { method: Some(method), tile: 0, accumulate, fft_len: 2 * n + 1 });
+                let p = DemuxParams { method: Some(method), tile: 0, accumulate, ..Default::default() };
+                v.push(DemuxParams { fft_engine: FftEngine::RustFft, ..p });
+                v.push(DemuxParams { fft_len: n, ..p });
+                v.push(DemuxParams { fft_len: 2 * n + 1, ..p });
             }
         }
     }
@@ -125,7 +128,8 @@ fn fast_methods_refuse_the_wrong_construction_and_shapes_are_checked() {
     let e = Demuxer::new(&p, &DemuxParams { fft_len: 200, ..Default::default() }).unwrap_err();
     assert!(e.to_string().contains("at least 2n - 1 = 301"), "{e}");
     assert_eq!(btfrig_mux::demux::fft_len(151, 0), 150);
-    assert_eq!(btfrig_mux::demux::fft_len(199, 0), 400, "198 = 2 9 11 is not 5-smooth");
+    assert_eq!(btfrig_mux::demux::fft_len(199, 0), 198, "198 = 2 9 11: radices of the vector transform");
+    assert_eq!(btfrig_mux::demux::fft_len(1019, 0), 2048, "1018 = 2 509: padded");
     assert_eq!(btfrig_mux::demux::padded_len(151), 320);
     assert_eq!(btfrig_mux::demux::padded_len(199), 400);
     assert_eq!(btfrig_mux::demux::fft_len(15, 0), 15);
@@ -197,8 +201,12 @@ fn cyclic_fft_lengths_match_the_dense_f64_closed_form() {
             lens.push(n - 1);
         }
         for len in lens {
-            for acc in [Accumulate::F32, Accumulate::F64] {
-                let p = DemuxParams { method: Some(Method::Fft), fft_len: len, accumulate: acc, tile: 0 };
+            for (acc, fft_engine) in [
+                (Accumulate::F32, FftEngine::Vector),
+                (Accumulate::F32, FftEngine::RustFft),
+                (Accumulate::F64, FftEngine::Vector),
+            ] {
+                let p = DemuxParams { method: Some(Method::Fft), fft_len: len, accumulate: acc, tile: 0, fft_engine };
                 let d = Demuxer::new(&s, &p).unwrap();
                 let err = rel_err(&d.demux(&data, cols).unwrap(), &want);
                 let err_mux = rel_err(&d.multiplex(&data, cols).unwrap(), &want_mux);
@@ -214,7 +222,7 @@ fn cyclic_fft_lengths_match_the_dense_f64_closed_form() {
                 };
                 assert!(err < tol, "order {n} length {len} {acc:?}: demux rel err {err:e} > {tol:e}");
                 assert!(err_mux < tol, "order {n} length {len} {acc:?}: mux rel err {err_mux:e} > {tol:e}");
-                eprintln!("order {n} fft length {len} {acc:?}: rel. max error demux {err:.2e}, mux {err_mux:.2e}");
+                eprintln!("order {n} fft length {len} {acc:?} {fft_engine:?}: rel. max error demux {err:.2e}, mux {err_mux:.2e}");
             }
         }
     }

@@ -17,7 +17,7 @@ use btfrig_calib::rectify::{rectify, Filter, LinearImage, Region};
 use btfrig_core::camera::CameraModel;
 use btfrig_core::config::dome::DomeConfig;
 use btfrig_core::frame::{BayerPattern, RawFrame};
-use btfrig_mux::{DemuxReport, Demultiplexer, DemultiplexerParams, DemuxParams, DenseLayout, Method, SMatrix};
+use btfrig_mux::{DemuxReport, Demultiplexer, DemultiplexerParams, DemuxParams, SMatrix};
 
 /// Errors of dome processing.
 #[derive(Debug, thiserror::Error)]
@@ -80,19 +80,14 @@ pub enum GroupCode {
 
 impl GroupCode {
     /// The demultiplexer for `leds` LEDs under an S-matrix of `order`, with the calibrated
-    /// LED powers as intensities (always-off slots 0). The dome's Paley orders use the dense
-    /// pattern-major product, measured faster than the FFT path at n = 151 and 199
-    /// (`docs/multiplexing.md`, "Benchmark").
+    /// LED powers as intensities (always-off slots 0). Every order takes its fast path (the
+    /// dome's Paley orders the pixel-vectorised Rader FFT, faster than the dense product at
+    /// n = 151 and 199: `docs/benchmarks.md`, "Demultiplexing").
     pub fn multiplexed(order: usize, led_power: &[f64]) -> Result<GroupCode, DomeError> {
         let s = SMatrix::of_order(order)?;
         let mut a = led_power.to_vec();
         a.resize(order, 0.0);
-        let demux = if s.construction().is_cyclic() {
-            DemuxParams { method: Some(Method::Dense(DenseLayout::PatternMajor)), tile: 256, ..DemuxParams::default() }
-        } else {
-            DemuxParams::default()
-        };
-        let params = DemultiplexerParams { demux, ..DemultiplexerParams::default() };
+        let params = DemultiplexerParams { demux: DemuxParams::default(), ..DemultiplexerParams::default() };
         Ok(GroupCode::Multiplexed(Box::new(Demultiplexer::new(s, a, params)?)))
     }
 
