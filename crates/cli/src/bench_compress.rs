@@ -571,21 +571,13 @@ pub fn bench(a: &BenchCompressArgs) -> anyhow::Result<()> {
         let k_eq = fmf_terms_for(pcmf.payload_bytes(), &btf.layout, Precision::F16);
         let (fmf_eq, fmf_row) = run(setting(Method::Fmf, ColorModel::Rgb, [k_eq; 3]))?;
         let wins = pcmf_row.rel_rmse_truth < fmf_row.rel_rmse_truth;
-        {
-            let line = format!(
-                "verdict {name}: PCMF 32 x 8 ({:.2} MB) vs FMF {k_eq} terms ({:.2} MB, the fewest terms with at least \
-                 PCMF's payload), vs truth {:.5} vs {:.5}: PCMF beats the equal-storage FMF: {}",
-                pcmf_row.file_bytes as f64 / 1e6,
-                fmf_row.file_bytes as f64 / 1e6,
-                pcmf_row.rel_rmse_truth,
-                fmf_row.rel_rmse_truth,
-                if wins { "yes" } else { "no" }
-            );
-            if !a.json {
-                println!("{line}");
-            }
-            verdict_lines.push(line);
-        }
+        let what = format!(
+            "verdict {name}: PCMF 32 x 8 ({:.2} MB) vs FMF {k_eq} terms ({:.2} MB, the fewest terms with at least \
+             PCMF's payload)",
+            pcmf_row.file_bytes as f64 / 1e6,
+            fmf_row.file_bytes as f64 / 1e6,
+        );
+        verdict_lines.push(verdict_line(what, pcmf_row.rel_rmse_truth, fmf_row.rel_rmse_truth, a.json));
         verdicts.push(serde_json::json!({"material": name, "pcmf_rel_rmse_truth": pcmf_row.rel_rmse_truth,
             "fmf_terms": k_eq, "fmf_rel_rmse_truth": fmf_row.rel_rmse_truth,
             "pcmf_file_bytes": pcmf_row.file_bytes, "fmf_file_bytes": fmf_row.file_bytes, "pcmf_wins": wins}));
@@ -631,21 +623,13 @@ pub fn bench(a: &BenchCompressArgs) -> anyhow::Result<()> {
             let k_w = fmf_terms_for(payload, &btf.layout, Precision::F16);
             let (_, fw) = run(setting(Method::Fmf, ColorModel::Rgb, [k_w; 3]))?;
             let wins = r.rel_rmse_truth < fw.rel_rmse_truth;
-            {
-                let line = format!(
-                    "verdict {name}, shared basis {kk} (experiment): PCMF 32 x 8 in W{kk} ({:.2} MB payload) vs FMF {k_w} terms \
-                     ({:.2} MB), vs truth {:.5} vs {:.5}: PCMF beats the equal-storage FMF: {}",
-                    payload as f64 / 1e6,
-                    fw.file_bytes as f64 / 1e6,
-                    r.rel_rmse_truth,
-                    fw.rel_rmse_truth,
-                    if wins { "yes" } else { "no" }
-                );
-                if !a.json {
-                    println!("{line}");
-                }
-                verdict_lines.push(line);
-            }
+            let what = format!(
+                "verdict {name}, shared basis {kk} (experiment): PCMF 32 x 8 in W{kk} ({:.2} MB payload) vs FMF {k_w} terms \
+                 ({:.2} MB)",
+                payload as f64 / 1e6,
+                fw.file_bytes as f64 / 1e6,
+            );
+            verdict_lines.push(verdict_line(what, r.rel_rmse_truth, fw.rel_rmse_truth, a.json));
             verdicts.push(
                 serde_json::json!({"material": name, "shared_basis": kk, "pcmf_rel_rmse_truth": r.rel_rmse_truth,
                 "fmf_terms": k_w, "fmf_rel_rmse_truth": fw.rel_rmse_truth,
@@ -788,6 +772,17 @@ fn sparse_bench(
 /// t_x`: exactly what the two-level form decodes to), its two-level payload in bytes counted
 /// as [`Model::payload_bytes`] counts (stored values x 2 + 2 bytes per texel of cluster map),
 /// and the final cluster sizes.
+/// `what`, then both errors against the truth and whether PCMF's is the lower; printed
+/// unless `json`.
+fn verdict_line(what: String, pcmf_truth: f64, fmf_truth: f64, json: bool) -> String {
+    let wins = if pcmf_truth < fmf_truth { "yes" } else { "no" };
+    let line = format!("{what}, vs truth {pcmf_truth:.5} vs {fmf_truth:.5}: PCMF beats the equal-storage FMF: {wins}");
+    if !json {
+        println!("{line}");
+    }
+    line
+}
+
 fn pcmf_shared_basis(fmf: &Model, init: &[u16], kk: usize, terms: usize, iters: usize) -> (Model, usize, Vec<usize>) {
     use nalgebra::DMatrix;
     let n = fmf.layout.texels();
@@ -853,25 +848,7 @@ fn pcmf_shared_basis(fmf: &Model, init: &[u16], kk: usize, terms: usize, iters: 
             .collect();
         assign = best.iter().map(|b| b.0).collect();
         // An emptied cluster takes the worst-reconstructed texel of a cluster that keeps one.
-        let mut sizes = vec![0usize; kc];
-        for &j in &assign {
-            sizes[j as usize] += 1;
-        }
-        let mut order: Vec<usize> = (0..n).collect();
-        order.sort_by(|&a, &b| best[b].1.total_cmp(&best[a].1));
-        let mut next = order.into_iter();
-        for j in 0..kc {
-            if sizes[j] == 0 {
-                for x in next.by_ref() {
-                    if sizes[assign[x] as usize] > 1 {
-                        sizes[assign[x] as usize] -= 1;
-                        assign[x] = j as u16;
-                        sizes[j] = 1;
-                        break;
-                    }
-                }
-            }
-        }
+        btfrig_compress::cluster::reseed_empty_clusters(&mut assign, kc, |x| best[x].1);
     }
     let models = fit(&assign);
     let mut out = fmf.clone();

@@ -128,31 +128,40 @@ pub fn cluster(points: &DMatrix<f64>, p: &ClusterParams) -> Vec<u16> {
             }
         }
         // Re-seed empty clusters with the worst-reconstructed points.
-        let mut counts = vec![0usize; kc];
-        for &a in &assign {
-            counts[a as usize] += 1;
-        }
-        let mut worst: Vec<usize> = (0..n).collect();
-        worst.sort_by(|&a, &b| errs[b].1.total_cmp(&errs[a].1));
-        let mut w = worst.into_iter();
-        for j in 0..kc {
-            if counts[j] == 0 {
-                for i in w.by_ref() {
-                    if counts[assign[i] as usize] > 1 {
-                        counts[assign[i] as usize] -= 1;
-                        assign[i] = j as u16;
-                        counts[j] = 1;
-                        changed += 1;
-                        break;
-                    }
-                }
-            }
-        }
+        changed += reseed_empty_clusters(&mut assign, kc, |i| errs[i].1);
         if changed == 0 {
             break;
         }
     }
     assign
+}
+
+/// Gives every empty cluster of `assign` (clusters `0..kc`) one point: the worst
+/// reconstructed (largest `err`) of the points whose cluster keeps another member. Returns
+/// how many points moved. Local PCA and k-means both leave clusters empty at times.
+pub fn reseed_empty_clusters(assign: &mut [u16], kc: usize, err: impl Fn(usize) -> f64) -> usize {
+    let mut counts = vec![0usize; kc];
+    for &a in assign.iter() {
+        counts[a as usize] += 1;
+    }
+    let mut worst: Vec<usize> = (0..assign.len()).collect();
+    worst.sort_by(|&a, &b| err(b).total_cmp(&err(a)));
+    let mut w = worst.into_iter();
+    let mut moved = 0;
+    for j in 0..kc {
+        if counts[j] == 0 {
+            for i in w.by_ref() {
+                if counts[assign[i] as usize] > 1 {
+                    counts[assign[i] as usize] -= 1;
+                    assign[i] = j as u16;
+                    counts[j] = 1;
+                    moved += 1;
+                    break;
+                }
+            }
+        }
+    }
+    moved
 }
 
 fn dist2(points: &DMatrix<f64>, i: usize, c: &[f64]) -> f64 {

@@ -204,24 +204,10 @@ impl Reassign {
         let before: f64 = best.iter().map(|b| b.2).sum();
         let after: f64 = best.iter().map(|b| b.1).sum();
         let mut assign: Vec<u16> = best.iter().map(|b| b.0).collect();
+        crate::cluster::reseed_empty_clusters(&mut assign, kc, |x| best[x].1);
         let mut counts = vec![0usize; kc];
         for &j in &assign {
             counts[j as usize] += 1;
-        }
-        let mut worst: Vec<usize> = (0..self.n).collect();
-        worst.sort_by(|&a, &b| best[b].1.total_cmp(&best[a].1));
-        let mut w = worst.into_iter();
-        for j in 0..kc {
-            if counts[j] == 0 {
-                for x in w.by_ref() {
-                    if counts[assign[x] as usize] > 1 {
-                        counts[assign[x] as usize] -= 1;
-                        assign[x] = j as u16;
-                        counts[j] = 1;
-                        break;
-                    }
-                }
-            }
         }
         let moved = assign.iter().zip(current).filter(|(a, b)| a != b).count();
         let step = RefineStep {
