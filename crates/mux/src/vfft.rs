@@ -18,10 +18,10 @@
 //! The workspace forbids unsafe code; when the CPU has AVX2 + FMA (checked at run time) the
 //! tile function runs through [`pulp::Simd::vectorize`] on [`pulp::x86::V3`], inside a
 //! function compiled for those features, and its arithmetic is pulp's explicit 256-bit
-//! operations ([`Lanes`]); no `target-cpu` flags. Loops over the lanes of plain arrays, left
-//! to LLVM's vectoriser, had compiled to 128-bit pieces with the values passed through the
-//! stack (`perf annotate`); the explicit operations measured 5 % faster at 151 and 20 % at
-//! 199 (`examples/demux_probe.rs`, one thread, a stack that fits in L3).
+//! operations ([`Lanes`]); no `target-cpu` flags. Against loops over the lanes of plain
+//! arrays left to LLVM's vectoriser (which mixed in 128-bit pieces), the explicit operations
+//! measured 5 % faster at 151 and 20 % at 199 (`examples/demux_probe.rs`, one thread, a
+//! stack that fits in L3).
 
 use crate::demux::Dir;
 use crate::rader::{Rader, Spec};
