@@ -22,7 +22,8 @@ fn plan(extra: &str) -> String {
 }
 
 fn go(text: String, out: &Path) -> DomeRunSummary {
-    let req = DomeRunRequest { plan_text: text, plan_path: PathBuf::from("<test>"), out: out.to_path_buf(), faults: None };
+    let req =
+        DomeRunRequest { plan_text: text, plan_path: PathBuf::from("<test>"), out: out.to_path_buf(), faults: None };
     run(&req, &mut |line| eprintln!("{line}")).unwrap_or_else(|e| panic!("{e}"))
 }
 
@@ -65,7 +66,10 @@ fn a_camera_array_run_multiplexes_all_151_flashes_and_beats_single_flash_frames(
 /// The shipped array with each flash `factor` times brighter, written to `dir`; its path.
 fn brighter_array(dir: &Path, factor: f64) -> PathBuf {
     std::fs::create_dir_all(dir).unwrap();
-    let shipped = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../../rig-configs/bonn-camera-array-sim.toml")).unwrap();
+    let shipped = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../rig-configs/bonn-camera-array-sim.toml"),
+    )
+    .unwrap();
     let bright = shipped.replace("energy_at_1m_j_m2 = 1.2e-4", &format!("energy_at_1m_j_m2 = {:e}", 1.2e-4 * factor));
     assert_ne!(bright, shipped);
     let rig = dir.join("bright-array.toml");
@@ -81,7 +85,8 @@ fn bright_flashes_are_captured_one_at_a_time_which_is_the_better_mode() {
     let dir = tmp("bright");
     let rig = brighter_array(&dir, 4.0);
     let with_rig = |extra: &str| {
-        plan(&format!("sample_brightness = 1.0\n{extra}")).replace("builtin:bonn-camera-array-sim", &rig.display().to_string())
+        plan(&format!("sample_brightness = 1.0\n{extra}"))
+            .replace("builtin:bonn-camera-array-sim", &rig.display().to_string())
     };
     let s = go(with_rig(""), &dir.join("auto"));
     assert_eq!(s.mode, "single-light");
