@@ -636,3 +636,27 @@ fn demo_rig_dome_runs_a_multiplexed_dome_measurement_end_to_end() {
     assert!(e.contains("led_dome") && e.contains("gonioreflectometer"), "{e}");
 }
 
+#[test]
+fn demo_rig_camera_array_multiplexes_all_151_flashes_end_to_end() {
+    let dir = scratch("demo-camera-array");
+    let out = dir.join("run");
+    let stdout = ok(btfrig().args(["demo", "--rig", "camera-array", "--json", "--out"]).arg(&out));
+    let v: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+    assert_eq!((v["rig"].as_str(), v["light"].as_str()), (Some("camera_array"), Some("flash")));
+    assert_eq!(v["captures"], 453, "151 flashes x 3 cameras");
+    assert_eq!((v["leds"].as_u64(), v["views"].as_u64()), (Some(151), Some(3)));
+    assert_eq!(v["mode"], "s-matrix 151");
+    assert!(v["multiplex_reason"].as_str().unwrap().starts_with("multiplexing with s-matrix 151"), "{v}");
+    let (p, m) = (v["multiplex_gain_predicted"].as_f64().unwrap(), v["multiplex_gain_measured"].as_f64().unwrap());
+    assert!(p > 1.5 && m > 1.3 && (m / p - 1.0).abs() < 0.15, "predicted {p}, measured {m}");
+    let saved = v["time_saved_fraction"].as_f64().unwrap();
+    assert!(saved > 0.3 && saved < 1.0, "{saved}");
+    ok(btfrig().args(["dataset", "verify"]).arg(&out));
+    // The human summary names the flashes, and gonio-only commands refuse the array by name.
+    let text = ok(btfrig().args(["demo", "--rig", "camera-array", "--out"]).arg(dir.join("run2")));
+    assert!(text.contains("camera-array plan: 151 flashes x 3 views; multiplexing with s-matrix 151"), "{text}");
+    assert!(text.contains("453 (151 flashes x 3 views)"), "{text}");
+    let e = fails(btfrig().args(["kinematics", "check", "--rig", "camera-array"]));
+    assert!(e.contains("camera_array") && e.contains("gonioreflectometer"), "{e}");
+}
+

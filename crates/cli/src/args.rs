@@ -155,7 +155,9 @@ pub struct DemoArgs {
     pub full: bool,
     /// Rig config file instead of the plan's embedded simulated gonioreflectometer, or an
     /// embedded rig by name: `gonio-serial` (the same rig through the serial and PTP
-    /// backends and emulated firmware on pseudo-terminals, docs/serial.md).
+    /// backends and emulated firmware on pseudo-terminals, docs/serial.md), `dome` (the LED
+    /// dome demo) or `camera-array` (the camera array demo, its flashes as the lights;
+    /// docs/multiplexing.md).
     #[arg(long)]
     pub rig: Option<std::path::PathBuf>,
     /// Material name (see `btfrig sim materials`) or a material TOML file, instead of the plan's.

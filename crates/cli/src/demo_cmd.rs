@@ -16,11 +16,15 @@ const FULL_PLAN: &str = include_str!("../../../rig-configs/plans/bonn-full.toml"
 
 /// The LED dome demo plan (`--rig dome`).
 const DOME_PLAN: &str = include_str!("../../../rig-configs/plans/dome-demo.toml");
+/// The camera array demo plan (`--rig camera-array`).
+const CAMERA_ARRAY_PLAN: &str = include_str!("../../../rig-configs/plans/camera-array-demo.toml");
 
 /// Runs the demo.
 pub fn run(a: &DemoArgs) -> anyhow::Result<ExitCode> {
-    if crate::rig::load(a.rig.as_deref())?.rig.kind == btfrig_core::config::RigKind::LedDome {
-        return run_dome(a);
+    match crate::rig::load(a.rig.as_deref())?.rig.kind {
+        btfrig_core::config::RigKind::LedDome => return run_dome(a, DomeDemo::LED_DOME),
+        btfrig_core::config::RigKind::CameraArray => return run_dome(a, DomeDemo::CAMERA_ARRAY),
+        btfrig_core::config::RigKind::Gonioreflectometer => {}
     }
     let (name, text) = if a.full { ("bonn-full", FULL_PLAN) } else { ("demo", DEMO_PLAN) };
     let cwd = std::env::current_dir().context("the working directory")?;
@@ -118,15 +122,30 @@ fn with_overrides(text: &str, rig: Option<&Path>, material: Option<&str>, cwd: &
     Ok(doc.to_string())
 }
 
-/// `btfrig demo --rig dome`: the dome demo plan on the simulated LED dome (docs/multiplexing.md).
-fn run_dome(a: &DemoArgs) -> anyhow::Result<ExitCode> {
-    anyhow::ensure!(!a.full, "--full is the gonioreflectometer's 81 x 81 plan; the dome demo has no --full");
+/// Which dome demo: its plan and how it is named.
+struct DomeDemo {
+    plan: &'static str,
+    name: &'static str,
+    rig: &'static str,
+    lights: &'static str,
+}
+
+impl DomeDemo {
+    const LED_DOME: DomeDemo = DomeDemo { plan: DOME_PLAN, name: "dome-demo", rig: "LED dome", lights: "LEDs" };
+    const CAMERA_ARRAY: DomeDemo =
+        DomeDemo { plan: CAMERA_ARRAY_PLAN, name: "camera-array-demo", rig: "camera array", lights: "flashes" };
+}
+
+/// `btfrig demo --rig dome` / `--rig camera-array`: the dome demo plan on the simulated LED
+/// dome, or the camera array demo plan on the simulated camera array (docs/multiplexing.md).
+fn run_dome(a: &DemoArgs, demo: DomeDemo) -> anyhow::Result<ExitCode> {
+    anyhow::ensure!(!a.full, "--full is the gonioreflectometer's 81 x 81 plan; the {} demo has no --full", demo.rig);
     let cwd = std::env::current_dir().context("the working directory")?;
-    let text = with_overrides(DOME_PLAN, a.rig.as_deref(), a.material.as_deref(), &cwd)?;
-    let out = crate::captures_cmd::prepare_output(a.out.clone(), "btfrig-demo-dome")?;
+    let text = with_overrides(demo.plan, a.rig.as_deref(), a.material.as_deref(), &cwd)?;
+    let out = crate::captures_cmd::prepare_output(a.out.clone(), &format!("btfrig-{}", demo.name))?;
     let req = btfrig_runner::dome::DomeRunRequest {
         plan_text: text,
-        plan_path: cwd.join("<embedded rig-configs/plans/dome-demo.toml>"),
+        plan_path: cwd.join(format!("<embedded rig-configs/plans/{}.toml>", demo.name)),
         out,
         faults: None,
     };
@@ -141,15 +160,16 @@ fn run_dome(a: &DemoArgs) -> anyhow::Result<ExitCode> {
         return Ok(ExitCode::SUCCESS);
     }
     let f = |v: Option<f64>| v.map(|r| format!("{r:.3}")).unwrap_or_else(|| "n/a".into());
-    println!("btfrig demo: plan \"dome-demo\" on the simulated LED dome");
-    println!("  textures          {} ({} LEDs x {} views), {} frames per camera", s.textures, s.leds, s.views, s.frames);
+    println!("btfrig demo: plan {:?} on the simulated {}", demo.name, demo.rig);
+    println!("  textures          {} ({} {} x {} views), {} frames per camera", s.textures, s.leds, demo.lights, s.views, s.frames);
     println!("  mode              {}: {}", s.mode, s.multiplex_reason);
     println!(
         "  SNR gain          predicted {:.3}, measured {} (demultiplexed vs single-light frames, against noise-free renders)",
         s.multiplex_gain_predicted,
         f(s.multiplex_gain_measured)
     );
-    println!("  time saved        {:.1} % of the exposure time single-light capture needs for the same SNR", 100.0 * s.time_saved_fraction);
+    let of = if s.light == "flash" { "frames single-flash capture averages" } else { "exposure time single-light capture needs" };
+    println!("  time saved        {:.1} % of the {of} for the same SNR", 100.0 * s.time_saved_fraction);
     println!("  rig time          {:.1} s ({:.1} s exposing)", s.hardware_s, s.exposure_time_s);
     println!(
         "  texture error     {} (single-light references {}): relative RMSE against ground truth",

@@ -1,5 +1,6 @@
-//! Driving an LED dome: turntable, LED array and the cameras of the arc (`docs/engine.md`,
-//! "LED dome").
+//! Driving a dome rig: turntable, LED array and the cameras of the arc (`docs/engine.md`,
+//! "LED dome"); a camera array is the same without the turntable, its flash triggers driven as
+//! the LED array.
 //!
 //! A step is (rotation, pattern): turn the table when the rotation changes, set the LED
 //! pattern, trigger every camera at once (they expose together, so a pattern costs one
@@ -26,8 +27,9 @@ use tokio::sync::mpsc;
 
 /// The devices of a dome run.
 pub struct DomeDevices {
-    /// The turntable under the sample.
-    pub turntable: Box<dyn Turntable>,
+    /// The turntable under the sample (`None` on a camera array, whose steps all have
+    /// rotation 0).
+    pub turntable: Option<Box<dyn Turntable>>,
     /// The LED array.
     pub leds: Box<dyn LedArray>,
     /// The cameras, one per arc position used (the order of `DomeCapture::frames`).
@@ -207,7 +209,9 @@ async fn capture_step(
     s: &DomeSettings,
 ) -> Result<Vec<RawFrame>, DeviceError> {
     if *table_at != Some(step.rotation) {
-        d.turntable.move_to_rad(step.turntable_rad, MoveOptions::with_timeout_s(s.move_timeout_s)).await?;
+        if let Some(t) = d.turntable.as_mut() {
+            t.move_to_rad(step.turntable_rad, MoveOptions::with_timeout_s(s.move_timeout_s)).await?;
+        }
         *table_at = Some(step.rotation);
     }
     d.leds.set_pattern(pattern).await?;

@@ -1,4 +1,5 @@
-//! Processing an LED dome's frames (`docs/pipeline.md`, "LED dome"): the frames of one view
+//! Processing a dome rig's frames (`docs/pipeline.md`, "LED dome"; a camera array's flashes
+//! are its lights, processed the same way): the frames of one view
 //! group (one camera, one rotation, all patterns) are collected into a pattern-major stack of
 //! photosite values, demultiplexed with `btfrig_mux` (fast path, fault detection, least
 //! squares around dead or stuck LEDs), and each single-LED mosaic then goes through demosaic,
@@ -229,7 +230,9 @@ impl DomeProcessing {
         let c = self.led_colour[led];
         let r = Radiometry {
             dn_range: 1.0,
-            exposure_s,
+            // What the frame collected of the light: the exposure for an LED, the fraction of
+            // the pulse for a flash (whose nominal irradiance is per flash).
+            exposure_s: self.dome.light_units(exposure_s),
             dn_per_electron: gain / self.electrons_per_dn,
             dark_e_per_s: 0.0,
             nominal_irradiance: self.nominal_irradiance * self.led_power[led],

@@ -10,6 +10,16 @@
 //!
 //! All cameras of the arc expose together, so a step is (rotation, pattern): turn the table
 //! when the rotation changes, set the pattern, trigger every camera, read every camera.
+//!
+//! A camera array (`kind = "camera_array"`) is planned the same way with lights = flashes and
+//! views = cameras (one rotation). A flash is a pulse: a frame's signal is
+//! `flash energy x light_units(exposure)`, not a rate times the exposure, so the noise model
+//! is fed the equivalent rate `e- per flash x light_units(exposure_s) / exposure_s`, where
+//! saturation asks for less light the patterns fire the flashes at reduced power
+//! (`pattern_scale`) instead of shortening the exposure (which would not reduce a flash), and
+//! the time saved is counted in frames: single-flash capture reaches the multiplexed SNR only
+//! by averaging `G²` frames per flash (a longer exposure collects no more of a flash), so it
+//! saves `1 - 1/G²`.
 
 use btfrig_core::config::RigConfig;
 use btfrig_core::plan::dome::{MultiplexPolicy, ValidatedDomePlan};
@@ -74,8 +84,12 @@ pub struct DomeSchedule {
     /// The noise model's inputs.
     pub scene: SceneLight,
     /// Fraction of the exposure time saved against single-light capture reaching the same
-    /// SNR (0 when single light is used).
+    /// SNR (0 when single light is used; for flashes, of the frames: module docs).
     pub time_saved_fraction: f64,
+    /// Power every lit light of a pattern fires at (1, or below 1 for flashes when a pattern
+    /// would saturate: module docs); already applied to `patterns`, and the demultiplexer's
+    /// intensities must include it.
+    pub pattern_scale: f64,
 }
 
 /// Errors of dome planning.
@@ -101,10 +115,15 @@ pub fn exposure_for_snr(sensor: &SensorNoise, rate: f64, snr: f64) -> f64 {
 /// Plans a dome measurement. `led_e_per_s` is the electrons per second one LED of nominal
 /// power puts into a photosite imaging a white sample facing it (from the renderer's scale on
 /// a simulated rig, from the LED calibration on a real one).
+///
+/// On a camera array `led_e_per_s` is electrons per flash (module docs).
 pub fn plan_dome(rig: &RigConfig, v: &ValidatedDomePlan, led_e_per_s: f64) -> Result<DomeSchedule, DomePlanError> {
     let dome = rig.require_dome("dome planning")?;
     let d = &v.plan.dome;
     let leds = dome.led_count();
+    let flash = dome.is_flash();
+    // The rate that gives a frame of `exposure_s` its signal (the identity for LEDs).
+    let led_e_per_s = led_e_per_s * dome.light_units(d.exposure_s) / d.exposure_s;
     let s = &rig.sensor;
     let sensor = SensorNoise {
         read_noise_e: s.read_noise_e,
@@ -141,11 +160,15 @@ pub fn plan_dome(rig: &RigConfig, v: &ValidatedDomePlan, led_e_per_s: f64) -> Re
         },
     };
     let single = predict(&sensor, &scene, Mode::Single)?;
+    // Where the noise model shortens the exposure against saturation, flashes fire at the
+    // same fraction of their power instead (module docs).
+    let (exposure_s, pattern_scale) =
+        if flash { (single.exposure_s, (pred.exposure_s / single.exposure_s).min(1.0)) } else { (pred.exposure_s, 1.0) };
     let patterns: Vec<Vec<f64>> = match mode {
         DomeMode::Single => (0..leds).map(|j| (0..leds).map(|i| f64::from(u8::from(i == j))).collect()).collect(),
         DomeMode::Multiplexed { order } => {
             let s = SMatrix::of_order(order)?;
-            (0..order).map(|r| (0..leds).map(|j| f64::from(s.get(r, j))).collect()).collect()
+            (0..order).map(|r| (0..leds).map(|j| pattern_scale * f64::from(s.get(r, j))).collect()).collect()
         }
     };
     let mut steps = Vec::new();
@@ -162,8 +185,11 @@ pub fn plan_dome(rig: &RigConfig, v: &ValidatedDomePlan, led_e_per_s: f64) -> Re
             }
         }
     }
+    let gain = pred.snr / single.snr;
     let time_saved_fraction = match mode {
         DomeMode::Single => 0.0,
+        // Single flashes average G² frames each to reach the multiplexed SNR.
+        DomeMode::Multiplexed { .. } if flash => (1.0 - 1.0 / (gain * gain)).max(0.0),
         DomeMode::Multiplexed { .. } => {
             // Single light needs this exposure per LED to reach the multiplexed SNR.
             let t = exposure_for_snr(&sensor, led_e_per_s * d.sample_brightness, pred.snr);
@@ -174,9 +200,9 @@ pub fn plan_dome(rig: &RigConfig, v: &ValidatedDomePlan, led_e_per_s: f64) -> Re
     Ok(DomeSchedule {
         leds,
         mode,
-        predicted_gain: pred.snr / single.snr,
+        predicted_gain: gain,
         reason,
-        exposure_s: pred.exposure_s,
+        exposure_s,
         single_exposure_s: single.exposure_s,
         choice,
         patterns,
@@ -184,6 +210,7 @@ pub fn plan_dome(rig: &RigConfig, v: &ValidatedDomePlan, led_e_per_s: f64) -> Re
         sensor,
         scene,
         time_saved_fraction,
+        pattern_scale,
     })
 }
 
@@ -225,5 +252,42 @@ mod tests {
         let t = exposure_for_snr(&sensor, 30.0, 10.0);
         let q = 30.0 * t;
         assert!((q / (sensor.kappa2(t) + q).sqrt() - 10.0).abs() < 1e-9);
+    }
+
+    fn array() -> RigConfig {
+        let text =
+            btfrig_core::plan::BUILTIN_RIGS.iter().find(|(n, _)| *n == "builtin:bonn-camera-array-sim").unwrap().1;
+        RigConfig::from_toml(text, "camera array").unwrap()
+    }
+
+    #[test]
+    fn dim_flashes_are_multiplexed_with_paley_151_and_bright_ones_are_not() {
+        let rig = array();
+        let v = DomePlan::from_toml("[rig]\nconfig = \"builtin:bonn-camera-array-sim\"\n[dome]\ncameras = [0, 40]\nexposure_s = 0.01\n", "p")
+            .unwrap()
+            .validate(&rig)
+            .unwrap();
+        // 90 e- per flash at a white photosite, 27 e- at albedo 0.3, 12 e- read noise.
+        let s = plan_dome(&rig, &v, 90.0).unwrap();
+        assert_eq!(s.mode, DomeMode::Multiplexed { order: 151 });
+        assert!(s.reason.starts_with("multiplexing with s-matrix 151"), "{}", s.reason);
+        assert_eq!((s.leds, s.patterns.len(), s.steps.len()), (151, 151, 151 + 4));
+        // No always-off slot: 76 flashes per pattern.
+        assert!(s.patterns.iter().all(|p| p.iter().filter(|&&x| x > 0.0).count() == 76));
+        assert!(s.predicted_gain > 1.5 && s.pattern_scale == 1.0, "{}", s.predicted_gain);
+        let g = s.predicted_gain;
+        assert!((s.time_saved_fraction - (1.0 - 1.0 / (g * g))).abs() < 1e-12);
+        // The exposure does not change a flash's signal: 0.02 s plans the same gain.
+        let v2 = DomePlan::from_toml("[rig]\nconfig = \"builtin:bonn-camera-array-sim\"\n[dome]\ncameras = [0]\nexposure_s = 0.02\n", "p")
+            .unwrap()
+            .validate(&rig)
+            .unwrap();
+        let g2 = plan_dome(&rig, &v2, 90.0).unwrap().predicted_gain;
+        assert!((g2 / g - 1.0).abs() < 0.01, "{g} vs {g2}");
+        // A full-power flash (3e4 e- per flash): photon-noise dominated, one flash at a time.
+        let b = plan_dome(&rig, &v, 3e4).unwrap();
+        assert_eq!(b.mode, DomeMode::Single);
+        assert!(b.reason.starts_with("multiplexing skipped"), "{}", b.reason);
+        assert_eq!((b.patterns.len(), b.time_saved_fraction), (151, 0.0));
     }
 }

@@ -1,4 +1,5 @@
-//! The physics of a simulated LED dome (`kind = "led_dome"`): the same renderer, lens,
+//! The physics of a simulated dome rig (an LED dome, `kind = "led_dome"`, or a camera array
+//! whose lights are its cameras' flashes, `kind = "camera_array"`): the same renderer, lens,
 //! sensor and colour model as [`crate::rig_scene::RigScene`], posed by the dome's geometry.
 //!
 //! A view is a camera of the arc plus a turntable angle of the sample; a light is one LED, a
@@ -8,6 +9,13 @@
 //! `j`'s true output multiplies it by its power factor and colour factors. By linearity the
 //! image of a pattern is the intensity-weighted sum of single-LED images; the sensor adds
 //! noise once (the frame source in `btfrig-sim` caches the single-LED images per view).
+//!
+//! A flash is a point light at its camera's flash position (`[dome.flash] offset_m`), and a
+//! short pulse: its scale is the flash's radiant exposure (`energy_at_1m_j_m2`) in place of
+//! the LED's irradiance, so one render is the camera-RGB signal of one whole flash
+//! (electrons per flash, not per second) and a frame collects
+//! `DomeConfig::light_units(exposure)` flashes' worth (1 for an exposure at least as long as
+//! the pulse).
 
 use btfrig_core::config::dome::DomeConfig;
 use btfrig_core::config::RigConfig;
@@ -47,11 +55,12 @@ impl DomeScene {
         let sensor = SensorModel::from_config(&cfg.sensor)?;
         let colour = ColourSystem::from_config(&cfg.lamp, &cfg.sensor)?;
         let k = electrons_per_second_scale(&cfg.camera, &cfg.sensor, &cfg.lamp, &colour);
-        // An LED emits the lamp's spectrum at its own irradiance (see the module docs).
-        let led_scale = k / std::f64::consts::PI * dome.led_irradiance_at_1m_w_m2 / cfg.lamp.irradiance_at_1m_w_m2;
+        // An LED (or a flash) emits the lamp's spectrum at its own irradiance (or radiant
+        // exposure, per flash; see the module docs).
+        let led_scale = k / std::f64::consts::PI * dome.light_at_1m() / cfg.lamp.irradiance_at_1m_w_m2;
         let resolve = |name: &str| resolve_spectrum(&colour, name);
         let renderer = Renderer::new(&cfg.plate, material, led_scale, &resolve)?;
-        let r = dome.led_radius_m;
+        let r = dome.light_distance_m();
         Ok(DomeScene {
             led_power: dome.led_power(cfg.rig.seed),
             led_colour: dome.led_colour(cfg.rig.seed),
@@ -93,8 +102,9 @@ impl DomeScene {
     pub fn led_colour(&self) -> &[[f64; 3]] {
         &self.led_colour
     }
-    /// Camera-RGB rate (e-/s per photosite, green) of a white Lambertian reflector facing an
-    /// LED of nominal power at the dome radius, on the optical axis.
+    /// Camera-RGB rate (e-/s per photosite, green; for flashes e- per flash) of a white
+    /// Lambertian reflector facing a light of nominal power at the nominal distance
+    /// (`DomeConfig::light_distance_m`), on the optical axis.
     pub fn nominal_irradiance(&self) -> f64 {
         self.nominal_irradiance
     }

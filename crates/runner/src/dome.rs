@@ -1,4 +1,5 @@
-//! A whole LED dome run as one library call: plan -> schedule (with the multiplexing choice)
+//! A whole dome run (an LED dome, or a camera array whose flashes are the lights: light =
+//! flash index, view = camera) as one library call: plan -> schedule (with the multiplexing choice)
 //! -> simulated dome rig -> engine (`btfrig_engine::dome`) -> pipeline
 //! (`btfrig_pipeline::dome`: collect, demultiplex, fault detection, rectify, radiometry) ->
 //! dataset store, plus the figures measured against the simulator's ground truth
@@ -57,6 +58,10 @@ pub struct DomeRunRequest {
 pub struct DomeRunSummary {
     /// The dataset directory.
     pub dataset: PathBuf,
+    /// `"led_dome"` or `"camera_array"` (the rig's `[rig] kind`).
+    pub rig_kind: &'static str,
+    /// What a light is: `"LED"` or `"flash"`.
+    pub light: &'static str,
     /// Single-LED textures committed (light = LED, view = rotation x cameras + camera).
     pub textures: u64,
     /// Frames captured (per camera), reference frames included.
@@ -106,7 +111,8 @@ impl DomeRunSummary {
     pub fn to_json(&self) -> serde_json::Value {
         json!({
             "dataset": self.dataset.display().to_string(),
-            "rig": "led_dome",
+            "rig": self.rig_kind,
+            "light": self.light,
             "captures": self.textures,
             "frames": self.frames,
             "leds": self.leds,
@@ -207,9 +213,17 @@ pub fn run(req: &DomeRunRequest, on_line: &mut dyn FnMut(&str)) -> Result<DomeRu
     let scene = Arc::new(DomeScene::new(&rig, &material).map_err(|e| input("dome scene", e))?);
     let dome = scene.dome().clone();
     let schedule = plan_dome(&rig, &v, scene.nominal_irradiance()).map_err(|e| input("dome planning", e))?;
-    on_line(&format!("dome plan: {} LEDs x {} views; {}", schedule.leds, v.cameras.len() * v.rotations.len(), schedule.reason));
+    let (what, light) = if dome.is_flash() { ("camera-array", "flash") } else { ("dome", "LED") };
+    on_line(&format!(
+        "{what} plan: {} {light}{} x {} views; {}",
+        schedule.leds,
+        if dome.is_flash() { "es" } else { "s" },
+        v.cameras.len() * v.rotations.len(),
+        schedule.reason
+    ));
 
-    // Dataset: light = LED, view = rotation x cameras + camera over the rig's whole arc.
+    // Dataset: light = LED (or flash), view = rotation x cameras + camera over all the rig's
+    // cameras (a camera array has one rotation: view = camera).
     let ncams = dome.camera_count();
     let size = v.plan.texture_size;
     let views: Vec<(usize, u32)> = v.rotations.iter().flat_map(|&k| v.cameras.iter().map(move |&c| (c, k))).collect();
@@ -277,7 +291,9 @@ pub fn run(req: &DomeRunRequest, on_line: &mut dyn FnMut(&str)) -> Result<DomeRu
     let code = match schedule.mode {
         DomeMode::Single => GroupCode::Single,
         DomeMode::Multiplexed { order } => {
-            GroupCode::multiplexed(order, scene.led_power()).map_err(|e| input("demultiplexer", e))?
+            // The lights' calibrated power at the power the patterns fire them at.
+            let a: Vec<f64> = scene.led_power().iter().map(|p| p * schedule.pattern_scale).collect();
+            GroupCode::multiplexed(order, &a).map_err(|e| input("demultiplexer", e))?
         }
     };
     if matches!(code, GroupCode::Single) {
@@ -303,7 +319,9 @@ pub fn run(req: &DomeRunRequest, on_line: &mut dyn FnMut(&str)) -> Result<DomeRu
                 .await
                 .map_err(RunError::Rig)?;
         let mut devices = DomeDevices { turntable, leds, cameras: rig_dev.cameras, clock };
-        devices.turntable.home(MoveOptions::default()).await.map_err(|e| RunError::Rig(e.to_string()))?;
+        if let Some(t) = devices.turntable.as_mut() {
+            t.home(MoveOptions::default()).await.map_err(|e| RunError::Rig(e.to_string()))?;
+        }
         let (tx, mut rx) = mpsc::channel::<DomeCapture>(4);
         let steps = schedule.steps.clone();
         let patterns = schedule.patterns.clone();
@@ -325,6 +343,8 @@ pub fn run(req: &DomeRunRequest, on_line: &mut dyn FnMut(&str)) -> Result<DomeRu
     let mut s = state.finish();
     s.warnings.splice(0..0, engine.warnings.iter().cloned());
     s.dataset = req.out.clone();
+    s.rig_kind = rig.rig.kind.as_str();
+    s.light = light;
     s.leds = schedule.leds;
     s.views = views.len();
     s.mode = match schedule.mode {
@@ -471,14 +491,15 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
                 if f.source >= self.schedule.leds {
                     continue;
                 }
+                let light = if self.processing.dome.is_flash() { "flash" } else { "LED" };
                 let line = format!(
-                    "camera {c} rotation {k}: LED {} {} (z = {:.1}{}), solved around by least squares",
+                    "camera {c} rotation {k}: {light} {} {} (z = {:.1}{}), solved around by least squares",
                     f.source,
                     f.kind.name(),
                     f.evidence.z,
                     if f.evidence.ambiguous { ", ambiguous" } else { "" }
                 );
-                self.out.faults.push(format!("camera {c} rotation {k}: LED {} {}", f.source, f.kind.name()));
+                self.out.faults.push(format!("camera {c} rotation {k}: {light} {} {}", f.source, f.kind.name()));
                 self.out.warnings.push(line);
             }
         }

@@ -560,13 +560,13 @@ async fn emulate_leds(
 /// the devices run on; keep the returned firmware until the devices are dropped.
 pub async fn connect_dome(
     devices: &DevicesConfig,
-    turntable: Box<dyn Turntable>,
+    turntable: Option<Box<dyn Turntable>>,
     leds: Box<dyn LedArray>,
     clock: SharedClock,
-) -> Result<(Box<dyn Turntable>, Box<dyn LedArray>, Firmware), String> {
+) -> Result<(Option<Box<dyn Turntable>>, Box<dyn LedArray>, Firmware), String> {
     check(devices)?;
     let mut fw = Firmware::for_devices(devices)?;
-    let turntable = emulate_turntable(&mut fw, devices, turntable, &clock)?;
+    let turntable = turntable.map(|t| emulate_turntable(&mut fw, devices, t, &clock)).transpose()?;
     let leds = emulate_leds(&mut fw, devices, leds, &clock).await?;
     Ok((turntable, leds, fw))
 }

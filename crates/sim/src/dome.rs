@@ -1,5 +1,6 @@
-//! A simulated LED dome: the turntable, the LED array and one simulated camera per arc
-//! position, all acting on one [`SimWorld`], with frames rendered from a
+//! A simulated dome rig: the turntable (an LED dome's; a camera array has none), the LED
+//! array (on a camera array: the flash triggers, one channel per camera) and one simulated
+//! camera per view position, all acting on one [`SimWorld`], with frames rendered from a
 //! [`btfrig_render::dome_scene::DomeScene`].
 //!
 //! Each camera has its own [`DomeFrameSource`] (which arc position it sees) and its own noise
@@ -74,8 +75,8 @@ impl DomeFrameSource {
         img
     }
 
-    /// The signal rate (e-/s per photosite, camera RGB) of LED intensities `leds` at
-    /// `turntable_rad`: the weighted sum of single-LED images.
+    /// The signal rate (e-/s per photosite, camera RGB; for flashes e- per flash) of LED
+    /// intensities `leds` at `turntable_rad`: the weighted sum of single-LED images.
     pub fn radiance(&self, turntable_rad: f64, leds: &[f64]) -> RadianceImage {
         let cam = self.scene.camera().model();
         let mut out = RadianceImage::black(cam.width, cam.height);
@@ -97,7 +98,7 @@ impl DomeFrameSource {
     pub fn noise_free_dn(&self, turntable_rad: f64, leds: &[f64], exposure_s: f64, gain: f64) -> Vec<f32> {
         let img = self.radiance(turntable_rad, leds);
         let s = self.scene.sensor();
-        let k = s.dn_per_electron(gain) * exposure_s;
+        let k = s.dn_per_electron(gain) * self.scene.dome().light_units(exposure_s);
         let w = img.width;
         img.data
             .iter()
@@ -118,7 +119,13 @@ impl FrameSource for DomeFrameSource {
     fn render(&self, truth: &TrueState, settings: &CaptureSettings, seed: u64) -> RawFrame {
         let sensor = self.scene.sensor();
         let (exposure_s, gain) = crate::rendered::sensor_settings(sensor, settings);
-        let img = self.radiance(truth.joints.turntable, &truth.leds);
+        let mut img = self.radiance(truth.joints.turntable, &truth.leds);
+        if self.scene.dome().is_flash() {
+            // A flash's image is its signal per flash: spread it over the exposure as a rate,
+            // so the sensor collects `light_units` flashes and its dark current the exposure.
+            let k = (self.scene.dome().light_units(exposure_s) / exposure_s) as f32;
+            img.data.iter_mut().for_each(|px| *px = px.map(|v| v * k));
+        }
         sensor.capture(&img, exposure_s, gain, seed).expect("exposure and gain were clamped into the sensor's ranges")
     }
 }
@@ -127,9 +134,9 @@ impl FrameSource for DomeFrameSource {
 pub struct DomeRig {
     /// The shared world (true turntable angle, true LED intensities, fault log).
     pub world: SimWorld,
-    /// The turntable under the sample.
-    pub turntable: Box<dyn Turntable>,
-    /// The LED array.
+    /// The turntable under the sample (`None` on a camera array).
+    pub turntable: Option<Box<dyn Turntable>>,
+    /// The LED array (a camera array's flash triggers).
     pub led_array: Box<dyn LedArray>,
     /// One camera per requested arc position, in the order asked for.
     pub cameras: Vec<Box<dyn Camera>>,
@@ -138,9 +145,9 @@ pub struct DomeRig {
 }
 
 impl DomeRig {
-    /// Builds an LED dome's devices from its rig config: `[devices.turntable]`,
+    /// Builds a dome rig's devices from its rig config: `[devices.turntable]` (LED dome only),
     /// `[devices.led_array]` (with `faults.stuck_leds`), and one camera from
-    /// `[devices.camera]` for each of `cameras` (arc indices), each with its own noise seed.
+    /// `[devices.camera]` for each of `cameras` (camera indices), each with its own noise seed.
     pub fn build(
         cfg: &RigConfig,
         faults: &FaultScenario,
@@ -160,7 +167,8 @@ impl DomeRig {
             None => return Err(ConfigError::out_of_range("cameras", "[]", "at least one camera")),
         };
         let rig = SimRig::from_rig_config(cfg, faults, clock, first)?;
-        let turntable = rig.turntable.expect("a dome config has a turntable (validated)");
+        // An LED dome has a turntable (validated); a camera array has none.
+        let turntable = rig.turntable;
         let led_array = rig.led_array.expect("a dome config has an LED array (validated)");
         let factory = factory_for(&cfg.devices.camera, "devices.camera.kind")?;
         let mut devs = Vec::new();

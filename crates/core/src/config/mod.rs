@@ -26,6 +26,9 @@ pub enum RigKind {
     /// Fixed LEDs on a hemisphere, fixed cameras on an arc, the sample on a turntable
     /// (`kind = "led_dome"`, with a `[dome]` section).
     LedDome,
+    /// Fixed cameras on a hemisphere whose flashes are the lights, no turntable
+    /// (`kind = "camera_array"`, with a `[dome]` section holding `[dome.flash]`).
+    CameraArray,
 }
 
 impl RigKind {
@@ -34,7 +37,13 @@ impl RigKind {
         match self {
             RigKind::Gonioreflectometer => "gonioreflectometer",
             RigKind::LedDome => "led_dome",
+            RigKind::CameraArray => "camera_array",
         }
+    }
+
+    /// Whether this is a dome rig (LED dome or camera array), run by the dome machinery.
+    pub fn is_dome(self) -> bool {
+        matches!(self, RigKind::LedDome | RigKind::CameraArray)
     }
 }
 
@@ -71,7 +80,7 @@ pub struct RigConfig {
     pub plate: plate::PlateConfig,
     /// Speeds, settle times and transfer rates of the devices.
     pub timing: timing::TimingConfig,
-    /// LEDs, camera arc and turntable of an LED dome (`kind = "led_dome"` only).
+    /// Lights, cameras and turntable of a dome rig (`kind = "led_dome"` or `"camera_array"` only).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub dome: Option<dome::DomeConfig>,
 }
@@ -99,14 +108,15 @@ impl RigConfig {
         ConfigError::from_list(errors)
     }
 
-    /// The `[dome]` section of an LED dome, or an error naming the rig and what `what` needs.
+    /// The `[dome]` section of a dome rig (LED dome or camera array), or an error naming the
+    /// rig and what `what` needs.
     pub fn require_dome(&self, what: &str) -> Result<&dome::DomeConfig, ConfigError> {
         match (&self.rig.kind, &self.dome) {
-            (RigKind::LedDome, Some(d)) => Ok(d),
+            (k, Some(d)) if k.is_dome() => Ok(d),
             _ => Err(ConfigError::Unknown {
                 field: "rig.kind".into(),
                 value: self.rig.kind.as_str().into(),
-                allowed: format!("\"led_dome\" with a [dome] section for {what}"),
+                allowed: format!("\"led_dome\" or \"camera_array\" with a [dome] section for {what}"),
             }),
         }
     }
@@ -119,35 +129,46 @@ impl RigConfig {
             k => Err(ConfigError::Unknown {
                 field: "rig.kind".into(),
                 value: k.as_str().into(),
-                allowed: format!("\"gonioreflectometer\" for {what} (an LED dome runs with `btfrig demo --rig dome`, docs/multiplexing.md)"),
+                allowed: format!("\"gonioreflectometer\" for {what} (LED domes and camera arrays run with `btfrig demo --rig dome` / `--rig camera-array`, docs/multiplexing.md)"),
             }),
         }
     }
 
     fn validate_kind(&self, errors: &mut Vec<ConfigError>) {
-        match (self.rig.kind, &self.dome) {
+        let kind = self.rig.kind;
+        let name = kind.as_str();
+        match (kind, &self.dome) {
             (RigKind::Gonioreflectometer, Some(_)) => errors.push(ConfigError::out_of_range(
                 "dome",
                 "a [dome] section",
-                "only with [rig] kind = \"led_dome\"",
+                "only with [rig] kind = \"led_dome\" or \"camera_array\"",
             )),
-            (RigKind::LedDome, None) => {
-                errors.push(ConfigError::out_of_range("dome", "missing", "a [dome] section for kind = \"led_dome\""))
-            }
-            (RigKind::LedDome, Some(d)) => {
-                d.validate(errors);
-                if self.devices.turntable.is_none() {
-                    errors.push(ConfigError::out_of_range(
+            (RigKind::Gonioreflectometer, None) => {}
+            (_, None) => errors.push(ConfigError::out_of_range("dome", "missing", &format!("a [dome] section for kind = \"{name}\""))),
+            (_, Some(d)) => {
+                d.validate(kind, errors);
+                let what = if kind == RigKind::CameraArray { "a camera array" } else { "an LED dome" };
+                match (kind, &self.devices.turntable) {
+                    (RigKind::LedDome, None) => errors.push(ConfigError::out_of_range(
                         "devices.turntable",
                         "missing",
                         "a [devices.turntable] entry on an LED dome",
-                    ));
+                    )),
+                    (RigKind::CameraArray, Some(_)) => errors.push(ConfigError::out_of_range(
+                        "devices.turntable",
+                        "an entry",
+                        "absent on a camera array (no turntable)",
+                    )),
+                    _ => {}
                 }
+                // A camera array's flash triggers are driven as an LED array: a pattern says
+                // which flashes fire in the next exposure, and at what power.
+                let lights = if kind == RigKind::CameraArray { "the flashes: one per camera" } else { "the LEDs of [dome] led_rings" };
                 match &self.devices.led_array {
                     None => errors.push(ConfigError::out_of_range(
                         "devices.led_array",
                         "missing",
-                        "a [devices.led_array] entry on an LED dome",
+                        &format!("a [devices.led_array] entry on {what}"),
                     )),
                     Some(e) => {
                         let count = e.options.get("count").and_then(|v| v.as_integer());
@@ -155,13 +176,12 @@ impl RigConfig {
                             errors.push(ConfigError::out_of_range(
                                 "devices.led_array.count",
                                 count.unwrap_or(0),
-                                &format!("{} (the LEDs of [dome] led_rings)", d.led_count()),
+                                &format!("{} ({lights})", d.led_count()),
                             ));
                         }
                     }
                 }
             }
-            (RigKind::Gonioreflectometer, None) => {}
         }
     }
 }

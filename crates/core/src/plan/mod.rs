@@ -51,6 +51,7 @@ pub const BUILTIN_RIGS: &[(&str, &str)] = &[
     ("builtin:bonn-gonio-serial", include_str!("../../../../rig-configs/bonn-gonio-serial.toml")),
     ("builtin:bonn-dome-sim", include_str!("../../../../rig-configs/bonn-dome-sim.toml")),
     ("builtin:bonn-dome-serial", include_str!("../../../../rig-configs/bonn-dome-serial.toml")),
+    ("builtin:bonn-camera-array-sim", include_str!("../../../../rig-configs/bonn-camera-array-sim.toml")),
 ];
 
 /// Names of the fault scenarios shipped in `sim/faults/` (file stems). The caller may pass

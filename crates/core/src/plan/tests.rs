@@ -27,14 +27,17 @@ fn every_shipped_plan_validates() {
         if path.file_name().is_some_and(|n| n.to_string_lossy().starts_with("calibration-")) {
             continue;
         }
-        // LED dome plans (`dome-*`) are the dome format, validated against the embedded dome.
-        if path.file_name().is_some_and(|n| n.to_string_lossy().starts_with("dome-")) {
+        // Dome plans (`dome-*` for the LED dome, `camera-array-*` for the camera array) are the
+        // dome format, validated against the embedded rig they name.
+        let stem = path.file_name().unwrap().to_string_lossy().into_owned();
+        if stem.starts_with("dome-") || stem.starts_with("camera-array-") {
             let text = std::fs::read_to_string(&path).unwrap();
-            let rig_text = BUILTIN_RIGS.iter().find(|(n, _)| *n == "builtin:bonn-dome-sim").unwrap().1;
+            let plan = crate::plan::dome::DomePlan::from_toml(&text, &path.display().to_string()).unwrap();
+            let rig_text = BUILTIN_RIGS.iter().find(|(n, _)| *n == plan.rig.config).unwrap_or_else(|| panic!("{stem}")).1;
             let rig = crate::config::RigConfig::from_toml(rig_text, "dome").unwrap();
-            let v = crate::plan::dome::DomePlan::from_toml(&text, &path.display().to_string())
-                .and_then(|p| p.validate(&rig))
-                .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            let want = if stem.starts_with("dome-") { "led_dome" } else { "camera_array" };
+            assert_eq!(rig.rig.kind.as_str(), want, "{stem}");
+            let v = plan.validate(&rig).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
             assert!(!v.cameras.is_empty() && !v.rotations.is_empty());
             continue;
         }
