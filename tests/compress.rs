@@ -109,6 +109,48 @@ fn compress_info_export_and_refusals() {
 }
 
 #[test]
+fn shared_basis_pcmf_is_built_described_exported_and_bad_k_refused() {
+    let dir = scratch("compress-shared");
+    let ds = dir.join("synth");
+    let l = layout(12);
+    write_dataset(&ds, &l, &mut |a| texture(&l, a), "synthetic", "tests/compress.rs", true).unwrap();
+    let args = ["--method", "pcmf", "--clusters", "4", "--terms", "4", "--shared-basis", "12"];
+    let out = ok(btfrig().arg("compress").arg(&ds).args(args));
+    // The FMF's passes only (2 + 2 x 1 power iteration), then clustering in memory.
+    assert!(out.contains("342 captures") && out.contains("4 passes") && out.contains("pcmf-4/w12"), "{out}");
+    let model = dir.join("synth.pcmf-w12.btfm");
+    assert!(model.exists(), "{out}");
+    let minfo = ok(btfrig().args(["dataset", "info"]).arg(&model));
+    assert!(minfo.contains("pcmf 4 clusters, shared basis 12 terms (format version 2)"), "{minfo}");
+    for (format, what) in [("ubo-dfmf", "re-encoded"), ("ubo-fmf", "re-encoded")] {
+        let e = ok(btfrig()
+            .args(["dataset", "export"])
+            .arg(&ds)
+            .args(["--format", format, "--model"])
+            .arg(&model)
+            .arg("--out")
+            .arg(dir.join(format!("synth-{format}.btf"))));
+        assert!(e.contains(what) && e.contains("relative RMS"), "{format}: {e}");
+    }
+    for (k, want) in [("3", "4..=1024"), ("400", "at most 144")] {
+        let o = btfrig()
+            .arg("compress")
+            .arg(&ds)
+            .args(["--method", "pcmf", "--clusters", "4", "--terms", "4", "--shared-basis", k, "--out"])
+            .arg(dir.join("bad.btfm"))
+            .output()
+            .unwrap();
+        assert!(
+            !o.status.success() && text(&o).contains("shared_basis") && text(&o).contains(want),
+            "K {k}: {}",
+            text(&o)
+        );
+    }
+    let o = btfrig().arg("compress").arg(&ds).args(["--method", "fmf", "--shared-basis", "16"]).output().unwrap();
+    assert!(!o.status.success() && text(&o).contains("only for --method pcmf"), "{}", text(&o));
+}
+
+#[test]
 fn a_nan_texel_is_refused_naming_the_capture() {
     let dir = scratch("compress-nan");
     let ds = dir.join("bad");

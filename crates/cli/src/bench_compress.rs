@@ -50,19 +50,24 @@ pub struct BenchCompressArgs {
     /// Seed of the sensor noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Fewer settings (FMF 8, PCMF 32 x 8, FMF of PCMF's storage).
+    /// Fewer settings (FMF 8, PCMF 32 x 8, FMF of PCMF's storage, PCMF 32 x 8 in a shared
+    /// basis of 32 and the FMF of its storage).
     #[arg(long)]
     pub quick: bool,
-    /// Only the acceptance pair: PCMF 32 x 8 (default local-PCA iterations) and the FMF of its
-    /// storage (no FMF 8, no PCMF without iterations; overrides `--quick`'s other rows).
+    /// Only the acceptance rows: PCMF 32 x 8 (default local-PCA iterations) and the FMF of its
+    /// storage, PCMF 32 x 8 in each shared basis and the FMF of its storage (no FMF 8, no
+    /// PCMF without iterations; overrides `--quick`'s other rows).
     #[arg(long)]
     pub equal_storage_only: bool,
-    /// Also PCMF 32 x 8 with its cluster bases in the shared angular basis of the first K
-    /// terms of the equal-storage FMF, for each K given (an experiment: the error is that of
-    /// the decoded two-level model, the size its payload; no model file holds it yet), each
-    /// against the FMF of its own storage (default of the full run: 32 64; none with `--quick`).
+    /// PCMF 32 x 8 with its cluster bases in a shared angular basis of K terms (a model of its
+    /// own, `btfrig compress --method pcmf --shared-basis K`), for each K given, each against
+    /// the FMF with the fewest terms of at least its payload; default 32, the full run 32 64.
     #[arg(long, num_args = 1..)]
     pub shared_basis: Vec<usize>,
+    /// Skip plain PCMF 32 x 8 (own basis per cluster, 18 passes) and the FMF of its storage:
+    /// only the shared-basis rows and their FMFs (with `--equal-storage-only`).
+    #[arg(long)]
+    pub no_plain_pcmf: bool,
     /// Skip sparse acquisition (which renders a second sample of lacquered-wood).
     #[arg(long)]
     pub no_sparse: bool,
@@ -261,6 +266,8 @@ pub struct Row {
     color: String,
     terms: [usize; 3],
     file_bytes: usize,
+    /// Factors plus cluster map ([`Model::payload_bytes`]): what the verdicts compare.
+    payload_bytes: usize,
     ratio: f64,
     build_s: f64,
     passes: usize,
@@ -391,12 +398,13 @@ fn run_setting(name: &str, btf: &SimBtf, p: &ModelParams) -> anyhow::Result<(Mod
     let row = Row {
         material: name.into(),
         method: match p.method {
-            Method::Pcmf { clusters } => format!("pcmf-{clusters}/r{}", p.refine_iters),
-            m => m.name().into(),
+            Method::Pcmf { clusters, shared_basis: None } => format!("pcmf-{clusters}/r{}", p.refine_iters),
+            m => m.label(),
         },
         color: p.color.name().into(),
         terms: p.terms,
         file_bytes: bytes,
+        payload_bytes: model.payload_bytes(),
         ratio: btf.raw_bytes() as f64 / bytes as f64,
         build_s: stats.total_s,
         passes: stats.passes,
@@ -454,11 +462,15 @@ fn print_row(r: &Row) {
     }
 }
 
+/// Payload of an FMF with `k` terms per channel.
+fn fmf_payload(k: usize, layout: &Layout, precision: Precision) -> usize {
+    let (m, n) = (layout.n_angular(), layout.texels());
+    3 * (m * (k + 1) + n * k + k) * precision.bytes()
+}
+
 /// FMF terms (same for the three channels) whose storage is at least `bytes` of payload.
 fn fmf_terms_for(bytes: usize, layout: &Layout, precision: Precision) -> usize {
-    let (m, n) = (layout.n_angular(), layout.texels());
-    let per = |k: usize| 3 * (m * (k + 1) + n * k + k) * precision.bytes();
-    (1..4096).find(|&k| per(k) >= bytes).unwrap_or(4096)
+    (1..4096).find(|&k| fmf_payload(k, layout, precision) >= bytes).unwrap_or(4096)
 }
 
 /// Runs the benchmark.
@@ -473,11 +485,11 @@ pub fn bench(a: &BenchCompressArgs) -> anyhow::Result<()> {
     } else {
         a.material.clone()
     };
-    // The full run adds the shared-basis experiment at two storage points.
-    let shared_basis = if a.shared_basis.is_empty() && !a.quick && !a.equal_storage_only {
-        vec![32, 64]
-    } else {
-        a.shared_basis.clone()
+    // PCMF in a shared basis: K = 32 always, the full run also 64 (unless given).
+    let shared_basis = match (a.shared_basis.is_empty(), a.quick || a.equal_storage_only) {
+        (false, _) => a.shared_basis.clone(),
+        (true, true) => vec![32],
+        (true, false) => vec![32, 64],
     };
     let mut rows = Vec::new();
     let mut measured_err = Vec::new();
@@ -549,8 +561,6 @@ pub fn bench(a: &BenchCompressArgs) -> anyhow::Result<()> {
                 "vs truth"
             );
         }
-        // Rows not built by `run` (the shared-basis experiment), appended after the material's.
-        let mut extra_rows = Vec::new();
         let mut run = |p: ModelParams| -> anyhow::Result<(Model, Row)> {
             let (m, r) = run_setting(name, &btf, &p)?;
             if !a.json {
@@ -563,86 +573,61 @@ pub fn bench(a: &BenchCompressArgs) -> anyhow::Result<()> {
             run(setting(Method::Fmf, ColorModel::Rgb, [8; 3]))?;
             // PCMF as k-means in the clustering basis then PCA (no local-PCA iteration on the
             // data), and with the default iterations: the same storage.
-            let mut plain = setting(Method::Pcmf { clusters: 32 }, ColorModel::Rgb, [8; 3]);
+            let mut plain = setting(Method::pcmf(32), ColorModel::Rgb, [8; 3]);
             plain.refine_iters = 0;
             run(plain)?;
         }
-        let (pcmf, pcmf_row) = run(setting(Method::Pcmf { clusters: 32 }, ColorModel::Rgb, [8; 3]))?;
-        let k_eq = fmf_terms_for(pcmf.payload_bytes(), &btf.layout, Precision::F16);
-        let (fmf_eq, fmf_row) = run(setting(Method::Fmf, ColorModel::Rgb, [k_eq; 3]))?;
-        let wins = pcmf_row.rel_rmse_truth < fmf_row.rel_rmse_truth;
-        let what = format!(
-            "verdict {name}: PCMF 32 x 8 ({:.2} MB) vs FMF {k_eq} terms ({:.2} MB, the fewest terms with at least \
-             PCMF's payload)",
-            pcmf_row.file_bytes as f64 / 1e6,
-            fmf_row.file_bytes as f64 / 1e6,
-        );
-        verdict_lines.push(verdict_line(what, pcmf_row.rel_rmse_truth, fmf_row.rel_rmse_truth, a.json));
-        verdicts.push(serde_json::json!({"material": name, "pcmf_rel_rmse_truth": pcmf_row.rel_rmse_truth,
-            "fmf_terms": k_eq, "fmf_rel_rmse_truth": fmf_row.rel_rmse_truth,
-            "pcmf_file_bytes": pcmf_row.file_bytes, "fmf_file_bytes": fmf_row.file_bytes, "pcmf_wins": wins}));
+        if !a.no_plain_pcmf {
+            let (pcmf, pcmf_row) = run(setting(Method::pcmf(32), ColorModel::Rgb, [8; 3]))?;
+            let k_eq = fmf_terms_for(pcmf.payload_bytes(), &btf.layout, Precision::F16);
+            let (_, fmf_row) = run(setting(Method::Fmf, ColorModel::Rgb, [k_eq; 3]))?;
+            let wins = pcmf_row.rel_rmse_truth < fmf_row.rel_rmse_truth;
+            let what = format!(
+                "verdict {name}: PCMF 32 x 8 ({:.2} MB) vs FMF {k_eq} terms ({:.2} MB, the fewest terms with at least \
+                 PCMF's payload)",
+                pcmf_row.file_bytes as f64 / 1e6,
+                fmf_row.file_bytes as f64 / 1e6,
+            );
+            verdict_lines.push(verdict_line(what, pcmf_row.rel_rmse_truth, fmf_row.rel_rmse_truth, a.json));
+            verdicts.push(serde_json::json!({"material": name, "pcmf_rel_rmse_truth": pcmf_row.rel_rmse_truth,
+                "fmf_terms": k_eq, "fmf_rel_rmse_truth": fmf_row.rel_rmse_truth,
+                "pcmf_file_bytes": pcmf_row.file_bytes, "fmf_file_bytes": fmf_row.file_bytes, "pcmf_wins": wins}));
+        }
         for &kk in &shared_basis {
-            if kk > k_eq {
-                eprintln!("shared basis {kk}: the equal-storage FMF has only {k_eq} terms; skipped");
-                continue;
-            }
-            let t = Instant::now();
-            let clusters = pcmf.clusters.as_ref().expect("PCMF has clusters");
-            let (shared, payload, sizes) = pcmf_shared_basis(&fmf_eq, clusters, kk, 8, 5);
-            let secs = t.elapsed().as_secs_f64();
-            let (tput, _) = decode_throughput(&shared, 24, 5);
-            let (em, et) = errors(&shared, &btf);
-            let r = Row {
-                material: name.clone(),
-                method: format!("pcmf-32/w{kk}"),
-                color: "rgb".into(),
-                terms: [8; 3],
-                file_bytes: payload,
-                ratio: btf.raw_bytes() as f64 / payload as f64,
-                build_s: secs,
-                passes: 0,
-                builder_peak_mb: 0.0,
-                decode_mtexel_s: tput / 1e6,
-                rel_rmse_measured: em.rel_rmse(),
-                rel_rmse_truth: et.rel_rmse(),
-                cluster_sizes: sizes.clone(),
-                refine: Vec::new(),
-                cluster_errors: Vec::new(),
-            };
-            if !a.json {
-                print_row(&r);
-                println!(
-                    "    (MB: two-level payload, no model file; build s: the in-memory step only, after PCMF ({:.0} s) and \
-                     FMF {k_eq}; clusters {}..{} texels)",
-                    pcmf_row.build_s,
-                    sizes.iter().min().unwrap_or(&0),
-                    sizes.iter().max().unwrap_or(&0)
+            if kk < 8 || kk > btfrig_compress::build::max_shared_basis(&btf.layout) {
+                anyhow::bail!(
+                    "--shared-basis {kk}: allowed 8 (the terms per cluster) ..= {}",
+                    btfrig_compress::build::max_shared_basis(&btf.layout)
                 );
             }
-            extra_rows.push(r.clone());
+            let (shared, r) = run(setting(Method::pcmf_shared(32, kk), ColorModel::Rgb, [8; 3]))?;
+            let payload = shared.payload_bytes();
+            // The FMF with the fewest terms whose payload is at least the shared PCMF's (as for
+            // plain PCMF above; stricter than the most terms with at most its payload: one more
+            // term, 137 kB at 128 x 128 texels).
             let k_w = fmf_terms_for(payload, &btf.layout, Precision::F16);
             let (_, fw) = run(setting(Method::Fmf, ColorModel::Rgb, [k_w; 3]))?;
             let wins = r.rel_rmse_truth < fw.rel_rmse_truth;
             let what = format!(
-                "verdict {name}, shared basis {kk} (experiment): PCMF 32 x 8 in W{kk} ({:.2} MB payload) vs FMF {k_w} terms \
-                 ({:.2} MB)",
+                "verdict {name}, shared basis {kk}: PCMF 32 x 8 in W{kk} ({:.2} MB payload, {:.2} MB file, built in \
+                 {:.0} s) vs FMF {k_w} terms ({:.2} MB payload, the fewest terms with at least its payload)",
                 payload as f64 / 1e6,
-                fw.file_bytes as f64 / 1e6,
+                r.file_bytes as f64 / 1e6,
+                r.build_s,
+                fw.payload_bytes as f64 / 1e6,
             );
             verdict_lines.push(verdict_line(what, r.rel_rmse_truth, fw.rel_rmse_truth, a.json));
-            verdicts.push(
-                serde_json::json!({"material": name, "shared_basis": kk, "pcmf_rel_rmse_truth": r.rel_rmse_truth,
-                "fmf_terms": k_w, "fmf_rel_rmse_truth": fw.rel_rmse_truth,
-                "pcmf_payload_bytes": payload, "fmf_file_bytes": fw.file_bytes, "pcmf_wins": wins}),
-            );
+            verdicts.push(serde_json::json!({"material": name, "shared_basis": kk,
+                "pcmf_rel_rmse_truth": r.rel_rmse_truth, "pcmf_payload_bytes": payload, "pcmf_file_bytes": r.file_bytes,
+                "pcmf_build_s": r.build_s, "fmf_terms": k_w, "fmf_payload_bytes": fw.payload_bytes,
+                "fmf_file_bytes": fw.file_bytes, "fmf_rel_rmse_truth": fw.rel_rmse_truth, "pcmf_wins": wins}));
         }
         if !a.quick && !a.equal_storage_only {
             run(setting(Method::Pvmf, ColorModel::Rgb, [8; 3]))?;
             run(setting(Method::Fmf, ColorModel::Yuv, [32, 16, 16]))?;
             run(setting(Method::Fmf, ColorModel::YlogUv, [32, 16, 16]))?;
-            run(setting(Method::Pcmf { clusters: 32 }, ColorModel::Yuv, [8, 4, 4]))?;
+            run(setting(Method::pcmf(32), ColorModel::Yuv, [8, 4, 4]))?;
         }
-        rows.extend(extra_rows);
         if name == "lacquered-wood" && !a.no_sparse {
             sparse_out = Some(sparse_bench(a, &cfg, &spec, &btf, &cache)?);
         }
@@ -759,19 +744,6 @@ fn sparse_bench(
     Ok(serde_json::Value::Array(out))
 }
 
-/// PCMF with its cluster bases in a shared angular basis (an experiment of the benchmark; no
-/// model file holds this form yet). The first `kk` terms of an FMF give every texel, per
-/// channel, a coefficient vector `c_x` in the orthonormal angular basis `W` (m x kk, shared);
-/// each cluster `j` then has a mean `a_j` and an orthonormal basis `A_j` (kk x `terms`) in
-/// those coefficients, and a texel is `μ + W (a_j + A_j t_x)` with `t_x = A_jᵀ (c_x − a_j)`:
-/// PCMF whose angular bases `W A_j` are constrained to the span of `W`, stored as `W` once
-/// plus `kk (terms + 1)` values per cluster instead of `m (terms + 1)`. Starts from `init`
-/// (the PCMF model's clusters), then `iters` local-PCA reassignments in the coefficients
-/// (the error in the span of `W`, all channels). Every stored value is rounded to f16 before
-/// the reconstruction. Returns the model in FMF form (`kk` terms, coefficients `a_j + A_j
-/// t_x`: exactly what the two-level form decodes to), its two-level payload in bytes counted
-/// as [`Model::payload_bytes`] counts (stored values x 2 + 2 bytes per texel of cluster map),
-/// and the final cluster sizes.
 /// `what`, then both errors against the truth and whether PCMF's is the lower; printed
 /// unless `json`.
 fn verdict_line(what: String, pcmf_truth: f64, fmf_truth: f64, json: bool) -> String {
@@ -781,154 +753,4 @@ fn verdict_line(what: String, pcmf_truth: f64, fmf_truth: f64, json: bool) -> St
         println!("{line}");
     }
     line
-}
-
-fn pcmf_shared_basis(fmf: &Model, init: &[u16], kk: usize, terms: usize, iters: usize) -> (Model, usize, Vec<usize>) {
-    use nalgebra::DMatrix;
-    let n = fmf.layout.texels();
-    let m = fmf.layout.n_angular();
-    let kc = init.iter().map(|&j| j as usize + 1).max().unwrap_or(1);
-    let r16 = |v: f64| f64::from(f16::from_f64(v).to_f32());
-    // Coefficients per channel, n x kk row-major.
-    let coef: Vec<Vec<f64>> = (0..3)
-        .map(|c| {
-            let p = &fmf.channels[c].parts[0];
-            assert!(p.k >= kk, "the FMF has {} terms, {kk} asked", p.k);
-            (0..n).flat_map(|x| (0..kk).map(move |j| f64::from(p.sv[x * p.k + j]))).collect()
-        })
-        .collect();
-    // Per channel and cluster: mean (kk), basis (kk x terms, column-major DMatrix).
-    let fit = |assign: &[u16]| -> Vec<Vec<(Vec<f64>, DMatrix<f64>)>> {
-        (0..3)
-            .map(|c| {
-                (0..kc)
-                    .into_par_iter()
-                    .map(|j| {
-                        let mem: Vec<usize> = (0..n).filter(|&x| assign[x] as usize == j).collect();
-                        let mut mean = vec![0.0; kk];
-                        for &x in &mem {
-                            for (i, v) in mean.iter_mut().enumerate() {
-                                *v += coef[c][x * kk + i];
-                            }
-                        }
-                        for v in &mut mean {
-                            *v /= mem.len().max(1) as f64;
-                        }
-                        let d = DMatrix::from_fn(mem.len(), kk, |r, i| coef[c][mem[r] * kk + i] - mean[i]);
-                        let (_, vecs) = btfrig_compress::linalg::sorted_eigen(btfrig_compress::linalg::at_b(&d, &d));
-                        let t = terms.min(kk);
-                        (mean, vecs.columns(0, t).into_owned())
-                    })
-                    .collect()
-            })
-            .collect()
-    };
-    let err_of = |models: &[Vec<(Vec<f64>, DMatrix<f64>)>], x: usize, j: usize| -> f64 {
-        let mut e = 0.0;
-        for c in 0..3 {
-            let (mean, a) = &models[c][j];
-            let d: Vec<f64> = (0..kk).map(|i| coef[c][x * kk + i] - mean[i]).collect();
-            let mut pe = d.iter().map(|v| v * v).sum::<f64>();
-            for t in 0..a.ncols() {
-                let p: f64 = (0..kk).map(|i| a[(i, t)] * d[i]).sum();
-                pe -= p * p;
-            }
-            e += pe;
-        }
-        e
-    };
-    let mut assign = init.to_vec();
-    for _ in 0..iters {
-        let models = fit(&assign);
-        let best: Vec<(u16, f64)> = (0..n)
-            .into_par_iter()
-            .map(|x| {
-                (0..kc).map(|j| (j as u16, err_of(&models, x, j))).min_by(|a, b| a.1.total_cmp(&b.1)).expect("clusters")
-            })
-            .collect();
-        assign = best.iter().map(|b| b.0).collect();
-        // An emptied cluster takes the worst-reconstructed texel of a cluster that keeps one.
-        btfrig_compress::cluster::reseed_empty_clusters(&mut assign, kc, |x| best[x].1);
-    }
-    let models = fit(&assign);
-    let mut out = fmf.clone();
-    for c in 0..3 {
-        let p = &mut out.channels[c].parts[0];
-        let k0 = p.k;
-        p.u = (0..m).flat_map(|r| (0..kk).map(move |j| (r, j))).map(|(r, j)| p.u[r * k0 + j]).collect();
-        p.s.truncate(kk);
-        p.k = kk;
-        let mut sv = vec![0.0f32; n * kk];
-        sv.par_chunks_mut(kk).enumerate().for_each(|(x, row)| {
-            let (mean, a) = &models[c][assign[x] as usize];
-            let mean: Vec<f64> = mean.iter().map(|&v| r16(v)).collect();
-            let d: Vec<f64> = (0..kk).map(|i| coef[c][x * kk + i] - mean[i]).collect();
-            for (i, v) in row.iter_mut().enumerate() {
-                *v = mean[i] as f32;
-            }
-            for t in 0..a.ncols() {
-                let col: Vec<f64> = (0..kk).map(|i| r16(a[(i, t)])).collect();
-                let tx = r16((0..kk).map(|i| col[i] * d[i]).sum::<f64>());
-                for (i, v) in row.iter_mut().enumerate() {
-                    *v += (col[i] * tx) as f32;
-                }
-            }
-        });
-        p.sv = sv;
-    }
-    let per_channel = m * (kk + 1) + kk + kc * kk * (terms.min(kk) + 1) + n * terms.min(kk);
-    let payload = 3 * per_channel * Precision::F16.bytes() + 2 * n;
-    let mut sizes = vec![0usize; kc];
-    for &j in &assign {
-        sizes[j as usize] += 1;
-    }
-    (out, payload, sizes)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use btfrig_compress::MemorySource;
-
-    /// One cluster with as many terms as the shared basis reproduces the FMF (up to f16), and
-    /// the payload is the two-level count.
-    #[test]
-    fn shared_basis_with_full_rank_reproduces_the_fmf() {
-        let s = bonn(9).expect("sampling");
-        let layout = Layout::full(s.clone(), s, 8, 8);
-        let (m, n) = (layout.n_angular(), layout.texels());
-        let textures: Vec<Option<Vec<[f32; 3]>>> = (0..m)
-            .map(|a| {
-                let (fa, ga) = ((a as f32 * 0.37).sin(), (a as f32 * 0.11).cos());
-                Some(
-                    (0..n)
-                        .map(|x| {
-                            std::array::from_fn(|c| {
-                                0.5 + 0.2 * fa * (x as f32 * 0.3 + c as f32).cos() + 0.1 * ga * (x as f32 * 0.7).sin()
-                            })
-                        })
-                        .collect(),
-                )
-            })
-            .collect();
-        let (fmf, _) = build::<f32>(
-            layout.clone(),
-            &setting(Method::Fmf, ColorModel::Rgb, [4; 3]),
-            &mut MemorySource { layout: &layout, textures: &textures },
-        )
-        .expect("fmf");
-        let (shared, payload, sizes) = pcmf_shared_basis(&fmf, &vec![0u16; n], 4, 4, 2);
-        assert_eq!(sizes, vec![n]);
-        assert_eq!(payload, 3 * (m * 5 + 4 + 4 * 5 + n * 4) * 2 + 2 * n);
-        let mut worst = 0.0f32;
-        for a in 0..m {
-            let (t0, t1) = (fmf.texture(a), shared.texture(a));
-            for (p, q) in t0.iter().zip(&t1) {
-                for c in 0..3 {
-                    worst = worst.max((p[c] - q[c]).abs());
-                }
-            }
-        }
-        assert!(worst < 2e-3, "worst difference {worst}");
-    }
 }

@@ -42,6 +42,16 @@ pub struct ModelArgs {
     /// reassignment pass and the models again: 1 + 2 + 2 x power-iters passes), 0..=20.
     #[arg(long, default_value_t = 2)]
     pub refine_iters: usize,
+    /// PCMF: store the cluster bases in a shared angular basis of K terms per channel (an FMF
+    /// of K terms, W once; per cluster a mean and a K x terms basis in W's coefficients): far
+    /// smaller than PCMF's own basis per cluster. K from the largest --terms to 1024 and at
+    /// most the captures and the texels.
+    #[arg(long, value_name = "K")]
+    pub shared_basis: Option<usize>,
+    /// PCMF with --shared-basis: local-PCA iterations on the coefficients in the shared basis
+    /// (in memory, no pass over the data), 0..=50.
+    #[arg(long, default_value_t = 5)]
+    pub shared_iters: usize,
 }
 
 impl ModelArgs {
@@ -50,9 +60,12 @@ impl ModelArgs {
         let method = match self.method.as_str() {
             "fmf" => Method::Fmf,
             "pvmf" => Method::Pvmf,
-            "pcmf" => Method::Pcmf { clusters: self.clusters },
+            "pcmf" => Method::Pcmf { clusters: self.clusters, shared_basis: self.shared_basis },
             m => anyhow::bail!("--method {m:?}: allowed fmf, pvmf, pcmf"),
         };
+        if let (Some(k), false) = (self.shared_basis, self.method == "pcmf") {
+            anyhow::bail!("--shared-basis {k}: only for --method pcmf (not {})", self.method);
+        }
         let mut p = ModelParams::new(method);
         p.color = ColorModel::from_name(&self.color)
             .ok_or_else(|| anyhow::anyhow!("--color {:?}: allowed rgb, yuv, ylog-uv", self.color))?;
@@ -68,6 +81,7 @@ impl ModelArgs {
         p.oversample = self.oversample;
         p.seed = self.seed;
         p.refine_iters = self.refine_iters;
+        p.shared_iters = self.shared_iters;
         p.validate()?;
         Ok(p)
     }
@@ -109,6 +123,14 @@ pub struct CompressArgs {
     pub json: bool,
 }
 
+/// The `<method>` of a default model path: `fmf`, `pvmf`, `pcmf`, `pcmf-w<K>` (a shared basis).
+pub fn path_label(method: &Method) -> String {
+    match method.shared_basis() {
+        Some(k) => format!("{}-w{k}", method.name()),
+        None => method.name().into(),
+    }
+}
+
 /// Default model path of a dataset: `<DIR>.<method>.btfm` next to it.
 pub fn default_model_path(dir: &Path, method: &str) -> PathBuf {
     let name = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "dataset".into());
@@ -126,7 +148,7 @@ pub fn peak_rss_bytes() -> Option<u64> {
 /// Builds a model of a dataset and writes it.
 pub fn compress(a: &CompressArgs) -> anyhow::Result<()> {
     let params = a.model.params()?;
-    let out = a.out.clone().unwrap_or_else(|| default_model_path(&a.dir, params.method.name()));
+    let out = a.out.clone().unwrap_or_else(|| default_model_path(&a.dir, &path_label(&params.method)));
     if out.exists() && !a.overwrite {
         anyhow::bail!(
             "{} already exists: refusing to overwrite it (--overwrite to replace, or --out FILE)",
@@ -153,6 +175,7 @@ pub fn compress(a: &CompressArgs) -> anyhow::Result<()> {
     if a.json {
         let j = serde_json::json!({
             "model": out.display().to_string(), "method": params.method.name(), "terms": params.terms,
+            "shared_basis": params.method.shared_basis(), "payload_bytes": model.payload_bytes(),
             "color": params.color.name(), "captures": captures, "texels": model.layout.texels(),
             "passes": stats.passes, "pass_s": stats.pass_s, "build_s": stats.total_s,
             "builder_peak_bytes": stats.peak_bytes, "process_peak_rss_bytes": rss,
@@ -169,7 +192,7 @@ pub fn compress(a: &CompressArgs) -> anyhow::Result<()> {
     );
     println!(
         "model     {} {:?} terms, colour {}, {:?}",
-        params.method.name(),
+        params.method.label(),
         params.terms,
         params.color.name(),
         params.precision
@@ -200,10 +223,11 @@ pub fn describe(path: &Path) -> anyhow::Result<String> {
     let captured = h.light.len() * h.view.len() - h.unmeasured.len();
     let raw = (captured * h.width * h.height * 3 * 2) as f64;
     let mut s = format!(
-        "model     {}: {}{} terms {:?}, colour {}, {}, {} light x {} view, {}x{} texels, {:.2} MB, ratio {:.1} : 1",
+        "model     {}: {}{}{} terms {:?}, colour {}, {}, {} light x {} view, {}x{} texels, {:.2} MB, ratio {:.1} : 1",
         path.display(),
         h.method,
         h.clusters.map_or(String::new(), |c| format!(" {c} clusters,")),
+        h.shared_basis.map_or(String::new(), |k| format!(" shared basis {k} terms (format version {}),", h.version)),
         terms,
         h.color,
         h.precision,
@@ -493,7 +517,7 @@ pub fn stream_params(m: btfrig_core::plan::CompressedModel) -> ModelParams {
     match m {
         CompressedModel::Fmf => default_stream_params(),
         CompressedModel::Pvmf => ModelParams::new(Method::Pvmf),
-        CompressedModel::Pcmf => ModelParams::new(Method::Pcmf { clusters: 32 }),
+        CompressedModel::Pcmf => ModelParams::new(Method::pcmf(32)),
     }
 }
 

@@ -8,6 +8,10 @@
 //!   a coefficient vector), clustering of those vectors ([`crate::cluster`]), then per channel
 //!   and cluster one over that cluster's texels; then `refine_iters` local-PCA iterations on
 //!   the data ([`crate::refine`]: a reassignment pass, then the per-cluster models again).
+//! * PCMF in a shared basis (`shared_basis: Some(K)`): per channel one FMF of `K` terms (the
+//!   same passes as FMF), then, in memory, clustering of channel 0's coefficients and
+//!   `shared_iters` local-PCA iterations on all channels' coefficients ([`crate::shared`]);
+//!   no pass after the FMF's.
 //!
 //! Every pass must deliver every measured capture exactly once ([`Builder::push`] checks
 //! indices, size, duplicates and finiteness, naming the capture), and [`Builder::end_pass`]
@@ -21,7 +25,7 @@ use serde::{Deserialize, Serialize};
 use crate::cluster::{cluster, ClusterParams};
 use crate::color::ColorModel;
 use crate::error::{bad, CompressError, Result};
-use crate::model::{Channel, Layout, Method, Model, Part, PartRows, Precision};
+use crate::model::{Channel, Layout, Method, Model, Part, PartRows, Precision, SharedBasis};
 use crate::refine::{ClusterModel, Reassign, RefineStep};
 use crate::rsvd::{Real, RsvdParams, StreamingRsvd};
 
@@ -55,6 +59,10 @@ pub struct ModelParams {
     /// its ABRDF best (all channels, every measured row), then the per-cluster models again.
     #[serde(default = "ModelParams::default_refine_iters")]
     pub refine_iters: usize,
+    /// PCMF in a shared basis: local-PCA iterations on the coefficients of every channel in
+    /// the shared basis (in memory, no pass; [`crate::shared`]).
+    #[serde(default = "ModelParams::default_shared_iters")]
+    pub shared_iters: usize,
 }
 
 impl ModelParams {
@@ -79,11 +87,16 @@ impl ModelParams {
             cluster_terms: 32,
             cluster_iters: 10,
             refine_iters: Self::default_refine_iters(),
+            shared_iters: Self::default_shared_iters(),
         }
     }
 
     const fn default_refine_iters() -> usize {
         2
+    }
+
+    const fn default_shared_iters() -> usize {
+        5
     }
 
     /// Checks every knob.
@@ -93,7 +106,7 @@ impl ModelParams {
                 return Err(bad(["terms[0]", "terms[1]", "terms[2]"][c], k, "1..=1024 per channel"));
             }
         }
-        if let Method::Pcmf { clusters } = self.method {
+        if let Method::Pcmf { clusters, .. } = self.method {
             if clusters == 0 || clusters > 4096 {
                 return Err(bad("clusters", clusters, "1..=4096"));
             }
@@ -102,6 +115,19 @@ impl ModelParams {
             }
             if self.refine_iters > 20 {
                 return Err(bad("refine_iters", self.refine_iters, "0..=20"));
+            }
+        }
+        if let Some(k) = self.method.shared_basis() {
+            let most = self.terms.iter().copied().max().unwrap_or(0);
+            if k < most || k > 1024 {
+                return Err(bad(
+                    "shared_basis",
+                    k,
+                    format!("{most}..=1024 (at least the terms per cluster, {:?})", self.terms),
+                ));
+            }
+            if self.shared_iters > 50 {
+                return Err(bad("shared_iters", self.shared_iters, "0..=50"));
             }
         }
         if !(self.log_eps > 0.0 && self.log_eps <= 1.0) {
@@ -122,10 +148,12 @@ impl ModelParams {
     }
 
     /// Total passes over the data (PCMF: the clustering basis, the per-cluster models, and
-    /// per refinement one assignment pass and the models again).
+    /// per refinement one assignment pass and the models again; PCMF in a shared basis: the
+    /// FMF's).
     pub fn passes(&self) -> usize {
         let p = 2 + 2 * self.power_iters;
         match self.method {
+            Method::Pcmf { shared_basis: Some(_), .. } => p,
             Method::Pcmf { .. } => 2 * p + self.refine_iters * (1 + p),
             _ => p,
         }
@@ -235,6 +263,8 @@ pub struct Builder<T: Real = f32> {
     refines_left: usize,
     refine_log: Vec<RefineStep>,
     clusters: Option<Vec<u16>>,
+    /// PCMF in a shared basis: the finished channels (after the FMF passes).
+    shared: Option<Vec<Channel>>,
     seen: Vec<bool>,
     pass: usize,
     peak_bytes: usize,
@@ -246,6 +276,21 @@ impl<T: Real> Builder<T> {
         params.validate()?;
         if layout.n_measured() == 0 {
             return Err(bad("measured captures", 0, "at least 1"));
+        }
+        if let Some(k) = params.method.shared_basis() {
+            let most = max_shared_basis(&layout);
+            if k > most {
+                return Err(bad(
+                    "shared_basis",
+                    k,
+                    format!(
+                        "at most {most}: the FMF of {} measured captures x {} texels has no more terms (nor more \
+                         than 1024)",
+                        layout.n_measured(),
+                        layout.texels()
+                    ),
+                ));
+            }
         }
         let mut parts = Vec::new();
         let phase = if matches!(params.method, Method::Pcmf { .. }) { Phase::Basis } else { Phase::Parts };
@@ -280,6 +325,11 @@ impl<T: Real> Builder<T> {
                     }
                 }
             }
+            Method::Pcmf { shared_basis: Some(k), .. } => {
+                for c in 0..3 {
+                    parts.push(PartBuilder::new(&layout, c, PartRows::All, None, &params.rsvd(k, 7 + c as u64))?);
+                }
+            }
             Method::Pcmf { .. } => {
                 parts.push(PartBuilder::new(&layout, 0, PartRows::All, None, &params.rsvd(params.cluster_terms, 7))?);
             }
@@ -293,6 +343,7 @@ impl<T: Real> Builder<T> {
             refines_left,
             refine_log: Vec::new(),
             clusters: None,
+            shared: None,
             seen,
             pass: 0,
             peak_bytes: 0,
@@ -425,6 +476,11 @@ impl<T: Real> Builder<T> {
         self.pass += 1;
         self.seen.fill(false);
         self.peak_bytes = self.peak_bytes.max(self.memory_bytes());
+        if !more && matches!(self.phase, Phase::Basis) && self.params.method.shared_basis().is_some() {
+            self.finish_shared()?;
+            self.phase = Phase::Parts;
+            return Ok(false);
+        }
         if !more && matches!(self.phase, Phase::Basis) {
             self.start_clusters()?;
             self.phase = Phase::Parts;
@@ -461,8 +517,63 @@ impl<T: Real> Builder<T> {
         Ok(())
     }
 
+    /// PCMF in a shared basis: the FMF of every channel is done; clusters and fits the
+    /// two-level model in memory ([`crate::shared`]).
+    fn finish_shared(&mut self) -> Result<()> {
+        let Method::Pcmf { clusters, .. } = self.params.method else { unreachable!("shared basis only for PCMF") };
+        let fill = self.layout.fill_weights();
+        let precision = self.params.precision;
+        let parts = std::mem::take(&mut self.parts);
+        let mut fmf: Vec<(usize, Vec<f32>, Vec<f32>, Vec<f32>, nalgebra::DMatrix<f64>)> = parts
+            .into_par_iter()
+            .map(|pb| {
+                let svd = pb.rsvd.finish()?;
+                let (mut mean, mut u) = full_rows(&self.layout, &fill, pb.rows, &pb.rowmap, &pb.mean, &svd.u);
+                for v in mean.iter_mut().chain(u.iter_mut()) {
+                    *v = crate::shared::round(f64::from(*v), precision);
+                }
+                Ok((pb.channel, mean, u, svd.s.iter().map(|&s| s as f32).collect(), svd.sv))
+            })
+            .collect::<Result<_>>()?;
+        fmf.sort_by_key(|f| f.0);
+        let init = cluster(
+            &fmf[0].4,
+            &ClusterParams {
+                clusters,
+                terms: self.params.terms[0],
+                kmeans_iters: 10,
+                local_iters: self.params.cluster_iters,
+                seed: self.params.seed,
+            },
+        );
+        let coef: Vec<nalgebra::DMatrix<f64>> = fmf.iter().map(|f| f.4.clone()).collect();
+        let fit = crate::shared::fit(&coef, &init, self.params.terms, self.params.shared_iters, precision);
+        let mut channels = Vec::new();
+        for ((_, mean, w, s, sv), cf) in fmf.into_iter().zip(fit.channels) {
+            let sh = SharedBasis {
+                k: sv.ncols(),
+                mean,
+                w,
+                s,
+                cluster_mean: cf.cluster_mean,
+                cluster_basis: cf.cluster_basis,
+            };
+            let parts = (0..sh.cluster_mean.len())
+                .zip(cf.s.into_iter().zip(cf.coef))
+                .map(|(j, (s, coef))| {
+                    let (mean, u) = sh.expand(j);
+                    Part { rows: PartRows::All, k: sh.terms(j), mean, u, s, sv: coef }
+                })
+                .collect();
+            channels.push(Channel { parts, shared: Some(sh) });
+        }
+        self.clusters = Some(fit.assign);
+        self.shared = Some(channels);
+        Ok(())
+    }
+
     fn start_clusters(&mut self) -> Result<()> {
-        let Method::Pcmf { clusters } = self.params.method else { unreachable!("clustering only for PCMF") };
+        let Method::Pcmf { clusters, .. } = self.params.method else { unreachable!("clustering only for PCMF") };
         let first = self.parts.pop().expect("the clustering part");
         let svd = first.rsvd.finish()?;
         let assign = cluster(
@@ -511,7 +622,20 @@ impl<T: Real> Builder<T> {
             return Err(CompressError::State(format!("finish after {} of {} passes", self.pass, self.params.passes())));
         }
         let layout = self.layout;
-        let nl = layout.n_light();
+        if let Some(channels) = self.shared {
+            let mut model = Model {
+                method: self.params.method,
+                color: self.params.color,
+                log_eps: self.params.log_eps,
+                precision: self.params.precision,
+                layout,
+                channels,
+                clusters: self.clusters,
+                cluster_col: Vec::new(),
+            };
+            model.index_clusters();
+            return Ok(model);
+        }
         let fill = layout.fill_weights();
         let precision = self.params.precision;
         let built: Vec<(usize, Part)> = self
@@ -520,47 +644,7 @@ impl<T: Real> Builder<T> {
             .map(|pb| {
                 let svd = pb.rsvd.finish()?;
                 let k = svd.s.len();
-                let n_rows = match pb.rows {
-                    PartRows::All => layout.n_angular(),
-                    PartRows::View(_) => nl,
-                };
-                let mut mean = vec![0.0f32; n_rows];
-                let mut u = vec![0.0f32; n_rows * k];
-                let mut known = vec![false; n_rows];
-                let row_of = |a: usize| match pb.rows {
-                    PartRows::All => Some(a),
-                    PartRows::View(v) => (a / nl == v).then_some(a % nl),
-                };
-                for (a, &r) in pb.rowmap.iter().enumerate() {
-                    if r != u32::MAX {
-                        let pr = row_of(a).expect("mapped rows are in the part");
-                        mean[pr] = pb.mean[r as usize] as f32;
-                        for j in 0..k {
-                            u[pr * k + j] = svd.u[(r as usize, j)] as f32;
-                        }
-                        known[pr] = true;
-                    }
-                }
-                for (a, weights) in &fill {
-                    let Some(pr) = row_of(*a) else { continue };
-                    let ws: Vec<(usize, f64)> =
-                        weights.iter().filter_map(|&(b, w)| row_of(b).filter(|&r| known[r]).map(|r| (r, w))).collect();
-                    let total: f64 = ws.iter().map(|w| w.1).sum();
-                    if total <= 0.0 {
-                        continue;
-                    }
-                    let (mut m, mut row) = (0.0f64, vec![0.0f64; k]);
-                    for &(r, w) in &ws {
-                        m += w * f64::from(mean[r]);
-                        for j in 0..k {
-                            row[j] += w * f64::from(u[r * k + j]);
-                        }
-                    }
-                    mean[pr] = (m / total) as f32;
-                    for j in 0..k {
-                        u[pr * k + j] = (row[j] / total) as f32;
-                    }
-                }
+                let (mean, u) = full_rows(&layout, &fill, pb.rows, &pb.rowmap, &pb.mean, &svd.u);
                 let ncols = svd.sv.nrows();
                 let mut sv = vec![0.0f32; ncols * k];
                 for x in 0..ncols {
@@ -577,8 +661,7 @@ impl<T: Real> Builder<T> {
                 Ok((pb.channel, part))
             })
             .collect::<Result<_>>()?;
-        let mut channels =
-            vec![Channel { parts: Vec::new() }, Channel { parts: Vec::new() }, Channel { parts: Vec::new() }];
+        let mut channels = vec![Channel::new(Vec::new()), Channel::new(Vec::new()), Channel::new(Vec::new())];
         for (c, p) in built {
             channels[c].parts.push(p);
         }
@@ -595,6 +678,69 @@ impl<T: Real> Builder<T> {
         model.index_clusters();
         Ok(model)
     }
+}
+
+/// The most terms a shared basis can have on `layout`: those of its FMF, at most the measured
+/// captures and the texels (and 1024).
+pub fn max_shared_basis(layout: &Layout) -> usize {
+    layout.n_measured().min(layout.texels()).min(1024)
+}
+
+/// A part's mean and angular basis over all its rows (part rows x k, row-major) from the
+/// measured rows of a finished sketch, unmeasured rows filled by `fill` (see
+/// [`Layout::fill_weights`]).
+fn full_rows(
+    layout: &Layout,
+    fill: &[(usize, Vec<(usize, f64)>)],
+    rows: PartRows,
+    rowmap: &[u32],
+    measured_mean: &[f64],
+    su: &nalgebra::DMatrix<f64>,
+) -> (Vec<f32>, Vec<f32>) {
+    let nl = layout.n_light();
+    let k = su.ncols();
+    let n_rows = match rows {
+        PartRows::All => layout.n_angular(),
+        PartRows::View(_) => nl,
+    };
+    let mut mean = vec![0.0f32; n_rows];
+    let mut u = vec![0.0f32; n_rows * k];
+    let mut known = vec![false; n_rows];
+    let row_of = |a: usize| match rows {
+        PartRows::All => Some(a),
+        PartRows::View(v) => (a / nl == v).then_some(a % nl),
+    };
+    for (a, &r) in rowmap.iter().enumerate() {
+        if r != u32::MAX {
+            let pr = row_of(a).expect("mapped rows are in the part");
+            mean[pr] = measured_mean[r as usize] as f32;
+            for j in 0..k {
+                u[pr * k + j] = su[(r as usize, j)] as f32;
+            }
+            known[pr] = true;
+        }
+    }
+    for (a, weights) in fill.iter() {
+        let Some(pr) = row_of(*a) else { continue };
+        let ws: Vec<(usize, f64)> =
+            weights.iter().filter_map(|&(b, w)| row_of(b).filter(|&r| known[r]).map(|r| (r, w))).collect();
+        let total: f64 = ws.iter().map(|w| w.1).sum();
+        if total <= 0.0 {
+            continue;
+        }
+        let (mut m, mut row) = (0.0f64, vec![0.0f64; k]);
+        for &(r, w) in &ws {
+            m += w * f64::from(mean[r]);
+            for j in 0..k {
+                row[j] += w * f64::from(u[r * k + j]);
+            }
+        }
+        mean[pr] = (m / total) as f32;
+        for j in 0..k {
+            u[pr * k + j] = (row[j] / total) as f32;
+        }
+    }
+    (mean, u)
 }
 
 /// Refuses a texture with a NaN or infinite texel, naming the capture and the texel.

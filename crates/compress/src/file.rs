@@ -3,7 +3,7 @@
 //! ```text
 //! offset  size  field
 //! 0       8     magic "BTFRIGMD"
-//! 8       4     u32 LE format version (1)
+//! 8       4     u32 LE format version (1; 2 for a PCMF in a shared basis)
 //! 12      4     u32 LE header length H
 //! 16      H     header: UTF-8 JSON (method, colour model, samplings, sizes, parts, arrays)
 //! 16+H    32    SHA-256 of the header bytes
@@ -16,6 +16,12 @@
 //! rows x k, row-major), `.s` (k, always f32), `.sv` (part columns x k, row-major); then for
 //! PCMF `clusters` (u16 per texel, row-major). `mean`, `u`, `sv` are f16 or f32 as the
 //! header's `precision` says.
+//!
+//! Version 2 (written only for a PCMF in a shared basis, header `shared_basis: K`; every
+//! other model is still written as version 1, byte for byte as before): per channel first
+//! `c{c}.w.mean` (angular rows), `c{c}.w.u` (angular rows x K), `c{c}.w.s` (K, f32), then per
+//! part `c{c}.p{p}.a` (K), `.b` (K x k), `.s` (k, f32), `.sv` (part columns x k). The parts'
+//! mean and basis are not stored: the reader expands them ([`crate::model::SharedBasis::expand`]).
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -27,12 +33,24 @@ use sha2::{Digest, Sha256};
 
 use crate::color::ColorModel;
 use crate::error::{CompressError, Result};
-use crate::model::{Channel, Layout, Method, Model, Part, PartRows, Precision};
+use crate::model::{Channel, Layout, Method, Model, Part, PartRows, Precision, SharedBasis};
 
 /// First 8 bytes of a model file.
 pub const MAGIC: &[u8; 8] = b"BTFRIGMD";
-/// Format version this build writes and reads.
+/// Format version of every model without a shared basis (read and written).
 pub const VERSION: u32 = 1;
+/// Format version of a PCMF in a shared basis (read and written); readers of version 1 only
+/// refuse it by its version.
+pub const VERSION_SHARED: u32 = 2;
+
+/// The version `model` is written as.
+pub fn version_of(model: &Model) -> u32 {
+    if model.channels.iter().any(|c| c.shared.is_some()) {
+        VERSION_SHARED
+    } else {
+        VERSION
+    }
+}
 /// File name extension.
 pub const EXTENSION: &str = "btfm";
 
@@ -74,6 +92,9 @@ pub struct Header {
     pub method: String,
     /// PCMF: number of clusters.
     pub clusters: Option<usize>,
+    /// PCMF in a shared basis (version 2): terms `K` of the shared angular basis.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shared_basis: Option<usize>,
     /// Colour model name.
     pub color: String,
     /// `eps` of the log colour model.
@@ -116,6 +137,13 @@ pub fn header_of(model: &Model, source: serde_json::Value) -> Header {
     let mut channels = Vec::new();
     for (c, ch) in model.channels.iter().enumerate() {
         let mut parts = Vec::new();
+        if let Some(sh) = &ch.shared {
+            for (what, len, dtype) in
+                [("mean", sh.mean.len(), &dt), ("u", sh.w.len(), &dt), ("s", sh.s.len(), &"f32".to_string())]
+            {
+                arrays.push(ArrayHeader { name: format!("c{c}.w.{what}"), dtype: dtype.clone(), len });
+            }
+        }
         for (p, part) in ch.parts.iter().enumerate() {
             parts.push(PartHeader {
                 view: match part.rows {
@@ -126,9 +154,13 @@ pub fn header_of(model: &Model, source: serde_json::Value) -> Header {
                 rows: part.n_rows(),
                 cols: part.n_cols(),
             });
+            let angular = match &ch.shared {
+                None => [("mean", part.mean.len()), ("u", part.u.len())],
+                Some(sh) => [("a", sh.cluster_mean[p].len()), ("b", sh.cluster_basis[p].len())],
+            };
             for (what, len, dtype) in [
-                ("mean", part.mean.len(), &dt),
-                ("u", part.u.len(), &dt),
+                (angular[0].0, angular[0].1, &dt),
+                (angular[1].0, angular[1].1, &dt),
                 ("s", part.s.len(), &"f32".to_string()),
                 ("sv", part.sv.len(), &dt),
             ] {
@@ -143,12 +175,13 @@ pub fn header_of(model: &Model, source: serde_json::Value) -> Header {
     let deg = |s: &Sampling| s.directions().iter().map(|d| [d.theta.to_degrees(), d.phi.to_degrees()]).collect();
     Header {
         format: "btfrig-model".into(),
-        version: VERSION,
+        version: version_of(model),
         method: model.method.name().into(),
         clusters: match model.method {
-            Method::Pcmf { clusters } => Some(clusters),
+            Method::Pcmf { clusters, .. } => Some(clusters),
             _ => None,
         },
+        shared_basis: model.method.shared_basis(),
         color: model.color.name().into(),
         log_eps: model.log_eps,
         precision: dt,
@@ -185,7 +218,7 @@ pub fn encode(model: &Model, source: serde_json::Value) -> Vec<u8> {
     let json = serde_json::to_vec(&header).expect("header serialises");
     let mut out = Vec::with_capacity(model.payload_bytes() + json.len() + 4096);
     out.extend_from_slice(MAGIC);
-    out.extend_from_slice(&VERSION.to_le_bytes());
+    out.extend_from_slice(&header.version.to_le_bytes());
     out.extend_from_slice(&(json.len() as u32).to_le_bytes());
     out.extend_from_slice(&json);
     out.extend_from_slice(&Sha256::digest(&json));
@@ -195,8 +228,20 @@ pub fn encode(model: &Model, source: serde_json::Value) -> Vec<u8> {
         out.extend_from_slice(&Sha256::digest(&payload));
     };
     for ch in &model.channels {
-        for part in &ch.parts {
-            for v in [&part.mean, &part.u, &part.s, &part.sv] {
+        if let Some(sh) = &ch.shared {
+            for v in [&sh.mean, &sh.w, &sh.s] {
+                let a = arr.next().expect("header lists every array");
+                let mut p = Vec::with_capacity(v.len() * 4);
+                put_f(&mut p, v, &a.dtype);
+                emit(&mut out, p);
+            }
+        }
+        for (j, part) in ch.parts.iter().enumerate() {
+            let angular = match &ch.shared {
+                None => [&part.mean, &part.u],
+                Some(sh) => [&sh.cluster_mean[j], &sh.cluster_basis[j]],
+            };
+            for v in [angular[0], angular[1], &part.s, &part.sv] {
                 let a = arr.next().expect("header lists every array");
                 let mut p = Vec::with_capacity(v.len() * 4);
                 put_f(&mut p, v, &a.dtype);
@@ -284,12 +329,23 @@ fn parse_header<'a>(path: &'a Path, bytes: &'a [u8]) -> Result<(Header, Reader<'
         return Err(r.fail(format!("not a btfrig model file: magic {magic:?}, expected {MAGIC:?}")));
     }
     let version = r.u32("version")?;
-    if version != VERSION {
-        return Err(r.fail(format!("format version {version} is not supported: this build reads version {VERSION}")));
+    if version != VERSION && version != VERSION_SHARED {
+        return Err(r.fail(format!(
+            "format version {version} is not supported: this build reads versions {VERSION} and {VERSION_SHARED}"
+        )));
     }
     let hl = r.u32("header length")? as usize;
     let json = r.checked(hl, "header")?;
     let header: Header = serde_json::from_slice(json).map_err(|e| r.fail(format!("header JSON: {e}")))?;
+    if header.version != version {
+        return Err(r.fail(format!("header says version {}, the binary field {version}", header.version)));
+    }
+    if (version == VERSION_SHARED) != header.shared_basis.is_some() {
+        return Err(r.fail(format!(
+            "version {version} with shared_basis {:?}: a shared basis is version {VERSION_SHARED} exactly",
+            header.shared_basis
+        )));
+    }
     Ok((header, r))
 }
 
@@ -309,11 +365,16 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<Model> {
         p => return Err(fail(format!("precision {p:?}: allowed f16, f32"))),
     };
     let color = ColorModel::from_name(&h.color).ok_or_else(|| fail(format!("colour model {:?} unknown", h.color)))?;
-    let method = match (h.method.as_str(), h.clusters) {
-        ("fmf", _) => Method::Fmf,
-        ("pvmf", _) => Method::Pvmf,
-        ("pcmf", Some(c)) => Method::Pcmf { clusters: c },
-        (m, c) => return Err(fail(format!("method {m:?} (clusters {c:?}): allowed fmf, pvmf, pcmf with clusters"))),
+    let method = match (h.method.as_str(), h.clusters, h.shared_basis) {
+        ("fmf", _, None) => Method::Fmf,
+        ("pvmf", _, None) => Method::Pvmf,
+        ("pcmf", Some(c), shared_basis) => Method::Pcmf { clusters: c, shared_basis },
+        (m, c, k) => {
+            return Err(fail(format!(
+                "method {m:?} (clusters {c:?}, shared basis {k:?}): allowed fmf, pvmf, pcmf with clusters \
+                 (a shared basis only for pcmf)"
+            )))
+        }
     };
     let sampling = |name: &str, d: &[[f64; 2]]| {
         Sampling::from_list(name, d.iter().map(|x| Direction::from_degrees(x[0], x[1])).collect())
@@ -355,19 +416,48 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<Model> {
     let mut channels = Vec::new();
     for (c, parts_h) in h.channels.iter().enumerate() {
         let mut parts = Vec::new();
+        let mut shared = match h.shared_basis {
+            None => None,
+            Some(k) => {
+                let m = layout.n_angular();
+                let n = |w: &str| format!("c{c}.w.{w}");
+                let mean = next(&mut r, m, &n("mean"))?;
+                let w = next(&mut r, m * k, &n("u"))?;
+                let s = next(&mut r, k, &n("s"))?;
+                Some(SharedBasis { k, mean, w, s, cluster_mean: Vec::new(), cluster_basis: Vec::new() })
+            }
+        };
         for (p, ph) in parts_h.iter().enumerate() {
             let n = |w: &str| format!("c{c}.p{p}.{w}");
-            let mean = next(&mut r, ph.rows, &n("mean"))?;
-            let u = next(&mut r, ph.rows * ph.k, &n("u"))?;
-            let s = next(&mut r, ph.k, &n("s"))?;
-            let sv = next(&mut r, ph.cols * ph.k, &n("sv"))?;
             let rows = match ph.view {
                 None => PartRows::All,
                 Some(v) => PartRows::View(v),
             };
+            let (mean, u) = match &mut shared {
+                None => (next(&mut r, ph.rows, &n("mean"))?, next(&mut r, ph.rows * ph.k, &n("u"))?),
+                Some(sh) => {
+                    if ph.view.is_some() || ph.rows != sh.n_rows() || ph.k > sh.k {
+                        return Err(fail(format!(
+                            "channel {c} part {p}: view {:?}, {} rows, {} terms in a shared basis of {} rows x {} \
+                             terms (expected every row, at most {} terms)",
+                            ph.view,
+                            ph.rows,
+                            ph.k,
+                            sh.n_rows(),
+                            sh.k,
+                            sh.k
+                        )));
+                    }
+                    sh.cluster_mean.push(next(&mut r, sh.k, &n("a"))?);
+                    sh.cluster_basis.push(next(&mut r, sh.k * ph.k, &n("b"))?);
+                    sh.expand(p)
+                }
+            };
+            let s = next(&mut r, ph.k, &n("s"))?;
+            let sv = next(&mut r, ph.cols * ph.k, &n("sv"))?;
             parts.push(Part { rows, k: ph.k, mean, u, s, sv });
         }
-        channels.push(Channel { parts });
+        channels.push(Channel { parts, shared });
     }
     let clusters = if matches!(method, Method::Pcmf { .. }) {
         let a = arrays.next().ok_or_else(|| fail("array clusters missing".into()))?;

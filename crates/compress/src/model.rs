@@ -10,6 +10,13 @@
 //! * **FMF** (full matrix factorization): one part, all rows and texels.
 //! * **PVMF** (per-view): one part per view $v$ over its $n_L$ rows.
 //! * **PCMF** (per-cluster, local PCA): one part per cluster of texels $k(x)$, all rows.
+//! * **PCMF in a shared basis** (`shared_basis: Some(K)`): PCMF whose cluster bases lie in
+//!   the span of one angular basis $W \in \mathbb{R}^{m \times K}$ per channel (the first $K$
+//!   FMF terms, with the FMF mean $\mu$): $\mu_j = \mu + W a_j$, $U_j = W A_j$, with
+//!   $a_j \in \mathbb{R}^K$, $A_j \in \mathbb{R}^{K \times k}$ ([`SharedBasis`], built by
+//!   [`crate::shared`]). Stored: $\mu$, $W$ once, $a_j, A_j$ per cluster, the texel
+//!   coefficients; the parts' $\mu_j, U_j$ are expanded from them ([`SharedBasis::expand`]),
+//!   so every decoding path treats the model as a PCMF.
 //!
 //! $\mu_p$ is the part's mean ABRDF (PCA centring). Pairs that were not measured (the rig
 //! cannot reach them) get rows interpolated barycentrically from the measured lights of the
@@ -37,6 +44,10 @@ pub enum Method {
     Pcmf {
         /// Clusters of texels.
         clusters: usize,
+        /// `Some(K)`: the cluster bases lie in a shared angular basis of `K` terms per
+        /// channel ([`SharedBasis`]); `None`: each cluster stores its own angular basis.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        shared_basis: Option<usize>,
     },
 }
 
@@ -47,6 +58,33 @@ impl Method {
             Method::Fmf => "fmf",
             Method::Pvmf => "pvmf",
             Method::Pcmf { .. } => "pcmf",
+        }
+    }
+
+    /// PCMF with its own angular basis per cluster.
+    pub const fn pcmf(clusters: usize) -> Self {
+        Method::Pcmf { clusters, shared_basis: None }
+    }
+
+    /// PCMF with its cluster bases in a shared angular basis of `basis` terms.
+    pub const fn pcmf_shared(clusters: usize, basis: usize) -> Self {
+        Method::Pcmf { clusters, shared_basis: Some(basis) }
+    }
+
+    /// PCMF: the terms of the shared angular basis, if any.
+    pub fn shared_basis(&self) -> Option<usize> {
+        match self {
+            Method::Pcmf { shared_basis, .. } => *shared_basis,
+            _ => None,
+        }
+    }
+
+    /// A label with the parameters: `fmf`, `pvmf`, `pcmf-32`, `pcmf-32/w32`.
+    pub fn label(&self) -> String {
+        match self {
+            Method::Pcmf { clusters, shared_basis: None } => format!("pcmf-{clusters}"),
+            Method::Pcmf { clusters, shared_basis: Some(k) } => format!("pcmf-{clusters}/w{k}"),
+            m => m.name().into(),
         }
     }
 }
@@ -260,6 +298,92 @@ pub fn dot(a: &[f32], b: &[f32]) -> f32 {
 pub struct Channel {
     /// The parts (1 for FMF, one per view for PVMF, one per cluster for PCMF).
     pub parts: Vec<Part>,
+    /// PCMF in a shared basis: the stored two-level angular factors; the parts' `mean` and
+    /// `u` are [`SharedBasis::expand`]ed from them (not stored), their `s` and `sv` are.
+    pub shared: Option<SharedBasis>,
+}
+
+impl Channel {
+    /// A channel whose parts store their own angular factors.
+    pub fn new(parts: Vec<Part>) -> Self {
+        Channel { parts, shared: None }
+    }
+
+    /// Values stored for this channel (means, bases, coefficients, singular values; for a
+    /// shared basis the two-level form, not the expanded parts).
+    pub fn stored_values(&self) -> usize {
+        match &self.shared {
+            None => self.parts.iter().map(|p| p.mean.len() + p.u.len() + p.sv.len() + p.s.len()).sum(),
+            Some(sh) => sh.stored_values() + self.parts.iter().map(|p| p.sv.len() + p.s.len()).sum::<usize>(),
+        }
+    }
+}
+
+/// The two-level angular factors of one channel of a PCMF in a shared basis (see the module
+/// documentation): $\mu$ and $W$ once, $a_j$ and $A_j$ per cluster.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SharedBasis {
+    /// Terms `K` of the shared basis.
+    pub k: usize,
+    /// Mean ABRDF $\mu$, one value per angular index.
+    pub mean: Vec<f32>,
+    /// Shared angular basis $W$, angular rows x `k`, row-major.
+    pub w: Vec<f32>,
+    /// Singular values of $W$'s FMF (informational), `k`.
+    pub s: Vec<f32>,
+    /// Per cluster, its mean in $W$'s coefficients $a_j$, `k` values.
+    pub cluster_mean: Vec<Vec<f32>>,
+    /// Per cluster, its basis in $W$'s coefficients $A_j$, `k` x terms, row-major.
+    pub cluster_basis: Vec<Vec<f32>>,
+}
+
+impl SharedBasis {
+    /// Stored values: $\mu$, $W$, its singular values, every $a_j$ and $A_j$.
+    pub fn stored_values(&self) -> usize {
+        self.mean.len()
+            + self.w.len()
+            + self.s.len()
+            + self.cluster_mean.iter().map(Vec::len).sum::<usize>()
+            + self.cluster_basis.iter().map(Vec::len).sum::<usize>()
+    }
+
+    /// Angular rows.
+    pub fn n_rows(&self) -> usize {
+        self.mean.len()
+    }
+
+    /// Terms of cluster `j`'s basis.
+    pub fn terms(&self, j: usize) -> usize {
+        self.cluster_basis[j].len().checked_div(self.k).unwrap_or(0)
+    }
+
+    /// Cluster `j`'s mean $\mu + W a_j$ and basis $W A_j$ (angular rows x terms, row-major),
+    /// accumulated in f64 in a fixed order, so the builder and the file reader get the same
+    /// bits. Cost: `rows * K * (terms + 1)` multiply-adds per cluster.
+    pub fn expand(&self, j: usize) -> (Vec<f32>, Vec<f32>) {
+        let (m, k, t) = (self.n_rows(), self.k, self.terms(j));
+        let (a, b) = (&self.cluster_mean[j], &self.cluster_basis[j]);
+        let mut mean = vec![0.0f32; m];
+        let mut u = vec![0.0f32; m * t];
+        let mut acc = vec![0.0f64; t];
+        for r in 0..m {
+            let w = &self.w[r * k..(r + 1) * k];
+            let mut mu = f64::from(self.mean[r]);
+            acc.fill(0.0);
+            for i in 0..k {
+                let wi = f64::from(w[i]);
+                mu += wi * f64::from(a[i]);
+                for (q, s) in acc.iter_mut().zip(&b[i * t..(i + 1) * t]) {
+                    *q += wi * f64::from(*s);
+                }
+            }
+            mean[r] = mu as f32;
+            for (d, q) in u[r * t..(r + 1) * t].iter_mut().zip(&acc) {
+                *d = *q as f32;
+            }
+        }
+        (mean, u)
+    }
 }
 
 /// Numeric precision of a model's stored factors.
@@ -322,13 +446,16 @@ impl Model {
         std::array::from_fn(|c| self.channels.get(c).and_then(|ch| ch.parts.first()).map_or(0, |p| p.k))
     }
 
-    /// Stored values (means, bases, coefficients, singular values) over all channels.
+    /// Stored values (means, bases, coefficients, singular values) over all channels; for a
+    /// PCMF in a shared basis the two-level form ([`Channel::stored_values`]).
     pub fn stored_values(&self) -> usize {
-        self.channels.iter().flat_map(|c| &c.parts).map(|p| p.mean.len() + p.u.len() + p.sv.len() + p.s.len()).sum()
+        self.channels.iter().map(Channel::stored_values).sum()
     }
 
     /// Bytes of the factors at the model's precision plus the cluster map (2 bytes per
     /// texel): what storage comparisons use (the file adds a header, see [`crate::file`]).
+    /// Singular values are counted at the precision too (the file holds them as f32: a few
+    /// hundred bytes more).
     pub fn payload_bytes(&self) -> usize {
         self.stored_values() * self.precision.bytes() + self.clusters.as_ref().map_or(0, |c| 2 * c.len())
     }

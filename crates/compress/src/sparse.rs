@@ -190,9 +190,14 @@ pub fn reconstruct(basis: &Model, source: &mut dyn RowSource, ridge: f64) -> Res
                 sv[x * p.k + j] = coeff[(j, x)] as f32;
             }
         }
-        channels.push(Channel {
-            parts: vec![Part { rows: PartRows::All, k: p.k, mean: p.mean.clone(), u: p.u.clone(), s: p.s.clone(), sv }],
-        });
+        channels.push(Channel::new(vec![Part {
+            rows: PartRows::All,
+            k: p.k,
+            mean: p.mean.clone(),
+            u: p.u.clone(),
+            s: p.s.clone(),
+            sv,
+        }]));
     }
     let mut measured = vec![false; layout.n_angular()];
     for &a in &rows {

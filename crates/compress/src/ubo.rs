@@ -610,11 +610,33 @@ fn row_major(m: &DMatrix<f64>) -> Vec<f32> {
     out
 }
 
-/// Channel `d` of the model as `A C^T` (A: angular x r, C: texels x r).
+/// Channel `d` of the model as `A C^T` (A: angular x r, C: texels x r). A PCMF in a shared
+/// basis is `[mu | W] [1 | a_j + A_j t_x]^T` (r = K + 1, not clusters x (terms + 1)): the same
+/// values as its expanded parts, a smaller factored form for the SVD.
 fn part_factors(model: &Model, d: usize) -> (DMatrix<f64>, DMatrix<f64>) {
     let (m, n) = (model.layout.n_angular(), model.layout.texels());
     let nl = model.layout.n_light();
     let parts = &model.channels[d].parts;
+    if let (Some(sh), Some(cl)) = (&model.channels[d].shared, &model.clusters) {
+        let k = sh.k;
+        let a =
+            DMatrix::<f64>::from_fn(m, k + 1, |r, j| f64::from(if j == 0 { sh.mean[r] } else { sh.w[r * k + j - 1] }));
+        let mut c = DMatrix::<f64>::zeros(n, k + 1);
+        for x in 0..n {
+            let (j, col) = (cl[x] as usize, model.cluster_col[x] as usize);
+            let (t, b) = (parts[j].k, &sh.cluster_basis[j]);
+            let tx = &parts[j].sv[col * t..(col + 1) * t];
+            c[(x, 0)] = 1.0;
+            for i in 0..k {
+                let mut v = f64::from(sh.cluster_mean[j][i]);
+                for q in 0..t {
+                    v += f64::from(b[i * t + q]) * f64::from(tx[q]);
+                }
+                c[(x, 1 + i)] = v;
+            }
+        }
+        return (a, c);
+    }
     let r: usize = parts.iter().map(|p| p.k + 1).sum();
     let mut a = DMatrix::<f64>::zeros(m, r);
     let mut c = DMatrix::<f64>::zeros(n, r);

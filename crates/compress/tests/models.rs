@@ -74,7 +74,7 @@ fn rank_deficient_btf_is_reproduced_by_every_method() {
     for (w, r) in [(6usize, 2usize), (10, 3)] {
         let l = layout(w);
         let btf = low_rank(&l, r, w as u64);
-        for method in [Method::Fmf, Method::Pvmf, Method::Pcmf { clusters: 3 }] {
+        for method in [Method::Fmf, Method::Pvmf, Method::pcmf(3)] {
             for color in [ColorModel::Rgb, ColorModel::Yuv] {
                 // Rank r per channel, plus the mean: r + 1 terms are enough for FMF and PVMF
                 // (YUV mixes channels: 3 r + 1).
@@ -91,7 +91,7 @@ fn rank_deficient_btf_is_reproduced_by_every_method() {
 fn constant_btf_and_constant_textures() {
     let l = layout(8);
     let btf: Btf = (0..l.n_angular()).map(|a| Some(vec![[0.25 + 0.01 * a as f32, 0.5, 0.75]; l.texels()])).collect();
-    for method in [Method::Fmf, Method::Pvmf, Method::Pcmf { clusters: 4 }] {
+    for method in [Method::Fmf, Method::Pvmf, Method::pcmf(4)] {
         for color in ColorModel::ALL {
             let m = fit(&l, &btf, &params(method, color, 3));
             let e = rel_err(&m, &btf);
@@ -120,7 +120,7 @@ fn bad_input_is_refused_naming_the_capture() {
     btf[a].as_mut().unwrap()[6][1] = f32::INFINITY;
     let e = build::<f32>(
         l.clone(),
-        &params(Method::Pcmf { clusters: 2 }, ColorModel::Yuv, 2),
+        &params(Method::pcmf(2), ColorModel::Yuv, 2),
         &mut MemorySource { layout: &l, textures: &btf },
     )
     .err()
@@ -137,7 +137,7 @@ fn bad_input_is_refused_naming_the_capture() {
     assert!(matches!(e, CompressError::MissingCaptures { pass: 1, missing: 224, expected: 225, .. }), "{e}");
     assert!(e.to_string().contains("(light 1, view 0)"), "{e}");
     // Bad knobs are named.
-    let mut p = params(Method::Pcmf { clusters: 0 }, ColorModel::Rgb, 2);
+    let mut p = params(Method::pcmf(0), ColorModel::Rgb, 2);
     assert!(btfrig_compress::Builder::<f32>::new(l.clone(), p.clone())
         .err()
         .unwrap()
@@ -152,7 +152,7 @@ fn bad_input_is_refused_naming_the_capture() {
 fn f32_and_f64_builds_agree() {
     let l = layout(12);
     let btf = low_rank(&l, 6, 3);
-    for method in [Method::Fmf, Method::Pcmf { clusters: 3 }] {
+    for method in [Method::Fmf, Method::pcmf(3)] {
         let p = params(method, ColorModel::Yuv, 4);
         let a = build::<f32>(l.clone(), &p, &mut MemorySource { layout: &l, textures: &btf }).unwrap().0;
         let b = build::<f64>(l.clone(), &p, &mut MemorySource { layout: &l, textures: &btf }).unwrap().0;
@@ -193,7 +193,7 @@ fn pcmf_beats_fmf_of_the_same_storage_on_a_two_material_btf() {
             )
         })
         .collect();
-    let pc = fit(&l, &btf, &params(Method::Pcmf { clusters: 2 }, ColorModel::Rgb, 7));
+    let pc = fit(&l, &btf, &params(Method::pcmf(2), ColorModel::Rgb, 7));
     let same = pc.payload_bytes();
     // FMF with at least the same storage.
     let mut k = 1;
@@ -277,7 +277,7 @@ fn model_files_round_trip_and_refuse_damage() {
     l.measured[i] = false;
     let btf = low_rank(&l, 2, 8);
     for (method, prec) in
-        [(Method::Fmf, Precision::F32), (Method::Pvmf, Precision::F16), (Method::Pcmf { clusters: 3 }, Precision::F16)]
+        [(Method::Fmf, Precision::F32), (Method::Pvmf, Precision::F16), (Method::pcmf(3), Precision::F16)]
     {
         let mut p = params(method, ColorModel::Yuv, 3);
         p.precision = prec;
@@ -311,9 +311,15 @@ fn model_files_round_trip_and_refuse_damage() {
         long.push(0);
         let e = file::decode(&path, &long).err().unwrap();
         assert!(e.to_string().contains("1 trailing bytes"), "{e}");
+        let mut v3 = bytes.clone();
+        v3[8] = 3;
+        assert!(file::decode(&path, &v3).err().unwrap().to_string().contains("version 3 is not supported"));
+        // Version 2 is the shared basis': a version-1 header under it is refused.
         let mut v2 = bytes.clone();
         v2[8] = 2;
-        assert!(file::decode(&path, &v2).err().unwrap().to_string().contains("version 2 is not supported"));
+        let e = file::decode(&path, &v2).err().unwrap().to_string();
+        assert!(e.contains("header says version 1, the binary field 2"), "{e}");
+        assert_eq!(bytes[8], 1, "{method:?} is written as version 1");
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
@@ -322,11 +328,9 @@ fn model_files_round_trip_and_refuse_damage() {
 fn bonn_containers_follow_the_spec_bytes_and_decode_to_the_model() {
     let l = layout(5);
     let btf = low_rank(&l, 2, 9);
-    for (color, method) in [
-        (ColorModel::Rgb, Method::Fmf),
-        (ColorModel::Yuv, Method::Pcmf { clusters: 2 }),
-        (ColorModel::YlogUv, Method::Fmf),
-    ] {
+    for (color, method) in
+        [(ColorModel::Rgb, Method::Fmf), (ColorModel::Yuv, Method::pcmf(2)), (ColorModel::YlogUv, Method::Fmf)]
+    {
         let m = fit(&l, &btf, &params(method, color, 7));
         for size in [2u8, 4] {
             let (u, fit) = ubo::to_dfmf(&m, None, size).unwrap();
