@@ -538,13 +538,7 @@ impl<T: Real> Builder<T> {
         fmf.sort_by_key(|f| f.0);
         let init = cluster(
             &fmf[0].4,
-            &ClusterParams {
-                clusters,
-                terms: self.params.terms[0],
-                kmeans_iters: 10,
-                local_iters: self.params.cluster_iters,
-                seed: self.params.seed,
-            },
+            &self.cluster_params(clusters),
         );
         let coef: Vec<nalgebra::DMatrix<f64>> = fmf.iter().map(|f| f.4.clone()).collect();
         let fit = crate::shared::fit(&coef, &init, self.params.terms, self.params.shared_iters, precision);
@@ -572,19 +566,24 @@ impl<T: Real> Builder<T> {
         Ok(())
     }
 
+    /// The clustering of both PCMF forms: k-means, then local-PCA iterations.
+    fn cluster_params(&self, clusters: usize) -> ClusterParams {
+        ClusterParams {
+            clusters,
+            terms: self.params.terms[0],
+            kmeans_iters: 10,
+            local_iters: self.params.cluster_iters,
+            seed: self.params.seed,
+        }
+    }
+
     fn start_clusters(&mut self) -> Result<()> {
         let Method::Pcmf { clusters, .. } = self.params.method else { unreachable!("clustering only for PCMF") };
         let first = self.parts.pop().expect("the clustering part");
         let svd = first.rsvd.finish()?;
         let assign = cluster(
             &svd.sv,
-            &ClusterParams {
-                clusters,
-                terms: self.params.terms[0],
-                kmeans_iters: 10,
-                local_iters: self.params.cluster_iters,
-                seed: self.params.seed,
-            },
+            &self.cluster_params(clusters),
         );
         self.start_parts(&assign)
     }
