@@ -659,4 +659,3 @@ fn demo_rig_camera_array_multiplexes_all_151_flashes_end_to_end() {
     let e = fails(btfrig().args(["kinematics", "check", "--rig", "camera-array"]));
     assert!(e.contains("camera_array") && e.contains("gonioreflectometer"), "{e}");
 }
-

@@ -267,4 +267,42 @@ fn r8_plan_compressed_model_is_written_by_the_run() {
     // The same plan again: the dataset is complete, nothing is captured or built.
     let again = ok(btfrig().args(["run", "--plan"]).arg(&plan).arg("--out").arg(&data));
     assert!(again.contains("nothing to do"), "{again}");
+    // PCMF 32 x 8 in a shared basis of 32 terms, asked for by the flag (42 captures >= 32).
+    let shared = dir.join("shared");
+    let plain = dir.join("plain.toml");
+    std::fs::write(&plain, &base).unwrap();
+    let run =
+        ok(btfrig().args(["run", "--plan"]).arg(&plain).arg("--out").arg(&shared).args(["--compress", "pcmf-shared"]));
+    assert!(run.contains("compression       pcmf-w32 ->"), "{run}");
+    let m = btfrig_compress::file::read(&dir.join("shared.pcmf-w32.btfm")).unwrap();
+    assert_eq!(m.method, btfrig_compress::Method::pcmf_shared(32, 32));
+    let mut src = btfrig_compress::dataset::DatasetSource::open(&shared).unwrap();
+    let e = btfrig_compress::eval::error_against(&m, &mut src).unwrap().rel_rmse();
+    assert!(e < 0.2, "shared-basis model of the run: rel RMSE {e} against its textures");
+    // Too few captures for a basis of 32 terms: refused before anything is captured, by the
+    // plan key and by the flag alike.
+    let small = dir.join("small.toml");
+    std::fs::write(
+        &small,
+        format!(
+            "{base}
+[skip]
+max_captures = 12
+[outputs]
+compressed_model = \"pcmf-shared\"
+"
+        ),
+    )
+    .unwrap();
+    for extra in [&[][..], &["--compress", "pcmf-shared"][..]] {
+        let out_dir = dir.join(format!("small-{}", extra.len()));
+        let out = btfrig().args(["run", "--plan"]).arg(&small).arg("--out").arg(&out_dir).args(extra).output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "pcmf-shared on 12 captures must be refused");
+        assert!(err.contains("pcmf-shared") && err.contains("32 terms") && err.contains("captures 12 pairs"), "{err}");
+        assert!(
+            !out_dir.join("journal.btfj").exists() && !out_dir.join("textures").exists(),
+            "nothing may be captured: {err}"
+        );
+    }
 }

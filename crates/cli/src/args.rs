@@ -212,8 +212,9 @@ pub struct RunArgs {
     /// is corrected with its dark model and master flat before demosaicing (docs/dark-flat.md).
     #[arg(long, value_name = "DIR")]
     pub dark_flat: Option<std::path::PathBuf>,
-    /// Build a linear model of the BTF while the run captures (fmf, pvmf or pcmf with the
-    /// `btfrig compress` defaults; fmf: YUV 16/8/8 terms) and write it next to the dataset
+    /// Build a linear model of the BTF while the run captures (fmf, pvmf, pcmf or pcmf-shared
+    /// with the `btfrig compress` defaults; fmf: YUV 16/8/8 terms; pcmf-shared: PCMF 32 x 8
+    /// in a shared basis of 32 terms) and write it next to the dataset
     /// (docs/compression.md). Overrides the plan's `outputs.compressed_model`.
     #[arg(long, value_name = "METHOD")]
     pub compress: Option<String>,

@@ -511,13 +511,15 @@ pub fn default_stream_params() -> ModelParams {
 
 /// The parameters of the model a run builds (`btfrig run --compress`, the plan's
 /// `outputs.compressed_model`): FMF [`default_stream_params`], PVMF and PCMF (32 clusters)
-/// with `btfrig compress`'s defaults.
+/// with `btfrig compress`'s defaults, PCMF 32 x 8 in a shared basis of
+/// [`CompressedModel::SHARED_BASIS_TERMS`](btfrig_core::plan::CompressedModel::SHARED_BASIS_TERMS).
 pub fn stream_params(m: btfrig_core::plan::CompressedModel) -> ModelParams {
     use btfrig_core::plan::CompressedModel;
     match m {
         CompressedModel::Fmf => default_stream_params(),
         CompressedModel::Pvmf => ModelParams::new(Method::Pvmf),
         CompressedModel::Pcmf => ModelParams::new(Method::pcmf(32)),
+        CompressedModel::PcmfShared => ModelParams::new(Method::pcmf_shared(32, CompressedModel::SHARED_BASIS_TERMS)),
     }
 }
 
@@ -538,11 +540,12 @@ impl Streaming {
     /// it against the dataset; the figures as JSON.
     pub fn finish(self) -> anyhow::Result<serde_json::Value> {
         let (model, report) = self.compressor.finish()?;
-        let mut out = default_model_path(&self.dir, self.params.method.name());
+        let label = path_label(&self.params.method);
+        let mut out = default_model_path(&self.dir, &label);
         let mut n = 1;
         while out.exists() {
             n += 1;
-            out = default_model_path(&self.dir, &format!("{}-{n}", self.params.method.name()));
+            out = default_model_path(&self.dir, &format!("{label}-{n}"));
         }
         let mut src = DatasetSource::open(&self.dir)?;
         let t = std::time::Instant::now();
@@ -559,7 +562,7 @@ impl Streaming {
             // model included: read after the model is written.
             "peak_rss_mib": btfrig_runner::peak_rss_mib(),
             "compression_model": out.display().to_string(),
-            "compression_method": self.params.method.name(),
+            "compression_method": label,
             "compression_terms": self.params.terms,
             "compression_ratio": raw / bytes as f64,
             "compression_rel_rmse": rel,

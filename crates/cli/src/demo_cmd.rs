@@ -161,14 +161,21 @@ fn run_dome(a: &DemoArgs, demo: DomeDemo) -> anyhow::Result<ExitCode> {
     }
     let f = |v: Option<f64>| v.map(|r| format!("{r:.3}")).unwrap_or_else(|| "n/a".into());
     println!("btfrig demo: plan {:?} on the simulated {}", demo.name, demo.rig);
-    println!("  textures          {} ({} {} x {} views), {} frames per camera", s.textures, s.leds, demo.lights, s.views, s.frames);
+    println!(
+        "  textures          {} ({} {} x {} views), {} frames per camera",
+        s.textures, s.leds, demo.lights, s.views, s.frames
+    );
     println!("  mode              {}: {}", s.mode, s.multiplex_reason);
     println!(
         "  SNR gain          predicted {:.3}, measured {} (demultiplexed vs single-light frames, against noise-free renders)",
         s.multiplex_gain_predicted,
         f(s.multiplex_gain_measured)
     );
-    let of = if s.light == "flash" { "frames single-flash capture averages" } else { "exposure time single-light capture needs" };
+    let of = if s.light == "flash" {
+        "frames single-flash capture averages"
+    } else {
+        "exposure time single-light capture needs"
+    };
     println!("  time saved        {:.1} % of the {of} for the same SNR", 100.0 * s.time_saved_fraction);
     println!("  rig time          {:.1} s ({:.1} s exposing)", s.hardware_s, s.exposure_time_s);
     println!(

@@ -28,7 +28,10 @@ pub fn show(file: &Path) -> anyhow::Result<()> {
     let text = std::fs::read_to_string(file).map_err(|e| anyhow::anyhow!("cannot read {}: {e}", file.display()))?;
     let d = btfrig_runner::dry_run::dry_run(&text, file)?;
     println!("plan {:?} from {} (hash {:016x})", d.name, file.display(), d.plan_hash);
-    println!("rig {}, exposure {:.4} s per capture, {} bytes transferred per frame", d.rig, d.exposure_s, d.frame_bytes);
+    println!(
+        "rig {}, exposure {:.4} s per capture, {} bytes transferred per frame",
+        d.rig, d.exposure_s, d.frame_bytes
+    );
     for (reason, n) in &d.plan_skips {
         println!("skipped by the plan: {n} ({reason})");
     }

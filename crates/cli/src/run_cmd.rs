@@ -24,7 +24,7 @@ pub fn run(a: &RunArgs) -> anyhow::Result<ExitCode> {
         .with_faults(a.faults.clone())
         .with_light(a.light.as_deref().map(crate::calibrate_light_cmd::load).transpose()?)
         .with_dark_flat(a.dark_flat.as_deref().map(load_dark_flat).transpose()?);
-    let streaming = match model_to_build(a.compress.as_deref(), &req.plan_text)? {
+    let streaming = match model_to_build(a.compress.as_deref(), &req.plan_text, &a.plan)? {
         None => None,
         Some(m) => Some(crate::compress_cmd::Streaming::start(&a.out, crate::compress_cmd::stream_params(m))?),
     };
@@ -51,12 +51,24 @@ pub fn run(a: &RunArgs) -> anyhow::Result<ExitCode> {
 pub fn model_to_build(
     flag: Option<&str>,
     plan_text: &str,
+    plan_path: &std::path::Path,
 ) -> anyhow::Result<Option<btfrig_core::plan::CompressedModel>> {
     use btfrig_core::plan::{CompressedModel, Plan};
     if let Some(m) = flag {
-        return CompressedModel::from_name(m)
-            .map(Some)
-            .ok_or_else(|| anyhow::anyhow!("--compress {m:?}: allowed fmf, pvmf, pcmf"));
+        let model = CompressedModel::from_name(m)
+            .ok_or_else(|| anyhow::anyhow!("--compress {m:?}: allowed fmf, pvmf, pcmf, pcmf-shared"))?;
+        if model == CompressedModel::PcmfShared {
+            // The plan's own key is checked by validation; the flag overrides it, so check here,
+            // before anything is captured. A plan that does not validate is refused by the run.
+            if let Ok((_, v)) = btfrig_runner::plan::load_text(plan_text, plan_path) {
+                if let Some(why) = v.shared_basis_problem() {
+                    let allowed = btfrig_core::plan::SHARED_BASIS_ALLOWED
+                        .replace("{k}", &CompressedModel::SHARED_BASIS_TERMS.to_string());
+                    anyhow::bail!("--compress \"pcmf-shared\": {why}: allowed {allowed}");
+                }
+            }
+        }
+        return Ok(Some(model));
     }
     Ok(Plan::from_toml(plan_text, "plan").ok().and_then(|p| p.outputs.compressed_model.model().ok().flatten()))
 }

@@ -37,9 +37,9 @@ use serde::{Deserialize, Serialize};
 pub use error::{PlanError, PlanErrors};
 
 pub use validate::{
-    CaptureList, CompressedModel, ExistingDataset, ExposurePolicy, HdrMode, HdrSettings, MaterialRef, OnRegistrationFailure,
-    OutputFormat, Outputs, PlanContext, Region, RegistrationMethod, RegistrationPolicy, ResampleFilter, SkipReason,
-    TextureSettings, UnreachablePair, ValidatedPlan,
+    CaptureList, CompressedModel, ExistingDataset, ExposurePolicy, HdrMode, HdrSettings, MaterialRef,
+    OnRegistrationFailure, OutputFormat, Outputs, PlanContext, Region, RegistrationMethod, RegistrationPolicy,
+    ResampleFilter, SkipReason, TextureSettings, UnreachablePair, ValidatedPlan, SHARED_BASIS_ALLOWED,
 };
 
 /// The rig config name that selects the embedded default simulated gonioreflectometer.
@@ -464,8 +464,9 @@ pub struct OutputsSpec {
     #[serde(default)]
     pub texture_previews: bool,
     /// A compressed BTF model the run builds while it captures (docs/compression.md):
-    /// `false` (default) or `"none"`: no model; `"fmf"`, `"pvmf"`, `"pcmf"`: that model,
-    /// written next to the dataset as `<DIR>.<method>.btfm`; `true`: the default model,
+    /// `false` (default) or `"none"`: no model; `"fmf"`, `"pvmf"`, `"pcmf"`, `"pcmf-shared"`
+    /// (PCMF 32 x 8 in a shared basis of 32 terms): that model, written next to the dataset
+    /// as `<DIR>.<method>.btfm`; `true`: the default model,
     /// `"fmf"`. A derived output, not part of [`Plan::content_hash`].
     #[serde(default)]
     pub compressed_model: CompressedModelSpec,
@@ -481,7 +482,7 @@ pub struct OutputsSpec {
 pub enum CompressedModelSpec {
     /// `false`: none; `true`: the default model (FMF).
     Flag(bool),
-    /// `"none"`, `"fmf"`, `"pvmf"` or `"pcmf"`.
+    /// `"none"`, `"fmf"`, `"pvmf"`, `"pcmf"` or `"pcmf-shared"`.
     Method(String),
 }
 
@@ -492,7 +493,7 @@ impl<'de> Deserialize<'de> for CompressedModelSpec {
         impl serde::de::Visitor<'_> for V {
             type Value = CompressedModelSpec;
             fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
-                f.write_str("false, true, or one of \"fmf\", \"pvmf\", \"pcmf\", \"none\"")
+                f.write_str("false, true, or one of \"fmf\", \"pvmf\", \"pcmf\", \"pcmf-shared\", \"none\"")
             }
             fn visit_bool<E: serde::de::Error>(self, v: bool) -> Result<Self::Value, E> {
                 Ok(CompressedModelSpec::Flag(v))

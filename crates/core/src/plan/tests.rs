@@ -33,7 +33,8 @@ fn every_shipped_plan_validates() {
         if stem.starts_with("dome-") || stem.starts_with("camera-array-") {
             let text = std::fs::read_to_string(&path).unwrap();
             let plan = crate::plan::dome::DomePlan::from_toml(&text, &path.display().to_string()).unwrap();
-            let rig_text = BUILTIN_RIGS.iter().find(|(n, _)| *n == plan.rig.config).unwrap_or_else(|| panic!("{stem}")).1;
+            let rig_text =
+                BUILTIN_RIGS.iter().find(|(n, _)| *n == plan.rig.config).unwrap_or_else(|| panic!("{stem}")).1;
             let rig = crate::config::RigConfig::from_toml(rig_text, "dome").unwrap();
             let want = if stem.starts_with("dome-") { "led_dome" } else { "camera_array" };
             assert_eq!(rig.rig.kind.as_str(), want, "{stem}");
@@ -342,7 +343,9 @@ fn a_sparse_subset_captures_only_its_pairs_and_changes_the_hash() {
 
 #[test]
 fn compressed_model_names_a_model_and_is_not_content() {
-    let model = |t: &str| validate(&format!("{MINIMAL}[outputs]\ncompressed_model = {t}\n")).map(|v| v.outputs.compressed_model);
+    let model = |t: &str| {
+        validate(&format!("{MINIMAL}[outputs]\ncompressed_model = {t}\n")).map(|v| v.outputs.compressed_model)
+    };
     assert_eq!(validate(MINIMAL).unwrap().outputs.compressed_model, None);
     assert_eq!(model("false").unwrap(), None);
     assert_eq!(model("\"none\"").unwrap(), None);
@@ -350,6 +353,10 @@ fn compressed_model_names_a_model_and_is_not_content() {
     assert_eq!(model("\"fmf\"").unwrap(), Some(CompressedModel::Fmf));
     assert_eq!(model("\"pvmf\"").unwrap(), Some(CompressedModel::Pvmf));
     assert_eq!(model("\"pcmf\"").unwrap(), Some(CompressedModel::Pcmf));
+    assert_eq!(model("\"pcmf-shared\"").unwrap(), Some(CompressedModel::PcmfShared));
+    for m in [CompressedModel::Fmf, CompressedModel::Pvmf, CompressedModel::Pcmf, CompressedModel::PcmfShared] {
+        assert_eq!(CompressedModel::from_name(m.name()), Some(m));
+    }
     let e = model("\"PCMF\"").unwrap_err().to_string();
     assert!(e.contains("outputs.compressed_model") && e.contains("\"fmf\", \"pvmf\", \"pcmf\""), "{e}");
     // A wrong type names what is allowed too.
@@ -360,6 +367,13 @@ fn compressed_model_names_a_model_and_is_not_content() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("outputs.compressed_model") && e.contains("textures = true"), "{e}");
+    // A shared basis of 32 terms needs 32 captures: refused before the run, naming both counts.
+    let e = validate(&format!("{MINIMAL}[outputs]\ncompressed_model = \"pcmf-shared\"\n[skip]\nmax_captures = 20\n"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("outputs.compressed_model") && e.contains("32 terms") && e.contains("captures 20 pairs"), "{e}");
+    assert!(validate(&format!("{MINIMAL}[outputs]\ncompressed_model = \"pcmf-shared\"\n[skip]\nmax_captures = 32\n"))
+        .is_ok());
     // A derived output: the dataset's content (and so resume) does not depend on it.
     let hash = |t: &str| Plan::from_toml(&format!("{MINIMAL}{t}"), "h").unwrap().content_hash();
     assert_eq!(hash("[outputs]\ncompressed_model = \"pcmf\"\n"), hash(""));

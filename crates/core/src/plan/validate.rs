@@ -284,24 +284,35 @@ pub enum CompressedModel {
     Pvmf,
     /// Per-cluster factorization (local PCA).
     Pcmf,
+    /// Per-cluster factorization with the cluster bases in one shared angular basis of
+    /// [`CompressedModel::SHARED_BASIS_TERMS`] terms (`btfrig compress --method pcmf
+    /// --shared-basis 32`): the compact form of PCMF 32 x 8.
+    PcmfShared,
 }
 
 impl CompressedModel {
+    /// Terms of the shared angular basis of [`CompressedModel::PcmfShared`]: the storage
+    /// point where PCMF 32 x 8 beat the FMF of its size on every material measured
+    /// (docs/benchmarks.md). A basis cannot have more terms than the run has captures.
+    pub const SHARED_BASIS_TERMS: usize = 32;
+
     /// The name as written in a plan and on the command line (`btfrig compress --method`).
     pub fn name(self) -> &'static str {
         match self {
             CompressedModel::Fmf => "fmf",
             CompressedModel::Pvmf => "pvmf",
             CompressedModel::Pcmf => "pcmf",
+            CompressedModel::PcmfShared => "pcmf-shared",
         }
     }
 
-    /// The model called `name` (`"fmf"`, `"pvmf"`, `"pcmf"`).
+    /// The model called `name` (`"fmf"`, `"pvmf"`, `"pcmf"`, `"pcmf-shared"`).
     pub fn from_name(name: &str) -> Option<Self> {
         match name {
             "fmf" => Some(CompressedModel::Fmf),
             "pvmf" => Some(CompressedModel::Pvmf),
             "pcmf" => Some(CompressedModel::Pcmf),
+            "pcmf-shared" => Some(CompressedModel::PcmfShared),
             _ => None,
         }
     }
@@ -523,7 +534,7 @@ impl Plan {
         }
         let (rig, (light, light_source_indices), (view, view_source_indices)) =
             (rig.expect("no errors"), light.expect("no errors"), view.expect("no errors"));
-        Ok(ValidatedPlan {
+        let plan = ValidatedPlan {
             name: self.name.clone(),
             plan_hash,
             rig,
@@ -543,7 +554,9 @@ impl Plan {
             registration: registration.expect("no errors"),
             resume,
             sparse,
-        })
+        };
+        check_shared_basis(&plan)?;
+        Ok(plan)
     }
 
     /// [`Plan::from_toml`] then [`Plan::validate`], with `origin` in every error.
@@ -553,6 +566,46 @@ impl Plan {
             e.origin = origin.to_string();
             e
         })
+    }
+}
+
+/// `outputs.compressed_model = "pcmf-shared"` on a plan too small for it: refused before the
+/// run rather than when the model is built after it.
+fn check_shared_basis(plan: &ValidatedPlan) -> Result<(), PlanErrors> {
+    if plan.outputs.compressed_model != Some(CompressedModel::PcmfShared) {
+        return Ok(());
+    }
+    match plan.shared_basis_problem() {
+        None => Ok(()),
+        Some(why) => Err(PlanErrors {
+            origin: String::new(),
+            errors: vec![PlanError::invalid(
+                "outputs.compressed_model",
+                "\"pcmf-shared\"",
+                why,
+                SHARED_BASIS_ALLOWED.replace("{k}", &CompressedModel::SHARED_BASIS_TERMS.to_string()),
+            )],
+        }),
+    }
+}
+
+/// What is allowed instead of a shared basis that does not fit (`{k}` = its terms).
+pub const SHARED_BASIS_ALLOWED: &str = "\"pcmf\" or \"fmf\", or a plan of at least {k} captures and {k} texels";
+
+impl ValidatedPlan {
+    /// Why this plan cannot build [`CompressedModel::PcmfShared`], if it cannot: a shared
+    /// basis of K terms needs at least K captures and K texels.
+    pub fn shared_basis_problem(&self) -> Option<String> {
+        let k = CompressedModel::SHARED_BASIS_TERMS;
+        let captures = self.capture_list().captures.len();
+        let texels = self.texture.size * self.texture.size;
+        if captures < k {
+            Some(format!("its shared basis has {k} terms and the plan captures {captures} pairs"))
+        } else if texels < k {
+            Some(format!("its shared basis has {k} terms and a texture has {texels} texels"))
+        } else {
+            None
+        }
     }
 }
 
@@ -1272,7 +1325,7 @@ fn resolve_outputs(o: &OutputsSpec, errors: &mut Vec<PlanError>) -> Option<Outpu
         errors.push(PlanError::unknown(
             "outputs.compressed_model",
             m,
-            "\"fmf\", \"pvmf\", \"pcmf\", \"none\", false, or true (= \"fmf\")",
+            "\"fmf\", \"pvmf\", \"pcmf\", \"pcmf-shared\", \"none\", false, or true (= \"fmf\")",
         ));
         None
     });
