@@ -636,6 +636,46 @@ fn demo_rig_dome_runs_a_multiplexed_dome_measurement_end_to_end() {
     assert!(e.contains("led_dome") && e.contains("gonioreflectometer"), "{e}");
 }
 
+/// A dome plan goes through `plan check`, `plan show` (the noise model's choice, frames, rig
+/// time) and `btfrig run` like a gonio plan; gonio-only run flags are refused by name.
+#[test]
+fn dome_plans_are_checked_shown_and_run() {
+    let dir = scratch("dome-plan");
+    let plan = dir.join("dome.toml");
+    std::fs::write(
+        &plan,
+        "name = \"cli-dome\"\ntexture_size = 8\n[rig]\nconfig = \"builtin:bonn-dome-sim\"\nmaterial = \"leather\"\n\
+         [dome]\ncameras = [4]\nrotations = [1]\n",
+    )
+    .unwrap();
+    let check = ok(btfrig().args(["plan", "check"]).arg(&plan));
+    assert!(check.contains("valid dome plan \"cli-dome\"") && check.contains("198 LEDs x 1 views"), "{check}");
+    let show = ok(btfrig().args(["plan", "show"]).arg(&plan));
+    for want in [
+        "mode s-matrix 199: multiplexing with s-matrix 199",
+        "single-light",
+        "<- the noise model's choice",
+        "203 per camera",
+        "estimated rig time at least",
+    ] {
+        assert!(show.contains(want), "{want:?} missing from:\n{show}");
+    }
+    let e =
+        fails(btfrig().args(["run", "--plan"]).arg(&plan).arg("--out").arg(dir.join("x")).args(["--compress", "fmf"]));
+    assert!(e.contains("--compress") && e.contains("dome plan") && e.contains("--faults"), "{e}");
+    let out = dir.join("run");
+    let run = ok(btfrig().args(["run", "--plan"]).arg(&plan).arg("--out").arg(&out));
+    assert!(run.contains("198 (198 LEDs x 1 views), 203 frames per camera") && run.contains("s-matrix 199"), "{run}");
+    ok(btfrig().args(["dataset", "verify"]).arg(&out));
+    // Again: every view group is committed, nothing is captured.
+    let again = ok(btfrig().args(["run", "--plan"]).arg(&plan).arg("--out").arg(&out));
+    assert!(again.contains("textures          0 ") && again.contains("0 frames per camera"), "{again}");
+    // A broken dome plan names the field.
+    std::fs::write(&plan, "[dome]\ncameras = [99]\n").unwrap();
+    let e = fails(btfrig().args(["plan", "show"]).arg(&plan));
+    assert!(e.contains("cameras") && e.contains("99"), "{e}");
+}
+
 #[test]
 fn demo_rig_camera_array_multiplexes_all_151_flashes_end_to_end() {
     let dir = scratch("demo-camera-array");

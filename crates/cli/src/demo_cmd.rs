@@ -127,13 +127,11 @@ struct DomeDemo {
     plan: &'static str,
     name: &'static str,
     rig: &'static str,
-    lights: &'static str,
 }
 
 impl DomeDemo {
-    const LED_DOME: DomeDemo = DomeDemo { plan: DOME_PLAN, name: "dome-demo", rig: "LED dome", lights: "LEDs" };
-    const CAMERA_ARRAY: DomeDemo =
-        DomeDemo { plan: CAMERA_ARRAY_PLAN, name: "camera-array-demo", rig: "camera array", lights: "flashes" };
+    const LED_DOME: DomeDemo = DomeDemo { plan: DOME_PLAN, name: "dome-demo", rig: "LED dome" };
+    const CAMERA_ARRAY: DomeDemo = DomeDemo { plan: CAMERA_ARRAY_PLAN, name: "camera-array-demo", rig: "camera array" };
 }
 
 /// `btfrig demo --rig dome` / `--rig camera-array`: the dome demo plan on the simulated LED
@@ -159,11 +157,19 @@ fn run_dome(a: &DemoArgs, demo: DomeDemo) -> anyhow::Result<ExitCode> {
         println!("{}", s.to_json());
         return Ok(ExitCode::SUCCESS);
     }
-    let f = |v: Option<f64>| v.map(|r| format!("{r:.3}")).unwrap_or_else(|| "n/a".into());
     println!("btfrig demo: plan {:?} on the simulated {}", demo.name, demo.rig);
+    print_dome_summary(&s);
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The figures of a dome run (`btfrig demo --rig dome|camera-array`, `btfrig run` on a dome
+/// plan), one per line.
+pub fn print_dome_summary(s: &btfrig_runner::dome::DomeRunSummary) {
+    let lights = if s.light == "flash" { "flashes" } else { "LEDs" };
+    let f = |v: Option<f64>| v.map(|r| format!("{r:.3}")).unwrap_or_else(|| "n/a".into());
     println!(
         "  textures          {} ({} {} x {} views), {} frames per camera",
-        s.textures, s.leds, demo.lights, s.views, s.frames
+        s.textures, s.leds, lights, s.views, s.frames
     );
     println!("  mode              {}: {}", s.mode, s.multiplex_reason);
     println!(
@@ -188,5 +194,4 @@ fn run_dome(a: &DemoArgs, demo: DomeDemo) -> anyhow::Result<ExitCode> {
     println!("  faults            {}", if s.faults.is_empty() { "none".into() } else { s.faults.join("; ") });
     println!("  warnings          {}", s.warnings.len());
     println!("  dataset           {}", s.dataset.display());
-    Ok(ExitCode::SUCCESS)
 }

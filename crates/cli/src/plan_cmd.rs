@@ -2,10 +2,21 @@
 
 use std::path::Path;
 
+use btfrig_runner::dome_dry_run::{self, is_dome_plan};
 use btfrig_runner::plan::load;
 
-/// `btfrig plan check`: every problem at once, or a one-paragraph summary.
+fn read(file: &Path) -> anyhow::Result<String> {
+    std::fs::read_to_string(file).map_err(|e| anyhow::anyhow!("cannot read {}: {e}", file.display()))
+}
+
+/// `btfrig plan check`: every problem at once, or a one-paragraph summary. A dome plan (one
+/// with a `[dome]` table, docs/plan-format.md) is checked against its dome rig.
 pub fn check(file: &Path) -> anyhow::Result<()> {
+    let text = read(file)?;
+    if is_dome_plan(&text) {
+        dome_dry_run::check_lines(&text, file)?.iter().for_each(|l| println!("{l}"));
+        return Ok(());
+    }
     let (_, v) = load(file)?;
     let list = v.capture_list();
     println!("{}: valid plan {:?} (hash {:016x})", file.display(), v.name, v.plan_hash);
@@ -24,8 +35,14 @@ pub fn check(file: &Path) -> anyhow::Result<()> {
 
 /// `btfrig plan show`: the dry run — captures, skips by reason, estimated hardware time in
 /// the motion-optimised order against the naive order and the lower bound, disk space.
+/// A dome plan's dry run is the noise model's choice with every candidate, frames, estimated
+/// rig time, disk and memory ([`dome_dry_run`]).
 pub fn show(file: &Path) -> anyhow::Result<()> {
-    let text = std::fs::read_to_string(file).map_err(|e| anyhow::anyhow!("cannot read {}: {e}", file.display()))?;
+    let text = read(file)?;
+    if is_dome_plan(&text) {
+        dome_dry_run::dry_run(&text, file)?.lines(file).iter().for_each(|l| println!("{l}"));
+        return Ok(());
+    }
     let d = btfrig_runner::dry_run::dry_run(&text, file)?;
     println!("plan {:?} from {} (hash {:016x})", d.name, file.display(), d.plan_hash);
     println!(

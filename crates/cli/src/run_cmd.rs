@@ -20,6 +20,11 @@ pub const EXIT_INTERRUPTED: u8 = 130;
 
 /// `btfrig run`.
 pub fn run(a: &RunArgs) -> anyhow::Result<ExitCode> {
+    let text =
+        std::fs::read_to_string(&a.plan).map_err(|e| anyhow::anyhow!("cannot read {}: {e}", a.plan.display()))?;
+    if btfrig_runner::dome_dry_run::is_dome_plan(&text) {
+        return run_dome(a, text);
+    }
     let req = RunRequest::from_file(&a.plan, &a.out)?
         .with_faults(a.faults.clone())
         .with_light(a.light.as_deref().map(crate::calibrate_light_cmd::load).transpose()?)
@@ -43,6 +48,33 @@ pub fn run(a: &RunArgs) -> anyhow::Result<ExitCode> {
         }
     }
     Ok(finish(&summary, &format!("btfrig run --plan {} --out {}", a.plan.display(), a.out.display())))
+}
+
+/// `btfrig run` on a dome plan (LED dome or camera array, docs/plan-format.md): collected,
+/// demultiplexed and stored view group by view group; resumable per view group.
+fn run_dome(a: &RunArgs, plan_text: String) -> anyhow::Result<ExitCode> {
+    let gonio_only = [
+        ("--light", a.light.is_some(), "the lamp's light calibration"),
+        ("--dark-flat", a.dark_flat.is_some(), "the gonio pipeline's dark/flat correction"),
+        ("--compress", a.compress.is_some(), "building a model while the gonio pipeline streams textures"),
+    ];
+    for (flag, given, what) in gonio_only {
+        anyhow::ensure!(
+            !given,
+            "{flag}: {what} is for gonioreflectometer plans; {} is a dome plan (allowed with a dome plan: --faults)",
+            a.plan.display()
+        );
+    }
+    let req = btfrig_runner::dome::DomeRunRequest {
+        plan_text,
+        plan_path: a.plan.clone(),
+        out: a.out.clone(),
+        faults: a.faults.clone(),
+    };
+    let s = btfrig_runner::dome::run(&req, &mut |line| println!("{line}"))?;
+    println!("btfrig run: dome plan {} into {}", a.plan.display(), a.out.display());
+    crate::demo_cmd::print_dome_summary(&s);
+    Ok(ExitCode::SUCCESS)
 }
 
 /// The model a run builds while it captures: `--compress` if given, else the plan's

@@ -12,6 +12,7 @@
 #![warn(missing_docs)]
 
 pub mod dome;
+pub mod dome_dry_run;
 pub mod dry_run;
 pub mod emulated;
 mod hdr;

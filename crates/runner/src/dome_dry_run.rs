@@ -1,0 +1,245 @@
+//! The dry run of a dome plan (`btfrig plan show` on an LED dome or camera array plan): the
+//! capture mode the noise model chooses with every candidate's predicted gain, the frames,
+//! an estimate of the rig time from the rig's `[timing]`, and disk and memory, without
+//! touching a device or rendering a frame.
+//!
+//! The rig-time estimate follows what the dome engine does (`btfrig_engine::dome`): home the
+//! turntable, then per step turn the table when the rotation changes (trapezoidal profile
+//! plus settle), set the pattern (`timing.leds.switch_s`), set the exposure on every camera
+//! when it changes (`timing.camera.command_s`), trigger (latency, exposure, read-out), and
+//! read every camera (frame bytes over the link; the cameras transfer in parallel). It leaves
+//! out the serial command round trips of the LED controller and the turntable, so it is a
+//! lower bound; `crates/runner/tests/dome_dry_run.rs` measures how close it is to a run.
+
+use std::path::Path;
+
+use btfrig_core::profile::move_time_s;
+use btfrig_mux::{Mode, Prediction};
+use btfrig_planner::dome::{plan_dome, DomeMode, DomeSchedule, DomeShot};
+use btfrig_render::dome_scene::DomeScene;
+
+use crate::RunError;
+
+/// Whether `text` is a dome plan (it has a `[dome]` table; a gonio plan has none).
+pub fn is_dome_plan(text: &str) -> bool {
+    toml::from_str::<toml::Table>(text).is_ok_and(|t| t.contains_key("dome"))
+}
+
+/// What a dome plan would do.
+#[derive(Debug, Clone)]
+pub struct DomeDryRun {
+    /// The plan's name.
+    pub name: String,
+    /// The rig's name and kind (`led_dome`, `camera_array`).
+    pub rig: String,
+    /// `"LED"` or `"flash"`.
+    pub light: &'static str,
+    /// Cameras and rotations captured.
+    pub cameras: Vec<usize>,
+    /// Rotation indices.
+    pub rotations: Vec<u32>,
+    /// The schedule (mode, reason, candidates, patterns, steps).
+    pub schedule: DomeSchedule,
+    /// Frames per camera (pattern and reference frames).
+    pub frames: usize,
+    /// Textures the run stores (lights x views).
+    pub textures: usize,
+    /// Estimated rig time, s (a lower bound: module docs), and its parts.
+    pub rig_time_s: f64,
+    /// Of it: exposing.
+    pub exposure_s: f64,
+    /// Of it: reading and transferring frames.
+    pub transfer_s: f64,
+    /// Of it: turning the table.
+    pub turntable_s: f64,
+    /// Homing the turntable before the run, s (not in `rig_time_s`, as in the run's figure).
+    pub home_s: f64,
+    /// Bytes of the stored textures (32-bit float RGB EXR).
+    pub texture_bytes: u64,
+    /// Bytes one view group's stack holds (frames x photosites x 4, per camera).
+    pub group_bytes: u64,
+}
+
+/// The dry run of the dome plan `text` (from `file`, which names it in errors and resolves
+/// relative rig configs).
+pub fn dry_run(text: &str, file: &Path) -> Result<DomeDryRun, RunError> {
+    let (v, rig, _) = crate::dome::load(text, file)?;
+    let material = crate::plan::load_material(v.plan.rig.material.as_deref())?;
+    let scene = DomeScene::new(&rig, &material)
+        .map_err(|e| RunError::Input { what: "dome scene".into(), message: e.to_string() })?;
+    let schedule = plan_dome(&rig, &v, scene.nominal_irradiance())
+        .map_err(|e| RunError::Input { what: "dome planning".into(), message: e.to_string() })?;
+    let dome = rig
+        .require_dome("the dome dry run")
+        .map_err(|e| RunError::Input { what: "rig".into(), message: e.to_string() })?;
+    let t = &rig.timing;
+    let cam = &rig.camera;
+    let frame_bytes = t.camera.frame_bytes.unwrap_or((cam.width_px * cam.height_px) as u64 * 2);
+    let per_frame_transfer = t.camera.read_out_s + frame_bytes as f64 / t.camera.transfer_bytes_per_s;
+    let (mut exposure_s, mut transfer_s, mut turntable_s, mut other_s) = (0.0, 0.0, 0.0, 0.0);
+    // Homing comes before the engine's clock starts (as in the run's rig time): apart.
+    let home_s = if dome.rotations > 1 { t.turntable.home_s } else { 0.0 };
+    let (mut table_at, mut exposure_set): (Option<u32>, Option<f64>) = (None, None);
+    for step in &schedule.steps {
+        if table_at != Some(step.rotation) {
+            if dome.rotations > 1 {
+                let from = table_at.map_or(0.0, |k| dome.rotation_rad(k));
+                let deg = (step.turntable_rad - from).to_degrees();
+                turntable_s += move_time_s(deg, t.turntable.max_speed_deg_per_s, t.turntable.accel_deg_per_s2)
+                    + t.turntable.settle_s;
+            }
+            table_at = Some(step.rotation);
+        }
+        let e = match step.shot {
+            DomeShot::Pattern(_) => schedule.exposure_s,
+            DomeShot::Reference(_) => schedule.single_exposure_s,
+        };
+        if exposure_set != Some(e) {
+            other_s += t.camera.command_s;
+            exposure_set = Some(e);
+        }
+        other_s += t.leds.switch_s + t.camera.trigger_latency_s;
+        exposure_s += e;
+        transfer_s += per_frame_transfer;
+    }
+    let views = v.cameras.len() * v.rotations.len();
+    let textures = schedule.leds * views;
+    let size = v.plan.texture_size as u64;
+    let per_group = match schedule.mode {
+        DomeMode::Single => schedule.leds,
+        _ => schedule.patterns.len(),
+    };
+    Ok(DomeDryRun {
+        name: v.plan.name.clone(),
+        rig: format!("{} ({})", rig.rig.name, rig.rig.kind.as_str()),
+        light: if dome.is_flash() { "flash" } else { "LED" },
+        cameras: v.cameras.clone(),
+        rotations: v.rotations.clone(),
+        frames: schedule.steps.len(),
+        textures,
+        rig_time_s: exposure_s + transfer_s + turntable_s + other_s,
+        exposure_s,
+        transfer_s,
+        turntable_s,
+        home_s,
+        // 3 x 32-bit floats per texel plus the EXR header and offset table.
+        texture_bytes: textures as u64 * (size * size * 12 + 400 + 8 * size),
+        group_bytes: (per_group * cam.width_px * cam.height_px * 4) as u64 * v.cameras.len() as u64,
+        schedule,
+    })
+}
+
+/// One line per candidate mode of the noise model: mode, frames, lit sources, exposure,
+/// predicted gain.
+pub fn candidate_lines(schedule: &DomeSchedule) -> Vec<String> {
+    schedule
+        .choice
+        .candidates
+        .iter()
+        .map(|p: &Prediction| {
+            let chosen = if p.mode == schedule.choice.best.mode { "  <- the noise model's choice" } else { "" };
+            let sat = if p.saturation_factor < 0.999 {
+                format!(", exposure cut to {:.0} % by saturation", 100.0 * p.saturation_factor)
+            } else {
+                String::new()
+            };
+            format!(
+                "{:<16} {:>5} frames, {:>5.1} lit, {:.4} s per frame{sat}: predicted gain {:.3}{chosen}",
+                p.mode.describe(),
+                p.frames,
+                p.lit,
+                p.exposure_s,
+                p.gain
+            )
+        })
+        .collect()
+}
+
+/// The mode's name as in the run summary (`"s-matrix 199"`, `"single-light"`).
+pub fn mode_name(mode: &DomeMode) -> String {
+    match mode {
+        DomeMode::Single => Mode::Single.describe(),
+        DomeMode::Multiplexed { order } => Mode::SMatrix { order: *order }.describe(),
+    }
+}
+
+impl DomeDryRun {
+    /// The plan as it would run, for `btfrig plan show`.
+    pub fn lines(&self, file: &Path) -> Vec<String> {
+        let s = &self.schedule;
+        let lights = if self.light == "flash" { "flashes" } else { "LEDs" };
+        let mut out = vec![
+            format!("dome plan {:?} from {} on rig {}", self.name, file.display(), self.rig),
+            format!(
+                "{} {lights} x {} views (cameras {:?} x rotations {:?}): {} textures",
+                s.leds,
+                self.cameras.len() * self.rotations.len(),
+                self.cameras,
+                self.rotations,
+                self.textures
+            ),
+            format!("mode {}: {}", mode_name(&s.mode), s.reason),
+        ];
+        out.push("noise model candidates (equal total exposure time):".into());
+        out.extend(candidate_lines(s).into_iter().map(|l| format!("  {l}")));
+        let refs = s.steps.iter().filter(|st| matches!(st.shot, DomeShot::Reference(_))).count();
+        out.push(format!(
+            "frames: {} per camera ({} per view group{}), pattern exposure {:.4} s, single-light exposure {:.4} s",
+            self.frames,
+            s.patterns.len(),
+            if refs > 0 { format!(", plus {refs} single-{} reference frames", self.light) } else { String::new() },
+            s.exposure_s,
+            s.single_exposure_s
+        ));
+        let saved = if self.light == "flash" {
+            "frames single-flash capture averages"
+        } else {
+            "exposure time single-light capture needs"
+        };
+        out.push(format!(
+            "predicted SNR gain {:.3}; time saved {:.1} % of the {saved} for the same SNR",
+            s.predicted_gain,
+            100.0 * s.time_saved_fraction
+        ));
+        out.push(format!(
+            "estimated rig time at least {:.1} s: exposing {:.1} s, read-out and transfer {:.1} s, turntable {:.1} s, \
+             commands {:.1} s (after homing the turntable, {:.1} s)",
+            self.rig_time_s,
+            self.exposure_s,
+            self.transfer_s,
+            self.turntable_s,
+            self.rig_time_s - self.exposure_s - self.transfer_s - self.turntable_s,
+            self.home_s
+        ));
+        out.push(format!(
+            "disk {:.1} MB of textures; memory {:.1} MB per view group stack",
+            self.texture_bytes as f64 / 1e6,
+            self.group_bytes as f64 / 1e6
+        ));
+        out
+    }
+}
+
+/// `btfrig plan check` on a dome plan: the one-paragraph summary.
+pub fn check_lines(text: &str, file: &Path) -> Result<Vec<String>, RunError> {
+    let (v, rig, _) = crate::dome::load(text, file)?;
+    let dome = rig
+        .require_dome("the dome plan check")
+        .map_err(|e| RunError::Input { what: "rig".into(), message: e.to_string() })?;
+    let views = v.cameras.len() * v.rotations.len();
+    let light = if dome.is_flash() { "flashes" } else { "LEDs" };
+    Ok(vec![
+        format!("{}: valid dome plan {:?}", file.display(), v.plan.name),
+        format!(
+            "rig {} ({}, {}), {} {light} x {} views (cameras {:?} x rotations {:?}), {} textures",
+            rig.rig.name,
+            v.plan.rig.config,
+            rig.rig.kind.as_str(),
+            dome.led_count(),
+            views,
+            v.cameras,
+            v.rotations,
+            dome.led_count() * views
+        ),
+    ])
+}
