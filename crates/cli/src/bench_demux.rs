@@ -15,8 +15,8 @@
 use std::time::Instant;
 
 use btfrig_mux::{
-    Accumulate, Demultiplexer, DemultiplexerParams, DemuxParams, Demuxer, DenseLayout, FftEngine, LeastSquares,
-    LsParams, Method, Par, PatternModel, SMatrix, SourceState,
+    Accumulate, Demultiplexer, DemultiplexerParams, DemuxParams, Demuxer, DenseLayout, FftEngine, LeastSquares, LsParams, Method,
+    Par, PatternModel, SMatrix, SourceState,
 };
 use rayon::prelude::*;
 

@@ -133,14 +133,10 @@ impl AppState {
             }
             Some(p) => {
                 let text = std::fs::read_to_string(p).map_err(|e| bad(format!("--rig {}: {e}", p.display())))?;
-                (
-                    RigConfig::from_toml(&text, &p.display().to_string()).map_err(|e| bad(e.to_string()))?,
-                    p.display().to_string(),
-                )
+                (RigConfig::from_toml(&text, &p.display().to_string()).map_err(|e| bad(e.to_string()))?, p.display().to_string())
             }
         };
-        std::fs::create_dir_all(&cfg.data)
-            .map_err(|e| bad(format!("--data {}: cannot create it: {e}", cfg.data.display())))?;
+        std::fs::create_dir_all(&cfg.data).map_err(|e| bad(format!("--data {}: cannot create it: {e}", cfg.data.display())))?;
         let (auth, generated) = match &cfg.auth {
             Some(p) => {
                 let text = std::fs::read_to_string(p).map_err(|e| bad(format!("--auth {}: {e}", p.display())))?;
@@ -190,14 +186,9 @@ impl AppState {
         if let Some(l) = &d.led_array {
             devices.push(("led_array", l, "LED array".into()));
         }
-        let busy_detail =
-            current.as_ref().map(|s| format!("; run {} at {}/{}", s.id, s.done, s.total)).unwrap_or_default();
+        let busy_detail = current.as_ref().map(|s| format!("; run {} at {}/{}", s.id, s.done, s.total)).unwrap_or_default();
         RigStatus {
-            rig: RigSummary {
-                name: self.rig.rig.name.clone(),
-                kind: format!("{:?}", self.rig.rig.kind).to_lowercase(),
-                source: self.rig_source.clone(),
-            },
+            rig: RigSummary { name: self.rig.rig.name.clone(), kind: format!("{:?}", self.rig.rig.kind).to_lowercase(), source: self.rig_source.clone() },
             devices: devices
                 .into_iter()
                 .map(|(name, e, detail)| DeviceStatus {
@@ -214,11 +205,7 @@ impl AppState {
     }
 
     /// The plan a body names: (text, file, name given).
-    fn plan_source(
-        &self,
-        plan: Option<String>,
-        text: Option<String>,
-    ) -> Result<(String, PathBuf, Option<String>), Problem> {
+    fn plan_source(&self, plan: Option<String>, text: Option<String>) -> Result<(String, PathBuf, Option<String>), Problem> {
         match (plan, text) {
             (Some(name), None) => {
                 let p = self.plans.iter().find(|p| p.name == name).ok_or_else(|| {
@@ -228,9 +215,7 @@ impl AppState {
                 Ok((p.text.clone(), p.path.clone(), Some(p.name.clone())))
             }
             (None, Some(text)) => Ok((text, self.data.join("api-plan.toml"), None)),
-            _ => Err(Problem::unprocessable(
-                "give exactly one of \"plan\" (a name from GET /api/v1/plans) and \"plan_text\" (a plan file's TOML)",
-            )),
+            _ => Err(Problem::unprocessable("give exactly one of \"plan\" (a name from GET /api/v1/plans) and \"plan_text\" (a plan file's TOML)")),
         }
     }
 
@@ -261,16 +246,7 @@ impl AppState {
             }
             let captures = v.capture_list().captures.len() as u64;
             if !dry {
-                return Ok(PlanCheck {
-                    valid: true,
-                    captures,
-                    estimate_s: None,
-                    naive_order_s: None,
-                    lower_bound_s: None,
-                    disk_bytes: None,
-                    text: None,
-                    errors: vec![],
-                });
+                return Ok(PlanCheck { valid: true, captures, estimate_s: None, naive_order_s: None, lower_bound_s: None, disk_bytes: None, text: None, errors: vec![] });
             }
             let d = btfrig_runner::dry_run::dry_run(&text, &path).map_err(errors)?;
             let mut shown = d.schedule.to_string();
@@ -297,11 +273,7 @@ impl AppState {
     }
 
     fn new_dataset_name(&self, plan: &str) -> String {
-        let stem: String = plan
-            .chars()
-            .map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '-' })
-            .take(40)
-            .collect();
+        let stem: String = plan.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '-' }).take(40).collect();
         let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
         let mut name = format!("{stem}-{secs}");
         let mut k = 2;
@@ -376,9 +348,7 @@ impl AppState {
         let root = self.data.join(name);
         let root = root.canonicalize().map_err(|_| Problem::not_found(format!("no dataset named {name:?}")))?;
         let file = root.join(&rel);
-        let real = file
-            .canonicalize()
-            .map_err(|_| Problem::not_found(format!("dataset {name:?} has no file {:?}", rel.display())))?;
+        let real = file.canonicalize().map_err(|_| Problem::not_found(format!("dataset {name:?} has no file {:?}", rel.display())))?;
         if !real.starts_with(&root) || !real.is_file() {
             return Err(Problem::not_found(format!("dataset {name:?} has no file {:?}", rel.display())));
         }
@@ -496,9 +466,7 @@ pub fn router(state: Arc<AppState>) -> Router {
 pub async fn serve(cfg: ServeConfig) -> Result<(), ServeError> {
     let (state, generated) = AppState::load(&cfg)?;
     let state = Arc::new(state);
-    let listener = tokio::net::TcpListener::bind(cfg.listen)
-        .await
-        .map_err(|source| ServeError::Bind { addr: cfg.listen, source })?;
+    let listener = tokio::net::TcpListener::bind(cfg.listen).await.map_err(|source| ServeError::Bind { addr: cfg.listen, source })?;
     let addr = listener.local_addr()?;
     println!("listening on http://{addr}");
     if let Some(t) = generated {
@@ -507,13 +475,7 @@ pub async fn serve(cfg: ServeConfig) -> Result<(), ServeError> {
             cfg.data.join("daemon-token").display()
         );
     }
-    eprintln!(
-        "rig {} ({}), data {}, {} named plans",
-        state.rig.rig.name,
-        state.rig_source,
-        cfg.data.display(),
-        state.plans.len()
-    );
+    eprintln!("rig {} ({}), data {}, {} named plans", state.rig.rig.name, state.rig_source, cfg.data.display(), state.plans.len());
     let app = router(state.clone());
     let shutdown_state = state.clone();
     axum::serve(listener, app)

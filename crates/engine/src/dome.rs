@@ -55,13 +55,7 @@ pub struct DomeSettings {
 
 impl Default for DomeSettings {
     fn default() -> Self {
-        DomeSettings {
-            move_timeout_s: 60.0,
-            trigger_timeout_s: 10.0,
-            read_timeout_s: 30.0,
-            max_retries: 5,
-            backoff_s: 0.5,
-        }
+        DomeSettings { move_timeout_s: 60.0, trigger_timeout_s: 10.0, read_timeout_s: 30.0, max_retries: 5, backoff_s: 0.5 }
     }
 }
 
@@ -197,8 +191,7 @@ pub async fn run_dome(
         summary.retries += attempt - 1;
         summary.captured += 1;
         summary.exposure_s += exposure;
-        let cap =
-            DomeCapture { index, step: *step, frames: captured, attempts: attempt, time_s: devices.clock.now_s() };
+        let cap = DomeCapture { index, step: *step, frames: captured, attempts: attempt, time_s: devices.clock.now_s() };
         if frames.send(cap).await.is_err() {
             return Err(DomeRunError::ConsumerGone);
         }

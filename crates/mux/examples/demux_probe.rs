@@ -59,10 +59,7 @@ fn main() {
             let mut configs: Vec<(String, DemuxParams)> = Vec::new();
             let fast = Method::fast_for(s.construction());
             for tile in [64, 256, 1024] {
-                configs.push((
-                    format!("fast tile {tile}"),
-                    DemuxParams { method: Some(fast), tile, ..Default::default() },
-                ));
+                configs.push((format!("fast tile {tile}"), DemuxParams { method: Some(fast), tile, ..Default::default() }));
             }
             if fast == Method::Fft {
                 let pl = btfrig_mux::demux::padded_len(n);

@@ -464,13 +464,13 @@ impl Demuxer {
                 Accumulate::F32 => fwht_tile_f32(rows, &mut s.r32, dir),
                 Accumulate::F64 => fwht_tile_f64(rows, &mut s.r64, dir),
             }),
-            Kernel::Fft32(k) => for_each_tile(data, n, cols, self.tile, blocks, |rows, s| {
-                k.tile(rows, &mut s.c32, &mut s.f32s, &mut s.x32, dir)
-            }),
+            Kernel::Fft32(k) => {
+                for_each_tile(data, n, cols, self.tile, blocks, |rows, s| k.tile(rows, &mut s.c32, &mut s.f32s, &mut s.x32, dir))
+            }
             Kernel::FftVec(k) => for_each_tile(data, n, cols, self.tile, blocks, |rows, s| k.tile(rows, &mut s.v, dir)),
-            Kernel::Fft64(k) => for_each_tile(data, n, cols, self.tile, blocks, |rows, s| {
-                k.tile(rows, &mut s.c64, &mut s.f64s, &mut s.x32, dir)
-            }),
+            Kernel::Fft64(k) => {
+                for_each_tile(data, n, cols, self.tile, blocks, |rows, s| k.tile(rows, &mut s.c64, &mut s.f64s, &mut s.x32, dir))
+            }
             Kernel::Dense { layout, inv, fwd, inv32, fwd32 } => {
                 let layout = *layout;
                 for_each_tile(data, n, cols, self.tile, blocks, |rows, s| match acc {
@@ -642,16 +642,7 @@ impl<F: Real> FftKernel<F> {
             if let Some(r) = Rader::new(&gd, &km) {
                 let scratch_len = r.scratch_len();
                 let (fwd, inv) = (Arc::clone(&r.fwd), Arc::clone(&r.inv));
-                return FftKernel {
-                    n,
-                    len,
-                    fwd,
-                    inv,
-                    g_demux: Vec::new(),
-                    g_mux: Vec::new(),
-                    scratch_len,
-                    rader: Some(r),
-                };
+                return FftKernel { n, len, fwd, inv, g_demux: Vec::new(), g_mux: Vec::new(), scratch_len, rader: Some(r) };
             }
             // Not a quadratic-residue spectrum (not reached for the constructions here).
             len = padded_len(n);

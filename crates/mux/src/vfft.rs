@@ -575,10 +575,7 @@ mod tests {
                     for (a, b) in y.iter().zip(&yv) {
                         for l in 0..W {
                             let e = (a.re[l] - b.re[l]).abs().max((a.im[l] - b.im[l]).abs());
-                            assert!(
-                                e <= 1e-5 * (1.0 + a.re[l].abs() + a.im[l].abs()) * n as f32,
-                                "n {n}: V3 lane {l} off by {e}"
-                            );
+                            assert!(e <= 1e-5 * (1.0 + a.re[l].abs() + a.im[l].abs()) * n as f32, "n {n}: V3 lane {l} off by {e}");
                         }
                     }
                 }
@@ -610,3 +607,4 @@ mod tests {
         }
     }
 }
+

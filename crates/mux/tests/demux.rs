@@ -228,7 +228,6 @@ fn cyclic_fft_lengths_match_the_dense_f64_closed_form() {
     }
     // The Rader length is for prime orders only.
     let tp = SMatrix::twin_prime(11).unwrap();
-    let e =
-        Demuxer::new(&tp, &DemuxParams { method: Some(Method::Fft), fft_len: 142, ..Default::default() }).unwrap_err();
+    let e = Demuxer::new(&tp, &DemuxParams { method: Some(Method::Fft), fft_len: 142, ..Default::default() }).unwrap_err();
     assert!(e.to_string().contains("at least 2n - 1"), "{e}");
 }

@@ -18,7 +18,7 @@ use btfrig_calib::rectify::{rectify, Filter, LinearImage, Region};
 use btfrig_core::camera::CameraModel;
 use btfrig_core::config::dome::DomeConfig;
 use btfrig_core::frame::{BayerPattern, RawFrame};
-use btfrig_mux::{Demultiplexer, DemultiplexerParams, DemuxParams, DemuxReport, SMatrix};
+use btfrig_mux::{DemuxReport, Demultiplexer, DemultiplexerParams, DemuxParams, SMatrix};
 
 /// Errors of dome processing.
 #[derive(Debug, thiserror::Error)]

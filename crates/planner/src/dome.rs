@@ -23,7 +23,7 @@
 
 use btfrig_core::config::RigConfig;
 use btfrig_core::plan::dome::{MultiplexPolicy, ValidatedDomePlan};
-use btfrig_mux::{choose, predict, Choice, ChooseParams, Mode, SMatrix, SceneLight, SensorNoise};
+use btfrig_mux::{choose, predict, ChooseParams, Choice, Mode, SMatrix, SceneLight, SensorNoise};
 
 /// How a view group is captured.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -147,18 +147,11 @@ pub fn plan_dome(rig: &RigConfig, v: &ValidatedDomePlan, led_e_per_s: f64) -> Re
     let (mode, pred, reason) = match d.multiplex {
         MultiplexPolicy::Off => {
             let p = predict(&sensor, &scene, Mode::Single)?;
-            (
-                DomeMode::Single,
-                p,
-                format!("multiplexing skipped: the plan says multiplex = \"off\" ({})", choice.reason),
-            )
+            (DomeMode::Single, p, format!("multiplexing skipped: the plan says multiplex = \"off\" ({})", choice.reason))
         }
         MultiplexPolicy::On => {
             let p = predict(&sensor, &scene, Mode::SMatrix { order })?;
-            let r = format!(
-                "multiplexing with s-matrix {order} (the plan says multiplex = \"on\"): predicted gain {:.2}",
-                p.gain
-            );
+            let r = format!("multiplexing with s-matrix {order} (the plan says multiplex = \"on\"): predicted gain {:.2}", p.gain);
             (DomeMode::Multiplexed { order }, p, r)
         }
         MultiplexPolicy::Auto => match choice.best.mode {
@@ -169,11 +162,8 @@ pub fn plan_dome(rig: &RigConfig, v: &ValidatedDomePlan, led_e_per_s: f64) -> Re
     let single = predict(&sensor, &scene, Mode::Single)?;
     // Where the noise model shortens the exposure against saturation, flashes fire at the
     // same fraction of their power instead (module docs).
-    let (exposure_s, pattern_scale) = if flash {
-        (single.exposure_s, (pred.exposure_s / single.exposure_s).min(1.0))
-    } else {
-        (pred.exposure_s, 1.0)
-    };
+    let (exposure_s, pattern_scale) =
+        if flash { (single.exposure_s, (pred.exposure_s / single.exposure_s).min(1.0)) } else { (pred.exposure_s, 1.0) };
     let patterns: Vec<Vec<f64>> = match mode {
         DomeMode::Single => (0..leds).map(|j| (0..leds).map(|i| f64::from(u8::from(i == j))).collect()).collect(),
         DomeMode::Multiplexed { order } => {
@@ -191,11 +181,7 @@ pub fn plan_dome(rig: &RigConfig, v: &ValidatedDomePlan, led_e_per_s: f64) -> Re
             // Reference LEDs spread over the dome, for the measured gain.
             let n = d.reference_leds.min(leds);
             for r in 0..n {
-                steps.push(DomeStep {
-                    rotation: k,
-                    turntable_rad,
-                    shot: DomeShot::Reference(r * leds / n + leds / (2 * n)),
-                });
+                steps.push(DomeStep { rotation: k, turntable_rad, shot: DomeShot::Reference(r * leds / n + leds / (2 * n)) });
             }
         }
     }
@@ -239,10 +225,7 @@ mod tests {
     }
 
     fn plan(extra: &str) -> ValidatedDomePlan {
-        DomePlan::from_toml(&format!("[dome]\ncameras = [0]\nrotations = [0, 6]\n{extra}"), "p")
-            .unwrap()
-            .validate(&rig())
-            .unwrap()
+        DomePlan::from_toml(&format!("[dome]\ncameras = [0]\nrotations = [0, 6]\n{extra}"), "p").unwrap().validate(&rig()).unwrap()
     }
 
     #[test]
@@ -280,13 +263,10 @@ mod tests {
     #[test]
     fn dim_flashes_are_multiplexed_with_paley_151_and_bright_ones_are_not() {
         let rig = array();
-        let v = DomePlan::from_toml(
-            "[rig]\nconfig = \"builtin:bonn-camera-array-sim\"\n[dome]\ncameras = [0, 40]\nexposure_s = 0.01\n",
-            "p",
-        )
-        .unwrap()
-        .validate(&rig)
-        .unwrap();
+        let v = DomePlan::from_toml("[rig]\nconfig = \"builtin:bonn-camera-array-sim\"\n[dome]\ncameras = [0, 40]\nexposure_s = 0.01\n", "p")
+            .unwrap()
+            .validate(&rig)
+            .unwrap();
         // 90 e- per flash at a white photosite, 27 e- at albedo 0.3, 12 e- read noise.
         let s = plan_dome(&rig, &v, 90.0).unwrap();
         assert_eq!(s.mode, DomeMode::Multiplexed { order: 151 });
@@ -298,13 +278,10 @@ mod tests {
         let g = s.predicted_gain;
         assert!((s.time_saved_fraction - (1.0 - 1.0 / (g * g))).abs() < 1e-12);
         // The exposure does not change a flash's signal: 0.02 s plans the same gain.
-        let v2 = DomePlan::from_toml(
-            "[rig]\nconfig = \"builtin:bonn-camera-array-sim\"\n[dome]\ncameras = [0]\nexposure_s = 0.02\n",
-            "p",
-        )
-        .unwrap()
-        .validate(&rig)
-        .unwrap();
+        let v2 = DomePlan::from_toml("[rig]\nconfig = \"builtin:bonn-camera-array-sim\"\n[dome]\ncameras = [0]\nexposure_s = 0.02\n", "p")
+            .unwrap()
+            .validate(&rig)
+            .unwrap();
         let g2 = plan_dome(&rig, &v2, 90.0).unwrap().predicted_gain;
         assert!((g2 / g - 1.0).abs() < 0.01, "{g} vs {g2}");
         // A full-power flash (3e4 e- per flash): photon-noise dominated, one flash at a time.

@@ -62,8 +62,7 @@ fn a_stuck_led_is_detected_reported_and_solved_around() {
     let s = go(plan(p), &out, Some(faults.display().to_string()));
     assert_eq!(s.faults, vec!["camera 4 rotation 1: LED 40 stuck".to_string()], "{:?}", s.warnings);
     assert!(s.warnings.iter().any(|w| w.contains("LED 40 stuck") && w.contains("least squares")), "{:?}", s.warnings);
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
     assert!(report["warnings"].to_string().contains("LED 40 stuck"), "{report}");
     // The other LEDs' textures stay within the noise of the no-fault run (the re-solve costs
     // about 1.23x noise with the one always-off slot, docs/multiplexing.md).
@@ -95,10 +94,7 @@ fn texture_hashes(dataset: &Path) -> std::collections::BTreeMap<String, String> 
         .unwrap()
         .map(|e| {
             let p = e.unwrap().path();
-            (
-                p.file_name().unwrap().to_string_lossy().into_owned(),
-                btfrig_store::content_hash(&std::fs::read(&p).unwrap()),
-            )
+            (p.file_name().unwrap().to_string_lossy().into_owned(), btfrig_store::content_hash(&std::fs::read(&p).unwrap()))
         })
         .collect()
 }
@@ -110,9 +106,7 @@ fn the_serial_dome_gives_the_direct_dome_textures() {
     let serial_rig = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../rig-configs/bonn-dome-serial.toml");
     let body = "[dome]\ncameras = [4]\nrotations = [0, 1]\nreference_leds = 0\nmultiplex = \"on\"\n";
     let plan_for = |config: &str| {
-        format!(
-            "name = \"dome-serial\"\ntexture_size = 16\n[rig]\nconfig = \"{config}\"\nmaterial = \"leather\"\n{body}"
-        )
+        format!("name = \"dome-serial\"\ntexture_size = 16\n[rig]\nconfig = \"{config}\"\nmaterial = \"leather\"\n{body}")
     };
     let (d_out, s_out) = (tmp("direct"), tmp("serial"));
     let direct = go(plan_for("builtin:bonn-dome-sim"), &d_out, None);
@@ -122,11 +116,7 @@ fn the_serial_dome_gives_the_direct_dome_textures() {
     assert_eq!(dt.len(), 396);
     assert_eq!(st, dt, "texture hashes differ between the serial and the direct dome");
     assert!(btfrig_store::verify(&s_out).is_ok());
-    eprintln!(
-        "dome rig time: direct {:?}, serial {:?}",
-        direct.to_json()["hardware_s"],
-        serial.to_json()["hardware_s"]
-    );
+    eprintln!("dome rig time: direct {:?}, serial {:?}", direct.to_json()["hardware_s"], serial.to_json()["hardware_s"]);
     let _ = std::fs::remove_dir_all(&d_out);
     let _ = std::fs::remove_dir_all(&s_out);
 }

@@ -154,19 +154,11 @@ impl DomePlan {
         }
         for (i, &c) in cameras.iter().enumerate() {
             if c >= nc || cameras[..i].contains(&c) {
-                e.push(ConfigError::out_of_range(
-                    &format!("dome.cameras[{i}]"),
-                    c,
-                    &format!("distinct indices in 0..{nc}"),
-                ));
+                e.push(ConfigError::out_of_range(&format!("dome.cameras[{i}]"), c, &format!("distinct indices in 0..{nc}")));
             }
         }
         if rotations.is_empty() {
-            e.push(ConfigError::out_of_range(
-                "dome.rotations",
-                "[]",
-                &format!("rotation indices in 0..{}", dome.rotations),
-            ));
+            e.push(ConfigError::out_of_range("dome.rotations", "[]", &format!("rotation indices in 0..{}", dome.rotations)));
         }
         for (i, &k) in rotations.iter().enumerate() {
             if k >= dome.rotations || rotations[..i].contains(&k) {
