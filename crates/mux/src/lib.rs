@@ -42,6 +42,7 @@
 #![allow(non_snake_case)]
 
 pub mod demux;
+pub mod denoise;
 pub mod error;
 pub mod lsq;
 pub mod noise;
@@ -51,6 +52,7 @@ pub mod tile;
 mod vfft;
 
 pub use demux::{Accumulate, DemuxParams, DemuxScratch, Demuxer, DenseLayout, FftEngine, Method};
+pub use denoise::{project_onto_own_basis, Projection};
 pub use error::MuxError;
 pub use lsq::{
     detect_faults, Demultiplexed, Demultiplexer, DemultiplexerParams, DemuxReport, Fault, FaultEvidence, FaultKind,
