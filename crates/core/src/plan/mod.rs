@@ -37,9 +37,9 @@ use serde::{Deserialize, Serialize};
 pub use error::{PlanError, PlanErrors};
 
 pub use validate::{
-    CaptureList, CompressedModel, ExistingDataset, ExposurePolicy, HdrMode, HdrSettings, MaterialRef,
-    OnRegistrationFailure, OutputFormat, Outputs, PlanContext, Region, RegistrationMethod, RegistrationPolicy,
-    ResampleFilter, SkipReason, TextureSettings, UnreachablePair, ValidatedPlan,
+    CaptureList, CompressedModel, ExistingDataset, ExposurePolicy, HdrMode, HdrSettings, MaterialRef, OnRegistrationFailure,
+    OutputFormat, Outputs, PlanContext, Region, RegistrationMethod, RegistrationPolicy, ResampleFilter, SkipReason,
+    TextureSettings, UnreachablePair, ValidatedPlan,
 };
 
 /// The rig config name that selects the embedded default simulated gonioreflectometer.

@@ -33,8 +33,7 @@ fn every_shipped_plan_validates() {
         if stem.starts_with("dome-") || stem.starts_with("camera-array-") {
             let text = std::fs::read_to_string(&path).unwrap();
             let plan = crate::plan::dome::DomePlan::from_toml(&text, &path.display().to_string()).unwrap();
-            let rig_text =
-                BUILTIN_RIGS.iter().find(|(n, _)| *n == plan.rig.config).unwrap_or_else(|| panic!("{stem}")).1;
+            let rig_text = BUILTIN_RIGS.iter().find(|(n, _)| *n == plan.rig.config).unwrap_or_else(|| panic!("{stem}")).1;
             let rig = crate::config::RigConfig::from_toml(rig_text, "dome").unwrap();
             let want = if stem.starts_with("dome-") { "led_dome" } else { "camera_array" };
             assert_eq!(rig.rig.kind.as_str(), want, "{stem}");
@@ -343,9 +342,7 @@ fn a_sparse_subset_captures_only_its_pairs_and_changes_the_hash() {
 
 #[test]
 fn compressed_model_names_a_model_and_is_not_content() {
-    let model = |t: &str| {
-        validate(&format!("{MINIMAL}[outputs]\ncompressed_model = {t}\n")).map(|v| v.outputs.compressed_model)
-    };
+    let model = |t: &str| validate(&format!("{MINIMAL}[outputs]\ncompressed_model = {t}\n")).map(|v| v.outputs.compressed_model);
     assert_eq!(validate(MINIMAL).unwrap().outputs.compressed_model, None);
     assert_eq!(model("false").unwrap(), None);
     assert_eq!(model("\"none\"").unwrap(), None);
