@@ -103,7 +103,7 @@ impl GroupCode {
     /// groups, each with its LEDs' calibrated powers (slots past the last LED 0, always off).
     pub fn grouped(order: usize, groups: usize, led_power: &[f64]) -> Result<GroupCode, DomeError> {
         let leds = led_power.len();
-        if groups != leds.div_ceil(order.max(1)) {
+        if leds == 0 || groups != leds.div_ceil(order.max(1)) {
             return Err(DomeError::Code(format!(
                 "groups {groups} x {order} does not fit {leds} LEDs: they need {} groups of {order}",
                 leds.div_ceil(order.max(1))
@@ -121,9 +121,7 @@ impl GroupCode {
             GroupCode::Grouped(ds) => ds.iter().map(|d| d.s().order()).sum(),
         }
     }
-}
 
-impl GroupCode {
     /// Demultiplexes a complete group's stack (in place; single-light groups pass through):
     /// the result's `mosaic(j)` is LED `j`'s.
     pub fn demultiplex(&self, stack: GroupStack) -> Result<GroupResult, DomeError> {
