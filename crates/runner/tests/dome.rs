@@ -91,6 +91,8 @@ fn a_photon_noise_dominated_dome_is_captured_single_light_which_is_the_better_mo
     // loses too, so single light is the better mode against the grouped codes as well.
     let groups = go(plan(&format!("{bright}multiplex = \"on\"\ngroup_order = 3\n")), &tmp("photon-groups"), None);
     assert_eq!(groups.mode, "groups 66 x 3");
+    // 66 fault detections over 3 LEDs each, and none fires on a healthy dome.
+    assert!(groups.faults.is_empty(), "{:?}", groups.warnings);
     let (p, m) = (groups.multiplex_gain_predicted, groups.multiplex_gain_measured.unwrap());
     eprintln!("forced groups 66 x 3: predicted {p}, measured {m}");
     assert!(p < 1.0 && m < 1.0, "predicted {p}, measured {m}");
