@@ -4,9 +4,16 @@
 //! Every view group of a dome has the same sensor, the same LEDs and the same brightness
 //! estimate, so the choice is made once and applies to every group (the plan's
 //! `sample_brightness` is the estimate; a per-view estimate from a preview frame would make
-//! it per group). The choice is between single light and one S-matrix over all LEDs (198 LEDs:
-//! Paley 199 with one always-off slot). Grouped S-matrices (`Mode::Grouped`) are evaluated by
-//! the mux crate but not captured by the dome pipeline yet, so they are not offered.
+//! it per group). The choice is between single light, one S-matrix over all LEDs (198 LEDs:
+//! Paley 199 with one always-off slot) and grouped S-matrices (`Mode::Grouped`: the LEDs in
+//! consecutive groups of `order`, each group multiplexed by its own S-matrix of that order,
+//! slots past the last LED always off). A grouped code lights `(order + 1)/2` LEDs per frame
+//! instead of about 100, so it wins where the full S-matrix's frames would saturate and its
+//! exposure is cut (highlights far above the typical level, `brightness_max`). It does not
+//! win on photon noise alone: without saturation an S-matrix's gain grows with its order
+//! while `σ_p²/κ² < 2 − 4/(order + 1)`, and above that no S-matrix gains at all (codes with
+//! `C*` lit sources over all LEDs would, but are not constructed: `docs/multiplexing.md`).
+//! `multiplex = "on"` with `group_order = m` forces groups of order `m`.
 //!
 //! All cameras of the arc expose together, so a step is (rotation, pattern): turn the table
 //! when the rotation changes, set the pattern, trigger every camera, read every camera.
@@ -23,7 +30,7 @@
 
 use btfrig_core::config::RigConfig;
 use btfrig_core::plan::dome::{MultiplexPolicy, ValidatedDomePlan};
-use btfrig_mux::{choose, predict, ChooseParams, Choice, Mode, SMatrix, SceneLight, SensorNoise};
+use btfrig_mux::{available_orders, choose, predict, Choice, ChooseParams, Mode, SMatrix, SceneLight, SensorNoise};
 
 /// How a view group is captured.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -35,6 +42,45 @@ pub enum DomeMode {
         /// The S-matrix order.
         order: usize,
     },
+    /// `groups` consecutive groups of `order` LEDs, each multiplexed by its own S-matrix of
+    /// `order`: frames `g*order .. (g+1)*order` light only group `g` (LEDs
+    /// `g*order .. (g+1)*order`; slots past the last LED always off).
+    Grouped {
+        /// The order of every group's S-matrix.
+        order: usize,
+        /// Number of groups.
+        groups: usize,
+    },
+}
+
+impl DomeMode {
+    /// The noise model's mode.
+    pub fn mux_mode(&self) -> Mode {
+        match *self {
+            DomeMode::Single => Mode::Single,
+            DomeMode::Multiplexed { order } => Mode::SMatrix { order },
+            DomeMode::Grouped { order, groups } => Mode::Grouped { order, groups },
+        }
+    }
+
+    /// The dome mode that captures the noise model's mode.
+    pub fn from_mux_mode(mode: Mode) -> DomeMode {
+        match mode {
+            Mode::Single => DomeMode::Single,
+            Mode::SMatrix { order } => DomeMode::Multiplexed { order },
+            Mode::Grouped { order, groups } => DomeMode::Grouped { order, groups },
+        }
+    }
+
+    /// Short description (`Mode::describe`): `single-light`, `s-matrix 199`, `groups 29 x 7`.
+    pub fn describe(&self) -> String {
+        self.mux_mode().describe()
+    }
+
+    /// Whether frames light several LEDs (and are demultiplexed).
+    pub fn is_multiplexed(&self) -> bool {
+        !matches!(self, DomeMode::Single)
+    }
 }
 
 /// What one step captures.
@@ -101,6 +147,14 @@ pub enum DomePlanError {
     /// The rig is not a dome.
     #[error(transparent)]
     Config(#[from] btfrig_core::ConfigError),
+    /// The plan's `group_order` has no S-matrix.
+    #[error("dome.group_order = {order} has no S-matrix construction: allowed {allowed}")]
+    GroupOrder {
+        /// The order asked for.
+        order: usize,
+        /// The orders that exist between 3 and the LED count, comma-separated.
+        allowed: String,
+    },
 }
 
 /// The single-light exposure that reaches `snr` for a signal of `rate` e-/s: solves
@@ -139,37 +193,43 @@ pub fn plan_dome(rig: &RigConfig, v: &ValidatedDomePlan, led_e_per_s: f64) -> Re
         exposure_s: d.exposure_s,
         well_fraction: 0.9,
     };
-    // Grouped codes are not captured by the dome pipeline yet (module docs).
-    let params = ChooseParams { min_group_order: usize::MAX, ..ChooseParams::default() };
-    let choice = choose(&sensor, &scene, &params)?;
-    let padded = SMatrix::for_sources(leds)?;
-    let order = padded.s.order();
+    let choice = choose(&sensor, &scene, &ChooseParams::default())?;
     let (mode, pred, reason) = match d.multiplex {
         MultiplexPolicy::Off => {
             let p = predict(&sensor, &scene, Mode::Single)?;
-            (DomeMode::Single, p, format!("multiplexing skipped: the plan says multiplex = \"off\" ({})", choice.reason))
+            (
+                DomeMode::Single,
+                p,
+                format!("multiplexing skipped: the plan says multiplex = \"off\" ({})", choice.reason),
+            )
         }
         MultiplexPolicy::On => {
-            let p = predict(&sensor, &scene, Mode::SMatrix { order })?;
-            let r = format!("multiplexing with s-matrix {order} (the plan says multiplex = \"on\"): predicted gain {:.2}", p.gain);
-            (DomeMode::Multiplexed { order }, p, r)
+            let (mode, asked) = match d.group_order {
+                None => (DomeMode::Multiplexed { order: SMatrix::for_sources(leds)?.s.order() }, String::new()),
+                Some(m) => (grouped_mode(m, leds)?, format!(", group_order = {m}")),
+            };
+            let p = predict(&sensor, &scene, mode.mux_mode())?;
+            let r = format!(
+                "multiplexing with {} (the plan says multiplex = \"on\"{asked}): predicted gain {:.2}",
+                mode.describe(),
+                p.gain
+            );
+            (mode, p, r)
         }
-        MultiplexPolicy::Auto => match choice.best.mode {
-            Mode::SMatrix { order } => (DomeMode::Multiplexed { order }, choice.best, choice.reason.clone()),
-            _ => (DomeMode::Single, choice.best, choice.reason.clone()),
-        },
+        MultiplexPolicy::Auto => (DomeMode::from_mux_mode(choice.best.mode), choice.best, choice.reason.clone()),
     };
     let single = predict(&sensor, &scene, Mode::Single)?;
     // Where the noise model shortens the exposure against saturation, flashes fire at the
     // same fraction of their power instead (module docs).
-    let (exposure_s, pattern_scale) =
-        if flash { (single.exposure_s, (pred.exposure_s / single.exposure_s).min(1.0)) } else { (pred.exposure_s, 1.0) };
+    let (exposure_s, pattern_scale) = if flash {
+        (single.exposure_s, (pred.exposure_s / single.exposure_s).min(1.0))
+    } else {
+        (pred.exposure_s, 1.0)
+    };
     let patterns: Vec<Vec<f64>> = match mode {
         DomeMode::Single => (0..leds).map(|j| (0..leds).map(|i| f64::from(u8::from(i == j))).collect()).collect(),
-        DomeMode::Multiplexed { order } => {
-            let s = SMatrix::of_order(order)?;
-            (0..order).map(|r| (0..leds).map(|j| pattern_scale * f64::from(s.get(r, j))).collect()).collect()
-        }
+        DomeMode::Multiplexed { order } => block_patterns(order, 1, leds, pattern_scale)?,
+        DomeMode::Grouped { order, groups } => block_patterns(order, groups, leds, pattern_scale)?,
     };
     let mut steps = Vec::new();
     for (i, &k) in v.rotations.iter().enumerate() {
@@ -177,11 +237,15 @@ pub fn plan_dome(rig: &RigConfig, v: &ValidatedDomePlan, led_e_per_s: f64) -> Re
         for p in 0..patterns.len() {
             steps.push(DomeStep { rotation: k, turntable_rad, shot: DomeShot::Pattern(p) });
         }
-        if i == 0 && matches!(mode, DomeMode::Multiplexed { .. }) {
+        if i == 0 && mode.is_multiplexed() {
             // Reference LEDs spread over the dome, for the measured gain.
             let n = d.reference_leds.min(leds);
             for r in 0..n {
-                steps.push(DomeStep { rotation: k, turntable_rad, shot: DomeShot::Reference(r * leds / n + leds / (2 * n)) });
+                steps.push(DomeStep {
+                    rotation: k,
+                    turntable_rad,
+                    shot: DomeShot::Reference(r * leds / n + leds / (2 * n)),
+                });
             }
         }
     }
@@ -189,8 +253,8 @@ pub fn plan_dome(rig: &RigConfig, v: &ValidatedDomePlan, led_e_per_s: f64) -> Re
     let time_saved_fraction = match mode {
         DomeMode::Single => 0.0,
         // Single flashes average G² frames each to reach the multiplexed SNR.
-        DomeMode::Multiplexed { .. } if flash => (1.0 - 1.0 / (gain * gain)).max(0.0),
-        DomeMode::Multiplexed { .. } => {
+        _ if flash => (1.0 - 1.0 / (gain * gain)).max(0.0),
+        _ => {
             // Single light needs this exposure per LED to reach the multiplexed SNR.
             let t = exposure_for_snr(&sensor, led_e_per_s * d.sample_brightness, pred.snr);
             let mux_time = pred.frames as f64 * pred.exposure_s;
@@ -214,6 +278,35 @@ pub fn plan_dome(rig: &RigConfig, v: &ValidatedDomePlan, led_e_per_s: f64) -> Re
     })
 }
 
+/// Groups of `order` for `leds` LEDs (as many as cover them), refusing an order without an
+/// S-matrix or one that leaves a single group (the plan checks the range first: this is the
+/// planner's own guard, naming the orders that exist).
+fn grouped_mode(order: usize, leds: usize) -> Result<DomeMode, DomePlanError> {
+    let allowed: Vec<usize> = available_orders(leds.saturating_sub(1)).into_iter().filter(|&m| m >= 3).collect();
+    if !allowed.contains(&order) {
+        let allowed = allowed.iter().map(|m| m.to_string()).collect::<Vec<_>>().join(", ");
+        return Err(DomePlanError::GroupOrder { order, allowed });
+    }
+    Ok(DomeMode::Grouped { order, groups: leds.div_ceil(order) })
+}
+
+/// The block-diagonal patterns of `groups` S-matrices of `order` over `leds` LEDs, every lit
+/// LED at `scale`: frame `g*order + r` lights LED `g*order + j` where row `r` of the S-matrix
+/// has a 1 in column `j` (slots at or past `leds` are always off). One group is the full
+/// S-matrix.
+pub fn block_patterns(order: usize, groups: usize, leds: usize, scale: f64) -> Result<Vec<Vec<f64>>, DomePlanError> {
+    let s = SMatrix::of_order(order)?;
+    let pattern = |g: usize, r: usize| -> Vec<f64> {
+        (0..leds)
+            .map(|led| match led.checked_sub(g * order) {
+                Some(j) if j < order => scale * f64::from(s.get(r, j)),
+                _ => 0.0,
+            })
+            .collect()
+    };
+    Ok((0..groups).flat_map(|g| (0..order).map(move |r| (g, r))).map(|(g, r)| pattern(g, r)).collect())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -225,7 +318,10 @@ mod tests {
     }
 
     fn plan(extra: &str) -> ValidatedDomePlan {
-        DomePlan::from_toml(&format!("[dome]\ncameras = [0]\nrotations = [0, 6]\n{extra}"), "p").unwrap().validate(&rig()).unwrap()
+        DomePlan::from_toml(&format!("[dome]\ncameras = [0]\nrotations = [0, 6]\n{extra}"), "p")
+            .unwrap()
+            .validate(&rig())
+            .unwrap()
     }
 
     #[test]
@@ -263,10 +359,13 @@ mod tests {
     #[test]
     fn dim_flashes_are_multiplexed_with_paley_151_and_bright_ones_are_not() {
         let rig = array();
-        let v = DomePlan::from_toml("[rig]\nconfig = \"builtin:bonn-camera-array-sim\"\n[dome]\ncameras = [0, 40]\nexposure_s = 0.01\n", "p")
-            .unwrap()
-            .validate(&rig)
-            .unwrap();
+        let v = DomePlan::from_toml(
+            "[rig]\nconfig = \"builtin:bonn-camera-array-sim\"\n[dome]\ncameras = [0, 40]\nexposure_s = 0.01\n",
+            "p",
+        )
+        .unwrap()
+        .validate(&rig)
+        .unwrap();
         // 90 e- per flash at a white photosite, 27 e- at albedo 0.3, 12 e- read noise.
         let s = plan_dome(&rig, &v, 90.0).unwrap();
         assert_eq!(s.mode, DomeMode::Multiplexed { order: 151 });
@@ -278,10 +377,13 @@ mod tests {
         let g = s.predicted_gain;
         assert!((s.time_saved_fraction - (1.0 - 1.0 / (g * g))).abs() < 1e-12);
         // The exposure does not change a flash's signal: 0.02 s plans the same gain.
-        let v2 = DomePlan::from_toml("[rig]\nconfig = \"builtin:bonn-camera-array-sim\"\n[dome]\ncameras = [0]\nexposure_s = 0.02\n", "p")
-            .unwrap()
-            .validate(&rig)
-            .unwrap();
+        let v2 = DomePlan::from_toml(
+            "[rig]\nconfig = \"builtin:bonn-camera-array-sim\"\n[dome]\ncameras = [0]\nexposure_s = 0.02\n",
+            "p",
+        )
+        .unwrap()
+        .validate(&rig)
+        .unwrap();
         let g2 = plan_dome(&rig, &v2, 90.0).unwrap().predicted_gain;
         assert!((g2 / g - 1.0).abs() < 0.01, "{g} vs {g2}");
         // A full-power flash (3e4 e- per flash): photon-noise dominated, one flash at a time.
@@ -289,5 +391,75 @@ mod tests {
         assert_eq!(b.mode, DomeMode::Single);
         assert!(b.reason.starts_with("multiplexing skipped"), "{}", b.reason);
         assert_eq!((b.patterns.len(), b.time_saved_fraction), (151, 0.0));
+    }
+
+    #[test]
+    fn grouped_patterns_are_block_diagonal_with_each_groups_s_matrix() {
+        // 198 LEDs in 29 groups of 7: the last group has LEDs 196 and 197 and 5 always-off slots.
+        let p = block_patterns(7, 29, 198, 1.0).unwrap();
+        let s = SMatrix::of_order(7).unwrap();
+        assert_eq!(p.len(), 7 * 29);
+        assert!(p.iter().all(|f| f.len() == 198));
+        for (frame, f) in p.iter().enumerate() {
+            let (g, r) = (frame / 7, frame % 7);
+            for (led, &x) in f.iter().enumerate() {
+                let inside = led / 7 == g;
+                let want = if inside { f64::from(s.get(r, led % 7)) } else { 0.0 };
+                assert_eq!(x, want, "frame {frame} LED {led}");
+            }
+            let lit = f.iter().filter(|&&x| x > 0.0).count();
+            let slots_lit = (0..7).filter(|&j| s.get(r, j) == 1 && g * 7 + j < 198).count();
+            assert_eq!(lit, slots_lit, "frame {frame}");
+            if g < 28 {
+                assert_eq!(lit, 4, "a full group lights (7 + 1)/2 LEDs per frame");
+            }
+        }
+        // Every LED is lit in 4 frames, all of its own group's.
+        for led in 0..198 {
+            let frames: Vec<usize> = (0..p.len()).filter(|&f| p[f][led] > 0.0).collect();
+            assert_eq!(frames.len(), 4, "LED {led}");
+            assert!(frames.iter().all(|f| f / 7 == led / 7), "LED {led}: {frames:?}");
+        }
+    }
+
+    #[test]
+    fn highlights_that_saturate_the_full_s_matrix_choose_a_grouped_code() {
+        // 1800 e-/s at white, albedo 0.3 (27 e- per LED per frame), but highlights 8x white: 100
+        // lit LEDs at the highlight would overfill the well at half the exposure, 30 do not.
+        let v = plan("brightness_max = 8.0\n");
+        let s = plan_dome(&rig(), &v, 1800.0).unwrap();
+        let DomeMode::Grouped { order, groups } = s.mode else { panic!("{:?}: {}", s.mode, s.reason) };
+        assert_eq!(groups, 198usize.div_ceil(order));
+        assert!(s.reason.starts_with(&format!("multiplexing with groups {groups} x {order}")), "{}", s.reason);
+        assert_eq!(s.patterns.len(), order * groups);
+        assert_eq!(s.steps.len(), 2 * order * groups + 4);
+        let gain = |m: Mode| s.choice.candidates.iter().find(|p| p.mode == m).unwrap().gain;
+        let full = gain(Mode::SMatrix { order: 199 });
+        assert!(s.predicted_gain > 1.5 && s.predicted_gain > 1.2 * full, "{} vs s-matrix {full}", s.predicted_gain);
+        assert!(
+            s.choice.candidates.iter().find(|p| p.mode == Mode::SMatrix { order: 199 }).unwrap().saturation_factor
+                < 0.6
+        );
+        assert!(s.time_saved_fraction > 0.3, "{}", s.time_saved_fraction);
+        // Without the highlights the full S-matrix is the better code.
+        assert_eq!(plan_dome(&rig(), &plan(""), 1800.0).unwrap().mode, DomeMode::Multiplexed { order: 199 });
+    }
+
+    #[test]
+    fn a_plan_can_force_groups_of_an_order_that_has_an_s_matrix() {
+        let s = plan_dome(&rig(), &plan("multiplex = \"on\"\ngroup_order = 15\n"), 1800.0).unwrap();
+        assert_eq!(s.mode, DomeMode::Grouped { order: 15, groups: 14 });
+        assert!(
+            s.reason
+                .starts_with("multiplexing with groups 14 x 15 (the plan says multiplex = \"on\", group_order = 15)"),
+            "{}",
+            s.reason
+        );
+        assert_eq!(s.patterns.len(), 210);
+        let e = plan_dome(&rig(), &plan("multiplex = \"on\"\ngroup_order = 9\n"), 1800.0).unwrap_err().to_string();
+        assert!(
+            e.starts_with("dome.group_order = 9 has no S-matrix construction: allowed 3, 7, 11, 15, 19, 23, 31,"),
+            "{e}"
+        );
     }
 }

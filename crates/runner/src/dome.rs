@@ -70,7 +70,7 @@ pub struct DomeRunSummary {
     pub leds: usize,
     /// Views captured (camera, rotation).
     pub views: usize,
-    /// `"s-matrix 199"` or `"single-light"`.
+    /// `"s-matrix 199"`, `"groups 29 x 7"` (29 groups of 7 LEDs) or `"single-light"`.
     pub mode: String,
     /// The planner's one-line reason (`multiplexing with ...` / `multiplexing skipped: ...`).
     pub multiplex_reason: String,
@@ -252,13 +252,21 @@ pub fn run(req: &DomeRunRequest, on_line: &mut dyn FnMut(&str)) -> Result<DomeRu
         region: TextureRegion { center_m: [0.0, 0.0], size_m: [side, side] },
         format: TextureFormat::ExrFloat,
     };
-    let manifest =
-        Manifest::new(RigInfo { name: rig.rig.name.clone(), config_toml: rig_text }, &req.plan_text, samplings, texture, false, rig.rig.seed);
+    let manifest = Manifest::new(
+        RigInfo { name: rig.rig.name.clone(), config_toml: rig_text },
+        &req.plan_text,
+        samplings,
+        texture,
+        false,
+        rig.rig.seed,
+    );
     let hash = manifest.plan.hash.clone();
     let dataset = match Dataset::create(&req.out, manifest) {
         Ok(d) => d,
         Err(StoreError::AlreadyExists { .. }) => {
-            Dataset::open_for_resume(&req.out, &hash).map_err(|source| RunError::Dataset { dir: req.out.clone(), source })?.0
+            Dataset::open_for_resume(&req.out, &hash)
+                .map_err(|source| RunError::Dataset { dir: req.out.clone(), source })?
+                .0
         }
         Err(source) => return Err(RunError::Dataset { dir: req.out.clone(), source }),
     };
@@ -269,7 +277,9 @@ pub fn run(req: &DomeRunRequest, on_line: &mut dyn FnMut(&str)) -> Result<DomeRu
         .iter()
         .copied()
         .filter(|&k| {
-            v.cameras.iter().all(|&c| (0..schedule.leds).all(|j| completed.contains(&StepId { light: j as u32, view: view_id(c, k) })))
+            v.cameras.iter().all(|&c| {
+                (0..schedule.leds).all(|j| completed.contains(&StepId { light: j as u32, view: view_id(c, k) }))
+            })
         })
         .collect();
 
@@ -288,12 +298,15 @@ pub fn run(req: &DomeRunRequest, on_line: &mut dyn FnMut(&str)) -> Result<DomeRu
         size,
         filter: Filter::Footprint { max: 4 },
     };
+    // The lights' calibrated power at the power the patterns fire them at.
+    let fired: Vec<f64> = scene.led_power().iter().map(|p| p * schedule.pattern_scale).collect();
     let code = match schedule.mode {
         DomeMode::Single => GroupCode::Single,
         DomeMode::Multiplexed { order } => {
-            // The lights' calibrated power at the power the patterns fire them at.
-            let a: Vec<f64> = scene.led_power().iter().map(|p| p * schedule.pattern_scale).collect();
-            GroupCode::multiplexed(order, &a).map_err(|e| input("demultiplexer", e))?
+            GroupCode::multiplexed(order, &fired).map_err(|e| input("demultiplexer", e))?
+        }
+        DomeMode::Grouped { order, groups } => {
+            GroupCode::grouped(order, groups, &fired).map_err(|e| input("demultiplexer", e))?
         }
     };
     if matches!(code, GroupCode::Single) {
@@ -311,8 +324,9 @@ pub fn run(req: &DomeRunRequest, on_line: &mut dyn FnMut(&str)) -> Result<DomeRu
         sim_cfg.devices = rig.devices.simulated().ok_or_else(|| {
             RunError::Rig("a device is real hardware: only simulated and emulated domes run plans so far".into())
         })?;
-        let rig_dev = DomeRig::build(&sim_cfg, &faults, clock.clone(), scene.clone(), &cameras, RenderOptions::default())
-            .map_err(|e| RunError::Rig(e.to_string()))?;
+        let rig_dev =
+            DomeRig::build(&sim_cfg, &faults, clock.clone(), scene.clone(), &cameras, RenderOptions::default())
+                .map_err(|e| RunError::Rig(e.to_string()))?;
         let sources = rig_dev.sources.clone();
         let (turntable, leds, _firmware) =
             crate::emulated::connect_dome(&rig.devices, rig_dev.turntable, rig_dev.led_array, clock.clone())
@@ -347,10 +361,7 @@ pub fn run(req: &DomeRunRequest, on_line: &mut dyn FnMut(&str)) -> Result<DomeRu
     s.light = light;
     s.leds = schedule.leds;
     s.views = views.len();
-    s.mode = match schedule.mode {
-        DomeMode::Single => "single-light".into(),
-        DomeMode::Multiplexed { order } => format!("s-matrix {order}"),
-    };
+    s.mode = schedule.mode.describe();
     s.multiplex_reason = schedule.reason.clone();
     s.multiplex_gain_predicted = schedule.predicted_gain;
     s.time_saved_fraction = schedule.time_saved_fraction;
@@ -463,7 +474,14 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
                 for (slot, frame) in cap.frames.iter().enumerate() {
                     let c = self.v.cameras[slot];
                     let stack = self.stacks.entry(slot).or_insert_with(|| {
-                        GroupStack::new(c, step.rotation, step.turntable_rad, frames_per_group, frame.width, frame.height)
+                        GroupStack::new(
+                            c,
+                            step.rotation,
+                            step.turntable_rad,
+                            frames_per_group,
+                            frame.width,
+                            frame.height,
+                        )
                     });
                     self.processing.add(stack, p, frame).map_err(|e| input("dome pipeline", e))?;
                     self.out.group_bytes = self.out.group_bytes.max(stack.bytes());
@@ -481,7 +499,10 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
 
     fn finish_group(&mut self, stack: GroupStack, first_camera: bool, attempts: u32) -> Result<(), RunError> {
         if !stack.is_complete() {
-            return Err(input("dome pipeline", format!("camera {} rotation {}: group incomplete", stack.camera, stack.rotation)));
+            return Err(input(
+                "dome pipeline",
+                format!("camera {} rotation {}: group incomplete", stack.camera, stack.rotation),
+            ));
         }
         let (c, k, rad, exp, gain) = (stack.camera, stack.rotation, stack.turntable_rad, stack.exposure_s, stack.gain);
         let started = Instant::now();
@@ -506,7 +527,8 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
         let demux_s = started.elapsed().as_secs_f64();
         // A stuck LED's own image is recovered only on average (docs/multiplexing.md): it is
         // stored, but left out of the texture error, which speaks for the healthy LEDs.
-        let faulty: Vec<usize> = result.report.as_ref().map_or(Vec::new(), |r| r.faults.iter().map(|f| f.source).collect());
+        let faulty: Vec<usize> =
+            result.report.as_ref().map_or(Vec::new(), |r| r.faults.iter().map(|f| f.source).collect());
         for j in 0..self.schedule.leds {
             let id = StepId { light: j as u32, view: (self.view_id)(c, k) };
             if self.dataset.completed().contains(&id) {
@@ -522,10 +544,7 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
                 self.rmse.push(sq_err(&tex, &truth.data));
             }
             let size = self.v.plan.texture_size;
-            let file = self
-                .dataset
-                .write_texture(id, &tex, size, size)
-                .map_err(|e| input("dataset", e))?;
+            let file = self.dataset.write_texture(id, &tex, size, size).map_err(|e| input("dataset", e))?;
             let timing = StepTiming {
                 started_unix_s: 0.0,
                 wall_s: t0.elapsed().as_secs_f64(),
@@ -558,10 +577,12 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
             let truth_ref = source.noise_free_dn(rad, &single, *ref_exp, *gain);
             let demuxed = &mosaics[j * cols..(j + 1) * cols];
             g.push(snr(demuxed, &truth_mux) / snr(sig, &truth_ref));
-            let tex = self.processing.texture(sig, c, rad, *j, *ref_exp, *gain).map_err(|e| input("dome pipeline", e))?;
+            let tex =
+                self.processing.texture(sig, c, rad, *j, *ref_exp, *gain).map_err(|e| input("dome pipeline", e))?;
             let truth = self.scene.ground_truth(c, rad, *j, self.v.plan.texture_size);
             ref_err.push(sq_err(&tex, &truth.data));
-            let tex = self.processing.texture(demuxed, c, rad, *j, *exp, *gain).map_err(|e| input("dome pipeline", e))?;
+            let tex =
+                self.processing.texture(demuxed, c, rad, *j, *exp, *gain).map_err(|e| input("dome pipeline", e))?;
             mux_err.push(sq_err(&tex, &truth.data));
         }
         if !g.is_empty() {

@@ -36,7 +36,7 @@ pub enum MultiplexPolicy {
     Auto,
     /// Always one LED per frame.
     Off,
-    /// Always the full S-matrix.
+    /// Always multiplex: the full S-matrix, or groups of `group_order` when it is set.
     On,
 }
 
@@ -60,6 +60,12 @@ pub struct DomeCapture {
     /// `"auto"` (default), `"off"` or `"on"`.
     #[serde(default = "DomeCapture::default_policy")]
     pub multiplex: MultiplexPolicy,
+    /// With `multiplex = "on"`: capture the LEDs in consecutive groups of this many, each
+    /// multiplexed by its own S-matrix of this order, instead of one S-matrix over all of
+    /// them (3 or more and below the LED count, so there are at least two groups; the
+    /// planner checks that an S-matrix of the order exists). Unset: the full S-matrix.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub group_order: Option<usize>,
     /// Typical sample albedo for the noise model (0 < b <= 1; default 0.3).
     #[serde(default = "DomeCapture::default_brightness")]
     pub sample_brightness: f64,
@@ -101,6 +107,7 @@ impl Default for DomeCapture {
             exposure_s: Self::default_exposure(),
             gain: Self::default_gain(),
             multiplex: Self::default_policy(),
+            group_order: None,
             sample_brightness: Self::default_brightness(),
             brightness_max: Self::default_brightness_max(),
             reference_leds: Self::default_reference(),
@@ -154,11 +161,19 @@ impl DomePlan {
         }
         for (i, &c) in cameras.iter().enumerate() {
             if c >= nc || cameras[..i].contains(&c) {
-                e.push(ConfigError::out_of_range(&format!("dome.cameras[{i}]"), c, &format!("distinct indices in 0..{nc}")));
+                e.push(ConfigError::out_of_range(
+                    &format!("dome.cameras[{i}]"),
+                    c,
+                    &format!("distinct indices in 0..{nc}"),
+                ));
             }
         }
         if rotations.is_empty() {
-            e.push(ConfigError::out_of_range("dome.rotations", "[]", &format!("rotation indices in 0..{}", dome.rotations)));
+            e.push(ConfigError::out_of_range(
+                "dome.rotations",
+                "[]",
+                &format!("rotation indices in 0..{}", dome.rotations),
+            ));
         }
         for (i, &k) in rotations.iter().enumerate() {
             if k >= dome.rotations || rotations[..i].contains(&k) {
@@ -181,6 +196,7 @@ impl DomePlan {
         if !(d.brightness_max.is_finite() && d.brightness_max >= d.sample_brightness) {
             e.push(ConfigError::out_of_range("dome.brightness_max", d.brightness_max, ">= dome.sample_brightness"));
         }
+        e.extend(check_group_order(d, dome.led_count()));
         if d.reference_leds > 16 {
             e.push(ConfigError::out_of_range("dome.reference_leds", d.reference_leds, "0..=16"));
         }
@@ -197,6 +213,29 @@ impl DomePlan {
         ConfigError::from_list(e)?;
         Ok(ValidatedDomePlan { plan: self, cameras, rotations })
     }
+}
+
+/// `group_order` only refines a forced multiplexed capture (under `"auto"` the noise model
+/// picks the groups itself, under `"off"` nothing is multiplexed), and needs at least two
+/// groups of at least 3 LEDs' slots (smaller S-matrices do not gain).
+fn check_group_order(d: &DomeCapture, leds: usize) -> Option<ConfigError> {
+    let m = d.group_order?;
+    if d.multiplex != MultiplexPolicy::On {
+        let policy = if d.multiplex == MultiplexPolicy::Auto { "auto" } else { "off" };
+        return Some(ConfigError::out_of_range(
+            "dome.group_order",
+            m,
+            &format!("only with multiplex = \"on\" (the plan says \"{policy}\"; under \"auto\" the noise model picks the groups)"),
+        ));
+    }
+    if !(3..leds).contains(&m) {
+        return Some(ConfigError::out_of_range(
+            "dome.group_order",
+            m,
+            &format!("3..{leds} (at least two groups of the {leds} lights; an order with an S-matrix)"),
+        ));
+    }
+    None
 }
 
 #[cfg(test)]
@@ -223,5 +262,24 @@ mod tests {
         assert!(e.contains("dome.rotations[1] = 1"), "{e}");
         assert!(e.contains("dome.exposure_s = 0"), "{e}");
         assert!(DomePlan::from_toml("[dome]\ncamera = [0]\n", "p").unwrap_err().to_string().contains("camera"));
+    }
+
+    #[test]
+    fn a_group_order_needs_a_forced_multiplex_and_at_least_two_groups() {
+        let check = |extra: &str| DomePlan::from_toml(&format!("[dome]\n{extra}"), "p").unwrap().validate(&rig());
+        let v = check("multiplex = \"on\"\ngroup_order = 7\n").unwrap();
+        assert_eq!(v.plan.dome.group_order, Some(7));
+        let e = check("group_order = 7\n").unwrap_err().to_string();
+        assert!(
+            e.contains(
+                "dome.group_order = 7 is out of range: allowed only with multiplex = \"on\" (the plan says \"auto\""
+            ),
+            "{e}"
+        );
+        let e = check("multiplex = \"on\"\ngroup_order = 199\n").unwrap_err().to_string();
+        assert!(
+            e.contains("dome.group_order = 199 is out of range: allowed 3..198 (at least two groups of the 198 lights"),
+            "{e}"
+        );
     }
 }
