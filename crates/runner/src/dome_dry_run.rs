@@ -14,8 +14,8 @@
 use std::path::Path;
 
 use btfrig_core::profile::move_time_s;
-use btfrig_mux::{Mode, Prediction};
-use btfrig_planner::dome::{plan_dome, DomeMode, DomeSchedule, DomeShot};
+use btfrig_mux::Prediction;
+use btfrig_planner::dome::{plan_dome, DomeSchedule, DomeShot};
 use btfrig_render::dome_scene::DomeScene;
 
 use crate::RunError;
@@ -105,10 +105,7 @@ pub fn dry_run(text: &str, file: &Path) -> Result<DomeDryRun, RunError> {
     let views = v.cameras.len() * v.rotations.len();
     let textures = schedule.leds * views;
     let size = v.plan.texture_size as u64;
-    let per_group = match schedule.mode {
-        DomeMode::Single => schedule.leds,
-        _ => schedule.patterns.len(),
-    };
+    let per_group = if schedule.mode.is_multiplexed() { schedule.patterns.len() } else { schedule.leds };
     Ok(DomeDryRun {
         name: v.plan.name.clone(),
         rig: format!("{} ({})", rig.rig.name, rig.rig.kind.as_str()),
@@ -155,14 +152,6 @@ pub fn candidate_lines(schedule: &DomeSchedule) -> Vec<String> {
         .collect()
 }
 
-/// The mode's name as in the run summary (`"s-matrix 199"`, `"single-light"`).
-pub fn mode_name(mode: &DomeMode) -> String {
-    match mode {
-        DomeMode::Single => Mode::Single.describe(),
-        DomeMode::Multiplexed { order } => Mode::SMatrix { order: *order }.describe(),
-    }
-}
-
 impl DomeDryRun {
     /// The plan as it would run, for `btfrig plan show`.
     pub fn lines(&self, file: &Path) -> Vec<String> {
@@ -178,7 +167,7 @@ impl DomeDryRun {
                 self.rotations,
                 self.textures
             ),
-            format!("mode {}: {}", mode_name(&s.mode), s.reason),
+            format!("mode {}: {}", s.mode.describe(), s.reason),
         ];
         out.push("noise model candidates (equal total exposure time):".into());
         out.extend(candidate_lines(s).into_iter().map(|l| format!("  {l}")));

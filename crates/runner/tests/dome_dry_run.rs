@@ -17,7 +17,7 @@ fn check(plan: &str, name: &str) {
         eprintln!("{l}");
     }
     eprintln!("measured rig time {:.2} s, estimated {:.2} s", s.hardware_s, d.rig_time_s);
-    assert_eq!(btfrig_runner::dome_dry_run::mode_name(&d.schedule.mode), s.mode);
+    assert_eq!(d.schedule.mode.describe(), s.mode);
     assert_eq!((d.frames as u64, d.textures as u64), (s.frames, s.textures));
     assert!((d.schedule.predicted_gain - s.multiplex_gain_predicted).abs() < 1e-12);
     // A lower bound (the serial round trips are left out), within 5 % of the run (measured: 1 %).
