@@ -190,6 +190,14 @@ pub fn print_dome_summary(s: &btfrig_runner::dome::DomeRunSummary) {
         f(s.reference_texture_rel_rmse)
     );
     println!("  group memory      {:.1} MB per view group", s.group_bytes as f64 / 1e6);
+    if let Some(k) = s.denoise_terms {
+        let n = s.denoise_energy_kept.len().max(1) as f64;
+        println!(
+            "  denoising         projection onto each view group's own {k}-term light basis: {:.1} % of the energy kept (mean), {:.2} s",
+            100.0 * s.denoise_energy_kept.iter().sum::<f64>() / n,
+            s.denoise_s
+        );
+    }
     println!("  wall time         {:.1} s", s.wall_s);
     println!("  faults            {}", if s.faults.is_empty() { "none".into() } else { s.faults.join("; ") });
     println!("  warnings          {}", s.warnings.len());

@@ -104,6 +104,12 @@ pub struct DomeRunSummary {
     pub views_resumed: usize,
     /// Peak resident memory of the process at the end of the run (Linux `VmHWM`), MiB.
     pub peak_rss_mib: Option<f64>,
+    /// Basis terms of the denoising projection (`[dome] denoise_terms`; `None`: off).
+    pub denoise_terms: Option<usize>,
+    /// Per denoised view group, the fraction of its textures' energy the basis kept.
+    pub denoise_energy_kept: Vec<f64>,
+    /// Wall time of rectifying and projecting the denoised groups, s.
+    pub denoise_s: f64,
 }
 
 impl DomeRunSummary {
@@ -132,6 +138,9 @@ impl DomeRunSummary {
             "group_bytes": self.group_bytes,
             "views_resumed": self.views_resumed,
             "peak_rss_mib": self.peak_rss_mib,
+            "denoise_terms": self.denoise_terms,
+            "denoise_energy_kept": self.denoise_energy_kept,
+            "denoise_s": self.denoise_s,
             "wall_s": self.wall_s,
         })
     }
@@ -200,6 +209,40 @@ fn snr(measured: &[f32], truth: &[f32]) -> f64 {
         return f64::NAN;
     }
     (s / n as f64) / (e / n as f64).sqrt()
+}
+
+/// Projects one view group's textures (one per light, `size² x 3` values each) onto their own
+/// leading `terms` light-basis vectors (`btfrig_mux::denoise`); `skip` lights (faulty) are
+/// left out of the fit and unchanged. The projection runs on the textures divided by
+/// `scales` (each texel's DN-to-texture factor of that light): there the demultiplexing noise
+/// is about equal for every light, while in the textures a grazing LED's is many times a
+/// facing one's, and the noisiest lights would take the leading basis vectors for themselves.
+fn denoise_group(
+    texes: Vec<Vec<[f32; 3]>>,
+    scales: &[Vec<[f32; 3]>],
+    terms: usize,
+    skip: &[bool],
+) -> Result<(Vec<Vec<[f32; 3]>>, btfrig_mux::Projection), btfrig_mux::MuxError> {
+    let n = texes.len();
+    let safe = |s: f32| if s.is_finite() && s > 0.0 { s } else { 1.0 };
+    let mut rows: Vec<f32> = texes
+        .iter()
+        .zip(scales)
+        .flat_map(|(t, s)| t.iter().zip(s).flat_map(|(p, q)| (0..3).map(move |c| p[c] / safe(q[c]))))
+        .collect();
+    drop(texes);
+    let p = btfrig_mux::project_onto_own_basis(&mut rows, n, terms, skip)?;
+    let t = rows.len() / n.max(1);
+    let out = (0..n)
+        .map(|j| {
+            rows[j * t..(j + 1) * t]
+                .chunks_exact(3)
+                .zip(&scales[j])
+                .map(|(v, q)| std::array::from_fn(|c| v[c] * safe(q[c])))
+                .collect()
+        })
+        .collect();
+    Ok((out, p))
 }
 
 /// Runs a dome plan to its end (see the module docs).
@@ -363,6 +406,7 @@ pub fn run(req: &DomeRunRequest, on_line: &mut dyn FnMut(&str)) -> Result<DomeRu
     s.views = views.len();
     s.mode = schedule.mode.describe();
     s.multiplex_reason = schedule.reason.clone();
+    s.denoise_terms = v.plan.dome.denoise_terms;
     s.multiplex_gain_predicted = schedule.predicted_gain;
     s.time_saved_fraction = schedule.time_saved_fraction;
     s.hardware_s = engine.hardware_s;
@@ -529,21 +573,42 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
         // stored, but left out of the texture error, which speaks for the healthy LEDs.
         let faulty: Vec<usize> =
             result.report.as_ref().map_or(Vec::new(), |r| r.faults.iter().map(|f| f.source).collect());
-        for j in 0..self.schedule.leds {
+        let leds = self.schedule.leds;
+        let size = self.v.plan.texture_size;
+        let texture = |j: usize| self.processing.texture(result.mosaic(j), c, rad, j, exp, gain);
+        // Denoising projects the whole group's textures at once; otherwise they stream one by
+        // one (the group's memory is then one texture, not `leds`).
+        let mut denoised: Option<Vec<Vec<[f32; 3]>>> = None;
+        if let Some(terms) = self.v.plan.dome.denoise_terms {
+            let t0 = Instant::now();
+            let texes: Vec<Vec<[f32; 3]>> =
+                (0..leds).map(texture).collect::<Result<_, _>>().map_err(|e| input("dome pipeline", e))?;
+            let skip: Vec<bool> = (0..leds).map(|j| faulty.contains(&j)).collect();
+            // The pipeline is linear, so a mosaic of ones gives each texel's DN-to-texture factor.
+            let ones = vec![1.0f32; result.cols];
+            let scales: Vec<Vec<[f32; 3]>> = (0..leds)
+                .map(|j| self.processing.texture(&ones, c, rad, j, exp, gain))
+                .collect::<Result<_, _>>()
+                .map_err(|e| input("dome pipeline", e))?;
+            let (texes, p) = denoise_group(texes, &scales, terms, &skip).map_err(|e| input("denoising", e))?;
+            self.out.denoise_energy_kept.push(p.energy_kept);
+            self.out.denoise_s += t0.elapsed().as_secs_f64();
+            denoised = Some(texes);
+        }
+        for j in 0..leds {
             let id = StepId { light: j as u32, view: (self.view_id)(c, k) };
             if self.dataset.completed().contains(&id) {
                 continue;
             }
             let t0 = Instant::now();
-            let tex = self
-                .processing
-                .texture(result.mosaic(j), c, rad, j, exp, gain)
-                .map_err(|e| input("dome pipeline", e))?;
+            let tex = match &mut denoised {
+                Some(all) => std::mem::take(&mut all[j]),
+                None => texture(j).map_err(|e| input("dome pipeline", e))?,
+            };
             let truth = self.scene.ground_truth(c, rad, j, self.v.plan.texture_size);
             if !faulty.contains(&j) {
                 self.rmse.push(sq_err(&tex, &truth.data));
             }
-            let size = self.v.plan.texture_size;
             let file = self.dataset.write_texture(id, &tex, size, size).map_err(|e| input("dataset", e))?;
             let timing = StepTiming {
                 started_unix_s: 0.0,

@@ -76,6 +76,11 @@ pub struct DomeCapture {
     /// multiplexing gain against (0..=16; default 4; ignored without multiplexing).
     #[serde(default = "DomeCapture::default_reference")]
     pub reference_leds: usize,
+    /// Denoise every view group's textures by projection onto their own leading basis of
+    /// this many terms over the lights (`btfrig_mux::denoise`; seed 001 §4.2): 1 up to the
+    /// lights minus one; unset (default): no denoising.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub denoise_terms: Option<usize>,
 }
 
 impl DomeCapture {
@@ -111,6 +116,7 @@ impl Default for DomeCapture {
             sample_brightness: Self::default_brightness(),
             brightness_max: Self::default_brightness_max(),
             reference_leds: Self::default_reference(),
+            denoise_terms: None,
         }
     }
 }
@@ -197,6 +203,16 @@ impl DomePlan {
             e.push(ConfigError::out_of_range("dome.brightness_max", d.brightness_max, ">= dome.sample_brightness"));
         }
         e.extend(check_group_order(d, dome.led_count()));
+        if let Some(k) = d.denoise_terms {
+            let n = dome.led_count();
+            if !(1..n.saturating_sub(1)).contains(&k) {
+                e.push(ConfigError::out_of_range(
+                    "dome.denoise_terms",
+                    k,
+                    &format!("1..{} (fewer terms than the {n} lights, or leave it out for no denoising)", n - 1),
+                ));
+            }
+        }
         if d.reference_leds > 16 {
             e.push(ConfigError::out_of_range("dome.reference_leds", d.reference_leds, "0..=16"));
         }
@@ -262,6 +278,17 @@ mod tests {
         assert!(e.contains("dome.rotations[1] = 1"), "{e}");
         assert!(e.contains("dome.exposure_s = 0"), "{e}");
         assert!(DomePlan::from_toml("[dome]\ncamera = [0]\n", "p").unwrap_err().to_string().contains("camera"));
+    }
+
+    #[test]
+    fn denoise_terms_are_fewer_than_the_lights() {
+        let check = |extra: &str| DomePlan::from_toml(&format!("[dome]\n{extra}"), "p").unwrap().validate(&rig());
+        assert_eq!(check("").unwrap().plan.dome.denoise_terms, None);
+        assert_eq!(check("denoise_terms = 16\n").unwrap().plan.dome.denoise_terms, Some(16));
+        for bad in [0, 197, 500] {
+            let e = check(&format!("denoise_terms = {bad}\n")).unwrap_err().to_string();
+            assert!(e.contains(&format!("dome.denoise_terms = {bad} is out of range: allowed 1..197")), "{e}");
+        }
     }
 
     #[test]
