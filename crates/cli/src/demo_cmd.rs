@@ -158,48 +158,6 @@ fn run_dome(a: &DemoArgs, demo: DomeDemo) -> anyhow::Result<ExitCode> {
         return Ok(ExitCode::SUCCESS);
     }
     println!("btfrig demo: plan {:?} on the simulated {}", demo.name, demo.rig);
-    print_dome_summary(&s);
+    crate::run_cmd::print_dome_summary(&s);
     Ok(ExitCode::SUCCESS)
-}
-
-/// The figures of a dome run (`btfrig demo --rig dome|camera-array`, `btfrig run` on a dome
-/// plan), one per line.
-pub fn print_dome_summary(s: &btfrig_runner::dome::DomeRunSummary) {
-    let lights = if s.light == "flash" { "flashes" } else { "LEDs" };
-    let f = |v: Option<f64>| v.map(|r| format!("{r:.3}")).unwrap_or_else(|| "n/a".into());
-    println!(
-        "  textures          {} ({} {} x {} views), {} frames per camera",
-        s.textures, s.leds, lights, s.views, s.frames
-    );
-    println!("  mode              {}: {}", s.mode, s.multiplex_reason);
-    println!(
-        "  SNR gain          predicted {:.3}, measured {} (demultiplexed vs single-light frames, against noise-free renders)",
-        s.multiplex_gain_predicted,
-        f(s.multiplex_gain_measured)
-    );
-    let of = if s.light == "flash" {
-        "frames single-flash capture averages"
-    } else {
-        "exposure time single-light capture needs"
-    };
-    println!("  time saved        {:.1} % of the {of} for the same SNR", 100.0 * s.time_saved_fraction);
-    println!("  rig time          {:.1} s ({:.1} s exposing)", s.hardware_s, s.exposure_time_s);
-    println!(
-        "  texture error     {} (single-light references {}): relative RMSE against ground truth",
-        f(s.texture_rel_rmse),
-        f(s.reference_texture_rel_rmse)
-    );
-    println!("  group memory      {:.1} MB per view group", s.group_bytes as f64 / 1e6);
-    if let Some(k) = s.denoise_terms {
-        let n = s.denoise_energy_kept.len().max(1) as f64;
-        println!(
-            "  denoising         projection onto each view group's own {k}-term light basis: {:.1} % of the energy kept (mean), {:.2} s",
-            100.0 * s.denoise_energy_kept.iter().sum::<f64>() / n,
-            s.denoise_s
-        );
-    }
-    println!("  wall time         {:.1} s", s.wall_s);
-    println!("  faults            {}", if s.faults.is_empty() { "none".into() } else { s.faults.join("; ") });
-    println!("  warnings          {}", s.warnings.len());
-    println!("  dataset           {}", s.dataset.display());
 }
