@@ -38,7 +38,7 @@ use crate::error::MuxError;
 use crate::rader::Rader;
 use crate::smatrix::{is_prime, Construction, SMatrix};
 use crate::tile::{check_shape, for_each_tile, Par};
-use crate::vfft::{VecRader, V};
+use crate::vfft::VecRader;
 
 /// Which algorithm applies `S⁻¹` (or `S`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -236,7 +236,7 @@ struct BlockScratch {
     y32: Vec<f32>,
     x64: Vec<f64>,
     y64: Vec<f64>,
-    v: Vec<V>,
+    v: Vec<pulp::f32x16>,
 }
 
 impl DemuxScratch {
@@ -292,8 +292,7 @@ impl Demuxer {
                 }
                 match params.accumulate {
                     Accumulate::F32 if params.fft_engine == FftEngine::Vector && rader_ok => {
-                        let k = FftKernel::<f32>::new(row, len);
-                        match k.rader.and_then(VecRader::new) {
+                        match rader_f64(row).and_then(VecRader::new) {
                             Some(v) => Kernel::FftVec(v),
                             None => Kernel::Fft32(FftKernel::new(row, len)),
                         }
@@ -381,7 +380,7 @@ impl Demuxer {
                         }
                     }
                     (Kernel::FftVec(k), _) => {
-                        b.v = vec![V::default(); k.scratch_len()];
+                        b.v = vec![<pulp::f32x16 as pulp::bytemuck::Zeroable>::zeroed(); k.scratch_len()];
                     }
                     (Kernel::Fft64(k), _) => {
                         b.c64 = vec![Complex::default(); t.div_ceil(2) * k.len];
@@ -628,6 +627,16 @@ fn fwht_tile_f64(rows: &mut [&mut [f32]], buf: &mut [f64], dir: Dir) {
             }
         }
     }
+}
+
+/// The Rader-domain plan of a prime cyclic order in f64 (its spectra feed the vector
+/// path's fused coefficients); `None` for other orders.
+pub(crate) fn rader_f64(first_row: &[u8]) -> Option<Rader<f64>> {
+    let n = first_row.len();
+    if n < 3 {
+        return None;
+    }
+    FftKernel::<f64>::new(first_row, n - 1).rader
 }
 
 impl<F: Real> FftKernel<F> {
