@@ -112,9 +112,12 @@ pub struct DemuxParams {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum FftEngine {
     /// The pixel-vectorised Rader-domain transform (`crate::vfft`) where it applies (a Paley
-    /// order with `p − 1` 13-smooth, f32), else rustfft.
+    /// order with `p − 1` twice a product of 3 … 13, f32), else rustfft; AVX-512 where the CPU
+    /// has it, else AVX2, else portable code.
     #[default]
     Vector,
+    /// The same, but never AVX-512 (to compare the two on one CPU).
+    VectorAvx2,
     /// rustfft, one column pair at a time, the tile transposed into its buffer and back.
     RustFft,
 }
@@ -291,8 +294,11 @@ impl Demuxer {
                     });
                 }
                 match params.accumulate {
-                    Accumulate::F32 if params.fft_engine == FftEngine::Vector && rader_ok => {
-                        match rader_f64(row).and_then(VecRader::new) {
+                    Accumulate::F32
+                        if matches!(params.fft_engine, FftEngine::Vector | FftEngine::VectorAvx2) && rader_ok =>
+                    {
+                        let wide = params.fft_engine == FftEngine::Vector;
+                        match rader_f64(row).and_then(|r| VecRader::new(r, wide)) {
                             Some(v) => Kernel::FftVec(v),
                             None => Kernel::Fft32(FftKernel::new(row, len)),
                         }
@@ -321,11 +327,12 @@ impl Demuxer {
             match method {
                 // About 256 KiB of f32 per tile (the rows of N = n + 1 runs).
                 Method::Fwht => ((65536 / (n + 1)).clamp(16, 1024) / 16) * 16,
+                // The vector path's unit is its block of 16 or 32 columns read straight from
+                // the rows; a tile only bounds how far ahead it prefetches (not across tiles),
+                // so it is long: 1 MP RGB is 46 tiles per thread.
+                Method::Fft if matches!(kernel, Kernel::FftVec(_)) => 1 << 15,
                 // The Rader path copies the tile and transforms it in batches of 16 column
                 // pairs; 64 columns measured 5 % faster than 256 at n = 151 (noisy).
-                // 16-column blocks gathered straight from the tile's rows, the block after
-                // next prefetched: 256 columns measured best or within the noise of it.
-                Method::Fft if matches!(kernel, Kernel::FftVec(_)) => 256,
                 Method::Fft if matches!(c, Construction::Paley { .. }) && fft_len(n, params.fft_len) + 1 == n => 64,
                 Method::Fft => 256,
                 Method::Dense(_) => 512,
@@ -347,8 +354,18 @@ impl Demuxer {
     /// The FFT code in use (`None` off the FFT path).
     pub fn fft_engine(&self) -> Option<FftEngine> {
         match self.kernel {
-            Kernel::FftVec(_) => Some(FftEngine::Vector),
+            Kernel::FftVec(ref k) if k.wide() => Some(FftEngine::Vector),
+            Kernel::FftVec(_) => Some(FftEngine::VectorAvx2),
             Kernel::Fft32(_) | Kernel::Fft64(_) => Some(FftEngine::RustFft),
+            _ => None,
+        }
+    }
+
+    /// The instruction set the pixel-vectorised transform runs on this CPU ("avx512", "avx2"
+    /// or "portable"); `None` off that path.
+    pub fn vector_isa(&self) -> Option<&'static str> {
+        match &self.kernel {
+            Kernel::FftVec(k) => Some(k.isa()),
             _ => None,
         }
     }

@@ -203,6 +203,7 @@ fn cyclic_fft_lengths_match_the_dense_f64_closed_form() {
         for len in lens {
             for (acc, fft_engine) in [
                 (Accumulate::F32, FftEngine::Vector),
+                (Accumulate::F32, FftEngine::VectorAvx2),
                 (Accumulate::F32, FftEngine::RustFft),
                 (Accumulate::F64, FftEngine::Vector),
             ] {
