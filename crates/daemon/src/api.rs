@@ -613,9 +613,9 @@ pub async fn start_run(State(s): Shared, Operator(c): Operator, ApiJson(b): ApiJ
         btfrig_runner::check::CheckedPlan::Gonio { validated, .. } => validated,
         btfrig_runner::check::CheckedPlan::Dome { plan, .. } => {
             return Err(Problem::unprocessable(format!(
-                "plan {:?} is a valid dome plan for this rig ({:?}, {}), but the daemon does not run dome plans yet: \
-                 a dome run has no pause, resume, abort or progress events for the API to steer (docs/http-api.md, \
-                 \"Dome plans\"); allowed here: POST /api/v1/plans/validate and /api/v1/plans/dry-run; \
+                "plan {:?} is a valid dome plan for this rig ({:?}, {}), but the daemon does not start dome runs yet: \
+                 its run status, previews and metrics follow gonio runs (docs/http-api.md, \"Dome plans\"); \
+                 allowed here: POST /api/v1/plans/validate and /api/v1/plans/dry-run; \
                  run it with `btfrig run --plan FILE --out DIR`",
                 given_name.as_deref().unwrap_or(&plan.plan.name),
                 s.rig.rig.name,

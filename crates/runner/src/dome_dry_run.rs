@@ -135,6 +135,11 @@ fn rig_time(rig: &RigConfig, dome: &DomeConfig, schedule: &DomeSchedule) -> RigT
     out
 }
 
+/// The estimated rig time of `schedule`'s steps, s (a lower bound: module docs).
+pub(crate) fn schedule_rig_time_s(rig: &RigConfig, dome: &DomeConfig, schedule: &DomeSchedule) -> f64 {
+    rig_time(rig, dome, schedule).total_s()
+}
+
 /// Bytes one view group's stack holds: its frames x photosites x 4, for every camera.
 fn group_bytes(rig: &RigConfig, cameras: usize, schedule: &DomeSchedule) -> u64 {
     let per_group = if schedule.mode.is_multiplexed() { schedule.patterns.len() } else { schedule.leds };
