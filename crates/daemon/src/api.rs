@@ -162,7 +162,8 @@ pub struct PlanCheck {
     /// True when the plan can run on this rig.
     pub valid: bool,
     /// The plan's format: `gonioreflectometer` (light and view samplings) or `dome` (a
-    /// `[dome]` table: LED domes and camera arrays); `null` when no plan was given.
+    /// `[dome]` table: LED domes and camera arrays); `null` when no plan was given or its
+    /// text is not TOML.
     pub kind: Option<PlanKind>,
     /// Captures it makes: (light, view) pairs of a gonio plan, textures (lights x views) of a
     /// dome plan (0 when invalid).

@@ -248,7 +248,7 @@ impl AppState {
             Ok(p) => p,
             Err(e) => return invalid(None, vec![e.detail]),
         };
-        let kind = btfrig_runner::check::PlanKind::of(&text);
+        let kind = btfrig_runner::check::PlanKind::of_toml(&text);
         let state = self.clone();
         let job = tokio::task::spawn_blocking(move || -> Result<PlanCheck, Vec<String>> {
             let errors = |e: btfrig_runner::RunError| match e {
@@ -258,7 +258,7 @@ impl AppState {
             let checked = btfrig_runner::check::check_for_rig(&text, &path, &state.rig).map_err(errors)?;
             let mut c = PlanCheck {
                 valid: true,
-                kind: Some(kind.into()),
+                kind: kind.map(Into::into),
                 captures: checked.captures(),
                 estimate_s: None,
                 naive_order_s: None,
@@ -299,8 +299,8 @@ impl AppState {
         });
         match job.await {
             Ok(Ok(c)) => c,
-            Ok(Err(errors)) => invalid(Some(kind.into()), errors),
-            Err(e) => invalid(Some(kind.into()), vec![format!("the plan check crashed: {e}")]),
+            Ok(Err(errors)) => invalid(kind.map(Into::into), errors),
+            Err(e) => invalid(kind.map(Into::into), vec![format!("the plan check crashed: {e}")]),
         }
     }
 

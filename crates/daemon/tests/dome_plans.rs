@@ -267,6 +267,12 @@ fn an_led_dome_daemon_dry_runs_dome_plans_and_refuses_gonio_plans() {
         "{r}"
     );
 
+    // Text that is no TOML at all is a syntax error, not a plan for another rig.
+    let r = d.check("validate", json!({ "plan_text": "[dome\ncameras = [" }));
+    let e = r["errors"][0].as_str().unwrap();
+    assert!(r["valid"] == false && r["kind"].is_null(), "{r}");
+    assert!(e.contains("TOML parse error") && !e.contains("allowed here are"), "{e}");
+
     // A gonio plan on the dome: refused everywhere, naming both kinds and what is allowed.
     for check in ["validate", "dry-run"] {
         let r = d.check(check, json!({ "plan_text": plan_file("demo") }));

@@ -23,14 +23,16 @@ pub enum PlanKind {
 }
 
 impl PlanKind {
-    /// The kind of the plan `text`: a dome plan when it has a `[dome]` table (text that does
-    /// not parse is taken for a gonio plan, whose parser then names the problem).
-    pub fn of(text: &str) -> PlanKind {
-        if crate::dome_dry_run::is_dome_plan(text) {
-            PlanKind::Dome
-        } else {
-            PlanKind::Gonio
-        }
+    /// The kind of the plan `text`: a dome plan when it has a `[dome]` table; `None` when it
+    /// is not TOML at all.
+    pub fn of_toml(text: &str) -> Option<PlanKind> {
+        toml::from_str::<toml::Table>(text).ok().map(|t| {
+            if t.contains_key("dome") {
+                PlanKind::Dome
+            } else {
+                PlanKind::Gonio
+            }
+        })
     }
 
     /// The plans a rig of `rig` runs.
@@ -141,8 +143,10 @@ impl CheckedPlan {
 /// checks that `rig` runs it: same kind ([`PlanKind::for_rig`]) and same rig name. A plan of
 /// the other kind is refused before it is validated (it cannot run here whatever it says);
 /// the refusal names the plan's rig and kind, this rig and its kind, and what is allowed.
+/// Text that is not TOML at all is reported by the parser of this rig's plans.
 pub fn check_for_rig(text: &str, file: &Path, rig: &RigConfig) -> Result<CheckedPlan, RunError> {
-    let kind = PlanKind::of(text);
+    let parsed = PlanKind::of_toml(text);
+    let kind = parsed.unwrap_or(PlanKind::Gonio);
     let here = PlanKind::for_rig(rig);
     let wrong = |plan_rig: String| RunError::WrongRig {
         plan_kind: kind.describe(),
@@ -151,10 +155,10 @@ pub fn check_for_rig(text: &str, file: &Path, rig: &RigConfig) -> Result<Checked
         rig_kind: rig.rig.kind.as_str(),
         allowed: here.allowed(),
     };
-    if kind != here {
+    if kind != here && parsed.is_some() {
         return Err(wrong(plan_rig_label(text, file, kind)));
     }
-    let checked = match kind {
+    let checked = match here {
         PlanKind::Gonio => {
             let (plan, validated) = crate::plan::load_text(text, file)?;
             CheckedPlan::Gonio { plan: Box::new(plan), validated: Box::new(validated) }
@@ -191,6 +195,6 @@ fn plan_rig_label(text: &str, file: &Path, kind: PlanKind) -> String {
     };
     match rig_text.and_then(|t| RigConfig::from_toml(&t, &config).ok()) {
         Some(r) => format!("{:?} ({})", r.rig.name, r.rig.kind.as_str()),
-        None => format!("rig.config = {config:?}"),
+        None => format!("{config:?} (its rig.config, which does not load)"),
     }
 }
