@@ -161,20 +161,200 @@ pub struct PlanBody {
 pub struct PlanCheck {
     /// True when the plan can run on this rig.
     pub valid: bool,
-    /// Captures it makes (0 when invalid).
+    /// The plan's format: `gonioreflectometer` (light and view samplings) or `dome` (a
+    /// `[dome]` table: LED domes and camera arrays); `null` when no plan was given or its
+    /// text is not TOML.
+    pub kind: Option<PlanKind>,
+    /// Captures it makes: (light, view) pairs of a gonio plan, textures (lights x views) of a
+    /// dome plan (0 when invalid).
     pub captures: u64,
-    /// Estimated hardware time, seconds (dry run only).
+    /// Estimated hardware time, seconds (dry run only). A dome plan's is `dome.rig_time_s`,
+    /// a lower bound.
     pub estimate_s: Option<f64>,
-    /// Hardware time of the naive order, seconds (dry run only).
+    /// Hardware time of the naive order, seconds (dry run of a gonio plan only).
     pub naive_order_s: Option<f64>,
-    /// Lower bound on any order, seconds (dry run only).
+    /// Lower bound on any order, seconds (dry run of a gonio plan only).
     pub lower_bound_s: Option<f64>,
-    /// Estimated disk space, bytes (dry run only).
+    /// Estimated disk space, bytes (dry run only; a dome plan's stored textures).
     pub disk_bytes: Option<u64>,
     /// The dry run as `btfrig plan show` prints it (dry run only).
     pub text: Option<String>,
+    /// The dome dry run: the multiplexing choice with its reason and every candidate mode
+    /// (dry run of a dome plan only).
+    pub dome: Option<DomeDryRun>,
     /// Every problem, each naming its field.
     pub errors: Vec<String>,
+}
+
+/// A plan's format.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum PlanKind {
+    /// Light and view samplings (`[sampling]`), run on a gonioreflectometer.
+    Gonioreflectometer,
+    /// A `[dome]` table, run on an LED dome or a camera array.
+    Dome,
+}
+
+impl From<btfrig_runner::check::PlanKind> for PlanKind {
+    fn from(k: btfrig_runner::check::PlanKind) -> PlanKind {
+        match k {
+            btfrig_runner::check::PlanKind::Gonio => PlanKind::Gonioreflectometer,
+            btfrig_runner::check::PlanKind::Dome => PlanKind::Dome,
+        }
+    }
+}
+
+/// The dry run of a dome plan (`btfrig plan show` on it; docs/multiplexing.md): how the
+/// views are captured, what the noise model predicts, and what it costs. Rig times are
+/// estimates from the rig's `[timing]` that leave out the serial round trips: lower bounds
+/// (measured 1 % under a run's rig time).
+#[derive(Debug, Serialize, ToSchema)]
+pub struct DomeDryRun {
+    /// The rig's `[rig] kind`: `led_dome` or `camera_array`.
+    pub rig_kind: String,
+    /// What a light is: `LED`, or `flash` on a camera array.
+    pub light: String,
+    /// Lights of the rig (LEDs or flashes); every one is captured in every view.
+    pub lights: u64,
+    /// Camera indices captured.
+    pub cameras: Vec<u64>,
+    /// Turntable rotation indices captured.
+    pub rotations: Vec<u64>,
+    /// Views: cameras x rotations.
+    pub views: u64,
+    /// Textures the run stores: lights x views.
+    pub textures: u64,
+    /// The mode the plan captures with: `single-light`, `s-matrix 199`, `groups 7 x 31` (7
+    /// groups of 31 lights) — the noise model's choice, or the one the plan forces.
+    pub mode: String,
+    /// Why, in one line (`multiplexing with ...: predicted gain ...` or `multiplexing
+    /// skipped: ...`).
+    pub reason: String,
+    /// The mode the noise model chose (equal to `mode` unless the plan forces one).
+    pub noise_model_choice: String,
+    /// Predicted SNR gain of `mode` over single-light capture at equal total exposure (1 for
+    /// single light).
+    pub predicted_gain: f64,
+    /// Fraction of the exposure time (of the frames, for flashes) single-light capture would
+    /// need beyond this mode's to reach the same SNR (0 for single light).
+    pub time_saved_fraction: f64,
+    /// Frames per camera, reference frames included.
+    pub frames_per_camera: u64,
+    /// Frames of one view group's code (lights in single-light mode).
+    pub frames_per_view_group: u64,
+    /// Single-light reference frames in the first view group (they measure the gain; not stored).
+    pub reference_frames: u64,
+    /// Exposure of a pattern frame, s.
+    pub pattern_exposure_s: f64,
+    /// Exposure of a single-light frame, s.
+    pub single_exposure_s: f64,
+    /// Estimated rig time, s (a lower bound): the sum of the four parts below.
+    pub rig_time_s: f64,
+    /// Of it: exposing, s.
+    pub exposing_s: f64,
+    /// Of it: read-out and transfer, s.
+    pub transfer_s: f64,
+    /// Of it: turning the table, s.
+    pub turntable_s: f64,
+    /// Of it: LED switching, trigger latency and exposure commands, s.
+    pub commands_s: f64,
+    /// Homing the turntable before the run, s (not in `rig_time_s`).
+    pub home_s: f64,
+    /// Bytes of the stored textures (32-bit float RGB OpenEXR).
+    pub disk_bytes: u64,
+    /// Memory one view group's frame stack holds, bytes (all cameras).
+    pub group_bytes: u64,
+    /// Every mode the noise model evaluated, single light first.
+    pub candidates: Vec<DomeCandidate>,
+}
+
+/// One capture mode the noise model evaluated, planned for this plan as if it forced it.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct DomeCandidate {
+    /// `single-light`, `s-matrix 199`, `groups 7 x 31`.
+    pub mode: String,
+    /// True for the noise model's choice.
+    pub chosen: bool,
+    /// True for the mode the plan captures with.
+    pub used: bool,
+    /// Predicted SNR gain over single light at equal total exposure time.
+    pub predicted_gain: f64,
+    /// Frames of one view group's code.
+    pub frames_per_view_group: u64,
+    /// Frames per camera in this mode, reference frames included.
+    pub frames_per_camera: u64,
+    /// Lights lit per frame (mean).
+    pub lit: f64,
+    /// Exposure per frame, s.
+    pub exposure_s: f64,
+    /// Exposure kept against saturation (1: none cut).
+    pub saturation_factor: f64,
+    /// Photon-to-signal-independent noise variance ratio `σ_p²/κ²` at this exposure.
+    pub rho: f64,
+    /// Estimated rig time in this mode, s (a lower bound).
+    pub rig_time_s: f64,
+    /// Bytes of the stored textures in this mode (the same for every mode: one texture per
+    /// light and view).
+    pub disk_bytes: u64,
+    /// Memory one view group's frame stack holds in this mode, bytes.
+    pub group_bytes: u64,
+}
+
+impl DomeDryRun {
+    /// The API's view of the runner's dome dry run.
+    pub fn from_runner(
+        d: &btfrig_runner::dome_dry_run::DomeDryRun,
+        rig: &btfrig_core::config::RigConfig,
+    ) -> DomeDryRun {
+        let s = &d.schedule;
+        DomeDryRun {
+            rig_kind: rig.rig.kind.as_str().into(),
+            light: d.light.into(),
+            lights: s.leds as u64,
+            cameras: d.cameras.iter().map(|&c| c as u64).collect(),
+            rotations: d.rotations.iter().map(|&k| u64::from(k)).collect(),
+            views: (d.cameras.len() * d.rotations.len()) as u64,
+            textures: d.textures as u64,
+            mode: s.mode.describe(),
+            reason: s.reason.clone(),
+            noise_model_choice: s.choice.best.mode.describe(),
+            predicted_gain: s.predicted_gain,
+            time_saved_fraction: s.time_saved_fraction,
+            frames_per_camera: d.frames as u64,
+            frames_per_view_group: s.patterns.len() as u64,
+            reference_frames: d.reference_frames() as u64,
+            pattern_exposure_s: s.exposure_s,
+            single_exposure_s: s.single_exposure_s,
+            rig_time_s: d.rig_time_s,
+            exposing_s: d.exposure_s,
+            transfer_s: d.transfer_s,
+            turntable_s: d.turntable_s,
+            commands_s: d.commands_s,
+            home_s: d.home_s,
+            disk_bytes: d.texture_bytes,
+            group_bytes: d.group_bytes,
+            candidates: d
+                .candidates
+                .iter()
+                .map(|c| DomeCandidate {
+                    mode: c.prediction.mode.describe(),
+                    chosen: c.chosen,
+                    used: c.used,
+                    predicted_gain: c.prediction.gain,
+                    frames_per_view_group: c.prediction.frames as u64,
+                    frames_per_camera: c.frames as u64,
+                    lit: c.prediction.lit,
+                    exposure_s: c.prediction.exposure_s,
+                    saturation_factor: c.prediction.saturation_factor,
+                    rho: c.prediction.rho,
+                    rig_time_s: c.rig_time_s,
+                    disk_bytes: d.texture_bytes,
+                    group_bytes: c.group_bytes,
+                })
+                .collect(),
+        }
+    }
 }
 
 /// Start a run.
@@ -425,19 +605,25 @@ pub async fn dry_run_plan(State(s): Shared, _v: Viewer, ApiJson(b): ApiJson<Plan
 /// Starts a run of a plan (or resumes the same plan's dataset).
 pub async fn start_run(State(s): Shared, Operator(c): Operator, ApiJson(b): ApiJson<StartRun>) -> Result<Response, Problem> {
     let (plan_text, plan_path, given_name) = s.plan_source(b.plan, b.plan_text)?;
-    let rig_name = s.rig.rig.name.clone();
-    let (text, path) = (plan_text.clone(), plan_path.clone());
-    let validated = tokio::task::spawn_blocking(move || btfrig_runner::plan::load_text(&text, &path))
+    let (text, path, st) = (plan_text.clone(), plan_path.clone(), s.clone());
+    let checked = tokio::task::spawn_blocking(move || btfrig_runner::check::check_for_rig(&text, &path, &st.rig))
         .await
         .map_err(|e| Problem::internal(format!("plan validation crashed: {e}")))?
         .map_err(|e| Problem::unprocessable(e.to_string()))?;
-    let (_, v) = validated;
-    if v.rig.rig.name != rig_name {
-        return Err(Problem::unprocessable(format!(
-            "the plan is for rig {:?}; this daemon drives {rig_name:?}",
-            v.rig.rig.name
-        )));
-    }
+    let v = match checked {
+        btfrig_runner::check::CheckedPlan::Gonio { validated, .. } => validated,
+        btfrig_runner::check::CheckedPlan::Dome { plan, .. } => {
+            return Err(Problem::unprocessable(format!(
+                "plan {:?} is a valid dome plan for this rig ({:?}, {}), but the daemon does not start dome runs yet: \
+                 its run status, previews and metrics follow gonio runs (docs/http-api.md, \"Dome plans\"); \
+                 allowed here: POST /api/v1/plans/validate and /api/v1/plans/dry-run; \
+                 run it with `btfrig run --plan FILE --out DIR`",
+                given_name.as_deref().unwrap_or(&plan.plan.name),
+                s.rig.rig.name,
+                s.rig.rig.kind.as_str()
+            )));
+        }
+    };
     if v.capture_list().captures.is_empty() {
         return Err(Problem::unprocessable("the plan captures nothing"));
     }

@@ -5,7 +5,8 @@
 //! [`AppState`], binds the listen address and answers [`router`]'s routes until SIGTERM or
 //! SIGINT, which interrupts the run under way (frames in flight committed, journal flushed,
 //! dataset resumable) before the daemon exits. Handlers ([`api`]) are thin: runs go through
-//! [`btfrig_runner::run`] and plan checks through [`btfrig_runner::dry_run`], exactly as the
+//! [`btfrig_runner::run`] and plan checks through [`btfrig_runner::check`] and the dry runs
+//! ([`btfrig_runner::dry_run`], [`btfrig_runner::dome_dry_run`] for dome plans), exactly as the
 //! CLI does. Tokens and roles: [`auth`]; errors: [`problem`]; `/metrics`: [`metrics`].
 //! The HTTP API is documented in `docs/http-api.md` and by `/api/v1/openapi.json`.
 
@@ -28,7 +29,7 @@ use axum::routing::{get, post};
 use axum::Router;
 use btfrig_core::config::RigConfig;
 
-use crate::api::{DatasetEntry, DeviceStatus, PlanBody, PlanCheck, RigStatus, RigSummary};
+use crate::api::{DatasetEntry, DeviceStatus, DomeDryRun, PlanBody, PlanCheck, PlanKind, RigStatus, RigSummary};
 use crate::auth::Auth;
 use crate::calibrations::Calibrations;
 use crate::metrics::Metrics;
@@ -44,6 +45,8 @@ pub const EMBEDDED_PLANS: &[(&str, &str)] = &[
     ("hdr-glossy", include_str!("../../../rig-configs/plans/hdr-glossy.toml")),
     ("grazing", include_str!("../../../rig-configs/plans/grazing.toml")),
     ("bonn-full", include_str!("../../../rig-configs/plans/bonn-full.toml")),
+    ("dome-demo", include_str!("../../../rig-configs/plans/dome-demo.toml")),
+    ("camera-array-demo", include_str!("../../../rig-configs/plans/camera-array-demo.toml")),
 ];
 
 /// A plan offered by name.
@@ -148,7 +151,7 @@ impl AppState {
                 (a, Some(token))
             }
         };
-        let plans = load_plans(cfg.plans.as_deref(), &cfg.data, &rig.rig.name).map_err(bad)?;
+        let plans = load_plans(cfg.plans.as_deref(), &cfg.data, &rig).map_err(bad)?;
         let metrics = Arc::new(Metrics::default());
         let state = AppState {
             auth,
@@ -174,12 +177,14 @@ impl AppState {
         };
         let d = &self.rig.devices;
         let cam = &self.rig.camera;
-        let mut devices = vec![
-            ("robot", &d.robot, "sample orientation, 3 joints".to_string()),
-            ("rail", &d.rail, "camera rail".to_string()),
-            ("lamp", &d.lamp, "light source".to_string()),
-            ("camera", &d.camera, format!("{} x {} px", cam.width_px, cam.height_px)),
-        ];
+        // A dome (LED dome, camera array) has no robot, rail or lamp.
+        let mut devices = Vec::new();
+        if !self.rig.rig.kind.is_dome() {
+            devices.push(("robot", &d.robot, "sample orientation, 3 joints".to_string()));
+            devices.push(("rail", &d.rail, "camera rail".to_string()));
+            devices.push(("lamp", &d.lamp, "light source".to_string()));
+        }
+        devices.push(("camera", &d.camera, format!("{} x {} px", cam.width_px, cam.height_px)));
         if let Some(t) = &d.turntable {
             devices.push(("turntable", t, "turntable".into()));
         }
@@ -188,7 +193,11 @@ impl AppState {
         }
         let busy_detail = current.as_ref().map(|s| format!("; run {} at {}/{}", s.id, s.done, s.total)).unwrap_or_default();
         RigStatus {
-            rig: RigSummary { name: self.rig.rig.name.clone(), kind: format!("{:?}", self.rig.rig.kind).to_lowercase(), source: self.rig_source.clone() },
+            rig: RigSummary {
+                name: self.rig.rig.name.clone(),
+                kind: self.rig.rig.kind.as_str().into(),
+                source: self.rig_source.clone(),
+            },
             devices: devices
                 .into_iter()
                 .map(|(name, e, detail)| DeviceStatus {
@@ -219,56 +228,79 @@ impl AppState {
         }
     }
 
+    /// Validates the plan a body names against this rig ([`btfrig_runner::check`]) and, with
+    /// `dry`, dry-runs it: a gonio plan through [`btfrig_runner::dry_run`], a dome plan
+    /// through [`btfrig_runner::dome_dry_run`] (as `btfrig plan show` does).
     async fn check_plan(self: &Arc<Self>, b: PlanBody, dry: bool) -> PlanCheck {
-        let invalid = |errors: Vec<String>| PlanCheck {
+        let invalid = |kind: Option<PlanKind>, errors: Vec<String>| PlanCheck {
             valid: false,
+            kind,
             captures: 0,
             estimate_s: None,
             naive_order_s: None,
             lower_bound_s: None,
             disk_bytes: None,
             text: None,
+            dome: None,
             errors,
         };
-        let (text, path, _) = match self.plan_source(b.plan, b.plan_text) {
+        let (text, path, given) = match self.plan_source(b.plan, b.plan_text) {
             Ok(p) => p,
-            Err(e) => return invalid(vec![e.detail]),
+            Err(e) => return invalid(None, vec![e.detail]),
         };
-        let rig = self.rig.rig.name.clone();
+        let kind = btfrig_runner::check::PlanKind::of_toml(&text);
+        let state = self.clone();
         let job = tokio::task::spawn_blocking(move || -> Result<PlanCheck, Vec<String>> {
             let errors = |e: btfrig_runner::RunError| match e {
                 btfrig_runner::RunError::Plan(p) => p.errors.iter().map(|e| e.to_string()).collect(),
                 e => vec![e.to_string()],
             };
-            let (_, v) = btfrig_runner::plan::load_text(&text, &path).map_err(errors)?;
-            if v.rig.rig.name != rig {
-                return Err(vec![format!("the plan is for rig {:?}; this daemon drives {rig:?}", v.rig.rig.name)]);
-            }
-            let captures = v.capture_list().captures.len() as u64;
-            if !dry {
-                return Ok(PlanCheck { valid: true, captures, estimate_s: None, naive_order_s: None, lower_bound_s: None, disk_bytes: None, text: None, errors: vec![] });
-            }
-            let d = btfrig_runner::dry_run::dry_run(&text, &path).map_err(errors)?;
-            let mut shown = d.schedule.to_string();
-            if let Some(h) = &d.hdr {
-                shown.push('\n');
-                shown.push_str(h);
-            }
-            Ok(PlanCheck {
+            let checked = btfrig_runner::check::check_for_rig(&text, &path, &state.rig).map_err(errors)?;
+            let mut c = PlanCheck {
                 valid: true,
-                captures,
-                estimate_s: Some(d.schedule.hardware_s),
-                naive_order_s: Some(d.schedule.naive_order_hardware_s),
-                lower_bound_s: Some(d.schedule.critical_path_s),
-                disk_bytes: Some(d.schedule.disk_bytes()),
-                text: Some(shown),
+                kind: kind.map(Into::into),
+                captures: checked.captures(),
+                estimate_s: None,
+                naive_order_s: None,
+                lower_bound_s: None,
+                disk_bytes: None,
+                text: None,
+                dome: None,
                 errors: vec![],
-            })
+            };
+            if !dry {
+                return Ok(c);
+            }
+            match checked.kind() {
+                btfrig_runner::check::PlanKind::Gonio => {
+                    let d = btfrig_runner::dry_run::dry_run(&text, &path).map_err(errors)?;
+                    let mut shown = d.schedule.to_string();
+                    if let Some(h) = &d.hdr {
+                        shown.push('\n');
+                        shown.push_str(h);
+                    }
+                    c.estimate_s = Some(d.schedule.hardware_s);
+                    c.naive_order_s = Some(d.schedule.naive_order_hardware_s);
+                    c.lower_bound_s = Some(d.schedule.critical_path_s);
+                    c.disk_bytes = Some(d.schedule.disk_bytes());
+                    c.text = Some(shown);
+                }
+                btfrig_runner::check::PlanKind::Dome => {
+                    let d = btfrig_runner::dome_dry_run::dry_run(&text, &path).map_err(errors)?;
+                    // The text names the plan as given, not the daemon's paths.
+                    let shown_as = PathBuf::from(given.as_deref().unwrap_or("plan_text"));
+                    c.estimate_s = Some(d.rig_time_s);
+                    c.disk_bytes = Some(d.texture_bytes);
+                    c.text = Some(d.lines(&shown_as).join("\n"));
+                    c.dome = Some(DomeDryRun::from_runner(&d, &state.rig));
+                }
+            }
+            Ok(c)
         });
         match job.await {
             Ok(Ok(c)) => c,
-            Ok(Err(errors)) => invalid(errors),
-            Err(e) => invalid(vec![format!("the plan check crashed: {e}")]),
+            Ok(Err(errors)) => invalid(kind.map(Into::into), errors),
+            Err(e) => invalid(kind.map(Into::into), vec![format!("the plan check crashed: {e}")]),
         }
     }
 
@@ -374,7 +406,7 @@ fn write_secret(path: &Path, secret: &str) -> Result<(), String> {
     writeln!(f, "{secret}").map_err(|e| format!("cannot write the token file {}: {e}", path.display()))
 }
 
-fn load_plans(dir: Option<&Path>, data: &Path, rig: &str) -> Result<Vec<NamedPlan>, String> {
+fn load_plans(dir: Option<&Path>, data: &Path, rig: &RigConfig) -> Result<Vec<NamedPlan>, String> {
     let mut sources: Vec<(String, String, PathBuf)> = Vec::new();
     match dir {
         None => {
@@ -397,16 +429,11 @@ fn load_plans(dir: Option<&Path>, data: &Path, rig: &str) -> Result<Vec<NamedPla
     }
     let mut plans = Vec::new();
     for (name, text, path) in sources {
-        // Plans for other rigs, or that do not validate, are not offered (logged).
-        match btfrig_runner::plan::load_text(&text, &path) {
-            Ok((plan, v)) if v.rig.rig.name == rig => plans.push(NamedPlan {
-                name,
-                captures: v.capture_list().captures.len() as u64,
-                description: plan.description.clone(),
-                text,
-                path,
-            }),
-            Ok((_, v)) => tracing::info!("plan {name}: for rig {}, not offered", v.rig.rig.name),
+        // Plans for other rigs (or another kind of rig), or that do not validate, are not
+        // offered (logged).
+        match btfrig_runner::check::check_for_rig(&text, &path, rig) {
+            Ok(c) => plans.push(NamedPlan { name, captures: c.captures(), description: c.description(), text, path }),
+            Err(e @ btfrig_runner::RunError::WrongRig { .. }) => tracing::info!("plan {name}: not offered: {e}"),
             Err(e) => tracing::warn!("plan {name}: not offered: {e}"),
         }
     }

@@ -12,16 +12,25 @@
 //! Retries: a retryable error (`ErrorKind::is_retryable`) repeats the whole step (pattern,
 //! trigger, read: a read-out failure cannot be read again), at most `max_retries` times with
 //! doubling backoff; anything else ends the run with [`DomeRunError::StepFailed`] naming the
-//! step and device. Resume: the unit a dome commits is a view group (all patterns of one
-//! rotation); rotations in `done` are skipped, a partly captured rotation is captured again.
+//! step and device, or, with [`DomeSettings::pause_on_fault`] and a command channel, pauses
+//! it until it is resumed (the step is tried again) or aborted. Resume: the unit a dome
+//! commits is a view group (all patterns of one rotation); rotations in `done` are skipped, a
+//! partly captured rotation is captured again.
+//!
+//! Steering and watching ([`DomeControl`]), as the gonio engine's `RunHandle`: pause and abort
+//! take effect between steps (the step under way is delivered first), a paused run waits for
+//! resume or abort, and [`DomeEvent`]s report every delivered step, progress with an ETA
+//! (the mean of the last `eta_window` measured step times, pauses excluded, times the steps
+//! left), retries, pauses and resumes.
 
-use std::collections::HashSet;
+use std::collections::{HashSet, VecDeque};
+use std::fmt;
 use std::future::Future;
 use std::pin::Pin;
 use std::task::Poll;
 
 use btfrig_core::frame::RawFrame;
-use btfrig_hw::{Camera, DeviceError, LedArray, LedPattern, MoveOptions, SharedClock, Turntable};
+use btfrig_hw::{Camera, DeviceError, ErrorKind, LedArray, LedPattern, MoveOptions, SharedClock, Turntable};
 use btfrig_planner::dome::{DomeShot, DomeStep};
 use tokio::sync::mpsc;
 
@@ -51,11 +60,133 @@ pub struct DomeSettings {
     pub max_retries: u32,
     /// Backoff before the first retry, s (doubling).
     pub backoff_s: f64,
+    /// When a step fails for good: pause and wait for [`DomeCommand::Resume`] (the step is
+    /// tried again) or [`DomeCommand::Abort`] (true; needs [`DomeControl::commands`]), or end
+    /// the run with [`DomeRunError::StepFailed`] (false, the default: nobody is there to fix
+    /// the cause).
+    pub pause_on_fault: bool,
+    /// Number of recent measured step times the ETA averages.
+    pub eta_window: usize,
 }
 
 impl Default for DomeSettings {
     fn default() -> Self {
-        DomeSettings { move_timeout_s: 60.0, trigger_timeout_s: 10.0, read_timeout_s: 30.0, max_retries: 5, backoff_s: 0.5 }
+        DomeSettings {
+            move_timeout_s: 60.0,
+            trigger_timeout_s: 10.0,
+            read_timeout_s: 30.0,
+            max_retries: 5,
+            backoff_s: 0.5,
+            pause_on_fault: false,
+            eta_window: 20,
+        }
+    }
+}
+
+/// Steers a running dome run (sent through [`DomeControl::commands`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DomeCommand {
+    /// Pause after the step under way.
+    Pause,
+    /// Resume a paused run (a failed step is tried again).
+    Resume,
+    /// End the run after the step under way (at once when paused).
+    Abort,
+}
+
+/// Why a dome run is paused.
+#[derive(Debug, Clone, PartialEq)]
+pub enum DomePauseReason {
+    /// [`DomeCommand::Pause`].
+    Requested,
+    /// A step failed with an error no retry helps, or ran out of retries
+    /// ([`DomeSettings::pause_on_fault`]).
+    StepFailed {
+        /// Position of the step in the schedule.
+        index: usize,
+        /// Its rotation.
+        rotation: u32,
+        /// What it captures.
+        shot: DomeShot,
+        /// The device that failed.
+        device: String,
+        /// The error's kind.
+        kind: ErrorKind,
+        /// The device error as displayed, plus what the engine did.
+        message: String,
+    },
+}
+
+impl fmt::Display for DomePauseReason {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            DomePauseReason::Requested => f.write_str("paused on request"),
+            DomePauseReason::StepFailed { index, rotation, shot, message, .. } => write!(
+                f,
+                "step {index} (rotation {rotation}, {shot:?}) failed: {message}; fix the cause and resume to retry the step"
+            ),
+        }
+    }
+}
+
+/// What a dome run tells its listener ([`DomeControl::events`]).
+#[derive(Debug, Clone, PartialEq)]
+pub enum DomeEvent {
+    /// A step's frames were delivered.
+    StepDone {
+        /// Position in the schedule.
+        index: usize,
+        /// Its rotation.
+        rotation: u32,
+        /// What it captured.
+        shot: DomeShot,
+        /// 1 + retries of this step.
+        attempts: u32,
+    },
+    /// Progress after a step (captured, or skipped because its rotation is done).
+    Progress {
+        /// Steps done (captured by this run or skipped as done).
+        done: usize,
+        /// Steps in the schedule.
+        total: usize,
+        /// Remaining rig time from the moving average of measured step times, s; `None`
+        /// before the first measurement.
+        eta_s: Option<f64>,
+    },
+    /// A step was retried; the run goes on.
+    Warning(String),
+    /// The run is paused; it waits for resume or abort.
+    Paused {
+        /// Why.
+        reason: DomePauseReason,
+    },
+    /// The run goes on after a pause.
+    Resumed,
+}
+
+/// How a dome run is steered and watched; the default does neither (the run goes to its end
+/// or its first failure, as before).
+#[derive(Debug, Default)]
+pub struct DomeControl {
+    /// Pause, resume and abort, read between steps. When every sender is gone the run goes
+    /// on, but a paused run aborts (nobody can resume it).
+    pub commands: Option<mpsc::UnboundedReceiver<DomeCommand>>,
+    /// Events; a closed receiver is ignored (events are advisory).
+    pub events: Option<mpsc::UnboundedSender<DomeEvent>>,
+}
+
+impl DomeControl {
+    /// A control with both channels: the caller's command sender and event receiver.
+    pub fn channels() -> (DomeControl, mpsc::UnboundedSender<DomeCommand>, mpsc::UnboundedReceiver<DomeEvent>) {
+        let (cmd_tx, cmd_rx) = mpsc::unbounded_channel();
+        let (ev_tx, ev_rx) = mpsc::unbounded_channel();
+        (DomeControl { commands: Some(cmd_rx), events: Some(ev_tx) }, cmd_tx, ev_rx)
+    }
+
+    fn emit(&self, e: DomeEvent) {
+        if let Some(tx) = &self.events {
+            let _ = tx.send(e);
+        }
     }
 }
 
@@ -89,6 +220,8 @@ pub struct DomeRunSummary {
     pub exposure_s: f64,
     /// Warnings (retries with their cause).
     pub warnings: Vec<String>,
+    /// True when [`DomeCommand::Abort`] ended the run before its last step.
+    pub aborted: bool,
 }
 
 /// Why a dome run stopped early.
@@ -143,7 +276,7 @@ fn pattern_of(step: &DomeStep, patterns: &[Vec<f64>], leds: usize) -> LedPattern
 }
 
 /// Runs `steps` on `devices`: pattern frames at `exposure_s`, reference frames at
-/// `reference_exposure_s`. The devices must be homed.
+/// `reference_exposure_s`, steered and watched through `control`. The devices must be homed.
 #[allow(clippy::too_many_arguments)]
 pub async fn run_dome(
     devices: &mut DomeDevices,
@@ -153,8 +286,19 @@ pub async fn run_dome(
     reference_exposure_s: f64,
     done: &HashSet<u32>,
     settings: DomeSettings,
+    control: DomeControl,
     frames: mpsc::Sender<DomeCapture>,
 ) -> Result<DomeRunSummary, DomeRunError> {
+    let mut run = Steering {
+        control,
+        pause_req: false,
+        abort_req: false,
+        recent: VecDeque::new(),
+        eta_window: settings.eta_window.max(1),
+        last_mark_s: devices.clock.now_s(),
+        done: 0,
+        total: steps.len(),
+    };
     let start = devices.clock.now_s();
     let leds = devices.leds.capabilities().count;
     let mut summary = DomeRunSummary::default();
@@ -162,7 +306,13 @@ pub async fn run_dome(
     for (index, step) in steps.iter().enumerate() {
         if done.contains(&step.rotation) {
             summary.skipped_done += 1;
+            run.done += 1;
+            run.progress();
             continue;
+        }
+        if !run.between_steps(&devices.clock).await {
+            summary.aborted = true;
+            break;
         }
         let exposure = match step.shot {
             DomeShot::Pattern(_) => exposure_s,
@@ -170,34 +320,149 @@ pub async fn run_dome(
         };
         let pattern = pattern_of(step, patterns, leds);
         let mut attempt = 0u32;
+        // Retries of earlier rounds (a failed round paused and was resumed).
+        let mut retried = 0u32;
         let captured = loop {
             attempt += 1;
             match capture_step(devices, step, &pattern, exposure, &mut table_at, &settings).await {
-                Ok(f) => break f,
+                Ok(f) => break Some(f),
                 Err(e) if e.is_retryable() && attempt <= settings.max_retries => {
-                    summary.warnings.push(format!(
+                    let w = format!(
                         "step {index} (rotation {}, {:?}): {e}; retry {attempt} of {}",
                         step.rotation, step.shot, settings.max_retries
-                    ));
+                    );
+                    run.control.emit(DomeEvent::Warning(w.clone()));
+                    summary.warnings.push(w);
                     // The table may have been left anywhere: move it again.
                     table_at = None;
                     devices.clock.sleep_s(settings.backoff_s * 2f64.powi(attempt as i32 - 1)).await;
+                }
+                Err(error) if settings.pause_on_fault && run.control.commands.is_some() => {
+                    let message = if error.is_retryable() {
+                        format!("{error} (retryable, gave up after {} retries)", settings.max_retries)
+                    } else {
+                        format!("{error} (not retryable)")
+                    };
+                    let reason = DomePauseReason::StepFailed {
+                        index,
+                        rotation: step.rotation,
+                        shot: step.shot,
+                        device: error.device().to_string(),
+                        kind: error.kind(),
+                        message,
+                    };
+                    if !run.pause(reason, &devices.clock).await {
+                        break None;
+                    }
+                    // Resumed: the step again, with fresh retries, from the table's move.
+                    retried += attempt;
+                    attempt = 0;
+                    table_at = None;
                 }
                 Err(error) => {
                     return Err(DomeRunError::StepFailed { index, rotation: step.rotation, shot: step.shot, error })
                 }
             }
         };
-        summary.retries += attempt - 1;
+        let Some(captured) = captured else {
+            summary.aborted = true;
+            break;
+        };
+        let attempts = retried + attempt;
+        summary.retries += attempts - 1;
         summary.captured += 1;
         summary.exposure_s += exposure;
-        let cap = DomeCapture { index, step: *step, frames: captured, attempts: attempt, time_s: devices.clock.now_s() };
+        let now = devices.clock.now_s();
+        let cap = DomeCapture { index, step: *step, frames: captured, attempts, time_s: now };
         if frames.send(cap).await.is_err() {
             return Err(DomeRunError::ConsumerGone);
         }
+        run.measured(now);
+        run.control.emit(DomeEvent::StepDone { index, rotation: step.rotation, shot: step.shot, attempts });
+        run.done += 1;
+        run.progress();
     }
     summary.hardware_s = devices.clock.now_s() - start;
     Ok(summary)
+}
+
+/// Commands, pauses, step times and progress of a dome run.
+struct Steering {
+    control: DomeControl,
+    pause_req: bool,
+    abort_req: bool,
+    /// The last `eta_window` measured step times, s.
+    recent: VecDeque<f64>,
+    eta_window: usize,
+    /// Rig time of the last delivery (or resume), s.
+    last_mark_s: f64,
+    /// Steps done (captured or skipped).
+    done: usize,
+    total: usize,
+}
+
+impl Steering {
+    /// Reads the waiting commands; waits while a pause is asked for. `false` on abort.
+    async fn between_steps(&mut self, clock: &SharedClock) -> bool {
+        if let Some(rx) = self.control.commands.as_mut() {
+            while let Ok(c) = rx.try_recv() {
+                match c {
+                    DomeCommand::Pause => self.pause_req = true,
+                    DomeCommand::Resume => self.pause_req = false,
+                    DomeCommand::Abort => self.abort_req = true,
+                }
+            }
+        }
+        if self.abort_req {
+            return false;
+        }
+        if self.pause_req {
+            return self.pause(DomePauseReason::Requested, clock).await;
+        }
+        true
+    }
+
+    /// Waits for resume (`true`) or abort (`false`; also when no sender is left).
+    async fn pause(&mut self, reason: DomePauseReason, clock: &SharedClock) -> bool {
+        tracing::info!("dome run paused: {reason}");
+        self.pause_req = false;
+        self.control.emit(DomeEvent::Paused { reason });
+        let Some(rx) = self.control.commands.as_mut() else {
+            self.abort_req = true;
+            return false;
+        };
+        loop {
+            match rx.recv().await {
+                Some(DomeCommand::Resume) => {
+                    self.control.emit(DomeEvent::Resumed);
+                    // The pause is not a step time.
+                    self.last_mark_s = clock.now_s();
+                    return true;
+                }
+                Some(DomeCommand::Pause) => {}
+                Some(DomeCommand::Abort) | None => {
+                    self.abort_req = true;
+                    return false;
+                }
+            }
+        }
+    }
+
+    /// A step delivered at `now_s`: its time since the last delivery (or resume).
+    fn measured(&mut self, now_s: f64) {
+        self.recent.push_back(now_s - self.last_mark_s);
+        self.last_mark_s = now_s;
+        while self.recent.len() > self.eta_window {
+            self.recent.pop_front();
+        }
+    }
+
+    fn progress(&self) {
+        let left = self.total - self.done;
+        let eta_s =
+            (!self.recent.is_empty()).then(|| self.recent.iter().sum::<f64>() / self.recent.len() as f64 * left as f64);
+        self.control.emit(DomeEvent::Progress { done: self.done, total: self.total, eta_s });
+    }
 }
 
 async fn capture_step(

@@ -11,6 +11,14 @@
 //! frame of the same LED are the RMS differences from the noise-free render of that LED
 //! (`DomeFrameSource::noise_free_dn`, photosites imaging the sample); the gain is the ratio of
 //! their SNRs. Reference frames are only measured, not stored.
+//!
+//! Steering ([`run_controlled`]): a [`RunControl`] pauses, resumes, aborts or interrupts the
+//! engine between steps (`btfrig_engine::dome::DomeControl`), and the run reports
+//! [`RunEvent`]s: `Started`, `Progress` with an ETA, warnings, pauses (also on a device fault
+//! when the session does not stop on one), resumes and `Stopping`. A dome's step is one frame
+//! per camera (a pattern at a rotation), so `Progress` counts steps, not textures; textures are
+//! committed per view group. An aborted or interrupted session keeps the view groups it
+//! committed, its report says so (`status`), and the same request resumes it.
 
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::path::{Path, PathBuf};
@@ -21,7 +29,9 @@ use btfrig_calib::rectify::Filter;
 use btfrig_core::config::RigConfig;
 use btfrig_core::plan::dome::{DomePlan, ValidatedDomePlan};
 use btfrig_core::plan::BUILTIN_RIGS;
-use btfrig_engine::dome::{run_dome as drive, DomeCapture, DomeDevices, DomeSettings};
+use btfrig_engine::dome::{
+    run_dome as drive, DomeCapture, DomeCommand, DomeControl, DomeDevices, DomeEvent, DomeSettings,
+};
 use btfrig_hw::{MoveOptions, TokioClock};
 use btfrig_pipeline::dome::{signal_dn, DomeProcessing, GroupCode, GroupStack};
 use btfrig_planner::dome::{plan_dome, DomeMode, DomeSchedule, DomeShot};
@@ -36,7 +46,7 @@ use btfrig_store::{
 use serde_json::json;
 use tokio::sync::mpsc;
 
-use crate::RunError;
+use crate::{Command, RunControl, RunError, RunEvent, RunOutcome};
 
 /// A dome run: the plan text (a dome plan, `docs/plan-format.md`), where its relative names
 /// resolve, and the dataset directory.
@@ -110,12 +120,17 @@ pub struct DomeRunSummary {
     pub denoise_energy_kept: Vec<f64>,
     /// Wall time of rectifying and projecting the denoised groups, s.
     pub denoise_s: f64,
+    /// How the session ended before the last step (aborted or interrupted through its
+    /// [`RunControl`]); `None` when it captured every step.
+    pub stopped: Option<RunOutcome>,
 }
 
 impl DomeRunSummary {
     /// The summary as JSON (what `btfrig demo --rig dome --json` prints).
     pub fn to_json(&self) -> serde_json::Value {
         json!({
+            "status": self.stopped.as_ref().map_or("finished", RunOutcome::status),
+            "reason": self.stopped.as_ref().and_then(RunOutcome::reason),
             "dataset": self.dataset.display().to_string(),
             "rig": self.rig_kind,
             "light": self.light,
@@ -245,8 +260,24 @@ fn denoise_group(
     Ok((out, p))
 }
 
-/// Runs a dome plan to its end (see the module docs).
+/// Runs a dome plan to its end (see the module docs); a device fault no retry helps ends it
+/// with an error.
 pub fn run(req: &DomeRunRequest, on_line: &mut dyn FnMut(&str)) -> Result<DomeRunSummary, RunError> {
+    run_controlled(req, &RunControl::new(), true, on_line, &mut |_| {})
+}
+
+/// [`run`], steered by `control` from any thread (pause, resume, abort, interrupt: between
+/// steps) and watched through `on_event` (module docs; both callbacks are called on this
+/// thread). `stop_on_fault`: a step failing with an error no retry helps ends the session
+/// with an error (true), or pauses the engine until `control` resumes it (the step is tried
+/// again) or aborts it (false, a daemon with an operator).
+pub fn run_controlled(
+    req: &DomeRunRequest,
+    control: &RunControl,
+    stop_on_fault: bool,
+    on_line: &mut dyn FnMut(&str),
+    on_event: &mut dyn FnMut(&RunEvent),
+) -> Result<DomeRunSummary, RunError> {
     let wall = Instant::now();
     let (v, rig, rig_text) = load(&req.plan_text, &req.plan_path)?;
     let base = req.plan_path.parent().unwrap_or(Path::new("."));
@@ -304,13 +335,14 @@ pub fn run(req: &DomeRunRequest, on_line: &mut dyn FnMut(&str)) -> Result<DomeRu
         rig.rig.seed,
     );
     let hash = manifest.plan.hash.clone();
-    let dataset = match Dataset::create(&req.out, manifest) {
-        Ok(d) => d,
-        Err(StoreError::AlreadyExists { .. }) => {
+    let (dataset, resumed) = match Dataset::create(&req.out, manifest) {
+        Ok(d) => (d, false),
+        Err(StoreError::AlreadyExists { .. }) => (
             Dataset::open_for_resume(&req.out, &hash)
                 .map_err(|source| RunError::Dataset { dir: req.out.clone(), source })?
-                .0
-        }
+                .0,
+            true,
+        ),
         Err(source) => return Err(RunError::Dataset { dir: req.out.clone(), source }),
     };
     let completed = dataset.completed();
@@ -356,10 +388,25 @@ pub fn run(req: &DomeRunRequest, on_line: &mut dyn FnMut(&str)) -> Result<DomeRu
         on_line(&format!("demultiplexing skipped: single-light capture ({})", schedule.reason));
     }
 
+    let commands = control.take().ok_or_else(|| RunError::Rig("this RunControl already drives a run".into()))?;
+    let done_before = schedule.steps.iter().filter(|st| done.contains(&st.rotation)).count();
+    let planned_s = crate::dome_dry_run::schedule_rig_time_s(&rig, &dome, &schedule);
+    on_event(&RunEvent::Started {
+        dataset: req.out.clone(),
+        resumed,
+        done_before,
+        to_do: schedule.steps.len() - done_before,
+        total: schedule.steps.len(),
+        planned_hardware_s: planned_s,
+        // The dome's estimate leaves out the serial round trips: it is the bound.
+        critical_path_s: planned_s,
+        repaired: None,
+    });
+
     let rt = crate::virtual_time_runtime()?;
     let cameras = v.cameras.clone();
     let mut state = Consumer::new(&v, &schedule, &processing, &code, &dataset, &scene, &faults, view_id);
-    let outcome: Result<btfrig_engine::dome::DomeRunSummary, RunError> = rt.block_on(async {
+    let outcome: Result<(btfrig_engine::dome::DomeRunSummary, Option<RunOutcome>), RunError> = rt.block_on(async {
         let clock = TokioClock::shared();
         // Emulated devices (serial turntable and LED controller) are the simulator's behind
         // their firmware, driven by the real backends (docs/serial.md).
@@ -383,20 +430,22 @@ pub fn run(req: &DomeRunRequest, on_line: &mut dyn FnMut(&str)) -> Result<DomeRu
         let steps = schedule.steps.clone();
         let patterns = schedule.patterns.clone();
         let (exp, ref_exp) = (schedule.exposure_s, schedule.single_exposure_s);
-        let engine = async move {
-            drive(&mut devices, &steps, &patterns, exp, ref_exp, &done, DomeSettings::default(), tx).await
-        };
+        let (steering, engine_commands, events) = DomeControl::channels();
+        let settings = DomeSettings { pause_on_fault: !stop_on_fault, ..DomeSettings::default() };
+        let engine =
+            async move { drive(&mut devices, &steps, &patterns, exp, ref_exp, &done, settings, steering, tx).await };
         let consume = async {
             while let Some(cap) = rx.recv().await {
                 state.take(cap, &sources)?;
             }
             Ok::<(), RunError>(())
         };
-        let (e, c) = tokio::join!(engine, consume);
+        let listen = listen(commands, engine_commands, events, on_event);
+        let (e, c, stop) = tokio::join!(engine, consume, listen);
         c?;
-        e.map_err(|e| RunError::Rig(e.to_string()))
+        Ok((e.map_err(|e| RunError::Rig(e.to_string()))?, stop))
     });
-    let engine = outcome?;
+    let (engine, stop) = outcome?;
     let mut s = state.finish();
     s.warnings.splice(0..0, engine.warnings.iter().cloned());
     s.dataset = req.out.clone();
@@ -415,6 +464,8 @@ pub fn run(req: &DomeRunRequest, on_line: &mut dyn FnMut(&str)) -> Result<DomeRu
     s.views_resumed = engine.skipped_done / schedule.steps.len().div_ceil(v.rotations.len()).max(1);
     s.wall_s = wall.elapsed().as_secs_f64();
     s.peak_rss_mib = crate::peak_rss_mib();
+    // A stop asked for after the last step leaves a complete run.
+    s.stopped = engine.aborted.then(|| stop.unwrap_or(RunOutcome::Aborted));
 
     let mut extra = BTreeMap::new();
     // RunReport's own fields are not repeated in its flattened extra.
@@ -446,6 +497,52 @@ pub fn run(req: &DomeRunRequest, on_line: &mut dyn FnMut(&str)) -> Result<DomeRu
     let mut dataset = dataset;
     dataset.finish(&report).map_err(RunError::Report)?;
     Ok(s)
+}
+
+/// Forwards `control`'s commands to the engine and the engine's events to `on_event` until
+/// the engine ends; returns how the session was asked to stop, if it was.
+async fn listen(
+    mut control: tokio::sync::mpsc::UnboundedReceiver<Command>,
+    engine: tokio::sync::mpsc::UnboundedSender<DomeCommand>,
+    mut events: tokio::sync::mpsc::UnboundedReceiver<DomeEvent>,
+    on_event: &mut dyn FnMut(&RunEvent),
+) -> Option<RunOutcome> {
+    let mut stop: Option<RunOutcome> = None;
+    let mut control_open = true;
+    loop {
+        tokio::select! {
+            ev = events.recv() => match ev {
+                // The engine is done (it dropped its sender).
+                None => return stop,
+                Some(DomeEvent::Progress { done, total, eta_s }) => on_event(&RunEvent::Progress { done, total, eta_s }),
+                Some(DomeEvent::Warning(w)) => on_event(&RunEvent::Warning(w)),
+                Some(DomeEvent::Paused { reason }) => on_event(&RunEvent::Paused { reason: reason.to_string(), fault: None }),
+                Some(DomeEvent::Resumed) => on_event(&RunEvent::Resumed),
+                // A step is a pattern at a rotation, not a (light, view) capture: progress says it.
+                Some(DomeEvent::StepDone { .. }) => {}
+            },
+            c = control.recv(), if control_open => {
+                let command = match c {
+                    None => {
+                        control_open = false;
+                        continue;
+                    }
+                    Some(Command::Pause) => DomeCommand::Pause,
+                    Some(Command::Resume) => DomeCommand::Resume,
+                    Some(c @ (Command::Abort | Command::Interrupt)) => {
+                        let end = if c == Command::Abort { RunOutcome::Aborted } else { RunOutcome::Interrupted };
+                        if stop.is_none() {
+                            on_event(&RunEvent::Stopping { reason: end.reason().unwrap_or_default() });
+                            stop = Some(end);
+                        }
+                        DomeCommand::Abort
+                    }
+                };
+                // The engine may have ended already: nothing to steer.
+                let _ = engine.send(command);
+            }
+        }
+    }
 }
 
 /// The pipeline side of a dome run: collects frames per view group, demultiplexes, stores.

@@ -1,7 +1,9 @@
-//! The dry run of a dome plan (`btfrig plan show` on an LED dome or camera array plan): the
-//! capture mode the noise model chooses with every candidate's predicted gain, the frames,
-//! an estimate of the rig time from the rig's `[timing]`, and disk and memory, without
-//! touching a device or rendering a frame.
+//! The dry run of a dome plan (`btfrig plan show` on an LED dome or camera array plan, and
+//! the daemon's `POST /api/v1/plans/dry-run`): the capture mode the noise model chooses with
+//! every candidate's predicted gain, the frames, an estimate of the rig time from the rig's
+//! `[timing]`, and disk and memory, without touching a device or rendering a frame. Every
+//! candidate mode is also planned as if the plan forced it, so each has its own frames, rig
+//! time and memory.
 //!
 //! The rig-time estimate follows what the dome engine does (`btfrig_engine::dome`): home the
 //! turntable, then per step turn the table when the rotation changes (trapezoidal profile
@@ -13,8 +15,11 @@
 
 use std::path::Path;
 
+use btfrig_core::config::dome::DomeConfig;
+use btfrig_core::config::RigConfig;
+use btfrig_core::plan::dome::{MultiplexPolicy, ValidatedDomePlan};
 use btfrig_core::profile::move_time_s;
-use btfrig_mux::Prediction;
+use btfrig_mux::{Mode, Prediction};
 use btfrig_planner::dome::{plan_dome, DomeSchedule, DomeShot};
 use btfrig_render::dome_scene::DomeScene;
 
@@ -52,40 +57,65 @@ pub struct DomeDryRun {
     pub transfer_s: f64,
     /// Of it: turning the table.
     pub turntable_s: f64,
+    /// Of it: LED switching, trigger latency and exposure commands.
+    pub commands_s: f64,
     /// Homing the turntable before the run, s (not in `rig_time_s`, as in the run's figure).
     pub home_s: f64,
     /// Bytes of the stored textures (32-bit float RGB EXR).
     pub texture_bytes: u64,
     /// Bytes one view group's stack holds (frames x photosites x 4, per camera).
     pub group_bytes: u64,
+    /// Every mode the noise model evaluated (`schedule.choice.candidates`, in that order),
+    /// each planned as if the plan forced it: frames, rig time and memory per mode.
+    pub candidates: Vec<CandidateEstimate>,
 }
 
-/// The dry run of the dome plan `text` (from `file`, which names it in errors and resolves
-/// relative rig configs).
-pub fn dry_run(text: &str, file: &Path) -> Result<DomeDryRun, RunError> {
-    let (v, rig, _) = crate::dome::load(text, file)?;
-    let material = crate::plan::load_material(v.plan.rig.material.as_deref())?;
-    let scene = DomeScene::new(&rig, &material)
-        .map_err(|e| RunError::Input { what: "dome scene".into(), message: e.to_string() })?;
-    let schedule = plan_dome(&rig, &v, scene.nominal_irradiance())
-        .map_err(|e| RunError::Input { what: "dome planning".into(), message: e.to_string() })?;
-    let dome = rig
-        .require_dome("the dome dry run")
-        .map_err(|e| RunError::Input { what: "rig".into(), message: e.to_string() })?;
+/// One candidate mode of the noise model, planned for this plan.
+#[derive(Debug, Clone)]
+pub struct CandidateEstimate {
+    /// The noise model's prediction (mode, frames per view group, lit sources, exposure,
+    /// saturation, predicted gain).
+    pub prediction: Prediction,
+    /// Whether the noise model chose it (`schedule.choice.best`).
+    pub chosen: bool,
+    /// Whether the plan captures with it (the choice, or the mode the plan forces).
+    pub used: bool,
+    /// Frames per camera in this mode (reference frames included).
+    pub frames: usize,
+    /// Estimated rig time in this mode, s (a lower bound, as [`DomeDryRun::rig_time_s`]).
+    pub rig_time_s: f64,
+    /// Bytes one view group's stack holds in this mode.
+    pub group_bytes: u64,
+}
+
+/// The rig time of a schedule from the rig's `[timing]` (module docs), s, in parts.
+#[derive(Debug, Clone, Copy, Default)]
+struct RigTime {
+    exposure_s: f64,
+    transfer_s: f64,
+    turntable_s: f64,
+    commands_s: f64,
+}
+
+impl RigTime {
+    fn total_s(&self) -> f64 {
+        self.exposure_s + self.transfer_s + self.turntable_s + self.commands_s
+    }
+}
+
+fn rig_time(rig: &RigConfig, dome: &DomeConfig, schedule: &DomeSchedule) -> RigTime {
     let t = &rig.timing;
     let cam = &rig.camera;
     let frame_bytes = t.camera.frame_bytes.unwrap_or((cam.width_px * cam.height_px) as u64 * 2);
     let per_frame_transfer = t.camera.read_out_s + frame_bytes as f64 / t.camera.transfer_bytes_per_s;
-    let (mut exposure_s, mut transfer_s, mut turntable_s, mut other_s) = (0.0, 0.0, 0.0, 0.0);
-    // Homing comes before the engine's clock starts (as in the run's rig time): apart.
-    let home_s = if dome.rotations > 1 { t.turntable.home_s } else { 0.0 };
+    let mut out = RigTime::default();
     let (mut table_at, mut exposure_set): (Option<u32>, Option<f64>) = (None, None);
     for step in &schedule.steps {
         if table_at != Some(step.rotation) {
             if dome.rotations > 1 {
                 let from = table_at.map_or(0.0, |k| dome.rotation_rad(k));
                 let deg = (step.turntable_rad - from).to_degrees();
-                turntable_s += move_time_s(deg, t.turntable.max_speed_deg_per_s, t.turntable.accel_deg_per_s2)
+                out.turntable_s += move_time_s(deg, t.turntable.max_speed_deg_per_s, t.turntable.accel_deg_per_s2)
                     + t.turntable.settle_s;
             }
             table_at = Some(step.rotation);
@@ -95,17 +125,78 @@ pub fn dry_run(text: &str, file: &Path) -> Result<DomeDryRun, RunError> {
             DomeShot::Reference(_) => schedule.single_exposure_s,
         };
         if exposure_set != Some(e) {
-            other_s += t.camera.command_s;
+            out.commands_s += t.camera.command_s;
             exposure_set = Some(e);
         }
-        other_s += t.leds.switch_s + t.camera.trigger_latency_s;
-        exposure_s += e;
-        transfer_s += per_frame_transfer;
+        out.commands_s += t.leds.switch_s + t.camera.trigger_latency_s;
+        out.exposure_s += e;
+        out.transfer_s += per_frame_transfer;
+    }
+    out
+}
+
+/// The estimated rig time of `schedule`'s steps, s (a lower bound: module docs).
+pub(crate) fn schedule_rig_time_s(rig: &RigConfig, dome: &DomeConfig, schedule: &DomeSchedule) -> f64 {
+    rig_time(rig, dome, schedule).total_s()
+}
+
+/// Bytes one view group's stack holds: its frames x photosites x 4, for every camera.
+fn group_bytes(rig: &RigConfig, cameras: usize, schedule: &DomeSchedule) -> u64 {
+    let per_group = if schedule.mode.is_multiplexed() { schedule.patterns.len() } else { schedule.leds };
+    (per_group * rig.camera.width_px * rig.camera.height_px * 4) as u64 * cameras as u64
+}
+
+/// The plan `v` as if it forced `mode` (the noise model's candidates are planned this way).
+fn forcing(v: &ValidatedDomePlan, mode: Mode) -> ValidatedDomePlan {
+    let mut forced = v.clone();
+    let d = &mut forced.plan.dome;
+    (d.multiplex, d.group_order) = match mode {
+        Mode::Single => (MultiplexPolicy::Off, None),
+        Mode::SMatrix { .. } => (MultiplexPolicy::On, None),
+        Mode::Grouped { order, .. } => (MultiplexPolicy::On, Some(order)),
+    };
+    forced
+}
+
+/// The dry run of the dome plan `text` (from `file`, which names it in errors and resolves
+/// relative rig configs).
+pub fn dry_run(text: &str, file: &Path) -> Result<DomeDryRun, RunError> {
+    let (v, rig, _) = crate::dome::load(text, file)?;
+    let material = crate::plan::load_material(v.plan.rig.material.as_deref())?;
+    let scene = DomeScene::new(&rig, &material)
+        .map_err(|e| RunError::Input { what: "dome scene".into(), message: e.to_string() })?;
+    let planning = |v: &ValidatedDomePlan| {
+        plan_dome(&rig, v, scene.nominal_irradiance())
+            .map_err(|e| RunError::Input { what: "dome planning".into(), message: e.to_string() })
+    };
+    let schedule = planning(&v)?;
+    let dome = rig
+        .require_dome("the dome dry run")
+        .map_err(|e| RunError::Input { what: "rig".into(), message: e.to_string() })?;
+    let t = rig_time(&rig, dome, &schedule);
+    // Homing comes before the engine's clock starts (as in the run's rig time): apart.
+    let home_s = if dome.rotations > 1 { rig.timing.turntable.home_s } else { 0.0 };
+    let used = schedule.mode.mux_mode();
+    let mut candidates = Vec::with_capacity(schedule.choice.candidates.len());
+    for p in &schedule.choice.candidates {
+        let (frames, rig_time_s, bytes) = if p.mode == used {
+            (schedule.steps.len(), t.total_s(), group_bytes(&rig, v.cameras.len(), &schedule))
+        } else {
+            let s = planning(&forcing(&v, p.mode))?;
+            (s.steps.len(), rig_time(&rig, dome, &s).total_s(), group_bytes(&rig, v.cameras.len(), &s))
+        };
+        candidates.push(CandidateEstimate {
+            prediction: *p,
+            chosen: p.mode == schedule.choice.best.mode,
+            used: p.mode == used,
+            frames,
+            rig_time_s,
+            group_bytes: bytes,
+        });
     }
     let views = v.cameras.len() * v.rotations.len();
     let textures = schedule.leds * views;
     let size = v.plan.texture_size as u64;
-    let per_group = if schedule.mode.is_multiplexed() { schedule.patterns.len() } else { schedule.leds };
     Ok(DomeDryRun {
         name: v.plan.name.clone(),
         rig: format!("{} ({})", rig.rig.name, rig.rig.kind.as_str()),
@@ -114,45 +205,54 @@ pub fn dry_run(text: &str, file: &Path) -> Result<DomeDryRun, RunError> {
         rotations: v.rotations.clone(),
         frames: schedule.steps.len(),
         textures,
-        rig_time_s: exposure_s + transfer_s + turntable_s + other_s,
-        exposure_s,
-        transfer_s,
-        turntable_s,
+        rig_time_s: t.total_s(),
+        exposure_s: t.exposure_s,
+        transfer_s: t.transfer_s,
+        turntable_s: t.turntable_s,
+        commands_s: t.commands_s,
         home_s,
         // 3 x 32-bit floats per texel plus the EXR header and offset table.
         texture_bytes: textures as u64 * (size * size * 12 + 400 + 8 * size),
-        group_bytes: (per_group * cam.width_px * cam.height_px * 4) as u64 * v.cameras.len() as u64,
+        group_bytes: group_bytes(&rig, v.cameras.len(), &schedule),
+        candidates,
         schedule,
     })
 }
 
 /// One line per candidate mode of the noise model: mode, frames, lit sources, exposure,
-/// predicted gain.
-pub fn candidate_lines(schedule: &DomeSchedule) -> Vec<String> {
-    schedule
-        .choice
-        .candidates
+/// predicted gain, and this plan's frames per camera and rig time in that mode.
+pub fn candidate_lines(d: &DomeDryRun) -> Vec<String> {
+    d.candidates
         .iter()
-        .map(|p: &Prediction| {
-            let chosen = if p.mode == schedule.choice.best.mode { "  <- the noise model's choice" } else { "" };
+        .map(|c| {
+            let p = &c.prediction;
+            let chosen = if c.chosen { "  <- the noise model's choice" } else { "" };
             let sat = if p.saturation_factor < 0.999 {
                 format!(", exposure cut to {:.0} % by saturation", 100.0 * p.saturation_factor)
             } else {
                 String::new()
             };
             format!(
-                "{:<16} {:>5} frames, {:>5.1} lit, {:.4} s per frame{sat}: predicted gain {:.3}{chosen}",
+                "{:<16} {:>5} frames, {:>5.1} lit, {:.4} s per frame{sat}: predicted gain {:.3}; \
+                 {} frames per camera, rig time at least {:.1} s{chosen}",
                 p.mode.describe(),
                 p.frames,
                 p.lit,
                 p.exposure_s,
-                p.gain
+                p.gain,
+                c.frames,
+                c.rig_time_s
             )
         })
         .collect()
 }
 
 impl DomeDryRun {
+    /// Single-light reference frames (first view group; they measure the gain, not stored).
+    pub fn reference_frames(&self) -> usize {
+        self.schedule.steps.iter().filter(|st| matches!(st.shot, DomeShot::Reference(_))).count()
+    }
+
     /// The plan as it would run, for `btfrig plan show`.
     pub fn lines(&self, file: &Path) -> Vec<String> {
         let s = &self.schedule;
@@ -170,8 +270,8 @@ impl DomeDryRun {
             format!("mode {}: {}", s.mode.describe(), s.reason),
         ];
         out.push("noise model candidates (equal total exposure time):".into());
-        out.extend(candidate_lines(s).into_iter().map(|l| format!("  {l}")));
-        let refs = s.steps.iter().filter(|st| matches!(st.shot, DomeShot::Reference(_))).count();
+        out.extend(candidate_lines(self).into_iter().map(|l| format!("  {l}")));
+        let refs = self.reference_frames();
         out.push(format!(
             "frames: {} per camera ({} per view group{}), pattern exposure {:.4} s, single-light exposure {:.4} s",
             self.frames,
@@ -193,12 +293,7 @@ impl DomeDryRun {
         out.push(format!(
             "estimated rig time at least {:.1} s: exposing {:.1} s, read-out and transfer {:.1} s, turntable {:.1} s, \
              commands {:.1} s (after homing the turntable, {:.1} s)",
-            self.rig_time_s,
-            self.exposure_s,
-            self.transfer_s,
-            self.turntable_s,
-            self.rig_time_s - self.exposure_s - self.transfer_s - self.turntable_s,
-            self.home_s
+            self.rig_time_s, self.exposure_s, self.transfer_s, self.turntable_s, self.commands_s, self.home_s
         ));
         out.push(format!(
             "disk {:.1} MB of textures; memory {:.1} MB per view group stack",

@@ -11,6 +11,7 @@
 
 #![warn(missing_docs)]
 
+pub mod check;
 pub mod dome;
 pub mod dome_dry_run;
 pub mod dry_run;
@@ -67,6 +68,24 @@ pub enum RunError {
         what: String,
         /// What is wrong, and what is allowed.
         message: String,
+    },
+    /// The plan is for another kind of rig, or another rig, than the one that is to run it
+    /// ([`check::check_for_rig`]).
+    #[error(
+        "the plan is a {plan_kind} for rig {plan_rig}, and the rig here is {rig:?} ({rig_kind}): \
+         allowed here are {allowed} for rig {rig:?}"
+    )]
+    WrongRig {
+        /// The plan's format ([`check::PlanKind::describe`]).
+        plan_kind: &'static str,
+        /// The rig the plan names: `"name" (kind)`, or its `rig.config` as written.
+        plan_rig: String,
+        /// The name of the rig that is to run it.
+        rig: String,
+        /// Its kind (`[rig] kind`).
+        rig_kind: &'static str,
+        /// The plans that rig runs ([`check::PlanKind::allowed`]).
+        allowed: &'static str,
     },
     /// The plan captures nothing.
     #[error("{}: the plan captures nothing", plan.display())]

@@ -133,8 +133,11 @@ pub struct ValidatedDomePlan {
 }
 
 impl DomePlan {
+    /// The rig config a dome plan without `[rig] config` runs on.
+    pub const DEFAULT_RIG: &'static str = "builtin:bonn-dome-sim";
+
     fn default_rig() -> super::RigSpec {
-        super::RigSpec { config: "builtin:bonn-dome-sim".into(), material: None, seed: None }
+        super::RigSpec { config: DomePlan::DEFAULT_RIG.into(), material: None, seed: None }
     }
     const fn default_size() -> usize {
         32
