@@ -194,6 +194,14 @@ pub fn run_order(n: usize, cols: usize, repeat: usize, fast_only: bool) -> anyho
         for len in others.into_iter().filter(|&l| l != auto) {
             configs.push((DemuxParams { method: Some(Method::Fft), fft_len: len, ..Default::default() }, false));
         }
+        // The vector transform without AVX-512, where the default uses it.
+        let dflt = Demuxer::new(&s, &DemuxParams { method: Some(Method::Fft), ..Default::default() })?;
+        if dflt.vector_isa() == Some("avx512") {
+            configs.push((
+                DemuxParams { method: Some(Method::Fft), fft_engine: FftEngine::VectorAvx2, ..Default::default() },
+                false,
+            ));
+        }
         // The same Rader length on rustfft (the tile transposed per column pair): what the
         // pixel-vectorised transform replaced.
         configs.push((
@@ -237,9 +245,9 @@ pub fn run_order(n: usize, cols: usize, repeat: usize, fast_only: bool) -> anyho
                 } else {
                     ""
                 };
-                let engine = match d.fft_engine() {
-                    Some(FftEngine::Vector) => "vector",
-                    _ => "rustfft",
+                let engine = match d.vector_isa() {
+                    Some(isa) => format!("vector {isa}"),
+                    None => "rustfft".to_string(),
                 };
                 format!("{engine}, tile {}, length {len}{how}", d.tile())
             }
@@ -389,13 +397,13 @@ pub fn bench(a: &BenchDemuxArgs) -> anyhow::Result<()> {
             (r.n * r.cols * 4) as f64 / 1e9
         );
         println!(
-            "{:<14} {:<34} {:>4} {:>10} {:>8} {:>9} {:>10} {:>10}",
+            "{:<14} {:<44} {:>4} {:>10} {:>8} {:>9} {:>10} {:>10}",
             "method", "layout", "acc", "time (ms)", "x floor", "setup ms", "max err", "rms err"
         );
         for w in &r.rows {
             let e = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.2e}"));
             println!(
-                "{:<14} {:<34} {:>4} {:>10.1} {:>8.2} {:>9.1} {:>10} {:>10}",
+                "{:<14} {:<44} {:>4} {:>10.1} {:>8.2} {:>9.1} {:>10} {:>10}",
                 w.method,
                 w.layout,
                 w.accumulate,
