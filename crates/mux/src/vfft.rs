@@ -260,28 +260,39 @@ fn pack<L: Copy>(c: C<L>) -> [L; 2] {
     [c.re, c.im]
 }
 
-/// One Stockham pass of an odd radix.
-#[derive(Debug)]
+/// One pass of an odd radix along one digit of one PFA axis, in place (see the module docs):
+/// butterflies over `radix` elements `stride` apart, at every other digit value.
+#[derive(Debug, Clone)]
 struct Stage {
     radix: usize,
-    /// Length of the sub-transforms already done (product of the earlier radices).
-    ns: usize,
-    /// `tw[2(k·radix + s)], tw[2(k·radix + s) + 1]` = re, im of `e^{sign·2πi·s·k/(ns·radix)}`.
+    /// Distance between a butterfly's elements: `axis_stride · lows`.
+    stride: usize,
+    /// The axis's lowest digit's stride.
+    axis_stride: usize,
+    /// Values of the axis's digits below this one (`r^d`); the twiddle of a butterfly
+    /// depends on them. 1: no twiddles.
+    lows: usize,
+    /// Forward: `tw[2(low·radix + t)], …+1` = re, im of `e^{−2πi·low·t/(lows·radix)}`, applied
+    /// after the butterfly; the inverse applies the conjugates before its butterfly.
     tw: Vec<f32>,
-    /// `cos[(j−1)·h + k−1] = cos(2πjk/r)`, `sin[…] = sign · sin(2πjk/r)` (`h = r / 2`).
+    tw_inv: Vec<f32>,
+    /// `cos[(j−1)·h + k−1] = cos(2πjk/r)`, `sin[…] = −sin(2πjk/r)` (forward), `sin_inv = −sin`.
     cos: Vec<f32>,
     sin: Vec<f32>,
+    sin_inv: Vec<f32>,
 }
 
 impl Stage {
-    fn new(radix: usize, ns: usize, sign: f64) -> Stage {
+    fn new(radix: usize, axis_stride: usize, lows: usize) -> Stage {
         let tau = 2.0 * std::f64::consts::PI;
-        let mut tw = Vec::with_capacity(2 * ns * radix);
-        for k in 0..ns {
-            for s in 0..radix {
-                let a = sign * tau * (s * k) as f64 / (ns * radix) as f64;
-                tw.push(a.cos() as f32);
-                tw.push(a.sin() as f32);
+        let (mut tw, mut tw_inv) = (Vec::new(), Vec::new());
+        if lows > 1 {
+            for low in 0..lows {
+                for t in 0..radix {
+                    let a = -tau * (low * t) as f64 / (lows * radix) as f64;
+                    tw.extend([a.cos() as f32, a.sin() as f32]);
+                    tw_inv.extend([a.cos() as f32, -a.sin() as f32]);
+                }
             }
         }
         let h = radix / 2;
@@ -290,10 +301,11 @@ impl Stage {
             for k in 1..=h {
                 let a = tau * (j * k) as f64 / radix as f64;
                 cos.push(a.cos() as f32);
-                sin.push((sign * a.sin()) as f32);
+                sin.push(-a.sin() as f32);
             }
         }
-        Stage { radix, ns, tw, cos, sin }
+        let sin_inv = sin.iter().map(|v| -v).collect();
+        Stage { radix, stride: axis_stride * lows, axis_stride, lows, tw, tw_inv, cos, sin, sin_inv }
     }
 }
 
@@ -330,6 +342,18 @@ impl<M: Lanes> Sink<M> for TwiddledSink<'_, M> {
     fn put(&mut self, o: Ops<M>, t: usize, v: C<M::L>) {
         let v = if t > 0 && !self.tw.is_empty() { o.cmul(v, self.tw[2 * t], self.tw[2 * t + 1]) } else { v };
         self.dst[self.base + t * self.step] = pack(v);
+    }
+}
+
+/// Output `t` into `y[t]` (registers: used at R = 3, whose one output pair unrolls).
+struct ArraySink<'a, L, const R: usize> {
+    y: &'a mut [C<L>; R],
+}
+
+impl<M: Lanes, const R: usize> Sink<M> for ArraySink<'_, M::L, R> {
+    #[inline(always)]
+    fn put(&mut self, _o: Ops<M>, t: usize, v: C<M::L>) {
+        self.y[t] = v;
     }
 }
 
@@ -387,117 +411,108 @@ fn dft_odd<const R: usize, M: Lanes, S: Sink<M>>(o: Ops<M>, cos: &[f32], sin: &[
     }
 }
 
-/// Multiplies `x[s]` (`s >= 1`) by the twiddles `tw[2s], tw[2s + 1]` of one butterfly.
+/// Multiplies `x[t]` (`t >= 1`) by the twiddles `tw[2t], tw[2t + 1]` of one butterfly.
 #[inline(always)]
 fn twiddle<const R: usize, M: Lanes>(o: Ops<M>, tw: &[f32], x: &mut [C<M::L>; R]) {
     let tw = &tw[..2 * R];
-    for s in 1..R {
-        x[s] = o.cmul(x[s], tw[2 * s], tw[2 * s + 1]);
+    for t in 1..R {
+        x[t] = o.cmul(x[t], tw[2 * t], tw[2 * t + 1]);
     }
 }
 
-// The passes take the transform length `q` and the stage's `ns` as arguments and are
-// `inline(always)`: called with constants (the plans of `block` for q = 150 and 198) every
+// The stages take `q` and the stage's shape (`stride`, `axis_stride`, `lows`) as arguments and
+// are `inline(always)`: called with constants (the plans of `block` for q = 150 and 198) every
 // loop bound and index is known, the loops unroll and the bounds checks fold away; called
-// with a stage's values they are the general code.
+// with a stage's values they are the general code. Butterfly `(hi, low, inner)` works on the
+// positions `hi·stride·R + low·axis_stride + inner + t·stride`.
 
-/// The forward transform's first pass (`ns = 1`, no twiddles): inputs straight from the
-/// tile's rows in Rader order (`rows[e]` is element `e`), outputs to `dst`; asks for the
-/// lines of the block at `pf` (if any) on the way.
+/// A forward stage in place (butterfly, then twiddles); `rows` (positions' rows, this block's
+/// columns at `c0`) instead of `buf` as input for the first stage, with the lines of the block
+/// at `pf` asked for on the way.
 #[inline(always)]
-fn first_pass<const R: usize, M: Lanes>(
+#[allow(clippy::too_many_arguments)]
+fn stage_fwd<const R: usize, M: Lanes>(
     o: Ops<M>,
     st: &Stage,
     q: usize,
-    rows: &[&mut [f32]],
-    c0: usize,
-    pf: Option<(usize, usize)>,
-    dst: &mut [E<M>],
+    (axis_stride, lows): (usize, usize),
+    rows: Option<(&[&mut [f32]], usize, Option<(usize, usize)>)>,
+    buf: &mut [E<M>],
 ) {
-    let (rows, dst) = (&rows[..q], &mut dst[..q]);
-    let stride = q / R;
-    for j in 0..stride {
-        let mut x = o.zeros::<R>();
-        for s in 0..R {
-            x[s] = o.load_row(&*rows[j + s * stride], c0);
-        }
-        if let Some((cp, n)) = pf {
-            for s in 0..R {
-                prefetch_run(&*rows[j + s * stride], cp, n);
+    debug_assert_eq!((st.radix, st.axis_stride, st.lows), (R, axis_stride, lows));
+    let buf = &mut buf[..q];
+    let stride = axis_stride * lows;
+    let tw = &st.tw[..if lows > 1 { 2 * lows * R } else { 0 }];
+    for hi in 0..q / (stride * R) {
+        for low in 0..lows {
+            let tw = if low > 0 { &tw[2 * low * R..2 * (low + 1) * R] } else { &[] };
+            for inner in 0..axis_stride {
+                let base = hi * stride * R + low * axis_stride + inner;
+                let mut x = o.zeros::<R>();
+                match rows {
+                    Some((rows, c0, pf)) => {
+                        let rows = &rows[..q];
+                        for t in 0..R {
+                            x[t] = o.load_row(&*rows[base + t * stride], c0);
+                        }
+                        if let Some((cp, n)) = pf {
+                            for t in 0..R {
+                                prefetch_run(&*rows[base + t * stride], cp, n);
+                            }
+                        }
+                    }
+                    None => {
+                        for t in 0..R {
+                            x[t] = unpack(buf[base + t * stride]);
+                        }
+                    }
+                }
+                let mut out = TwiddledSink { dst: &mut *buf, base, step: stride, tw };
+                dft_odd::<R, M, _>(o, &st.cos, &st.sin, &mut x, &mut out);
             }
-        }
-        dft_odd::<R, M, _>(o, &st.cos, &st.sin, &mut x, &mut BufSink { dst: &mut *dst, base: j * R, step: 1 });
-    }
-}
-
-/// A twiddled Stockham pass of odd radix `R` from `src` to `dst`: butterfly `(g, k)` reads
-/// elements `g·ns + k + s·q/R` and writes `g·ns·R + k + t·ns`.
-#[inline(always)]
-fn pass<const R: usize, M: Lanes>(o: Ops<M>, st: &Stage, q: usize, ns: usize, src: &[E<M>], dst: &mut [E<M>]) {
-    debug_assert_eq!((st.radix, st.ns), (R, ns));
-    let (src, dst) = (&src[..q], &mut dst[..q]);
-    let tw = &st.tw[..2 * ns * R];
-    let stride = q / R;
-    for g in 0..stride / ns {
-        for k in 0..ns {
-            let j = g * ns + k;
-            let mut x = o.zeros::<R>();
-            for s in 0..R {
-                x[s] = unpack(src[j + s * stride]);
-            }
-            if k > 0 {
-                twiddle::<R, M>(o, &tw[2 * k * R..], &mut x);
-            }
-            let base = g * ns * R + k;
-            dft_odd::<R, M, _>(o, &st.cos, &st.sin, &mut x, &mut BufSink { dst: &mut *dst, base, step: ns });
         }
     }
 }
 
-/// The transpose of [`pass`] (decimation in frequency, twiddles after the butterfly): the
-/// inverse transform runs the forward plan's passes transposed in reverse order (`F = Fᵀ`),
-/// so its last pass is the untwiddled `ns = 1` one. Butterfly `(g, k)` reads elements
-/// `g·ns·R + k + t·ns` and writes `g·ns + k + s·q/R`.
+/// An inverse stage in place, the transpose of [`stage_fwd`] with conjugate factors
+/// (conjugate twiddles, then the butterfly); to `rows` instead of `buf` for the last stage.
 #[inline(always)]
-fn pass_dif<const R: usize, M: Lanes>(o: Ops<M>, st: &Stage, q: usize, ns: usize, src: &[E<M>], dst: &mut [E<M>]) {
-    debug_assert_eq!((st.radix, st.ns), (R, ns));
-    let (src, dst) = (&src[..q], &mut dst[..q]);
-    let tw = &st.tw[..2 * ns * R];
-    let stride = q / R;
-    for g in 0..stride / ns {
-        for k in 0..ns {
-            let base = g * ns * R + k;
-            let mut x = o.zeros::<R>();
-            for t in 0..R {
-                x[t] = unpack(src[base + t * ns]);
-            }
-            let tw = if k > 0 { &tw[2 * k * R..2 * (k + 1) * R] } else { &[] };
-            let mut out = TwiddledSink { dst: &mut *dst, base: g * ns + k, step: stride, tw };
-            dft_odd::<R, M, _>(o, &st.cos, &st.sin, &mut x, &mut out);
-        }
-    }
-}
-
-/// The inverse transform's last pass: [`pass_dif`] at `ns = 1` (no twiddles), outputs
-/// straight to the tile's rows in Rader order.
-#[inline(always)]
-fn last_pass<const R: usize, M: Lanes>(
+fn stage_inv<const R: usize, M: Lanes>(
     o: Ops<M>,
     st: &Stage,
     q: usize,
-    src: &[E<M>],
-    rows: &mut [&mut [f32]],
-    c0: usize,
+    (axis_stride, lows): (usize, usize),
+    rows: Option<(&mut [&mut [f32]], usize)>,
+    buf: &mut [E<M>],
 ) {
-    debug_assert_eq!((st.radix, st.ns), (R, 1));
-    let (src, rows) = (&src[..q], &mut rows[..q]);
-    let stride = q / R;
-    for g in 0..stride {
-        let mut x = o.zeros::<R>();
-        for t in 0..R {
-            x[t] = unpack(src[g * R + t]);
+    debug_assert_eq!((st.radix, st.axis_stride, st.lows), (R, axis_stride, lows));
+    let buf = &mut buf[..q];
+    let stride = axis_stride * lows;
+    let tw = &st.tw_inv[..if lows > 1 { 2 * lows * R } else { 0 }];
+    let mut rows = rows;
+    for hi in 0..q / (stride * R) {
+        for low in 0..lows {
+            for inner in 0..axis_stride {
+                let base = hi * stride * R + low * axis_stride + inner;
+                let mut x = o.zeros::<R>();
+                for t in 0..R {
+                    x[t] = unpack(buf[base + t * stride]);
+                }
+                if low > 0 {
+                    twiddle::<R, M>(o, &tw[2 * low * R..], &mut x);
+                }
+                match rows {
+                    Some((ref mut rows, c0)) => {
+                        let mut out = RowSink { rows: &mut rows[..q], base, step: stride, c0 };
+                        dft_odd::<R, M, _>(o, &st.cos, &st.sin_inv, &mut x, &mut out);
+                    }
+                    None => {
+                        let mut out = BufSink { dst: &mut *buf, base, step: stride };
+                        dft_odd::<R, M, _>(o, &st.cos, &st.sin_inv, &mut x, &mut out);
+                    }
+                }
+            }
         }
-        dft_odd::<R, M, _>(o, &st.cos, &st.sin, &mut x, &mut RowSink { rows: &mut *rows, base: g, step: stride, c0 });
     }
 }
 
@@ -529,12 +544,14 @@ macro_rules! by_radix {
     };
 }
 
-/// One direction's fused middle: per pair `j >= 1`, `[P, Q, R, S]` (re, im each) with
-/// `out₂ⱼ = P a_j + Q a_{j+h}`, `out₂ⱼ₊₁ = R a_j + S a_{j+h}`; and the row-0 terms at `j = 0`.
+/// One direction's fused middle per pair of positions `(p, p + q/2)` (`p` in the lower half,
+/// frequencies `f` and `f + q/2`): `[P, Q]`, `[R, S]` (re, im each) with
+/// `out_p = P a + Q b`, `out_{p+q/2} = R a + S b` (`a`, `b` the pair's forward values before
+/// the radix-2 butterfly); and the row-0 terms at frequency 0 (position 0).
 struct Middle {
     coef: Vec<[[f32; 4]; 2]>,
-    /// `lo_0 = A₀ X + B₀ Y + t0 m₀ + s`, `hi_0 = A'₀ Y + B'₀ X + th m₀` (`X = a₀ + a_h`,
-    /// `Y = a₀ − a_h`), `y_row0 = z0 X + zh Y + zm m₀ + s`, `s = g0 (X + m₀)`.
+    /// `lo = A₀ X + B₀ Y + t0 m₀ + s`, `hi = A_h Y + B_h X + th m₀` (`X = a + b`,
+    /// `Y = a − b`), `y_row0 = z0 X + zh Y + zm m₀ + s`, `s = g0 (X + m₀)`.
     a0: Complex<f32>,
     b0: Complex<f32>,
     ah: Complex<f32>,
@@ -552,21 +569,21 @@ fn c32(z: Complex<f64>) -> Complex<f32> {
 }
 
 impl Middle {
-    fn new(sp: &Spec<f64>, q: usize) -> Middle {
+    /// `freq[p]`: the frequency at lower-half position `p` after the forward stages.
+    fn new(sp: &Spec<f64>, q: usize, freq: &[usize]) -> Middle {
         let h = q / 2;
-        let mut coef = Vec::with_capacity(h);
-        for j in 0..h {
-            let (a, b, a2, b2) = (sp.a[j], sp.b[j], sp.a[j + h], sp.b[j + h]);
-            // The forward radix-2 pass at ns = h: X = a_j + w a_{j+h}, Y = a_j − w a_{j+h}.
-            let w = Complex::from_polar(1.0, -2.0 * std::f64::consts::PI * j as f64 / q as f64);
-            // lo = A X + B Y, hi = A' Y + B' X; out = lo ± hi.
-            let (xe, ye) = (a + b2, b + a2);
-            let (xo, yo) = (a - b2, b - a2);
-            // The inverse's radix-2 pass transposed: out_j = lo + hi, out_{j+h} = (lo − hi) w̄.
-            let wb = w.conj();
-            let f = |p: Complex<f64>, q: Complex<f64>| [p.re as f32, p.im as f32, q.re as f32, q.im as f32];
-            coef.push([f(xe + ye, (xe - ye) * w), f((xo + yo) * wb, (xo - yo) * w * wb)]);
-        }
+        let coef = freq
+            .iter()
+            .map(|&f| {
+                let g = (f + h) % q;
+                // U_f = a + b, U_g = a − b; T_f = A_f U_f + B_f U_g, T_g = A_g U_g + B_g U_f;
+                // out_p = T_f + T_g, out_{p+h} = T_f − T_g.
+                let (xe, ye) = (sp.a[f] + sp.b[g], sp.b[f] + sp.a[g]);
+                let (xo, yo) = (sp.a[f] - sp.b[g], sp.b[f] - sp.a[g]);
+                let c = |p: Complex<f64>, q: Complex<f64>| [p.re as f32, p.im as f32, q.re as f32, q.im as f32];
+                [c(xe + ye, xe - ye), c(xo + yo, xo - yo)]
+            })
+            .collect();
         Middle {
             coef,
             a0: c32(sp.a[0]),
@@ -583,53 +600,107 @@ impl Middle {
     }
 }
 
-/// The forward radix-2 pass, the spectrum multiply and the inverse radix-2 pass, fused;
-/// returns row 0's output.
+/// The last forward stage (radix `R`, the lowest digit of the innermost axis: stride 1, no
+/// twiddles), the radix-2 stage over the halves, the spectrum multiply, and their inverses,
+/// fused: one group of `2R` elements in registers at a time. Returns row 0's output.
 #[inline(always)]
-fn middle<M: Lanes>(o: Ops<M>, md: &Middle, q: usize, src: &[E<M>], dst: &mut [E<M>], m0: C<M::L>) -> C<M::L> {
+fn fused_middle<const R: usize, M: Lanes>(
+    o: Ops<M>,
+    st: &Stage,
+    md: &Middle,
+    q: usize,
+    buf: &mut [E<M>],
+    m0: C<M::L>,
+) -> C<M::L> {
+    debug_assert_eq!((st.radix, st.stride), (R, 1));
     let m = o.0;
     let h = q / 2;
-    let (lo_in, hi_in) = src[..q].split_at(h);
-    let dst = &mut dst[..q];
-    let (a, b) = (unpack(lo_in[0]), unpack(hi_in[0]));
-    let (x, y) = (o.add(a, b), o.sub(a, b));
-    let xm = o.add(x, m0);
-    let s = C { re: m.mul(xm.re, m.splat(md.g0)), im: m.mul(xm.im, m.splat(md.g0)) };
-    let t0m = o.cscale(m0, md.t0);
-    let lo = o.add(o.add(o.add(o.cscale(x, md.a0), o.cscale(y, md.b0)), t0m), s);
-    let hi = o.add(o.add(o.cscale(y, md.ah), o.cscale(x, md.bh)), o.cscale(m0, md.th));
-    dst[0] = pack(o.add(lo, hi));
-    dst[h] = pack(o.sub(lo, hi));
-    let y0 = o.add(o.add(o.add(o.cscale(x, md.z0), o.cscale(y, md.zh)), o.cscale(m0, md.zm)), s);
+    let (lo_half, hi_half) = buf[..q].split_at_mut(h);
     let coef = &md.coef[..h];
-    for j in 1..h {
-        let (a, b) = (unpack(lo_in[j]), unpack(hi_in[j]));
-        let c = &coef[j];
-        dst[j] = pack(o.cmul2(a, b, &c[0]));
-        dst[j + h] = pack(o.cmul2(a, b, &c[1]));
+    let mut y0 = m0;
+    for g in 0..h / R {
+        let base = g * R;
+        let (mut a, mut b) = (o.zeros::<R>(), o.zeros::<R>());
+        for t in 0..R {
+            a[t] = unpack(lo_half[base + t]);
+            b[t] = unpack(hi_half[base + t]);
+        }
+        let (mut fa, mut fb) = (o.zeros::<R>(), o.zeros::<R>());
+        dft_odd::<R, M, _>(o, &st.cos, &st.sin, &mut a, &mut ArraySink { y: &mut fa });
+        dft_odd::<R, M, _>(o, &st.cos, &st.sin, &mut b, &mut ArraySink { y: &mut fb });
+        let (mut ta, mut tb) = (o.zeros::<R>(), o.zeros::<R>());
+        for t in 0..R {
+            let c = &coef[base + t];
+            ta[t] = o.cmul2(fa[t], fb[t], &c[0]);
+            tb[t] = o.cmul2(fa[t], fb[t], &c[1]);
+        }
+        if g == 0 {
+            // Frequency 0 (position 0) and q/2: the rank-one terms of row 0 and the common term.
+            let (x, y) = (o.add(fa[0], fb[0]), o.sub(fa[0], fb[0]));
+            let xm = o.add(x, m0);
+            let s = C { re: m.mul(xm.re, m.splat(md.g0)), im: m.mul(xm.im, m.splat(md.g0)) };
+            let lo = o.add(o.add(o.add(o.cscale(x, md.a0), o.cscale(y, md.b0)), o.cscale(m0, md.t0)), s);
+            let hi = o.add(o.add(o.cscale(y, md.ah), o.cscale(x, md.bh)), o.cscale(m0, md.th));
+            ta[0] = o.add(lo, hi);
+            tb[0] = o.sub(lo, hi);
+            y0 = o.add(o.add(o.add(o.cscale(x, md.z0), o.cscale(y, md.zh)), o.cscale(m0, md.zm)), s);
+        }
+        let mut out = BufSink { dst: &mut *lo_half, base, step: 1 };
+        dft_odd::<R, M, _>(o, &st.cos, &st.sin_inv, &mut ta, &mut out);
+        let mut out = BufSink { dst: &mut *hi_half, base, step: 1 };
+        dft_odd::<R, M, _>(o, &st.cos, &st.sin_inv, &mut tb, &mut out);
     }
     y0
 }
 
-/// Blocks ahead that the first pass prefetches: a block reads one run from each of the `p`
+/// Blocks ahead that the first stage prefetches: a block reads one run from each of the `p`
 /// rows, more streams than the hardware prefetcher follows. 2 to 4 measured alike; 1 and 6
 /// slower.
 const PREFETCH_BLOCKS: usize = 4;
 
-/// The Rader-domain demultiplex (see `crate::rader` for the algebra), fused passes of length
-/// `q = p − 1`.
+/// The Rader-domain demultiplex (see `crate::rader` for the algebra) on in-place PFA stages of
+/// length `q = p − 1`.
 pub(crate) struct VecRader {
     p: usize,
     q: usize,
-    /// `perm[a] = g^a mod p`.
-    perm: Vec<usize>,
-    /// Forward odd-radix passes, then (after the middle) the inverse ones.
-    fwd: Vec<Stage>,
-    inv: Vec<Stage>,
+    /// The row (of the tile's `p`) whose column values go to / come from each position.
+    row_of: Vec<usize>,
+    /// Forward stages before the fused one; the inverse runs them transposed in reverse order.
+    stages: Vec<Stage>,
+    /// The fused stage (stride 1, no twiddles).
+    fused: Stage,
     demux: Middle,
     mux: Middle,
     /// Use AVX-512 (blocks of 32 columns) where the CPU has it; else AVX2 (16 columns).
     wide: bool,
+}
+
+/// The PFA layout of `q = 2m` (`m` odd): prime-power axes of `m` (radix, exponent), largest
+/// first, each one's digits from high to low, the halves of `q` outermost; `None` when `m`
+/// has a prime factor the butterflies do not implement (above 13) or is 1.
+fn plan_axes(q: usize) -> Option<Vec<(usize, u32)>> {
+    if q % 2 != 0 || q % 4 == 0 || q < 6 {
+        return None;
+    }
+    let mut x = q / 2;
+    let mut axes = Vec::new();
+    for r in [3usize, 5, 7, 11, 13] {
+        let mut e = 0;
+        while x % r == 0 {
+            x /= r;
+            e += 1;
+        }
+        if e > 0 {
+            axes.push((r, e));
+        }
+    }
+    if x != 1 {
+        return None;
+    }
+    // The largest axis outermost; the smallest innermost, its lowest digit fused with the
+    // middle (12 vectors at r = 3).
+    axes.sort_by_key(|&(r, e)| std::cmp::Reverse(r.pow(e)));
+    Some(axes)
 }
 
 impl VecRader {
@@ -637,51 +708,60 @@ impl VecRader {
     /// `wide`: AVX-512 where the CPU has it.
     pub(crate) fn new(rader: Rader<f64>, wide: bool) -> Option<VecRader> {
         let q = rader.q;
-        if q % 2 != 0 || q % 4 == 0 {
-            return None;
+        let m = q / 2;
+        let axes = plan_axes(q)?;
+        // Axis strides: the innermost 1.
+        let lens: Vec<usize> = axes.iter().map(|&(r, e)| r.pow(e)).collect();
+        let mut strides = vec![1; axes.len()];
+        for i in (0..axes.len().saturating_sub(1)).rev() {
+            strides[i] = strides[i + 1] * lens[i + 1];
         }
-        let mut radices = Vec::new();
-        let mut x = q / 2;
-        for r in [3, 5, 7, 11, 13] {
-            while x % r == 0 {
-                radices.push(r);
-                x /= r;
+        let mut stages = Vec::new();
+        for (i, &(r, e)) in axes.iter().enumerate() {
+            for d in (0..e).rev() {
+                stages.push(Stage::new(r, strides[i], r.pow(d)));
             }
         }
-        if x != 1 || radices.is_empty() {
-            return None;
+        let fused = stages.pop()?;
+        // Position p = half·m + Σ digits; time index (Ruritanian map) n = half·m +
+        // Σ n_i·(q/N_i) mod q with n_i the axis's digits read naturally; frequency (CRT map)
+        // the f ≡ k_i (mod N_i), f ≡ half (mod 2), k_i the axis's digits read reversed.
+        let digits = |p: usize, i: usize| -> Vec<usize> {
+            let (r, e) = axes[i];
+            let v = (p / strides[i]) % lens[i];
+            (0..e).map(|d| (v / r.pow(d)) % r).collect() // place d
+        };
+        let mut row_of = vec![0; q];
+        for (p, row) in row_of.iter_mut().enumerate() {
+            let (half, rest) = (p / m, p % m);
+            let mut n = half * m;
+            for (i, &(r, _)) in axes.iter().enumerate() {
+                let ds = digits(rest, i);
+                let ni: usize = ds.iter().enumerate().map(|(d, &v)| v * r.pow(d as u32)).sum();
+                n += ni * (q / lens[i]);
+            }
+            *row = rader.perm[n % q];
         }
-        // The largest radix first (its pass has no twiddles and reads the rows).
-        radices.sort_unstable_by(|a, b| b.cmp(a));
-        let mut ns = 1;
-        let fwd = radices
-            .iter()
-            .map(|&r| {
-                let st = Stage::new(r, ns, -1.0);
-                ns *= r;
-                st
-            })
-            .collect();
-        // The inverse: the same plan with the opposite sign, run transposed in reverse order
-        // (`pass_dif`), after the radix-2 pass the middle holds.
-        let mut ns = 1;
-        let inv = radices
-            .iter()
-            .map(|&r| {
-                let st = Stage::new(r, ns, 1.0);
-                ns *= r;
-                st
-            })
-            .collect();
-        let demux = Middle::new(&rader.demux, q);
-        let mux = Middle::new(&rader.mux, q);
-        Some(VecRader { p: rader.p, q, perm: rader.perm, fwd, inv, demux, mux, wide })
+        let mut freq = vec![0; m];
+        for (p, f) in freq.iter_mut().enumerate() {
+            let ks: Vec<usize> = (0..axes.len())
+                .map(|i| {
+                    let (r, e) = axes[i];
+                    let ds = digits(p, i);
+                    (0..e as usize).map(|j| ds[e as usize - 1 - j] * r.pow(j as u32)).sum()
+                })
+                .collect();
+            *f = (0..q).step_by(2).find(|f| ks.iter().zip(&lens).all(|(k, n)| f % n == *k))?;
+        }
+        let demux = Middle::new(&rader.demux, q, &freq);
+        let mux = Middle::new(&rader.mux, q, &freq);
+        Some(VecRader { p: rader.p, q, row_of, stages, fused, demux, mux, wide })
     }
 
-    /// Scratch vectors per thread ([`pulp::f32x16`] units): two buffers of `q` elements of up to
-    /// 16 complex lanes.
+    /// Scratch vectors per thread ([`pulp::f32x16`] units): one buffer of `q` elements of up
+    /// to 16 complex lanes.
     pub(crate) fn scratch_len(&self) -> usize {
-        4 * self.q
+        2 * self.q
     }
 
     /// Applies the circulant to every column of the tile `rows` (`p` runs), in place, in
@@ -757,10 +837,9 @@ impl<M: Lanes> pulp::WithSimd for TileOp<'_, '_, M> {
     }
 }
 
-/// The whole map of one block of `2W` columns at `c0`: `row0` is row 0, `rows` the others in
-/// Rader order.
+/// The whole map of one block of `2W` columns at `c0`: `row0` is row 0, `rows` the others by
+/// position.
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
 fn block<M: Lanes>(
     o: Ops<M>,
     k: &VecRader,
@@ -769,56 +848,62 @@ fn block<M: Lanes>(
     rows: &mut [&mut [f32]],
     c0: usize,
     pf: Option<(usize, usize)>,
-    a: &mut [E<M>],
-    b: &mut [E<M>],
+    buf: &mut [E<M>],
 ) {
     let m0 = o.load_row(row0, c0);
     if let Some((cp, n)) = pf {
         prefetch_run(row0, cp, n);
     }
-    let (f, i) = (&k.fwd, &k.inv);
-    // The domes' orders with every radix and stride a constant (see the passes' note); any
-    // other 13-smooth q through the stages' values.
+    let (st, fu) = (&k.stages, &k.fused);
+    // The domes' orders with every radix and stride a constant (see the stages' note); any
+    // other order through the stages' values.
     let y0 = match k.q {
         150 => {
             let q = 150;
-            first_pass::<5, M>(o, &f[0], q, rows, c0, pf, a);
-            pass::<5, M>(o, &f[1], q, 5, a, b);
-            pass::<3, M>(o, &f[2], q, 25, b, a);
-            let y0 = middle(o, md, q, a, b, m0);
-            pass_dif::<3, M>(o, &i[2], q, 25, b, a);
-            pass_dif::<5, M>(o, &i[1], q, 5, a, b);
-            last_pass::<5, M>(o, &i[0], q, b, rows, c0);
+            // Axes 25 (stride 3: digits 15, 3) and 3 (stride 1, fused).
+            stage_fwd::<5, M>(o, &st[0], q, (3, 5), Some((rows, c0, pf)), buf);
+            stage_fwd::<5, M>(o, &st[1], q, (3, 1), None, buf);
+            let y0 = fused_middle::<3, M>(o, fu, md, q, buf, m0);
+            stage_inv::<5, M>(o, &st[1], q, (3, 1), None, buf);
+            stage_inv::<5, M>(o, &st[0], q, (3, 5), Some((rows, c0)), buf);
             y0
         }
         198 => {
             let q = 198;
-            first_pass::<11, M>(o, &f[0], q, rows, c0, pf, a);
-            pass::<3, M>(o, &f[1], q, 11, a, b);
-            pass::<3, M>(o, &f[2], q, 33, b, a);
-            let y0 = middle(o, md, q, a, b, m0);
-            pass_dif::<3, M>(o, &i[2], q, 33, b, a);
-            pass_dif::<3, M>(o, &i[1], q, 11, a, b);
-            last_pass::<11, M>(o, &i[0], q, b, rows, c0);
+            // Axes 11 (stride 9) and 9 (stride 1: digits 3, 1 fused).
+            stage_fwd::<11, M>(o, &st[0], q, (9, 1), Some((rows, c0, pf)), buf);
+            stage_fwd::<3, M>(o, &st[1], q, (1, 3), None, buf);
+            let y0 = fused_middle::<3, M>(o, fu, md, q, buf, m0);
+            stage_inv::<3, M>(o, &st[1], q, (1, 3), None, buf);
+            stage_inv::<11, M>(o, &st[0], q, (9, 1), Some((rows, c0)), buf);
             y0
         }
         q => {
-            let st = &f[0];
-            by_radix!(st.radix, first_pass::<M>(o, st, q, rows, c0, pf, a));
-            // `a` holds the data; ping-pong to the end of the forward passes.
-            let (mut src, mut dst) = (a, b);
-            for st in &f[1..] {
-                by_radix!(st.radix, pass::<M>(o, st, q, st.ns, src, dst));
-                std::mem::swap(&mut src, &mut dst);
+            let shape = |s: &Stage| (s.axis_stride, s.lows);
+            match st.first() {
+                Some(s0) => by_radix!(s0.radix, stage_fwd::<M>(o, s0, q, shape(s0), Some((&*rows, c0, pf)), &mut *buf)),
+                None => {
+                    // The fused stage is the only one: the rows straight into the buffer.
+                    for (e, row) in buf[..q].iter_mut().zip(rows.iter()) {
+                        *e = pack(o.load_row(row, c0));
+                    }
+                }
             }
-            let y0 = middle(o, md, q, src, dst, m0);
-            std::mem::swap(&mut src, &mut dst);
-            for st in i[1..].iter().rev() {
-                by_radix!(st.radix, pass_dif::<M>(o, st, q, st.ns, src, dst));
-                std::mem::swap(&mut src, &mut dst);
+            for s in st.iter().skip(1) {
+                by_radix!(s.radix, stage_fwd::<M>(o, s, q, shape(s), None, &mut *buf));
             }
-            let st = &i[0];
-            by_radix!(st.radix, last_pass::<M>(o, st, q, src, rows, c0));
+            let y0 = by_radix!(fu.radix, fused_middle::<M>(o, fu, md, q, &mut *buf, m0));
+            for s in st.iter().skip(1).rev() {
+                by_radix!(s.radix, stage_inv::<M>(o, s, q, shape(s), None, &mut *buf));
+            }
+            match st.first() {
+                Some(s0) => by_radix!(s0.radix, stage_inv::<M>(o, s0, q, shape(s0), Some((&mut *rows, c0)), &mut *buf)),
+                None => {
+                    for (e, row) in buf[..q].iter().zip(rows.iter_mut()) {
+                        o.store_row(row, c0, unpack(*e));
+                    }
+                }
+            }
             y0
         }
     };
@@ -832,19 +917,18 @@ fn tile_impl<M: Lanes>(o: Ops<M>, k: &VecRader, md: &Middle, rows: &mut [&mut [f
     debug_assert_eq!(rows.len(), p);
     let bw = 2 * M::W;
     let t = rows[0].len();
-    let (a, rest) = vb[..2 * q].split_at_mut(q);
-    let b = &mut rest[..q];
+    let buf = &mut vb[..q];
     let full = t / bw * bw;
+    // The rows by position once per tile (`row_of` is a bijection onto 1..p).
     if full > 0 {
-        // The rows in Rader order once per tile (the permutation is a bijection on 1..p).
         let mut slots: Vec<Option<&mut [f32]>> = rows.iter_mut().map(|r| Some(&mut **r)).collect();
         let row0 = slots[0].take().expect("row 0");
-        let mut rrows: Vec<&mut [f32]> = k.perm.iter().map(|&r| slots[r].take().expect("a permutation")).collect();
+        let mut prows: Vec<&mut [f32]> = k.row_of.iter().map(|&r| slots[r].take().expect("a permutation")).collect();
         let mut c0 = 0;
         while c0 < full {
             let cp = c0 + PREFETCH_BLOCKS * bw;
             let pf = (cp + bw <= t).then_some((cp, bw));
-            block(o, k, md, row0, &mut rrows, c0, pf, a, b);
+            block(o, k, md, row0, &mut prows, c0, pf, buf);
             c0 += bw;
         }
     }
@@ -857,8 +941,8 @@ fn tile_impl<M: Lanes>(o: Ops<M>, k: &VecRader, md: &Middle, rows: &mut [&mut [f
         {
             let mut slots: Vec<Option<&mut [f32]>> = pad.chunks_exact_mut(bw).map(Some).collect();
             let row0 = slots[0].take().expect("row 0");
-            let mut rrows: Vec<&mut [f32]> = k.perm.iter().map(|&r| slots[r].take().expect("a permutation")).collect();
-            block(o, k, md, row0, &mut rrows, 0, None, a, b);
+            let mut prows: Vec<&mut [f32]> = k.row_of.iter().map(|&r| slots[r].take().expect("a permutation")).collect();
+            block(o, k, md, row0, &mut prows, 0, None, buf);
         }
         for (src, row) in pad.chunks_exact(bw).zip(rows.iter_mut()) {
             row[full..].copy_from_slice(&src[..w]);
@@ -976,37 +1060,32 @@ mod pass_probe {
         which: usize,
         rows: &'a mut [&'a mut [f32]],
         a: &'a mut [E<M>],
-        b: &'a mut [E<M>],
         reps: usize,
     }
     impl<M: Lanes> pulp::WithSimd for Op<'_, M> {
         type Output = ();
         #[inline(always)]
         fn with_simd<S: pulp::Simd>(self, _s: S) {
-            let Op { m, k, which, rows, a, b, reps } = self;
+            let Op { m, k, which, rows, a, reps } = self;
             let o = Ops(m);
-            let (f, i) = (&k.fwd, &k.inv);
+            let (st, fu) = (&k.stages, &k.fused);
             let m0 = o.zeros::<1>()[0];
             for _ in 0..reps {
                 match (k.q, which) {
-                    (150, 0) => first_pass::<5, _>(o, &f[0], 150, rows, 0, None, a),
-                    (150, 1) => pass::<5, _>(o, &f[1], 150, 5, a, b),
-                    (150, 2) => pass::<3, _>(o, &f[2], 150, 25, b, a),
-                    (150, 3) => {
-                        std::hint::black_box(middle(o, &k.demux, 150, a, b, m0));
+                    (150, 0) => stage_fwd::<5, _>(o, &st[0], 150, (3, 5), Some((&*rows, 0, None)), a),
+                    (150, 1) => stage_fwd::<5, _>(o, &st[1], 150, (3, 1), None, a),
+                    (150, 2) => {
+                        std::hint::black_box(fused_middle::<3, _>(o, fu, &k.demux, 150, a, m0));
                     }
-                    (150, 4) => pass_dif::<3, _>(o, &i[2], 150, 25, b, a),
-                    (150, 5) => pass_dif::<5, _>(o, &i[1], 150, 5, a, b),
-                    (150, 6) => last_pass::<5, _>(o, &i[0], 150, b, rows, 0),
-                    (198, 0) => first_pass::<11, _>(o, &f[0], 198, rows, 0, None, a),
-                    (198, 1) => pass::<3, _>(o, &f[1], 198, 11, a, b),
-                    (198, 2) => pass::<3, _>(o, &f[2], 198, 33, b, a),
-                    (198, 3) => {
-                        std::hint::black_box(middle(o, &k.demux, 198, a, b, m0));
+                    (150, 3) => stage_inv::<5, _>(o, &st[1], 150, (3, 1), None, a),
+                    (150, 4) => stage_inv::<5, _>(o, &st[0], 150, (3, 5), Some((&mut *rows, 0)), a),
+                    (198, 0) => stage_fwd::<11, _>(o, &st[0], 198, (9, 1), Some((&*rows, 0, None)), a),
+                    (198, 1) => stage_fwd::<3, _>(o, &st[1], 198, (1, 3), None, a),
+                    (198, 2) => {
+                        std::hint::black_box(fused_middle::<3, _>(o, fu, &k.demux, 198, a, m0));
                     }
-                    (198, 4) => pass_dif::<3, _>(o, &i[2], 198, 33, b, a),
-                    (198, 5) => pass_dif::<3, _>(o, &i[1], 198, 11, a, b),
-                    (198, 6) => last_pass::<11, _>(o, &i[0], 198, b, rows, 0),
+                    (198, 3) => stage_inv::<3, _>(o, &st[1], 198, (1, 3), None, a),
+                    (198, 4) => stage_inv::<11, _>(o, &st[0], 198, (9, 1), Some((&mut *rows, 0)), a),
                     _ => unreachable!(),
                 }
                 std::hint::black_box(&mut *a);
@@ -1021,11 +1100,10 @@ mod pass_probe {
             let q = k.q;
             let mut line = format!("{name} p {p}:");
             let mut total = 0.0;
-            for which in 0..7 {
+            for which in 0..5 {
                 let mut data: Vec<f32> = (0..q * 2 * M::W).map(|i| (i % 7) as f32 * 1e-3).collect();
                 let zero = <M::L as pulp::bytemuck::Zeroable>::zeroed();
                 let mut a = vec![[zero; 2]; q];
-                let mut b = vec![[zero; 2]; q];
                 let reps = 20_000;
                 let mut best = f64::INFINITY;
                 // Min of many short wall-clock runs: robust to the VM's other load, which also
@@ -1034,7 +1112,7 @@ mod pass_probe {
                     let mut rows: Vec<&mut [f32]> = data.chunks_exact_mut(2 * M::W).collect();
                     let t = std::time::Instant::now();
                     let v4 = pulp::x86::V4::try_new().unwrap();
-                    pulp::Simd::vectorize(v4, Op { m, k: &k, which, rows: &mut rows, a: &mut a, b: &mut b, reps });
+                    pulp::Simd::vectorize(v4, Op { m, k: &k, which, rows: &mut rows, a: &mut a, reps });
                     best = best.min(t.elapsed().as_secs_f64());
                 }
                 // Cycles per 16 columns.
