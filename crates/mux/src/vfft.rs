@@ -1,40 +1,45 @@
 //! The Rader-domain demultiplex of the Paley orders on a pixel-vectorised FFT, with the
-//! gather, the spectrum multiply and the scatter fused into the transform passes.
+//! gather, the spectrum multiply and the scatter fused into the transform's stages.
 //!
 //! rustfft transforms one column at a time, so the pattern-major tile would have to be
 //! transposed into its buffer and back. Here every element of the transform is a pair of
 //! vectors of `W` columns in split-complex form (`W` columns of the tile as the real part,
 //! the next `W` as the imaginary part, which the map keeps apart because it sends real
 //! columns to real columns), so a butterfly is element-wise arithmetic on whole vectors and
-//! nothing is transposed. One block of `2W` columns (`q` elements, `q · 8W` bytes per buffer)
-//! stays in L1 through every pass.
+//! nothing is transposed. One block of `2W` columns (`q` elements in one buffer, `q · 8W`
+//! bytes: 19 KB at `q = 150`, `W = 16`) stays in L1 through every stage.
 //!
 //! The map of one block (see `crate::rader` for the algebra) is a forward FFT of length
-//! `q = p − 1`, the two-valued spectrum multiply `T̂_l = A_l Û_l + B_l Û_{l+q/2}`, and an
-//! inverse FFT. Both transforms are mixed-radix Stockham passes (natural order in and out, two
-//! buffers) over the odd radices 3 … 13 of `q` plus one radix 2 (`q = p − 1 ≡ 2 mod 4` for
-//! a Paley prime `p ≡ 3 mod 4`). The passes are arranged so that little but arithmetic is
-//! left between the stack and the result:
+//! `q = p − 1`, the two-valued spectrum multiply `T̂_f = A_f Û_f + B_f Û_{f+q/2}`, and an
+//! inverse FFT. `q = 2m` with `m` odd (`p ≡ 3 mod 4`), and the FFT is a Good–Thomas
+//! prime-factor transform: `m`'s prime powers (150 = 2 · 3 · 25, 198 = 2 · 9 · 11) are axes of
+//! a multidimensional layout with the halves of `q` outermost, and a DFT of length `q` is
+//! one DFT along each axis with no twiddles between axes (the input index map is Ruritanian,
+//! the output map the Chinese remainder one). Inside a prime power `r^e` the stages are
+//! in-place radix-`r` decimation in frequency (twiddles after the butterfly, digit-reversed
+//! output); the inverse runs the same stages transposed in reverse order with conjugate
+//! factors (`F = Fᵀ`), so it reads the forward's output layout and ends in the input layout.
+//! Every stage works in place on the one buffer. Little but arithmetic is left between the
+//! stack and the result:
 //!
-//! * the forward transform's first pass (radix `r₀`, no twiddles) reads its inputs straight
-//!   from the tile's rows in Rader order: the gather is that pass's loads;
-//! * the forward transform ends with its radix-2 pass (pairs `l`, `l + q/2`), which is exactly
-//!   the pairing of the spectrum multiply, and the inverse transform starts with a radix-2
-//!   pass over the same pairs: the three are one 2 × 2 complex matrix per pair,
-//!   `[out₂ⱼ, out₂ⱼ₊₁] = M_j [a_j, a_{j+q/2}]`, precomputed (four complex multiply-adds per
-//!   pair instead of a twiddle, two butterflies and four complex products); the rank-one
-//!   terms of row 0 (`crate::rader`) enter at `j = 0`, the common term `s` as a constant
-//!   added to bin 0 of the inverse's input;
-//! * the inverse transform's last pass writes its outputs straight to the tile's rows.
+//! * the forward transform's first stage reads its inputs straight from the tile's rows (the
+//!   position → row map combines the Rader order and the PFA input map): the gather is that
+//!   stage's loads; the inverse's last stage writes the rows: the scatter is its stores;
+//! * the innermost axis's lowest digit (radix 3 at both orders, stride 1, no twiddles), the
+//!   radix-2 stage over the halves (which pairs exactly the frequencies `f`, `f + q/2` the
+//!   spectrum multiply pairs) and their inverses are one step on `2r` elements in registers,
+//!   the multiply in between a precomputed 2 × 2 complex matrix per pair; the rank-one terms
+//!   of row 0 (`crate::rader`) enter at frequency 0, the common term `s` as a constant added
+//!   to bin 0 of the inverse's input.
 //!
-//! So a block costs `2 · (number of odd radices)` passes plus the fused middle, against
-//! gather + 2 transforms + multiply + scatter before (measured in `docs/benchmarks.md`).
-//! Odd radices use the symmetric form
+//! So a block costs two sweeps over the buffer per stage outside the fused step: four at
+//! q = 150 and 198 (measured in `docs/benchmarks.md`). Odd radices use the symmetric form
 //! `y_k = x_0 + Σ_j cos(2πjk/r) (x_j + x_{r−j}) ± i sin(2πjk/r) (x_j − x_{r−j})`.
 //!
-//! The workspace forbids unsafe code; when the CPU has AVX2 + FMA (checked at run time) the
-//! tile function runs through [`pulp::Simd::vectorize`] on [`pulp::x86::V3`], inside a
-//! function compiled for those features, and its arithmetic is pulp's explicit 256-bit
+//! The workspace forbids unsafe code; the tile function runs through
+//! [`pulp::Simd::vectorize`] inside a function compiled for AVX-512 ([`pulp::x86::V4`], 16
+//! lanes, 32 registers: radix 11 without spills) or AVX2 + FMA ([`pulp::x86::V3`], 8 lanes),
+//! whichever the CPU has (checked at run time), and its arithmetic is pulp's explicit vector
 //! operations ([`Lanes`]); no `target-cpu` flags. Elsewhere the portable [`Portable`] lanes
 //! run the same code.
 
@@ -426,6 +431,10 @@ fn twiddle<const R: usize, M: Lanes>(o: Ops<M>, tw: &[f32], x: &mut [C<M::L>; R]
 // with a stage's values they are the general code. Butterfly `(hi, low, inner)` works on the
 // positions `hi·stride·R + low·axis_stride + inner + t·stride`.
 
+/// The first stage's input: the rows by position, the block's first column, and the run to
+/// prefetch (first column, length).
+type RowsIn<'a, 'b> = (&'a [&'b mut [f32]], usize, Option<(usize, usize)>);
+
 /// A forward stage in place (butterfly, then twiddles); `rows` (positions' rows, this block's
 /// columns at `c0`) instead of `buf` as input for the first stage, with the lines of the block
 /// at `pf` asked for on the way.
@@ -436,7 +445,7 @@ fn stage_fwd<const R: usize, M: Lanes>(
     st: &Stage,
     q: usize,
     (axis_stride, lows): (usize, usize),
-    rows: Option<(&[&mut [f32]], usize, Option<(usize, usize)>)>,
+    rows: Option<RowsIn<'_, '_>>,
     buf: &mut [E<M>],
 ) {
     debug_assert_eq!((st.radix, st.axis_stride, st.lows), (R, axis_stride, lows));
@@ -840,6 +849,7 @@ impl<M: Lanes> pulp::WithSimd for TileOp<'_, '_, M> {
 /// The whole map of one block of `2W` columns at `c0`: `row0` is row 0, `rows` the others by
 /// position.
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 fn block<M: Lanes>(
     o: Ops<M>,
     k: &VecRader,
