@@ -28,6 +28,7 @@ fn request(dir: &Path, faults: Option<&str>) -> DomeRunRequest {
         plan_path: dir.join("plan.toml"),
         out: dir.join("data"),
         faults: faults.map(String::from),
+        preview: false,
     }
 }
 
