@@ -351,6 +351,12 @@ impl Progress {
                 let _ = writeln!(err, "resumed");
             }
             RunEvent::Committed { .. } => {}
+            RunEvent::Stopping { reason } if self.dome => {
+                let _ = writeln!(
+                    err,
+                    "\nstopping ({reason}) after the step under way: the view groups committed stay, the one under way is captured again on resume"
+                );
+            }
             RunEvent::Stopping { reason } => {
                 let _ = writeln!(err, "\nstopping ({reason}): committing the frames in flight");
             }
