@@ -18,7 +18,7 @@ use utoipa::{OpenApi, ToSchema};
 use crate::auth::{Caller, Role};
 use crate::problem::Problem;
 use crate::calibrations::{Calibration, StartCalibration};
-use crate::runs::{Control, RunState, RunStatus, ServerEvent, StartRequest};
+use crate::runs::{Control, ProgressUnit, RunState, RunStatus, ServerEvent, StartRequest};
 use crate::AppState;
 
 type Shared = State<Arc<AppState>>;
@@ -475,7 +475,7 @@ pub enum PathErrors {
         pause_run, resume_run, abort_run, run_events, preview, list_datasets, get_dataset, get_dataset_file,
         start_calibration, list_calibrations, get_calibration
     ),
-    components(schemas(Problem, RunStatus, RunState)),
+    components(schemas(Problem, RunStatus, RunState, ProgressUnit)),
     modifiers(&BearerScheme)
 )]
 /// The OpenAPI document, generated from the handlers above.

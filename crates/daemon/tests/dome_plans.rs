@@ -220,7 +220,8 @@ fn a_gonio_daemon_refuses_dome_plans_naming_both_kinds() {
     assert!(f(&r["estimate_s"]) >= f(&r["lower_bound_s"]) && r["dome"].is_null(), "{r}");
 }
 
-/// The OpenAPI document describes the dome dry run field by field.
+/// The OpenAPI document describes the dome dry run field by field, and what a run's progress
+/// counts.
 #[test]
 fn the_openapi_document_describes_the_dome_dry_run() {
     let d = Daemon::start("dome_plans_openapi", None);
@@ -242,6 +243,8 @@ fn the_openapi_document_describes_the_dome_dry_run() {
             ],
         ),
         ("DomeCandidate", &["mode", "chosen", "predicted_gain", "frames_per_camera", "rig_time_s", "disk_bytes"]),
+        // A run's status says what its progress counts (dome runs: steps, and textures beside).
+        ("RunStatus", &["unit", "done", "total", "textures", "textures_total", "preview_seq"]),
     ] {
         for field in fields {
             let p = &s[schema]["properties"][*field];
@@ -255,4 +258,5 @@ fn the_openapi_document_describes_the_dome_dry_run() {
         }
     }
     assert!(s["PlanKind"].to_string().contains("gonioreflectometer") && s["PlanKind"].to_string().contains("dome"));
+    assert_eq!(s["ProgressUnit"]["enum"], json!(["captures", "steps"]), "{}", s["ProgressUnit"]);
 }

@@ -1,9 +1,10 @@
 //! Dome runs through the HTTP API: a dome plan started on the LED dome daemon runs through
 //! `btfrig_runner::dome::run_controlled`; its status counts steps (a pattern at a rotation, a
 //! frame per camera) with the committed textures beside them, it pauses (no step while paused),
-//! resumes and aborts through the same endpoints as a gonio run, its events stream progress and
-//! the end, the preview shows the latest view group's brightest texture, and its dataset is
-//! where gonio runs' are and verifies. Bad starts are problem documents naming what is wrong.
+//! resumes and aborts through the same endpoints as a gonio run (and is interrupted as on
+//! SIGTERM), its events stream progress and the end, the preview shows the latest view group's
+//! brightest texture, and its dataset is where gonio runs' are and verifies. Bad starts are
+//! problem documents naming what is wrong.
 //! The daemon runs in-process ([`btfrig_daemon::router`] on a loopback port), driven over HTTP.
 //!
 //! The plan is small so the test takes seconds: one camera at one rotation, 8-texel textures
@@ -166,5 +167,18 @@ fn a_dome_run_starts_pauses_resumes_and_completes_into_a_dataset_that_verifies()
     assert!(n(&end["done"]) < STEPS && end["textures"] == 0, "{end}");
     let report = d.get("/api/v1/datasets/dome-2/files/report.json");
     assert_eq!((report["status"].as_str(), report["captures"].as_u64()), (Some("aborted"), Some(0)), "{report}");
+
+    // What SIGTERM does (`serve`'s shutdown): the same plan started into the aborted dataset
+    // resumes it, and the interrupt returns once the run has stopped and reported.
+    let r = d.post("/api/v1/runs", Some(&json!({ "plan_text": PLAN, "dataset": "dome-2" })));
+    assert_eq!(r.status, 201, "{}", r.text());
+    let id = r.json()["id"].as_str().unwrap().to_string();
+    wait_for(&d, &id, "a step", |s| n(&s["done"]) >= 1);
+    d.state.runs.interrupt_and_wait();
+    let end = d.get(&format!("/api/v1/runs/{id}"));
+    assert_eq!(end["state"], "interrupted", "{end}");
+    assert!(n(&end["done"]) < STEPS, "{end}");
+    let report = d.get("/api/v1/datasets/dome-2/files/report.json");
+    assert_eq!(report["status"], "interrupted", "{report}");
     eprintln!("dome runs through the API: {:.1} s", t0.elapsed().as_secs_f64());
 }

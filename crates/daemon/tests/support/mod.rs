@@ -63,6 +63,9 @@ impl Response {
 pub struct Daemon {
     pub port: u16,
     pub data: PathBuf,
+    /// What the handlers share (e.g. for what `serve` does on SIGTERM:
+    /// `state.runs.interrupt_and_wait()`).
+    pub state: Arc<AppState>,
 }
 
 impl Daemon {
@@ -79,7 +82,8 @@ impl Daemon {
             plans: None,
         };
         let (state, _) = AppState::load(&cfg).unwrap_or_else(|e| panic!("{e}"));
-        let app = btfrig_daemon::router(Arc::new(state));
+        let state = Arc::new(state);
+        let app = btfrig_daemon::router(state.clone());
         let (tx, rx) = std::sync::mpsc::channel();
         std::thread::spawn(move || {
             let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
@@ -89,7 +93,7 @@ impl Daemon {
                 axum::serve(l, app).await.unwrap();
             });
         });
-        Daemon { port: rx.recv().unwrap(), data: cfg.data }
+        Daemon { port: rx.recv().unwrap(), data: cfg.data, state }
     }
 
     fn send(&self, method: &str, path: &str, token: &str, body: Option<&Value>) -> BufReader<TcpStream> {
