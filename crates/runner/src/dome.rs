@@ -732,6 +732,7 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
         // Denoising projects the whole group's textures at once; otherwise they stream one by
         // one (the group's memory is then one texture, not `leds`).
         let mut denoised: Option<Vec<Vec<[f32; 3]>>> = None;
+        let mut denoise_s = 0.0;
         if let Some(terms) = self.v.plan.dome.denoise_terms {
             let t0 = Instant::now();
             let texes: Vec<Vec<[f32; 3]>> =
@@ -745,7 +746,8 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
                 .map_err(|e| input("dome pipeline", e))?;
             let (texes, p) = denoise_group(texes, &scales, terms, &skip).map_err(|e| input("denoising", e))?;
             self.out.denoise_energy_kept.push(p.energy_kept);
-            self.out.denoise_s += t0.elapsed().as_secs_f64();
+            denoise_s = t0.elapsed().as_secs_f64();
+            self.out.denoise_s += denoise_s;
             denoised = Some(texes);
         }
         let textures_started = Instant::now();
@@ -793,6 +795,9 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
             commits.textures += written;
             *commits.stage_s.entry("demultiplex".into()).or_insert(0.0) += demux_s;
             *commits.stage_s.entry("textures".into()).or_insert(0.0) += textures_s;
+            if self.v.plan.dome.denoise_terms.is_some() {
+                *commits.stage_s.entry("denoise".into()).or_insert(0.0) += denoise_s;
+            }
             if let Some((_, tex)) = brightest {
                 let t0 = Instant::now();
                 if write_preview(self.dataset, &tex, size) {
