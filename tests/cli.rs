@@ -676,6 +676,60 @@ fn dome_plans_are_checked_shown_and_run() {
     assert!(e.contains("cameras") && e.contains("99"), "{e}");
 }
 
+/// Ctrl-C during `btfrig run` on a dome plan: the step under way finishes, the view groups
+/// committed stay, exit 130 naming the command that resumes; progress counted steps with an
+/// ETA; the same command captures the rest.
+#[test]
+fn ctrl_c_interrupts_a_dome_run_after_its_committed_view_groups_and_resumes() {
+    let dir = scratch("dome-sigint");
+    let plan = dir.join("dome.toml");
+    // One camera at two rotations: 203 steps (4 reference LEDs in the first view group), then
+    // 199; each view group commits its 198 textures at its last step.
+    std::fs::write(
+        &plan,
+        "name = \"cli-dome-sigint\"\ntexture_size = 8\n[rig]\nconfig = \"builtin:bonn-dome-sim\"\n\
+         material = \"leather\"\n[dome]\ncameras = [4]\nrotations = [1, 5]\n",
+    )
+    .unwrap();
+    let out = dir.join("dataset");
+    let child = btfrig()
+        .args(["run", "--plan"])
+        .arg(&plan)
+        .arg("--out")
+        .arg(&out)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Interrupt once the first view group is committed, in the second rotation.
+    let started = std::time::Instant::now();
+    while std::fs::read_dir(out.join("textures")).map(|d| d.count()).unwrap_or(0) < 198 {
+        assert!(started.elapsed().as_secs() < 120, "no view group after 120 s");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let status = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
+    assert!(status.success());
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    // Progress in steps, with an ETA of the remaining rig time.
+    assert!(err.contains("402 steps to do of 402") && err.contains("steps 203/402, ETA "), "{}", text(&o));
+    let r = report(&out);
+    if r["status"] == "finished" {
+        // The run ended before the signal was handled: nothing to check about interruption.
+        assert!(o.status.success(), "{}", text(&o));
+        return;
+    }
+    assert_eq!(o.status.code(), Some(130), "{}", text(&o));
+    assert!(err.contains("198 of 396 textures committed") && err.contains("run the same command again"), "{err}");
+    assert_eq!((r["status"].as_str(), r["captures"].as_u64()), (Some("interrupted"), Some(198)), "{r}");
+    only_incomplete(&out);
+
+    let again = ok(btfrig().args(["run", "--plan"]).arg(&plan).arg("--out").arg(&out));
+    assert!(again.contains("textures          198 (198 LEDs x 2 views), 199 frames per camera"), "{again}");
+    assert_eq!(report(&out)["status"], "finished");
+    ok(btfrig().args(["dataset", "verify"]).arg(&out));
+}
+
 #[test]
 fn demo_rig_camera_array_multiplexes_all_151_flashes_end_to_end() {
     let dir = scratch("demo-camera-array");

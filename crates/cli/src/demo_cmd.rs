@@ -146,6 +146,7 @@ fn run_dome(a: &DemoArgs, demo: DomeDemo) -> anyhow::Result<ExitCode> {
         plan_path: cwd.join(format!("<embedded rig-configs/plans/{}.toml>", demo.name)),
         out,
         faults: None,
+        preview: false,
     };
     let json = a.json;
     let s = btfrig_runner::dome::run(&req, &mut |line| {

@@ -51,7 +51,9 @@ pub fn run(a: &RunArgs) -> anyhow::Result<ExitCode> {
 }
 
 /// `btfrig run` on a dome plan (LED dome or camera array, docs/plan-format.md): collected,
-/// demultiplexed and stored view group by view group; resumable per view group.
+/// demultiplexed and stored view group by view group; resumable per view group. Progress
+/// counts steps (a pattern at a rotation, a frame per camera) with an ETA; Ctrl-C stops
+/// after the step under way, keeps the committed view groups and exits 130.
 fn run_dome(a: &RunArgs, plan_text: String) -> anyhow::Result<ExitCode> {
     let gonio_only = [
         ("--light", a.light.is_some(), "the lamp's light calibration"),
@@ -70,11 +72,29 @@ fn run_dome(a: &RunArgs, plan_text: String) -> anyhow::Result<ExitCode> {
         plan_path: a.plan.clone(),
         out: a.out.clone(),
         faults: a.faults.clone(),
+        preview: false,
     };
-    let s = btfrig_runner::dome::run(&req, &mut |line| println!("{line}"))?;
+    let control = RunControl::new();
+    watch_ctrl_c(control.clone());
+    let mut progress = Progress { dome: true, ..Progress::default() };
+    let result = btfrig_runner::dome::run_controlled(&req, &control, true, &mut |line| println!("{line}"), &mut |e| {
+        progress.show(e)
+    });
+    progress.end_line();
+    let s = result?;
     println!("btfrig run: dome plan {} into {}", a.plan.display(), a.out.display());
     print_dome_summary(&s);
-    Ok(ExitCode::SUCCESS)
+    if s.stopped.is_none() {
+        return Ok(ExitCode::SUCCESS);
+    }
+    let (textures, total) = progress.textures.unwrap_or((s.textures, 0));
+    eprintln!(
+        "btfrig: interrupted after the step under way ({textures} of {total} textures committed; a view group not yet \
+         complete is captured again on resume); run the same command again to resume:\n  btfrig run --plan {} --out {}",
+        a.plan.display(),
+        a.out.display()
+    );
+    Ok(ExitCode::from(EXIT_INTERRUPTED))
 }
 
 /// The model a run builds while it captures: `--compress` if given, else the plan's
@@ -248,11 +268,16 @@ fn watch_ctrl_c(control: RunControl) {
     });
 }
 
-/// The progress line on stderr: captures done/total, ETA, current step.
+/// The progress line on stderr: captures (a dome run: steps) done/total, ETA, current step.
 #[derive(Default)]
 struct Progress {
     current: String,
     open_line: bool,
+    /// A dome run: progress counts steps (a pattern at a rotation, a frame per camera), and
+    /// textures are committed per view group.
+    dome: bool,
+    /// A dome run's textures in the dataset, and of the whole plan.
+    textures: Option<(u64, u64)>,
 }
 
 impl Progress {
@@ -281,18 +306,41 @@ impl Progress {
                 if let Some(r) = repaired {
                     let _ = writeln!(err, "repaired on resume: {r}");
                 }
-                let _ = writeln!(
-                    err,
-                    "{to_do} captures to do of {total} (planned hardware time {planned_hardware_s:.0} s, lower bound {critical_path_s:.0} s)"
-                );
+                if self.dome {
+                    let _ = writeln!(
+                        err,
+                        "{to_do} steps to do of {total} (a step: one pattern at one rotation, a frame per camera; estimated rig time at least {planned_hardware_s:.0} s)"
+                    );
+                } else {
+                    let _ = writeln!(
+                        err,
+                        "{to_do} captures to do of {total} (planned hardware time {planned_hardware_s:.0} s, lower bound {critical_path_s:.0} s)"
+                    );
+                }
             }
             RunEvent::StepDone { light, view, .. } => self.current = format!("light {light} view {view}"),
+            RunEvent::DomeStepDone { index, rotation, .. } => {
+                self.current = format!("step {index} rotation {rotation}")
+            }
             RunEvent::Progress { done, total, eta_s } => {
                 let eta = eta_s.map(|s| format!("{s:.0} s")).unwrap_or_else(|| "?".into());
-                let _ = write!(err, "\rcaptures {done}/{total}, ETA {eta} (rig time), last {}   ", self.current);
+                let _ = match (self.dome, self.textures) {
+                    (true, Some((t, n))) => write!(
+                        err,
+                        "\rsteps {done}/{total}, ETA {eta} (rig time), textures {t}/{n}, last {}   ",
+                        self.current
+                    ),
+                    (true, None) => {
+                        write!(err, "\rsteps {done}/{total}, ETA {eta} (rig time), last {}   ", self.current)
+                    }
+                    (false, _) => {
+                        write!(err, "\rcaptures {done}/{total}, ETA {eta} (rig time), last {}   ", self.current)
+                    }
+                };
                 let _ = err.flush();
                 self.open_line = true;
             }
+            RunEvent::TexturesCommitted { textures, total, .. } => self.textures = Some((*textures, *total)),
             RunEvent::Warning(w) => {
                 let _ = writeln!(err, "\nwarning: {w}");
             }
@@ -303,6 +351,12 @@ impl Progress {
                 let _ = writeln!(err, "resumed");
             }
             RunEvent::Committed { .. } => {}
+            RunEvent::Stopping { reason } if self.dome => {
+                let _ = writeln!(
+                    err,
+                    "\nstopping ({reason}) after the step under way: the view groups committed stay, the one under way is captured again on resume"
+                );
+            }
             RunEvent::Stopping { reason } => {
                 let _ = writeln!(err, "\nstopping ({reason}): committing the frames in flight");
             }

@@ -18,7 +18,7 @@ use utoipa::{OpenApi, ToSchema};
 use crate::auth::{Caller, Role};
 use crate::problem::Problem;
 use crate::calibrations::{Calibration, StartCalibration};
-use crate::runs::{Control, RunState, RunStatus, ServerEvent, StartRequest};
+use crate::runs::{Control, ProgressUnit, RunState, RunStatus, ServerEvent, StartRequest};
 use crate::AppState;
 
 type Shared = State<Arc<AppState>>;
@@ -393,7 +393,8 @@ pub struct DatasetEntry {
     /// `finished`, `aborted`, `interrupted`, `paused` (its last report), `running`, or
     /// `incomplete` (no report yet).
     pub state: String,
-    /// Captures done as of its last report.
+    /// Captures done as of its last report (a dome dataset: textures; of the run under way:
+    /// now).
     pub captures: u64,
     /// The plan's name.
     pub plan: String,
@@ -474,7 +475,7 @@ pub enum PathErrors {
         pause_run, resume_run, abort_run, run_events, preview, list_datasets, get_dataset, get_dataset_file,
         start_calibration, list_calibrations, get_calibration
     ),
-    components(schemas(Problem, RunStatus, RunState)),
+    components(schemas(Problem, RunStatus, RunState, ProgressUnit)),
     modifiers(&BearerScheme)
 )]
 /// The OpenAPI document, generated from the handlers above.
@@ -610,20 +611,33 @@ pub async fn start_run(State(s): Shared, Operator(c): Operator, ApiJson(b): ApiJ
         .await
         .map_err(|e| Problem::internal(format!("plan validation crashed: {e}")))?
         .map_err(|e| Problem::unprocessable(e.to_string()))?;
-    let v = match checked {
-        btfrig_runner::check::CheckedPlan::Gonio { validated, .. } => validated,
-        btfrig_runner::check::CheckedPlan::Dome { plan, .. } => {
-            return Err(Problem::unprocessable(format!(
-                "plan {:?} is a valid dome plan for this rig ({:?}, {}), but the daemon does not start dome runs yet: \
-                 its run status, previews and metrics follow gonio runs (docs/http-api.md, \"Dome plans\"); \
-                 allowed here: POST /api/v1/plans/validate and /api/v1/plans/dry-run; \
-                 run it with `btfrig run --plan FILE --out DIR`",
-                given_name.as_deref().unwrap_or(&plan.plan.name),
-                s.rig.rig.name,
-                s.rig.rig.kind.as_str()
-            )));
+    let (kind, name) = (checked.kind(), checked.name().to_string());
+    match checked {
+        btfrig_runner::check::CheckedPlan::Gonio { validated, .. } => check_gonio_start(&validated)?,
+        btfrig_runner::check::CheckedPlan::Dome { plan, rig } => check_dome_start(&plan, &rig)?,
+    }
+    let plan_name = given_name.unwrap_or(name);
+    let dataset = match b.dataset {
+        Some(d) => {
+            check_name(&d).map_err(Problem::unprocessable)?;
+            d
         }
+        None => s.new_dataset_name(&plan_name),
     };
+    s.check_dataset_plan(&dataset, &plan_text)?;
+    let run = s.runs.start(StartRequest { plan_text, plan_name, plan_path, dataset, owner: c.name, kind }, || {
+        s.calibrations.running().map(|c| format!("calibration {} of {}", c.id, c.owner))
+    })?;
+    let status = run.status();
+    let mut r = (StatusCode::CREATED, Json(&status)).into_response();
+    if let Ok(v) = HeaderValue::from_str(&format!("/api/v1/runs/{}", status.id)) {
+        r.headers_mut().insert(header::LOCATION, v);
+    }
+    Ok(r)
+}
+
+/// What a valid gonio plan still needs before the daemon starts it (422 otherwise).
+fn check_gonio_start(v: &btfrig_core::plan::ValidatedPlan) -> Result<(), Problem> {
     if v.capture_list().captures.is_empty() {
         return Err(Problem::unprocessable("the plan captures nothing"));
     }
@@ -635,24 +649,27 @@ pub async fn start_run(State(s): Shared, Operator(c): Operator, ApiJson(b): ApiJ
             m.name()
         )));
     }
-    let plan_name = given_name.unwrap_or_else(|| v.name.clone());
-    let dataset = match b.dataset {
-        Some(d) => {
-            check_name(&d).map_err(Problem::unprocessable)?;
-            d
-        }
-        None => s.new_dataset_name(&plan_name),
-    };
-    s.check_dataset_plan(&dataset, &plan_text)?;
-    let run = s.runs.start(StartRequest { plan_text, plan_name, plan_path, dataset, owner: c.name }, || {
-        s.calibrations.running().map(|c| format!("calibration {} of {}", c.id, c.owner))
-    })?;
-    let status = run.status();
-    let mut r = (StatusCode::CREATED, Json(&status)).into_response();
-    if let Ok(v) = HeaderValue::from_str(&format!("/api/v1/runs/{}", status.id)) {
-        r.headers_mut().insert(header::LOCATION, v);
+    Ok(())
+}
+
+/// What a valid dome plan still needs before the daemon starts it, checked here so the start
+/// is refused (422) rather than the run failing: its material, and a rig the runner can drive
+/// (simulated or emulated devices; `btfrig_runner::dome`).
+fn check_dome_start(
+    plan: &btfrig_core::plan::dome::ValidatedDomePlan,
+    rig: &btfrig_core::config::RigConfig,
+) -> Result<(), Problem> {
+    btfrig_runner::plan::load_material(plan.plan.rig.material.as_deref())
+        .map_err(|e| Problem::unprocessable(format!("rig.material: {e}")))?;
+    if rig.devices.simulated().is_none() {
+        return Err(Problem::unprocessable(format!(
+            "rig {:?} ({}): a device is real hardware; the daemon runs dome plans on simulated or emulated \
+             devices only (kind = \"sim\", or link.emulated = true; docs/rig-config.md)",
+            rig.rig.name,
+            rig.rig.kind.as_str()
+        )));
     }
-    Ok(r)
+    Ok(())
 }
 
 #[utoipa::path(get, path = "/api/v1/runs", tag = "runs", security(("bearer" = [])),

@@ -5,7 +5,8 @@
 //! [`AppState`], binds the listen address and answers [`router`]'s routes until SIGTERM or
 //! SIGINT, which interrupts the run under way (frames in flight committed, journal flushed,
 //! dataset resumable) before the daemon exits. Handlers ([`api`]) are thin: runs go through
-//! [`btfrig_runner::run`] and plan checks through [`btfrig_runner::check`] and the dry runs
+//! [`btfrig_runner::run`] (gonio plans) and [`btfrig_runner::dome::run_controlled`] (dome
+//! plans), plan checks through [`btfrig_runner::check`] and the dry runs
 //! ([`btfrig_runner::dry_run`], [`btfrig_runner::dome_dry_run`] for dome plans), exactly as the
 //! CLI does. Tokens and roles: [`auth`]; errors: [`problem`]; `/metrics`: [`metrics`].
 //! The HTTP API is documented in `docs/http-api.md` and by `/api/v1/openapi.json`.
@@ -191,7 +192,10 @@ impl AppState {
         if let Some(l) = &d.led_array {
             devices.push(("led_array", l, "LED array".into()));
         }
-        let busy_detail = current.as_ref().map(|s| format!("; run {} at {}/{}", s.id, s.done, s.total)).unwrap_or_default();
+        let busy_detail = current
+            .as_ref()
+            .map(|s| format!("; run {} at {}/{} {}", s.id, s.done, s.total, s.unit.as_str()))
+            .unwrap_or_default();
         RigStatus {
             rig: RigSummary {
                 name: self.rig.rig.name.clone(),
@@ -365,7 +369,8 @@ impl AppState {
             let mut captures = captures;
             if let Some(c) = current.as_ref().filter(|c| c.dataset == name) {
                 state = api::state_name(c.state).into();
-                captures = c.done;
+                // A dome run's `done` counts steps; its dataset holds textures.
+                captures = c.textures.unwrap_or(c.done);
             }
             out.push(DatasetEntry { name, state, captures, plan });
         }

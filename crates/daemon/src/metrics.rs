@@ -12,6 +12,7 @@ use std::sync::Mutex;
 #[derive(Default)]
 pub struct Metrics {
     captures: AtomicU64,
+    dome_steps: AtomicU64,
     retries: AtomicU64,
     warnings: AtomicU64,
     runs_started: AtomicU64,
@@ -30,6 +31,12 @@ impl Metrics {
         self.retries.fetch_add(u64::from(attempts.saturating_sub(1)), Ordering::Relaxed);
     }
 
+    /// A dome step (a frame per camera) delivered after `attempts` attempts.
+    pub fn dome_step_done(&self, attempts: u32) {
+        self.dome_steps.fetch_add(1, Ordering::Relaxed);
+        self.retries.fetch_add(u64::from(attempts.saturating_sub(1)), Ordering::Relaxed);
+    }
+
     /// A run warning.
     pub fn warning(&self) {
         self.warnings.fetch_add(1, Ordering::Relaxed);
@@ -44,6 +51,12 @@ impl Metrics {
     /// The pipeline committed a capture: its queue and the session's stage seconds so far.
     pub fn committed(&self, queued: u64, stage_s: &BTreeMap<String, f64>) {
         self.queue_depth.store(queued, Ordering::Relaxed);
+        *self.stages_current.lock().unwrap_or_else(|e| e.into_inner()) = stage_s.clone();
+    }
+
+    /// A dome run committed a view group: the session's stage seconds so far (its frames are
+    /// held per view group, not queued: the queue depth is a gonio figure).
+    pub fn stages(&self, stage_s: &BTreeMap<String, f64>) {
         *self.stages_current.lock().unwrap_or_else(|e| e.into_inner()) = stage_s.clone();
     }
 
@@ -74,7 +87,16 @@ impl Metrics {
             let _ = writeln!(out, "# HELP {name} {help}\n# TYPE {name} counter\n{name} {v}");
         };
         counter("btfrig_captures_total", "Captures delivered by the engine.", self.captures.load(Ordering::Relaxed));
-        counter("btfrig_capture_retries_total", "Attempts beyond the first.", self.retries.load(Ordering::Relaxed));
+        counter(
+            "btfrig_dome_steps_total",
+            "Dome steps delivered by the engine (a pattern at a rotation, a frame per camera).",
+            self.dome_steps.load(Ordering::Relaxed),
+        );
+        counter(
+            "btfrig_capture_retries_total",
+            "Attempts beyond the first (gonio captures and dome steps).",
+            self.retries.load(Ordering::Relaxed),
+        );
         counter("btfrig_run_warnings_total", "Run warnings.", self.warnings.load(Ordering::Relaxed));
         counter("btfrig_runs_started_total", "Runs started.", self.runs_started.load(Ordering::Relaxed));
         counter(
@@ -89,7 +111,7 @@ impl Metrics {
         );
         let _ = writeln!(out, "# HELP btfrig_run_active 1 while a run holds the rig.\n# TYPE btfrig_run_active gauge");
         let _ = writeln!(out, "btfrig_run_active{{state=\"{}\"}} {}", run_state.unwrap_or("none"), u8::from(run_state.is_some()));
-        let _ = writeln!(out, "# HELP btfrig_run_progress_ratio Captures done over planned, current run.\n# TYPE btfrig_run_progress_ratio gauge");
+        let _ = writeln!(out, "# HELP btfrig_run_progress_ratio Captures (dome runs: steps) done over planned, current run.\n# TYPE btfrig_run_progress_ratio gauge");
         let _ = writeln!(out, "btfrig_run_progress_ratio {}", progress.unwrap_or(0.0));
         let _ = writeln!(
             out,

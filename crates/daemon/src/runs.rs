@@ -1,16 +1,21 @@
 //! The one run the rig can hold at a time, and the runs before it.
 //!
-//! A run is [`btfrig_runner::run`] — the same call `btfrig run` makes — on a plain thread of
-//! its own (rendering and processing are CPU-heavy; the async threads only answer requests).
-//! Its events update a [`RunStatus`] that handlers read, and are broadcast to the event
-//! streams. The daemon keeps the engine paused on a fault (`stop_on_fault = false`) so an
-//! operator can resume it; SIGTERM interrupts the run, which commits the frames in flight and
-//! leaves the dataset resumable with the same plan and dataset name.
+//! A run is [`btfrig_runner::run`] (a gonio plan) or [`btfrig_runner::dome::run_controlled`]
+//! (a dome plan) — the same calls `btfrig run` makes — on a plain thread of its own
+//! (rendering and processing are CPU-heavy; the async threads only answer requests). Its
+//! events update a [`RunStatus`] that handlers read, and are broadcast to the event streams.
+//! A gonio run's `done`/`total` count captures, a dome run's count steps (a pattern at a
+//! rotation, a frame per camera: what the dome engine's progress and ETA count), with the
+//! textures it committed view group by view group beside them ([`ProgressUnit`]). The daemon
+//! keeps the engine paused on a fault (`stop_on_fault = false`) so an operator can resume it;
+//! SIGTERM interrupts the run, which commits the frames in flight (a dome: the view groups
+//! completed) and leaves the dataset resumable with the same plan and dataset name.
 
 use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
+use btfrig_runner::check::PlanKind;
 use btfrig_runner::{RunControl, RunEvent, RunOutcome, RunRequest};
 use serde::Serialize;
 use tokio::sync::broadcast;
@@ -51,6 +56,28 @@ impl RunState {
     }
 }
 
+/// What a run's `done` and `total` count.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, ToSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum ProgressUnit {
+    /// A gonioreflectometer run: (light, view) captures, one texture each.
+    Captures,
+    /// A dome run (LED dome or camera array): steps of the dome engine, one pattern (or
+    /// single reference light) at one rotation, a frame per camera; the textures are
+    /// committed per view group (`textures`).
+    Steps,
+}
+
+impl ProgressUnit {
+    /// The unit's name as the API spells it.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ProgressUnit::Captures => "captures",
+            ProgressUnit::Steps => "steps",
+        }
+    }
+}
+
 /// A run as the API shows it.
 #[derive(Debug, Clone, Serialize, ToSchema)]
 pub struct RunStatus {
@@ -64,19 +91,31 @@ pub struct RunStatus {
     pub plan: String,
     /// The dataset's name (a directory under the daemon's data directory).
     pub dataset: String,
-    /// Captures done, this session and earlier ones.
+    /// What `done` and `total` count: `captures` (a gonio run) or `steps` (a dome run: one
+    /// pattern at one rotation, a frame per camera).
+    pub unit: ProgressUnit,
+    /// Captures (a dome run: steps) done, this session and earlier ones. A dome run's steps
+    /// of a view group not yet committed are captured again if the session ends before it is.
     pub done: u64,
-    /// Captures of the whole plan (0 until planned).
+    /// Captures (a dome run: steps) of the whole plan (0 until planned).
     pub total: u64,
     /// `done / total` (0 until planned).
     pub fraction: f64,
     /// Remaining rig time from the measured step times, seconds.
     pub eta_s: Option<f64>,
+    /// A dome run: textures committed to the dataset, earlier sessions included (every
+    /// light's texture of one camera at one rotation is committed at once, after the view
+    /// group's last step); `null` for a gonio run, whose captures are its textures.
+    pub textures: Option<u64>,
+    /// A dome run: textures of the whole plan (lights x views); `null` for a gonio run.
+    pub textures_total: Option<u64>,
     /// Recent warnings, oldest first.
     pub warnings: Vec<String>,
     /// Why it is paused, stopping or over, when it is.
     pub message: Option<String>,
-    /// Increments every time a new preview of the latest capture is written.
+    /// Increments every time a new preview is written: of the latest capture (a gonio run
+    /// whose plan asks for `outputs.preview`), or of the brightest texture of the latest
+    /// committed view group (a dome run).
     pub preview_seq: u64,
     /// Start time, seconds since the Unix epoch.
     pub started_unix_s: f64,
@@ -187,6 +226,18 @@ impl Run {
                 s.state = RunState::Stopping;
                 s.message = Some(reason.clone());
             })),
+            RunEvent::DomeStepDone { attempts, .. } => {
+                metrics.dome_step_done(*attempts);
+                None
+            }
+            RunEvent::TexturesCommitted { textures, total, previews, stage_s } => {
+                metrics.stages(stage_s);
+                Some(self.update(|s| {
+                    s.textures = Some(*textures);
+                    s.textures_total = Some(*total);
+                    s.preview_seq = *previews;
+                }))
+            }
         };
         if let Some(s) = changed {
             let _ = self.events.send(ServerEvent::Status(Box::new(s)));
@@ -220,6 +271,34 @@ impl Run {
         });
         let _ = self.events.send(ServerEvent::End(Box::new(s)));
     }
+
+    /// [`Run::end`] of a dome run: its steps stay as its last progress said (all of them when
+    /// it finished), its textures as its last commit said.
+    fn end_dome(&self, result: Result<btfrig_runner::dome::DomeRunSummary, btfrig_runner::RunError>) {
+        let s = self.update(|s| match result {
+            Ok(summary) => {
+                s.state = match &summary.stopped {
+                    None | Some(RunOutcome::Finished | RunOutcome::NothingToDo) => RunState::Finished,
+                    Some(RunOutcome::Aborted) => RunState::Aborted,
+                    Some(RunOutcome::Interrupted) => RunState::Interrupted,
+                    // A dome session does not end paused (the daemon keeps the engine waiting).
+                    Some(RunOutcome::Paused { .. }) => RunState::Failed,
+                };
+                s.message = summary.stopped.as_ref().and_then(RunOutcome::reason);
+                if s.state == RunState::Finished {
+                    s.done = s.total;
+                    s.fraction = fraction(s.done, s.total);
+                    s.eta_s = Some(0.0);
+                }
+                s.summary = Some(summary.to_json());
+            }
+            Err(e) => {
+                s.state = RunState::Failed;
+                s.message = Some(e.to_string());
+            }
+        });
+        let _ = self.events.send(ServerEvent::End(Box::new(s)));
+    }
 }
 
 fn fraction(done: u64, total: u64) -> f64 {
@@ -242,6 +321,8 @@ pub struct StartRequest {
     pub dataset: String,
     /// Who starts it.
     pub owner: String,
+    /// The plan's format (checked against the rig by the caller): which runner runs it.
+    pub kind: PlanKind,
 }
 
 /// Every run of this daemon; at most one not over.
@@ -308,8 +389,14 @@ impl Runs {
         if let Some(busy) = inner.runs.iter().find(|r| !r.state().is_over()) {
             let s = busy.status();
             return Err(Problem::conflict(format!(
-                "the rig is held by run {} of {} (plan {}, {:?}, {}/{} captures); wait for it to end or abort it",
-                s.id, s.owner, s.plan, s.state, s.done, s.total
+                "the rig is held by run {} of {} (plan {}, {:?}, {}/{} {}); wait for it to end or abort it",
+                s.id,
+                s.owner,
+                s.plan,
+                s.state,
+                s.done,
+                s.total,
+                s.unit.as_str()
             )));
         }
         let id = format!("r{}", inner.next_id);
@@ -324,10 +411,16 @@ impl Runs {
                 owner: req.owner,
                 plan: req.plan_name,
                 dataset: req.dataset,
+                unit: match req.kind {
+                    PlanKind::Gonio => ProgressUnit::Captures,
+                    PlanKind::Dome => ProgressUnit::Steps,
+                },
                 done: 0,
                 total: 0,
                 fraction: 0.0,
                 eta_s: None,
+                textures: None,
+                textures_total: None,
                 warnings: Vec::new(),
                 message: None,
                 preview_seq: 0,
@@ -340,18 +433,38 @@ impl Runs {
             dataset_dir: dataset_dir.clone(),
             thread: Mutex::new(None),
         });
-        let mut request = RunRequest::from_text(req.plan_text, &req.plan_path, &dataset_dir);
-        request.stop_on_fault = false;
         let worker = run.clone();
         let metrics = self.metrics.clone();
         metrics.run_started();
+        let (kind, plan_text, plan_path) = (req.kind, req.plan_text, req.plan_path);
         let thread = std::thread::Builder::new()
             .name(format!("run-{}", run.id))
             .spawn(move || {
                 let control = worker.control.clone();
-                let result = btfrig_runner::run(&request, &control, &mut |e| worker.on_event(e, &metrics));
-                metrics.session_ended();
-                worker.end(result);
+                let on_event = &mut |e: &RunEvent| worker.on_event(e, &metrics);
+                match kind {
+                    PlanKind::Gonio => {
+                        let mut request = RunRequest::from_text(plan_text, &plan_path, &dataset_dir);
+                        request.stop_on_fault = false;
+                        let result = btfrig_runner::run(&request, &control, on_event);
+                        metrics.session_ended();
+                        worker.end(result);
+                    }
+                    PlanKind::Dome => {
+                        let request = btfrig_runner::dome::DomeRunRequest {
+                            plan_text,
+                            plan_path,
+                            out: dataset_dir,
+                            faults: None,
+                            preview: true,
+                        };
+                        let id = worker.id.clone();
+                        let on_line = &mut |l: &str| tracing::info!("run {id}: {l}");
+                        let result = btfrig_runner::dome::run_controlled(&request, &control, false, on_line, on_event);
+                        metrics.session_ended();
+                        worker.end_dome(result);
+                    }
+                }
             })
             .map_err(|e| Problem::internal(format!("cannot start the run's thread: {e}")))?;
         *run.thread.lock().unwrap_or_else(|e| e.into_inner()) = Some(thread);

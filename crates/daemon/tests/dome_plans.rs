@@ -1,147 +1,14 @@
 //! Dome plans through the HTTP API: the daemon on an LED dome and on a camera array validates
 //! and dry-runs them (the multiplexing choice with its reason, every candidate mode with its
 //! predicted gain, frames, rig time and disk), and a plan for the other kind of rig is refused
-//! with both kinds named — by validate, dry run and start alike. The daemon runs in-process
-//! ([`btfrig_daemon::router`] on a loopback port) and is driven over HTTP only.
+//! with both kinds named — by validate, dry run and start alike (dome runs themselves:
+//! `dome_runs.rs`). The daemon runs in-process ([`btfrig_daemon::router`] on a loopback port)
+//! and is driven over HTTP only.
 
-use std::io::{BufRead, BufReader, Read, Write};
-use std::net::TcpStream;
-use std::path::{Path, PathBuf};
-use std::sync::Arc;
-use std::time::Duration;
+mod support;
 
-use btfrig_daemon::{AppState, ServeConfig};
 use serde_json::{json, Value};
-
-const AUTH: &str = r#"
-[[token]]
-name = "viewer"
-token = "viewer-token"
-role = "viewer"
-[[token]]
-name = "ada"
-token = "operator-ada"
-role = "operator"
-"#;
-
-/// A file of the repository.
-fn repo(rel: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..").join(rel)
-}
-
-fn plan_file(name: &str) -> String {
-    std::fs::read_to_string(repo(&format!("rig-configs/plans/{name}.toml"))).unwrap()
-}
-
-struct Response {
-    status: u16,
-    content_type: Option<String>,
-    body: Vec<u8>,
-}
-
-impl Response {
-    fn json(&self) -> Value {
-        serde_json::from_slice(&self.body)
-            .unwrap_or_else(|e| panic!("not JSON ({e}): {}", String::from_utf8_lossy(&self.body)))
-    }
-}
-
-/// A daemon on a free loopback port (`rig`: a rig config of the repository, or the embedded
-/// gonioreflectometer), with its embedded plans; it serves until the test process ends.
-struct Daemon {
-    port: u16,
-    data: PathBuf,
-}
-
-impl Daemon {
-    fn start(name: &str, rig: Option<&str>) -> Daemon {
-        let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        std::fs::write(dir.join("auth.toml"), AUTH).unwrap();
-        let cfg = ServeConfig {
-            rig: rig.map(repo),
-            listen: "127.0.0.1:0".parse().unwrap(),
-            data: dir.join("data"),
-            auth: Some(dir.join("auth.toml")),
-            plans: None,
-        };
-        let (state, _) = AppState::load(&cfg).unwrap_or_else(|e| panic!("{e}"));
-        let app = btfrig_daemon::router(Arc::new(state));
-        let (tx, rx) = std::sync::mpsc::channel();
-        std::thread::spawn(move || {
-            let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
-            rt.block_on(async move {
-                let l = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
-                tx.send(l.local_addr().unwrap().port()).unwrap();
-                axum::serve(l, app).await.unwrap();
-            });
-        });
-        Daemon { port: rx.recv().unwrap(), data: cfg.data }
-    }
-
-    /// One HTTP/1.0 request (the body ends with the connection).
-    fn request(&self, method: &str, path: &str, token: &str, body: Option<&Value>) -> Response {
-        let mut s = TcpStream::connect(("127.0.0.1", self.port)).unwrap();
-        s.set_read_timeout(Some(Duration::from_secs(300))).unwrap();
-        let mut req = format!("{method} {path} HTTP/1.0\r\nHost: 127.0.0.1\r\nAuthorization: Bearer {token}\r\n");
-        match body {
-            Some(b) => {
-                let b = b.to_string();
-                req.push_str(&format!("Content-Type: application/json\r\nContent-Length: {}\r\n\r\n{b}", b.len()));
-            }
-            None => req.push_str("\r\n"),
-        }
-        s.write_all(req.as_bytes()).unwrap();
-        let mut r = BufReader::new(s);
-        let mut line = String::new();
-        r.read_line(&mut line).unwrap();
-        let status = line.split_whitespace().nth(1).and_then(|s| s.parse().ok()).expect("a status line");
-        let mut content_type = None;
-        loop {
-            line.clear();
-            r.read_line(&mut line).unwrap();
-            let l = line.trim_end();
-            if l.is_empty() {
-                break;
-            }
-            if let Some((k, v)) = l.split_once(':') {
-                if k.eq_ignore_ascii_case("content-type") {
-                    content_type = Some(v.trim().to_string());
-                }
-            }
-        }
-        let mut body = Vec::new();
-        r.read_to_end(&mut body).unwrap();
-        Response { status, content_type, body }
-    }
-
-    fn get(&self, path: &str) -> Value {
-        let r = self.request("GET", path, "viewer-token", None);
-        assert_eq!(r.status, 200, "GET {path}: {}", String::from_utf8_lossy(&r.body));
-        r.json()
-    }
-
-    /// `POST /api/v1/plans/{what}` (validate or dry-run): always 200 with a plan check.
-    fn check(&self, what: &str, body: Value) -> Value {
-        let r = self.request("POST", &format!("/api/v1/plans/{what}"), "viewer-token", Some(&body));
-        assert_eq!(r.status, 200, "{what}: {}", String::from_utf8_lossy(&r.body));
-        r.json()
-    }
-
-    /// `POST /api/v1/runs` that must be refused with 422: the problem's detail.
-    fn refused_start(&self, body: Value) -> String {
-        let r = self.request("POST", "/api/v1/runs", "operator-ada", Some(&body));
-        let text = String::from_utf8_lossy(&r.body).into_owned();
-        assert_eq!(r.status, 422, "{text}");
-        assert_eq!(r.content_type.as_deref(), Some("application/problem+json"), "{text}");
-        let p = r.json();
-        assert_eq!((p["status"].as_u64(), p["title"].as_str()), (Some(422), Some("Unprocessable Entity")), "{p}");
-        let runs = self.get("/api/v1/runs");
-        assert_eq!(runs["runs"], json!([]), "a refused start starts no run");
-        p["detail"].as_str().unwrap().to_string()
-    }
-}
+use support::{plan_file, Daemon};
 
 fn candidate<'a>(dome: &'a Value, mode: &str) -> &'a Value {
     dome["candidates"]
@@ -295,9 +162,9 @@ fn an_led_dome_daemon_dry_runs_dome_plans_and_refuses_gonio_plans() {
     let r = d.check("dry-run", json!({ "plan_text": plan_file("camera-array-demo") }));
     let e = r["errors"][0].as_str().unwrap();
     assert!(r["valid"] == false && e.contains("(camera_array)") && e.contains("(led_dome)"), "{r}");
-    // The dome demo itself is valid here, but the daemon does not run dome plans (yet).
-    let e = d.refused_start(json!({ "plan": "dome-demo" }));
-    assert!(e.contains("valid dome plan") && e.contains("btfrig run --plan"), "{e}");
+    let e = d.refused_start(json!({ "plan_text": plan_file("camera-array-demo") }));
+    assert!(e.contains("(camera_array)") && e.contains("\"bonn-dome-sim\" (led_dome)"), "{e}");
+    // The dome demo itself is valid here and runs: tests/dome_runs.rs.
     assert_eq!(std::fs::read_dir(&d.data).unwrap().count(), 0, "refused starts create nothing");
 }
 
@@ -353,7 +220,8 @@ fn a_gonio_daemon_refuses_dome_plans_naming_both_kinds() {
     assert!(f(&r["estimate_s"]) >= f(&r["lower_bound_s"]) && r["dome"].is_null(), "{r}");
 }
 
-/// The OpenAPI document describes the dome dry run field by field.
+/// The OpenAPI document describes the dome dry run field by field, and what a run's progress
+/// counts.
 #[test]
 fn the_openapi_document_describes_the_dome_dry_run() {
     let d = Daemon::start("dome_plans_openapi", None);
@@ -375,6 +243,8 @@ fn the_openapi_document_describes_the_dome_dry_run() {
             ],
         ),
         ("DomeCandidate", &["mode", "chosen", "predicted_gain", "frames_per_camera", "rig_time_s", "disk_bytes"]),
+        // A run's status says what its progress counts (dome runs: steps, and textures beside).
+        ("RunStatus", &["unit", "done", "total", "textures", "textures_total", "preview_seq"]),
     ] {
         for field in fields {
             let p = &s[schema]["properties"][*field];
@@ -388,4 +258,5 @@ fn the_openapi_document_describes_the_dome_dry_run() {
         }
     }
     assert!(s["PlanKind"].to_string().contains("gonioreflectometer") && s["PlanKind"].to_string().contains("dome"));
+    assert_eq!(s["ProgressUnit"]["enum"], json!(["captures", "steps"]), "{}", s["ProgressUnit"]);
 }

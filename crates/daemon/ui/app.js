@@ -288,7 +288,10 @@
     ui.progress.value = total > 0 ? Math.min(done, total) : 0;
     const pct = isFinite(run.fraction) ? (100 * run.fraction).toFixed(1) : total > 0 ? (100 * done / total).toFixed(1) : "0.0";
     ui.progress.textContent = `${pct}%`;
-    ui.progressText.textContent = total > 0 ? `${done} / ${total} (${pct}%)` : "–";
+    // A dome run counts steps (a pattern at a rotation) and commits textures per view group.
+    const unit = run.unit ? ` ${run.unit}` : "";
+    const textures = typeof run.textures === "number" ? `, ${run.textures} / ${run.textures_total} textures` : "";
+    ui.progressText.textContent = total > 0 ? `${done} / ${total}${unit} (${pct}%)${textures}` : "–";
     if (run.state === "finished") ui.eta.textContent = "done";
     else if (TERMINAL.has(run.state)) ui.eta.textContent = "–";
     else if (run.eta_s === null || run.eta_s === undefined) ui.eta.textContent = "estimating…";

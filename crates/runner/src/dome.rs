@@ -17,8 +17,10 @@
 //! [`RunEvent`]s: `Started`, `Progress` with an ETA, warnings, pauses (also on a device fault
 //! when the session does not stop on one), resumes and `Stopping`. A dome's step is one frame
 //! per camera (a pattern at a rotation), so `Progress` counts steps, not textures; textures are
-//! committed per view group. An aborted or interrupted session keeps the view groups it
-//! committed, its report says so (`status`), and the same request resumes it.
+//! committed per view group, which [`RunEvent::TexturesCommitted`] reports (once at the start,
+//! then after every view group), with `preview.png` replaced by the group's brightest texture
+//! when the request asks for a preview. An aborted or interrupted session keeps the view groups
+//! it committed, its report says so (`status`), and the same request resumes it.
 
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::path::{Path, PathBuf};
@@ -61,6 +63,10 @@ pub struct DomeRunRequest {
     pub out: PathBuf,
     /// Replaces the plan's fault scenario (not part of the plan hash).
     pub faults: Option<String>,
+    /// Keep a live preview: after every committed view group, `preview.png` in the dataset
+    /// (8-bit sRGB, not data, not journaled) shows that group's brightest texture (the daemon
+    /// sets it; `btfrig run` does not).
+    pub preview: bool,
 }
 
 /// What a dome run did and measured.
@@ -402,10 +408,27 @@ pub fn run_controlled(
         critical_path_s: planned_s,
         repaired: None,
     });
+    let textures_total = pairs.len() as u64;
+    let textures_before = pairs.iter().filter(|p| completed.contains(p)).count() as u64;
+    on_event(&RunEvent::TexturesCommitted {
+        textures: textures_before,
+        total: textures_total,
+        previews: 0,
+        stage_s: BTreeMap::new(),
+    });
 
     let rt = crate::virtual_time_runtime()?;
     let cameras = v.cameras.clone();
+    let (commit_tx, mut commit_rx) = mpsc::unbounded_channel::<RunEvent>();
     let mut state = Consumer::new(&v, &schedule, &processing, &code, &dataset, &scene, &faults, view_id);
+    state.commits = Some(Committing {
+        tx: commit_tx,
+        textures: textures_before,
+        total: textures_total,
+        previews: 0,
+        preview: req.preview,
+        stage_s: BTreeMap::new(),
+    });
     let outcome: Result<(btfrig_engine::dome::DomeRunSummary, Option<RunOutcome>), RunError> = rt.block_on(async {
         let clock = TokioClock::shared();
         // Emulated devices (serial turntable and LED controller) are the simulator's behind
@@ -440,11 +463,15 @@ pub fn run_controlled(
             }
             Ok::<(), RunError>(())
         };
-        let listen = listen(commands, engine_commands, events, on_event);
+        let listen = listen(commands, engine_commands, events, &mut commit_rx, on_event);
         let (e, c, stop) = tokio::join!(engine, consume, listen);
         c?;
         Ok((e.map_err(|e| RunError::Rig(e.to_string()))?, stop))
     });
+    // The view groups committed after the engine's last event (the last one always is).
+    while let Ok(e) = commit_rx.try_recv() {
+        on_event(&e);
+    }
     let (engine, stop) = outcome?;
     let mut s = state.finish();
     s.warnings.splice(0..0, engine.warnings.iter().cloned());
@@ -499,12 +526,24 @@ pub fn run_controlled(
     Ok(s)
 }
 
-/// Forwards `control`'s commands to the engine and the engine's events to `on_event` until
-/// the engine ends; returns how the session was asked to stop, if it was.
+/// Replaces the dataset's `preview.png` with `tex` (`size x size`), tone-mapped as the gonio
+/// pipeline's live preview is (`btfrig_pipeline::tone_map_preview`, at least 256 px); false
+/// when it could not be written (a preview is not data: the run goes on).
+fn write_preview(dataset: &Dataset, tex: &[[f32; 3]], size: usize) -> bool {
+    let (width, height, rgb) = btfrig_pipeline::tone_map_preview(tex, size, size, 256);
+    btfrig_imageio::encode_srgb8_png(Path::new(btfrig_store::PREVIEW_FILE), width, height, &rgb)
+        .ok()
+        .is_some_and(|png| dataset.write_preview(&png).is_ok())
+}
+
+/// Forwards `control`'s commands to the engine, and the engine's events and the consumer's
+/// commits to `on_event`, until the engine ends; returns how the session was asked to stop,
+/// if it was.
 async fn listen(
     mut control: tokio::sync::mpsc::UnboundedReceiver<Command>,
     engine: tokio::sync::mpsc::UnboundedSender<DomeCommand>,
     mut events: tokio::sync::mpsc::UnboundedReceiver<DomeEvent>,
+    commits: &mut tokio::sync::mpsc::UnboundedReceiver<RunEvent>,
     on_event: &mut dyn FnMut(&RunEvent),
 ) -> Option<RunOutcome> {
     let mut stop: Option<RunOutcome> = None;
@@ -518,9 +557,12 @@ async fn listen(
                 Some(DomeEvent::Warning(w)) => on_event(&RunEvent::Warning(w)),
                 Some(DomeEvent::Paused { reason }) => on_event(&RunEvent::Paused { reason: reason.to_string(), fault: None }),
                 Some(DomeEvent::Resumed) => on_event(&RunEvent::Resumed),
-                // A step is a pattern at a rotation, not a (light, view) capture: progress says it.
-                Some(DomeEvent::StepDone { .. }) => {}
+                // A step is a pattern at a rotation, not a (light, view) capture.
+                Some(DomeEvent::StepDone { index, rotation, attempts, .. }) => {
+                    on_event(&RunEvent::DomeStepDone { index, rotation, attempts })
+                }
             },
+            Some(e) = commits.recv() => on_event(&e),
             c = control.recv(), if control_open => {
                 let command = match c {
                     None => {
@@ -560,6 +602,19 @@ struct Consumer<'a, F: Fn(usize, u32) -> u32> {
     first_group: Option<(Vec<f32>, usize, f64, f64)>,
     out: DomeRunSummary,
     rmse: Vec<(f64, f64)>,
+    commits: Option<Committing>,
+}
+
+/// What the consumer reports after each view group it commits.
+struct Committing {
+    tx: mpsc::UnboundedSender<RunEvent>,
+    /// Textures in the dataset (earlier sessions included).
+    textures: u64,
+    total: u64,
+    previews: u64,
+    /// Write `preview.png` after each view group.
+    preview: bool,
+    stage_s: BTreeMap<String, f64>,
 }
 
 impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
@@ -594,6 +649,7 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
             first_group: None,
             out: DomeRunSummary::default(),
             rmse: Vec::new(),
+            commits: None,
         }
     }
 
@@ -676,6 +732,7 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
         // Denoising projects the whole group's textures at once; otherwise they stream one by
         // one (the group's memory is then one texture, not `leds`).
         let mut denoised: Option<Vec<Vec<[f32; 3]>>> = None;
+        let mut denoise_s = 0.0;
         if let Some(terms) = self.v.plan.dome.denoise_terms {
             let t0 = Instant::now();
             let texes: Vec<Vec<[f32; 3]>> =
@@ -689,9 +746,16 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
                 .map_err(|e| input("dome pipeline", e))?;
             let (texes, p) = denoise_group(texes, &scales, terms, &skip).map_err(|e| input("denoising", e))?;
             self.out.denoise_energy_kept.push(p.energy_kept);
-            self.out.denoise_s += t0.elapsed().as_secs_f64();
+            denoise_s = t0.elapsed().as_secs_f64();
+            self.out.denoise_s += denoise_s;
             denoised = Some(texes);
         }
+        let textures_started = Instant::now();
+        let want_preview = self.commits.as_ref().is_some_and(|c| c.preview);
+        // The preview: the group's brightest texture (mean over texels and channels) of a
+        // light not reported faulty.
+        let mut brightest: Option<(f64, Vec<[f32; 3]>)> = None;
+        let mut written = 0u64;
         for j in 0..leds {
             let id = StepId { light: j as u32, view: (self.view_id)(c, k) };
             if self.dataset.completed().contains(&id) {
@@ -715,9 +779,39 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
             };
             self.dataset.commit_step(id, vec![file], attempts, timing).map_err(|e| input("dataset", e))?;
             self.out.textures += 1;
+            written += 1;
+            if want_preview && !faulty.contains(&j) {
+                let mean = tex.iter().map(|t| f64::from(t[0] + t[1] + t[2])).sum::<f64>() / tex.len().max(1) as f64;
+                if mean.is_finite() && brightest.as_ref().is_none_or(|(m, _)| mean > *m) {
+                    brightest = Some((mean, tex));
+                }
+            }
         }
+        let textures_s = textures_started.elapsed().as_secs_f64();
         if first_camera && self.first_group.is_none() {
             self.first_group = Some((result.mosaics, result.cols, exp, gain));
+        }
+        if let Some(commits) = self.commits.as_mut() {
+            commits.textures += written;
+            *commits.stage_s.entry("demultiplex".into()).or_insert(0.0) += demux_s;
+            *commits.stage_s.entry("textures".into()).or_insert(0.0) += textures_s;
+            if self.v.plan.dome.denoise_terms.is_some() {
+                *commits.stage_s.entry("denoise".into()).or_insert(0.0) += denoise_s;
+            }
+            if let Some((_, tex)) = brightest {
+                let t0 = Instant::now();
+                if write_preview(self.dataset, &tex, size) {
+                    commits.previews += 1;
+                }
+                *commits.stage_s.entry("preview".into()).or_insert(0.0) += t0.elapsed().as_secs_f64();
+            }
+            // The listener may be gone (the session is ending): the commit stands regardless.
+            let _ = commits.tx.send(RunEvent::TexturesCommitted {
+                textures: commits.textures,
+                total: commits.total,
+                previews: commits.previews,
+                stage_s: commits.stage_s.clone(),
+            });
         }
         Ok(())
     }

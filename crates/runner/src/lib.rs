@@ -360,6 +360,30 @@ pub enum RunEvent {
         /// Why.
         reason: String,
     },
+    /// A dome run's step was delivered by the engine: one pattern (or reference light) at one
+    /// rotation, a frame per camera ([`dome::run_controlled`]; gonio runs send `StepDone`).
+    DomeStepDone {
+        /// Position in the schedule.
+        index: usize,
+        /// The turntable rotation index (0 on a camera array).
+        rotation: u32,
+        /// 1 + retries.
+        attempts: u32,
+    },
+    /// What a dome run's dataset holds: sent once when the session starts (what earlier
+    /// sessions committed) and after every view group it commits (every light's texture of
+    /// one camera at one rotation, committed at once after demultiplexing).
+    TexturesCommitted {
+        /// Textures in the dataset, earlier sessions included.
+        textures: u64,
+        /// Textures of the whole plan (lights x views).
+        total: u64,
+        /// Previews written by this session so far (`preview.png` replaced after each view
+        /// group when [`dome::DomeRunRequest::preview`] asks for it).
+        previews: u64,
+        /// Seconds per processing stage summed over this session's view groups.
+        stage_s: BTreeMap<String, f64>,
+    },
 }
 
 /// A step that failed with an error no retry helps (or that ran out of retries).

@@ -22,8 +22,13 @@ fn plan(extra: &str) -> String {
 }
 
 fn go(text: String, out: &Path) -> DomeRunSummary {
-    let req =
-        DomeRunRequest { plan_text: text, plan_path: PathBuf::from("<test>"), out: out.to_path_buf(), faults: None };
+    let req = DomeRunRequest {
+        plan_text: text,
+        plan_path: PathBuf::from("<test>"),
+        out: out.to_path_buf(),
+        faults: None,
+        preview: false,
+    };
     run(&req, &mut |line| eprintln!("{line}")).unwrap_or_else(|e| panic!("{e}"))
 }
 

@@ -28,6 +28,7 @@ fn request(dir: &Path, faults: Option<&str>) -> DomeRunRequest {
         plan_path: dir.join("plan.toml"),
         out: dir.join("data"),
         faults: faults.map(String::from),
+        preview: false,
     }
 }
 
@@ -107,6 +108,17 @@ fn a_dome_run_pauses_between_steps_aborts_resumably_and_its_eta_is_the_remaining
         .collect();
     assert_eq!(progress.iter().map(|p| p.0).collect::<Vec<_>>(), (1..=STEPS).collect::<Vec<_>>());
     assert_eq!(progress.last().unwrap().1, Some(0.0));
+    // Every step delivered once; the dataset's textures: none at the start, then a view
+    // group (198 LEDs of camera 4 at one rotation) at a time.
+    assert_eq!(events.iter().filter(|e| matches!(e, RunEvent::DomeStepDone { .. })).count(), STEPS);
+    let textures: Vec<(u64, u64)> = events
+        .iter()
+        .filter_map(|e| match e {
+            RunEvent::TexturesCommitted { textures, total, .. } => Some((*textures, *total)),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(textures, [(0, 396), (198, 396), (396, 396)]);
 
     // The same plan aborted after 300 steps (in the second view group): the first view group
     // (203 steps) stays committed, the report says aborted.

@@ -13,7 +13,13 @@ fn go(extra: &str, name: &str) -> DomeRunSummary {
     );
     let out = std::env::temp_dir().join(format!("btfrig-dome-denoise-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
-    let req = DomeRunRequest { plan_text: plan, plan_path: PathBuf::from("<test>"), out: out.clone(), faults: None };
+    let req = DomeRunRequest {
+        plan_text: plan,
+        plan_path: PathBuf::from("<test>"),
+        out: out.clone(),
+        faults: None,
+        preview: false,
+    };
     let s = run(&req, &mut |line| eprintln!("{line}")).unwrap_or_else(|e| panic!("{e}"));
     let report = btfrig_store::verify(&out);
     assert!(report.is_ok(), "{report:?}");

@@ -11,7 +11,13 @@ fn check(plan: &str, name: &str) {
     let d = dry_run(plan, &file).unwrap_or_else(|e| panic!("{e}"));
     let out = std::env::temp_dir().join(format!("btfrig-dome-dry-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
-    let req = DomeRunRequest { plan_text: plan.into(), plan_path: file.clone(), out: out.clone(), faults: None };
+    let req = DomeRunRequest {
+        plan_text: plan.into(),
+        plan_path: file.clone(),
+        out: out.clone(),
+        faults: None,
+        preview: false,
+    };
     let s = run(&req, &mut |line| eprintln!("{line}")).unwrap_or_else(|e| panic!("{e}"));
     for l in d.lines(&file) {
         eprintln!("{l}");
