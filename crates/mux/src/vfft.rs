@@ -431,13 +431,45 @@ fn twiddle<const R: usize, M: Lanes>(o: Ops<M>, tw: &[f32], x: &mut [C<M::L>; R]
 // with a stage's values they are the general code. Butterfly `(hi, low, inner)` works on the
 // positions `hi·stride·R + low·axis_stride + inner + t·stride`.
 
-/// The first stage's input: the rows by position, the block's first column, and the run to
-/// prefetch (first column, length).
-type RowsIn<'a, 'b> = (&'a [&'b mut [f32]], usize, Option<(usize, usize)>);
+/// Prefetches of a later block's runs of the rows, spread evenly over the butterflies of a
+/// block's stages before the last (`ticks` of them): all at once in the first stage, 302 lines
+/// of 151 rows, left the misses of the two threads bunched (see `docs/benchmarks.md`).
+struct Prefetch<'a, 'b> {
+    rows: &'a [&'b mut [f32]],
+    /// First column and length of the runs.
+    col: usize,
+    len: usize,
+    next: usize,
+    /// `acc += rows`, one row per `ticks` subtracted.
+    acc: usize,
+    ticks: usize,
+}
+
+impl Prefetch<'_, '_> {
+    #[inline(always)]
+    fn tick(&mut self) {
+        self.acc += self.rows.len();
+        while self.acc >= self.ticks && self.next < self.rows.len() {
+            prefetch_run(self.rows[self.next], self.col, self.len);
+            self.next += 1;
+            self.acc -= self.ticks;
+        }
+    }
+}
+
+/// One butterfly's turn at the prefetches, if any.
+#[inline(always)]
+fn tick(pf: &mut Option<Prefetch<'_, '_>>) {
+    if let Some(p) = pf {
+        p.tick();
+    }
+}
+
+/// The first stage's input: the rows by position and the block's first column.
+type RowsIn<'a, 'b> = (&'a [&'b mut [f32]], usize);
 
 /// A forward stage in place (butterfly, then twiddles); `rows` (positions' rows, this block's
-/// columns at `c0`) instead of `buf` as input for the first stage, with the lines of the block
-/// at `pf` asked for on the way.
+/// columns at `c0`) instead of `buf` as input for the first stage.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn stage_fwd<const R: usize, M: Lanes>(
@@ -447,6 +479,7 @@ fn stage_fwd<const R: usize, M: Lanes>(
     (axis_stride, lows): (usize, usize),
     rows: Option<RowsIn<'_, '_>>,
     buf: &mut [E<M>],
+    pf: &mut Option<Prefetch<'_, '_>>,
 ) {
     debug_assert_eq!((st.radix, st.axis_stride, st.lows), (R, axis_stride, lows));
     let buf = &mut buf[..q];
@@ -459,15 +492,10 @@ fn stage_fwd<const R: usize, M: Lanes>(
                 let base = hi * stride * R + low * axis_stride + inner;
                 let mut x = o.zeros::<R>();
                 match rows {
-                    Some((rows, c0, pf)) => {
+                    Some((rows, c0)) => {
                         let rows = &rows[..q];
                         for t in 0..R {
                             x[t] = o.load_row(&*rows[base + t * stride], c0);
-                        }
-                        if let Some((cp, n)) = pf {
-                            for t in 0..R {
-                                prefetch_run(&*rows[base + t * stride], cp, n);
-                            }
                         }
                     }
                     None => {
@@ -478,6 +506,7 @@ fn stage_fwd<const R: usize, M: Lanes>(
                 }
                 let mut out = TwiddledSink { dst: &mut *buf, base, step: stride, tw };
                 dft_odd::<R, M, _>(o, &st.cos, &st.sin, &mut x, &mut out);
+                tick(pf);
             }
         }
     }
@@ -493,6 +522,7 @@ fn stage_inv<const R: usize, M: Lanes>(
     (axis_stride, lows): (usize, usize),
     rows: Option<(&mut [&mut [f32]], usize)>,
     buf: &mut [E<M>],
+    pf: &mut Option<Prefetch<'_, '_>>,
 ) {
     debug_assert_eq!((st.radix, st.axis_stride, st.lows), (R, axis_stride, lows));
     let buf = &mut buf[..q];
@@ -518,6 +548,7 @@ fn stage_inv<const R: usize, M: Lanes>(
                     None => {
                         let mut out = BufSink { dst: &mut *buf, base, step: stride };
                         dft_odd::<R, M, _>(o, &st.cos, &st.sin_inv, &mut x, &mut out);
+                        tick(pf);
                     }
                 }
             }
@@ -620,6 +651,7 @@ fn fused_middle<const R: usize, M: Lanes>(
     q: usize,
     buf: &mut [E<M>],
     m0: C<M::L>,
+    pf: &mut Option<Prefetch<'_, '_>>,
 ) -> C<M::L> {
     debug_assert_eq!((st.radix, st.stride), (R, 1));
     let m = o.0;
@@ -658,6 +690,7 @@ fn fused_middle<const R: usize, M: Lanes>(
         dft_odd::<R, M, _>(o, &st.cos, &st.sin_inv, &mut ta, &mut out);
         let mut out = BufSink { dst: &mut *hi_half, base, step: 1 };
         dft_odd::<R, M, _>(o, &st.cos, &st.sin_inv, &mut tb, &mut out);
+        tick(pf);
     }
     y0
 }
@@ -678,6 +711,8 @@ pub(crate) struct VecRader {
     stages: Vec<Stage>,
     /// The fused stage (stride 1, no twiddles).
     fused: Stage,
+    /// Butterflies before the last stage: the prefetches' schedule (at least 1).
+    ticks: usize,
     demux: Middle,
     mux: Middle,
     /// Use AVX-512 (blocks of 32 columns) where the CPU has it; else AVX2 (16 columns).
@@ -764,7 +799,11 @@ impl VecRader {
         }
         let demux = Middle::new(&rader.demux, q, &freq);
         let mux = Middle::new(&rader.mux, q, &freq);
-        Some(VecRader { p: rader.p, q, row_of, stages, fused, demux, mux, wide })
+        let ticks = (stages.iter().map(|s| q / s.radix).sum::<usize>()
+            + m / fused.radix
+            + stages.iter().skip(1).map(|s| q / s.radix).sum::<usize>())
+        .max(1);
+        Some(VecRader { p: rader.p, q, row_of, stages, fused, demux, mux, wide, ticks })
     }
 
     /// Scratch vectors per thread ([`pulp::f32x16`] units): one buffer of `q` elements of up
@@ -865,33 +904,37 @@ fn block<M: Lanes>(
         prefetch_run(row0, cp, n);
     }
     let (st, fu) = (&k.stages, &k.fused);
+    let mut pfs = pf.map(|(col, len)| Prefetch { rows: &*rows, col, len, next: 0, acc: 0, ticks: k.ticks });
+    let pfs = &mut pfs;
     // The domes' orders with every radix and stride a constant (see the stages' note); any
     // other order through the stages' values.
     let y0 = match k.q {
         150 => {
             let q = 150;
             // Axes 25 (stride 3: digits 15, 3) and 3 (stride 1, fused).
-            stage_fwd::<5, M>(o, &st[0], q, (3, 5), Some((rows, c0, pf)), buf);
-            stage_fwd::<5, M>(o, &st[1], q, (3, 1), None, buf);
-            let y0 = fused_middle::<3, M>(o, fu, md, q, buf, m0);
-            stage_inv::<5, M>(o, &st[1], q, (3, 1), None, buf);
-            stage_inv::<5, M>(o, &st[0], q, (3, 5), Some((rows, c0)), buf);
+            stage_fwd::<5, M>(o, &st[0], q, (3, 5), Some((&*rows, c0)), buf, pfs);
+            stage_fwd::<5, M>(o, &st[1], q, (3, 1), None, buf, pfs);
+            let y0 = fused_middle::<3, M>(o, fu, md, q, buf, m0, pfs);
+            stage_inv::<5, M>(o, &st[1], q, (3, 1), None, buf, pfs);
+            stage_inv::<5, M>(o, &st[0], q, (3, 5), Some((rows, c0)), buf, &mut None);
             y0
         }
         198 => {
             let q = 198;
             // Axes 11 (stride 9) and 9 (stride 1: digits 3, 1 fused).
-            stage_fwd::<11, M>(o, &st[0], q, (9, 1), Some((rows, c0, pf)), buf);
-            stage_fwd::<3, M>(o, &st[1], q, (1, 3), None, buf);
-            let y0 = fused_middle::<3, M>(o, fu, md, q, buf, m0);
-            stage_inv::<3, M>(o, &st[1], q, (1, 3), None, buf);
-            stage_inv::<11, M>(o, &st[0], q, (9, 1), Some((rows, c0)), buf);
+            stage_fwd::<11, M>(o, &st[0], q, (9, 1), Some((&*rows, c0)), buf, pfs);
+            stage_fwd::<3, M>(o, &st[1], q, (1, 3), None, buf, pfs);
+            let y0 = fused_middle::<3, M>(o, fu, md, q, buf, m0, pfs);
+            stage_inv::<3, M>(o, &st[1], q, (1, 3), None, buf, pfs);
+            stage_inv::<11, M>(o, &st[0], q, (9, 1), Some((rows, c0)), buf, &mut None);
             y0
         }
         q => {
             let shape = |s: &Stage| (s.axis_stride, s.lows);
             match st.first() {
-                Some(s0) => by_radix!(s0.radix, stage_fwd::<M>(o, s0, q, shape(s0), Some((&*rows, c0, pf)), &mut *buf)),
+                Some(s0) => {
+                    by_radix!(s0.radix, stage_fwd::<M>(o, s0, q, shape(s0), Some((&*rows, c0)), &mut *buf, pfs))
+                }
                 None => {
                     // The fused stage is the only one: the rows straight into the buffer.
                     for (e, row) in buf[..q].iter_mut().zip(rows.iter()) {
@@ -900,14 +943,16 @@ fn block<M: Lanes>(
                 }
             }
             for s in st.iter().skip(1) {
-                by_radix!(s.radix, stage_fwd::<M>(o, s, q, shape(s), None, &mut *buf));
+                by_radix!(s.radix, stage_fwd::<M>(o, s, q, shape(s), None, &mut *buf, pfs));
             }
-            let y0 = by_radix!(fu.radix, fused_middle::<M>(o, fu, md, q, &mut *buf, m0));
+            let y0 = by_radix!(fu.radix, fused_middle::<M>(o, fu, md, q, &mut *buf, m0, pfs));
             for s in st.iter().skip(1).rev() {
-                by_radix!(s.radix, stage_inv::<M>(o, s, q, shape(s), None, &mut *buf));
+                by_radix!(s.radix, stage_inv::<M>(o, s, q, shape(s), None, &mut *buf, pfs));
             }
             match st.first() {
-                Some(s0) => by_radix!(s0.radix, stage_inv::<M>(o, s0, q, shape(s0), Some((&mut *rows, c0)), &mut *buf)),
+                Some(s0) => {
+                    by_radix!(s0.radix, stage_inv::<M>(o, s0, q, shape(s0), Some((&mut *rows, c0)), &mut *buf, &mut None))
+                }
                 None => {
                     for (e, row) in buf[..q].iter().zip(rows.iter_mut()) {
                         o.store_row(row, c0, unpack(*e));
@@ -1082,20 +1127,20 @@ mod pass_probe {
             let m0 = o.zeros::<1>()[0];
             for _ in 0..reps {
                 match (k.q, which) {
-                    (150, 0) => stage_fwd::<5, _>(o, &st[0], 150, (3, 5), Some((&*rows, 0, None)), a),
-                    (150, 1) => stage_fwd::<5, _>(o, &st[1], 150, (3, 1), None, a),
+                    (150, 0) => stage_fwd::<5, _>(o, &st[0], 150, (3, 5), Some((&*rows, 0)), a, &mut None),
+                    (150, 1) => stage_fwd::<5, _>(o, &st[1], 150, (3, 1), None, a, &mut None),
                     (150, 2) => {
-                        std::hint::black_box(fused_middle::<3, _>(o, fu, &k.demux, 150, a, m0));
+                        std::hint::black_box(fused_middle::<3, _>(o, fu, &k.demux, 150, a, m0, &mut None));
                     }
-                    (150, 3) => stage_inv::<5, _>(o, &st[1], 150, (3, 1), None, a),
-                    (150, 4) => stage_inv::<5, _>(o, &st[0], 150, (3, 5), Some((&mut *rows, 0)), a),
-                    (198, 0) => stage_fwd::<11, _>(o, &st[0], 198, (9, 1), Some((&*rows, 0, None)), a),
-                    (198, 1) => stage_fwd::<3, _>(o, &st[1], 198, (1, 3), None, a),
+                    (150, 3) => stage_inv::<5, _>(o, &st[1], 150, (3, 1), None, a, &mut None),
+                    (150, 4) => stage_inv::<5, _>(o, &st[0], 150, (3, 5), Some((&mut *rows, 0)), a, &mut None),
+                    (198, 0) => stage_fwd::<11, _>(o, &st[0], 198, (9, 1), Some((&*rows, 0)), a, &mut None),
+                    (198, 1) => stage_fwd::<3, _>(o, &st[1], 198, (1, 3), None, a, &mut None),
                     (198, 2) => {
-                        std::hint::black_box(fused_middle::<3, _>(o, fu, &k.demux, 198, a, m0));
+                        std::hint::black_box(fused_middle::<3, _>(o, fu, &k.demux, 198, a, m0, &mut None));
                     }
-                    (198, 3) => stage_inv::<3, _>(o, &st[1], 198, (1, 3), None, a),
-                    (198, 4) => stage_inv::<11, _>(o, &st[0], 198, (9, 1), Some((&mut *rows, 0)), a),
+                    (198, 3) => stage_inv::<3, _>(o, &st[1], 198, (1, 3), None, a, &mut None),
+                    (198, 4) => stage_inv::<11, _>(o, &st[0], 198, (9, 1), Some((&mut *rows, 0)), a, &mut None),
                     _ => unreachable!(),
                 }
                 std::hint::black_box(&mut *a);
