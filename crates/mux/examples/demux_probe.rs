@@ -21,7 +21,7 @@ fn timed<F: FnMut()>(mut f: F) -> f64 {
     }
 }
 
-use btfrig_mux::{Accumulate, DemuxParams, Demuxer, DenseLayout, FftEngine, Method, Par, SMatrix};
+use btfrig_mux::{Accumulate, DemuxParams, Demuxer, DenseLayout, Engine, Method, Par, SMatrix};
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
@@ -61,15 +61,15 @@ fn main() {
             for tile in [256, 1024, 1 << 15] {
                 configs.push((format!("fast tile {tile}"), DemuxParams { method: Some(fast), tile, ..Default::default() }));
             }
+            configs.push((
+                "fast generic".into(),
+                DemuxParams { method: Some(fast), engine: Engine::Generic, ..Default::default() },
+            ));
             if fast == Method::Fft {
                 let pl = btfrig_mux::demux::padded_len(n);
                 configs.push((
                     format!("fft padded {pl}"),
                     DemuxParams { method: Some(fast), fft_len: pl, ..Default::default() },
-                ));
-                configs.push((
-                    "fft rustfft".into(),
-                    DemuxParams { method: Some(fast), fft_engine: FftEngine::RustFft, ..Default::default() },
                 ));
                 configs.push((
                     "fast f64".into(),

@@ -39,6 +39,7 @@ use crate::rader::Rader;
 use crate::smatrix::{is_prime, Construction, SMatrix};
 use crate::tile::{check_shape, for_each_tile, Par};
 use crate::vfft::VecRader;
+use crate::vwht::VecWht;
 
 /// Which algorithm applies `S⁻¹` (or `S`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -104,22 +105,26 @@ pub struct DemuxParams {
     pub accumulate: Accumulate,
     /// FFT length of the cyclic path: 0 = automatic ([`fft_len`]), else `n` or `>= 2n − 1`.
     pub fft_len: usize,
-    /// The FFT code of the cyclic path.
-    pub fft_engine: FftEngine,
+    /// The code that runs the fast transform (FWHT or FFT).
+    pub engine: Engine,
 }
 
-/// Which code runs the FFTs of the cyclic path.
+/// Which code runs the fast transform.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum FftEngine {
-    /// The pixel-vectorised Rader-domain transform (`crate::vfft`) where it applies (a Paley
-    /// order with `p − 1` twice a product of 3 … 13, f32), else rustfft; AVX-512 where the CPU
-    /// has it, else AVX2, else portable code.
+pub enum Engine {
+    /// Pixel-vectorised, one block of columns through every pass with explicit vector
+    /// arithmetic, in f32: the Walsh–Hadamard transform (`crate::vwht`) for the Sylvester
+    /// orders, the Rader-domain transform (`crate::vfft`) for the Paley orders with `p − 1`
+    /// twice a product of 3 … 13; AVX-512 where the CPU has it, else AVX2, else portable code.
+    /// Elsewhere (other orders, f64) the generic code.
     #[default]
     Vector,
     /// The same, but never AVX-512 (to compare the two on one CPU).
     VectorAvx2,
-    /// rustfft, one column pair at a time, the tile transposed into its buffer and back.
-    RustFft,
+    /// The generic code: FWHT passes of radix 4 over a whole tile (vectorised by the
+    /// compiler); FFTs by rustfft, one column pair at a time, the tile transposed into its
+    /// buffer and back.
+    Generic,
 }
 
 /// A plan that applies `S⁻¹` (demultiplex) or `S` (multiplex) to every column of a
@@ -147,6 +152,7 @@ impl std::fmt::Debug for Demuxer {
 
 enum Kernel {
     Fwht,
+    FwhtVec(VecWht),
     Fft32(FftKernel<f32>),
     Fft64(FftKernel<f64>),
     FftVec(VecRader),
@@ -272,7 +278,15 @@ impl Demuxer {
                         allowed: "Sylvester orders 2^k - 1",
                     });
                 }
-                Kernel::Fwht
+                match (params.accumulate, params.engine) {
+                    (Accumulate::F32, Engine::Vector | Engine::VectorAvx2) => {
+                        match VecWht::new(n, params.engine == Engine::Vector) {
+                            Some(v) => Kernel::FwhtVec(v),
+                            None => Kernel::Fwht,
+                        }
+                    }
+                    _ => Kernel::Fwht,
+                }
             }
             Method::Fft => {
                 let Some(row) = s.first_row() else {
@@ -295,9 +309,9 @@ impl Demuxer {
                 }
                 match params.accumulate {
                     Accumulate::F32
-                        if matches!(params.fft_engine, FftEngine::Vector | FftEngine::VectorAvx2) && rader_ok =>
+                        if matches!(params.engine, Engine::Vector | Engine::VectorAvx2) && rader_ok =>
                     {
-                        let wide = params.fft_engine == FftEngine::Vector;
+                        let wide = params.engine == Engine::Vector;
                         match rader_f64(row).and_then(|r| VecRader::new(r, wide)) {
                             Some(v) => Kernel::FftVec(v),
                             None => Kernel::Fft32(FftKernel::new(row, len)),
@@ -325,12 +339,12 @@ impl Demuxer {
             params.tile
         } else {
             match method {
+                // The vector paths' unit is their block of 16 or 32 columns read straight from
+                // the rows; a tile only bounds how far ahead they prefetch (not across tiles),
+                // so it is long: 1 MP RGB is 46 tiles per thread.
+                _ if matches!(kernel, Kernel::FftVec(_) | Kernel::FwhtVec(_)) => 1 << 15,
                 // About 256 KiB of f32 per tile (the rows of N = n + 1 runs).
                 Method::Fwht => ((65536 / (n + 1)).clamp(16, 1024) / 16) * 16,
-                // The vector path's unit is its block of 16 or 32 columns read straight from
-                // the rows; a tile only bounds how far ahead it prefetches (not across tiles),
-                // so it is long: 1 MP RGB is 46 tiles per thread.
-                Method::Fft if matches!(kernel, Kernel::FftVec(_)) => 1 << 15,
                 // The Rader path copies the tile and transforms it in batches of 16 column
                 // pairs; 64 columns measured 5 % faster than 256 at n = 151 (noisy).
                 Method::Fft if matches!(c, Construction::Paley { .. }) && fft_len(n, params.fft_len) + 1 == n => 64,
@@ -351,21 +365,23 @@ impl Demuxer {
         self.method
     }
 
-    /// The FFT code in use (`None` off the FFT path).
-    pub fn fft_engine(&self) -> Option<FftEngine> {
+    /// The code that runs the fast transform (`None` for the dense method).
+    pub fn engine(&self) -> Option<Engine> {
         match self.kernel {
-            Kernel::FftVec(ref k) if k.wide() => Some(FftEngine::Vector),
-            Kernel::FftVec(_) => Some(FftEngine::VectorAvx2),
-            Kernel::Fft32(_) | Kernel::Fft64(_) => Some(FftEngine::RustFft),
-            _ => None,
+            Kernel::FftVec(ref k) if k.wide() => Some(Engine::Vector),
+            Kernel::FwhtVec(ref k) if k.wide() => Some(Engine::Vector),
+            Kernel::FftVec(_) | Kernel::FwhtVec(_) => Some(Engine::VectorAvx2),
+            Kernel::Fwht | Kernel::Fft32(_) | Kernel::Fft64(_) => Some(Engine::Generic),
+            Kernel::Dense { .. } => None,
         }
     }
 
     /// The instruction set the pixel-vectorised transform runs on this CPU ("avx512", "avx2"
-    /// or "portable"); `None` off that path.
+    /// or "portable"); `None` off those paths.
     pub fn vector_isa(&self) -> Option<&'static str> {
         match &self.kernel {
             Kernel::FftVec(k) => Some(k.isa()),
+            Kernel::FwhtVec(k) => Some(k.isa()),
             _ => None,
         }
     }
@@ -395,6 +411,10 @@ impl Demuxer {
                         if k.rader.is_some() {
                             b.x32 = vec![0.0; n * t];
                         }
+                    }
+                    (Kernel::FwhtVec(k), _) => {
+                        b.r32 = vec![0.0; t];
+                        b.v = vec![<pulp::f32x16 as pulp::bytemuck::Zeroable>::zeroed(); k.scratch_len()];
                     }
                     (Kernel::FftVec(k), _) => {
                         b.v = vec![<pulp::f32x16 as pulp::bytemuck::Zeroable>::zeroed(); k.scratch_len()];
@@ -483,6 +503,7 @@ impl Demuxer {
             Kernel::Fft32(k) => {
                 for_each_tile(data, n, cols, self.tile, blocks, |rows, s| k.tile(rows, &mut s.c32, &mut s.f32s, &mut s.x32, dir))
             }
+            Kernel::FwhtVec(k) => for_each_tile(data, n, cols, self.tile, blocks, |rows, s| k.tile(rows, &mut s.r32, &mut s.v, dir)),
             Kernel::FftVec(k) => for_each_tile(data, n, cols, self.tile, blocks, |rows, s| k.tile(rows, &mut s.v, dir)),
             Kernel::Fft64(k) => {
                 for_each_tile(data, n, cols, self.tile, blocks, |rows, s| k.tile(rows, &mut s.c64, &mut s.f64s, &mut s.x32, dir))

@@ -44,14 +44,16 @@
 pub mod demux;
 pub mod denoise;
 pub mod error;
+mod lanes;
 pub mod lsq;
 pub mod noise;
 mod rader;
 pub mod smatrix;
 pub mod tile;
 mod vfft;
+mod vwht;
 
-pub use demux::{Accumulate, DemuxParams, DemuxScratch, Demuxer, DenseLayout, FftEngine, Method};
+pub use demux::{Accumulate, DemuxParams, DemuxScratch, Demuxer, DenseLayout, Engine, Method};
 pub use denoise::{project_onto_own_basis, Projection};
 pub use error::MuxError;
 pub use lsq::{
