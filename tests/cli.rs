@@ -711,8 +711,10 @@ fn ctrl_c_interrupts_a_dome_run_after_its_committed_view_groups_and_resumes() {
     assert!(status.success());
     let o = child.wait_with_output().unwrap();
     let err = String::from_utf8_lossy(&o.stderr);
-    // Progress in steps, with an ETA of the remaining rig time.
-    assert!(err.contains("402 steps to do of 402") && err.contains("steps 203/402, ETA "), "{}", text(&o));
+    // Progress in steps, with an ETA of the remaining rig time. Step 201 (the first view
+    // group's last) is always shown: the run ends only after the engine stops, and the CLI
+    // prints every event until then; how far past it the run got depends on the machine's load.
+    assert!(err.contains("402 steps to do of 402") && err.contains("steps 201/402, ETA "), "{}", text(&o));
     let r = report(&out);
     if r["status"] == "finished" {
         // The run ended before the signal was handled: nothing to check about interruption.

@@ -5,7 +5,10 @@
 //! layouts, by least squares with calibrated intensities (SVD pseudo-inverse applied as a
 //! matrix product), and by the high-level demultiplexer (fast path plus fault check); time
 //! (median of `repeat`) and error against the known single-light images side by side, with
-//! one plain read-and-write pass over the same stack as the memory-bandwidth floor.
+//! one plain read-and-write pass over the same stack as the memory-bandwidth floor. The
+//! machine's memory bandwidth drifts with other load (the pass alone varied 46–128 ms here),
+//! so a memory pass runs right before every timed repetition and "x floor" is the median of
+//! the ratios to it.
 //!
 //! The single-light images are a hash of (LED, column) in [0, 1), so nothing but the one
 //! stack is held in memory (n × megapixels × channels × 4 bytes: 3.1 GB at n = 255, 1 MP RGB);
@@ -15,7 +18,7 @@
 use std::time::Instant;
 
 use btfrig_mux::{
-    Accumulate, Demultiplexer, DemultiplexerParams, DemuxParams, Demuxer, DenseLayout, FftEngine, LeastSquares, LsParams, Method,
+    Accumulate, Demultiplexer, DemultiplexerParams, DemuxParams, Demuxer, DenseLayout, Engine, LeastSquares, LsParams, Method,
     Par, PatternModel, SMatrix, SourceState,
 };
 use rayon::prelude::*;
@@ -33,7 +36,7 @@ pub struct BenchDemuxArgs {
     #[arg(long, default_value_t = 3)]
     pub channels: usize,
     /// Timed repetitions per method (the median is reported).
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, default_value_t = 5)]
     pub repeat: usize,
     /// Threads (0 = all cores).
     #[arg(long, default_value_t = 0)]
@@ -57,6 +60,9 @@ pub struct Row {
     pub accumulate: &'static str,
     /// Median time, ms.
     pub ms: f64,
+    /// Median over the repetitions of the time over that of the memory pass run just before
+    /// it (1 for the memory pass itself).
+    pub x_floor: f64,
     /// Extra one-off time (factorisation), ms.
     pub setup_ms: f64,
     /// Largest |result − truth| (truth in [0, 1)); `None` for the memory pass.
@@ -81,7 +87,7 @@ pub struct OrderResult {
 }
 
 impl OrderResult {
-    /// The memory-pass time.
+    /// The memory-pass time (median of the passes run before every timed repetition).
     pub fn floor_ms(&self) -> f64 {
         self.rows[0].ms
     }
@@ -135,6 +141,39 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
+/// One plain read-modify-write pass over the stack (the memory-bandwidth floor), ms.
+fn memory_pass(data: &mut [f32]) -> f64 {
+    let k = std::hint::black_box(1.0f32);
+    let t = Instant::now();
+    data.par_chunks_mut(1 << 16).for_each(|c| c.iter_mut().for_each(|v| *v *= k));
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+/// Times `repeat` runs of `run`, each right after a timed memory pass over the same data (the
+/// machine's memory bandwidth drifts with other load, so every ratio is taken against the pass
+/// just before it); `check` (untimed) after each run. Returns the median time and the median
+/// ratio; the memory passes go to `floors`.
+fn time_against_floor(
+    data: &mut Vec<f32>,
+    repeat: usize,
+    floors: &mut Vec<f64>,
+    mut run: impl FnMut(&mut Vec<f32>) -> anyhow::Result<()>,
+    mut check: impl FnMut(usize, &[f32]) -> anyhow::Result<()>,
+) -> anyhow::Result<(f64, f64)> {
+    let (mut times, mut ratios) = (Vec::new(), Vec::new());
+    for rep in 0..repeat {
+        let floor = memory_pass(data);
+        floors.push(floor);
+        let t = Instant::now();
+        run(data)?;
+        let ms = t.elapsed().as_secs_f64() * 1e3;
+        times.push(ms);
+        ratios.push(ms / floor);
+        check(rep, data)?;
+    }
+    Ok((median(times), median(ratios)))
+}
+
 /// Runs the benchmark for one order.
 pub fn run_order(n: usize, cols: usize, repeat: usize, fast_only: bool) -> anyhow::Result<OrderResult> {
     let s = SMatrix::of_order(n)?;
@@ -151,30 +190,12 @@ pub fn run_order(n: usize, cols: usize, repeat: usize, fast_only: bool) -> anyho
     };
     let mut rows = Vec::new();
 
-    // The floor: one read-modify-write pass over the whole stack (pages touched first, one
-    // untimed pass to warm up).
+    // The floor: one read-modify-write pass over the whole stack before every timed
+    // repetition (pages touched first, one untimed pass to warm up); its row is filled in at
+    // the end.
     prepare(&mut data, &ones)?;
-    let k = std::hint::black_box(1.0f32);
-    data.par_chunks_mut(1 << 16).for_each(|c| c.iter_mut().for_each(|v| *v *= k));
-    let ms = median(
-        (0..repeat)
-            .map(|_| {
-                let t = Instant::now();
-                data.par_chunks_mut(1 << 16).for_each(|c| c.iter_mut().for_each(|v| *v *= k));
-                t.elapsed().as_secs_f64() * 1e3
-            })
-            .collect(),
-    );
-    rows.push(Row {
-        method: "memory pass".into(),
-        layout: "read+write".into(),
-        accumulate: "-",
-        ms,
-        setup_ms: 0.0,
-        max_err: None,
-        rms_err: None,
-        dense: false,
-    });
+    memory_pass(&mut data);
+    let mut floors = Vec::new();
 
     let fast_method = Method::fast_for(s.construction());
     let mut configs: Vec<(DemuxParams, bool)> = vec![
@@ -194,20 +215,16 @@ pub fn run_order(n: usize, cols: usize, repeat: usize, fast_only: bool) -> anyho
         for len in others.into_iter().filter(|&l| l != auto) {
             configs.push((DemuxParams { method: Some(Method::Fft), fft_len: len, ..Default::default() }, false));
         }
-        // The vector transform without AVX-512, where the default uses it.
-        let dflt = Demuxer::new(&s, &DemuxParams { method: Some(Method::Fft), ..Default::default() })?;
-        if dflt.vector_isa() == Some("avx512") {
-            configs.push((
-                DemuxParams { method: Some(Method::Fft), fft_engine: FftEngine::VectorAvx2, ..Default::default() },
-                false,
-            ));
-        }
-        // The same Rader length on rustfft (the tile transposed per column pair): what the
-        // pixel-vectorised transform replaced.
-        configs.push((
-            DemuxParams { method: Some(Method::Fft), fft_engine: FftEngine::RustFft, ..Default::default() },
-            false,
-        ));
+    }
+    // The vector transform without AVX-512, where the default uses it.
+    let dflt = Demuxer::new(&s, &DemuxParams { method: Some(fast_method), ..Default::default() })?;
+    if dflt.vector_isa() == Some("avx512") {
+        configs.push((DemuxParams { method: Some(fast_method), engine: Engine::VectorAvx2, ..Default::default() }, false));
+    }
+    // The generic code the pixel-vectorised transforms replaced: radix-4 FWHT passes over
+    // whole tiles; rustfft at the same Rader length, the tile transposed per column pair.
+    if dflt.vector_isa().is_some() {
+        configs.push((DemuxParams { method: Some(fast_method), engine: Engine::Generic, ..Default::default() }, false));
     }
     if !fast_only {
         for (layout, tile) in [
@@ -223,16 +240,19 @@ pub fn run_order(n: usize, cols: usize, repeat: usize, fast_only: bool) -> anyho
         let d = Demuxer::new(&s, &p)?;
         let mut sc = d.scratch(par);
         prepare(&mut data, &ones)?;
-        let mut times = Vec::new();
         let mut err = (0.0, 0.0);
-        for rep in 0..repeat {
-            let t = Instant::now();
-            d.demux_in_place(&mut data, cols, &mut sc, par)?;
-            times.push(t.elapsed().as_secs_f64() * 1e3);
-            if rep == 0 {
-                err = errors(&data, cols);
-            }
-        }
+        let (ms, x_floor) = time_against_floor(
+            &mut data,
+            repeat,
+            &mut floors,
+            |data| Ok(d.demux_in_place(data, cols, &mut sc, par)?),
+            |rep, data| {
+                if rep == 0 {
+                    err = errors(data, cols);
+                }
+                Ok(())
+            },
+        )?;
         let layout = match d.method() {
             Method::Dense(DenseLayout::PatternMajor) => format!("pattern-major tile {}", d.tile()),
             Method::Dense(DenseLayout::PixelMajor) => format!("pixel-major tile {}", d.tile()),
@@ -251,13 +271,17 @@ pub fn run_order(n: usize, cols: usize, repeat: usize, fast_only: bool) -> anyho
                 };
                 format!("{engine}, tile {}, length {len}{how}", d.tile())
             }
-            _ => format!("in place, tile {}", d.tile()),
+            _ => match d.vector_isa() {
+                Some(isa) => format!("vector {isa}, tile {}", d.tile()),
+                None => format!("radix-4 passes, tile {}", d.tile()),
+            },
         };
         rows.push(Row {
             method: if dense { "dense S^-1".into() } else { d.method().name().into() },
             layout,
             accumulate: if p.accumulate == Accumulate::F32 { "f32" } else { "f64" },
-            ms: median(times),
+            ms,
+            x_floor,
             setup_ms: 0.0,
             max_err: Some(err.0),
             rms_err: Some(err.1),
@@ -269,25 +293,30 @@ pub fn run_order(n: usize, cols: usize, repeat: usize, fast_only: bool) -> anyho
     {
         let dm = Demultiplexer::new(s.clone(), ones.clone(), DemultiplexerParams { par, ..Default::default() })?;
         prepare(&mut data, &ones)?;
-        let mut times = Vec::new();
         let mut err = (0.0, 0.0);
-        let mut buf = std::mem::take(&mut data);
-        for rep in 0..repeat {
-            let t = Instant::now();
-            let out = dm.run(buf, cols)?;
-            times.push(t.elapsed().as_secs_f64() * 1e3);
-            anyhow::ensure!(out.report().faults.is_empty(), "order {n}: false fault {:?}", out.report().faults);
-            buf = out.into_parts().0;
-            if rep == 0 {
-                err = errors(&buf, cols);
-            }
-        }
-        data = buf;
+        let (ms, x_floor) = time_against_floor(
+            &mut data,
+            repeat,
+            &mut floors,
+            |data| {
+                let out = dm.run(std::mem::take(data), cols)?;
+                anyhow::ensure!(out.report().faults.is_empty(), "order {n}: false fault {:?}", out.report().faults);
+                *data = out.into_parts().0;
+                Ok(())
+            },
+            |rep, data| {
+                if rep == 0 {
+                    err = errors(data, cols);
+                }
+                Ok(())
+            },
+        )?;
         rows.push(Row {
             method: "demultiplexer".into(),
             layout: format!("{} + fault check", fast_method.name()),
             accumulate: "f32",
-            ms: median(times),
+            ms,
+            x_floor,
             setup_ms: 0.0,
             max_err: Some(err.0),
             rms_err: Some(err.1),
@@ -304,27 +333,43 @@ pub fn run_order(n: usize, cols: usize, repeat: usize, fast_only: bool) -> anyho
         let ls = LeastSquares::new(&model, &vec![SourceState::Nominal; n], &LsParams::default())?;
         let setup_ms = t.elapsed().as_secs_f64() * 1e3;
         prepare(&mut data, &a)?;
-        let mut times = Vec::new();
         let mut err = (0.0, 0.0);
-        for rep in 0..repeat {
-            let t = Instant::now();
-            ls.solve_in_place(&mut data, cols, par)?;
-            times.push(t.elapsed().as_secs_f64() * 1e3);
-            if rep == 0 {
-                err = errors(&data, cols);
-            }
-        }
+        let (ms, x_floor) = time_against_floor(
+            &mut data,
+            repeat,
+            &mut floors,
+            |data| Ok(ls.solve_in_place(data, cols, par)?),
+            |rep, data| {
+                if rep == 0 {
+                    err = errors(data, cols);
+                }
+                Ok(())
+            },
+        )?;
         rows.push(Row {
             method: "least squares".into(),
             layout: format!("pattern-major tile {}, cond {:.1}", LsParams::default().tile, ls.condition()),
             accumulate: "f32",
-            ms: median(times),
+            ms,
+            x_floor,
             setup_ms,
             max_err: Some(err.0),
             rms_err: Some(err.1),
             dense: false,
         });
     }
+    let floor = Row {
+        method: "memory pass".into(),
+        layout: "read+write".into(),
+        accumulate: "-",
+        ms: median(floors),
+        x_floor: 1.0,
+        setup_ms: 0.0,
+        max_err: None,
+        rms_err: None,
+        dense: false,
+    };
+    rows.insert(0, floor);
     Ok(OrderResult { n, construction: s.construction().name(), cols, rows })
 }
 
@@ -362,7 +407,7 @@ pub fn bench(a: &BenchDemuxArgs) -> anyhow::Result<()> {
                     .map(|w| {
                         serde_json::json!({
                             "method": w.method, "layout": w.layout, "accumulate": w.accumulate, "ms": w.ms,
-                            "setup_ms": w.setup_ms, "x_floor": w.ms / r.floor_ms(), "max_err": w.max_err,
+                            "setup_ms": w.setup_ms, "x_floor": w.x_floor, "max_err": w.max_err,
                             "rms_err": w.rms_err, "dense": w.dense,
                         })
                     })
@@ -371,7 +416,7 @@ pub fn bench(a: &BenchDemuxArgs) -> anyhow::Result<()> {
                     "n": r.n, "construction": r.construction, "values_per_image": r.cols,
                     "stack_bytes": r.n * r.cols * 4, "floor_ms": r.floor_ms(),
                     "fast_over_best_dense": r.fast().zip(r.best_dense()).map(|(f, d)| d.ms / f.ms),
-                    "fast_x_floor": r.fast().map(|f| f.ms / r.floor_ms()), "rows": rows,
+                    "fast_x_floor": r.fast().map(|f| f.x_floor), "rows": rows,
                 })
             })
             .collect();
@@ -408,7 +453,7 @@ pub fn bench(a: &BenchDemuxArgs) -> anyhow::Result<()> {
                 w.layout,
                 w.accumulate,
                 w.ms,
-                w.ms / r.floor_ms(),
+                w.x_floor,
                 w.setup_ms,
                 e(w.max_err),
                 e(w.rms_err)
@@ -422,12 +467,16 @@ pub fn bench(a: &BenchDemuxArgs) -> anyhow::Result<()> {
                 d.ms / f.ms,
                 d.layout,
                 d.ms,
-                f.ms / r.floor_ms()
+                f.x_floor
             );
         }
     }
     println!();
-    println!("load average {} after; errors against the known single-light images (values in [0, 1))", load_average());
+    println!(
+        "load average {} after; x floor: median of the ratios to the memory pass run right before each \
+         repetition; errors against the known single-light images (values in [0, 1))",
+        load_average()
+    );
     Ok(())
 }
 

@@ -37,25 +37,11 @@ fn main() {
             let s = SMatrix::of_order(n).unwrap();
             let mut data: Vec<f32> = (0..n * cols).map(|i| ((i * 2654435761) % 1000) as f32 / 1000.0).collect();
             let pristine = data.clone();
-            // Refilled before every run: repeated in-place demultiplexing shrinks the values
-            // geometrically into subnormals.
-            let time = |d: &Demuxer, data: &mut Vec<f32>| {
-                let mut sc = d.scratch(par);
-                data.copy_from_slice(&pristine);
-                d.demux_in_place(data, cols, &mut sc, par).unwrap();
-                (0..reps)
-                    .map(|_| {
-                        data.copy_from_slice(&pristine);
-                        timed(|| d.demux_in_place(data, cols, &mut sc, par).unwrap())
-                    })
-                    .fold(f64::INFINITY, f64::min)
-            };
             let k = std::hint::black_box(1.0f32);
             use rayon::prelude::*;
-            let floor = (0..reps)
-                .map(|_| timed(|| data.par_chunks_mut(1 << 16).for_each(|c| c.iter_mut().for_each(|v| *v *= k))))
-                .fold(f64::INFINITY, f64::min);
-            println!("order {n}: {cols} columns, floor {floor:.1} ms");
+            let floor_pass = |data: &mut Vec<f32>| {
+                timed(|| data.par_chunks_mut(1 << 16).for_each(|c| c.iter_mut().for_each(|v| *v *= k)))
+            };
             let mut configs: Vec<(String, DemuxParams)> = Vec::new();
             let fast = Method::fast_for(s.construction());
             for tile in [256, 1024, 1 << 15] {
@@ -83,13 +69,64 @@ fn main() {
                 ));
             }
             let only = std::env::var("ONLY").ok();
-            for (name, p) in configs {
-                if only.as_ref().is_some_and(|o| !name.contains(o.as_str())) {
-                    continue;
+            configs.retain(|(name, _)| only.as_ref().is_none_or(|o| name.contains(o.as_str())));
+            // SWEEP="A=1,B=2;A=3": every config once per setting of those environment
+            // variables (for tuning knobs read from the environment while experimenting).
+            let sweep: Vec<Vec<(String, String)>> = std::env::var("SWEEP")
+                .map(|s| {
+                    s.split(';')
+                        .map(|set| {
+                            set.split(',')
+                                .filter_map(|kv| kv.split_once('=').map(|(k, v)| (k.to_string(), v.to_string())))
+                                .collect()
+                        })
+                        .collect()
+                })
+                .unwrap_or_else(|_| vec![Vec::new()]);
+            let configs: Vec<(String, DemuxParams, Vec<(String, String)>)> = configs
+                .into_iter()
+                .flat_map(|(name, p)| {
+                    sweep.iter().map(move |set| {
+                        let tag: Vec<String> = set.iter().map(|(k, v)| format!("{k}={v}")).collect();
+                        (format!("{name} {}", tag.join(" ")), p, set.clone())
+                    })
+                })
+                .collect();
+            // Rounds of (floor pass, every config once), so that drifts of the machine's
+            // memory bandwidth hit all of them alike; per config the fastest run and the median
+            // of its ratios to the same round's floor pass.
+            let plans: Vec<Demuxer> = configs.iter().map(|(_, p, _)| Demuxer::new(&s, p).unwrap()).collect();
+            let mut scratches: Vec<_> = plans.iter().map(|d| d.scratch(par)).collect();
+            let mut floors = Vec::new();
+            let mut times = vec![Vec::new(); plans.len()];
+            floor_pass(&mut data);
+            for _ in 0..reps {
+                for (i, d) in plans.iter().enumerate() {
+                    // Refilled before every run: repeated in-place demultiplexing shrinks the
+                    // values geometrically into subnormals.
+                    data.copy_from_slice(&pristine);
+                    // Every variable of the sweep unset, then this config's set.
+                    for (k, _) in sweep.iter().flatten() {
+                        std::env::remove_var(k);
+                    }
+                    for (k, v) in &configs[i].2 {
+                        std::env::set_var(k, v);
+                    }
+                    let f = floor_pass(&mut data);
+                    if i == 0 {
+                        floors.push(f);
+                    }
+                    let ms = timed(|| d.demux_in_place(&mut data, cols, &mut scratches[i], par).unwrap());
+                    times[i].push((ms, ms / f));
                 }
-                let d = Demuxer::new(&s, &p).unwrap();
-                let ms = time(&d, &mut data);
-                println!("  {name:<22} {ms:8.1} ms  {:6.2}x floor", ms / floor);
+            }
+            let floor = floors.iter().copied().fold(f64::INFINITY, f64::min);
+            println!("order {n}: {cols} columns, floor {floor:.1} ms (fastest of {reps})");
+            for ((name, _, _), t) in configs.iter().zip(&mut times) {
+                let best = t.iter().map(|x| x.0).fold(f64::INFINITY, f64::min);
+                t.sort_by(|a, b| a.1.total_cmp(&b.1));
+                let ratio = t[t.len() / 2].1;
+                println!("  {name:<32} {best:8.1} ms  {:6.2}x floor (fastest/fastest), {ratio:5.2}x (median of per-round ratios)", best / floor);
             }
         }
     });
