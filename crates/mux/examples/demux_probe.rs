@@ -21,6 +21,9 @@ fn timed<F: FnMut()>(mut f: F) -> f64 {
     }
 }
 
+/// Environment variables to set for one config of a sweep.
+type EnvSet = Vec<(String, String)>;
+
 use btfrig_mux::{Accumulate, DemuxParams, Demuxer, DenseLayout, Engine, Method, Par, SMatrix};
 
 fn main() {
@@ -72,7 +75,7 @@ fn main() {
             configs.retain(|(name, _)| only.as_ref().is_none_or(|o| name.contains(o.as_str())));
             // SWEEP="A=1,B=2;A=3": every config once per setting of those environment
             // variables (for tuning knobs read from the environment while experimenting).
-            let sweep: Vec<Vec<(String, String)>> = std::env::var("SWEEP")
+            let sweep: Vec<EnvSet> = std::env::var("SWEEP")
                 .map(|s| {
                     s.split(';')
                         .map(|set| {
@@ -83,7 +86,7 @@ fn main() {
                         .collect()
                 })
                 .unwrap_or_else(|_| vec![Vec::new()]);
-            let configs: Vec<(String, DemuxParams, Vec<(String, String)>)> = configs
+            let configs: Vec<(String, DemuxParams, EnvSet)> = configs
                 .into_iter()
                 .flat_map(|(name, p)| {
                     sweep.iter().map(move |set| {

@@ -262,7 +262,7 @@ fn block<M: Lanes>(
 ) {
     let big = rows.len();
     let Some((&(last_lo, last_bits), before)) = passes.split_last() else { return };
-    if let [] = before {
+    if before.is_empty() {
         // One pass (N ≤ 16): the rows into the buffer first.
         if let Some((cp, len, range)) = pf {
             rows[range].iter().for_each(|r| prefetch_run(r, cp, len));
