@@ -6,17 +6,23 @@
 //!   `H[a][b] = (−1)^popcount(a & b)` of order `N` and `x = (0, m_0, …, m_{n−1})`,
 //!   `(H x)_{j+1} = Σm − 2 (Sᵀ m)_j`, so
 //!   `S⁻¹ m = −(2/N) · (H x)_{1..N}` and `S m = ((H x)_0 − (H x)_{1..N}) / 2`.
-//!   The transform runs in place on the tile's rows (radix-4 passes, one radix-2 pass when
-//!   `log₂ N` is odd), each butterfly an element-wise add/subtract of two runs of `tile`
-//!   values, so it vectorises over pixels and never transposes.
+//!   By default (f32) `crate::vwht` runs it on blocks of 16 columns, every butterfly level of
+//!   a block in two or three register passes, reading and writing the rows once; the generic
+//!   code ([`Engine::Generic`], f64) runs radix-4 passes (one radix-2 pass when `log₂ N` is
+//!   odd) over the tile's rows in place, each butterfly an element-wise add/subtract of two
+//!   runs of `tile` values. Both vectorise over pixels and never transpose.
 //! * **FFT circular convolution** (cyclic Paley and twin-prime orders, `O(n log n)` per column).
 //!   `S[i][j] = s[(j − i) mod n]`, so `Sᵀ m = s ⊛ m` (circular convolution) and
 //!   `S m = s ⋆ m` (circular correlation). With the DFT `K = F s` and `M = F m`:
 //!   `F(S⁻¹ m) = G · M` with `G_k = 2/N · (2 K_k − n δ_k)` (the `J` term only touches bin 0,
 //!   where `M_0 = Σm`), and `F(S m) = conj(K) · M`. Two real columns ride in one complex
 //!   FFT (real and imaginary part; `G` and `K` are the spectra of real sequences, so the two
-//!   stay apart). The tile is transposed into the FFT buffer and back. Prime lengths are slow
-//!   in rustfft, so by default the column is zero-padded to a 5-smooth length `L >= 2n − 1`
+//!   stay apart). For a Paley order `p` the length-`p` circulant becomes one forward and one
+//!   inverse FFT of length `p − 1` (Rader, `crate::rader`); by default (f32, `p − 1` twice a
+//!   product of 3 … 13: 151, 199) that runs on the pixel-vectorised transform of
+//!   `crate::vfft`, straight from and to the rows. The generic code ([`Engine::Generic`], f64,
+//!   other orders) is rustfft with the tile transposed into its buffer and back; prime lengths
+//!   are slow there, so other cyclic orders are zero-padded to a 5-smooth length `L >= 2n − 1`
 //!   and convolved with the code extended periodically over `−(n−1)..(n−1)` ([`fft_len`]);
 //!   the first `n` outputs of that length-`L` circular convolution are the length-`n` ones.
 //! * **Dense** (any order, `O(n²)` per column): `Y = S⁻¹ X` as a matrix product
