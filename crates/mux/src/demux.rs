@@ -41,6 +41,7 @@ use rustfft::num_complex::Complex;
 use rustfft::{Fft, FftNum, FftPlanner};
 
 use crate::error::MuxError;
+use crate::kernel::{Dir, Real};
 use crate::rader::Rader;
 use crate::smatrix::{is_prime, Construction, SMatrix};
 use crate::tile::{check_shape, for_each_tile, Par};
@@ -259,12 +260,6 @@ impl DemuxScratch {
     pub fn blocks(&self) -> usize {
         self.blocks.len()
     }
-}
-
-#[derive(Clone, Copy, PartialEq, Eq)]
-pub(crate) enum Dir {
-    Demux,
-    Mux,
 }
 
 impl Demuxer {
@@ -529,45 +524,6 @@ impl Demuxer {
             }
         }
         Ok(())
-    }
-}
-
-/// The arithmetic the kernels are generic over.
-pub(crate) trait Real:
-    FftNum + Copy + std::ops::Add<Output = Self> + std::ops::Sub<Output = Self> + std::ops::Mul<Output = Self>
-{
-    fn of_f32(x: f32) -> Self;
-    fn of_f64(x: f64) -> Self;
-    fn to_f32(self) -> f32;
-}
-
-impl Real for f32 {
-    #[inline(always)]
-    fn of_f32(x: f32) -> f32 {
-        x
-    }
-    #[inline(always)]
-    fn of_f64(x: f64) -> f32 {
-        x as f32
-    }
-    #[inline(always)]
-    fn to_f32(self) -> f32 {
-        self
-    }
-}
-
-impl Real for f64 {
-    #[inline(always)]
-    fn of_f32(x: f32) -> f64 {
-        f64::from(x)
-    }
-    #[inline(always)]
-    fn of_f64(x: f64) -> f64 {
-        x
-    }
-    #[inline(always)]
-    fn to_f32(self) -> f32 {
-        self as f32
     }
 }
 

@@ -44,6 +44,7 @@
 pub mod demux;
 pub mod denoise;
 pub mod error;
+mod kernel;
 mod lanes;
 pub mod lsq;
 pub mod noise;

@@ -33,7 +33,8 @@
 use rayon::prelude::*;
 use nalgebra::{DMatrix, DMatrixView, DMatrixViewMut};
 
-use crate::demux::{Accumulate, DemuxParams, Demuxer, Method, Real};
+use crate::demux::{Accumulate, DemuxParams, Demuxer, Method};
+use crate::kernel::Real;
 use crate::error::MuxError;
 use crate::smatrix::SMatrix;
 use crate::tile::{check_shape, for_each_tile, for_each_tile_io, Par};

@@ -29,7 +29,7 @@ use std::sync::Arc;
 use rustfft::num_complex::Complex;
 use rustfft::{Fft, FftPlanner};
 
-use crate::demux::{Dir, Real};
+use crate::kernel::{Dir, Real};
 
 /// Packed column pairs transformed per batch: `BATCH · q` complex values (19 KB for
 /// `q = 150` in f32) stay in L1 between the gather, the two transforms and the scatter.

@@ -263,9 +263,11 @@ impl SMatrix {
     }
 
     /// The SNR gain over single-source capture for signal-independent noise:
-    /// `(n+1) / (2 √n)`.
+    /// `(n+1) / (2 √n)` (`crate::noise::s_matrix_gain` at `ρ = 0`; with photon noise see
+    /// there).
     pub fn gain_read_noise(&self) -> f64 {
-        crate::noise::s_matrix_gain(self.n, 0.0)
+        let n = self.n as f64;
+        (n + 1.0) / (2.0 * n.sqrt())
     }
 }
 

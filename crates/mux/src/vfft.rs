@@ -45,7 +45,7 @@
 
 use rustfft::num_complex::Complex;
 
-use crate::demux::Dir;
+use crate::kernel::Dir;
 use crate::lanes::{prefetch_run, tick, Lanes, Portable, Prefetch};
 use crate::rader::{Rader, Spec};
 

@@ -19,7 +19,7 @@
 //! one per index bit, and they commute: a pass takes `b` consecutive bits, its butterflies
 //! are over the `2^b` elements that differ only there, in natural order (no bit reversal).
 
-use crate::demux::Dir;
+use crate::kernel::Dir;
 use crate::lanes::{prefetch_run, tick, Lanes, Portable, Prefetch};
 
 /// Blocks ahead that the passes prefetch, in groups: every block prefetches `1/GROUP` of the

@@ -511,8 +511,10 @@ pub fn run_controlled(
             "directions": "light j, view v: DomeConfig::sample_directions(camera, turntable, j) (sample frame)",
         }),
     );
+    // Like the gonio report: every texture of the dataset, and this session's apart.
+    extra.insert("captures_this_session".into(), json!(s.textures));
     let report = RunReport {
-        captures: s.textures,
+        captures: textures_before + s.textures,
         wall_s: s.wall_s,
         hardware_s: Some(s.hardware_s),
         stage_s: BTreeMap::new(),
