@@ -7,6 +7,22 @@
 //! ([`Prefetch`]).
 use pulp::bytemuck::Pod;
 
+/// The instruction set the vector kernels run on this CPU: "avx512" (if `wide` allows it),
+/// "avx2" (with FMA) or "portable", the order in which their `tile` functions try them.
+pub(crate) fn isa(wide: bool) -> &'static str {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if wide && pulp::x86::V4::try_new().is_some() {
+            return "avx512";
+        }
+        if pulp::x86::V3::try_new().is_some() {
+            return "avx2";
+        }
+    }
+    let _ = wide;
+    "portable"
+}
+
 /// Element-wise arithmetic on `W` lanes of f32: explicit vector operations where the CPU has
 /// them, else portable loops.
 pub(crate) trait Lanes: Copy {

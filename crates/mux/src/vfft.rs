@@ -649,16 +649,7 @@ impl VecRader {
 
     /// The instruction set [`VecRader::tile`] runs on this CPU.
     pub(crate) fn isa(&self) -> &'static str {
-        #[cfg(target_arch = "x86_64")]
-        {
-            if self.wide && pulp::x86::V4::try_new().is_some() {
-                return "avx512";
-            }
-            if pulp::x86::V3::try_new().is_some() {
-                return "avx2";
-            }
-        }
-        "portable"
+        crate::lanes::isa(self.wide)
     }
 
     /// The same through the portable lanes (tests).

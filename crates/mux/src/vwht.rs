@@ -77,16 +77,7 @@ impl VecWht {
 
     /// The instruction set [`VecWht::tile`] runs on this CPU.
     pub(crate) fn isa(&self) -> &'static str {
-        #[cfg(target_arch = "x86_64")]
-        {
-            if self.wide && pulp::x86::V4::try_new().is_some() {
-                return "avx512";
-            }
-            if pulp::x86::V3::try_new().is_some() {
-                return "avx2";
-            }
-        }
-        "portable"
+        crate::lanes::isa(self.wide)
     }
 
     /// The same through the portable lanes (tests).
