@@ -683,8 +683,9 @@ fn dome_plans_are_checked_shown_and_run() {
 fn ctrl_c_interrupts_a_dome_run_after_its_committed_view_groups_and_resumes() {
     let dir = scratch("dome-sigint");
     let plan = dir.join("dome.toml");
-    // One camera at two rotations: 203 steps (4 reference LEDs in the first view group), then
-    // 199; each view group commits its 198 textures at its last step.
+    // One camera at two rotations: 203 steps, then 199. A view group commits its 198 textures
+    // once its 199th pattern (step 199) is demultiplexed; the first group's 4 single-LED
+    // reference steps (200-203) follow its patterns.
     std::fs::write(
         &plan,
         "name = \"cli-dome-sigint\"\ntexture_size = 8\n[rig]\nconfig = \"builtin:bonn-dome-sim\"\n\
@@ -711,10 +712,10 @@ fn ctrl_c_interrupts_a_dome_run_after_its_committed_view_groups_and_resumes() {
     assert!(status.success());
     let o = child.wait_with_output().unwrap();
     let err = String::from_utf8_lossy(&o.stderr);
-    // Progress in steps, with an ETA of the remaining rig time. Step 201 (the first view
-    // group's last) is always shown: the run ends only after the engine stops, and the CLI
-    // prints every event until then; how far past it the run got depends on the machine's load.
-    assert!(err.contains("402 steps to do of 402") && err.contains("steps 201/402, ETA "), "{}", text(&o));
+    // Progress in steps, with an ETA of the remaining rig time. Step 199 is always shown: its
+    // frame completes the committed view group, the CLI prints every engine event until the
+    // engine stops, and how far past step 199 the run got before the signal depends on load.
+    assert!(err.contains("402 steps to do of 402") && err.contains("steps 199/402, ETA "), "{}", text(&o));
     let r = report(&out);
     if r["status"] == "finished" {
         // The run ended before the signal was handled: nothing to check about interruption.
