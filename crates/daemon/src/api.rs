@@ -614,7 +614,7 @@ pub async fn start_run(State(s): Shared, Operator(c): Operator, ApiJson(b): ApiJ
     let (kind, name) = (checked.kind(), checked.name().to_string());
     match checked {
         btfrig_runner::check::CheckedPlan::Gonio { validated, .. } => check_gonio_start(&validated)?,
-        btfrig_runner::check::CheckedPlan::Dome { plan, rig } => check_dome_start(&plan, &rig)?,
+        btfrig_runner::check::CheckedPlan::Dome { plan, rig } => check_dome_start(&plan, &plan_path, &rig)?,
     }
     let plan_name = given_name.unwrap_or(name);
     let dataset = match b.dataset {
@@ -657,9 +657,10 @@ fn check_gonio_start(v: &btfrig_core::plan::ValidatedPlan) -> Result<(), Problem
 /// (simulated or emulated devices; `btfrig_runner::dome`).
 fn check_dome_start(
     plan: &btfrig_core::plan::dome::ValidatedDomePlan,
+    plan_path: &std::path::Path,
     rig: &btfrig_core::config::RigConfig,
 ) -> Result<(), Problem> {
-    btfrig_runner::plan::load_material(plan.plan.rig.material.as_deref())
+    btfrig_runner::plan::dome_material(plan.plan.rig.material.as_deref(), plan_path)
         .map_err(|e| Problem::unprocessable(format!("rig.material: {e}")))?;
     if rig.devices.simulated().is_none() {
         return Err(Problem::unprocessable(format!(

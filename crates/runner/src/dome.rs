@@ -289,7 +289,7 @@ pub fn run_controlled(
     let base = req.plan_path.parent().unwrap_or(Path::new("."));
     let fault_name = req.faults.clone().unwrap_or_else(|| v.plan.fault_scenario.clone());
     let faults = crate::plan::fault_scenario(&fault_name, base, "fault_scenario")?;
-    let material = crate::plan::load_material(v.plan.rig.material.as_deref())?;
+    let material = crate::plan::dome_material(v.plan.rig.material.as_deref(), &req.plan_path)?;
     let scene = Arc::new(DomeScene::new(&rig, &material).map_err(|e| input("dome scene", e))?);
     let dome = scene.dome().clone();
     let schedule = plan_dome(&rig, &v, scene.nominal_irradiance()).map_err(|e| input("dome planning", e))?;

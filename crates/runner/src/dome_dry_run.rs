@@ -162,7 +162,7 @@ fn forcing(v: &ValidatedDomePlan, mode: Mode) -> ValidatedDomePlan {
 /// relative rig configs).
 pub fn dry_run(text: &str, file: &Path) -> Result<DomeDryRun, RunError> {
     let (v, rig, _) = crate::dome::load(text, file)?;
-    let material = crate::plan::load_material(v.plan.rig.material.as_deref())?;
+    let material = crate::plan::dome_material(v.plan.rig.material.as_deref(), file)?;
     let scene = DomeScene::new(&rig, &material)
         .map_err(|e| RunError::Input { what: "dome scene".into(), message: e.to_string() })?;
     let planning = |v: &ValidatedDomePlan| {

@@ -88,6 +88,18 @@ pub fn material(plan: &Plan, v: &ValidatedPlan, file: &Path) -> Result<MaterialS
     }
 }
 
+/// A dome plan's `[rig] material`: an embedded name, a material file resolved against the
+/// directory of the plan file `plan_path` (as a gonio plan's, [`material`]), or the default.
+pub fn dome_material(name: Option<&str>, plan_path: &Path) -> Result<MaterialSpec, RunError> {
+    match name {
+        Some(file) if file.ends_with(".toml") => {
+            let path = plan_path.parent().unwrap_or(Path::new(".")).join(file);
+            load_material(Some(&path.display().to_string()))
+        }
+        _ => load_material(name),
+    }
+}
+
 /// The exposure per capture: fixed, or auto (white at the policy's fraction of full scale).
 pub fn exposure_s(plan: &Plan, v: &ValidatedPlan, file: &Path) -> Result<f64, RunError> {
     Ok(match v.exposure {

@@ -55,3 +55,26 @@ fn a_gonio_plan_is_no_dome_plan() {
     assert!(!is_dome_plan(&text));
     assert!(!is_dome_plan("not toml ["));
 }
+
+/// A material file in a dome plan is found next to the plan, wherever the command runs from
+/// (as in a gonio plan), and a missing one is named with its resolved path.
+#[test]
+fn a_dome_plan_material_file_resolves_against_the_plan() {
+    let dir = std::env::temp_dir().join(format!("btfrig-dome-material-{}", std::process::id()));
+    std::fs::create_dir_all(dir.join("plans")).unwrap();
+    std::fs::copy(concat!(env!("CARGO_MANIFEST_DIR"), "/../../sim/materials/corduroy.toml"), dir.join("plans/mat.toml"))
+        .unwrap();
+    let plan = |material: &str| {
+        format!(
+            "name = \"dry\"\ntexture_size = 8\n[rig]\nconfig = \"builtin:bonn-dome-sim\"\nmaterial = \"{material}\"\n\
+             [dome]\ncameras = [4]\nrotations = [1]\n"
+        )
+    };
+    let file = dir.join("plans/dome.toml");
+    // The test runs in the crate's directory, where no mat.toml is.
+    assert!(!std::path::Path::new("mat.toml").exists());
+    dry_run(&plan("mat.toml"), &file).unwrap_or_else(|e| panic!("{e}"));
+    let e = dry_run(&plan("missing.toml"), &file).unwrap_err().to_string();
+    assert!(e.contains(&dir.join("plans/missing.toml").display().to_string()), "{e}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
