@@ -736,6 +736,41 @@ fn ctrl_c_interrupts_a_dome_run_after_its_committed_view_groups_and_resumes() {
     ok(btfrig().args(["dataset", "verify"]).arg(&out));
 }
 
+/// A device fault no retry helps pauses a dome run as it pauses a gonio run: exit 3 naming the
+/// step, device and error, the committed view groups kept, status "paused" with the step in
+/// the report; the same command without the fault captures the rest.
+#[test]
+fn a_device_fault_pauses_a_dome_run_exits_3_and_resumes_with_the_fault_gone() {
+    let dir = scratch("dome-fault");
+    let plan = dir.join("dome.toml");
+    std::fs::write(
+        &plan,
+        "name = \"cli-dome-fault\"\ntexture_size = 8\n[rig]\nconfig = \"builtin:bonn-dome-sim\"\n\
+         material = \"leather\"\n[dome]\ncameras = [4]\nrotations = [1, 5]\n",
+    )
+    .unwrap();
+    // The LED controller's 300th pattern fails for good: step 299, in the second view group
+    // (steps 203..401), after the first committed its 198 textures.
+    let faults = dir.join("leds.toml");
+    std::fs::write(&faults, "[[failures]]\ndevice = \"led_array\"\ncalls = [300]\n").unwrap();
+    let out = dir.join("dataset");
+    let o = run(btfrig().args(["run", "--plan"]).arg(&plan).arg("--out").arg(&out).arg("--faults").arg(&faults));
+    assert_eq!(o.status.code(), Some(3), "{}", text(&o));
+    let err = String::from_utf8_lossy(&o.stderr);
+    for needle in ["PAUSED", "198 of 396 textures committed", "step 299 (rotation 5", "led_array", "internal fault", "--faults none", "run the same command again"] {
+        assert!(err.contains(needle), "{needle:?} missing:\n{err}");
+    }
+    let r = report(&out);
+    assert_eq!((r["status"].as_str(), r["captures"].as_u64()), (Some("paused"), Some(198)), "{r}");
+    assert_eq!((r["paused_step"]["index"].as_u64(), r["paused_step"]["device"].as_str()), (Some(299), Some("led_array")), "{r}");
+    only_incomplete(&out);
+    let again = ok(btfrig().args(["run", "--plan"]).arg(&plan).arg("--out").arg(&out).args(["--faults", "none"]));
+    assert!(again.contains("textures          198 (198 LEDs x 2 views), 199 frames per camera"), "{again}");
+    let r = report(&out);
+    assert_eq!((r["status"].as_str(), r["captures"].as_u64()), (Some("finished"), Some(396)), "{r}");
+    ok(btfrig().args(["dataset", "verify"]).arg(&out));
+}
+
 #[test]
 fn demo_rig_camera_array_multiplexes_all_151_flashes_end_to_end() {
     let dir = scratch("demo-camera-array");

@@ -15,6 +15,10 @@ use crate::args::RunArgs;
 
 /// Exit code of a run that paused on a fault no retry helps.
 pub const EXIT_PAUSED: u8 = 3;
+/// What a paused run adds when a simulated rig's fault scenario caused the fault.
+const INJECTED_HINT: &str =
+    "(the simulated rig's fault scenario injected this fault; it recurs on every resume unless you add --faults none)";
+
 /// Exit code of a run interrupted by SIGINT (128 + 2, the shell's convention).
 pub const EXIT_INTERRUPTED: u8 = 130;
 
@@ -84,15 +88,26 @@ fn run_dome(a: &RunArgs, plan_text: String) -> anyhow::Result<ExitCode> {
     let s = result?;
     println!("btfrig run: dome plan {} into {}", a.plan.display(), a.out.display());
     print_dome_summary(&s);
-    if s.stopped.is_none() {
-        return Ok(ExitCode::SUCCESS);
-    }
     let (textures, total) = progress.textures.unwrap_or((s.textures, 0));
+    let command = format!("btfrig run --plan {} --out {}", a.plan.display(), a.out.display());
+    match &s.stopped {
+        None => return Ok(ExitCode::SUCCESS),
+        Some(RunOutcome::Paused { reason, .. }) => {
+            // As a gonio run that stops on a fault (`finish`).
+            eprintln!("btfrig: the run is PAUSED, not finished ({textures} of {total} textures committed).");
+            eprintln!("  reason:  {reason}");
+            eprintln!("  dataset: {} (resumable; the report says status \"paused\")", a.out.display());
+            if reason.contains("(injected)") {
+                eprintln!("  {INJECTED_HINT}");
+            }
+            eprintln!("Fix the cause and run the same command again to resume:\n  {command}");
+            return Ok(ExitCode::from(EXIT_PAUSED));
+        }
+        Some(_) => {}
+    }
     eprintln!(
         "btfrig: interrupted after the step under way ({textures} of {total} textures committed; a view group not yet \
-         complete is captured again on resume); run the same command again to resume:\n  btfrig run --plan {} --out {}",
-        a.plan.display(),
-        a.out.display()
+         complete is captured again on resume); run the same command again to resume:\n  {command}"
     );
     Ok(ExitCode::from(EXIT_INTERRUPTED))
 }
@@ -159,9 +174,7 @@ pub fn finish(s: &RunSummary, command: &str) -> ExitCode {
                 );
             }
             if fault.as_ref().is_some_and(|f| f.message.contains("(injected)")) {
-                eprintln!(
-                    "  (the simulated rig's fault scenario injected this fault; it recurs on every resume unless you add --faults none)"
-                );
+                eprintln!("  {INJECTED_HINT}");
             }
             eprintln!("Fix the cause and run the same command again to resume:\n  {command}");
             ExitCode::from(EXIT_PAUSED)
@@ -278,6 +291,8 @@ struct Progress {
     dome: bool,
     /// A dome run's textures in the dataset, and of the whole plan.
     textures: Option<(u64, u64)>,
+    /// The run is paused (until `Resumed`).
+    paused: bool,
 }
 
 impl Progress {
@@ -346,11 +361,20 @@ impl Progress {
             }
             RunEvent::Paused { reason, .. } => {
                 let _ = writeln!(err, "\npaused: {reason}");
+                self.paused = true;
             }
             RunEvent::Resumed => {
                 let _ = writeln!(err, "resumed");
+                self.paused = false;
             }
             RunEvent::Committed { .. } => {}
+            // A device fault: the pause line just said why, and the failed step captured nothing.
+            RunEvent::Stopping { .. } if self.dome && self.paused => {
+                let _ = writeln!(
+                    err,
+                    "stopping on the failed step: the view groups committed stay, the one under way is captured again on resume"
+                );
+            }
             RunEvent::Stopping { reason } if self.dome => {
                 let _ = writeln!(
                     err,
@@ -408,7 +432,9 @@ pub fn print_dome_summary(s: &btfrig_runner::dome::DomeRunSummary) {
         );
     }
     println!("  wall time         {:.1} s", s.wall_s);
-    println!("  faults            {}", if s.faults.is_empty() { "none".into() } else { s.faults.join("; ") });
+    // Found in the data by the demultiplexer; a device fault is reported apart (paused).
+    let label = format!("{} faults", s.light);
+    println!("  {label:<18}{}", if s.faults.is_empty() { "none".into() } else { s.faults.join("; ") });
     println!("  warnings          {}", s.warnings.len());
     println!("  dataset           {}", s.dataset.display());
 }

@@ -14,13 +14,15 @@
 //!
 //! Steering ([`run_controlled`]): a [`RunControl`] pauses, resumes, aborts or interrupts the
 //! engine between steps (`btfrig_engine::dome::DomeControl`), and the run reports
-//! [`RunEvent`]s: `Started`, `Progress` with an ETA, warnings, pauses (also on a device fault
-//! when the session does not stop on one), resumes and `Stopping`. A dome's step is one frame
+//! [`RunEvent`]s: `Started`, `Progress` with an ETA, warnings, pauses (also on a device fault),
+//! resumes and `Stopping`. A dome's step is one frame
 //! per camera (a pattern at a rotation), so `Progress` counts steps, not textures; textures are
 //! committed per view group, which [`RunEvent::TexturesCommitted`] reports (once at the start,
 //! then after every view group), with `preview.png` replaced by the group's brightest texture
-//! when the request asks for a preview. An aborted or interrupted session keeps the view groups
-//! it committed, its report says so (`status`), and the same request resumes it.
+//! when the request asks for a preview. An aborted or interrupted session, or one that stops on
+//! a device fault (status `paused`, with `paused_step` naming the step, device and error),
+//! keeps the view groups it committed, its report says so (`status`), and the same request
+//! resumes it.
 
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::path::{Path, PathBuf};
@@ -32,7 +34,7 @@ use btfrig_core::config::RigConfig;
 use btfrig_core::plan::dome::{DomePlan, ValidatedDomePlan};
 use btfrig_core::plan::BUILTIN_RIGS;
 use btfrig_engine::dome::{
-    run_dome as drive, DomeCapture, DomeCommand, DomeControl, DomeDevices, DomeEvent, DomeSettings,
+    run_dome as drive, DomeCapture, DomeCommand, DomeControl, DomeDevices, DomeEvent, DomePauseReason, DomeSettings,
 };
 use btfrig_hw::{MoveOptions, TokioClock};
 use btfrig_pipeline::dome::{signal_dn, DomeProcessing, GroupCode, GroupStack};
@@ -127,7 +129,8 @@ pub struct DomeRunSummary {
     /// Wall time of rectifying and projecting the denoised groups, s.
     pub denoise_s: f64,
     /// How the session ended before the last step (aborted or interrupted through its
-    /// [`RunControl`]); `None` when it captured every step.
+    /// [`RunControl`], or paused on a failed step when the session stops on faults); `None`
+    /// when it captured every step.
     pub stopped: Option<RunOutcome>,
 }
 
@@ -266,16 +269,17 @@ fn denoise_group(
     Ok((out, p))
 }
 
-/// Runs a dome plan to its end (see the module docs); a device fault no retry helps ends it
-/// with an error.
+/// Runs a dome plan to its end (see the module docs); a device fault no retry helps ends the
+/// session paused ([`DomeRunSummary::stopped`]), resumable.
 pub fn run(req: &DomeRunRequest, on_line: &mut dyn FnMut(&str)) -> Result<DomeRunSummary, RunError> {
     run_controlled(req, &RunControl::new(), true, on_line, &mut |_| {})
 }
 
 /// [`run`], steered by `control` from any thread (pause, resume, abort, interrupt: between
 /// steps) and watched through `on_event` (module docs; both callbacks are called on this
-/// thread). `stop_on_fault`: a step failing with an error no retry helps ends the session
-/// with an error (true), or pauses the engine until `control` resumes it (the step is tried
+/// thread). `stop_on_fault`: a step failing with an error no retry helps ends the session as
+/// paused (true, `btfrig run`: the report's status is `paused`, the same request resumes and
+/// tries the step again), or pauses the engine until `control` resumes it (the step is tried
 /// again) or aborts it (false, a daemon with an operator).
 pub fn run_controlled(
     req: &DomeRunRequest,
@@ -429,7 +433,7 @@ pub fn run_controlled(
         preview: req.preview,
         stage_s: BTreeMap::new(),
     });
-    let outcome: Result<(btfrig_engine::dome::DomeRunSummary, Option<RunOutcome>), RunError> = rt.block_on(async {
+    let outcome: Result<(btfrig_engine::dome::DomeRunSummary, Stop), RunError> = rt.block_on(async {
         let clock = TokioClock::shared();
         // Emulated devices (serial turntable and LED controller) are the simulator's behind
         // their firmware, driven by the real backends (docs/serial.md).
@@ -454,7 +458,9 @@ pub fn run_controlled(
         let patterns = schedule.patterns.clone();
         let (exp, ref_exp) = (schedule.exposure_s, schedule.single_exposure_s);
         let (steering, engine_commands, events) = DomeControl::channels();
-        let settings = DomeSettings { pause_on_fault: !stop_on_fault, ..DomeSettings::default() };
+        // The engine pauses on a fault; a session that stops on faults ends there (`listen`),
+        // with the report's status "paused", as a gonio run does.
+        let settings = DomeSettings { pause_on_fault: true, ..DomeSettings::default() };
         let engine =
             async move { drive(&mut devices, &steps, &patterns, exp, ref_exp, &done, settings, steering, tx).await };
         let consume = async {
@@ -463,7 +469,7 @@ pub fn run_controlled(
             }
             Ok::<(), RunError>(())
         };
-        let listen = listen(commands, engine_commands, events, &mut commit_rx, on_event);
+        let listen = listen(commands, engine_commands, events, &mut commit_rx, stop_on_fault, on_event);
         let (e, c, stop) = tokio::join!(engine, consume, listen);
         c?;
         Ok((e.map_err(|e| RunError::Rig(e.to_string()))?, stop))
@@ -492,7 +498,7 @@ pub fn run_controlled(
     s.wall_s = wall.elapsed().as_secs_f64();
     s.peak_rss_mib = crate::peak_rss_mib();
     // A stop asked for after the last step leaves a complete run.
-    s.stopped = engine.aborted.then(|| stop.unwrap_or(RunOutcome::Aborted));
+    s.stopped = engine.aborted.then(|| stop.outcome.clone().unwrap_or(RunOutcome::Aborted));
 
     let mut extra = BTreeMap::new();
     // RunReport's own fields are not repeated in its flattened extra.
@@ -513,6 +519,9 @@ pub fn run_controlled(
     );
     // Like the gonio report: every texture of the dataset, and this session's apart.
     extra.insert("captures_this_session".into(), json!(s.textures));
+    if let (Some(RunOutcome::Paused { .. }), Some(step)) = (&s.stopped, stop.paused_step) {
+        extra.insert("paused_step".into(), step);
+    }
     let report = RunReport {
         captures: textures_before + s.textures,
         wall_s: s.wall_s,
@@ -538,17 +547,26 @@ fn write_preview(dataset: &Dataset, tex: &[[f32; 3]], size: usize) -> bool {
         .is_some_and(|png| dataset.write_preview(&png).is_ok())
 }
 
+/// How a session was asked to stop, if it was.
+#[derive(Default)]
+struct Stop {
+    outcome: Option<RunOutcome>,
+    /// The failed step a session that stops on faults paused on (`paused_step` in the report).
+    paused_step: Option<serde_json::Value>,
+}
+
 /// Forwards `control`'s commands to the engine, and the engine's events and the consumer's
-/// commits to `on_event`, until the engine ends; returns how the session was asked to stop,
-/// if it was.
+/// commits to `on_event`, until the engine ends. `stop_on_fault`: a step that failed (the
+/// engine pauses on it) ends the session as paused, resumable by running the plan again.
 async fn listen(
     mut control: tokio::sync::mpsc::UnboundedReceiver<Command>,
     engine: tokio::sync::mpsc::UnboundedSender<DomeCommand>,
     mut events: tokio::sync::mpsc::UnboundedReceiver<DomeEvent>,
     commits: &mut tokio::sync::mpsc::UnboundedReceiver<RunEvent>,
+    stop_on_fault: bool,
     on_event: &mut dyn FnMut(&RunEvent),
-) -> Option<RunOutcome> {
-    let mut stop: Option<RunOutcome> = None;
+) -> Stop {
+    let mut stop = Stop::default();
     let mut control_open = true;
     loop {
         tokio::select! {
@@ -557,7 +575,21 @@ async fn listen(
                 None => return stop,
                 Some(DomeEvent::Progress { done, total, eta_s }) => on_event(&RunEvent::Progress { done, total, eta_s }),
                 Some(DomeEvent::Warning(w)) => on_event(&RunEvent::Warning(w)),
-                Some(DomeEvent::Paused { reason }) => on_event(&RunEvent::Paused { reason: reason.to_string(), fault: None }),
+                Some(DomeEvent::Paused { reason }) => {
+                    on_event(&RunEvent::Paused { reason: reason.to_string(), fault: None });
+                    if let DomePauseReason::StepFailed { index, rotation, shot, device, kind, message } = &reason {
+                        if stop_on_fault && stop.outcome.is_none() {
+                            on_event(&RunEvent::Stopping { reason: reason.to_string() });
+                            stop.outcome = Some(RunOutcome::Paused { reason: reason.to_string(), fault: None });
+                            stop.paused_step = Some(json!({
+                                "index": index, "rotation": rotation, "shot": format!("{shot:?}"),
+                                "device": device, "kind": kind.to_string(), "message": message,
+                            }));
+                            // The engine is paused on the failed step: end it there.
+                            let _ = engine.send(DomeCommand::Abort);
+                        }
+                    }
+                }
                 Some(DomeEvent::Resumed) => on_event(&RunEvent::Resumed),
                 // A step is a pattern at a rotation, not a (light, view) capture.
                 Some(DomeEvent::StepDone { index, rotation, attempts, .. }) => {
@@ -575,9 +607,9 @@ async fn listen(
                     Some(Command::Resume) => DomeCommand::Resume,
                     Some(c @ (Command::Abort | Command::Interrupt)) => {
                         let end = if c == Command::Abort { RunOutcome::Aborted } else { RunOutcome::Interrupted };
-                        if stop.is_none() {
+                        if stop.outcome.is_none() {
                             on_event(&RunEvent::Stopping { reason: end.reason().unwrap_or_default() });
-                            stop = Some(end);
+                            stop.outcome = Some(end);
                         }
                         DomeCommand::Abort
                     }

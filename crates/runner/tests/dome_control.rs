@@ -1,7 +1,7 @@
 //! Steering a dome run as a gonio run is steered (`btfrig_runner::dome::run_controlled`):
 //! pause between steps and resume, progress with an ETA of the remaining rig time, abort that
 //! keeps the committed view groups for the same request to resume, and a device fault that
-//! pauses the engine until it is resumed (instead of ending the session).
+//! pauses the engine until it is resumed, or ends a session that stops on faults as paused.
 
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -179,9 +179,19 @@ fn a_device_fault_pauses_the_dome_run_until_resumed_unless_the_session_stops_on_
     assert!(events.iter().any(|e| matches!(e, RunEvent::Resumed)));
     assert!(s.stopped.is_none());
     assert_eq!((s.textures, s.frames), (2 * 198, STEPS as u64));
-    // The same fault ends a session that stops on faults (`btfrig run`), naming the step.
+    // The same fault ends a session that stops on faults (`btfrig run`) as paused, naming the
+    // step in the summary and the report; the same request without the fault resumes.
     let _ = std::fs::remove_dir_all(dir.join("data"));
-    let e = run(&req, &mut |_| {}).unwrap_err().to_string();
-    assert!(e.contains("step 29") && e.contains("led_array"), "{e}");
+    let s = run(&req, &mut |_| {}).unwrap_or_else(|e| panic!("{e}"));
+    let Some(RunOutcome::Paused { reason, .. }) = &s.stopped else { panic!("{:?}", s.stopped) };
+    assert!(reason.starts_with("step 29 (rotation 1, Pattern(29)) failed: led_array"), "{reason}");
+    assert_eq!((s.frames, s.textures), (29, 0));
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("data/report.json")).unwrap()).unwrap();
+    assert_eq!((r["status"].as_str(), r["captures"].as_u64()), (Some("paused"), Some(0)), "{r}");
+    assert_eq!((r["paused_step"]["index"].as_u64(), r["paused_step"]["device"].as_str()), (Some(29), Some("led_array")));
+    let s = run(&request(&dir, Some("none")), &mut |_| {}).unwrap_or_else(|e| panic!("{e}"));
+    assert!(s.stopped.is_none());
+    assert_eq!((s.frames, s.textures), (STEPS as u64, 2 * 198));
     let _ = std::fs::remove_dir_all(&dir);
 }

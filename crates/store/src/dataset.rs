@@ -565,8 +565,9 @@ pub struct DatasetInfo {
     pub files: usize,
     /// Sum of the journaled steps' wall times, seconds.
     pub step_wall_s: f64,
-    /// Sum of the journaled steps' hardware times, seconds (steps that report one).
-    pub step_hardware_s: f64,
+    /// Sum of the journaled steps' hardware times, seconds, over the steps that report one;
+    /// `None` when none does (a dome's textures: the rig time is per view group, in the report).
+    pub step_hardware_s: Option<f64>,
     /// A torn journal tail (a killed run not yet resumed).
     pub torn_tail: Option<TornTail>,
     /// True if `report.json` exists and its `status` is `finished` (or absent).
@@ -615,7 +616,10 @@ impl std::fmt::Display for DatasetInfo {
             self.done, self.expected, self.skipped_in_run, self.retries
         )?;
         writeln!(f, "size      {} files, {:.1} MB", self.files, self.bytes_on_disk as f64 / 1e6)?;
-        write!(f, "timing    steps: {:.1} s wall, {:.1} s hardware", self.step_wall_s, self.step_hardware_s)?;
+        write!(f, "timing    steps: {:.1} s wall", self.step_wall_s)?;
+        if let Some(h) = self.step_hardware_s {
+            write!(f, ", {h:.1} s hardware")?;
+        }
         if let Some(t) = &m.timing {
             write!(f, "; run: {:.1} s wall", t.wall_s)?;
             if let Some(h) = t.hardware_s {
@@ -687,7 +691,11 @@ pub fn info_in<S: Storage + ?Sized>(s: &S) -> Result<DatasetInfo, StoreError> {
         bytes_on_disk: files.iter().map(|f| f.1).sum(),
         files: files.len(),
         step_wall_s: replay.done.values().map(|r| r.timing.wall_s).sum(),
-        step_hardware_s: replay.done.values().filter_map(|r| r.timing.hardware_s).sum(),
+        step_hardware_s: replay
+            .done
+            .values()
+            .filter_map(|r| r.timing.hardware_s)
+            .fold(None, |sum, h| Some(sum.unwrap_or(0.0) + h)),
         torn_tail: replay.torn_tail,
         finished: report.is_some() && stopped.is_none(),
         stopped,
