@@ -467,7 +467,18 @@ fn hidden_markers_fall_back_with_a_warning_or_stop_the_run_naming_the_step() {
 
 #[test]
 fn ctrl_c_commits_the_frames_in_flight_exits_130_and_resumes() {
-    let dir = scratch("sigint");
+    signal_commits_the_frames_in_flight_and_resumes("INT", 130);
+}
+
+/// SIGTERM (a service manager stopping the run, `timeout`) stops a run as Ctrl-C does; the
+/// exit code and the report name it.
+#[test]
+fn sigterm_commits_the_frames_in_flight_exits_143_and_resumes() {
+    signal_commits_the_frames_in_flight_and_resumes("TERM", 143);
+}
+
+fn signal_commits_the_frames_in_flight_and_resumes(signal: &str, code: i32) {
+    let dir = scratch(&format!("sig{}", signal.to_lowercase()));
     let plan = tiny_plan(&dir, 11);
     let out = dir.join("dataset");
     let child = btfrig()
@@ -485,7 +496,7 @@ fn ctrl_c_commits_the_frames_in_flight_exits_130_and_resumes() {
         assert!(started.elapsed().as_secs() < 120, "no captures after 120 s");
         std::thread::sleep(std::time::Duration::from_millis(20));
     }
-    let status = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
+    let status = Command::new("kill").args([&format!("-{signal}"), &child.id().to_string()]).status().unwrap();
     assert!(status.success());
     let o = child.wait_with_output().unwrap();
     let r = report(&out);
@@ -494,9 +505,10 @@ fn ctrl_c_commits_the_frames_in_flight_exits_130_and_resumes() {
         assert!(o.status.success(), "{}", text(&o));
         return;
     }
-    assert_eq!(o.status.code(), Some(130), "{}", text(&o));
+    assert_eq!(o.status.code(), Some(code), "{}", text(&o));
     assert!(String::from_utf8_lossy(&o.stderr).contains("run the same command again"), "{}", text(&o));
-    assert_eq!(r["status"], "interrupted", "{r}");
+    let reason = format!("interrupted (SIG{signal})");
+    assert_eq!((r["status"].as_str(), r["reason"].as_str()), (Some("interrupted"), Some(reason.as_str())), "{r}");
     let done = r["captures"].as_u64().unwrap();
     assert!((2..12).contains(&done), "{r}");
     // Everything journaled is on disk and hashes match: the in-flight frames were committed

@@ -248,7 +248,7 @@ fn sigterm_pauses_the_run_resumably_and_the_same_request_resumes_it() {
     let status = d.terminate();
     assert!(status.success(), "btfrig serve exit after SIGTERM: {status}");
     let report: serde_json::Value = serde_json::from_slice(&std::fs::read(data.join("kept/report.json")).unwrap()).unwrap();
-    assert_eq!(report["status"], "interrupted", "{report}");
+    assert_eq!((report["status"].as_str(), report["reason"].as_str()), (Some("interrupted"), Some("interrupted (SIGTERM)")), "{report}");
     let before = read_journal(&data.join("kept")).committed().len();
     assert!((3..16).contains(&before), "captured before SIGTERM: {before}");
 

@@ -4,12 +4,13 @@
 //! Exit codes (also in docs/engine.md): 0 the plan is complete (or was already); 1 an error
 //! (bad plan, another dataset in `--out`, I/O); 2 bad command-line usage; 3 the run paused on
 //! a fault no retry helps (fix the cause, run the same command again to resume); 130
-//! interrupted by Ctrl-C (SIGINT) after committing the frames in flight (resumable).
+//! interrupted by Ctrl-C (SIGINT), 143 by SIGTERM, after committing the frames in flight
+//! (resumable).
 
 use std::io::Write;
 use std::process::ExitCode;
 
-use btfrig_runner::{RunControl, RunEvent, RunOutcome, RunRequest, RunSummary};
+use btfrig_runner::{RunControl, RunEvent, RunOutcome, RunRequest, RunSummary, Signal};
 
 use crate::args::RunArgs;
 
@@ -19,8 +20,6 @@ pub const EXIT_PAUSED: u8 = 3;
 const INJECTED_HINT: &str =
     "(the simulated rig's fault scenario injected this fault; it recurs on every resume unless you add --faults none)";
 
-/// Exit code of a run interrupted by SIGINT (128 + 2, the shell's convention).
-pub const EXIT_INTERRUPTED: u8 = 130;
 
 /// `btfrig run`.
 pub fn run(a: &RunArgs) -> anyhow::Result<ExitCode> {
@@ -79,7 +78,7 @@ fn run_dome(a: &RunArgs, plan_text: String) -> anyhow::Result<ExitCode> {
         preview: false,
     };
     let control = RunControl::new();
-    watch_ctrl_c(control.clone());
+    watch_signals(control.clone());
     let mut progress = Progress { dome: true, ..Progress::default() };
     let result = btfrig_runner::dome::run_controlled(&req, &control, true, &mut |line| println!("{line}"), &mut |e| {
         progress.show(e)
@@ -105,11 +104,15 @@ fn run_dome(a: &RunArgs, plan_text: String) -> anyhow::Result<ExitCode> {
         }
         Some(_) => {}
     }
+    let signal = match &s.stopped {
+        Some(RunOutcome::Interrupted(signal)) => *signal,
+        _ => Signal::Int,
+    };
     eprintln!(
         "btfrig: interrupted after the step under way ({textures} of {total} textures committed; a view group not yet \
          complete is captured again on resume); run the same command again to resume:\n  {command}"
     );
-    Ok(ExitCode::from(EXIT_INTERRUPTED))
+    Ok(ExitCode::from(signal.exit_code()))
 }
 
 /// The model a run builds while it captures: `--compress` if given, else the plan's
@@ -140,10 +143,11 @@ pub fn model_to_build(
     Ok(Plan::from_toml(plan_text, "plan").ok().and_then(|p| p.outputs.compressed_model.model().ok().flatten()))
 }
 
-/// Runs a request with the progress display on stderr and Ctrl-C wired to a clean stop.
+/// Runs a request with the progress display on stderr and Ctrl-C / SIGTERM wired to a clean
+/// stop.
 pub fn execute(req: &RunRequest) -> anyhow::Result<RunSummary> {
     let control = RunControl::new();
-    watch_ctrl_c(control.clone());
+    watch_signals(control.clone());
     let mut progress = Progress::default();
     let summary = btfrig_runner::run(req, &control, &mut |e| progress.show(e))?;
     progress.end_line();
@@ -179,12 +183,13 @@ pub fn finish(s: &RunSummary, command: &str) -> ExitCode {
             eprintln!("Fix the cause and run the same command again to resume:\n  {command}");
             ExitCode::from(EXIT_PAUSED)
         }
-        RunOutcome::Interrupted | RunOutcome::Aborted => {
+        RunOutcome::Interrupted(_) | RunOutcome::Aborted => {
             eprintln!(
                 "btfrig: interrupted after committing the frames in flight ({} of {} captures done); run the same command again to resume:\n  {command}",
                 s.captures, s.planned_captures
             );
-            ExitCode::from(EXIT_INTERRUPTED)
+            let signal = if let RunOutcome::Interrupted(signal) = s.outcome { signal } else { Signal::Int };
+            ExitCode::from(signal.exit_code())
         }
     }
 }
@@ -261,24 +266,41 @@ pub fn registration_line(s: &RunSummary) -> String {
     line
 }
 
-/// First Ctrl-C: stop cleanly (the runner commits the frames in flight and writes the
-/// report); a second one exits at once (the journal keeps the run resumable anyway).
-fn watch_ctrl_c(control: RunControl) {
+/// The first SIGINT (Ctrl-C) or SIGTERM stops the run cleanly (the runner commits the frames
+/// in flight and writes the report, which names the signal); a second one exits at once with
+/// the signal's code (the journal keeps the run resumable anyway).
+fn watch_signals(control: RunControl) {
     std::thread::spawn(move || {
         let Ok(rt) = tokio::runtime::Builder::new_current_thread().enable_all().build() else {
             return;
         };
         rt.block_on(async {
-            if tokio::signal::ctrl_c().await.is_err() {
-                return;
-            }
-            eprintln!("\nbtfrig: Ctrl-C: finishing the frames in flight, then stopping (Ctrl-C again to quit at once)");
-            control.interrupt();
-            if tokio::signal::ctrl_c().await.is_ok() {
-                std::process::exit(i32::from(EXIT_INTERRUPTED));
+            let Some(first) = next_signal().await else { return };
+            let what = if first == Signal::Int { "Ctrl-C" } else { first.name() };
+            eprintln!("\nbtfrig: {what}: finishing the frames in flight, then stopping ({what} again to quit at once)");
+            control.interrupt(first);
+            if let Some(second) = next_signal().await {
+                std::process::exit(i32::from(second.exit_code()));
             }
         });
     });
+}
+
+/// The next SIGINT or SIGTERM; `None` when they cannot be watched.
+async fn next_signal() -> Option<Signal> {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{signal, SignalKind};
+        let mut term = signal(SignalKind::terminate()).ok()?;
+        tokio::select! {
+            _ = term.recv() => Some(Signal::Term),
+            r = tokio::signal::ctrl_c() => r.ok().map(|()| Signal::Int),
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        tokio::signal::ctrl_c().await.ok().map(|()| Signal::Int)
+    }
 }
 
 /// The progress line on stderr: captures (a dome run: steps) done/total, ETA, current step.

@@ -512,16 +512,20 @@ pub async fn serve(cfg: ServeConfig) -> Result<(), ServeError> {
     let shutdown_state = state.clone();
     axum::serve(listener, app)
         .with_graceful_shutdown(async move {
-            shutdown_signal().await;
-            eprintln!("shutting down: interrupting the run under way (its dataset stays resumable)");
+            let signal = shutdown_signal().await;
+            eprintln!(
+                "shutting down on {}: interrupting the run under way (its dataset stays resumable)",
+                signal.name()
+            );
             let s = shutdown_state.clone();
-            let _ = tokio::task::spawn_blocking(move || s.runs.interrupt_and_wait()).await;
+            let _ = tokio::task::spawn_blocking(move || s.runs.interrupt_and_wait(signal)).await;
         })
         .await?;
     Ok(())
 }
 
-async fn shutdown_signal() {
+/// Waits for SIGTERM or SIGINT and says which came.
+async fn shutdown_signal() -> btfrig_runner::Signal {
     #[cfg(unix)]
     {
         use tokio::signal::unix::{signal, SignalKind};
@@ -530,12 +534,13 @@ async fn shutdown_signal() {
             Err(_) => return std::future::pending().await,
         };
         tokio::select! {
-            _ = term.recv() => {}
-            _ = tokio::signal::ctrl_c() => {}
+            _ = term.recv() => btfrig_runner::Signal::Term,
+            _ = tokio::signal::ctrl_c() => btfrig_runner::Signal::Int,
         }
     }
     #[cfg(not(unix))]
     {
         let _ = tokio::signal::ctrl_c().await;
+        btfrig_runner::Signal::Int
     }
 }

@@ -250,7 +250,7 @@ impl Run {
                 s.state = match &summary.outcome {
                     RunOutcome::Finished | RunOutcome::NothingToDo => RunState::Finished,
                     RunOutcome::Aborted => RunState::Aborted,
-                    RunOutcome::Interrupted => RunState::Interrupted,
+                    RunOutcome::Interrupted(_) => RunState::Interrupted,
                     // The daemon keeps paused runs waiting, so a session that ends paused
                     // ended on a fault the engine could not wait out.
                     RunOutcome::Paused { .. } => RunState::Failed,
@@ -280,7 +280,7 @@ impl Run {
                 s.state = match &summary.stopped {
                     None | Some(RunOutcome::Finished | RunOutcome::NothingToDo) => RunState::Finished,
                     Some(RunOutcome::Aborted) => RunState::Aborted,
-                    Some(RunOutcome::Interrupted) => RunState::Interrupted,
+                    Some(RunOutcome::Interrupted(_)) => RunState::Interrupted,
                     // A dome session does not end paused (the daemon keeps the engine waiting).
                     Some(RunOutcome::Paused { .. }) => RunState::Failed,
                 };
@@ -472,10 +472,11 @@ impl Runs {
         Ok(run)
     }
 
-    /// Interrupts the current run (shutdown) and waits until it has committed and reported.
-    pub fn interrupt_and_wait(&self) {
+    /// Interrupts the current run (shutdown on `signal`) and waits until it has committed and
+    /// reported.
+    pub fn interrupt_and_wait(&self, signal: btfrig_runner::Signal) {
         let Some(run) = self.current() else { return };
-        run.control.interrupt();
+        run.control.interrupt(signal);
         // Stopping waits for the frames in flight; a paused engine takes the interrupt too.
         let t = run.thread.lock().unwrap_or_else(|e| e.into_inner()).take();
         if let Some(t) = t {

@@ -174,11 +174,11 @@ fn a_dome_run_starts_pauses_resumes_and_completes_into_a_dataset_that_verifies()
     assert_eq!(r.status, 201, "{}", r.text());
     let id = r.json()["id"].as_str().unwrap().to_string();
     wait_for(&d, &id, "a step", |s| n(&s["done"]) >= 1);
-    d.state.runs.interrupt_and_wait();
+    d.state.runs.interrupt_and_wait(btfrig_runner::Signal::Term);
     let end = d.get(&format!("/api/v1/runs/{id}"));
     assert_eq!(end["state"], "interrupted", "{end}");
     assert!(n(&end["done"]) < STEPS, "{end}");
     let report = d.get("/api/v1/datasets/dome-2/files/report.json");
-    assert_eq!(report["status"], "interrupted", "{report}");
+    assert_eq!((report["status"].as_str(), report["reason"].as_str()), (Some("interrupted"), Some("interrupted (SIGTERM)")), "{report}");
     eprintln!("dome runs through the API: {:.1} s", t0.elapsed().as_secs_f64());
 }

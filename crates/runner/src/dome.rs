@@ -605,8 +605,11 @@ async fn listen(
                     }
                     Some(Command::Pause) => DomeCommand::Pause,
                     Some(Command::Resume) => DomeCommand::Resume,
-                    Some(c @ (Command::Abort | Command::Interrupt)) => {
-                        let end = if c == Command::Abort { RunOutcome::Aborted } else { RunOutcome::Interrupted };
+                    Some(c @ (Command::Abort | Command::Interrupt(_))) => {
+                        let end = match c {
+                            Command::Interrupt(signal) => RunOutcome::Interrupted(signal),
+                            _ => RunOutcome::Aborted,
+                        };
                         if stop.outcome.is_none() {
                             on_event(&RunEvent::Stopping { reason: end.reason().unwrap_or_default() });
                             stop.outcome = Some(end);

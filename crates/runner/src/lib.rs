@@ -244,7 +244,35 @@ enum Command {
     Pause,
     Resume,
     Abort,
-    Interrupt,
+    Interrupt(Signal),
+}
+
+/// The signal that interrupted a run ([`RunControl::interrupt`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Signal {
+    /// SIGINT (Ctrl-C).
+    Int,
+    /// SIGTERM (a service manager, `kill`, the daemon's shutdown).
+    Term,
+}
+
+impl Signal {
+    /// The signal's name, e.g. `SIGTERM`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Signal::Int => "SIGINT",
+            Signal::Term => "SIGTERM",
+        }
+    }
+
+    /// The exit code of a process this signal stopped: 128 + its number (the shell's
+    /// convention): 130 for SIGINT, 143 for SIGTERM.
+    pub fn exit_code(self) -> u8 {
+        match self {
+            Signal::Int => 128 + 2,
+            Signal::Term => 128 + 15,
+        }
+    }
 }
 
 /// Steers a run from outside, from any thread: clone it, hand one clone to [`run`].
@@ -283,9 +311,9 @@ impl RunControl {
         let _ = self.tx.send(Command::Abort);
     }
 
-    /// As [`RunControl::abort`], reported as `interrupted` (Ctrl-C, SIGINT).
-    pub fn interrupt(&self) {
-        let _ = self.tx.send(Command::Interrupt);
+    /// As [`RunControl::abort`], reported as `interrupted` by `signal`.
+    pub fn interrupt(&self, signal: Signal) {
+        let _ = self.tx.send(Command::Interrupt(signal));
     }
 
     fn take(&self) -> Option<mpsc::UnboundedReceiver<Command>> {
@@ -417,8 +445,8 @@ pub enum RunOutcome {
         /// The failed step.
         fault: Option<Fault>,
     },
-    /// Interrupted (Ctrl-C); resumable.
-    Interrupted,
+    /// Interrupted by a signal (Ctrl-C, SIGTERM); resumable.
+    Interrupted(Signal),
     /// Aborted on request; resumable.
     Aborted,
 }
@@ -429,7 +457,7 @@ impl RunOutcome {
         match self {
             RunOutcome::Finished | RunOutcome::NothingToDo => "finished",
             RunOutcome::Paused { .. } => "paused",
-            RunOutcome::Interrupted => "interrupted",
+            RunOutcome::Interrupted(_) => "interrupted",
             RunOutcome::Aborted => "aborted",
         }
     }
@@ -438,7 +466,7 @@ impl RunOutcome {
     pub fn reason(&self) -> Option<String> {
         match self {
             RunOutcome::Paused { reason, .. } => Some(reason.clone()),
-            RunOutcome::Interrupted => Some("interrupted (SIGINT)".into()),
+            RunOutcome::Interrupted(signal) => Some(format!("interrupted ({})", signal.name())),
             RunOutcome::Aborted => Some("aborted on request".into()),
             _ => None,
         }
@@ -1224,8 +1252,11 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
                     None => commands_open = false,
                     Some(Command::Pause) => handle.pause(),
                     Some(Command::Resume) => handle.resume(),
-                    Some(c @ (Command::Abort | Command::Interrupt)) => {
-                        let end = if c == Command::Abort { RunOutcome::Aborted } else { RunOutcome::Interrupted };
+                    Some(c @ (Command::Abort | Command::Interrupt(_))) => {
+                        let end = match c {
+                            Command::Interrupt(signal) => RunOutcome::Interrupted(signal),
+                            _ => RunOutcome::Aborted,
+                        };
                         if stop.is_none() {
                             on_event(&RunEvent::Stopping { reason: end.reason().unwrap_or_default() });
                             stop = Some(end);

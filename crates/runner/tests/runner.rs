@@ -36,12 +36,12 @@ fn an_interrupted_run_resumes_and_the_report_covers_both_sessions() {
     let mut events = Vec::new();
     let first = run(&req, &control, &mut |e| {
         if matches!(e, RunEvent::Progress { .. }) {
-            c.interrupt();
+            c.interrupt(btfrig_runner::Signal::Int);
         }
         events.push(e.clone());
     })
     .unwrap();
-    assert_eq!(first.outcome, RunOutcome::Interrupted);
+    assert_eq!(first.outcome, RunOutcome::Interrupted(btfrig_runner::Signal::Int));
     assert!(matches!(events[0], RunEvent::Started { resumed: false, to_do: 12, total: 12, .. }), "{events:?}");
     assert!(events.iter().any(|e| matches!(e, RunEvent::Stopping { .. })));
     assert!(first.captures >= 1 && first.captures < 12, "{first:?}");

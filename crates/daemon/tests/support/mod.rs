@@ -64,7 +64,7 @@ pub struct Daemon {
     pub port: u16,
     pub data: PathBuf,
     /// What the handlers share (e.g. for what `serve` does on SIGTERM:
-    /// `state.runs.interrupt_and_wait()`).
+    /// `state.runs.interrupt_and_wait(Signal::Term)`).
     pub state: Arc<AppState>,
 }
 
