@@ -1,6 +1,6 @@
 //! Errors of the colour numerics.
 
-use crate::model::ModelKind;
+use crate::kind::ModelKind;
 
 /// What went wrong in a fit or an evaluation; each variant names the offending input.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

@@ -2,7 +2,8 @@
 
 use crate::delta_e::delta_e_2000;
 use crate::error::ColorError;
-use crate::model::{ColorModel, FitOptions, ModelKind};
+use crate::kind::ModelKind;
+use crate::model::{ColorModel, FitOptions};
 use crate::space::{linear_srgb_to_lab, xyz_to_lab};
 
 /// The space a model's targets are in, which says how to turn them into L*a*b*.

@@ -26,6 +26,7 @@
 pub mod delta_e;
 pub mod error;
 pub mod eval;
+pub mod kind;
 pub mod model;
 pub mod space;
 
@@ -35,4 +36,5 @@ pub use eval::{
     cross_validate, evaluate, screen_patches, screen_weights, select_model, valid_indices, DeltaEStats, ModelReport,
     PatchStatus, ScreenOptions, Selection, TargetSpace,
 };
-pub use model::{ColorModel, FitOptions, ModelKind, WhiteConstraint};
+pub use kind::ModelKind;
+pub use model::{ColorModel, FitOptions, WhiteConstraint};

@@ -164,7 +164,7 @@ pub fn check_for_rig(text: &str, file: &Path, rig: &RigConfig) -> Result<Checked
             CheckedPlan::Gonio { plan: Box::new(plan), validated: Box::new(validated) }
         }
         PlanKind::Dome => {
-            let (plan, plan_rig, _) = crate::dome::load(text, file)?;
+            let (plan, plan_rig, _) = crate::plan::load_dome(text, file)?;
             CheckedPlan::Dome { plan: Box::new(plan), rig: Box::new(plan_rig) }
         }
     };

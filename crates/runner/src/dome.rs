@@ -30,9 +30,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use btfrig_calib::rectify::Filter;
-use btfrig_core::config::RigConfig;
 use btfrig_core::plan::dome::{DomePlan, ValidatedDomePlan};
-use btfrig_core::plan::BUILTIN_RIGS;
 use btfrig_engine::dome::{
     run_dome as drive, DomeCapture, DomeCommand, DomeControl, DomeDevices, DomeEvent, DomePauseReason, DomeSettings,
 };
@@ -174,30 +172,6 @@ fn input(what: &str, e: impl std::fmt::Display) -> RunError {
     RunError::Input { what: what.into(), message: e.to_string() }
 }
 
-/// Loads and validates a dome plan and its rig config.
-pub fn load(text: &str, file: &Path) -> Result<(ValidatedDomePlan, RigConfig, String), RunError> {
-    let origin = file.display().to_string();
-    let plan = DomePlan::from_toml(text, &origin).map_err(|e| input(&origin, e))?;
-    let name = plan.rig.config.clone();
-    let rig_text = match BUILTIN_RIGS.iter().find(|(n, _)| *n == name) {
-        Some((_, t)) => t.to_string(),
-        None if name.starts_with("builtin:") => {
-            let known: Vec<&str> = BUILTIN_RIGS.iter().map(|(n, _)| *n).collect();
-            return Err(input("rig.config", format!("{name:?} is unknown: allowed {}", known.join(", "))));
-        }
-        None => {
-            let p = file.parent().unwrap_or(Path::new(".")).join(&name);
-            std::fs::read_to_string(&p).map_err(|source| RunError::Read { path: p, source })?
-        }
-    };
-    let mut rig = RigConfig::from_toml(&rig_text, &name).map_err(|e| input("rig.config", e))?;
-    if let Some(seed) = plan.rig.seed {
-        rig.rig.seed = seed;
-    }
-    let v = plan.validate(&rig).map_err(|e| input(&origin, e))?;
-    Ok((v, rig, rig_text))
-}
-
 /// Squared error and squared truth summed over a texture: pooled over many textures, their
 /// ratio's root is the relative RMSE (dim grazing LEDs do not dominate it as a mean of
 /// per-texture ratios would).
@@ -235,6 +209,9 @@ fn snr(measured: &[f32], truth: &[f32]) -> f64 {
     (s / n as f64) / (e / n as f64).sqrt()
 }
 
+/// A texture's texels, row-major RGB.
+type Texture = Vec<[f32; 3]>;
+
 /// Projects one view group's textures (one per light, `size² x 3` values each) onto their own
 /// leading `terms` light-basis vectors (`btfrig_mux::denoise`); `skip` lights (faulty) are
 /// left out of the fit and unchanged. The projection runs on the textures divided by
@@ -242,11 +219,11 @@ fn snr(measured: &[f32], truth: &[f32]) -> f64 {
 /// is about equal for every light, while in the textures a grazing LED's is many times a
 /// facing one's, and the noisiest lights would take the leading basis vectors for themselves.
 fn denoise_group(
-    texes: Vec<Vec<[f32; 3]>>,
-    scales: &[Vec<[f32; 3]>],
+    texes: Vec<Texture>,
+    scales: &[Texture],
     terms: usize,
     skip: &[bool],
-) -> Result<(Vec<Vec<[f32; 3]>>, btfrig_mux::Projection), btfrig_mux::MuxError> {
+) -> Result<(Vec<Texture>, btfrig_mux::Projection), btfrig_mux::MuxError> {
     let n = texes.len();
     let safe = |s: f32| if s.is_finite() && s > 0.0 { s } else { 1.0 };
     let mut rows: Vec<f32> = texes
@@ -289,7 +266,7 @@ pub fn run_controlled(
     on_event: &mut dyn FnMut(&RunEvent),
 ) -> Result<DomeRunSummary, RunError> {
     let wall = Instant::now();
-    let (v, rig, rig_text) = load(&req.plan_text, &req.plan_path)?;
+    let (v, rig, rig_text) = crate::plan::load_dome(&req.plan_text, &req.plan_path)?;
     let base = req.plan_path.parent().unwrap_or(Path::new("."));
     let fault_name = req.faults.clone().unwrap_or_else(|| v.plan.fault_scenario.clone());
     let faults = crate::plan::fault_scenario(&fault_name, base, "fault_scenario")?;

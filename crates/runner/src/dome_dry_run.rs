@@ -161,7 +161,7 @@ fn forcing(v: &ValidatedDomePlan, mode: Mode) -> ValidatedDomePlan {
 /// The dry run of the dome plan `text` (from `file`, which names it in errors and resolves
 /// relative rig configs).
 pub fn dry_run(text: &str, file: &Path) -> Result<DomeDryRun, RunError> {
-    let (v, rig, _) = crate::dome::load(text, file)?;
+    let (v, rig, _) = crate::plan::load_dome(text, file)?;
     let material = crate::plan::dome_material(v.plan.rig.material.as_deref(), file)?;
     let scene = DomeScene::new(&rig, &material)
         .map_err(|e| RunError::Input { what: "dome scene".into(), message: e.to_string() })?;
@@ -306,7 +306,7 @@ impl DomeDryRun {
 
 /// `btfrig plan check` on a dome plan: the one-paragraph summary.
 pub fn check_lines(text: &str, file: &Path) -> Result<Vec<String>, RunError> {
-    let (v, rig, _) = crate::dome::load(text, file)?;
+    let (v, rig, _) = crate::plan::load_dome(text, file)?;
     let dome = rig
         .require_dome("the dome plan check")
         .map_err(|e| RunError::Input { what: "rig".into(), message: e.to_string() })?;

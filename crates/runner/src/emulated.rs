@@ -145,9 +145,10 @@ fn check_kinds(devices: &DevicesConfig, allow_real: bool) -> Result<(), String> 
         let o = link_options(role, e)?;
         if !e.is_emulated() {
             if role == "camera" {
-                return Err(format!(
+                return Err(
                     "devices.camera: a PTP camera over USB is not selectable in a rig config yet; set [devices.camera.link] emulated = true, or kind = \"sim\" (attached cameras: `btfrig hw probe`)"
-                ));
+                        .into(),
+                );
             }
             let Some(port) = &o.port else {
                 return Err(format!(

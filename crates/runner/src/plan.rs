@@ -6,6 +6,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use btfrig_core::config::RigConfig;
+use btfrig_core::plan::dome::{DomePlan, ValidatedDomePlan};
 use btfrig_core::plan::{
     CaptureList, ExposurePolicy, MaterialRef, OutputFormat, Plan, PlanContext, SkipReason, ValidatedPlan, BUILTIN_RIGS,
 };
@@ -56,6 +57,35 @@ pub fn load_text(text: &str, file: &Path) -> Result<(Plan, ValidatedPlan), RunEr
         e
     })?;
     Ok((plan, validated))
+}
+
+/// Loads and validates a dome plan (`file` names it in errors and resolves a relative rig
+/// config) and its rig config; returns the rig config's text too.
+pub fn load_dome(text: &str, file: &Path) -> Result<(ValidatedDomePlan, RigConfig, String), RunError> {
+    let origin = file.display().to_string();
+    let plan = DomePlan::from_toml(text, &origin).map_err(|e| dome_input(&origin, e))?;
+    let name = plan.rig.config.clone();
+    let rig_text = match BUILTIN_RIGS.iter().find(|(n, _)| *n == name) {
+        Some((_, t)) => t.to_string(),
+        None if name.starts_with("builtin:") => {
+            let known: Vec<&str> = BUILTIN_RIGS.iter().map(|(n, _)| *n).collect();
+            return Err(dome_input("rig.config", format!("{name:?} is unknown: allowed {}", known.join(", "))));
+        }
+        None => {
+            let p = file.parent().unwrap_or(Path::new(".")).join(&name);
+            std::fs::read_to_string(&p).map_err(|source| RunError::Read { path: p, source })?
+        }
+    };
+    let mut rig = RigConfig::from_toml(&rig_text, &name).map_err(|e| dome_input("rig.config", e))?;
+    if let Some(seed) = plan.rig.seed {
+        rig.rig.seed = seed;
+    }
+    let v = plan.validate(&rig).map_err(|e| dome_input(&origin, e))?;
+    Ok((v, rig, rig_text))
+}
+
+fn dome_input(what: &str, e: impl std::fmt::Display) -> RunError {
+    RunError::Input { what: what.into(), message: e.to_string() }
 }
 
 /// Loads an embedded material by name, or a material file if `name` ends in `.toml`
