@@ -312,8 +312,8 @@ mod tests {
         let img = LinearImage { width: cam.width, height: cam.height, data };
         let pts = square_points(0.03, 0.001);
         let s = lambertian_signal(&img, &cam, &pose, 1.5, &r, &pts).unwrap();
-        for c in 0..3 {
-            assert!((s.mean[c] / (w[c] * rho) - 1.0).abs() < 2e-4, "{s:?}");
+        for (mean, wc) in s.mean.iter().zip(w) {
+            assert!((mean / (wc * rho) - 1.0).abs() < 2e-4, "{s:?}");
         }
         assert!(s.points < s.offered && s.points > s.offered / 2, "{s:?}");
         // Lamp behind the plane: nothing usable, a named error.

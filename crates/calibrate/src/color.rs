@@ -519,7 +519,7 @@ fn run(
     let joints = scenes[0].gonio().ik(light, view).map_err(|e| rig(format!("chart view unreachable: {e}")))?;
     let meter_exposure = scenes[0].exposure_for_white(0.3, 1e-4, 30.0);
     let (meter, _) = scenes[0]
-        .capture(&joints, 1.0, meter_exposure, 1.0, seed ^ 0x4D45_5445_52, &opts)
+        .capture(&joints, 1.0, meter_exposure, 1.0, seed ^ 0x4D_45_54_45_52, &opts)
         .map_err(|e| rig(format!("metering capture: {e}")))?;
     let registrar = PlateRegistrar::new(camera.clone(), &cfg.plate, Default::default())
         .map_err(|e| rig(format!("registrar: {e}")))?;

@@ -86,7 +86,7 @@ fn colour_calibration_cuts_a_materials_colour_error() {
         let (frame, _) = scene.capture(&joints, 1.0, exposure, 1.0, 21, &RenderOptions::default()).unwrap();
         let step = StepId { light: 0, view: 0 };
         let run = |c: Option<ColorCorrection>| {
-            let p = Processor::new(scene.clone(), &cfg.plate, settings.clone())
+            let p = Processor::new(scene.clone(), &cfg.plate, settings)
                 .unwrap()
                 .with_camera(cam.clone())
                 .unwrap()

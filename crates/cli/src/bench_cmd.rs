@@ -19,8 +19,11 @@ use nalgebra::{Matrix3, Point2};
 use crate::args::BenchRegistrationArgs;
 use crate::bench_registration::{Bench, Frame, SettingResult, FILTERS};
 
-/// (name, light, view) in degrees: the poses every material is timed at.
-const POSES: [(&str, (f64, f64), (f64, f64)); 3] = [
+/// A timed pose: (name, light (theta, phi), view (theta, phi)), angles in degrees.
+type Pose = (&'static str, (f64, f64), (f64, f64));
+
+/// The poses every material is timed at.
+const POSES: [Pose; 3] = [
     ("frontal", (45.0, 0.0), (0.0, 0.0)),
     ("oblique", (30.0, 120.0), (45.0, 0.0)),
     ("grazing", (75.0, 90.0), (75.0, 270.0)),

@@ -341,9 +341,10 @@ fn cluster_errors(model: &Model, btf: &SimBtf) -> Vec<ClusterError> {
     let kc = cl.iter().map(|&j| j as usize + 1).max().unwrap_or(0);
     let mut sums = vec![(0usize, [0.0f64; 5]); kc];
     for (x, &j) in cl.iter().enumerate() {
-        sums[j as usize].0 += 1;
-        for i in 0..5 {
-            sums[j as usize].1[i] += te[x][i];
+        let (count, sum) = &mut sums[j as usize];
+        *count += 1;
+        for (s, e) in sum.iter_mut().zip(te[x]) {
+            *s += e;
         }
     }
     let mut out: Vec<ClusterError> = sums

@@ -524,7 +524,7 @@ impl<T: Real> Builder<T> {
         let fill = self.layout.fill_weights();
         let precision = self.params.precision;
         let parts = std::mem::take(&mut self.parts);
-        let mut fmf: Vec<(usize, Vec<f32>, Vec<f32>, Vec<f32>, nalgebra::DMatrix<f64>)> = parts
+        let mut fmf: Vec<ChannelFmf> = parts
             .into_par_iter()
             .map(|pb| {
                 let svd = pb.rsvd.finish()?;
@@ -761,6 +761,10 @@ pub fn check_finite(light: u32, view: u32, texels: &[[f32; 3]], width: usize) ->
     }
     Ok(())
 }
+
+/// One channel's FMF, precision-rounded: `(channel, mean, basis U, singular values, SV)`
+/// (see [`crate::rsvd::Svd`]).
+type ChannelFmf = (usize, Vec<f32>, Vec<f32>, Vec<f32>, nalgebra::DMatrix<f64>);
 
 /// The callback a [`RowSource`] feeds: `(light, view, texels)`.
 pub type RowSink<'a> = dyn FnMut(u32, u32, &[[f32; 3]]) -> Result<()> + 'a;

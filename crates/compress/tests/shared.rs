@@ -21,6 +21,9 @@ fn layout(w: usize) -> Layout {
     Layout::full(s("l"), s("v"), w, w)
 }
 
+/// One material family: its mean and its directions, each as RGB weights of the span functions.
+type Family = (Vec<[f32; 3]>, Vec<Vec<[f32; 3]>>);
+
 /// Texels of `families` materials (texel x in family `x % families`), each an affine family of
 /// rank `r` per channel whose angular functions are combinations of `span` shared random
 /// functions: a BTF of exactly the shared-basis form with K = `span` (the centred data spans
@@ -33,7 +36,7 @@ fn families(l: &Layout, families: usize, r: usize, span: usize, seed: u64) -> Bt
     // Per family: a mean and r directions, each a combination of the span.
     let combo =
         |rng: &mut ChaCha8Rng| -> Vec<[f32; 3]> { (0..span).map(|_| [rng.gen(), rng.gen(), rng.gen()]).collect() };
-    let fam: Vec<(Vec<[f32; 3]>, Vec<Vec<[f32; 3]>>)> =
+    let fam: Vec<Family> =
         (0..families).map(|_| (combo(&mut rng), (0..r).map(|_| combo(&mut rng)).collect())).collect();
     // Small texel coefficients: the families lie apart (k-means finds them; local PCA from a
     // bad start can stop in a local minimum, as any local PCA).
@@ -155,8 +158,8 @@ fn two_level(model: &Model, a: usize, x: usize) -> [f64; 3] {
         let mut v = f64::from(sh.mean[a]);
         for i in 0..sh.k {
             let mut ci = f64::from(sh.cluster_mean[j][i]);
-            for q in 0..t {
-                ci += f64::from(sh.cluster_basis[j][i * t + q]) * f64::from(tx[q]);
+            for (b, c) in sh.cluster_basis[j][i * t..(i + 1) * t].iter().zip(tx) {
+                ci += f64::from(*b) * f64::from(*c);
             }
             v += f64::from(sh.w[a * sh.k + i]) * ci;
         }

@@ -184,6 +184,8 @@ const UNDISTORT_TOL_PX: f64 = 1e-10;
 impl CameraModel {
     /// Builds and checks a camera: positive size and focal lengths, finite parameters, and a
     /// distortion that does not fold over inside the image.
+    // The eight arguments are the camera's own parameters, named at every call site.
+    #[allow(clippy::too_many_arguments)]
     pub fn new(
         width: usize,
         height: usize,

@@ -215,7 +215,7 @@ role = "operator"
         assert!(Auth::from_toml(short, "f").unwrap_err().contains("at least 8 characters"));
         let role = "[[token]]\nname = \"a\"\ntoken = \"long-enough\"\nrole = \"root\"\n";
         assert!(Auth::from_toml(role, "f").unwrap_err().contains("viewer"), "{}", Auth::from_toml(role, "f").unwrap_err());
-        let twice = format!("{short}").replace("short", "same-token-1") + &short.replace("short", "same-token-1");
+        let twice = short.replace("short", "same-token-1").repeat(2);
         assert!(Auth::from_toml(&twice, "f").unwrap_err().contains("unique"));
         assert!(Auth::from_toml("token = []", "f").unwrap_err().contains("no [[token]]"));
     }

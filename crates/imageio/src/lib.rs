@@ -191,7 +191,7 @@ fn decode_flat_layer(name: &Path, bytes: &[u8]) -> Result<FlatLayer, ImageIoErro
 }
 
 fn channel<'a>(path: &Path, layer: &'a FlatLayer, name: &str) -> Result<&'a FlatSamples, ImageIoError> {
-    layer.channel_data.list.iter().find(|c| c.name == Text::from(name)).map(|c| &c.sample_data).ok_or_else(|| {
+    layer.channel_data.list.iter().find(|c| c.name == *name).map(|c| &c.sample_data).ok_or_else(|| {
         let names: Vec<String> = layer.channel_data.list.iter().map(|c| c.name.to_string()).collect();
         content(path, format!("no channel {name:?} (channels: {})", names.join(", ")))
     })

@@ -102,14 +102,14 @@ fn compare(label: &str, dets: &[Detection], truth: &[(u32, [Point2<f64>; 4])], c
     let (mut sum, mut max, mut n, mut ssum, mut rsum) = (0.0, 0.0f64, 0.0, 0.0, 0.0);
     for d in dets {
         let (_, tc) = visible.iter().find(|(id, _)| *id == d.id).unwrap();
-        for k in 0..4 {
-            let e = (d.corners[k] - tc[k]).norm();
+        for ((found, truth), &sigma) in d.corners.iter().zip(tc.iter()).zip(&d.corner_sigma_px) {
+            let e = (found - truth).norm();
             sum += e;
             max = max.max(e);
             n += 1.0;
-            ssum += d.corner_sigma_px[k];
-            rsum += e / d.corner_sigma_px[k];
-            assert!(d.corner_sigma_px[k].is_finite() && d.corner_sigma_px[k] > 0.0);
+            ssum += sigma;
+            rsum += e / sigma;
+            assert!(sigma.is_finite() && sigma > 0.0);
         }
     }
     Errors { mean: sum / n, max, mean_sigma: ssum / n, mean_ratio: rsum / n }

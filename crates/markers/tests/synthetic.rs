@@ -95,11 +95,11 @@ fn drawn_markers_in_every_rotation_give_ids_and_corners_in_canonical_order() {
         assert_eq!(d.len(), 1, "angle {angle_deg}: {d:?}");
         assert_eq!(d[0].id as usize, id, "angle {angle_deg}");
         assert_eq!(d[0].hamming, 0);
-        for j in 0..4 {
-            let e = (d[0].corners[j] - q[j]).norm();
+        for (j, (found, truth)) in d[0].corners.iter().zip(&q).enumerate() {
+            let e = (found - truth).norm();
             worst = worst.max(e);
             // Pins the pixel-centre convention too: a half-pixel shift would fail here.
-            assert!(e < 0.08, "angle {angle_deg} corner {j}: {} vs {} ({e} px)", d[0].corners[j], q[j]);
+            assert!(e < 0.08, "angle {angle_deg} corner {j}: {found} vs {truth} ({e} px)");
         }
     }
     println!("drawn markers: worst corner error {worst:.4} px");

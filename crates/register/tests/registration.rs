@@ -238,10 +238,8 @@ fn a_wrong_marker_is_rejected_whole() {
         let rig = rig();
         let victim = obs[0].marker;
         let other = rig.markers.iter().find(|m| m.id == (victim + 6) % 12).expect("12 markers");
-        let mut k = 0;
-        for c in obs.iter_mut().filter(|c| c.marker == victim) {
+        for (k, c) in obs.iter_mut().filter(|c| c.marker == victim).enumerate() {
             c.plane = other.corners_sample_m[k];
-            k += 1;
         }
     };
     let views: Vec<Direction> = common::bonn_views().into_iter().step_by(5).collect();

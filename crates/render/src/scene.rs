@@ -120,9 +120,9 @@ impl Scene {
         let n = material.texels;
         let k = basis.camera.len();
         let mut albedo = [vec![[0.0f32; 3]; n * n], vec![[0.0f32; 3]; n * n]];
-        for t in 0..n * n {
+        for (t, &glossy) in material.glossy.iter().enumerate() {
             let w = &material.weights[t * k..(t + 1) * k];
-            let diffuse = 1.0 - material.glossy[t] as f64;
+            let diffuse = 1.0 - glossy as f64;
             for (space, cols) in [&basis.camera, &basis.output].into_iter().enumerate() {
                 let mut acc = [0.0f64; 3];
                 for (wb, col) in w.iter().zip(cols) {

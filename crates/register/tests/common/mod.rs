@@ -76,7 +76,7 @@ pub fn joints_for(rig: &Rig, view: Direction, start: usize) -> JointState {
 
 /// True joints: commanded plus `scale` times (offset + jitter N(0, 1)), per axis.
 pub fn true_joints(rig: &Rig, commanded: &JointState, scale: f64, rng: &mut ChaCha8Rng) -> JointState {
-    let mut j = commanded.clone();
+    let mut j = *commanded;
     for k in 0..3 {
         let n: f64 = rng.sample(StandardNormal);
         j.robot[k] += (scale * (rig.robot_offset[k] + rig.robot_jitter[k] * n)).to_radians();
