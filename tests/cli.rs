@@ -769,12 +769,24 @@ fn a_device_fault_pauses_a_dome_run_exits_3_and_resumes_with_the_fault_gone() {
     let o = run(btfrig().args(["run", "--plan"]).arg(&plan).arg("--out").arg(&out).arg("--faults").arg(&faults));
     assert_eq!(o.status.code(), Some(3), "{}", text(&o));
     let err = String::from_utf8_lossy(&o.stderr);
-    for needle in ["PAUSED", "198 of 396 textures committed", "step 299 (rotation 5", "led_array", "internal fault", "--faults none", "run the same command again"] {
+    for needle in [
+        "PAUSED",
+        "198 of 396 textures committed",
+        "step 299 (rotation 5",
+        "led_array",
+        "internal fault",
+        "--faults none",
+        "run the same command again",
+    ] {
         assert!(err.contains(needle), "{needle:?} missing:\n{err}");
     }
     let r = report(&out);
     assert_eq!((r["status"].as_str(), r["captures"].as_u64()), (Some("paused"), Some(198)), "{r}");
-    assert_eq!((r["paused_step"]["index"].as_u64(), r["paused_step"]["device"].as_str()), (Some(299), Some("led_array")), "{r}");
+    assert_eq!(
+        (r["paused_step"]["index"].as_u64(), r["paused_step"]["device"].as_str()),
+        (Some(299), Some("led_array")),
+        "{r}"
+    );
     only_incomplete(&out);
     let again = ok(btfrig().args(["run", "--plan"]).arg(&plan).arg("--out").arg(&out).args(["--faults", "none"]));
     assert!(again.contains("textures          198 (198 LEDs x 2 views), 199 frames per camera"), "{again}");

@@ -141,7 +141,8 @@ fn a_whole_run_through_the_api_with_events_pause_resume_and_download() {
     assert_eq!(&pv.body[..8], b"\x89PNG\r\n\x1a\n");
     assert!(pv.header("x-preview-seq").unwrap().parse::<u64>().unwrap() >= 1);
     let list = d.get("/api/v1/datasets", "viewer-token").json();
-    let entry = list["datasets"].as_array().unwrap().iter().find(|e| e["name"] == "whole").expect("dataset listed").clone();
+    let entry =
+        list["datasets"].as_array().unwrap().iter().find(|e| e["name"] == "whole").expect("dataset listed").clone();
     assert_eq!(entry["state"], "finished");
     assert_eq!(entry["plan"], "serve-test");
     let manifest = d.get("/api/v1/datasets/whole", "viewer-token").json();
@@ -153,7 +154,11 @@ fn a_whole_run_through_the_api_with_events_pause_resume_and_download() {
         for (file, _) in files {
             let got = d.get(&format!("/api/v1/datasets/whole/files/{file}"), "viewer-token");
             assert_eq!(got.status, 200, "{file}");
-            assert_eq!(got.body, std::fs::read(data.join("whole").join(file)).unwrap(), "{file} downloaded byte for byte");
+            assert_eq!(
+                got.body,
+                std::fs::read(data.join("whole").join(file)).unwrap(),
+                "{file} downloaded byte for byte"
+            );
         }
     }
     // No way out of the data directory.
@@ -222,7 +227,9 @@ fn every_write_endpoint_answers_401_403_and_409() {
     assert_eq!(stop.json()["run_id"], "r1");
     d.wait_run("r1", "viewer-token", 120, "aborted", |s| s["state"] == "aborted");
     // Bad bodies are problem documents, not panics.
-    for (body, status) in [("{", 400), (r#"{"plan": 3}"#, 422), (r#"{"plan":"demo","plan_text":"x"}"#, 422), (r#"{"plan":"nope"}"#, 404)] {
+    for (body, status) in
+        [("{", 400), (r#"{"plan": 3}"#, 422), (r#"{"plan":"demo","plan_text":"x"}"#, 422), (r#"{"plan":"nope"}"#, 404)]
+    {
         let r = d.post("/api/v1/runs", "operator-ada", body);
         assert_eq!(r.status, status, "{body}: {}", r.text());
         assert_eq!(r.header("content-type"), Some("application/problem+json"));
@@ -247,8 +254,13 @@ fn sigterm_pauses_the_run_resumably_and_the_same_request_resumes_it() {
     d.wait_run("r1", "viewer-token", 120, "capturing", |s| s["done"].as_u64().unwrap_or(0) >= 3);
     let status = d.terminate();
     assert!(status.success(), "btfrig serve exit after SIGTERM: {status}");
-    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(data.join("kept/report.json")).unwrap()).unwrap();
-    assert_eq!((report["status"].as_str(), report["reason"].as_str()), (Some("interrupted"), Some("interrupted (SIGTERM)")), "{report}");
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(data.join("kept/report.json")).unwrap()).unwrap();
+    assert_eq!(
+        (report["status"].as_str(), report["reason"].as_str()),
+        (Some("interrupted"), Some("interrupted (SIGTERM)")),
+        "{report}"
+    );
     let before = read_journal(&data.join("kept")).committed().len();
     assert!((3..16).contains(&before), "captured before SIGTERM: {before}");
 

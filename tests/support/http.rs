@@ -49,7 +49,8 @@ fn write_request(s: &mut TcpStream, method: &str, path: &str, token: Option<&str
 fn read_head(r: &mut BufReader<TcpStream>) -> (u16, Vec<(String, String)>) {
     let mut line = String::new();
     r.read_line(&mut line).unwrap();
-    let status: u16 = line.split_whitespace().nth(1).and_then(|s| s.parse().ok()).unwrap_or_else(|| panic!("status line {line:?}"));
+    let status: u16 =
+        line.split_whitespace().nth(1).and_then(|s| s.parse().ok()).unwrap_or_else(|| panic!("status line {line:?}"));
     let mut headers = Vec::new();
     loop {
         line.clear();
@@ -151,7 +152,14 @@ impl Daemon {
     }
 
     /// Polls the run until `pred` holds on its status (or panics after `secs`).
-    pub fn wait_run(&self, id: &str, token: &str, secs: u64, what: &str, pred: impl Fn(&serde_json::Value) -> bool) -> serde_json::Value {
+    pub fn wait_run(
+        &self,
+        id: &str,
+        token: &str,
+        secs: u64,
+        what: &str,
+        pred: impl Fn(&serde_json::Value) -> bool,
+    ) -> serde_json::Value {
         let t0 = Instant::now();
         loop {
             let s = self.get(&format!("/api/v1/runs/{id}"), token).json();

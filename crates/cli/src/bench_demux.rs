@@ -18,8 +18,8 @@
 use std::time::Instant;
 
 use btfrig_mux::{
-    Accumulate, Demultiplexer, DemultiplexerParams, DemuxParams, Demuxer, DenseLayout, Engine, LeastSquares, LsParams, Method,
-    Par, PatternModel, SMatrix, SourceState,
+    Accumulate, Demultiplexer, DemultiplexerParams, DemuxParams, Demuxer, DenseLayout, Engine, LeastSquares, LsParams,
+    Method, Par, PatternModel, SMatrix, SourceState,
 };
 use rayon::prelude::*;
 
@@ -219,7 +219,8 @@ pub fn run_order(n: usize, cols: usize, repeat: usize, fast_only: bool) -> anyho
     // The vector transform without AVX-512, where the default uses it.
     let dflt = Demuxer::new(&s, &DemuxParams { method: Some(fast_method), ..Default::default() })?;
     if dflt.vector_isa() == Some("avx512") {
-        configs.push((DemuxParams { method: Some(fast_method), engine: Engine::VectorAvx2, ..Default::default() }, false));
+        configs
+            .push((DemuxParams { method: Some(fast_method), engine: Engine::VectorAvx2, ..Default::default() }, false));
     }
     // The generic code the pixel-vectorised transforms replaced: radix-4 FWHT passes over
     // whole tiles; rustfft at the same Rader length, the tile transposed per column pair.

@@ -82,8 +82,14 @@ pub fn bench(a: &BenchServeArgs) -> anyhow::Result<()> {
     let result = (|| {
         let mut line = String::new();
         BufReader::new(daemon.stdout.take().context("daemon stdout")?).read_line(&mut line)?;
-        let port: u16 = line.trim().rsplit(':').next().and_then(|p| p.parse().ok()).with_context(|| format!("daemon said {line:?}"))?;
-        let plan = include_str!("../../../rig-configs/plans/demo.toml").replace("max_captures = 60", &format!("max_captures = {}", a.captures));
+        let port: u16 = line
+            .trim()
+            .rsplit(':')
+            .next()
+            .and_then(|p| p.parse().ok())
+            .with_context(|| format!("daemon said {line:?}"))?;
+        let plan = include_str!("../../../rig-configs/plans/demo.toml")
+            .replace("max_captures = 60", &format!("max_captures = {}", a.captures));
         let mut rows = Vec::new();
         for pair in 0..a.pairs {
             for loaded in [false, true] {
@@ -163,7 +169,10 @@ pub fn bench(a: &BenchServeArgs) -> anyhow::Result<()> {
         "bench serve: {} captures per run (demo plan), {} requests/s to {} from a second process, {} pairs",
         a.captures, a.rate, a.path, a.pairs
     );
-    println!("{:<6} {:>10} {:>9} {:>9} {:>9} {:>9} {:>9} {:>7}", "run", "wall s", "requests", "rate/s", "p50 ms", "p99 ms", "max ms", "errors");
+    println!(
+        "{:<6} {:>10} {:>9} {:>9} {:>9} {:>9} {:>9} {:>7}",
+        "run", "wall s", "requests", "rate/s", "p50 ms", "p99 ms", "max ms", "errors"
+    );
     for (loaded, wall, stats) in &rows {
         match stats {
             Some(v) => println!(
@@ -248,15 +257,22 @@ impl Conn {
     }
 
     fn call(&mut self, method: &str, path: &str, body: Option<&str>) -> anyhow::Result<(u16, String)> {
-        let mut req = format!("{method} {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nAuthorization: Bearer {}\r\n", self.token);
+        let mut req =
+            format!("{method} {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nAuthorization: Bearer {}\r\n", self.token);
         match body {
-            Some(b) => req.push_str(&format!("Content-Type: application/json\r\nContent-Length: {}\r\n\r\n{b}", b.len())),
+            Some(b) => {
+                req.push_str(&format!("Content-Type: application/json\r\nContent-Length: {}\r\n\r\n{b}", b.len()))
+            }
             None => req.push_str("\r\n"),
         }
         self.w.write_all(req.as_bytes())?;
         let mut line = String::new();
         self.r.read_line(&mut line)?;
-        let status: u16 = line.split_whitespace().nth(1).and_then(|s| s.parse().ok()).with_context(|| format!("status line {line:?}"))?;
+        let status: u16 = line
+            .split_whitespace()
+            .nth(1)
+            .and_then(|s| s.parse().ok())
+            .with_context(|| format!("status line {line:?}"))?;
         let mut len = 0usize;
         loop {
             line.clear();

@@ -3,8 +3,8 @@
 mod args;
 mod bench_cmd;
 mod bench_color;
-mod bench_demux;
 mod bench_compress;
+mod bench_demux;
 mod bench_registration;
 mod bench_serve;
 mod calibrate_cmd;

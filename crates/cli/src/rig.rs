@@ -37,10 +37,9 @@ pub fn builtin(path: &Path) -> Option<&'static str> {
         return None;
     }
     let name = path.to_str()?.trim_start_matches("builtin:");
-    BUILTIN_RIGS
-        .iter()
-        .map(|(n, _)| *n)
-        .find(|n| {
-            *n == format!("builtin:{name}") || *n == format!("builtin:bonn-{name}") || *n == format!("builtin:bonn-{name}-sim")
-        })
+    BUILTIN_RIGS.iter().map(|(n, _)| *n).find(|n| {
+        *n == format!("builtin:{name}")
+            || *n == format!("builtin:bonn-{name}")
+            || *n == format!("builtin:bonn-{name}-sim")
+    })
 }

@@ -20,7 +20,6 @@ pub const EXIT_PAUSED: u8 = 3;
 const INJECTED_HINT: &str =
     "(the simulated rig's fault scenario injected this fault; it recurs on every resume unless you add --faults none)";
 
-
 /// `btfrig run`.
 pub fn run(a: &RunArgs) -> anyhow::Result<ExitCode> {
     let text =

@@ -536,10 +536,7 @@ impl<T: Real> Builder<T> {
             })
             .collect::<Result<_>>()?;
         fmf.sort_by_key(|f| f.0);
-        let init = cluster(
-            &fmf[0].4,
-            &self.cluster_params(clusters),
-        );
+        let init = cluster(&fmf[0].4, &self.cluster_params(clusters));
         let coef: Vec<nalgebra::DMatrix<f64>> = fmf.iter().map(|f| f.4.clone()).collect();
         let fit = crate::shared::fit(&coef, &init, self.params.terms, self.params.shared_iters, precision);
         let mut channels = Vec::new();
@@ -581,10 +578,7 @@ impl<T: Real> Builder<T> {
         let Method::Pcmf { clusters, .. } = self.params.method else { unreachable!("clustering only for PCMF") };
         let first = self.parts.pop().expect("the clustering part");
         let svd = first.rsvd.finish()?;
-        let assign = cluster(
-            &svd.sv,
-            &self.cluster_params(clusters),
-        );
+        let assign = cluster(&svd.sv, &self.cluster_params(clusters));
         self.start_parts(&assign)
     }
 

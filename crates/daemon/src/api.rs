@@ -16,8 +16,8 @@ use serde::{Deserialize, Serialize};
 use utoipa::{OpenApi, ToSchema};
 
 use crate::auth::{Caller, Role};
-use crate::problem::Problem;
 use crate::calibrations::{Calibration, StartCalibration};
+use crate::problem::Problem;
 use crate::runs::{Control, ProgressUnit, RunState, RunStatus, ServerEvent, StartRequest};
 use crate::AppState;
 
@@ -59,10 +59,13 @@ impl<T: serde::de::DeserializeOwned, S: Send + Sync> FromRequest<S> for ApiJson<
                     StatusCode::UNSUPPORTED_MEDIA_TYPE,
                     "the body must be JSON: send Content-Type: application/json",
                 ),
-                JsonRejection::BytesRejection(_) if e.status() == StatusCode::PAYLOAD_TOO_LARGE => {
-                    Problem::new(StatusCode::PAYLOAD_TOO_LARGE, format!("the body is larger than {} bytes", crate::BODY_LIMIT))
+                JsonRejection::BytesRejection(_) if e.status() == StatusCode::PAYLOAD_TOO_LARGE => Problem::new(
+                    StatusCode::PAYLOAD_TOO_LARGE,
+                    format!("the body is larger than {} bytes", crate::BODY_LIMIT),
+                ),
+                JsonRejection::JsonDataError(d) => {
+                    Problem::unprocessable(format!("the body does not fit the schema: {}", d.body_text()))
                 }
-                JsonRejection::JsonDataError(d) => Problem::unprocessable(format!("the body does not fit the schema: {}", d.body_text())),
                 _ => Problem::bad_request(format!("the body is not valid JSON: {}", e.body_text())),
             }),
         }
@@ -431,7 +434,11 @@ pub enum AuthErrors {
     #[response(status = 401, description = "No or unknown token", content_type = "application/problem+json")]
     Unauthorized(Problem),
     /// Role too low (or another operator's run).
-    #[response(status = 403, description = "Role too low, or another operator's run", content_type = "application/problem+json")]
+    #[response(
+        status = 403,
+        description = "Role too low, or another operator's run",
+        content_type = "application/problem+json"
+    )]
     Forbidden(Problem),
 }
 
@@ -449,7 +456,11 @@ pub enum BodyErrors {
     #[response(status = 415, description = "Not application/json", content_type = "application/problem+json")]
     NotJson(Problem),
     /// Does not fit the schema (or, on start, an unacceptable plan or dataset name).
-    #[response(status = 422, description = "Does not fit the schema, or the plan or dataset name is not acceptable", content_type = "application/problem+json")]
+    #[response(
+        status = 422,
+        description = "Does not fit the schema, or the plan or dataset name is not acceptable",
+        content_type = "application/problem+json"
+    )]
     Unprocessable(Problem),
 }
 
@@ -487,7 +498,10 @@ impl utoipa::Modify for BearerScheme {
     fn modify(&self, openapi: &mut utoipa::openapi::OpenApi) {
         use utoipa::openapi::security::{HttpAuthScheme, HttpBuilder, SecurityScheme};
         let components = openapi.components.get_or_insert_with(Default::default);
-        components.add_security_scheme("bearer", SecurityScheme::Http(HttpBuilder::new().scheme(HttpAuthScheme::Bearer).build()));
+        components.add_security_scheme(
+            "bearer",
+            SecurityScheme::Http(HttpBuilder::new().scheme(HttpAuthScheme::Bearer).build()),
+        );
     }
 }
 
@@ -512,7 +526,8 @@ pub fn document() -> serde_json::Value {
         ]
     });
     // A dataset file is JSON, PNG, EXR, TOML or the journal: its type follows its name.
-    paths["/api/v1/datasets/{name}/files/{path}"]["get"]["responses"]["200"]["content"] = serde_json::json!({ "*/*": {} });
+    paths["/api/v1/datasets/{name}/files/{path}"]["get"]["responses"]["200"]["content"] =
+        serde_json::json!({ "*/*": {} });
     paths["/api/v1/preview"]["get"]["responses"]["200"]["content"] = serde_json::json!({ "image/png": {} });
     doc
 }
@@ -604,7 +619,11 @@ pub async fn dry_run_plan(State(s): Shared, _v: Viewer, ApiJson(b): ApiJson<Plan
         (status = 409, description = "The rig is held (the detail says by whom), or the dataset holds another plan", body = Problem, content_type = "application/problem+json"),
         BodyErrors))]
 /// Starts a run of a plan (or resumes the same plan's dataset).
-pub async fn start_run(State(s): Shared, Operator(c): Operator, ApiJson(b): ApiJson<StartRun>) -> Result<Response, Problem> {
+pub async fn start_run(
+    State(s): Shared,
+    Operator(c): Operator,
+    ApiJson(b): ApiJson<StartRun>,
+) -> Result<Response, Problem> {
     let (plan_text, plan_path, given_name) = s.plan_source(b.plan, b.plan_text)?;
     let (text, path, st) = (plan_text.clone(), plan_path.clone(), s.clone());
     let checked = tokio::task::spawn_blocking(move || btfrig_runner::check::check_for_rig(&text, &path, &st.rig))
@@ -711,7 +730,11 @@ async fn control(s: &AppState, c: &Caller, id: &str, what: Control) -> Result<Js
         PathErrors,
         (status = 409, description = "The run's state does not allow it", body = Problem, content_type = "application/problem+json")))]
 /// Pauses a run after the step under way.
-pub async fn pause_run(State(s): Shared, Operator(c): Operator, ApiPath(id): ApiPath<String>) -> Result<Json<RunStatus>, Problem> {
+pub async fn pause_run(
+    State(s): Shared,
+    Operator(c): Operator,
+    ApiPath(id): ApiPath<String>,
+) -> Result<Json<RunStatus>, Problem> {
     control(&s, &c, &id, Control::Pause).await
 }
 
@@ -722,7 +745,11 @@ pub async fn pause_run(State(s): Shared, Operator(c): Operator, ApiPath(id): Api
         PathErrors,
         (status = 409, description = "The run is not paused", body = Problem, content_type = "application/problem+json")))]
 /// Resumes a paused run.
-pub async fn resume_run(State(s): Shared, Operator(c): Operator, ApiPath(id): ApiPath<String>) -> Result<Json<RunStatus>, Problem> {
+pub async fn resume_run(
+    State(s): Shared,
+    Operator(c): Operator,
+    ApiPath(id): ApiPath<String>,
+) -> Result<Json<RunStatus>, Problem> {
     control(&s, &c, &id, Control::Resume).await
 }
 
@@ -733,7 +760,11 @@ pub async fn resume_run(State(s): Shared, Operator(c): Operator, ApiPath(id): Ap
         PathErrors,
         (status = 409, description = "The run is over or already stopping", body = Problem, content_type = "application/problem+json")))]
 /// Aborts a run after the step under way.
-pub async fn abort_run(State(s): Shared, Operator(c): Operator, ApiPath(id): ApiPath<String>) -> Result<Json<RunStatus>, Problem> {
+pub async fn abort_run(
+    State(s): Shared,
+    Operator(c): Operator,
+    ApiPath(id): ApiPath<String>,
+) -> Result<Json<RunStatus>, Problem> {
     control(&s, &c, &id, Control::Abort).await
 }
 
@@ -748,7 +779,8 @@ pub async fn run_events(State(s): Shared, _v: Viewer, ApiPath(id): ApiPath<Strin
     let rx = run.subscribe();
     let first = run.status();
     let metrics = s.metrics.clone();
-    let initial = if first.state.is_over() { ServerEvent::End(Box::new(first)) } else { ServerEvent::Status(Box::new(first)) };
+    let initial =
+        if first.state.is_over() { ServerEvent::End(Box::new(first)) } else { ServerEvent::Status(Box::new(first)) };
     // State: the next event to send (the initial status first), the receiver, and whether the end was sent.
     let stream = futures_util::stream::unfold((Some(initial), rx, false), move |(pending, mut rx, ended)| {
         let metrics = metrics.clone();
@@ -768,7 +800,9 @@ pub async fn run_events(State(s): Shared, _v: Viewer, ApiPath(id): ApiPath<Strin
             };
             let (sse, end) = match &ev {
                 ServerEvent::Status(st) => (Event::default().event("status").json_data(st), false),
-                ServerEvent::Warning(w) => (Event::default().event("warning").json_data(serde_json::json!({ "message": w })), false),
+                ServerEvent::Warning(w) => {
+                    (Event::default().event("warning").json_data(serde_json::json!({ "message": w })), false)
+                }
                 ServerEvent::End(st) => (Event::default().event("end").json_data(st), true),
             };
             let sse = sse.unwrap_or_else(|e| Event::default().event("error").data(e.to_string()));
@@ -832,7 +866,9 @@ pub async fn get_dataset_file(
     ApiPath((name, path)): ApiPath<(String, String)>,
 ) -> Result<Response, Problem> {
     let file = s.dataset_file(&name, &path)?;
-    let bytes = tokio::fs::read(&file).await.map_err(|_| Problem::not_found(format!("dataset {name:?} has no file {path:?}")))?;
+    let bytes = tokio::fs::read(&file)
+        .await
+        .map_err(|_| Problem::not_found(format!("dataset {name:?} has no file {path:?}")))?;
     let ct = content_type(&file);
     Ok(([(header::CONTENT_TYPE, ct)], Body::from(bytes)).into_response())
 }
@@ -876,7 +912,11 @@ pub async fn list_calibrations(State(s): Shared, _v: Viewer) -> Json<Calibration
         AuthErrors,
         PathErrors))]
 /// A calibration's state and result.
-pub async fn get_calibration(State(s): Shared, _v: Viewer, ApiPath(id): ApiPath<String>) -> Result<Json<Calibration>, Problem> {
+pub async fn get_calibration(
+    State(s): Shared,
+    _v: Viewer,
+    ApiPath(id): ApiPath<String>,
+) -> Result<Json<Calibration>, Problem> {
     s.calibrations.get(&id).map(Json).ok_or_else(|| Problem::not_found(format!("no calibration {id:?}")))
 }
 
@@ -935,8 +975,8 @@ pub fn relative_inside(rel: &str) -> Result<PathBuf, Problem> {
             Component::CurDir => {}
             _ => {
                 return Err(Problem::bad_request(format!(
-                    "file path {rel:?}: only plain relative paths inside the dataset are allowed (no '..', no leading '/')"
-                )))
+                "file path {rel:?}: only plain relative paths inside the dataset are allowed (no '..', no leading '/')"
+            )))
             }
         }
     }

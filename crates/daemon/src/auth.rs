@@ -201,8 +201,14 @@ role = "operator"
         assert_eq!(e.status, 403);
         assert!(e.detail.contains("viewer has role viewer"), "{}", e.detail);
         assert_eq!(a.check(&Method::POST, &uri, &HeaderMap::new(), Role::Viewer).unwrap_err().status, 401);
-        assert_eq!(a.check(&Method::POST, &uri, &headers("Bearer nope-nope-nope"), Role::Viewer).unwrap_err().status, 401);
-        assert_eq!(a.check(&Method::POST, &uri, &headers("Basic operator-token"), Role::Viewer).unwrap_err().status, 401);
+        assert_eq!(
+            a.check(&Method::POST, &uri, &headers("Bearer nope-nope-nope"), Role::Viewer).unwrap_err().status,
+            401
+        );
+        assert_eq!(
+            a.check(&Method::POST, &uri, &headers("Basic operator-token"), Role::Viewer).unwrap_err().status,
+            401
+        );
         // The query token works for GET only.
         let q: Uri = "/api/v1/preview?access_token=viewer-token".parse().unwrap();
         assert!(a.check(&Method::GET, &q, &HeaderMap::new(), Role::Viewer).is_ok());
@@ -214,7 +220,11 @@ role = "operator"
         let short = "[[token]]\nname = \"a\"\ntoken = \"short\"\nrole = \"admin\"\n";
         assert!(Auth::from_toml(short, "f").unwrap_err().contains("at least 8 characters"));
         let role = "[[token]]\nname = \"a\"\ntoken = \"long-enough\"\nrole = \"root\"\n";
-        assert!(Auth::from_toml(role, "f").unwrap_err().contains("viewer"), "{}", Auth::from_toml(role, "f").unwrap_err());
+        assert!(
+            Auth::from_toml(role, "f").unwrap_err().contains("viewer"),
+            "{}",
+            Auth::from_toml(role, "f").unwrap_err()
+        );
         let twice = short.replace("short", "same-token-1").repeat(2);
         assert!(Auth::from_toml(&twice, "f").unwrap_err().contains("unique"));
         assert!(Auth::from_toml("token = []", "f").unwrap_err().contains("no [[token]]"));

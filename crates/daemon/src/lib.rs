@@ -137,10 +137,14 @@ impl AppState {
             }
             Some(p) => {
                 let text = std::fs::read_to_string(p).map_err(|e| bad(format!("--rig {}: {e}", p.display())))?;
-                (RigConfig::from_toml(&text, &p.display().to_string()).map_err(|e| bad(e.to_string()))?, p.display().to_string())
+                (
+                    RigConfig::from_toml(&text, &p.display().to_string()).map_err(|e| bad(e.to_string()))?,
+                    p.display().to_string(),
+                )
             }
         };
-        std::fs::create_dir_all(&cfg.data).map_err(|e| bad(format!("--data {}: cannot create it: {e}", cfg.data.display())))?;
+        std::fs::create_dir_all(&cfg.data)
+            .map_err(|e| bad(format!("--data {}: cannot create it: {e}", cfg.data.display())))?;
         let (auth, generated) = match &cfg.auth {
             Some(p) => {
                 let text = std::fs::read_to_string(p).map_err(|e| bad(format!("--auth {}: {e}", p.display())))?;
@@ -218,7 +222,11 @@ impl AppState {
     }
 
     /// The plan a body names: (text, file, name given).
-    fn plan_source(&self, plan: Option<String>, text: Option<String>) -> Result<(String, PathBuf, Option<String>), Problem> {
+    fn plan_source(
+        &self,
+        plan: Option<String>,
+        text: Option<String>,
+    ) -> Result<(String, PathBuf, Option<String>), Problem> {
         match (plan, text) {
             (Some(name), None) => {
                 let p = self.plans.iter().find(|p| p.name == name).ok_or_else(|| {
@@ -228,7 +236,9 @@ impl AppState {
                 Ok((p.text.clone(), p.path.clone(), Some(p.name.clone())))
             }
             (None, Some(text)) => Ok((text, self.data.join("api-plan.toml"), None)),
-            _ => Err(Problem::unprocessable("give exactly one of \"plan\" (a name from GET /api/v1/plans) and \"plan_text\" (a plan file's TOML)")),
+            _ => Err(Problem::unprocessable(
+                "give exactly one of \"plan\" (a name from GET /api/v1/plans) and \"plan_text\" (a plan file's TOML)",
+            )),
         }
     }
 
@@ -309,7 +319,11 @@ impl AppState {
     }
 
     fn new_dataset_name(&self, plan: &str) -> String {
-        let stem: String = plan.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '-' }).take(40).collect();
+        let stem: String = plan
+            .chars()
+            .map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '-' })
+            .take(40)
+            .collect();
         let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
         let mut name = format!("{stem}-{secs}");
         let mut k = 2;
@@ -385,7 +399,9 @@ impl AppState {
         let root = self.data.join(name);
         let root = root.canonicalize().map_err(|_| Problem::not_found(format!("no dataset named {name:?}")))?;
         let file = root.join(&rel);
-        let real = file.canonicalize().map_err(|_| Problem::not_found(format!("dataset {name:?} has no file {:?}", rel.display())))?;
+        let real = file
+            .canonicalize()
+            .map_err(|_| Problem::not_found(format!("dataset {name:?} has no file {:?}", rel.display())))?;
         if !real.starts_with(&root) || !real.is_file() {
             return Err(Problem::not_found(format!("dataset {name:?} has no file {:?}", rel.display())));
         }
@@ -498,7 +514,9 @@ pub fn router(state: Arc<AppState>) -> Router {
 pub async fn serve(cfg: ServeConfig) -> Result<(), ServeError> {
     let (state, generated) = AppState::load(&cfg)?;
     let state = Arc::new(state);
-    let listener = tokio::net::TcpListener::bind(cfg.listen).await.map_err(|source| ServeError::Bind { addr: cfg.listen, source })?;
+    let listener = tokio::net::TcpListener::bind(cfg.listen)
+        .await
+        .map_err(|source| ServeError::Bind { addr: cfg.listen, source })?;
     let addr = listener.local_addr()?;
     println!("listening on http://{addr}");
     if let Some(t) = generated {
@@ -507,7 +525,13 @@ pub async fn serve(cfg: ServeConfig) -> Result<(), ServeError> {
             cfg.data.join("daemon-token").display()
         );
     }
-    eprintln!("rig {} ({}), data {}, {} named plans", state.rig.rig.name, state.rig_source, cfg.data.display(), state.plans.len());
+    eprintln!(
+        "rig {} ({}), data {}, {} named plans",
+        state.rig.rig.name,
+        state.rig_source,
+        cfg.data.display(),
+        state.plans.len()
+    );
     let app = router(state.clone());
     let shutdown_state = state.clone();
     axum::serve(listener, app)

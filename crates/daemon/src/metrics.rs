@@ -110,7 +110,12 @@ impl Metrics {
             self.queue_depth.load(Ordering::Relaxed)
         );
         let _ = writeln!(out, "# HELP btfrig_run_active 1 while a run holds the rig.\n# TYPE btfrig_run_active gauge");
-        let _ = writeln!(out, "btfrig_run_active{{state=\"{}\"}} {}", run_state.unwrap_or("none"), u8::from(run_state.is_some()));
+        let _ = writeln!(
+            out,
+            "btfrig_run_active{{state=\"{}\"}} {}",
+            run_state.unwrap_or("none"),
+            u8::from(run_state.is_some())
+        );
         let _ = writeln!(out, "# HELP btfrig_run_progress_ratio Captures (dome runs: steps) done over planned, current run.\n# TYPE btfrig_run_progress_ratio gauge");
         let _ = writeln!(out, "btfrig_run_progress_ratio {}", progress.unwrap_or(0.0));
         let _ = writeln!(
@@ -124,7 +129,10 @@ impl Metrics {
         for (k, v) in stages {
             let _ = writeln!(out, "btfrig_stage_seconds_total{{stage=\"{k}\"}} {v}");
         }
-        let _ = writeln!(out, "# HELP btfrig_http_responses_total Responses by status.\n# TYPE btfrig_http_responses_total counter");
+        let _ = writeln!(
+            out,
+            "# HELP btfrig_http_responses_total Responses by status.\n# TYPE btfrig_http_responses_total counter"
+        );
         for (status, n) in self.http.lock().unwrap_or_else(|e| e.into_inner()).iter() {
             let _ = writeln!(out, "btfrig_http_responses_total{{status=\"{status}\"}} {n}");
         }

@@ -511,10 +511,7 @@ impl Run {
                 Control::Resume => "a paused run",
                 Control::Abort => "a run that is not over or stopping",
             };
-            return Err(Problem::conflict(format!(
-                "run {} is {:?}; {:?} applies only to {allowed}",
-                s.id, s.state, c
-            )));
+            return Err(Problem::conflict(format!("run {} is {:?}; {:?} applies only to {allowed}", s.id, s.state, c)));
         }
         match c {
             Control::Pause => self.control.pause(),

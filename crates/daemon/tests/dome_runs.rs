@@ -179,6 +179,10 @@ fn a_dome_run_starts_pauses_resumes_and_completes_into_a_dataset_that_verifies()
     assert_eq!(end["state"], "interrupted", "{end}");
     assert!(n(&end["done"]) < STEPS, "{end}");
     let report = d.get("/api/v1/datasets/dome-2/files/report.json");
-    assert_eq!((report["status"].as_str(), report["reason"].as_str()), (Some("interrupted"), Some("interrupted (SIGTERM)")), "{report}");
+    assert_eq!(
+        (report["status"].as_str(), report["reason"].as_str()),
+        (Some("interrupted"), Some("interrupted (SIGTERM)")),
+        "{report}"
+    );
     eprintln!("dome runs through the API: {:.1} s", t0.elapsed().as_secs_f64());
 }

@@ -18,7 +18,8 @@ fn main() {
     for len in lens {
         let mut planner = FftPlanner::<f32>::new();
         let f = planner.plan_fft_forward(len);
-        let mut buf: Vec<Complex<f32>> = (0..len * batch).map(|i| Complex::new((i % 7) as f32, (i % 3) as f32)).collect();
+        let mut buf: Vec<Complex<f32>> =
+            (0..len * batch).map(|i| Complex::new((i % 7) as f32, (i % 3) as f32)).collect();
         let mut scratch = vec![Complex::new(0.0, 0.0); f.get_inplace_scratch_len()];
         let reps = 2000;
         let best = (0..5)

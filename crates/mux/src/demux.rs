@@ -309,9 +309,7 @@ impl Demuxer {
                     });
                 }
                 match params.accumulate {
-                    Accumulate::F32
-                        if matches!(params.engine, Engine::Vector | Engine::VectorAvx2) && rader_ok =>
-                    {
+                    Accumulate::F32 if matches!(params.engine, Engine::Vector | Engine::VectorAvx2) && rader_ok => {
                         let wide = params.engine == Engine::Vector;
                         match rader_f64(row).and_then(|r| VecRader::new(r, wide)) {
                             Some(v) => Kernel::FftVec(v),
@@ -501,14 +499,16 @@ impl Demuxer {
                 Accumulate::F32 => fwht_tile_f32(rows, &mut s.r32, dir),
                 Accumulate::F64 => fwht_tile_f64(rows, &mut s.r64, dir),
             }),
-            Kernel::Fft32(k) => {
-                for_each_tile(data, n, cols, self.tile, blocks, |rows, s| k.tile(rows, &mut s.c32, &mut s.f32s, &mut s.x32, dir))
+            Kernel::Fft32(k) => for_each_tile(data, n, cols, self.tile, blocks, |rows, s| {
+                k.tile(rows, &mut s.c32, &mut s.f32s, &mut s.x32, dir)
+            }),
+            Kernel::FwhtVec(k) => {
+                for_each_tile(data, n, cols, self.tile, blocks, |rows, s| k.tile(rows, &mut s.r32, &mut s.v, dir))
             }
-            Kernel::FwhtVec(k) => for_each_tile(data, n, cols, self.tile, blocks, |rows, s| k.tile(rows, &mut s.r32, &mut s.v, dir)),
             Kernel::FftVec(k) => for_each_tile(data, n, cols, self.tile, blocks, |rows, s| k.tile(rows, &mut s.v, dir)),
-            Kernel::Fft64(k) => {
-                for_each_tile(data, n, cols, self.tile, blocks, |rows, s| k.tile(rows, &mut s.c64, &mut s.f64s, &mut s.x32, dir))
-            }
+            Kernel::Fft64(k) => for_each_tile(data, n, cols, self.tile, blocks, |rows, s| {
+                k.tile(rows, &mut s.c64, &mut s.f64s, &mut s.x32, dir)
+            }),
             Kernel::Dense { layout, inv, fwd, inv32, fwd32 } => {
                 let layout = *layout;
                 for_each_tile(data, n, cols, self.tile, blocks, |rows, s| match acc {
@@ -651,7 +651,16 @@ impl<F: Real> FftKernel<F> {
             if let Some(r) = Rader::new(&gd, &km) {
                 let scratch_len = r.scratch_len();
                 let (fwd, inv) = (Arc::clone(&r.fwd), Arc::clone(&r.inv));
-                return FftKernel { n, len, fwd, inv, g_demux: Vec::new(), g_mux: Vec::new(), scratch_len, rader: Some(r) };
+                return FftKernel {
+                    n,
+                    len,
+                    fwd,
+                    inv,
+                    g_demux: Vec::new(),
+                    g_mux: Vec::new(),
+                    scratch_len,
+                    rader: Some(r),
+                };
             }
             // Not a quadratic-residue spectrum (not reached for the constructions here).
             len = padded_len(n);

@@ -53,9 +53,8 @@ pub fn project_onto_own_basis(rows: &mut [f32], n: usize, terms: usize, skip: &[
     // Gram matrix of the fitted rows, in f64 (t can be 10⁵ and more), over column chunks so
     // only an m x CHUNK copy is held.
     let mut g = DMatrix::<f64>::zeros(m, m);
-    let chunk = |rows: &[f32], x0: usize, w: usize| {
-        DMatrix::<f64>::from_fn(m, w, |a, c| f64::from(rows[fit[a] * t + x0 + c]))
-    };
+    let chunk =
+        |rows: &[f32], x0: usize, w: usize| DMatrix::<f64>::from_fn(m, w, |a, c| f64::from(rows[fit[a] * t + x0 + c]));
     for x0 in (0..t).step_by(CHUNK) {
         let c = chunk(rows, x0, CHUNK.min(t - x0));
         g.gemm(1.0, &c, &c.transpose(), 1.0);

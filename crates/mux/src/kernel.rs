@@ -50,4 +50,3 @@ impl Real for f64 {
         self as f32
     }
 }
-

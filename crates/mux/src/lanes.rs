@@ -215,4 +215,3 @@ pub(crate) fn prefetch_run(row: &[f32], c0: usize, n: usize) {
     #[cfg(not(target_arch = "x86_64"))]
     let _ = (row, c0, n);
 }
-

@@ -30,12 +30,12 @@
 //! if there are faults re-solves in the demultiplexed domain: `î = W_f⁺ m = (W_f⁺ S) c`.
 //! Without a fault the fast path's `c_j / a_j` is already the exact solution.
 
-use rayon::prelude::*;
 use nalgebra::{DMatrix, DMatrixView, DMatrixViewMut};
+use rayon::prelude::*;
 
 use crate::demux::{Accumulate, DemuxParams, Demuxer, Method};
-use crate::kernel::Real;
 use crate::error::MuxError;
+use crate::kernel::Real;
 use crate::smatrix::SMatrix;
 use crate::tile::{check_shape, for_each_tile, for_each_tile_io, Par};
 

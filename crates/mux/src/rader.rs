@@ -101,9 +101,7 @@ pub(crate) fn primitive_root(p: usize) -> usize {
     if x > 1 {
         factors.push(x);
     }
-    (2..p as u64)
-        .find(|&g| factors.iter().all(|&f| pow_mod(g, q / f, p as u64) != 1))
-        .map_or(1, |g| g as usize)
+    (2..p as u64).find(|&g| factors.iter().all(|&f| pow_mod(g, q / f, p as u64) != 1)).map_or(1, |g| g as usize)
 }
 
 impl<F: Real> Rader<F> {

@@ -242,7 +242,13 @@ impl<M: Lanes> Sink<M> for RowSink<'_, '_> {
 /// an output array indexed by `k` went through the stack; the inputs' indices are constants
 /// (the inner loop unrolls), so `x` stays in registers.
 #[inline(always)]
-fn dft_odd<const R: usize, M: Lanes, S: Sink<M>>(o: Ops<M>, cos: &[f32], sin: &[f32], x: &mut [C<M::L>; R], out: &mut S) {
+fn dft_odd<const R: usize, M: Lanes, S: Sink<M>>(
+    o: Ops<M>,
+    cos: &[f32],
+    sin: &[f32],
+    x: &mut [C<M::L>; R],
+    out: &mut S,
+) {
     let m = o.0;
     let h = R / 2;
     let (cos, sin) = (&cos[..h * h], &sin[..h * h]);
@@ -754,7 +760,10 @@ fn block<M: Lanes>(
             }
             match st.first() {
                 Some(s0) => {
-                    by_radix!(s0.radix, stage_inv::<M>(o, s0, q, shape(s0), Some((&mut *rows, c0)), &mut *buf, &mut None))
+                    by_radix!(
+                        s0.radix,
+                        stage_inv::<M>(o, s0, q, shape(s0), Some((&mut *rows, c0)), &mut *buf, &mut None)
+                    )
                 }
                 None => {
                     for (e, row) in buf[..q].iter().zip(rows.iter_mut()) {
@@ -799,7 +808,8 @@ fn tile_impl<M: Lanes>(o: Ops<M>, k: &VecRader, md: &Middle, rows: &mut [&mut [f
         {
             let mut slots: Vec<Option<&mut [f32]>> = pad.chunks_exact_mut(bw).map(Some).collect();
             let row0 = slots[0].take().expect("row 0");
-            let mut prows: Vec<&mut [f32]> = k.row_of.iter().map(|&r| slots[r].take().expect("a permutation")).collect();
+            let mut prows: Vec<&mut [f32]> =
+                k.row_of.iter().map(|&r| slots[r].take().expect("a permutation")).collect();
             block(o, k, md, row0, &mut prows, 0, None, buf);
         }
         for (src, row) in pad.chunks_exact(bw).zip(rows.iter_mut()) {
@@ -902,7 +912,11 @@ mod probe {
                 best = best.min(t.elapsed().as_secs_f64());
             }
             let per_col = best / (reps * cols) as f64;
-            println!("p {p}: {:.1} ns per column, {:.0} cycles per 16-column block at 3.6 GHz", per_col * 1e9, per_col * 16.0 * 3.6e9);
+            println!(
+                "p {p}: {:.1} ns per column, {:.0} cycles per 16-column block at 3.6 GHz",
+                per_col * 1e9,
+                per_col * 16.0 * 3.6e9
+            );
         }
     }
 }

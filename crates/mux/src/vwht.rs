@@ -377,7 +377,11 @@ mod tests {
                             for r in 0..n {
                                 let want: f64 = (0..n)
                                     .map(|j| {
-                                        let a = if dir == Dir::Demux { inv[r * n + j] } else { f64::from(dense[r * n + j]) };
+                                        let a = if dir == Dir::Demux {
+                                            inv[r * n + j]
+                                        } else {
+                                            f64::from(dense[r * n + j])
+                                        };
                                         a * f64::from(data[j * cols + c])
                                     })
                                     .sum();

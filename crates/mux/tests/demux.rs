@@ -230,12 +230,15 @@ fn cyclic_fft_lengths_match_the_dense_f64_closed_form() {
                 };
                 assert!(err < tol, "order {n} length {len} {acc:?}: demux rel err {err:e} > {tol:e}");
                 assert!(err_mux < tol, "order {n} length {len} {acc:?}: mux rel err {err_mux:e} > {tol:e}");
-                eprintln!("order {n} fft length {len} {acc:?} {engine:?}: rel. max error demux {err:.2e}, mux {err_mux:.2e}");
+                eprintln!(
+                    "order {n} fft length {len} {acc:?} {engine:?}: rel. max error demux {err:.2e}, mux {err_mux:.2e}"
+                );
             }
         }
     }
     // The Rader length is for prime orders only.
     let tp = SMatrix::twin_prime(11).unwrap();
-    let e = Demuxer::new(&tp, &DemuxParams { method: Some(Method::Fft), fft_len: 142, ..Default::default() }).unwrap_err();
+    let e =
+        Demuxer::new(&tp, &DemuxParams { method: Some(Method::Fft), fft_len: 142, ..Default::default() }).unwrap_err();
     assert!(e.to_string().contains("at least 2n - 1"), "{e}");
 }

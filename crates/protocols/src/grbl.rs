@@ -165,9 +165,8 @@ pub fn parse_command(line: &[u8]) -> Result<Command, DecodeError> {
         _ => {}
     }
     if let Some(rest) = upper.strip_prefix('$') {
-        let (id, value) = rest
-            .split_once('=')
-            .ok_or_else(|| DecodeError::malformed("setting", "expected $N=V", line))?;
+        let (id, value) =
+            rest.split_once('=').ok_or_else(|| DecodeError::malformed("setting", "expected $N=V", line))?;
         let id = id.parse().map_err(|_| DecodeError::malformed("setting", "bad setting number", line))?;
         return Ok(Command::Setting { id, value: decimal("setting value", value)? });
     }
@@ -182,7 +181,8 @@ pub fn parse_command(line: &[u8]) -> Result<Command, DecodeError> {
         }
         let start = i + 1;
         i = start;
-        while i < bytes.len() && (bytes[i].is_ascii_digit() || bytes[i] == b'.' || bytes[i] == b'-' || bytes[i] == b'+') {
+        while i < bytes.len() && (bytes[i].is_ascii_digit() || bytes[i] == b'.' || bytes[i] == b'-' || bytes[i] == b'+')
+        {
             i += 1;
         }
         // Only ASCII bytes here, so the slice is valid UTF-8.
@@ -370,10 +370,15 @@ impl Response {
             Response::Setting { id, value } => format!("${id}={}", format_decimal("setting value", *value, MAX_VALUE)?),
             Response::Status(s) => {
                 if s.mpos.is_empty() || s.mpos.len() > Axis::ALL.len() {
-                    return Err(EncodeError::Value { field: "mpos", value: format!("{} axes", s.mpos.len()), allowed: "1 to 4 axes" });
+                    return Err(EncodeError::Value {
+                        field: "mpos",
+                        value: format!("{} axes", s.mpos.len()),
+                        allowed: "1 to 4 axes",
+                    });
                 }
                 check_text("pins", &s.pins, |c| "XYZAPDHRS".contains(c))?;
-                let pos: Result<Vec<String>, _> = s.mpos.iter().map(|v| format_decimal("mpos", *v, MAX_VALUE)).collect();
+                let pos: Result<Vec<String>, _> =
+                    s.mpos.iter().map(|v| format_decimal("mpos", *v, MAX_VALUE)).collect();
                 let mut t = format!("<{}|MPos:{}", s.state.encode(), pos?.join(","));
                 if let Some(f) = s.feed {
                     t += &format!("|FS:{},0", format_decimal("feed", f, MAX_VALUE)?);
@@ -394,7 +399,11 @@ fn check_text(field: &'static str, value: &str, ok: impl Fn(char) -> bool) -> Re
     if value.chars().all(ok) {
         Ok(())
     } else {
-        Err(EncodeError::Text { field, value: value.to_string(), allowed: "printable ASCII without the framing characters" })
+        Err(EncodeError::Text {
+            field,
+            value: value.to_string(),
+            allowed: "printable ASCII without the framing characters",
+        })
     }
 }
 
@@ -422,7 +431,8 @@ pub fn parse_response(line: &[u8]) -> Result<Response, DecodeError> {
         return Ok(Response::Message(m.to_string()));
     }
     if let Some(rest) = text.strip_prefix('$') {
-        let (id, value) = rest.split_once('=').ok_or_else(|| DecodeError::malformed("setting", "expected $N=V", line))?;
+        let (id, value) =
+            rest.split_once('=').ok_or_else(|| DecodeError::malformed("setting", "expected $N=V", line))?;
         return Ok(Response::Setting { id: number(id, "setting")?, value: decimal("setting value", value)? });
     }
     if let Some(body) = text.strip_prefix('<').and_then(|t| t.strip_suffix('>')) {
@@ -592,8 +602,22 @@ mod tests {
             parse_command(b"g1x10.5f300").unwrap(),
             Command::Move { rapid: false, axis: Axis::X, target: 10.5, feed: Some(300.0) }
         );
-        assert_eq!(parse_command(b"G0 X.5").unwrap(), Command::Move { rapid: true, axis: Axis::X, target: 0.5, feed: None });
-        for bad in [&b"G2 X1"[..], b"G0", b"X10", b"G0 X1 X2", b"G0 Q1", b"G0 Xabc", b"$130", b"$a=1", b"G0 X1e3", b"\xffG0 X1"] {
+        assert_eq!(
+            parse_command(b"G0 X.5").unwrap(),
+            Command::Move { rapid: true, axis: Axis::X, target: 0.5, feed: None }
+        );
+        for bad in [
+            &b"G2 X1"[..],
+            b"G0",
+            b"X10",
+            b"G0 X1 X2",
+            b"G0 Q1",
+            b"G0 Xabc",
+            b"$130",
+            b"$a=1",
+            b"G0 X1e3",
+            b"\xffG0 X1",
+        ] {
             assert!(parse_command(bad).is_err(), "{:?}", String::from_utf8_lossy(bad));
         }
     }
@@ -620,11 +644,21 @@ mod tests {
             (Response::Message("MSG:'$H'|'$X' to unlock".into()), b"[MSG:'$H'|'$X' to unlock]\r\n"),
             (Response::Setting { id: 130, value: 180.0 }, b"$130=180\r\n"),
             (
-                Response::Status(Status { state: State::Idle, mpos: vec![12.5, 0.0, 0.0], feed: Some(0.0), pins: String::new() }),
+                Response::Status(Status {
+                    state: State::Idle,
+                    mpos: vec![12.5, 0.0, 0.0],
+                    feed: Some(0.0),
+                    pins: String::new(),
+                }),
                 b"<Idle|MPos:12.5,0,0|FS:0,0>\r\n",
             ),
             (
-                Response::Status(Status { state: State::Hold(1), mpos: vec![-3.25, 0.0, 0.0], feed: None, pins: "X".into() }),
+                Response::Status(Status {
+                    state: State::Hold(1),
+                    mpos: vec![-3.25, 0.0, 0.0],
+                    feed: None,
+                    pins: "X".into(),
+                }),
                 b"<Hold:1|MPos:-3.25,0,0|Pn:X>\r\n",
             ),
         ];
@@ -637,12 +671,30 @@ mod tests {
     #[test]
     fn real_grbl_status_with_extra_fields() {
         let r = parse_response(b"<Run|MPos:1.000,2.000,3.000|Bf:15,128|FS:500,0|WCO:0.000,0.000,0.000>").unwrap();
-        assert_eq!(r, Response::Status(Status { state: State::Run, mpos: vec![1.0, 2.0, 3.0], feed: Some(500.0), pins: String::new() }));
+        assert_eq!(
+            r,
+            Response::Status(Status {
+                state: State::Run,
+                mpos: vec![1.0, 2.0, 3.0],
+                feed: Some(500.0),
+                pins: String::new()
+            })
+        );
     }
 
     #[test]
     fn malformed_truncated_and_oversized_responses() {
-        for bad in [&b"error:"[..], b"error:x", b"ALARM:-1", b"<Idle>", b"<Bogus|MPos:1>", b"<Idle|MPos:1,,2>", b"okay", b"Grbl ", b"$130"] {
+        for bad in [
+            &b"error:"[..],
+            b"error:x",
+            b"ALARM:-1",
+            b"<Idle>",
+            b"<Bogus|MPos:1>",
+            b"<Idle|MPos:1,,2>",
+            b"okay",
+            b"Grbl ",
+            b"$130",
+        ] {
             assert!(parse_response(bad).is_err(), "{:?}", String::from_utf8_lossy(bad));
         }
         // Truncated: no line end yet, so nothing; the rest completes it.
@@ -654,7 +706,10 @@ mod tests {
         // Oversized then valid.
         let mut long = vec![b'a'; MAX_LINE + 1];
         long.extend_from_slice(b"\nok\n");
-        assert_eq!(decode_all(&long), vec![Err(DecodeError::Oversized { what: "line", limit: MAX_LINE }), Ok(Response::Ok)]);
+        assert_eq!(
+            decode_all(&long),
+            vec![Err(DecodeError::Oversized { what: "line", limit: MAX_LINE }), Ok(Response::Ok)]
+        );
     }
 
     #[test]
@@ -679,7 +734,9 @@ mod tests {
         assert!(Command::Move { rapid: true, axis: Axis::X, target: f64::NAN, feed: None }.encode().is_err());
         assert!(Command::Move { rapid: false, axis: Axis::X, target: 1.0, feed: Some(0.0) }.encode().is_err());
         assert!(Response::Message("a]b".into()).encode().is_err());
-        assert!(Response::Status(Status { state: State::Idle, mpos: vec![], feed: None, pins: String::new() }).encode().is_err());
+        assert!(Response::Status(Status { state: State::Idle, mpos: vec![], feed: None, pins: String::new() })
+            .encode()
+            .is_err());
     }
 
     #[test]

@@ -252,7 +252,11 @@ pub fn parse_reply(line: &[u8]) -> Result<Reply, DecodeError> {
                 let (lo, hi) = dim.split_once(',').ok_or_else(|| bad("dimming range must be min,max or FIXED"))?;
                 Some((decimal("dim min", lo)?, decimal("dim max", hi)?))
             };
-            Reply::Capabilities(LampCaps { shutter: flag(shutter, line)?, dim_range, warm_up_s: decimal("warm-up", warm)? })
+            Reply::Capabilities(LampCaps {
+                shutter: flag(shutter, line)?,
+                dim_range,
+                warm_up_s: decimal("warm-up", warm)?,
+            })
         }
         ("OUTP", [b]) => Reply::On(flag(b, line)?),
         ("SHUT", [b]) => Reply::ShutterOpen(flag(b, line)?),
@@ -265,7 +269,12 @@ pub fn parse_reply(line: &[u8]) -> Result<Reply, DecodeError> {
                 ["WARM", left] => Warm::Warming(decimal("warm-up left", left)?),
                 _ => return Err(bad("warm-up must be OFF, READY or WARM <s>")),
             };
-            Reply::Status(LampState { on: flag(on, line)?, shutter_open: flag(sh, line)?, intensity: decimal("intensity", int)?, warm })
+            Reply::Status(LampState {
+                on: flag(on, line)?,
+                shutter_open: flag(sh, line)?,
+                intensity: decimal("intensity", int)?,
+                warm,
+            })
         }
         ("ERR", [code, ..]) => Reply::Error {
             code: code.parse().map_err(|_| bad("bad error code"))?,
@@ -318,17 +327,35 @@ mod tests {
     fn reply_byte_vectors() {
         let cases: Vec<(Reply, &[u8])> = vec![
             (Reply::Ok, b"OK\n"),
-            (Reply::Identity(vec!["Osram".into(), "HMI-575".into(), "S1".into(), "1.0".into()]), b"IDN Osram,HMI-575,S1,1.0\n"),
-            (Reply::Capabilities(LampCaps { shutter: true, dim_range: Some((0.5, 1.0)), warm_up_s: 600.0 }), b"CAP 1 0.5,1 600\n"),
+            (
+                Reply::Identity(vec!["Osram".into(), "HMI-575".into(), "S1".into(), "1.0".into()]),
+                b"IDN Osram,HMI-575,S1,1.0\n",
+            ),
+            (
+                Reply::Capabilities(LampCaps { shutter: true, dim_range: Some((0.5, 1.0)), warm_up_s: 600.0 }),
+                b"CAP 1 0.5,1 600\n",
+            ),
             (Reply::Capabilities(LampCaps { shutter: false, dim_range: None, warm_up_s: 0.0 }), b"CAP 0 FIXED 0\n"),
             (Reply::On(true), b"OUTP 1\n"),
             (Reply::ShutterOpen(false), b"SHUT 0\n"),
             (Reply::Intensity(0.5), b"INT 0.5\n"),
             (Reply::Hours(1234.5), b"HOUR 1234.5\n"),
-            (Reply::Status(LampState { on: true, shutter_open: true, intensity: 1.0, warm: Warm::Warming(12.5) }), b"STAT 1 1 1 WARM 12.5\n"),
-            (Reply::Status(LampState { on: false, shutter_open: false, intensity: 0.5, warm: Warm::Off }), b"STAT 0 0 0.5 OFF\n"),
-            (Reply::Status(LampState { on: true, shutter_open: false, intensity: 0.5, warm: Warm::Ready }), b"STAT 1 0 0.5 READY\n"),
-            (Reply::Error { code: codes::RESTRIKE_LOCKOUT, message: "burner hot, 120 s".into() }, b"ERR 6 burner hot, 120 s\n"),
+            (
+                Reply::Status(LampState { on: true, shutter_open: true, intensity: 1.0, warm: Warm::Warming(12.5) }),
+                b"STAT 1 1 1 WARM 12.5\n",
+            ),
+            (
+                Reply::Status(LampState { on: false, shutter_open: false, intensity: 0.5, warm: Warm::Off }),
+                b"STAT 0 0 0.5 OFF\n",
+            ),
+            (
+                Reply::Status(LampState { on: true, shutter_open: false, intensity: 0.5, warm: Warm::Ready }),
+                b"STAT 1 0 0.5 READY\n",
+            ),
+            (
+                Reply::Error { code: codes::RESTRIKE_LOCKOUT, message: "burner hot, 120 s".into() },
+                b"ERR 6 burner hot, 120 s\n",
+            ),
         ];
         for (r, bytes) in cases {
             assert_eq!(r.encode().unwrap(), bytes, "{r:?}");
@@ -343,7 +370,16 @@ mod tests {
         for bad in [&b"OUTP MAYBE"[..], b"INT", b"INT x", b"INT 1e3", b"FOO?", b"SHUT OPEN NOW"] {
             assert!(parse_request(bad).is_err(), "{:?}", String::from_utf8_lossy(bad));
         }
-        for bad in [&b"OUTP 2"[..], b"STAT 1 1 1", b"STAT 1 1 1 WARM", b"CAP 1 0.5 600", b"ERR", b"OK extra", b"IDN", b"\x01OK"] {
+        for bad in [
+            &b"OUTP 2"[..],
+            b"STAT 1 1 1",
+            b"STAT 1 1 1 WARM",
+            b"CAP 1 0.5 600",
+            b"ERR",
+            b"OK extra",
+            b"IDN",
+            b"\x01OK",
+        ] {
             assert!(parse_reply(bad).is_err(), "{:?}", String::from_utf8_lossy(bad));
         }
         let mut d = reply_decoder();

@@ -343,7 +343,9 @@ impl Reply {
                     lit: u16::from_le_bytes([p[1], p[2]]),
                 }))
             }
-            kinds::TEMPERATURE => expect_len(f, 2, "temperature").map(|()| Reply::Temperature(i16::from_le_bytes([p[0], p[1]]))),
+            kinds::TEMPERATURE => {
+                expect_len(f, 2, "temperature").map(|()| Reply::Temperature(i16::from_le_bytes([p[0], p[1]])))
+            }
             kinds::PATTERN => parse_pattern(f).map(Reply::Pattern),
             k => Err(DecodeError::malformed("led reply", format!("unknown kind {k:#04x}"), &[])),
         }

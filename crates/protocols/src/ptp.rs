@@ -109,7 +109,9 @@ pub fn response_kind(code: u16) -> ErrorKind {
         rc::SESSION_NOT_OPEN => ErrorKind::Disconnected,
         rc::TRANSACTION_CANCELLED => ErrorKind::Timeout,
         rc::INVALID_DEVICE_PROP_VALUE => ErrorKind::OutOfRange,
-        rc::OPERATION_NOT_SUPPORTED | rc::PARAMETER_NOT_SUPPORTED | rc::DEVICE_PROP_NOT_SUPPORTED => ErrorKind::Unsupported,
+        rc::OPERATION_NOT_SUPPORTED | rc::PARAMETER_NOT_SUPPORTED | rc::DEVICE_PROP_NOT_SUPPORTED => {
+            ErrorKind::Unsupported
+        }
         _ => ErrorKind::Other,
     }
 }
@@ -173,7 +175,11 @@ impl Container {
     /// The bytes on the wire.
     pub fn encode(&self) -> Result<Vec<u8>, EncodeError> {
         let len = HEADER + self.payload.len();
-        let len32 = u32::try_from(len).map_err(|_| EncodeError::TooLong { what: "ptp container", len, limit: u32::MAX as usize })?;
+        let len32 = u32::try_from(len).map_err(|_| EncodeError::TooLong {
+            what: "ptp container",
+            len,
+            limit: u32::MAX as usize,
+        })?;
         let mut out = Vec::with_capacity(len);
         out.extend_from_slice(&len32.to_le_bytes());
         out.extend_from_slice(&(self.kind as u16).to_le_bytes());
@@ -235,7 +241,11 @@ impl ContainerDecoder {
         let Some(kind) = ContainerKind::from_u16(kind).filter(|_| len >= HEADER) else {
             let head = self.buf[..HEADER].to_vec();
             self.buf.drain(..1);
-            return Some(Err(DecodeError::malformed("ptp container", format!("impossible header: length {len}, type {kind}"), &head)));
+            return Some(Err(DecodeError::malformed(
+                "ptp container",
+                format!("impossible header: length {len}, type {kind}"),
+                &head,
+            )));
         };
         if self.buf.len() < len {
             return None;
@@ -328,7 +338,8 @@ impl Operation {
         let p = c.params()?;
         let arg = |i: usize| p.get(i).copied().unwrap_or(0);
         let prop16 = |v: u32| {
-            u16::try_from(v).map_err(|_| DecodeError::malformed("ptp command", format!("property {v:#x} wider than 16 bits"), &[]))
+            u16::try_from(v)
+                .map_err(|_| DecodeError::malformed("ptp command", format!("property {v:#x} wider than 16 bits"), &[]))
         };
         Ok(match c.code {
             op::GET_DEVICE_INFO => Operation::GetDeviceInfo,
@@ -340,7 +351,11 @@ impl Operation {
             op::GET_OBJECT => Operation::GetObject { handle: arg(0) },
             op::DELETE_OBJECT => Operation::DeleteObject { handle: arg(0) },
             code => {
-                return Err(DecodeError::malformed("ptp command", format!("operation {code:#06x} not in the subset"), &[]))
+                return Err(DecodeError::malformed(
+                    "ptp command",
+                    format!("operation {code:#06x} not in the subset"),
+                    &[],
+                ))
             }
         })
     }
@@ -392,7 +407,8 @@ impl Event {
         Ok(match c.code {
             ev::OBJECT_ADDED => Event::ObjectAdded { handle: first()? },
             ev::DEVICE_PROP_CHANGED => Event::DevicePropChanged {
-                prop: u16::try_from(first()?).map_err(|_| DecodeError::malformed("ptp event", "property wider than 16 bits", &[]))?,
+                prop: u16::try_from(first()?)
+                    .map_err(|_| DecodeError::malformed("ptp event", "property wider than 16 bits", &[]))?,
             },
             ev::CAPTURE_COMPLETE => Event::CaptureComplete,
             code => Event::Other { code, params: p },
@@ -487,7 +503,8 @@ fn put_string(out: &mut Vec<u8>, field: &'static str, s: &str) -> Result<(), Enc
         return Ok(());
     }
     let units: Vec<u16> = s.encode_utf16().chain([0]).collect();
-    let n = u8::try_from(units.len()).map_err(|_| EncodeError::TooLong { what: field, len: units.len(), limit: 255 })?;
+    let n =
+        u8::try_from(units.len()).map_err(|_| EncodeError::TooLong { what: field, len: units.len(), limit: 255 })?;
     if s.contains('\0') {
         return Err(EncodeError::Text { field, value: s.to_string(), allowed: "no NUL characters" });
     }
@@ -623,7 +640,9 @@ impl PropValue {
             prop::EXPOSURE_TIME => 4,
             prop::EXPOSURE_INDEX | prop::F_NUMBER => 2,
             prop::BTFRIG_EXPOSURE_S | prop::BTFRIG_GAIN => 8,
-            p => return Err(DecodeError::malformed("ptp property", format!("property {p:#06x} not in the subset"), &[])),
+            p => {
+                return Err(DecodeError::malformed("ptp property", format!("property {p:#06x} not in the subset"), &[]))
+            }
         };
         if data.len() != want {
             return Err(DecodeError::malformed("ptp property", format!("{} bytes, expected {want}", data.len()), data));
@@ -726,7 +745,13 @@ mod tests {
         let mut extra = bytes.clone();
         extra.push(0);
         assert!(DeviceInfo::decode(&extra).is_err());
-        for v in [PropValue::ExposureTime(2000), PropValue::ExposureIndex(100), PropValue::FNumber(800), PropValue::ExposureS(0.0123), PropValue::Gain(2.5)] {
+        for v in [
+            PropValue::ExposureTime(2000),
+            PropValue::ExposureIndex(100),
+            PropValue::FNumber(800),
+            PropValue::ExposureS(0.0123),
+            PropValue::Gain(2.5),
+        ] {
             assert_eq!(PropValue::decode(v.prop(), &v.encode()).unwrap(), v);
         }
         assert!(PropValue::decode(prop::EXPOSURE_TIME, &[1, 2]).is_err());

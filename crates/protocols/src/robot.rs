@@ -234,11 +234,13 @@ impl Tagged<Reply> {
 /// Checks the checksum and splits `<tag> <body>`.
 fn unframe(line: &[u8]) -> Result<(u16, &str), DecodeError> {
     let text = ascii("robot line", line)?;
-    let (head, cs) = text.rsplit_once('*').ok_or_else(|| DecodeError::malformed("robot line", "no '*' checksum", line))?;
+    let (head, cs) =
+        text.rsplit_once('*').ok_or_else(|| DecodeError::malformed("robot line", "no '*' checksum", line))?;
     if cs.len() != 2 {
         return Err(DecodeError::malformed("robot line", "checksum must be 2 hex digits", line));
     }
-    let received = u8::from_str_radix(cs, 16).map_err(|_| DecodeError::malformed("robot line", "bad checksum digits", line))?;
+    let received =
+        u8::from_str_radix(cs, 16).map_err(|_| DecodeError::malformed("robot line", "bad checksum digits", line))?;
     let computed = xor8(head.as_bytes());
     if received != computed {
         return Err(DecodeError::Checksum { received: received.into(), computed: computed.into() });
@@ -281,7 +283,9 @@ pub fn parse_reply(line: &[u8]) -> Result<Tagged<Reply>, DecodeError> {
         ["OK"] => Reply::Ok,
         ["OK", "ID", m, s, f] => Reply::Id { model: m.to_string(), serial: s.to_string(), firmware: f.to_string() },
         ["OK", "LIMITS", a, b, c] => {
-            let j = |s: &str| three("limits", s, line).map(|v| JointLimit { min_rad: v[0], max_rad: v[1], max_speed_rad_per_s: v[2] });
+            let j = |s: &str| {
+                three("limits", s, line).map(|v| JointLimit { min_rad: v[0], max_rad: v[1], max_speed_rad_per_s: v[2] })
+            };
             Reply::Limits([j(a)?, j(b)?, j(c)?])
         }
         ["OK", "STATUS", state, homed, joints] => {
@@ -367,13 +371,28 @@ mod tests {
         let lim = JointLimit { min_rad: -3.0, max_rad: 3.0, max_speed_rad_per_s: 0.5 };
         let cases = [
             (rep(1, Reply::Ok), "1 OK"),
-            (rep(2, Reply::Id { model: "BR-3".into(), serial: "0042".into(), firmware: "2.1".into() }), "2 OK ID BR-3 0042 2.1"),
+            (
+                rep(2, Reply::Id { model: "BR-3".into(), serial: "0042".into(), firmware: "2.1".into() }),
+                "2 OK ID BR-3 0042 2.1",
+            ),
             (rep(3, Reply::Limits([lim; 3])), "3 OK LIMITS -3,3,0.5 -3,3,0.5 -3,3,0.5"),
             (
-                rep(4, Reply::Status(RobotStatus { state: RobotState::Moving, homed: true, joints_rad: [0.1, 0.0, -1.5] })),
+                rep(
+                    4,
+                    Reply::Status(RobotStatus { state: RobotState::Moving, homed: true, joints_rad: [0.1, 0.0, -1.5] }),
+                ),
                 "4 OK STATUS MOVING 1 0.1,0,-1.5",
             ),
-            (rep(5, Reply::Error { code: codes::OUT_OF_RANGE, message: "joint 1 target 2 outside [-1.57, 1.57]".into() }), "5 ERR 12 joint 1 target 2 outside [-1.57, 1.57]"),
+            (
+                rep(
+                    5,
+                    Reply::Error {
+                        code: codes::OUT_OF_RANGE,
+                        message: "joint 1 target 2 outside [-1.57, 1.57]".into(),
+                    },
+                ),
+                "5 ERR 12 joint 1 target 2 outside [-1.57, 1.57]",
+            ),
             (rep(0, Reply::Error { code: codes::BAD_CHECKSUM, message: String::new() }), "0 ERR 1"),
         ];
         for (r, head) in cases {
@@ -404,7 +423,9 @@ mod tests {
             let l = signed(head);
             assert!(parse_request(&l[..l.len() - 1]).is_err(), "{head}");
         }
-        for head in ["1 OK STATUS RUNNING 1 0,0,0", "1 OK STATUS IDLE 2 0,0,0", "1 OK STATUS IDLE 1 0,0", "1 ERR x", "1 NOPE"] {
+        for head in
+            ["1 OK STATUS RUNNING 1 0,0,0", "1 OK STATUS IDLE 2 0,0,0", "1 OK STATUS IDLE 1 0,0", "1 ERR x", "1 NOPE"]
+        {
             let l = signed(head);
             assert!(parse_reply(&l[..l.len() - 1]).is_err(), "{head}");
         }

@@ -130,15 +130,18 @@ fn lamp_reply() -> impl Strategy<Value = lamp::Reply> {
     prop_oneof![
         Just(Reply::Ok),
         proptest::collection::vec("[A-Za-z0-9 ._-]{1,16}", 1..5).prop_map(Reply::Identity),
-        (any::<bool>(), prop::option::of((num(0.0..1.0), num(0.0..1.0))), num(0.0..1e4))
-            .prop_map(|(shutter, dim_range, warm_up_s)| Reply::Capabilities(LampCaps { shutter, dim_range, warm_up_s })),
+        (any::<bool>(), prop::option::of((num(0.0..1.0), num(0.0..1.0))), num(0.0..1e4)).prop_map(
+            |(shutter, dim_range, warm_up_s)| Reply::Capabilities(LampCaps { shutter, dim_range, warm_up_s })
+        ),
         any::<bool>().prop_map(Reply::On),
         any::<bool>().prop_map(Reply::ShutterOpen),
         num(0.0..1.0).prop_map(Reply::Intensity),
         num(0.0..1e6).prop_map(Reply::Hours),
-        (any::<bool>(), any::<bool>(), num(0.0..1.0), warm)
-            .prop_map(|(on, shutter_open, intensity, warm)| Reply::Status(LampState { on, shutter_open, intensity, warm })),
-        (any::<u16>(), "[A-Za-z0-9,.]([A-Za-z0-9 ,.]{0,40}[A-Za-z0-9,.])?").prop_map(|(code, message)| Reply::Error { code, message }),
+        (any::<bool>(), any::<bool>(), num(0.0..1.0), warm).prop_map(|(on, shutter_open, intensity, warm)| {
+            Reply::Status(LampState { on, shutter_open, intensity, warm })
+        }),
+        (any::<u16>(), "[A-Za-z0-9,.]([A-Za-z0-9 ,.]{0,40}[A-Za-z0-9,.])?")
+            .prop_map(|(code, message)| Reply::Error { code, message }),
     ]
 }
 
@@ -157,12 +160,18 @@ fn led_request() -> impl Strategy<Value = led::Request> {
 fn led_reply() -> impl Strategy<Value = led::Reply> {
     use led::{LedStatus, Reply};
     prop_oneof![
-        (any::<u16>(), any::<u32>(), any::<(u8, u8)>()).prop_map(|(count, steps, firmware)| Reply::Info { count, steps, firmware }),
+        (any::<u16>(), any::<u32>(), any::<(u8, u8)>()).prop_map(|(count, steps, firmware)| Reply::Info {
+            count,
+            steps,
+            firmware
+        }),
         Just(Reply::Ack),
         any::<u8>().prop_map(Reply::Nack),
-        (any::<bool>(), any::<bool>(), any::<bool>(), any::<u16>()).prop_map(|(staged, over_temperature, driver_fault, lit)| {
-            Reply::Status(LedStatus { staged, over_temperature, driver_fault, lit })
-        }),
+        (any::<bool>(), any::<bool>(), any::<bool>(), any::<u16>()).prop_map(
+            |(staged, over_temperature, driver_fault, lit)| {
+                Reply::Status(LedStatus { staged, over_temperature, driver_fault, lit })
+            }
+        ),
         any::<i16>().prop_map(Reply::Temperature),
         proptest::collection::vec(any::<u16>(), 0..300).prop_map(Reply::Pattern),
     ]

@@ -412,8 +412,7 @@ impl Camera for PtpCamera {
         let coding = Instant::now();
         let decoded = raw::decode(&a.data.unwrap_or_default());
         self.stats.codec(coding);
-        let frame = decoded
-            .map_err(|e| self.err(ErrorKind::CorruptData, format!("read_frame: object {handle}: {e}")));
+        let frame = decoded.map_err(|e| self.err(ErrorKind::CorruptData, format!("read_frame: object {handle}: {e}")));
         // The object is on the camera's card either way; free it (a failure here loses nothing).
         if let Err(e) =
             self.transact(Operation::DeleteObject { handle }, None, self.cfg.op_timeout_s, "delete object").await

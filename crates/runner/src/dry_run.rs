@@ -58,7 +58,11 @@ pub fn dry_run(text: &str, file: &Path) -> Result<DryRun, RunError> {
     let disk = DiskEstimate {
         // Raw frames are stored as single-channel float OpenEXR.
         raw_bytes_per_capture: if v.outputs.raw_frames { photosites * 4 } else { 0 },
-        texture_bytes_per_capture: if v.outputs.textures { (v.texture.size * v.texture.size) as u64 * texel_bytes } else { 0 },
+        texture_bytes_per_capture: if v.outputs.textures {
+            (v.texture.size * v.texture.size) as u64 * texel_bytes
+        } else {
+            0
+        },
     };
     let hdr = match &v.exposure {
         ExposurePolicy::Auto { hdr, .. } => hdr_estimate(hdr, &v, frame_bytes, exposure_s, schedule.captures.len()),

@@ -39,7 +39,8 @@ pub struct LinkOptions {
 }
 
 /// Baud rates a real serial link may name.
-const BAUD_RATES: [u32; 12] = [1200, 2400, 4800, 9600, 19_200, 38_400, 57_600, 115_200, 230_400, 460_800, 921_600, 1_000_000];
+const BAUD_RATES: [u32; 12] =
+    [1200, 2400, 4800, 9600, 19_200, 38_400, 57_600, 115_200, 230_400, 460_800, 921_600, 1_000_000];
 
 /// The link options of `entry` (`devices.<role>`), or a message naming the bad key.
 pub fn link_options(role: &str, entry: &DeviceEntry) -> Result<LinkOptions, String> {
@@ -79,7 +80,11 @@ pub fn link_options(role: &str, entry: &DeviceEntry) -> Result<LinkOptions, Stri
             }
             "port" if role != "camera" => match v.as_str() {
                 Some(p) if !p.trim().is_empty() => o.port = Some(p.to_string()),
-                _ => return Err(format!("devices.{role}.link.port = {v} must be a device path such as \"/dev/ttyUSB0\"")),
+                _ => {
+                    return Err(format!(
+                        "devices.{role}.link.port = {v} must be a device path such as \"/dev/ttyUSB0\""
+                    ))
+                }
             },
             "baud" if role != "camera" => match v.as_integer() {
                 Some(b) if BAUD_RATES.iter().any(|&r| i64::from(r) == b) => o.baud = Some(b as u32),
@@ -442,7 +447,9 @@ pub async fn connect(
                 .map_err(|e| firmware_io("lamp", e))?,
         );
         let cfg = SerialLampConfig { name: "lamp".into(), poll_s: o.poll_s, reply_timeout: o.reply_timeout };
-        let l = SerialLamp::open(cfg, serial(&link, LAMP_BAUD), clock.clone()).await.map_err(|e| backend_error("lamp", e))?;
+        let l = SerialLamp::open(cfg, serial(&link, LAMP_BAUD), clock.clone())
+            .await
+            .map_err(|e| backend_error("lamp", e))?;
         fw.meter("lamp", &link, LAMP_BAUD, l.link_stats());
         Box::new(l)
     } else {
@@ -458,7 +465,8 @@ pub async fn connect(
         let (responder, transport) = PtpResponder::spawn(sim.camera, rcfg);
         fw.camera = Some(responder);
         let cfg = PtpCameraConfig { name: "camera".into(), capabilities, op_timeout_s: 10.0, read_margin_s: 1.0 };
-        let c = PtpCamera::open(cfg, Box::new(transport), clock.clone()).await.map_err(|e| backend_error("camera", e))?;
+        let c =
+            PtpCamera::open(cfg, Box::new(transport), clock.clone()).await.map_err(|e| backend_error("camera", e))?;
         fw.camera_link = Some(c.stats());
         Box::new(c)
     } else {
@@ -627,7 +635,8 @@ pub fn probe(rig: &btfrig_core::config::RigConfig) -> Result<Vec<Probed>, String
             rail: rail.limits(),
             turntable: turntable.as_ref().map(|t| t.limits()),
         };
-        let mut c = connect(&devices, SimDevices { robot, rail, turntable, lamp, led_array, camera }, clock, 30.0).await?;
+        let mut c =
+            connect(&devices, SimDevices { robot, rail, turntable, lamp, led_array, camera }, clock, 30.0).await?;
         let dir = c.firmware.dir().map(|d| d.display().to_string());
         let entry = |role: &str| rig.devices.entries().into_iter().find(|(r, _)| *r == role).map(|(_, e)| e.clone());
         let mut out = Vec::new();

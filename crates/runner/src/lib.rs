@@ -791,8 +791,16 @@ pub fn run(
         link_faults: &req.link_faults,
         on_event,
     }));
-    let SessionResult { outcome, hardware_s, engine_retries, warnings, totals, links, motion_wait_wall_s, link_added_wall_s } =
-        session?;
+    let SessionResult {
+        outcome,
+        hardware_s,
+        engine_retries,
+        warnings,
+        totals,
+        links,
+        motion_wait_wall_s,
+        link_added_wall_s,
+    } = session?;
     let totals = totals?;
     let mut warnings = warnings;
     warnings.extend(req.light.as_ref().and_then(|l| totals.lamp.warning(l.warn_drift)));
@@ -1105,9 +1113,11 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
     // An emulated device is the simulator's behind emulated firmware and its real backend.
     emulated::check(&rig.devices).map_err(RunError::Rig)?;
     let mut sim_cfg = rig.clone();
-    sim_cfg.devices = rig.devices.simulated().ok_or_else(|| RunError::Rig("a device is real hardware: only simulated and emulated rigs run plans so far".into()))?;
-    let sim =
-        SimRig::from_rig_config(&sim_cfg, faults, sim_clock(), truth.clone()).map_err(|e| RunError::Rig(e.to_string()))?;
+    sim_cfg.devices = rig.devices.simulated().ok_or_else(|| {
+        RunError::Rig("a device is real hardware: only simulated and emulated rigs run plans so far".into())
+    })?;
+    let sim = SimRig::from_rig_config(&sim_cfg, faults, sim_clock(), truth.clone())
+        .map_err(|e| RunError::Rig(e.to_string()))?;
     let clock = sim.world.clock().clone();
     let SimRig { robot, rail, turntable, lamp, led_array, camera: sim_camera, .. } = sim;
     let parts = emulated::SimDevices { robot, rail, turntable, lamp, led_array, camera: sim_camera };

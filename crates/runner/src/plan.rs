@@ -193,9 +193,11 @@ pub fn manifest(
 ) -> Result<Manifest, RunError> {
     // BUILTIN_RIGS names keep their `builtin:` prefix.
     let config_toml = match plan.rig.config.starts_with("builtin:") {
-        true => BUILTIN_RIGS.iter().find(|(n, _)| *n == plan.rig.config).map(|(_, t)| t.to_string()).ok_or_else(|| {
-            RunError::Rig(format!("rig.config = {:?} is not an embedded rig", plan.rig.config))
-        })?,
+        true => BUILTIN_RIGS
+            .iter()
+            .find(|(n, _)| *n == plan.rig.config)
+            .map(|(_, t)| t.to_string())
+            .ok_or_else(|| RunError::Rig(format!("rig.config = {:?} is not an embedded rig", plan.rig.config)))?,
         false => {
             let p = plan.rig_config_path(file).unwrap_or_else(|| plan.rig.config.clone().into());
             read(&p)?

@@ -189,7 +189,10 @@ fn a_device_fault_pauses_the_dome_run_until_resumed_unless_the_session_stops_on_
     let r: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("data/report.json")).unwrap()).unwrap();
     assert_eq!((r["status"].as_str(), r["captures"].as_u64()), (Some("paused"), Some(0)), "{r}");
-    assert_eq!((r["paused_step"]["index"].as_u64(), r["paused_step"]["device"].as_str()), (Some(29), Some("led_array")));
+    assert_eq!(
+        (r["paused_step"]["index"].as_u64(), r["paused_step"]["device"].as_str()),
+        (Some(29), Some("led_array"))
+    );
     let s = run(&request(&dir, Some("none")), &mut |_| {}).unwrap_or_else(|e| panic!("{e}"));
     assert!(s.stopped.is_none());
     assert_eq!((s.frames, s.textures), (STEPS as u64, 2 * 198));

@@ -62,8 +62,11 @@ fn a_gonio_plan_is_no_dome_plan() {
 fn a_dome_plan_material_file_resolves_against_the_plan() {
     let dir = std::env::temp_dir().join(format!("btfrig-dome-material-{}", std::process::id()));
     std::fs::create_dir_all(dir.join("plans")).unwrap();
-    std::fs::copy(concat!(env!("CARGO_MANIFEST_DIR"), "/../../sim/materials/corduroy.toml"), dir.join("plans/mat.toml"))
-        .unwrap();
+    std::fs::copy(
+        concat!(env!("CARGO_MANIFEST_DIR"), "/../../sim/materials/corduroy.toml"),
+        dir.join("plans/mat.toml"),
+    )
+    .unwrap();
     let plan = |material: &str| {
         format!(
             "name = \"dry\"\ntexture_size = 8\n[rig]\nconfig = \"builtin:bonn-dome-sim\"\nmaterial = \"{material}\"\n\

@@ -43,8 +43,13 @@ fn probe_opens_the_ports_a_rig_config_names() {
     let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
     let clock: SharedClock = Arc::new(ScaledClock::new(100.0).unwrap());
     let sim_cfg = RigConfig::from_toml(SMALL, "small").unwrap();
-    let sim = SimRig::from_rig_config(&sim_cfg, &FaultScenario::none(), clock.clone(), Arc::new(FlatFrameSource::new(4, 4, 1.0)))
-        .unwrap();
+    let sim = SimRig::from_rig_config(
+        &sim_cfg,
+        &FaultScenario::none(),
+        clock.clone(),
+        Arc::new(FlatFrameSource::new(4, 4, 1.0)),
+    )
+    .unwrap();
     let (robot_port, rail_port, lamp_port) = (dir.join("robot"), dir.join("rail"), dir.join("lamp"));
     let firmware = {
         let _rt = rt.enter();
@@ -57,18 +62,17 @@ fn probe_opens_the_ports_a_rig_config_names() {
 
     let mut rail_link = link(&rail_port, 115_200);
     rail_link.insert("units".into(), "rad".into());
-    let rig = rig_with_links(&[
-        ("robot", link(&robot_port, 115_200)),
-        ("rail", rail_link),
-        ("lamp", link(&lamp_port, 9600)),
-    ])
-    .unwrap();
+    let rig =
+        rig_with_links(&[("robot", link(&robot_port, 115_200)), ("rail", rail_link), ("lamp", link(&lamp_port, 9600))])
+            .unwrap();
     let probed = emulated::probe(&rig).unwrap();
     for p in &probed {
         println!("{:<6} {:<6} {:?} {:?}: {}", p.role, p.kind, p.link, p.info, p.health);
     }
     let get = |role: &str| probed.iter().find(|p| p.role == role).unwrap_or_else(|| panic!("{role} not probed"));
-    for (role, port, baud) in [("robot", &robot_port, 115_200), ("rail", &rail_port, 115_200), ("lamp", &lamp_port, 9600)] {
+    for (role, port, baud) in
+        [("robot", &robot_port, 115_200), ("rail", &rail_port, 115_200), ("lamp", &lamp_port, 9600)]
+    {
         let p = get(role);
         assert_eq!(p.kind, "serial");
         assert_eq!(p.link.as_deref(), Some(format!("{} at {baud} baud", port.display()).as_str()));
@@ -83,7 +87,8 @@ fn probe_opens_the_ports_a_rig_config_names() {
     assert!(e.contains(&robot_port.display().to_string()) && e.contains("hw probe"), "{e}");
 
     // A port with nothing behind it is that device's health error; the others still answer.
-    let rig = rig_with_links(&[("robot", link(&dir.join("unplugged"), 115_200)), ("lamp", link(&lamp_port, 9600))]).unwrap();
+    let rig =
+        rig_with_links(&[("robot", link(&dir.join("unplugged"), 115_200)), ("lamp", link(&lamp_port, 9600))]).unwrap();
     let probed = emulated::probe(&rig).unwrap();
     let robot = probed.iter().find(|p| p.role == "robot").unwrap();
     assert!(robot.health.starts_with("error:") && robot.health.contains("unplugged"), "{robot:?}");

@@ -105,7 +105,12 @@ impl Wire {
 
     /// Unplugs and replugs the adapter: a new tty behind the same `link`, the old one dropped
     /// (the host's port fails). The controller keeps its state; false if the replug failed.
-    pub(crate) fn replug<F: Send + 'static>(&mut self, link: &Path, tx: &mpsc::UnboundedSender<Event<F>>, who: &str) -> bool {
+    pub(crate) fn replug<F: Send + 'static>(
+        &mut self,
+        link: &Path,
+        tx: &mpsc::UnboundedSender<Event<F>>,
+        who: &str,
+    ) -> bool {
         match Wire::open(link, self.generation + 1, forwarder(tx)) {
             Ok(w) => {
                 tracing::info!("{who} replugged as {}", w.port.slave_path());

@@ -12,8 +12,12 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use async_trait::async_trait;
-use btfrig_hw::{AxisLimits, Device, DeviceError, DeviceInfo, ErrorKind, Health, MoveOptions, Rail, SharedClock, Turntable};
-use btfrig_protocols::grbl::{alarm_kind, alarm_text, error_kind, error_text, Axis, Command, Response, ResponseDecoder, State, Status};
+use btfrig_hw::{
+    AxisLimits, Device, DeviceError, DeviceInfo, ErrorKind, Health, MoveOptions, Rail, SharedClock, Turntable,
+};
+use btfrig_protocols::grbl::{
+    alarm_kind, alarm_text, error_kind, error_text, Axis, Command, Response, ResponseDecoder, State, Status,
+};
 
 use crate::transport::{Connector, Link, LinkError, Session};
 
@@ -246,7 +250,9 @@ impl GrblAxis {
     async fn check_end(&mut self, end: LineEnd, what: &str) -> Result<(), DeviceError> {
         match end {
             LineEnd::Ok => Ok(()),
-            LineEnd::Error(n) => Err(self.err(error_kind(n), format!("{what}: controller error:{n}: {}", error_text(n)))),
+            LineEnd::Error(n) => {
+                Err(self.err(error_kind(n), format!("{what}: controller error:{n}: {}", error_text(n))))
+            }
             LineEnd::Alarm(n) => {
                 let e = self.alarm_err(n, what);
                 if n == 2 {
@@ -264,7 +270,8 @@ impl GrblAxis {
 
     async fn do_move(&mut self, angle_rad: f64, opts: MoveOptions) -> Result<f64, DeviceError> {
         let start = self.clock.now_s();
-        let cmd = Command::Move { rapid: true, axis: self.cfg.axis, target: self.cfg.units.to_wire(angle_rad), feed: None };
+        let cmd =
+            Command::Move { rapid: true, axis: self.cfg.axis, target: self.cfg.units.to_wire(angle_rad), feed: None };
         let end = self.line(cmd, 0.0).await?;
         self.check_end(end, "move_to_rad").await?;
         loop {
@@ -273,12 +280,19 @@ impl GrblAxis {
                 return Err(self.alarm_err(n, "move_to_rad"));
             }
             match st.state {
-                State::Idle => return Ok(self.cfg.units.from_wire(st.mpos.get(self.cfg.axis.index()).copied().unwrap_or(f64::NAN))),
+                State::Idle => {
+                    return Ok(self
+                        .cfg
+                        .units
+                        .from_wire(st.mpos.get(self.cfg.axis.index()).copied().unwrap_or(f64::NAN)))
+                }
                 State::Alarm => return Err(self.err(ErrorKind::Other, "move_to_rad: controller in alarm state")),
                 _ => {}
             }
             if self.clock.now_s() - start > opts.timeout_s {
-                return Err(self.err(ErrorKind::Timeout, format!("move_to_rad: not settled within {} s", opts.timeout_s)));
+                return Err(
+                    self.err(ErrorKind::Timeout, format!("move_to_rad: not settled within {} s", opts.timeout_s))
+                );
             }
             self.clock.sleep_s(self.cfg.poll_s).await;
         }

@@ -11,7 +11,9 @@ use std::time::{Duration, Instant};
 
 use async_trait::async_trait;
 use btfrig_hw::{AxisLimits, Device, DeviceError, DeviceInfo, ErrorKind, Health, MoveOptions, Robot, SharedClock};
-use btfrig_protocols::robot::{error_kind, reply_decoder, Reply, ReplyDecoder, Request, RobotState, RobotStatus, Tagged, UNATTRIBUTED_TAG};
+use btfrig_protocols::robot::{
+    error_kind, reply_decoder, Reply, ReplyDecoder, Request, RobotState, RobotStatus, Tagged, UNATTRIBUTED_TAG,
+};
 
 use crate::transport::{Connector, Link, LinkError};
 
@@ -40,7 +42,13 @@ pub struct SerialRobot {
 impl SerialRobot {
     /// A backend on `connector` (connects on first use), waiting on `clock`.
     pub fn new(cfg: SerialRobotConfig, connector: Arc<dyn Connector>, clock: SharedClock) -> Self {
-        let info = DeviceInfo { name: cfg.name.clone(), backend: "serial-robot".into(), model: "btfrig robot controller".into(), serial: None, firmware: None };
+        let info = DeviceInfo {
+            name: cfg.name.clone(),
+            backend: "serial-robot".into(),
+            model: "btfrig robot controller".into(),
+            serial: None,
+            firmware: None,
+        };
         SerialRobot { info, cfg, link: Link::new(connector, reply_decoder), clock, tag: 0 }
     }
 
@@ -77,7 +85,8 @@ impl SerialRobot {
     async fn request(&mut self, body: Request, what: &str) -> Result<Reply, DeviceError> {
         self.tag = self.tag.checked_add(1).unwrap_or(1);
         let tag = self.tag;
-        let bytes = Tagged { tag, body }.encode().map_err(|e| self.err(ErrorKind::OutOfRange, format!("{what}: {e}")))?;
+        let bytes =
+            Tagged { tag, body }.encode().map_err(|e| self.err(ErrorKind::OutOfRange, format!("{what}: {e}")))?;
         let wait = self.cfg.reply_timeout;
         let reply = self
             .link
@@ -125,7 +134,12 @@ impl SerialRobot {
             let s = self.status().await?;
             match s.state {
                 RobotState::Idle => return Ok(s.joints_rad),
-                RobotState::Fault => return Err(self.err(ErrorKind::Other, format!("{what}: controller reports a drive fault (RESET after fixing it)"))),
+                RobotState::Fault => {
+                    return Err(self.err(
+                        ErrorKind::Other,
+                        format!("{what}: controller reports a drive fault (RESET after fixing it)"),
+                    ))
+                }
                 RobotState::Moving | RobotState::Homing => {}
             }
             if self.clock.now_s() - start > opts.timeout_s {

@@ -203,13 +203,7 @@ pub struct Link<D> {
 impl<D: Send + 'static> Link<D> {
     /// A link that connects on first use.
     pub fn new(connector: Arc<dyn Connector>, new_decoder: fn() -> D) -> Self {
-        Link {
-            connector,
-            session: std::sync::Mutex::new(None),
-            new_decoder,
-            connects: 0,
-            stats: Arc::default(),
-        }
+        Link { connector, session: std::sync::Mutex::new(None), new_decoder, connects: 0, stats: Arc::default() }
     }
 
     /// What the link connects to.
@@ -254,7 +248,8 @@ impl<D: Send + 'static> Link<D> {
                 Some(s) => s,
                 None => {
                     let target = connector.describe();
-                    let io = connector.connect().map_err(|source| LinkError::Lost { target: target.clone(), source })?;
+                    let io =
+                        connector.connect().map_err(|source| LinkError::Lost { target: target.clone(), source })?;
                     Session { io, decoder: new_decoder(), skipped: 0, target, stats: stats.clone() }
                 }
             };

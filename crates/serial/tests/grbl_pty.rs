@@ -39,8 +39,15 @@ fn bench(name: &str) -> Bench {
 fn bench_in(name: &str, units: AxisUnits) -> Bench {
     let clock: SharedClock = Arc::new(ScaledClock::new(SPEED).unwrap());
     let source = Arc::new(FlatFrameSource::new(4, 4, 100.0));
-    let rig = SimRig::build(&DevicesConfig::default(), &TimingConfig::bonn(), 7, &FaultScenario::none(), clock.clone(), source)
-        .unwrap();
+    let rig = SimRig::build(
+        &DevicesConfig::default(),
+        &TimingConfig::bonn(),
+        7,
+        &FaultScenario::none(),
+        clock.clone(),
+        source,
+    )
+    .unwrap();
     let dir = std::env::temp_dir().join(format!("btfrig-grbl-{name}-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let link = dir.join("rail");

@@ -28,14 +28,22 @@ impl Drop for Bench {
 fn bench(name: &str) -> Bench {
     let clock: SharedClock = Arc::new(ScaledClock::new(100.0).unwrap());
     let source = Arc::new(FlatFrameSource::new(4, 4, 100.0));
-    let rig = SimRig::build(&DevicesConfig::default(), &TimingConfig::bonn(), 11, &FaultScenario::none(), clock.clone(), source)
-        .unwrap();
+    let rig = SimRig::build(
+        &DevicesConfig::default(),
+        &TimingConfig::bonn(),
+        11,
+        &FaultScenario::none(),
+        clock.clone(),
+        source,
+    )
+    .unwrap();
     let dir = std::env::temp_dir().join(format!("btfrig-robot-{name}-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let link = dir.join("robot");
     let joint_limits = rig.robot.joint_limits();
     let firmware = RobotFirmware::spawn(rig.robot, &link).unwrap();
-    let cfg = SerialRobotConfig { name: "robot".into(), joint_limits, poll_s: 0.05, reply_timeout: Duration::from_secs(2) };
+    let cfg =
+        SerialRobotConfig { name: "robot".into(), joint_limits, poll_s: 0.05, reply_timeout: Duration::from_secs(2) };
     let connector = Arc::new(SerialConnector { path: link.to_string_lossy().into_owned(), baud: 115_200 });
     Bench { robot: SerialRobot::new(cfg, connector, clock.clone()), firmware, world: rig.world, clock, dir }
 }

@@ -15,7 +15,7 @@ use std::sync::{Arc, Mutex};
 use btfrig_core::config::RigConfig;
 use btfrig_core::frame::RawFrame;
 use btfrig_core::ConfigError;
-use btfrig_hw::{CaptureSettings, Camera, LedArray, SharedClock, Turntable};
+use btfrig_hw::{Camera, CaptureSettings, LedArray, SharedClock, Turntable};
 use btfrig_render::dome_scene::DomeScene;
 use btfrig_render::radiance::RadianceImage;
 use btfrig_render::renderer::RenderOptions;
@@ -158,7 +158,11 @@ impl DomeRig {
     ) -> Result<DomeRig, ConfigError> {
         let dome = cfg.require_dome("a simulated dome rig")?;
         if let Some(&c) = cameras.iter().find(|&&c| c >= dome.camera_count()) {
-            return Err(ConfigError::out_of_range("cameras", c, &format!("0..{} (the arc's cameras)", dome.camera_count())));
+            return Err(ConfigError::out_of_range(
+                "cameras",
+                c,
+                &format!("0..{} (the arc's cameras)", dome.camera_count()),
+            ));
         }
         let sources: Vec<Arc<DomeFrameSource>> =
             cameras.iter().map(|&c| Arc::new(DomeFrameSource::new(scene.clone(), c, options))).collect();

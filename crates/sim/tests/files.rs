@@ -57,7 +57,8 @@ async fn every_rig_config_builds_a_sim_rig() {
         let text = std::fs::read_to_string(&path).unwrap();
         let cfg = RigConfig::from_toml(&text, &path.display().to_string()).unwrap_or_else(|e| panic!("{e}"));
         let d = &cfg.devices;
-        let kinds = [Some(&d.robot), Some(&d.rail), d.turntable.as_ref(), Some(&d.lamp), d.led_array.as_ref(), Some(&d.camera)];
+        let kinds =
+            [Some(&d.robot), Some(&d.rail), d.turntable.as_ref(), Some(&d.lamp), d.led_array.as_ref(), Some(&d.camera)];
         if kinds.iter().flatten().any(|e| e.kind != "sim") {
             // Real backends against emulated firmware: the runner builds those rigs
             // (crates/runner/tests/serial_rig.rs, dome.rs); the simulator alone refuses them.

@@ -38,7 +38,8 @@ impl DeviceEntry {
     /// options are then the simulated device's (`kind = "sim"` options), the `link` table the
     /// backend's (docs/serial.md).
     pub fn is_emulated(&self) -> bool {
-        self.kind != "sim" && self.options.get("link").and_then(|l| l.get("emulated")).and_then(|e| e.as_bool()) == Some(true)
+        self.kind != "sim"
+            && self.options.get("link").and_then(|l| l.get("emulated")).and_then(|e| e.as_bool()) == Some(true)
     }
 
     /// The simulated device of this entry: itself if simulated, the simulated device behind

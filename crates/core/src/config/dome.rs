@@ -165,7 +165,11 @@ impl DomeConfig {
                 errors.push(ConfigError::out_of_range(&format!("{f}.led_irradiance_at_1m_w_m2"), e, "0 < E <= 1e5"));
             }
             if !(0.0..=0.5).contains(&self.led_power_spread) {
-                errors.push(ConfigError::out_of_range(&format!("{f}.led_power_spread"), self.led_power_spread, "0..=0.5"));
+                errors.push(ConfigError::out_of_range(
+                    &format!("{f}.led_power_spread"),
+                    self.led_power_spread,
+                    "0..=0.5",
+                ));
             }
             if !(0.0..=0.2).contains(&self.led_colour_spread) {
                 errors.push(ConfigError::out_of_range(
@@ -206,7 +210,11 @@ impl DomeConfig {
         validate_rings(&format!("{f}.camera_rings"), &self.camera_rings, 80.0, errors);
         let ring_cameras: usize = self.camera_rings.iter().map(|r| r.count).sum();
         if ring_cameras > 1000 {
-            errors.push(ConfigError::out_of_range(&format!("{f}.camera_rings"), format!("{ring_cameras} cameras"), "1..=1000 cameras"));
+            errors.push(ConfigError::out_of_range(
+                &format!("{f}.camera_rings"),
+                format!("{ring_cameras} cameras"),
+                "1..=1000 cameras",
+            ));
         }
         if !(self.camera_distance_m.is_finite() && (0.1..=10.0).contains(&self.camera_distance_m)) {
             errors.push(ConfigError::out_of_range(
@@ -216,7 +224,11 @@ impl DomeConfig {
             ));
         }
         if !self.camera_azimuth_deg.is_finite() {
-            errors.push(ConfigError::out_of_range(&format!("{f}.camera_azimuth_deg"), self.camera_azimuth_deg, "finite"));
+            errors.push(ConfigError::out_of_range(
+                &format!("{f}.camera_azimuth_deg"),
+                self.camera_azimuth_deg,
+                "finite",
+            ));
         }
     }
 
@@ -256,7 +268,8 @@ impl DomeConfig {
             Some(fl) => self.camera_to_world(j) * Point3::from(Vector3::from(fl.offset_m)),
             None => {
                 let (ring, k) = ring_index(&self.led_rings, j);
-                let dir = Direction::from_degrees(ring.theta_deg, ring.phi_offset_deg + 360.0 * k as f64 / ring.count as f64);
+                let dir =
+                    Direction::from_degrees(ring.theta_deg, ring.phi_offset_deg + 360.0 * k as f64 / ring.count as f64);
                 Point3::from(dir.to_vector() * self.led_radius_m)
             }
         }
@@ -345,7 +358,9 @@ impl DomeConfig {
     }
 
     fn spreads(&self) -> (f64, f64) {
-        self.flash.as_ref().map_or((self.led_power_spread, self.led_colour_spread), |f| (f.power_spread, f.colour_spread))
+        self.flash
+            .as_ref()
+            .map_or((self.led_power_spread, self.led_colour_spread), |f| (f.power_spread, f.colour_spread))
     }
 
     /// Per-light power factors around 1 (log-normal with RMS `led_power_spread`, or
@@ -394,7 +409,11 @@ impl FlashConfig {
 fn validate_rings(field: &str, rings: &[LedRing], max_theta: f64, errors: &mut Vec<ConfigError>) {
     for (i, r) in rings.iter().enumerate() {
         if !(r.theta_deg.is_finite() && (0.0..=max_theta).contains(&r.theta_deg)) {
-            errors.push(ConfigError::out_of_range(&format!("{field}[{i}].theta_deg"), r.theta_deg, &format!("0..={max_theta}")));
+            errors.push(ConfigError::out_of_range(
+                &format!("{field}[{i}].theta_deg"),
+                r.theta_deg,
+                &format!("0..={max_theta}"),
+            ));
         }
         if !(1..=1000).contains(&r.count) {
             errors.push(ConfigError::out_of_range(&format!("{field}[{i}].count"), r.count, "1..=1000"));
@@ -409,7 +428,11 @@ fn validate_rings(field: &str, rings: &[LedRing], max_theta: f64, errors: &mut V
 fn ring_directions(rings: &[LedRing]) -> Vec<Direction> {
     rings
         .iter()
-        .flat_map(|r| (0..r.count).map(move |k| Direction::from_degrees(r.theta_deg, r.phi_offset_deg + 360.0 * k as f64 / r.count as f64)))
+        .flat_map(|r| {
+            (0..r.count).map(move |k| {
+                Direction::from_degrees(r.theta_deg, r.phi_offset_deg + 360.0 * k as f64 / r.count as f64)
+            })
+        })
         .collect()
 }
 
@@ -600,11 +623,20 @@ mod tests {
         }
         let no_flash = shipped_array().replace("[dome.flash]", "[unused]");
         assert!(crate::config::RigConfig::from_toml(&no_flash, "x").is_err());
-        let rings_and_arc = shipped_array().replace("camera_distance_m = 0.7", "camera_distance_m = 0.7\ncamera_theta_deg = [0.0]");
+        let rings_and_arc =
+            shipped_array().replace("camera_distance_m = 0.7", "camera_distance_m = 0.7\ncamera_theta_deg = [0.0]");
         let e = crate::config::RigConfig::from_toml(&rings_and_arc, "x").unwrap_err().to_string();
         assert!(e.contains("dome.camera_rings = set together with camera_theta_deg"), "{e}");
-        let flash_on_led_dome = shipped().replace("rotations = 12", "rotations = 12\n[dome.flash]\noffset_m = [0.0, 0.0, 0.0]\nenergy_at_1m_j_m2 = 1.0\nduration_s = 0.001");
+        let flash_on_led_dome = shipped().replace(
+            "rotations = 12",
+            "rotations = 12\n[dome.flash]\noffset_m = [0.0, 0.0, 0.0]\nenergy_at_1m_j_m2 = 1.0\nduration_s = 0.001",
+        );
         let e = crate::config::RigConfig::from_toml(&flash_on_led_dome, "x").unwrap_err().to_string();
-        assert!(e.contains("dome.flash = a [dome.flash] section is out of range: allowed only with [rig] kind = \"camera_array\""), "{e}");
+        assert!(
+            e.contains(
+                "dome.flash = a [dome.flash] section is out of range: allowed only with [rig] kind = \"camera_array\""
+            ),
+            "{e}"
+        );
     }
 }

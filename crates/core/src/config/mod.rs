@@ -144,7 +144,11 @@ impl RigConfig {
                 "only with [rig] kind = \"led_dome\" or \"camera_array\"",
             )),
             (RigKind::Gonioreflectometer, None) => {}
-            (_, None) => errors.push(ConfigError::out_of_range("dome", "missing", &format!("a [dome] section for kind = \"{name}\""))),
+            (_, None) => errors.push(ConfigError::out_of_range(
+                "dome",
+                "missing",
+                &format!("a [dome] section for kind = \"{name}\""),
+            )),
             (_, Some(d)) => {
                 d.validate(kind, errors);
                 let what = if kind == RigKind::CameraArray { "a camera array" } else { "an LED dome" };
@@ -163,7 +167,11 @@ impl RigConfig {
                 }
                 // A camera array's flash triggers are driven as an LED array: a pattern says
                 // which flashes fire in the next exposure, and at what power.
-                let lights = if kind == RigKind::CameraArray { "the flashes: one per camera" } else { "the LEDs of [dome] led_rings" };
+                let lights = if kind == RigKind::CameraArray {
+                    "the flashes: one per camera"
+                } else {
+                    "the LEDs of [dome] led_rings"
+                };
                 match &self.devices.led_array {
                     None => errors.push(ConfigError::out_of_range(
                         "devices.led_array",

@@ -250,7 +250,12 @@ impl Emulator {
         };
         match c {
             Command::StatusQuery => {
-                let s = Status { state: self.state(), mpos: vec![self.pos_deg, 0.0, 0.0], feed: Some(0.0), pins: String::new() };
+                let s = Status {
+                    state: self.state(),
+                    mpos: vec![self.pos_deg, 0.0, 0.0],
+                    feed: Some(0.0),
+                    pins: String::new(),
+                };
                 self.reply(Response::Status(s));
             }
             Command::FeedHold => self.hold = self.job.is_some() || !self.queue.is_empty(),

@@ -6,7 +6,9 @@
 use std::path::{Path, PathBuf};
 
 use btfrig_hw::{AxisLimits, DeviceError, MoveOptions, Robot};
-use btfrig_protocols::robot::{codes, request_decoder, Reply, Request, RequestDecoder, RobotState, RobotStatus, Tagged, UNATTRIBUTED_TAG};
+use btfrig_protocols::robot::{
+    codes, request_decoder, Reply, Request, RequestDecoder, RobotState, RobotStatus, Tagged, UNATTRIBUTED_TAG,
+};
 use btfrig_protocols::{robot::JointLimit, DecodeError};
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
@@ -129,13 +131,22 @@ impl Emulator {
     fn handle(&mut self, r: Result<Tagged<Request>, DecodeError>) {
         let Tagged { tag, body } = match r {
             Ok(t) => t,
-            Err(DecodeError::Checksum { .. }) => return self.err(UNATTRIBUTED_TAG, codes::BAD_CHECKSUM, "checksum mismatch".into()),
+            Err(DecodeError::Checksum { .. }) => {
+                return self.err(UNATTRIBUTED_TAG, codes::BAD_CHECKSUM, "checksum mismatch".into())
+            }
             Err(_) => return self.err(UNATTRIBUTED_TAG, codes::PARSE, "unreadable line".into()),
         };
         match body {
-            Request::Id => self.send(tag, Reply::Id { model: "emulated-robot".into(), serial: "EMU-1".into(), firmware: "1.0".into() }),
+            Request::Id => self.send(
+                tag,
+                Reply::Id { model: "emulated-robot".into(), serial: "EMU-1".into(), firmware: "1.0".into() },
+            ),
             Request::Limits => {
-                let l = self.limits.map(|a| JointLimit { min_rad: a.min_rad, max_rad: a.max_rad, max_speed_rad_per_s: a.max_speed_rad_per_s });
+                let l = self.limits.map(|a| JointLimit {
+                    min_rad: a.min_rad,
+                    max_rad: a.max_rad,
+                    max_speed_rad_per_s: a.max_speed_rad_per_s,
+                });
                 self.send(tag, Reply::Limits(l));
             }
             Request::Status => {
@@ -172,7 +183,12 @@ impl Emulator {
                     return self.err(
                         tag,
                         codes::OUT_OF_RANGE,
-                        format!("joint {i} target {:.4} deg outside [{:.4}, {:.4}] deg", j[i].to_degrees(), l.min_rad.to_degrees(), l.max_rad.to_degrees()),
+                        format!(
+                            "joint {i} target {:.4} deg outside [{:.4}, {:.4}] deg",
+                            j[i].to_degrees(),
+                            l.min_rad.to_degrees(),
+                            l.max_rad.to_degrees()
+                        ),
                     );
                 }
                 self.start(Some(j));
