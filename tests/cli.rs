@@ -688,22 +688,27 @@ fn dome_plans_are_checked_shown_and_run() {
     assert!(e.contains("cameras") && e.contains("99"), "{e}");
 }
 
+/// Writes `dir/dome.toml`: one camera at two rotations, 402 steps: 203, then 199. A view
+/// group commits its 198 textures once its 199th pattern (step 199) is demultiplexed; the
+/// first group's 4 single-LED reference steps (200-203) follow its patterns.
+fn two_view_group_dome_plan(dir: &Path) -> std::path::PathBuf {
+    let plan = dir.join("dome.toml");
+    std::fs::write(
+        &plan,
+        "name = \"cli-dome\"\ntexture_size = 8\n[rig]\nconfig = \"builtin:bonn-dome-sim\"\n\
+         material = \"leather\"\n[dome]\ncameras = [4]\nrotations = [1, 5]\n",
+    )
+    .unwrap();
+    plan
+}
+
 /// Ctrl-C during `btfrig run` on a dome plan: the step under way finishes, the view groups
 /// committed stay, exit 130 naming the command that resumes; progress counted steps with an
 /// ETA; the same command captures the rest.
 #[test]
 fn ctrl_c_interrupts_a_dome_run_after_its_committed_view_groups_and_resumes() {
     let dir = scratch("dome-sigint");
-    let plan = dir.join("dome.toml");
-    // One camera at two rotations: 203 steps, then 199. A view group commits its 198 textures
-    // once its 199th pattern (step 199) is demultiplexed; the first group's 4 single-LED
-    // reference steps (200-203) follow its patterns.
-    std::fs::write(
-        &plan,
-        "name = \"cli-dome-sigint\"\ntexture_size = 8\n[rig]\nconfig = \"builtin:bonn-dome-sim\"\n\
-         material = \"leather\"\n[dome]\ncameras = [4]\nrotations = [1, 5]\n",
-    )
-    .unwrap();
+    let plan = two_view_group_dome_plan(&dir);
     let out = dir.join("dataset");
     let child = btfrig()
         .args(["run", "--plan"])
@@ -754,13 +759,7 @@ fn ctrl_c_interrupts_a_dome_run_after_its_committed_view_groups_and_resumes() {
 #[test]
 fn a_device_fault_pauses_a_dome_run_exits_3_and_resumes_with_the_fault_gone() {
     let dir = scratch("dome-fault");
-    let plan = dir.join("dome.toml");
-    std::fs::write(
-        &plan,
-        "name = \"cli-dome-fault\"\ntexture_size = 8\n[rig]\nconfig = \"builtin:bonn-dome-sim\"\n\
-         material = \"leather\"\n[dome]\ncameras = [4]\nrotations = [1, 5]\n",
-    )
-    .unwrap();
+    let plan = two_view_group_dome_plan(&dir);
     // The LED controller's 300th pattern fails for good: step 299, in the second view group
     // (steps 203..401), after the first committed its 198 textures.
     let faults = dir.join("leds.toml");
