@@ -74,8 +74,8 @@ pub struct ServeConfig {
     pub listen: SocketAddr,
     /// Where datasets and calibrations go.
     pub data: PathBuf,
-    /// The auth file; `None`: one random admin token, printed on stderr and written to
-    /// `<data>/daemon-token` (mode 0600).
+    /// The auth file; `None`: one random admin token, written to `<data>/daemon-token`
+    /// (mode 0600; its path, not the token, is printed on stderr).
     pub auth: Option<PathBuf>,
     /// A directory of plan files offered by name (instead of the embedded ones).
     pub plans: Option<PathBuf>,
@@ -93,6 +93,9 @@ pub struct AppState {
     pub rig_source: String,
     /// The data directory.
     pub data: PathBuf,
+    /// The plans directory (`--plans`), canonical: the only place besides the rig config
+    /// file whose files a plan sent over the API may name ([`AppState::confine_plan_files`]).
+    pub plans_dir: Option<PathBuf>,
     /// Plans by name.
     pub plans: Vec<NamedPlan>,
     /// Runs.
@@ -164,6 +167,7 @@ impl AppState {
             rig_path: cfg.rig.clone(),
             rig_source,
             data: cfg.data.clone(),
+            plans_dir: cfg.plans.as_deref().and_then(|d| d.canonicalize().ok()),
             plans,
             runs: Runs::new(cfg.data.clone(), metrics.clone()),
             calibrations: Calibrations::default(),
@@ -235,11 +239,68 @@ impl AppState {
                 })?;
                 Ok((p.text.clone(), p.path.clone(), Some(p.name.clone())))
             }
-            (None, Some(text)) => Ok((text, self.data.join("api-plan.toml"), None)),
+            (None, Some(text)) => {
+                // Relative paths in a plan sent over the API resolve in the plans directory
+                // (and only there may they point; without one, nowhere).
+                let anchor = self.plans_dir.as_deref().unwrap_or(&self.data).join("api-plan.toml");
+                self.confine_plan_files(&text, &anchor)?;
+                Ok((text, anchor, None))
+            }
             _ => Err(Problem::unprocessable(
                 "give exactly one of \"plan\" (a name from GET /api/v1/plans) and \"plan_text\" (a plan file's TOML)",
             )),
         }
+    }
+
+    /// Refuses (422) a plan sent over the API that names a file it may not read: plans over
+    /// the API may name embedded rigs, materials and fault scenarios, the daemon's own rig
+    /// config file, and files inside the plans directory, nothing else on the host. Each file
+    /// it may name is loaded here, and when it does not load, the refusal says where the
+    /// parser stopped but never quotes the file (a viewer must not read host files through
+    /// error messages).
+    fn confine_plan_files(&self, text: &str, anchor: &Path) -> Result<(), Problem> {
+        for f in btfrig_runner::check::named_files(text, anchor) {
+            let allowed = || {
+                let mut places = vec!["embedded names".to_string()];
+                if let Some(r) = &self.rig_path {
+                    places.push(format!("the daemon's rig config {}", r.display()));
+                }
+                match &self.plans_dir {
+                    Some(d) => places.push(format!("files inside the plans directory {}", d.display())),
+                    None => places.push("(no files: the daemon was started without --plans DIR)".into()),
+                }
+                places.join(", ")
+            };
+            let refused = || {
+                Problem::unprocessable(format!(
+                    "{} = {:?}: a plan sent over the API may not name this file; allowed: {}",
+                    f.field,
+                    f.value,
+                    allowed()
+                ))
+            };
+            let lexical = lexically_normal(&f.path);
+            let in_plans = |p: &Path| self.plans_dir.as_deref().is_some_and(|d| p.starts_with(d));
+            let rig_file = self.rig_path.as_deref().map(|r| {
+                let abs = std::env::current_dir().map(|d| d.join(r)).unwrap_or_else(|_| r.to_path_buf());
+                (lexically_normal(&abs), abs.canonicalize().ok())
+            });
+            let is_rig = |p: &Path| {
+                f.field == "rig.config"
+                    && rig_file.as_ref().is_some_and(|(lex, real)| lex == p || real.as_deref() == Some(p))
+            };
+            // Nothing outside the allowed places is even opened (its existence stays unknown).
+            if !(in_plans(&lexical) || is_rig(&lexical)) {
+                return Err(refused());
+            }
+            // Links are resolved before the final check.
+            let real = f.path.canonicalize().map_err(|_| refused())?;
+            if !(in_plans(&real) || is_rig(&real)) {
+                return Err(refused());
+            }
+            check_named_file(&f, &real)?;
+        }
+        Ok(())
     }
 
     /// Validates the plan a body names against this rig ([`btfrig_runner::check`]) and, with
@@ -337,8 +398,12 @@ impl AppState {
     /// 409 when `dataset` exists and holds another plan (the store would refuse it later).
     fn check_dataset_plan(&self, dataset: &str, plan_text: &str) -> Result<(), Problem> {
         let dir = self.data.join(dataset);
-        if !dir.exists() {
-            return Ok(());
+        let Ok(meta) = std::fs::symlink_metadata(&dir) else { return Ok(()) };
+        if !meta.is_dir() {
+            // A run writes into its dataset: never through a link out of the data directory.
+            return Err(Problem::conflict(format!(
+                "{dataset:?} exists and is not a directory (the daemon does not follow links in its data directory): choose another name"
+            )));
         }
         let manifest = std::fs::read(dir.join(btfrig_store::MANIFEST_FILE)).ok();
         let hash = manifest
@@ -363,6 +428,10 @@ impl AppState {
         let mut out = Vec::new();
         let Ok(dir) = std::fs::read_dir(&self.data) else { return out };
         for e in dir.flatten() {
+            // Only real directories are datasets (a link could lead anywhere on the host).
+            if !e.file_type().is_ok_and(|t| t.is_dir()) {
+                continue;
+            }
             let name = e.file_name().to_string_lossy().to_string();
             let path = e.path();
             let Ok(m) = std::fs::read(path.join(btfrig_store::MANIFEST_FILE)) else { continue };
@@ -392,12 +461,32 @@ impl AppState {
         out
     }
 
+    /// The directory of dataset `name`: a real directory directly inside the data directory.
+    /// A symbolic link there (or anything that resolves elsewhere) is no dataset: a link
+    /// `DATA/x -> /` would otherwise serve the host's files.
+    fn dataset_root(&self, name: &str) -> Result<PathBuf, Problem> {
+        api::check_name(name).map_err(Problem::bad_request)?;
+        let none = || Problem::not_found(format!("no dataset named {name:?}"));
+        let path = self.data.join(name);
+        let meta = std::fs::symlink_metadata(&path).map_err(|_| none())?;
+        if !meta.is_dir() {
+            // Links (to directories or not) and plain files are not datasets.
+            tracing::warn!("refused dataset {name:?}: {} is not a directory (links are not followed)", path.display());
+            return Err(none());
+        }
+        let data = self.data.canonicalize().map_err(|_| none())?;
+        let root = path.canonicalize().map_err(|_| none())?;
+        if root.parent() != Some(data.as_path()) {
+            tracing::warn!("refused dataset {name:?}: {} resolves outside {}", path.display(), data.display());
+            return Err(none());
+        }
+        Ok(root)
+    }
+
     /// `rel` inside dataset `name`, refusing anything that leaves it (also through links).
     fn dataset_file(&self, name: &str, rel: &str) -> Result<PathBuf, Problem> {
-        api::check_name(name).map_err(Problem::bad_request)?;
+        let root = self.dataset_root(name)?;
         let rel = api::relative_inside(rel)?;
-        let root = self.data.join(name);
-        let root = root.canonicalize().map_err(|_| Problem::not_found(format!("no dataset named {name:?}")))?;
         let file = root.join(&rel);
         let real = file
             .canonicalize()
@@ -409,22 +498,127 @@ impl AppState {
     }
 }
 
+/// `p` with `.` and `..` folded away without touching the file system (`..` at the root
+/// stays at the root).
+fn lexically_normal(p: &Path) -> PathBuf {
+    use std::path::Component;
+    let mut out = PathBuf::new();
+    for c in p.components() {
+        match c {
+            Component::ParentDir => {
+                out.pop();
+            }
+            Component::CurDir => {}
+            c => out.push(c),
+        }
+    }
+    out
+}
+
+/// Loads a file a plan sent over the API names (already confined) as what its key says;
+/// when it does not load, the error names the key, the file and the parser's position only.
+fn check_named_file(f: &btfrig_runner::check::NamedFile, real: &Path) -> Result<(), Problem> {
+    let (what, result) = match f.field {
+        "rig.config" => (
+            "a rig config",
+            std::fs::read_to_string(real)
+                .map_err(|e| e.to_string())
+                .and_then(|t| RigConfig::from_toml(&t, &f.value).map(drop).map_err(|e| e.to_string())),
+        ),
+        "rig.material" => (
+            "a material",
+            btfrig_runner::plan::load_material(Some(&real.display().to_string())).map(drop).map_err(|e| e.to_string()),
+        ),
+        _ => (
+            "a fault scenario",
+            btfrig_runner::plan::fault_scenario(&real.display().to_string(), Path::new("/"), f.field)
+                .map(drop)
+                .map_err(|e| e.to_string()),
+        ),
+    };
+    result.map_err(|message| {
+        // Only where the parser stopped: the message itself may quote the file.
+        let at = message
+            .find("at line ")
+            .map(|i| {
+                let rest = &message[i..];
+                let end = rest.find(['\n', '\r']).unwrap_or(rest.len());
+                format!(" (parse error {})", &rest[..end])
+            })
+            .unwrap_or_default();
+        Problem::unprocessable(format!(
+            "{} = {:?}: the file does not load as {what}{at}; check it on the daemon's host with `btfrig plan check`",
+            f.field, f.value
+        ))
+    })
+}
+
 fn plan_name_of(text: &str) -> Option<String> {
     let v: toml::Value = toml::from_str(text).ok()?;
     v.get("name")?.as_str().map(String::from)
 }
 
+/// Writes the generated token to `path` (`DATA/daemon-token`), readable by this user only.
+///
+/// The file is never written through: a new file is created beside it with `O_CREAT |
+/// O_EXCL` (which never follows a link) and mode 0600, and renamed over `path`, so a symbolic
+/// link planted at `path` cannot redirect the token (or truncate its target). An existing
+/// token file that others could read, or that another user owns, is refused, not reused.
 fn write_secret(path: &Path, secret: &str) -> Result<(), String> {
     use std::io::Write;
+    let shown = path.display();
+    let existing = match std::fs::symlink_metadata(path) {
+        Ok(m) if m.file_type().is_symlink() => {
+            return Err(format!(
+                "the token file {shown} is a symbolic link: the daemon does not write its token through links; \
+                 remove it, or give --auth FILE (docs/http-api.md)"
+            ))
+        }
+        Ok(m) if !m.is_file() => {
+            return Err(format!(
+                "the token file {shown} exists and is not a regular file: remove it, or give --auth FILE"
+            ))
+        }
+        Ok(m) => Some(m),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
+        Err(e) => return Err(format!("cannot inspect the token file {shown}: {e}")),
+    };
+    let tmp = path.with_file_name(format!(".daemon-token.{}.tmp", std::process::id()));
     let mut o = std::fs::OpenOptions::new();
-    o.write(true).create(true).truncate(true);
+    o.write(true).create_new(true);
     #[cfg(unix)]
     {
         use std::os::unix::fs::OpenOptionsExt;
         o.mode(0o600);
     }
-    let mut f = o.open(path).map_err(|e| format!("cannot write the token file {}: {e}", path.display()))?;
-    writeln!(f, "{secret}").map_err(|e| format!("cannot write the token file {}: {e}", path.display()))
+    let mut f = o.open(&tmp).map_err(|e| format!("cannot create {}: {e}", tmp.display()))?;
+    let written = (|| -> Result<(), String> {
+        #[cfg(unix)]
+        if let Some(old) = &existing {
+            use std::os::unix::fs::{MetadataExt, PermissionsExt};
+            // The new file is ours: its owner is this process's user.
+            let me = f.metadata().map_err(|e| format!("cannot inspect {}: {e}", tmp.display()))?.uid();
+            let mode = old.permissions().mode() & 0o777;
+            if mode & 0o077 != 0 || old.uid() != me {
+                return Err(format!(
+                    "the token file {shown} has mode {mode:04o} and owner uid {} (this daemon runs as uid {me}): a token \
+                     written there could be read by others; remove the file (the daemon creates it with mode 0600), \
+                     or give --auth FILE",
+                    old.uid()
+                ));
+            }
+        }
+        #[cfg(not(unix))]
+        let _ = &existing;
+        writeln!(f, "{secret}")
+            .and_then(|()| f.sync_all())
+            .and_then(|()| std::fs::rename(&tmp, path))
+            .map_err(|e| format!("cannot write the token file {shown}: {e}"))
+    })();
+    if written.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    written
 }
 
 fn load_plans(dir: Option<&Path>, data: &Path, rig: &RigConfig) -> Result<Vec<NamedPlan>, String> {
@@ -519,9 +713,10 @@ pub async fn serve(cfg: ServeConfig) -> Result<(), ServeError> {
         .map_err(|source| ServeError::Bind { addr: cfg.listen, source })?;
     let addr = listener.local_addr()?;
     println!("listening on http://{addr}");
-    if let Some(t) = generated {
+    if generated.is_some() {
+        // The token itself is never printed: stderr ends up in service logs.
         eprintln!(
-            "no --auth file: admin token {t} (also in {}); give an auth file for viewer/operator tokens (docs/http-api.md)",
+            "no --auth file: a new admin token is in {} (mode 0600); give an auth file for viewer/operator tokens (docs/http-api.md)",
             cfg.data.join("daemon-token").display()
         );
     }

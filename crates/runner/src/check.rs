@@ -198,3 +198,79 @@ fn plan_rig_label(text: &str, file: &Path, kind: PlanKind) -> String {
         None => format!("{config:?} (its rig.config, which does not load)"),
     }
 }
+
+/// A file that a plan names (rather than an embedded rig, material or fault scenario).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct NamedFile {
+    /// The plan key, e.g. `rig.config`.
+    pub field: &'static str,
+    /// The value as written.
+    pub value: String,
+    /// The path it resolves to (relative values against the plan file's directory, as the
+    /// loaders resolve them). Pure path arithmetic: nothing is read.
+    pub path: std::path::PathBuf,
+}
+
+/// Every file the plan `text` (at `file`) would read: a non-embedded `rig.config`, a
+/// material file (`rig.material` ending in `.toml` or with a path separator), and a fault
+/// scenario that is no embedded name (`run.fault_scenario` of gonio plans, `fault_scenario`
+/// of dome plans). Read from the TOML before any validation, so that a caller that must
+/// confine what a plan may read (the daemon, for plans sent over its API) can refuse the plan
+/// before anything is opened. Text that is not TOML names no files.
+pub fn named_files(text: &str, file: &Path) -> Vec<NamedFile> {
+    let Ok(t) = toml::from_str::<toml::Table>(text) else { return Vec::new() };
+    let dir = file.parent().unwrap_or(Path::new("."));
+    let at = |table: Option<&toml::Value>, key: &str| -> Option<String> { table?.get(key)?.as_str().map(String::from) };
+    let resolve = |v: &str| -> std::path::PathBuf {
+        let p = Path::new(v);
+        if p.is_absolute() {
+            p.to_path_buf()
+        } else {
+            dir.join(p)
+        }
+    };
+    let mut out = Vec::new();
+    if let Some(c) = at(t.get("rig"), "config").filter(|c| !c.starts_with("builtin:")) {
+        out.push(NamedFile { field: "rig.config", path: resolve(&c), value: c });
+    }
+    if let Some(m) =
+        at(t.get("rig"), "material").filter(|m| m.ends_with(".toml") || m.contains('/') || m.contains('\\'))
+    {
+        out.push(NamedFile { field: "rig.material", path: resolve(&m), value: m });
+    }
+    let embedded_fault = |f: &str| crate::plan::FAULT_FILES.iter().any(|(n, _)| *n == f);
+    if let Some(f) = at(t.get("run"), "fault_scenario").filter(|f| !embedded_fault(f)) {
+        out.push(NamedFile { field: "run.fault_scenario", path: resolve(&f), value: f });
+    }
+    if let Some(f) = t.get("fault_scenario").and_then(|v| v.as_str()).filter(|f| !embedded_fault(f)) {
+        out.push(NamedFile { field: "fault_scenario", path: resolve(f), value: f.to_string() });
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn named_files_lists_what_a_plan_would_read_and_nothing_embedded() {
+        let plan = Path::new("/plans/p.toml");
+        let text = "[rig]\nconfig = \"../etc/rig.toml\"\nmaterial = \"mats/wood.toml\"\n[run]\nfault_scenario = \"/x/f.toml\"\n";
+        let got = named_files(text, plan);
+        let fields: Vec<_> = got.iter().map(|f| (f.field, f.path.display().to_string())).collect();
+        assert_eq!(
+            fields,
+            [
+                ("rig.config", "/plans/../etc/rig.toml".to_string()),
+                ("rig.material", "/plans/mats/wood.toml".to_string()),
+                ("run.fault_scenario", "/x/f.toml".to_string()),
+            ]
+        );
+        let embedded =
+            "fault_scenario = \"flaky\"\n[rig]\nconfig = \"builtin:bonn-dome-sim\"\nmaterial = \"leather\"\n";
+        assert!(named_files(embedded, plan).is_empty());
+        let dome = "fault_scenario = \"../../proc/self/environ\"\n[rig]\nconfig = \"builtin:bonn-dome-sim\"\n";
+        assert_eq!(named_files(dome, plan)[0].field, "fault_scenario");
+        assert!(named_files("not toml [", plan).is_empty());
+    }
+}
