@@ -52,23 +52,44 @@ pub struct ApiJson<T>(pub T);
 impl<T: serde::de::DeserializeOwned, S: Send + Sync> FromRequest<S> for ApiJson<T> {
     type Rejection = Problem;
     async fn from_request(req: Request, state: &S) -> Result<Self, Problem> {
-        match Json::<T>::from_request(req, state).await {
-            Ok(Json(v)) => Ok(ApiJson(v)),
-            Err(e) => Err(match &e {
-                JsonRejection::MissingJsonContentType(_) => Problem::new(
-                    StatusCode::UNSUPPORTED_MEDIA_TYPE,
-                    "the body must be JSON: send Content-Type: application/json",
-                ),
-                JsonRejection::BytesRejection(_) if e.status() == StatusCode::PAYLOAD_TOO_LARGE => Problem::new(
-                    StatusCode::PAYLOAD_TOO_LARGE,
-                    format!("the body is larger than {} bytes", crate::BODY_LIMIT),
-                ),
-                JsonRejection::JsonDataError(d) => {
-                    Problem::unprocessable(format!("the body does not fit the schema: {}", d.body_text()))
-                }
-                _ => Problem::bad_request(format!("the body is not valid JSON: {}", e.body_text())),
-            }),
+        // Parsed as a value first: every body of the API is an object, and serde would take a
+        // struct from an array too (`[null, null]` as two absent fields).
+        let value = match Json::<serde_json::Value>::from_request(req, state).await {
+            Ok(Json(v)) => v,
+            Err(e) => {
+                return Err(match &e {
+                    JsonRejection::MissingJsonContentType(_) => Problem::new(
+                        StatusCode::UNSUPPORTED_MEDIA_TYPE,
+                        "the body must be JSON: send Content-Type: application/json",
+                    ),
+                    JsonRejection::BytesRejection(_) if e.status() == StatusCode::PAYLOAD_TOO_LARGE => Problem::new(
+                        StatusCode::PAYLOAD_TOO_LARGE,
+                        format!("the body is larger than {} bytes", crate::BODY_LIMIT),
+                    ),
+                    _ => Problem::bad_request(format!("the body is not valid JSON: {}", e.body_text())),
+                })
+            }
+        };
+        if !value.is_object() {
+            return Err(Problem::unprocessable(format!(
+                "the body must be a JSON object (see the operation's schema in /api/v1/openapi.json), not {}",
+                json_type(&value)
+            )));
         }
+        serde_json::from_value(value)
+            .map(ApiJson)
+            .map_err(|e| Problem::unprocessable(format!("the body does not fit the schema: {e}")))
+    }
+}
+
+fn json_type(v: &serde_json::Value) -> &'static str {
+    match v {
+        serde_json::Value::Null => "null",
+        serde_json::Value::Bool(_) => "a boolean",
+        serde_json::Value::Number(_) => "a number",
+        serde_json::Value::String(_) => "a string",
+        serde_json::Value::Array(_) => "an array",
+        serde_json::Value::Object(_) => "an object",
     }
 }
 
@@ -368,9 +389,10 @@ pub struct StartRun {
     pub plan: Option<String>,
     /// A whole plan file.
     pub plan_text: Option<String>,
-    /// The dataset's name under the data directory (letters, digits, `.`, `_`, `-`; at most
-    /// 64). An existing dataset of the same plan is resumed; default: a new name.
-    #[schema(pattern = "^[A-Za-z0-9_-][A-Za-z0-9._-]{0,63}$")]
+    /// The dataset's name under the data directory: 1 to 63 characters of any script, no `/`,
+    /// `\\` or control character, not starting with `.` ([`check_name`]). An existing dataset of
+    /// the same plan is resumed; default: a new name.
+    // Its pattern is NAME_PATTERN (set in `document`).
     pub dataset: Option<String>,
 }
 
@@ -529,6 +551,15 @@ pub fn document() -> serde_json::Value {
     paths["/api/v1/datasets/{name}/files/{path}"]["get"]["responses"]["200"]["content"] =
         serde_json::json!({ "*/*": {} });
     paths["/api/v1/preview"]["get"]["responses"]["200"]["content"] = serde_json::json!({ "image/png": {} });
+    // Dataset names as `check_name` takes them, written once.
+    for op in ["/api/v1/datasets/{name}", "/api/v1/datasets/{name}/files/{path}"] {
+        if let Some(params) = paths[op]["get"]["parameters"].as_array_mut() {
+            for p in params.iter_mut().filter(|p| p["name"] == "name") {
+                p["schema"]["pattern"] = NAME_PATTERN.into();
+            }
+        }
+    }
+    doc["components"]["schemas"]["StartRun"]["properties"]["dataset"]["pattern"] = NAME_PATTERN.into();
     doc
 }
 
@@ -952,17 +983,35 @@ pub async fn method_not_allowed() -> Problem {
     Problem::new(StatusCode::METHOD_NOT_ALLOWED, "this endpoint does not take that method; see /api/v1/openapi.json")
 }
 
-/// A dataset or file name: letters, digits, `.`, `_`, `-`, not starting with `.`, 1 to 64.
+/// Longest dataset name, in characters: UTF-8 takes at most 4 bytes a character, so a name
+/// stays within Linux's 255-byte file name limit (`NAME_MAX`).
+pub const MAX_NAME_CHARS: usize = 63;
+
+/// The JSON Schema pattern of a dataset name, as [`check_name`] decides.
+pub const NAME_PATTERN: &str = "^[^./\\\\\\u0000-\\u001f\\u007f-\\u009f][^/\\\\\\u0000-\\u001f\\u007f-\\u009f]{0,62}$";
+
+/// A dataset name: one directory under the data directory. 1 to [`MAX_NAME_CHARS`] characters
+/// of any script (unicode letters are fine file names on Linux), none of them `/` or `\` (a
+/// path, not a name) or a control character (NUL ends a C string; line breaks forge log lines),
+/// not starting with `.` (`.`, `..` and hidden files).
 pub fn check_name(name: &str) -> Result<(), String> {
-    let ok = !name.is_empty()
-        && name.len() <= 64
-        && !name.starts_with('.')
-        && name.chars().all(|c| c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-'));
-    if ok {
-        Ok(())
+    let bad = name.chars().find(|&c| c == '/' || c == '\\' || c.is_control());
+    let count = name.chars().count();
+    let why = if count == 0 {
+        "it is empty".to_string()
+    } else if count > MAX_NAME_CHARS {
+        format!("it has {count} characters")
+    } else if name.starts_with('.') {
+        "it starts with '.'".to_string()
+    } else if let Some(c) = bad {
+        format!("it holds {c:?}")
     } else {
-        Err(format!("dataset name {name:?}: use 1 to 64 letters, digits, '.', '_' or '-', not starting with '.'"))
-    }
+        return Ok(());
+    };
+    Err(format!(
+        "dataset name {name:?}: {why}; use 1 to {MAX_NAME_CHARS} letters, digits and other printable characters \
+         (any script), no '/', '\\' or control characters, not starting with '.'"
+    ))
 }
 
 /// `rel` as a relative path of plain components (no `..`, root or prefix), or why not.
