@@ -560,7 +560,39 @@ pub fn document() -> serde_json::Value {
         }
     }
     doc["components"]["schemas"]["StartRun"]["properties"]["dataset"]["pattern"] = NAME_PATTERN.into();
+    add_links(&mut doc["paths"]);
     doc
+}
+
+/// OpenAPI links: what a response's identifiers lead to (a started run to its status, its
+/// controls, its events and its dataset; a calibration to its state), so clients and
+/// stateful testers can chain the operations.
+fn add_links(paths: &mut serde_json::Value) {
+    let by = |operation: &str, param: &str, value: &str| {
+        serde_json::json!({ "operationId": operation, "parameters": { param: value } })
+    };
+    let run_links = |from: &str| {
+        let id = format!("$response.body#/{from}");
+        serde_json::json!({
+            "GetRun": by("get_run", "id", &id),
+            "PauseRun": by("pause_run", "id", &id),
+            "ResumeRun": by("resume_run", "id", &id),
+            "AbortRun": by("abort_run", "id", &id),
+            "RunEvents": by("run_events", "id", &id),
+            "GetDataset": by("get_dataset", "name", "$response.body#/dataset"),
+        })
+    };
+    for (path, method, status) in [
+        ("/api/v1/runs", "post", "201"),
+        ("/api/v1/runs/{id}", "get", "200"),
+        ("/api/v1/runs/{id}/pause", "post", "200"),
+        ("/api/v1/runs/{id}/resume", "post", "200"),
+        ("/api/v1/runs/{id}/abort", "post", "200"),
+    ] {
+        paths[path][method]["responses"][status]["links"] = run_links("id");
+    }
+    paths["/api/v1/calibrations"]["post"]["responses"]["202"]["links"] =
+        serde_json::json!({ "GetCalibration": by("get_calibration", "id", "$response.body#/id") });
 }
 
 /// `GET /api/v1/openapi.json`.

@@ -70,6 +70,11 @@ pub struct Daemon {
 
 impl Daemon {
     pub fn start(name: &str, rig: Option<&str>) -> Daemon {
+        Daemon::start_with(name, rig, btfrig_daemon::server::HEADER_READ_TIMEOUT)
+    }
+
+    /// [`Daemon::start`] with another header-read timeout.
+    pub fn start_with(name: &str, rig: Option<&str>, header_read_timeout: Duration) -> Daemon {
         let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
@@ -80,7 +85,7 @@ impl Daemon {
             data: dir.join("data"),
             auth: Some(dir.join("auth.toml")),
             plans: None,
-            header_read_timeout: btfrig_daemon::server::HEADER_READ_TIMEOUT,
+            header_read_timeout,
         };
         let (state, _) = AppState::load(&cfg).unwrap_or_else(|e| panic!("{e}"));
         let state = Arc::new(state);
