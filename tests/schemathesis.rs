@@ -15,8 +15,8 @@ mod support;
 use std::process::Command;
 use support::repo;
 
-/// Fewer cases than this means a phase or operations were skipped (a full run: about 2,400).
-const MIN_CASES: u64 = 1500;
+/// Fewer cases than this means a phase or operations were skipped (seed 6 runs 2,176).
+const MIN_CASES: u64 = 1800;
 
 #[test]
 fn schemathesis_all_phases_find_no_server_error_and_no_conformance_failure() {

@@ -300,7 +300,8 @@ fn r24_rust_log_trace_prints_the_daemons_log_lines() {
         assert!(std::process::Command::new("kill").args(["-TERM", &pid]).status().unwrap().success());
         let out = child.wait_with_output().unwrap();
         let err = String::from_utf8_lossy(&out.stderr);
-        let request_lines: Vec<&str> = err.lines().filter(|l| l.contains("request") && l.contains("/healthz")).collect();
+        let request_lines: Vec<&str> =
+            err.lines().filter(|l| l.contains("request") && l.contains("/healthz")).collect();
         if logged {
             assert!(err.contains("TRACE") && err.contains("connection accepted"), "RUST_LOG=trace:\n{err}");
             assert!(

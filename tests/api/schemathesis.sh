@@ -10,9 +10,9 @@
 #
 # usage: tests/api/schemathesis.sh [PATH/TO/btfrig]
 #   binary: the argument, else $BTFRIG_BIN, else target/release/btfrig
-#   ST_MAX_EXAMPLES (default 25): generated test cases per operation in the fuzzing phase
+#   ST_MAX_EXAMPLES (default 100): generated test cases per operation in the fuzzing phase
 #     (the coverage phase makes every case the schema defines, whatever this says)
-#   ST_MIN_CASES (default 1500): fewer cases run is a failure
+#   ST_MIN_CASES (default 1800): fewer cases run is a failure
 #   ST_SEED (default 6): the random seed, so a failure can be replayed
 #
 # Installs tests/api/requirements.txt (schemathesis and every dependency, pinned with hashes)
@@ -91,16 +91,16 @@ ST_CACHE_DIR="$out/cache" "$venv/bin/st" --config-file "$here/schemathesis.toml"
     --phases examples,coverage,fuzzing,stateful \
     --checks all \
     --mode all \
-    --max-examples "${ST_MAX_EXAMPLES:-25}" \
+    --max-examples "${ST_MAX_EXAMPLES:-100}" \
     --seed "${ST_SEED:-6}" \
     --request-timeout 20 \
-    --workers 2 \
+    --workers 1 \
     --generation-database none \
     --report junit,json --report-junit-path "$out/schemathesis.junit.xml" \
     --report-json-path "$out/schemathesis.json" || status=$?
 
 # ---- what ran: cases, failures, phases (from the JSON run report) ----
-python3 - "$out/schemathesis.json" "${ST_MIN_CASES:-1500}" <<'PY' || status=1
+python3 - "$out/schemathesis.json" "${ST_MIN_CASES:-1800}" <<'PY' || status=1
 import json, sys
 path, minimum = sys.argv[1], int(sys.argv[2])
 try:

@@ -31,8 +31,11 @@ fn init_logging() -> anyhow::Result<()> {
         })?,
         _ => EnvFilter::new(DEFAULT_LOG_FILTER),
     };
-    tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_ansi(false).try_init().map_err(
-        |e| anyhow::anyhow!("cannot set up logging: {e}"),
-    )?;
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_ansi(false)
+        .try_init()
+        .map_err(|e| anyhow::anyhow!("cannot set up logging: {e}"))?;
     Ok(())
 }

@@ -76,9 +76,31 @@ impl<T: serde::de::DeserializeOwned, S: Send + Sync> FromRequest<S> for ApiJson<
                 json_type(&value)
             )));
         }
-        serde_json::from_value(value)
+        serde_json::from_value(integral_numbers(value))
             .map(ApiJson)
             .map_err(|e| Problem::unprocessable(format!("the body does not fit the schema: {e}")))
+    }
+}
+
+/// `value` with every number that has no fractional part (`517.0`) as an integer: JSON Schema's
+/// `integer` includes them, serde's integer fields do not.
+fn integral_numbers(value: serde_json::Value) -> serde_json::Value {
+    use serde_json::Value;
+    match value {
+        Value::Number(n) if n.is_f64() => {
+            let f = n.as_f64().unwrap_or(f64::NAN);
+            // 2^63 and 2^64 are exact in f64, so the casts below are exact within these bounds.
+            if f.fract() == 0.0 && f >= 0.0 && f < 18_446_744_073_709_551_616.0 {
+                Value::from(f as u64)
+            } else if f.fract() == 0.0 && f < 0.0 && f >= -9_223_372_036_854_775_808.0 {
+                Value::from(f as i64)
+            } else {
+                Value::Number(n)
+            }
+        }
+        Value::Array(items) => Value::Array(items.into_iter().map(integral_numbers).collect()),
+        Value::Object(map) => Value::Object(map.into_iter().map(|(k, v)| (k, integral_numbers(v))).collect()),
+        other => other,
     }
 }
 
@@ -560,6 +582,9 @@ pub fn document() -> serde_json::Value {
         }
     }
     doc["components"]["schemas"]["StartRun"]["properties"]["dataset"]["pattern"] = NAME_PATTERN.into();
+    // The calibrations the daemon runs, from the list it checks against.
+    doc["components"]["schemas"]["StartCalibration"]["properties"]["kind"]["enum"] =
+        crate::calibrations::KINDS.iter().map(|k| serde_json::Value::from(*k)).collect();
     add_links(&mut doc["paths"]);
     doc
 }
@@ -568,9 +593,7 @@ pub fn document() -> serde_json::Value {
 /// controls, its events and its dataset; a calibration to its state), so clients and
 /// stateful testers can chain the operations.
 fn add_links(paths: &mut serde_json::Value) {
-    let by = |operation: &str, param: &str, value: &str| {
-        serde_json::json!({ "operationId": operation, "parameters": { param: value } })
-    };
+    let by = |operation: &str, param: &str, value: &str| serde_json::json!({ "operationId": operation, "parameters": { param: value } });
     let run_links = |from: &str| {
         let id = format!("$response.body#/{from}");
         serde_json::json!({

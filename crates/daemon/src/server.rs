@@ -68,7 +68,8 @@ pub async fn serve_connections(
             () = &mut shutdown => break,
         };
         tracing::trace!(%peer, "connection accepted");
-        let conn = http.serve_connection(TokioIo::new(ProblemHeads::new(stream)), TowerToHyperService::new(app.clone()));
+        let conn =
+            http.serve_connection(TokioIo::new(ProblemHeads::new(stream)), TowerToHyperService::new(app.clone()));
         let mut stop = stop_rx.clone();
         tokio::spawn(async move {
             let mut conn = std::pin::pin!(conn);
@@ -146,10 +147,9 @@ pub fn problem_for_bare_head(head: &[u8]) -> Option<Vec<u8>> {
     let text = std::str::from_utf8(head).ok()?;
     let rest = text.strip_prefix("HTTP/1.1 ")?;
     let (status, detail) = match rest.get(..4)? {
-        "400 " => (
-            StatusCode::BAD_REQUEST,
-            "the request line or a header does not parse as HTTP/1.1 (RFC 9112)".to_string(),
-        ),
+        "400 " => {
+            (StatusCode::BAD_REQUEST, "the request line or a header does not parse as HTTP/1.1 (RFC 9112)".to_string())
+        }
         "414 " => (StatusCode::URI_TOO_LONG, format!("the request target is too long: at most {MAX_URI_BYTES} bytes")),
         "431 " => (
             StatusCode::REQUEST_HEADER_FIELDS_TOO_LARGE,

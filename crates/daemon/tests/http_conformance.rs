@@ -73,7 +73,9 @@ fn r24_half_sent_requests_are_closed_after_the_header_read_timeout() {
         match s.read(&mut buf) {
             Ok(0) => {}
             Err(e) if e.kind() == std::io::ErrorKind::ConnectionReset => {}
-            Ok(n) => panic!("connection {i}: the daemon answered a half-sent head: {:?}", String::from_utf8_lossy(&buf[..n])),
+            Ok(n) => {
+                panic!("connection {i}: the daemon answered a half-sent head: {:?}", String::from_utf8_lossy(&buf[..n]))
+            }
             Err(e) => panic!("connection {i} ({:?}) still open after 60 s: {e}", partial[i % partial.len()]),
         }
     }
