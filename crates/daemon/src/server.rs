@@ -1,8 +1,8 @@
 //! Accepting connections: hyper's HTTP/1 server under the router, with the limits that
 //! `axum::serve` leaves unset. A client gets [`HEADER_READ_TIMEOUT`] to send a request's head
 //! (the connection is closed after it, so half-sent requests cannot pile up), a head of at most
-//! [`MAX_HEAD_BYTES`] in at most [`MAX_HEADERS`] headers, and a request target of at most
-//! [`MAX_URI_BYTES`]. Every refusal is a problem document: hyper answers a request it cannot
+//! [`MAX_HEADER_BYTES`] of headers, at most [`MAX_HEADERS`] of them, and a request target of at
+//! most [`MAX_URI_BYTES`]. Every refusal is a problem document: hyper answers a request it cannot
 //! parse (400, 414, 431) itself with an empty body, so [`ProblemHeads`] replaces those
 //! answers on the wire.
 
@@ -28,7 +28,12 @@ use crate::problem::Problem;
 /// the end of its previous response; then the connection is closed (no answer).
 pub const HEADER_READ_TIMEOUT: Duration = Duration::from_secs(10);
 
-/// Largest request head (request line and headers), bytes; larger: 431.
+/// Most bytes of a request's headers (each `name: value` line), checked by the router; more:
+/// 431.
+pub const MAX_HEADER_BYTES: usize = 32 * 1024;
+
+/// hyper's read buffer for a request head: a head that does not fit is refused by hyper
+/// itself (431, or 414 for a request line over 64 KiB) before the router sees it.
 pub const MAX_HEAD_BYTES: usize = 64 * 1024;
 
 /// Most headers in a request; more: 431.
@@ -98,20 +103,33 @@ pub async fn serve_connections(
     Ok(())
 }
 
-/// Middleware: 414 for a request target over [`MAX_URI_BYTES`]; logs each request at debug
-/// level (the path only: a query may hold a token).
+/// Middleware: 414 for a request target over [`MAX_URI_BYTES`], 431 for headers over
+/// [`MAX_HEADER_BYTES`]; logs each request at debug level (the path only: a query may hold a
+/// token).
 pub async fn limit_and_log(req: Request, next: Next) -> Response {
     let (method, path) = (req.method().clone(), req.uri().path().to_string());
     let target = req.uri().path_and_query().map_or(0, |p| p.as_str().len());
-    let response = if target > MAX_URI_BYTES {
+    // As sent: `name: value\r\n` per header.
+    let header_bytes: usize = req.headers().iter().map(|(k, v)| k.as_str().len() + v.len() + 4).sum();
+    let mut response = if target > MAX_URI_BYTES {
         Problem::new(
             StatusCode::URI_TOO_LONG,
             format!("the request target has {target} bytes; at most {MAX_URI_BYTES} are allowed"),
         )
         .into_response()
+    } else if header_bytes > MAX_HEADER_BYTES {
+        Problem::new(
+            StatusCode::REQUEST_HEADER_FIELDS_TOO_LARGE,
+            format!("the request's headers have {header_bytes} bytes; at most {MAX_HEADER_BYTES} are allowed"),
+        )
+        .into_response()
     } else {
         next.run(req).await
     };
+    if matches!(response.status(), StatusCode::URI_TOO_LONG | StatusCode::REQUEST_HEADER_FIELDS_TOO_LARGE) {
+        // As hyper does with the heads it refuses: a client that sends them is not kept.
+        response.headers_mut().insert(axum::http::header::CONNECTION, axum::http::HeaderValue::from_static("close"));
+    }
     tracing::debug!(%method, path = %truncated(&path, 200), status = response.status().as_u16(), "request");
     response
 }
@@ -154,8 +172,8 @@ pub fn problem_for_bare_head(head: &[u8]) -> Option<Vec<u8>> {
         "431 " => (
             StatusCode::REQUEST_HEADER_FIELDS_TOO_LARGE,
             format!(
-                "the request head is too large: at most {MAX_HEAD_BYTES} bytes (a request target of at most \
-                 {MAX_URI_BYTES}) in at most {MAX_HEADERS} headers"
+                "the request head is too large: at most {MAX_HEADERS} headers of at most {MAX_HEADER_BYTES} bytes \
+                 in all, and a request target of at most {MAX_URI_BYTES} bytes"
             ),
         ),
         _ => return None,
@@ -262,7 +280,7 @@ mod tests {
         assert!(h.contains(&format!("\r\ncontent-length: {}", body.len())), "{h}");
         let p: serde_json::Value = serde_json::from_str(body).unwrap();
         assert_eq!(p["status"], 431);
-        assert!(p["detail"].as_str().unwrap().contains(&MAX_HEAD_BYTES.to_string()), "{p}");
+        assert!(p["detail"].as_str().unwrap().contains(&MAX_HEADER_BYTES.to_string()), "{p}");
     }
 
     #[test]

@@ -155,7 +155,7 @@ fn r24_unicode_dataset_names_are_accepted_and_paths_refused() {
 /// a problem document naming the limit.
 #[test]
 fn r24_uri_too_long_and_header_fields_too_large_are_problem_documents() {
-    use btfrig_daemon::server::{MAX_HEADERS, MAX_HEAD_BYTES, MAX_URI_BYTES};
+    use btfrig_daemon::server::{MAX_HEADERS, MAX_HEADER_BYTES, MAX_HEAD_BYTES, MAX_URI_BYTES};
     let d = Daemon::start("r24-head-limits", None);
     let get = |target: &str, headers: &str| {
         format!("GET {target} HTTP/1.1\r\nHost: 127.0.0.1\r\nAuthorization: Bearer viewer-token\r\n{headers}\r\n")
@@ -164,15 +164,21 @@ fn r24_uri_too_long_and_header_fields_too_large_are_problem_documents() {
     let target = format!("/api/v1/runs/{}", "x".repeat(MAX_URI_BYTES));
     let e = problem(raw(d.port, get(&target, "").as_bytes()), 414, "a 8 KiB target");
     assert!(e.contains(&MAX_URI_BYTES.to_string()), "{e}");
-    // Over hyper's limits: its own 431, rewritten.
+    // Over hyper's limits: its own 414 and 431 (empty bodies), rewritten.
     let target = format!("/api/v1/runs/{}", "x".repeat(MAX_HEAD_BYTES + 10));
-    let e = problem(raw(d.port, get(&target, "").as_bytes()), 431, "a 64 KiB target");
-    assert!(e.contains(&MAX_HEAD_BYTES.to_string()), "{e}");
+    let e = problem(raw(d.port, get(&target, "").as_bytes()), 414, "a 64 KiB target");
+    assert!(e.contains("is too long") && e.contains(&MAX_URI_BYTES.to_string()), "hyper's 414: {e}");
     let many: String = (0..MAX_HEADERS + 20).map(|i| format!("X-H{i}: {i}\r\n")).collect();
     let e = problem(raw(d.port, get("/api/v1/rig", &many).as_bytes()), 431, "120 headers");
     assert!(e.contains(&MAX_HEADERS.to_string()), "{e}");
-    let big = format!("X-Big: {}\r\n", "y".repeat(MAX_HEAD_BYTES));
-    problem(raw(d.port, get("/api/v1/rig", &big).as_bytes()), 431, "a 64 KiB header");
+    // Over the daemon's header limit, within hyper's buffer: the router's 431.
+    let big = format!("X-Big: {}\r\n", "y".repeat(MAX_HEADER_BYTES));
+    let e = problem(raw(d.port, get("/api/v1/rig", &big).as_bytes()), 431, "a 32 KiB header");
+    assert!(e.contains("headers have") && e.contains(&MAX_HEADER_BYTES.to_string()), "{e}");
+    // Far over hyper's buffer: hyper's 431, rewritten.
+    let huge = format!("X-Huge: {}\r\n", "y".repeat(4 * MAX_HEAD_BYTES));
+    let e = problem(raw(d.port, get("/api/v1/rig", &huge).as_bytes()), 431, "a 256 KiB header");
+    assert!(e.contains("head is too large") && e.contains(&MAX_HEADER_BYTES.to_string()), "hyper's 431: {e}");
     // Not HTTP: hyper's 400, rewritten.
     let e = problem(raw(d.port, b"GARBAGE\x01 / HTTP/1.1\r\n\r\n"), 400, "a request line that does not parse");
     assert!(e.contains("does not parse"), "{e}");
