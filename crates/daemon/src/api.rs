@@ -90,9 +90,9 @@ fn integral_numbers(value: serde_json::Value) -> serde_json::Value {
         Value::Number(n) if n.is_f64() => {
             let f = n.as_f64().unwrap_or(f64::NAN);
             // 2^63 and 2^64 are exact in f64, so the casts below are exact within these bounds.
-            if f.fract() == 0.0 && f >= 0.0 && f < 18_446_744_073_709_551_616.0 {
+            if f.fract() == 0.0 && (0.0..18_446_744_073_709_551_616.0).contains(&f) {
                 Value::from(f as u64)
-            } else if f.fract() == 0.0 && f < 0.0 && f >= -9_223_372_036_854_775_808.0 {
+            } else if f.fract() == 0.0 && (-9_223_372_036_854_775_808.0..0.0).contains(&f) {
                 Value::from(f as i64)
             } else {
                 Value::Number(n)
@@ -1088,4 +1088,22 @@ pub fn relative_inside(rel: &str) -> Result<PathBuf, Problem> {
         return Err(Problem::bad_request("empty file path"));
     }
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Schemathesis sent `{"kind": "color", "seed": 517.0}`: an integer to JSON Schema, a float
+    /// to serde, refused with 422. Integral numbers become integers; others stay as they are.
+    #[test]
+    fn integral_floats_become_integers() {
+        let v = integral_numbers(serde_json::json!({ "seed": 517.0, "list": [2.0, -3.0, 0.5, 1e300], "n": 7 }));
+        assert!(v["seed"].is_u64() && v["seed"] == 517, "{v}");
+        assert!(v["list"][0].is_u64() && v["list"][1].is_i64() && v["list"][1] == -3, "{v}");
+        assert!(v["list"][2].is_f64() && v["list"][3].is_f64(), "{v}");
+        let body = integral_numbers(serde_json::json!({ "kind": "color", "seed": 517.0 }));
+        let b: crate::calibrations::StartCalibration = serde_json::from_value(body).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(b.seed, Some(517));
+    }
 }
