@@ -28,6 +28,9 @@ use crate::problem::Problem;
 /// the end of its previous response; then the connection is closed (no answer).
 pub const HEADER_READ_TIMEOUT: Duration = Duration::from_secs(10);
 
+/// Where a refusal sends a person: the limits and how to raise them.
+const LIMITS_DOC: &str = "docs/http-api.md, \"Connection limits\"";
+
 /// Most bytes of a request's headers (each `name: value` line), checked by the router; more:
 /// 431.
 pub const MAX_HEADER_BYTES: usize = 32 * 1024;
@@ -114,13 +117,15 @@ pub async fn limit_and_log(req: Request, next: Next) -> Response {
     let mut response = if target > MAX_URI_BYTES {
         Problem::new(
             StatusCode::URI_TOO_LONG,
-            format!("the request target has {target} bytes; at most {MAX_URI_BYTES} are allowed"),
+            format!("the request target has {target} bytes; at most {MAX_URI_BYTES} are allowed ({LIMITS_DOC})"),
         )
         .into_response()
     } else if header_bytes > MAX_HEADER_BYTES {
         Problem::new(
             StatusCode::REQUEST_HEADER_FIELDS_TOO_LARGE,
-            format!("the request's headers have {header_bytes} bytes; at most {MAX_HEADER_BYTES} are allowed"),
+            format!(
+                "the request's headers have {header_bytes} bytes; at most {MAX_HEADER_BYTES} are allowed ({LIMITS_DOC})"
+            ),
         )
         .into_response()
     } else {
@@ -168,12 +173,15 @@ pub fn problem_for_bare_head(head: &[u8]) -> Option<Vec<u8>> {
         "400 " => {
             (StatusCode::BAD_REQUEST, "the request line or a header does not parse as HTTP/1.1 (RFC 9112)".to_string())
         }
-        "414 " => (StatusCode::URI_TOO_LONG, format!("the request target is too long: at most {MAX_URI_BYTES} bytes")),
+        "414 " => (
+            StatusCode::URI_TOO_LONG,
+            format!("the request target is too long: at most {MAX_URI_BYTES} bytes ({LIMITS_DOC})"),
+        ),
         "431 " => (
             StatusCode::REQUEST_HEADER_FIELDS_TOO_LARGE,
             format!(
                 "the request head is too large: at most {MAX_HEADERS} headers of at most {MAX_HEADER_BYTES} bytes \
-                 in all, and a request target of at most {MAX_URI_BYTES} bytes"
+                 in all, and a request target of at most {MAX_URI_BYTES} bytes ({LIMITS_DOC})"
             ),
         ),
         _ => return None,

@@ -163,7 +163,7 @@ fn r24_uri_too_long_and_header_fields_too_large_are_problem_documents() {
     // Over the daemon's target limit, within hyper's head limit: the router's 414.
     let target = format!("/api/v1/runs/{}", "x".repeat(MAX_URI_BYTES));
     let e = problem(raw(d.port, get(&target, "").as_bytes()), 414, "a 8 KiB target");
-    assert!(e.contains(&MAX_URI_BYTES.to_string()), "{e}");
+    assert!(e.contains(&MAX_URI_BYTES.to_string()) && e.contains("\"Connection limits\""), "names the limit: {e}");
     // Over hyper's limits: its own 414 and 431 (empty bodies), rewritten.
     let target = format!("/api/v1/runs/{}", "x".repeat(MAX_HEAD_BYTES + 10));
     let e = problem(raw(d.port, get(&target, "").as_bytes()), 414, "a 64 KiB target");
