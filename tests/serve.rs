@@ -272,3 +272,45 @@ fn sigterm_pauses_the_run_resumably_and_the_same_request_resumes_it() {
     assert_eq!(s["summary"]["captures_this_session"].as_u64().unwrap() as usize, 16 - before, "{s}");
     assert_eq!(read_journal(&data.join("kept")).committed().len(), 16);
 }
+
+/// Issue 24: `RUST_LOG=trace` gave no output from the daemon (no log subscriber). Now its
+/// `tracing` events reach stderr, filtered by RUST_LOG: with `trace`, a connection and each
+/// request are logged (the path only, never a token); with nothing set, neither is.
+#[test]
+fn r24_rust_log_trace_prints_the_daemons_log_lines() {
+    use std::io::{BufRead, BufReader};
+    use std::process::Stdio;
+    let data = scratch("r24-rust-log").join("data");
+    for (rust_log, logged) in [(Some("trace"), true), (None, false)] {
+        let mut cmd = support::btfrig();
+        cmd.args(["serve", "--listen", "127.0.0.1:0", "--data", data.to_str().unwrap()]);
+        cmd.env_remove("RUST_LOG");
+        if let Some(v) = rust_log {
+            cmd.env("RUST_LOG", v);
+        }
+        let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
+        let mut first = String::new();
+        BufReader::new(child.stdout.take().unwrap()).read_line(&mut first).unwrap();
+        let port: u16 = first.trim().rsplit(':').next().and_then(|p| p.parse().ok()).expect("listening on ...");
+        assert_eq!(request(port, "GET", "/healthz?access_token=secret-in-query", None, None).status, 200);
+        // The request is logged after its answer: ask once more, then stop the daemon and
+        // read everything it wrote.
+        assert_eq!(request(port, "GET", "/healthz", None, None).status, 200);
+        let pid = child.id().to_string();
+        assert!(std::process::Command::new("kill").args(["-TERM", &pid]).status().unwrap().success());
+        let out = child.wait_with_output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        let request_lines: Vec<&str> =
+            err.lines().filter(|l| l.contains("request") && l.contains("/healthz")).collect();
+        if logged {
+            assert!(err.contains("TRACE") && err.contains("connection accepted"), "RUST_LOG=trace:\n{err}");
+            assert!(
+                request_lines.iter().any(|l| l.contains("DEBUG") && l.contains("status=200")),
+                "RUST_LOG=trace, a request line:\n{err}"
+            );
+            assert!(!err.contains("secret-in-query"), "a query (it may hold a token) is not logged:\n{err}");
+        } else {
+            assert!(!err.contains("connection accepted") && request_lines.is_empty(), "RUST_LOG unset:\n{err}");
+        }
+    }
+}

@@ -1,13 +1,15 @@
 #!/usr/bin/env python3
 """Puts a daemon into a known state before Schemathesis, and leaves no run going after it.
 
-usage: rig.py seed URL      as operator `ada`: start plan demo into dataset st-seed (run r1),
-                            wait for a few captures, pause it; the paused run holds the rig
+usage: rig.py seed URL      as operator `ada`: start tests/api/long-run.toml (6561 cheap
+                            captures) into dataset st-seed (run r1), wait for a few captures
+                            and leave it running: the run holds the rig while Schemathesis runs
        rig.py cleanup URL   as admin: abort every run that is not over, wait until each is
                             over; prints how many runs there were
 Standard library only (the daemon's own Python is not needed).
 """
 import json
+import os
 import sys
 import time
 import urllib.error
@@ -38,15 +40,15 @@ def wait(base, run_id, pred, what, timeout=120):
 
 
 def seed(base):
-    code, s = call(base, "operator-token", "POST", "/runs", {"plan": "demo", "dataset": "st-seed"})
+    with open(os.path.join(os.path.dirname(os.path.abspath(__file__)), "long-run.toml")) as f:
+        plan = f.read()
+    code, s = call(base, "operator-token", "POST", "/runs", {"plan_text": plan, "dataset": "st-seed"})
     if code != 201:
         sys.exit(f"starting the seed run: {code} {s}")
     rid = s["id"]
-    wait(base, rid, lambda s: s["done"] >= 3 or s["state"] in OVER, "3 captures")
-    code, s = call(base, "operator-token", "POST", f"/runs/{rid}/pause")
-    if code != 200:
-        sys.exit(f"pausing the seed run: {code} {s}")
-    s = wait(base, rid, lambda s: s["state"] in ("paused",) + OVER, "paused")
+    s = wait(base, rid, lambda s: s["done"] >= 3 or s["state"] in OVER, "3 captures")
+    if s["state"] != "running":
+        sys.exit(f"the seed run is not going before Schemathesis starts: {s}")
     print(f"# seed: run {rid} {s['state']} at {s['done']}/{s['total']} captures, dataset {s['dataset']}")
 
 

@@ -1,29 +1,36 @@
 #!/usr/bin/env bash
-# Schemathesis (PyPI) against the OpenAPI document that `btfrig serve` serves: every
-# operation, generated valid and invalid requests, with the admin token (so requests reach
-# the handlers, not only the auth layer). Fails on any 5xx and on any response the document
-# does not describe (status code, content type, body schema).
+# Schemathesis (PyPI) against the OpenAPI document that `btfrig serve` serves, with all four
+# phases — examples, coverage, fuzzing and stateful (chains along the document's links, e.g.
+# POST /runs -> GET /runs/{id} -> pause / resume / abort) — and every check, with the admin
+# token (so requests reach the handlers, not only the auth layer), while a run is going.
+# Fails on any 5xx, on any response the document does not describe (status code, content
+# type, headers, body schema), on valid requests refused and invalid ones accepted, and when
+# fewer than ST_MIN_CASES cases ran or a phase did not run. It prints the summary
+# line `# schemathesis: cases=N failures=F errors=E phases=...` (tests/schemathesis.rs reads it).
 #
 # usage: tests/api/schemathesis.sh [PATH/TO/btfrig]
 #   binary: the argument, else $BTFRIG_BIN, else target/release/btfrig
-#   ST_MAX_EXAMPLES (default 40): generated test cases per operation and phase
+#   ST_MAX_EXAMPLES (default 100): generated test cases per operation in the fuzzing phase
+#     (the coverage phase makes every case the schema defines, whatever this says)
+#   ST_MIN_CASES (default 1800): fewer cases run is a failure
 #   ST_SEED (default 6): the random seed, so a failure can be replayed
 #
-# Installs schemathesis (pinned below) into the venv target/pydeps/schemathesis when it is
-# missing or another version. Reports: target/api/ (JUnit XML, server log, failure cache:
-# replay a failure with `ST_CACHE_DIR=target/api/cache target/pydeps/schemathesis/bin/st
-# --config-file tests/api/schemathesis.toml replay ID`).
+# Installs tests/api/requirements.txt (schemathesis and every dependency, pinned with hashes)
+# into the venv target/pydeps/schemathesis when it is missing or the file changed
+# (tests/install-deps.sh does the same). Reports: target/api/ (JUnit XML, the JSON run report,
+# the server log, a failure cache: replay a failure with `ST_CACHE_DIR=target/api/cache
+# target/pydeps/schemathesis/bin/st --config-file tests/api/schemathesis.toml replay ID`).
 #
-# State: before Schemathesis, tests/api/rig.py starts plan demo into dataset st-seed (run r1)
-# and pauses it; tests/api/schemathesis.toml mixes those identifiers into the generated path
-# parameters and plan names into bodies, so requests reach the handlers' logic. The generated
-# requests may resume, pause, abort and start runs (and calibrations). None outlives the
-# script: afterwards rig.py aborts every run that is not over and waits for it, then the server
-# is stopped (SIGTERM, then SIGKILL after 10 s) and its temporary data directory removed. The
-# event stream is read up to its first event (max-stream-events in the config).
+# State: before Schemathesis, tests/api/rig.py starts tests/api/long-run.toml (6561 cheap
+# captures) into dataset st-seed (run r1) and checks it is running; tests/api/schemathesis.toml
+# mixes those identifiers into the generated path parameters and plan names into bodies, so
+# requests reach the handlers' logic. The generated requests may pause, resume, abort and start
+# runs (and calibrations). None outlives the script: afterwards rig.py aborts every run that is
+# not over and waits for it, then the server is stopped (SIGTERM, then SIGKILL after 10 s) and
+# its temporary data directory removed. The event stream is read up to its first event
+# (max-stream-events in the config).
 set -euo pipefail
 
-ST_VERSION=4.32.5
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 root="$(cd "$here/../.." && pwd)"
 target="${CARGO_TARGET_DIR:-$root/target}"
@@ -32,13 +39,15 @@ out="$target/api"
 mkdir -p "$out"
 
 # ---- schemathesis ----
-have="$("$venv/bin/python" -c 'import importlib.metadata as m; print(m.version("schemathesis"))' 2>/dev/null || true)"
-if [ "$have" != "$ST_VERSION" ]; then
-    echo "# installing schemathesis==$ST_VERSION into $venv" >&2
+req="$here/requirements.txt"
+want="$(sha256sum "$req" | cut -d' ' -f1)"
+if [ ! -x "$venv/bin/st" ] || [ "$(cat "$venv/.requirements.sha256" 2>/dev/null || true)" != "$want" ]; then
+    echo "# installing $req into $venv" >&2
+    rm -rf "$venv"
     python3 -m venv "$venv"
-    "$venv/bin/python" -m pip install --quiet --disable-pip-version-check "schemathesis==$ST_VERSION" >&2
+    "$venv/bin/python" -m pip install --quiet --disable-pip-version-check --require-hashes --no-deps -r "$req" >&2
+    echo "$want" >"$venv/.requirements.sha256"
 fi
-
 # ---- the server ----
 bin="${1:-${BTFRIG_BIN:-$target/release/btfrig}}"
 [ -x "$bin" ] || { echo "no btfrig binary at $bin (cargo build --release -p btfrig-cli)" >&2; exit 1; }
@@ -71,20 +80,54 @@ done
 url="${url%/}"
 echo "# server at $url (log $log)" >&2
 
-# ---- a known state: run r1 of plan demo, paused after a few captures, dataset st-seed ----
+# ---- a known state: run r1 of tests/api/long-run.toml going, dataset st-seed ----
 python3 "$here/rig.py" seed "$url"
 
 # ---- the run ----
 status=0
+rm -f "$out/schemathesis.json"
 ST_CACHE_DIR="$out/cache" "$venv/bin/st" --config-file "$here/schemathesis.toml" --no-color run "$url/api/v1/openapi.json" \
     --header "Authorization: Bearer admin-token" \
-    --checks not_a_server_error,status_code_conformance,content_type_conformance,response_schema_conformance \
-    --max-examples "${ST_MAX_EXAMPLES:-40}" \
+    --phases examples,coverage,fuzzing,stateful \
+    --checks all \
+    --mode all \
+    --max-examples "${ST_MAX_EXAMPLES:-100}" \
     --seed "${ST_SEED:-6}" \
     --request-timeout 20 \
-    --workers 2 \
+    --workers 1 \
     --generation-database none \
-    --report junit --report-junit-path "$out/schemathesis.junit.xml" || status=$?
+    --report junit,json --report-junit-path "$out/schemathesis.junit.xml" \
+    --report-json-path "$out/schemathesis.json" || status=$?
+
+# ---- what ran: cases, failures, phases (from the JSON run report) ----
+python3 - "$out/schemathesis.json" "${ST_MIN_CASES:-1800}" <<'PY' || status=1
+import json, sys
+path, minimum = sys.argv[1], int(sys.argv[2])
+try:
+    r = json.load(open(path))
+except (OSError, ValueError) as e:
+    sys.exit(f"no Schemathesis run report at {path}: {e}")
+cases = r["test_cases"]["generated"]
+failures = sum(g["count"] for g in r["failures"])
+errors = sum(g["count"] for g in r["errors"])
+phases = {name: p["status"] for name, p in (r["phases"] or {}).items()}
+for g in r["failures"]:
+    print(f"# failure: {g['title']} x{g['count']} in {', '.join(g['operations'])}", file=sys.stderr)
+for g in r["errors"]:
+    print(f"# error: {g['title']} x{g['count']}", file=sys.stderr)
+print(f"# schemathesis: cases={cases} failures={failures} errors={errors} "
+      + "phases=" + ",".join(f"{k}:{v}" for k, v in sorted(phases.items())))
+problems = []
+if cases < minimum:
+    problems.append(f"only {cases} cases ran; at least {minimum} are expected (ST_MIN_CASES)")
+for want in ("examples", "coverage", "fuzzing", "stateful"):
+    if phases.get(want) in (None, "skip"):
+        problems.append(f"phase {want} did not run ({r['phases'].get(want) if r['phases'] else None})")
+if failures or errors:
+    problems.append(f"{failures} failures and {errors} errors")
+if problems:
+    sys.exit("schemathesis: " + "; ".join(problems))
+PY
 
 # ---- leave no run going ----
 python3 "$here/rig.py" cleanup "$url" || status=1

@@ -52,23 +52,66 @@ pub struct ApiJson<T>(pub T);
 impl<T: serde::de::DeserializeOwned, S: Send + Sync> FromRequest<S> for ApiJson<T> {
     type Rejection = Problem;
     async fn from_request(req: Request, state: &S) -> Result<Self, Problem> {
-        match Json::<T>::from_request(req, state).await {
-            Ok(Json(v)) => Ok(ApiJson(v)),
-            Err(e) => Err(match &e {
-                JsonRejection::MissingJsonContentType(_) => Problem::new(
-                    StatusCode::UNSUPPORTED_MEDIA_TYPE,
-                    "the body must be JSON: send Content-Type: application/json",
-                ),
-                JsonRejection::BytesRejection(_) if e.status() == StatusCode::PAYLOAD_TOO_LARGE => Problem::new(
-                    StatusCode::PAYLOAD_TOO_LARGE,
-                    format!("the body is larger than {} bytes", crate::BODY_LIMIT),
-                ),
-                JsonRejection::JsonDataError(d) => {
-                    Problem::unprocessable(format!("the body does not fit the schema: {}", d.body_text()))
-                }
-                _ => Problem::bad_request(format!("the body is not valid JSON: {}", e.body_text())),
-            }),
+        // Parsed as a value first: every body of the API is an object, and serde would take a
+        // struct from an array too (`[null, null]` as two absent fields).
+        let value = match Json::<serde_json::Value>::from_request(req, state).await {
+            Ok(Json(v)) => v,
+            Err(e) => {
+                return Err(match &e {
+                    JsonRejection::MissingJsonContentType(_) => Problem::new(
+                        StatusCode::UNSUPPORTED_MEDIA_TYPE,
+                        "the body must be JSON: send Content-Type: application/json",
+                    ),
+                    JsonRejection::BytesRejection(_) if e.status() == StatusCode::PAYLOAD_TOO_LARGE => Problem::new(
+                        StatusCode::PAYLOAD_TOO_LARGE,
+                        format!("the body is larger than {} bytes", crate::BODY_LIMIT),
+                    ),
+                    _ => Problem::bad_request(format!("the body is not valid JSON: {}", e.body_text())),
+                })
+            }
+        };
+        if !value.is_object() {
+            return Err(Problem::unprocessable(format!(
+                "the body must be a JSON object (see the operation's schema in /api/v1/openapi.json), not {}",
+                json_type(&value)
+            )));
         }
+        serde_json::from_value(integral_numbers(value))
+            .map(ApiJson)
+            .map_err(|e| Problem::unprocessable(format!("the body does not fit the schema: {e}")))
+    }
+}
+
+/// `value` with every number that has no fractional part (`517.0`) as an integer: JSON Schema's
+/// `integer` includes them, serde's integer fields do not.
+fn integral_numbers(value: serde_json::Value) -> serde_json::Value {
+    use serde_json::Value;
+    match value {
+        Value::Number(n) if n.is_f64() => {
+            let f = n.as_f64().unwrap_or(f64::NAN);
+            // 2^63 and 2^64 are exact in f64, so the casts below are exact within these bounds.
+            if f.fract() == 0.0 && (0.0..18_446_744_073_709_551_616.0).contains(&f) {
+                Value::from(f as u64)
+            } else if f.fract() == 0.0 && (-9_223_372_036_854_775_808.0..0.0).contains(&f) {
+                Value::from(f as i64)
+            } else {
+                Value::Number(n)
+            }
+        }
+        Value::Array(items) => Value::Array(items.into_iter().map(integral_numbers).collect()),
+        Value::Object(map) => Value::Object(map.into_iter().map(|(k, v)| (k, integral_numbers(v))).collect()),
+        other => other,
+    }
+}
+
+fn json_type(v: &serde_json::Value) -> &'static str {
+    match v {
+        serde_json::Value::Null => "null",
+        serde_json::Value::Bool(_) => "a boolean",
+        serde_json::Value::Number(_) => "a number",
+        serde_json::Value::String(_) => "a string",
+        serde_json::Value::Array(_) => "an array",
+        serde_json::Value::Object(_) => "an object",
     }
 }
 
@@ -368,9 +411,10 @@ pub struct StartRun {
     pub plan: Option<String>,
     /// A whole plan file.
     pub plan_text: Option<String>,
-    /// The dataset's name under the data directory (letters, digits, `.`, `_`, `-`; at most
-    /// 64). An existing dataset of the same plan is resumed; default: a new name.
-    #[schema(pattern = "^[A-Za-z0-9_-][A-Za-z0-9._-]{0,63}$")]
+    /// The dataset's name under the data directory: 1 to 63 characters of any script, no `/`,
+    /// `\\` or control character, not starting with `.` ([`check_name`]). An existing dataset of
+    /// the same plan is resumed; default: a new name.
+    // Its pattern is NAME_PATTERN (set in `document`).
     pub dataset: Option<String>,
 }
 
@@ -529,7 +573,49 @@ pub fn document() -> serde_json::Value {
     paths["/api/v1/datasets/{name}/files/{path}"]["get"]["responses"]["200"]["content"] =
         serde_json::json!({ "*/*": {} });
     paths["/api/v1/preview"]["get"]["responses"]["200"]["content"] = serde_json::json!({ "image/png": {} });
+    // Dataset names as `check_name` takes them, written once.
+    for op in ["/api/v1/datasets/{name}", "/api/v1/datasets/{name}/files/{path}"] {
+        if let Some(params) = paths[op]["get"]["parameters"].as_array_mut() {
+            for p in params.iter_mut().filter(|p| p["name"] == "name") {
+                p["schema"]["pattern"] = NAME_PATTERN.into();
+            }
+        }
+    }
+    doc["components"]["schemas"]["StartRun"]["properties"]["dataset"]["pattern"] = NAME_PATTERN.into();
+    // The calibrations the daemon runs, from the list it checks against.
+    doc["components"]["schemas"]["StartCalibration"]["properties"]["kind"]["enum"] =
+        crate::calibrations::KINDS.iter().map(|k| serde_json::Value::from(*k)).collect();
+    add_links(&mut doc["paths"]);
     doc
+}
+
+/// OpenAPI links: what a response's identifiers lead to (a started run to its status, its
+/// controls, its events and its dataset; a calibration to its state), so clients and
+/// stateful testers can chain the operations.
+fn add_links(paths: &mut serde_json::Value) {
+    let by = |operation: &str, param: &str, value: &str| serde_json::json!({ "operationId": operation, "parameters": { param: value } });
+    let run_links = |from: &str| {
+        let id = format!("$response.body#/{from}");
+        serde_json::json!({
+            "GetRun": by("get_run", "id", &id),
+            "PauseRun": by("pause_run", "id", &id),
+            "ResumeRun": by("resume_run", "id", &id),
+            "AbortRun": by("abort_run", "id", &id),
+            "RunEvents": by("run_events", "id", &id),
+            "GetDataset": by("get_dataset", "name", "$response.body#/dataset"),
+        })
+    };
+    for (path, method, status) in [
+        ("/api/v1/runs", "post", "201"),
+        ("/api/v1/runs/{id}", "get", "200"),
+        ("/api/v1/runs/{id}/pause", "post", "200"),
+        ("/api/v1/runs/{id}/resume", "post", "200"),
+        ("/api/v1/runs/{id}/abort", "post", "200"),
+    ] {
+        paths[path][method]["responses"][status]["links"] = run_links("id");
+    }
+    paths["/api/v1/calibrations"]["post"]["responses"]["202"]["links"] =
+        serde_json::json!({ "GetCalibration": by("get_calibration", "id", "$response.body#/id") });
 }
 
 /// `GET /api/v1/openapi.json`.
@@ -952,17 +1038,35 @@ pub async fn method_not_allowed() -> Problem {
     Problem::new(StatusCode::METHOD_NOT_ALLOWED, "this endpoint does not take that method; see /api/v1/openapi.json")
 }
 
-/// A dataset or file name: letters, digits, `.`, `_`, `-`, not starting with `.`, 1 to 64.
+/// Longest dataset name, in characters: UTF-8 takes at most 4 bytes a character, so a name
+/// stays within Linux's 255-byte file name limit (`NAME_MAX`).
+pub const MAX_NAME_CHARS: usize = 63;
+
+/// The JSON Schema pattern of a dataset name, as [`check_name`] decides.
+pub const NAME_PATTERN: &str = "^[^./\\\\\\u0000-\\u001f\\u007f-\\u009f][^/\\\\\\u0000-\\u001f\\u007f-\\u009f]{0,62}$";
+
+/// A dataset name: one directory under the data directory. 1 to [`MAX_NAME_CHARS`] characters
+/// of any script (unicode letters are fine file names on Linux), none of them `/` or `\` (a
+/// path, not a name) or a control character (NUL ends a C string; line breaks forge log lines),
+/// not starting with `.` (`.`, `..` and hidden files).
 pub fn check_name(name: &str) -> Result<(), String> {
-    let ok = !name.is_empty()
-        && name.len() <= 64
-        && !name.starts_with('.')
-        && name.chars().all(|c| c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-'));
-    if ok {
-        Ok(())
+    let bad = name.chars().find(|&c| c == '/' || c == '\\' || c.is_control());
+    let count = name.chars().count();
+    let why = if count == 0 {
+        "it is empty".to_string()
+    } else if count > MAX_NAME_CHARS {
+        format!("it has {count} characters")
+    } else if name.starts_with('.') {
+        "it starts with '.'".to_string()
+    } else if let Some(c) = bad {
+        format!("it holds {c:?}")
     } else {
-        Err(format!("dataset name {name:?}: use 1 to 64 letters, digits, '.', '_' or '-', not starting with '.'"))
-    }
+        return Ok(());
+    };
+    Err(format!(
+        "dataset name {name:?}: {why}; use 1 to {MAX_NAME_CHARS} letters, digits and other printable characters \
+         (any script), no '/', '\\' or control characters, not starting with '.'"
+    ))
 }
 
 /// `rel` as a relative path of plain components (no `..`, root or prefix), or why not.
@@ -984,4 +1088,22 @@ pub fn relative_inside(rel: &str) -> Result<PathBuf, Problem> {
         return Err(Problem::bad_request("empty file path"));
     }
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Schemathesis sent `{"kind": "color", "seed": 517.0}`: an integer to JSON Schema, a float
+    /// to serde, refused with 422. Integral numbers become integers; others stay as they are.
+    #[test]
+    fn integral_floats_become_integers() {
+        let v = integral_numbers(serde_json::json!({ "seed": 517.0, "list": [2.0, -3.0, 0.5, 1e300], "n": 7 }));
+        assert!(v["seed"].is_u64() && v["seed"] == 517, "{v}");
+        assert!(v["list"][0].is_u64() && v["list"][1].is_i64() && v["list"][1] == -3, "{v}");
+        assert!(v["list"][2].is_f64() && v["list"][3].is_f64(), "{v}");
+        let body = integral_numbers(serde_json::json!({ "kind": "color", "seed": 517.0 }));
+        let b: crate::calibrations::StartCalibration = serde_json::from_value(body).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(b.seed, Some(517));
+    }
 }

@@ -19,6 +19,7 @@ pub mod calibrations;
 pub mod metrics;
 pub mod problem;
 pub mod runs;
+pub mod server;
 
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
@@ -79,6 +80,9 @@ pub struct ServeConfig {
     pub auth: Option<PathBuf>,
     /// A directory of plan files offered by name (instead of the embedded ones).
     pub plans: Option<PathBuf>,
+    /// Time a client has to send a request's head before its connection is closed:
+    /// [`server::HEADER_READ_TIMEOUT`] (tests use less).
+    pub header_read_timeout: std::time::Duration,
 }
 
 /// Everything the handlers share.
@@ -693,6 +697,7 @@ pub fn router(state: Arc<AppState>) -> Router {
         .fallback(api::not_found)
         .method_not_allowed_fallback(api::method_not_allowed)
         .layer(DefaultBodyLimit::max(BODY_LIMIT))
+        .layer(axum::middleware::from_fn(server::limit_and_log))
         .layer(axum::middleware::map_response(move |r: axum::response::Response| {
             let metrics = metrics.clone();
             async move {
@@ -729,17 +734,13 @@ pub async fn serve(cfg: ServeConfig) -> Result<(), ServeError> {
     );
     let app = router(state.clone());
     let shutdown_state = state.clone();
-    axum::serve(listener, app)
-        .with_graceful_shutdown(async move {
-            let signal = shutdown_signal().await;
-            eprintln!(
-                "shutting down on {}: interrupting the run under way (its dataset stays resumable)",
-                signal.name()
-            );
-            let s = shutdown_state.clone();
-            let _ = tokio::task::spawn_blocking(move || s.runs.interrupt_and_wait(signal)).await;
-        })
-        .await?;
+    server::serve_connections(listener, app, cfg.header_read_timeout, async move {
+        let signal = shutdown_signal().await;
+        eprintln!("shutting down on {}: interrupting the run under way (its dataset stays resumable)", signal.name());
+        let s = shutdown_state.clone();
+        let _ = tokio::task::spawn_blocking(move || s.runs.interrupt_and_wait(signal)).await;
+    })
+    .await?;
     Ok(())
 }
 

@@ -70,6 +70,11 @@ pub struct Daemon {
 
 impl Daemon {
     pub fn start(name: &str, rig: Option<&str>) -> Daemon {
+        Daemon::start_with(name, rig, btfrig_daemon::server::HEADER_READ_TIMEOUT)
+    }
+
+    /// [`Daemon::start`] with another header-read timeout.
+    pub fn start_with(name: &str, rig: Option<&str>, header_read_timeout: Duration) -> Daemon {
         let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
@@ -80,17 +85,22 @@ impl Daemon {
             data: dir.join("data"),
             auth: Some(dir.join("auth.toml")),
             plans: None,
+            header_read_timeout,
         };
         let (state, _) = AppState::load(&cfg).unwrap_or_else(|e| panic!("{e}"));
         let state = Arc::new(state);
         let app = btfrig_daemon::router(state.clone());
         let (tx, rx) = std::sync::mpsc::channel();
+        let cfg_timeout = cfg.header_read_timeout;
         std::thread::spawn(move || {
             let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
             rt.block_on(async move {
                 let l = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
                 tx.send(l.local_addr().unwrap().port()).unwrap();
-                axum::serve(l, app).await.unwrap();
+                // The daemon's own connection handling (limits, problem documents for hyper's
+                // refusals), as `serve` runs it.
+                let forever = std::future::pending::<()>();
+                btfrig_daemon::server::serve_connections(l, app, cfg_timeout, forever).await.unwrap();
             });
         });
         Daemon { port: rx.recv().unwrap(), data: cfg.data, state }
