@@ -577,7 +577,7 @@ fn ptp_typed_parsers_read_valid_containers_with_random_payloads() {
     let n = reached.into_inner();
     eprintln!("{n:?}");
     let [commands, data, responses, events] = n.containers;
-    // Measured on this seed (docs/protocols/README.md): see PTP_REACHED there.
+    // Measured on this seed (docs/protocols/README.md): 66%, 88%, 72%, 43%, 34%.
     assert!(n.operations * 100 >= commands * 55, "{n:?}");
     assert!(n.responses * 100 >= responses * 80, "{n:?}");
     assert!(n.events * 100 >= events * 65, "{n:?}");
