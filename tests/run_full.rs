@@ -141,7 +141,10 @@ fn where_motion_matters_the_optimised_order_stays_at_the_bound_and_the_naive_doe
         100.0 * (hw / bound - 1.0),
         100.0 * (naive / bound - 1.0)
     );
-    assert!(naive > bound * 1.05, "naive order {naive} s not 5% above the bound {bound} s: motion does not matter here");
+    assert!(
+        naive > bound * 1.05,
+        "naive order {naive} s not 5% above the bound {bound} s: motion does not matter here"
+    );
     assert!(hw >= bound * (1.0 - 1e-9), "hardware_s {hw} below the lower bound {bound}");
     assert!(hw <= bound * 1.01, "hardware_s {hw} more than 1% above the lower bound {bound} (naive {naive})");
     let show = ok(btfrig().args(["plan", "show"]).arg(&plan));

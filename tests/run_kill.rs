@@ -101,7 +101,10 @@ fn a_run_killed_at_journal_step_counts_and_resumed_equals_an_uninterrupted_one()
         );
         // Nothing journaled is ever lost, the kill came after the awaited step count, and the
         // run was still going (steps left to capture).
-        assert!(done >= done_before.max(target) && done < total, "kill {k}: {done} after {done_before}, target {target}");
+        assert!(
+            done >= done_before.max(target) && done < total,
+            "kill {k}: {done} after {done_before}, target {target}"
+        );
         // A killed run's dataset is not taken for a complete one.
         let v = btfrig().args(["dataset", "verify"]).arg(&b).output().unwrap();
         assert!(!v.status.success(), "verify passed on a dataset with {done}/{total} steps:\n{}", text(&v));

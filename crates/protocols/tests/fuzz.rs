@@ -510,8 +510,12 @@ fn ptp_typed_parsers_read_valid_containers_with_random_payloads() {
                         ptp::op::INITIATE_CAPTURE => {
                             narrow(arg(1)).map(|format| Operation::InitiateCapture { storage_id: arg(0), format })
                         }
-                        ptp::op::GET_DEVICE_PROP_VALUE => narrow(arg(0)).map(|prop| Operation::GetDevicePropValue { prop }),
-                        ptp::op::SET_DEVICE_PROP_VALUE => narrow(arg(0)).map(|prop| Operation::SetDevicePropValue { prop }),
+                        ptp::op::GET_DEVICE_PROP_VALUE => {
+                            narrow(arg(0)).map(|prop| Operation::GetDevicePropValue { prop })
+                        }
+                        ptp::op::SET_DEVICE_PROP_VALUE => {
+                            narrow(arg(0)).map(|prop| Operation::SetDevicePropValue { prop })
+                        }
                         _ => None,
                     },
                     _ => None,
@@ -526,7 +530,12 @@ fn ptp_typed_parsers_read_valid_containers_with_random_payloads() {
 
                 // Response: any code, the parameters as sent; encodes back to the container.
                 let got = Response::from_container(c).ok();
-                prop_assert_eq!(got.is_some(), c.kind == ContainerKind::Response && p.is_some(), "response from {:?}", c);
+                prop_assert_eq!(
+                    got.is_some(),
+                    c.kind == ContainerKind::Response && p.is_some(),
+                    "response from {:?}",
+                    c
+                );
                 if let Some(r) = got {
                     n.responses += 1;
                     prop_assert_eq!((r.code, Some(&r.params)), (c.code, p.as_ref()));

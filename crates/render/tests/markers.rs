@@ -26,10 +26,13 @@ fn resolver(name: &str) -> Result<([f64; 3], [f64; 3]), String> {
 /// `target/`, then `pydeps/opencv`; versions pinned with hashes in
 /// `tests/requirements/opencv.txt`). Never a system `cv2`: its version would decide the check.
 fn python_with_opencv() -> Command {
-    let target =
-        std::env::var_os("CARGO_TARGET_DIR").map(PathBuf::from).unwrap_or_else(|| repo_root().join("target"));
+    let target = std::env::var_os("CARGO_TARGET_DIR").map(PathBuf::from).unwrap_or_else(|| repo_root().join("target"));
     let python = target.join("pydeps/opencv/bin/python");
-    assert!(python.exists(), "the marker check needs the OpenCV venv at {}: run tests/install-deps.sh", python.display());
+    assert!(
+        python.exists(),
+        "the marker check needs the OpenCV venv at {}: run tests/install-deps.sh",
+        python.display()
+    );
     let o = Command::new(&python).args(["-c", "import cv2"]).output().expect("the venv's python runs");
     assert!(o.status.success(), "{} cannot import cv2: {}", python.display(), String::from_utf8_lossy(&o.stderr));
     Command::new(python)
