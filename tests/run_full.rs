@@ -7,6 +7,10 @@
 //! the store: every reachable pair captured exactly once and every other pair skipped with a
 //! reason; the measured hardware time within 2% of the planner's lower bound (and not below
 //! it); the motion-optimised order faster than the naive nested loop; `dataset verify` passes.
+//! With Bonn timing that bound holds for any order (even the naive one is 0.004% above it), so
+//! a second test runs where motion matters: 1332 captures on a rig with five times slower
+//! motion (`tests/data/slow-motion-small.toml`), where the naive order is 13% above the bound
+//! and the optimised order must stay within 1% of it.
 
 mod support;
 
@@ -113,4 +117,37 @@ fn the_full_bonn_plan_captures_every_reachable_pair_once_near_the_lower_bound() 
 
     verify(&out);
     eprintln!("whole test: {:.1} s wall", t0.elapsed().as_secs_f64());
+}
+
+/// Where the order matters: five times slower motion (tests/data/gonio-slow-motion-small.toml),
+/// Bonn lights and views up to 45 deg (1332 captures, ~30 s of wall time). Measured: the run's
+/// hardware time 0.000004% above the lower bound, the naive order 13.3% above it. Asserted:
+/// the naive order more than 5% above (so moves do not hide under transfers here), the
+/// measured time of the optimised order within 1%.
+#[test]
+fn where_motion_matters_the_optimised_order_stays_at_the_bound_and_the_naive_does_not() {
+    let plan = repo("tests/data/slow-motion-small.toml");
+    let dir = scratch("run-slow-motion");
+    let out = dir.join("dataset");
+    let o = btfrig().args(["run", "--plan"]).arg(&plan).arg("--out").arg(&out).output().expect("btfrig runs");
+    assert!(o.status.success(), "{}", text(&o));
+    let report = read_json(&out.join("report.json"));
+    assert_eq!(report["captures"], 1332, "{report}");
+    let hw = report["hardware_s"].as_f64().unwrap();
+    let bound = report["critical_path_s"].as_f64().unwrap();
+    let naive = report["naive_order_hardware_s"].as_f64().unwrap();
+    eprintln!(
+        "slow motion: hardware_s {hw:.3} ({:+.5} % above the bound {bound:.3}), naive {naive:.3} ({:+.2} %)",
+        100.0 * (hw / bound - 1.0),
+        100.0 * (naive / bound - 1.0)
+    );
+    assert!(
+        naive > bound * 1.05,
+        "naive order {naive} s not 5% above the bound {bound} s: motion does not matter here"
+    );
+    assert!(hw >= bound * (1.0 - 1e-9), "hardware_s {hw} below the lower bound {bound}");
+    assert!(hw <= bound * 1.01, "hardware_s {hw} more than 1% above the lower bound {bound} (naive {naive})");
+    let show = ok(btfrig().args(["plan", "show"]).arg(&plan));
+    assert!((seconds_after(&show, "naive order") - naive).abs() <= 0.5, "plan show vs report naive {naive}:\n{show}");
+    verify(&out);
 }

@@ -3,9 +3,9 @@
 //! `tests/api/auth.toml`, and drives the page in Debian's headless Chromium with
 //! playwright-core: a viewer is refused Start with the daemon's message, an operator starts
 //! plan "demo", sees the progress bar advance and the preview image change, pauses (the page
-//! shows "paused"), saves `target/web/screenshot.png`, aborts. The script installs Chromium
-//! (apt-get) and playwright-core (npm, into target/webdeps) when they are missing, and FAILS
-//! if it cannot.
+//! shows "paused"), saves `target/web/screenshot.png`, aborts. Chromium (Debian) and playwright-core
+//! (npm, into target/webdeps) come from `tests/install-deps.sh`; without them the test FAILS
+//! naming that script.
 
 mod support;
 

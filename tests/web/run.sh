@@ -7,10 +7,9 @@
 #   binary: the argument, else $BTFRIG_BIN, else target/release/btfrig
 #   BTFRIG_WEB_FAKE=1: against tests/web/fake-server.mjs instead (working on the page only)
 #
-# Installs what is missing, and is quick when it is all there:
-#   - Chromium: `apt-get install -y chromium` when /usr/bin/chromium is missing;
-#   - playwright-core (version pinned in tests/web/package.json and package-lock.json) into
-#     target/webdeps with `npm ci`. Never a browser download: the Debian package is driven.
+# Needs Debian's chromium and playwright-core (version pinned in tests/web/package.json and
+# package-lock.json) in target/webdeps: tests/install-deps.sh installs both (never a browser
+# download: the Debian package is driven); without them this script fails naming that script.
 # Exit status: 0 when every check passed.
 set -euo pipefail
 
@@ -21,24 +20,13 @@ webdeps="$target/webdeps"
 out="$target/web"
 mkdir -p "$out" "$webdeps"
 
-# ---- Chromium ----
-if [ ! -x /usr/bin/chromium ]; then
-    echo "# installing Debian's chromium" >&2
-    if [ "$(id -u)" != 0 ]; then echo "chromium is missing and this is not root: apt-get install chromium" >&2; exit 1; fi
-    export DEBIAN_FRONTEND=noninteractive
-    if ! apt-get install -y -q chromium >"$out/apt.log" 2>&1; then
-        apt-get update -q >>"$out/apt.log" 2>&1
-        apt-get install -y -q chromium >>"$out/apt.log" 2>&1 || { cat "$out/apt.log" >&2; exit 1; }
-    fi
-fi
-
-# ---- playwright-core ----
+# ---- what tests/install-deps.sh installs ----
+[ -x /usr/bin/chromium ] || { echo "no /usr/bin/chromium: run tests/install-deps.sh" >&2; exit 1; }
 want="$(node -p "require('$here/package.json').dependencies['playwright-core']")"
 have="$(node -p "try { require('$webdeps/node_modules/playwright-core/package.json').version } catch (e) { '' }")"
 if [ "$have" != "$want" ] || ! cmp -s "$here/package-lock.json" "$webdeps/package-lock.json"; then
-    echo "# installing playwright-core@$want into $webdeps" >&2
-    cp "$here/package.json" "$here/package-lock.json" "$webdeps/"
-    (cd "$webdeps" && npm ci --no-audit --no-fund --loglevel=error) >&2
+    echo "playwright-core@$want is not in $webdeps (found '${have}'): run tests/install-deps.sh" >&2
+    exit 1
 fi
 
 # ---- the server ----

@@ -72,8 +72,14 @@ try {
   await anon.goto(`${base}/`);
   await anon.locator('#connection[data-state="denied"]').waitFor({ timeout: 20000 });
   await anon.locator("#error:not([hidden])").waitFor({ timeout: 10000 });
-  console.log(`# without a token: ${await text(anon, "#error-text")}`);
-  check(true, "without a token the page shows the 401 and 'token missing or rejected'");
+  const anonBadge = await text(anon, "#connection");
+  const anonError = await text(anon, "#error-text");
+  console.log(`# without a token: badge ${JSON.stringify(anonBadge)}, error ${JSON.stringify(anonError)}`);
+  // The badge names the cause; the error line carries the daemon's 401 problem+json detail,
+  // which says how to send a token.
+  check(anonBadge === "token missing or rejected" && anonError.includes("Authorization: Bearer"),
+    "without a token the page shows 'token missing or rejected' and the daemon's 401 detail",
+    `badge ${JSON.stringify(anonBadge)}, error ${JSON.stringify(anonError)}`);
   await anon.close();
 
   // ---- 1. a viewer cannot start a run, and is told why ----

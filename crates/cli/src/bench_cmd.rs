@@ -185,43 +185,21 @@ fn repo_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
 }
 
-/// A `python3` that imports cv2 (installing opencv-python-headless into target/pydeps if
-/// needed), or why there is none.
+/// The python of the OpenCV venv that `tests/install-deps.sh` makes
+/// (`$CARGO_TARGET_DIR` or `target/`, then `pydeps/opencv`; opencv-python-headless and numpy
+/// pinned with hashes in `tests/requirements/opencv.txt`), or why there is none. A system
+/// `cv2` is never used: its version would decide the comparison.
 fn python_with_opencv() -> Result<Command, String> {
-    let pydeps = repo_root().join("target/pydeps");
-    let make = |with_path: bool| {
-        let mut c = Command::new("python3");
-        if with_path {
-            c.env("PYTHONPATH", &pydeps);
-        }
-        c
-    };
-    let works = |with_path: bool| {
-        make(with_path).args(["-c", "import cv2, numpy"]).output().map(|o| o.status.success()).unwrap_or(false)
-    };
-    if works(false) {
-        return Ok(make(false));
+    let target = std::env::var_os("CARGO_TARGET_DIR").map(PathBuf::from).unwrap_or_else(|| repo_root().join("target"));
+    let python = target.join("pydeps/opencv/bin/python");
+    if !python.exists() {
+        return Err(format!("no OpenCV venv at {}: run tests/install-deps.sh", python.display()));
     }
-    if works(true) {
-        return Ok(make(true));
-    }
-    eprintln!("installing opencv-python-headless into {} ...", pydeps.display());
-    let out = Command::new("python3")
-        .args(["-m", "pip", "install", "--quiet", "--target"])
-        .arg(&pydeps)
-        .arg("opencv-python-headless")
-        .output()
-        .map_err(|e| format!("cannot run python3 -m pip: {e}"))?;
-    if !out.status.success() {
-        return Err(format!(
-            "pip install opencv-python-headless failed: {}",
-            String::from_utf8_lossy(&out.stderr).trim()
-        ));
-    }
-    if works(true) {
-        Ok(make(true))
+    let works = Command::new(&python).args(["-c", "import cv2, numpy"]).output().map(|o| o.status.success());
+    if works.unwrap_or(false) {
+        Ok(Command::new(python))
     } else {
-        Err(format!("OpenCV installed into {} but `import cv2` fails", pydeps.display()))
+        Err(format!("{} cannot import cv2: run tests/install-deps.sh again", python.display()))
     }
 }
 

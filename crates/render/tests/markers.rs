@@ -1,7 +1,7 @@
 //! Independent check of the marker plate: OpenCV's ArUco detector (Python, opencv-python-
 //! headless) must find every marker id of a rendered plate, with corners within about a
-//! pixel of the projected true corners. The test installs OpenCV into `target/pydeps` when
-//! it is missing and FAILS (no silent skip) if that is impossible.
+//! pixel of the projected true corners. OpenCV comes from the venv `tests/install-deps.sh`
+//! makes (`target/pydeps/opencv`); the test FAILS (no silent skip) without it.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -22,44 +22,20 @@ fn resolver(name: &str) -> Result<([f64; 3], [f64; 3]), String> {
     Ok(([x; 3], [x; 3]))
 }
 
-/// A `python3` command that can `import cv2`, installing OpenCV into `target/pydeps` if needed.
+/// The python of the OpenCV venv that `tests/install-deps.sh` makes (`$CARGO_TARGET_DIR` or
+/// `target/`, then `pydeps/opencv`; versions pinned with hashes in
+/// `tests/requirements/opencv.txt`). Never a system `cv2`: its version would decide the check.
 fn python_with_opencv() -> Command {
-    let pydeps = repo_root().join("target/pydeps");
-    let works = |with_path: bool| {
-        let mut c = Command::new("python3");
-        if with_path {
-            c.env("PYTHONPATH", &pydeps);
-        }
-        c.args(["-c", "import cv2"]).output().map(|o| o.status.success()).unwrap_or(false)
-    };
-    let make = |with_path: bool| {
-        let mut c = Command::new("python3");
-        if with_path {
-            c.env("PYTHONPATH", &pydeps);
-        }
-        c
-    };
-    if works(false) {
-        return make(false);
-    }
-    if !works(true) {
-        let out = Command::new("python3")
-            .args(["-m", "pip", "install", "--quiet", "--target"])
-            .arg(&pydeps)
-            .arg("opencv-python-headless")
-            .output();
-        match out {
-            Ok(o) if o.status.success() => {}
-            Ok(o) => panic!(
-                "marker check needs OpenCV: `python3 -m pip install --target {} opencv-python-headless` failed:\n{}",
-                pydeps.display(),
-                String::from_utf8_lossy(&o.stderr)
-            ),
-            Err(e) => panic!("marker check needs python3 with pip to install OpenCV: {e}"),
-        }
-        assert!(works(true), "OpenCV installed into {} but `import cv2` still fails", pydeps.display());
-    }
-    make(true)
+    let target = std::env::var_os("CARGO_TARGET_DIR").map(PathBuf::from).unwrap_or_else(|| repo_root().join("target"));
+    let python = target.join("pydeps/opencv/bin/python");
+    assert!(
+        python.exists(),
+        "the marker check needs the OpenCV venv at {}: run tests/install-deps.sh",
+        python.display()
+    );
+    let o = Command::new(&python).args(["-c", "import cv2"]).output().expect("the venv's python runs");
+    assert!(o.status.success(), "{} cannot import cv2: {}", python.display(), String::from_utf8_lossy(&o.stderr));
+    Command::new(python)
 }
 
 fn check_pose(r: &Renderer, cam: &Pinhole, pose: &ScenePose, label: &str, python: &mut Command) -> f64 {

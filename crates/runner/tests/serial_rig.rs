@@ -93,15 +93,15 @@ fn serial_path_gives_the_direct_path_textures() {
     let camera = serial.links.iter().find(|l| l.role == "camera").unwrap();
     assert!(camera.bytes_in >= 12 * 2 * 1600 * 1200, "{camera:?}");
     let added = serial.link_added_wall_s.unwrap();
-    // In-process devices move in rig time only: the engine hardly waits on them in wall time.
-    // Through the links it does, by less than the links' exchanges took in all (they overlap
-    // the camera's work).
+    // Through the links the engine waits on moves in wall time, by less than the links'
+    // exchanges took in all (they overlap the camera's work). (The in-process devices move in
+    // rig time only; their wall-clock wait is printed above but not asserted: on a shared
+    // machine any wall figure is load, not a property of the code.)
     let sum: f64 = serial.links.iter().map(|l| l.wall_s).sum();
     println!(
         "motion wait: direct {:.3} s, serial {:.3} s; links busy {sum:.3} s in all",
         direct.motion_wait_wall_s, serial.motion_wait_wall_s
     );
-    assert!(direct.motion_wait_wall_s < 0.05, "in-process moves waited {} s of wall time", direct.motion_wait_wall_s);
     assert!(added > 0.0 && added <= sum, "{added} not in (0, {sum}]");
     println!("link_added_wall_s {added:.3} (measured difference in wall time {:+.2} s)", serial.wall_s - direct.wall_s);
     assert!(added < serial.wall_s, "links added {added} s of a {} s run", serial.wall_s);

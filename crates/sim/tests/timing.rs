@@ -97,7 +97,7 @@ fn unit(theta_deg: f64, phi_deg: f64) -> [f64; 3] {
 /// light and view, the robot's joints follow the light's azimuth and elevation and the
 /// view's azimuth. Capture is sequential (move, trigger, read), as in the Bonn setup.
 #[tokio::test(start_paused = true)]
-async fn bonn_run_of_6561_images_takes_about_14_hours_in_under_a_second() {
+async fn bonn_run_of_6561_images_takes_about_14_hours_of_virtual_time() {
     let wall = Instant::now();
     let mut rig = rig(&devices(""), 7, &FaultScenario::none());
     let clock = rig.world.clock().clone();
@@ -144,5 +144,4 @@ async fn bonn_run_of_6561_images_takes_about_14_hours_in_under_a_second() {
     assert!((12.5..15.5).contains(&total_h), "{total_h} h");
     // Transfer dominates, as in Bonn.
     assert!(t_transfer > 0.6 * (clock.now_s() - start));
-    assert!(wall.elapsed().as_secs_f64() < 1.0, "{:?}", wall.elapsed());
 }
