@@ -1,4 +1,4 @@
-//! Schemathesis (a PyPI package, pinned with hashes in `tests/api/requirements.txt`) against
+//! Schemathesis (a PyPI package, pinned with hashes in `tests/requirements/schemathesis.txt`, installed by `tests/install-deps.sh`) against
 //! the OpenAPI document the real `btfrig serve` serves at `/api/v1/openapi.json`:
 //! `tests/api/schemathesis.sh` starts the daemon on a loopback port (temporary data directory,
 //! tokens of `tests/api/auth.toml`), starts a long run, then runs `st run` with the admin

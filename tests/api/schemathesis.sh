@@ -15,9 +15,10 @@
 #   ST_MIN_CASES (default 1800): fewer cases run is a failure
 #   ST_SEED (default 6): the random seed, so a failure can be replayed
 #
-# Installs tests/api/requirements.txt (schemathesis and every dependency, pinned with hashes)
-# into the venv target/pydeps/schemathesis when it is missing or the file changed
-# (tests/install-deps.sh does the same). Reports: target/api/ (JUnit XML, the JSON run report,
+# Needs the venv target/pydeps/schemathesis that tests/install-deps.sh builds from
+# tests/requirements/schemathesis.txt (schemathesis and every dependency, pinned with hashes;
+# `.ci/run`, the README's test command, runs that script first); fails naming it when the venv
+# is missing or holds another version. Reports: target/api/ (JUnit XML, the JSON run report,
 # the server log, a failure cache: replay a failure with `ST_CACHE_DIR=target/api/cache
 # target/pydeps/schemathesis/bin/st --config-file tests/api/schemathesis.toml replay ID`).
 #
@@ -39,14 +40,12 @@ out="$target/api"
 mkdir -p "$out"
 
 # ---- schemathesis ----
-req="$here/requirements.txt"
-want="$(sha256sum "$req" | cut -d' ' -f1)"
-if [ ! -x "$venv/bin/st" ] || [ "$(cat "$venv/.requirements.sha256" 2>/dev/null || true)" != "$want" ]; then
-    echo "# installing $req into $venv" >&2
-    rm -rf "$venv"
-    python3 -m venv "$venv"
-    "$venv/bin/python" -m pip install --quiet --disable-pip-version-check --require-hashes --no-deps -r "$req" >&2
-    echo "$want" >"$venv/.requirements.sha256"
+req="$root/tests/requirements/schemathesis.txt"
+want="$(sed -n 's/^schemathesis==\([^ ]*\).*/\1/p' "$req")"
+have="$("$venv/bin/python" -c 'import importlib.metadata as m; print(m.version("schemathesis"))' 2>/dev/null || true)"
+if [ "$have" != "$want" ]; then
+    echo "schemathesis $want (tests/requirements/schemathesis.txt) is not in $venv (found: '${have:-none}'): run bash tests/install-deps.sh" >&2
+    exit 1
 fi
 # ---- the server ----
 bin="${1:-${BTFRIG_BIN:-$target/release/btfrig}}"
