@@ -181,6 +181,7 @@ impl Run {
 
     fn on_event(&self, e: &RunEvent, metrics: &Metrics) {
         let changed = match e {
+            RunEvent::Planning { .. } => None,
             RunEvent::Started { done_before, total, .. } => Some(self.update(|s| {
                 s.state = RunState::Running;
                 s.done = *done_before as u64;
