@@ -384,7 +384,7 @@ fn compressed_model_names_a_model_and_is_not_content() {
 /// Issue 24's runaway plan: `rings` rings of `count` directions for light and view.
 fn runaway_plan(rings: usize, count: usize, extra: &str) -> String {
     let ring_list: Vec<String> =
-        (0..rings).map(|r| format!("{{ theta_deg = {}, count = {count} }}", 5.0 + 8.0 * r as f64)).collect();
+        (0..rings).map(|r| format!("{{ theta_deg = {}, count = {count} }}", 5.0 + 4.0 * r as f64)).collect();
     let rings = ring_list.join(", ");
     format!("[sampling]\nlight = {{ rings = [{rings}] }}\nview = {{ rings = [{rings}] }}\n{extra}")
 }
