@@ -265,6 +265,11 @@ impl Run {
                 }
                 s.summary = Some(summary.to_json());
             }
+            // Stopped by the daemon's shutdown while planning: nothing was written.
+            Err(e @ btfrig_runner::RunError::Interrupted(_)) => {
+                s.state = RunState::Interrupted;
+                s.message = Some(e.to_string());
+            }
             Err(e) => {
                 s.state = RunState::Failed;
                 s.message = Some(e.to_string());
