@@ -500,8 +500,18 @@ impl Plan {
         let view = resolve_sampling(&self.sampling.view, "sampling.view", &mut errors);
         let max_pairs = self.limits.max_captures();
         let pairs = match (&light, &view) {
-            (Some(l), Some(v)) => resolve_pairs(&self.sampling.pairs, l.0.len(), v.0.len(), max_pairs, &mut errors),
+            (Some(l), Some(v)) => {
+                resolve_pairs(&self.sampling.pairs, l.dirs.len(), v.dirs.len(), max_pairs, &mut errors)
+            }
             _ => None,
+        };
+        // The samplings (with their triangulations) are built only for pairs within the limit.
+        let (light, view) = match pairs {
+            Some(_) => (
+                light.and_then(|k| k.build("sampling.light", &mut errors)),
+                view.and_then(|k| k.build("sampling.view", &mut errors)),
+            ),
+            None => (None, None),
         };
         let texture = resolve_texture(self, rig.as_ref(), &mut errors);
         let exposure = resolve_exposure(&self.exposure, rig.as_ref(), &mut errors);
@@ -804,7 +814,28 @@ struct Candidate {
     written: String,
 }
 
-fn resolve_sampling(spec: &SamplingSpec, prefix: &str, errors: &mut Vec<PlanError>) -> Option<(Sampling, Vec<usize>)> {
+/// The directions a sampling keeps after its filters, before the [`Sampling`] (and its
+/// triangulation) is built.
+struct KeptDirections {
+    name: String,
+    dirs: Vec<Direction>,
+    indices: Vec<usize>,
+}
+
+impl KeptDirections {
+    fn build(self, prefix: &str, errors: &mut Vec<PlanError>) -> Option<(Sampling, Vec<usize>)> {
+        match Sampling::from_list(&self.name, self.dirs) {
+            Ok(s) => Some((s, self.indices)),
+            Err(e) => {
+                // Unreachable after the checks of `resolve_sampling`; reported rather than panicking.
+                errors.push(PlanError::invalid(prefix, &self.name, e.to_string(), "a valid sampling"));
+                None
+            }
+        }
+    }
+}
+
+fn resolve_sampling(spec: &SamplingSpec, prefix: &str, errors: &mut Vec<PlanError>) -> Option<KeptDirections> {
     let table = match spec {
         SamplingSpec::Preset(p) => SamplingTable { preset: Some(p.clone()), ..Default::default() },
         SamplingSpec::Table(t) => t.clone(),
@@ -967,14 +998,7 @@ fn resolve_sampling(spec: &SamplingSpec, prefix: &str, errors: &mut Vec<PlanErro
     }
     let dirs: Vec<Direction> = kept.iter().map(|c| c.dir).collect();
     let indices: Vec<usize> = kept.iter().map(|c| c.source_index).collect();
-    match Sampling::from_list(&name, dirs) {
-        Ok(s) => Some((s, indices)),
-        Err(e) => {
-            // Unreachable after the checks above; reported rather than panicking.
-            errors.push(PlanError::invalid(prefix, &name, e.to_string(), "a valid sampling"));
-            None
-        }
-    }
+    Some(KeptDirections { name, dirs, indices })
 }
 
 /// The number of directions a `list` or `rings` source would give, when it exceeds
@@ -1017,9 +1041,22 @@ fn check_phi(p: f64, field: &str, errors: &mut Vec<PlanError>) -> bool {
 
 fn check_duplicates(candidates: &[Candidate], errors: &mut Vec<PlanError>) {
     let units: Vec<_> = candidates.iter().map(|c| c.dir.to_vector()).collect();
-    // Quadratic, but plans have at most a few thousand directions and this runs once.
-    for j in 1..units.len() {
-        if let Some(i) = (0..j).find(|&i| angle_between(&units[i], &units[j]) < DUPLICATE_TOLERANCE_RAD) {
+    // For each direction the first earlier one it repeats. Two directions closer than the
+    // tolerance differ in z by less than it, so only neighbours in z order are compared:
+    // O(n log n) but for many directions of one height (at most a ring's 360, or a list's).
+    let mut by_z: Vec<usize> = (0..units.len()).collect();
+    by_z.sort_by(|&a, &b| units[a].z.total_cmp(&units[b].z));
+    let mut first: Vec<Option<usize>> = vec![None; units.len()];
+    for (k, &a) in by_z.iter().enumerate() {
+        for &b in by_z[k + 1..].iter().take_while(|&&b| units[b].z - units[a].z <= DUPLICATE_TOLERANCE_RAD) {
+            if angle_between(&units[a], &units[b]) < DUPLICATE_TOLERANCE_RAD {
+                let (i, j) = (a.min(b), a.max(b));
+                first[j] = Some(first[j].map_or(i, |f| f.min(i)));
+            }
+        }
+    }
+    for (j, i) in first.iter().enumerate() {
+        if let Some(i) = *i {
             let (a, b) = (&candidates[i], &candidates[j]);
             let first = if a.field == b.field { a.written.clone() } else { format!("{} = {}", a.field, a.written) };
             errors.push(PlanError::invalid(
