@@ -817,3 +817,154 @@ fn demo_rig_camera_array_multiplexes_all_151_flashes_end_to_end() {
     let e = fails(btfrig().args(["kinematics", "check", "--rig", "camera-array"]));
     assert!(e.contains("camera_array") && e.contains("gonioreflectometer"), "{e}");
 }
+
+/// `btfrig plan check PLAN`.
+fn plan_check(plan: &Path) -> Vec<std::ffi::OsString> {
+    vec!["plan".into(), "check".into(), plan.into()]
+}
+
+/// `btfrig run --plan PLAN --out OUT`.
+fn run_args(plan: &Path, out: &Path) -> Vec<std::ffi::OsString> {
+    vec!["run".into(), "--plan".into(), plan.into(), "--out".into(), out.into()]
+}
+
+/// Issue 24's plans: `rings` rings of `count` directions for light and view, theta 5 to
+/// 77 degrees, 8-texel textures, then `extra`.
+fn rings_plan(dir: &Path, name: &str, rings: usize, count: usize, extra: &str) -> PathBuf {
+    let ring_list: Vec<String> = (0..rings)
+        .map(|r| format!("{{ theta_deg = {}, count = {count} }}", 5.0 + 72.0 * r as f64 / (rings - 1) as f64))
+        .collect();
+    let rings = ring_list.join(", ");
+    let path = dir.join(format!("{name}.toml"));
+    let text = format!(
+        "name = \"{name}\"\n[rig]\nmaterial = \"lacquered-wood\"\n[sampling]\nlight = {{ rings = [{rings}] }}\nview = {{ rings = [{rings}] }}\n[texture]\nsize = 8\n{extra}"
+    );
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// r24 (issue 24, item 2): the 1.3 KB plan of 10 rings x 360 directions for light and view
+/// (12.96 M pairs) is refused by `plan check` and `run` from its counts, naming the limit
+/// and how to raise it; `run` creates no dataset directory, with or without
+/// `skip.max_captures = 60`. Time it with
+/// `time target/release/btfrig plan check target/tmp/cli-r24-runaway/runaway.toml`.
+#[test]
+fn r24_the_runaway_plan_is_refused_by_plan_check_and_run_naming_the_limit() {
+    let dir = scratch("r24-runaway");
+    for (name, extra) in [("runaway", ""), ("runaway-max60", "[skip]\nmax_captures = 60\n")] {
+        let plan = rings_plan(&dir, name, 10, 360, extra);
+        assert!(std::fs::metadata(&plan).unwrap().len() < 1500);
+        let out = dir.join(format!("{name}-dataset"));
+        for args in [plan_check(&plan), run_args(&plan, &out)] {
+            let err = fails(btfrig().args(args));
+            for want in [
+                "sampling.pairs",
+                "12960000 pairs (360",
+                "exceeds the limit of 100000 requested pairs per plan (limits.max_captures)",
+                "[limits] max_captures = N in the plan (at most 1000000)",
+            ] {
+                assert!(err.contains(want), "{want:?} missing:\n{err}");
+            }
+        }
+        assert!(!out.exists(), "{} was created", out.display());
+    }
+}
+
+/// r24: a 50 MB plan (a 4.2 M-entry pairs list) is refused by its size before it is parsed,
+/// by `plan check`, `plan show` and `run`, and `run` creates nothing.
+#[test]
+fn r24_a_50_mb_plan_is_refused_by_its_size() {
+    let dir = scratch("r24-big");
+    let plan = dir.join("big.toml");
+    let mut text = String::from("[sampling]\nlight = \"bonn81\"\nview = \"bonn81\"\npairs = [");
+    for k in 0..4_200_000u32 {
+        text.push_str(&format!("[ {}, {} ], ", k % 81, k % 79));
+    }
+    text.push_str("]\n");
+    std::fs::write(&plan, &text).unwrap();
+    let out = dir.join("dataset");
+    let plan_show = vec!["plan".into(), "show".into(), plan.clone().into_os_string()];
+    for args in [plan_check(&plan), plan_show, run_args(&plan, &out)] {
+        let err = fails(btfrig().args(args));
+        let want = format!("plan text = {} bytes exceeds the limit of 1048576 bytes", text.len());
+        assert!(err.contains(&want), "{want:?} missing:\n{err}");
+    }
+    assert!(!out.exists());
+}
+
+/// r24: SIGTERM while `btfrig run` plans a big (allowed) plan: exit 143 at once, nothing
+/// written. The signal is sent when the run says it is planning (an event on stderr, not a
+/// sleep); the plan has 360 000 pairs, so planning lasts seconds.
+#[test]
+fn r24_sigterm_while_planning_exits_143_and_leaves_no_dataset() {
+    use std::io::BufRead;
+    let dir = scratch("r24-sigterm-planning");
+    let plan = rings_plan(&dir, "big", 12, 50, "[limits]\nmax_captures = 400000\n");
+    let out = dir.join("dataset");
+    let mut child = btfrig()
+        .args(["run", "--plan"])
+        .arg(&plan)
+        .arg("--out")
+        .arg(&out)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stderr = std::io::BufReader::new(child.stderr.take().unwrap());
+    let mut seen = String::new();
+    loop {
+        let mut line = String::new();
+        assert!(stderr.read_line(&mut line).unwrap() > 0, "stderr ended before planning:\n{seen}");
+        seen.push_str(&line);
+        if line.starts_with("planning ") {
+            break;
+        }
+    }
+    assert!(seen.contains("planning 3"), "{seen}");
+    let status = Command::new("kill").args(["-TERM", &child.id().to_string()]).status().unwrap();
+    assert!(status.success());
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut stderr, &mut rest).unwrap();
+    let code = child.wait().unwrap().code();
+    assert_eq!(code, Some(143), "{seen}{rest}");
+    assert!(rest.contains("interrupted by SIGTERM while planning, before the dataset was created"), "{seen}{rest}");
+    assert!(!out.exists(), "{} was created", out.display());
+}
+
+/// r24 (issue 24, item 7): a NaN `jitter_deg`, an inverted `exposure_range_s` in the rig
+/// config, and a material file that does not exist pass neither `plan check` nor `run`,
+/// each named; `run` leaves no dataset directory behind.
+#[test]
+fn r24_nan_jitter_inverted_exposure_range_and_missing_material_are_refused_by_plan_check() {
+    let dir = scratch("r24-bad-inputs");
+    let rig = std::fs::read_to_string(support::repo("rig-configs/bonn-gonio-sim.toml")).unwrap();
+    let plan_text = include_str!("data/tiny-plan.toml").replace("SEED", "1").replace("FAULTS", "none");
+    let cases = [
+        ("nan-jitter", rig.replace("jitter_deg = 0.1", "jitter_deg = nan"), None, "devices.rail.jitter_deg"),
+        (
+            "inverted-exposure",
+            rig.replace("exposure_range_s = [0.0001, 30.0]", "exposure_range_s = [30.0, 0.0001]"),
+            None,
+            "devices.camera.exposure_range_s",
+        ),
+        ("missing-material", rig.clone(), Some("no-such-material.toml"), "rig.material \""),
+    ];
+    for (name, rig_text, material, field) in cases {
+        assert!(material.is_some() || rig_text != rig, "{name}: the replacement matched nothing");
+        let rig_path = dir.join(format!("{name}-rig.toml"));
+        std::fs::write(&rig_path, &rig_text).unwrap();
+        let text =
+            plan_text.replace("config = \"builtin:bonn-gonio-sim\"", &format!("config = \"{name}-rig.toml\"")).replace(
+                "material = \"lacquered-wood\"",
+                &format!("material = \"{}\"", material.unwrap_or("lacquered-wood")),
+            );
+        let plan = dir.join(format!("{name}.toml"));
+        std::fs::write(&plan, text).unwrap();
+        let out = dir.join(format!("{name}-dataset"));
+        for args in [plan_check(&plan), run_args(&plan, &out)] {
+            let err = fails(btfrig().args(args));
+            assert!(err.contains(field), "{name}: {field:?} missing:\n{err}");
+        }
+        assert!(!out.exists(), "{name}: {} was left behind", out.display());
+    }
+}

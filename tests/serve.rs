@@ -314,3 +314,84 @@ fn r24_rust_log_trace_prints_the_daemons_log_lines() {
         }
     }
 }
+
+/// A big plan the limits allow: 12 rings x 50 directions for light and view (360 000
+/// pairs, `[limits] max_captures` raised), whose dry run takes seconds of planning.
+fn big_plan_body() -> String {
+    let rings: Vec<String> =
+        (0..12).map(|r| format!("{{ theta_deg = {}, count = 50 }}", 5.0 + 72.0 * r as f64 / 11.0)).collect();
+    let rings = rings.join(", ");
+    let text = format!(
+        "name = \"big\"\n[sampling]\nlight = {{ rings = [{rings}] }}\nview = {{ rings = [{rings}] }}\n[texture]\nsize = 8\n[limits]\nmax_captures = 400000\n"
+    );
+    serde_json::json!({ "plan_text": text }).to_string()
+}
+
+/// Sends the big dry run on a keep-alive HTTP/1.1 connection (so the daemon watches it for
+/// the client going away) and returns the open connection.
+fn send_big_dry_run(port: u16) -> std::net::TcpStream {
+    use std::io::Write;
+    let body = big_plan_body();
+    let mut s = std::net::TcpStream::connect(("127.0.0.1", port)).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(120))).unwrap();
+    let req = format!(
+        "POST /api/v1/plans/dry-run HTTP/1.1\r\nHost: 127.0.0.1\r\nAuthorization: Bearer viewer-token\r\nContent-Type: application/json\r\nContent-Length: {}\r\n\r\n{body}",
+        body.len()
+    );
+    s.write_all(req.as_bytes()).unwrap();
+    s
+}
+
+/// A sample of `/metrics`.
+fn metric(d: &Daemon, name: &str) -> u64 {
+    let text = request(d.port, "GET", "/metrics", None, None).text();
+    let line = text.lines().find(|l| l.starts_with(&format!("{name} "))).unwrap_or_else(|| panic!("{name}:\n{text}"));
+    line.rsplit(' ').next().unwrap().parse().unwrap()
+}
+
+/// Polls `/metrics` until `name` has `want` (the event), or panics after 120 s.
+fn wait_metric(d: &Daemon, name: &str, want: u64) {
+    let t0 = std::time::Instant::now();
+    while metric(d, name) != want {
+        assert!(t0.elapsed().as_secs() < 120, "{name} never became {want}");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// r24 (issue 24, item 2): a viewer's dry run of a big plan whose client disconnects is
+/// cancelled (seen in `/metrics`: the job ends, counted as cancelled), not left running.
+#[test]
+fn r24_a_dry_run_whose_client_goes_away_is_cancelled() {
+    let (auth, data) = setup("serve_r24_disconnect");
+    let d = daemon(&auth, &data);
+    assert_eq!(metric(&d, "btfrig_plan_jobs_cancelled_total"), 0);
+    let conn = send_big_dry_run(d.port);
+    wait_metric(&d, "btfrig_plan_jobs_in_flight", 1);
+    drop(conn);
+    wait_metric(&d, "btfrig_plan_jobs_in_flight", 0);
+    assert_eq!(metric(&d, "btfrig_plan_jobs_cancelled_total"), 1);
+    // The runaway plan itself is refused from its counts, naming the limit.
+    let rings: Vec<String> = (0..10).map(|r| format!("{{ theta_deg = {}, count = 360 }}", 5 + 8 * r)).collect();
+    let text = format!("[sampling]\nlight = {{ rings = [{0}] }}\nview = {{ rings = [{0}] }}\n", rings.join(", "));
+    let r = d.post("/api/v1/plans/dry-run", "viewer-token", &serde_json::json!({ "plan_text": text }).to_string());
+    let v = r.json();
+    assert_eq!(v["valid"], false, "{v}");
+    let e = v["errors"].to_string();
+    assert!(e.contains("12960000 pairs") && e.contains("[limits] max_captures = N"), "{e}");
+}
+
+/// r24: SIGTERM to `btfrig serve` while a dry run is planning: the dry run is cancelled
+/// (its client is told so) and the daemon exits.
+#[test]
+fn r24_sigterm_during_a_dry_run_cancels_it_and_the_daemon_exits() {
+    use std::io::Read;
+    let (auth, data) = setup("serve_r24_sigterm");
+    let d = daemon(&auth, &data);
+    let mut conn = send_big_dry_run(d.port);
+    wait_metric(&d, "btfrig_plan_jobs_in_flight", 1);
+    let status = d.terminate();
+    assert!(status.success(), "btfrig serve exit after SIGTERM: {status}");
+    let mut answer = String::new();
+    let _ = conn.read_to_string(&mut answer);
+    assert!(answer.contains("\"valid\":false") && answer.contains("cancelled"), "{answer}");
+}

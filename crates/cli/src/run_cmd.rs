@@ -148,7 +148,15 @@ pub fn execute(req: &RunRequest) -> anyhow::Result<RunSummary> {
     let control = RunControl::new();
     watch_signals(control.clone());
     let mut progress = Progress::default();
-    let summary = btfrig_runner::run(req, &control, &mut |e| progress.show(e))?;
+    let summary = match btfrig_runner::run(req, &control, &mut |e| progress.show(e)) {
+        // Stopped while planning: no dataset exists, nothing to resume; the signal's code.
+        Err(e @ btfrig_runner::RunError::Interrupted(signal)) => {
+            progress.end_line();
+            eprintln!("btfrig: {e}");
+            std::process::exit(i32::from(signal.exit_code()));
+        }
+        r => r?,
+    };
     progress.end_line();
     Ok(summary)
 }
@@ -268,37 +276,65 @@ pub fn registration_line(s: &RunSummary) -> String {
 /// The first SIGINT (Ctrl-C) or SIGTERM stops the run cleanly (the runner commits the frames
 /// in flight and writes the report, which names the signal); a second one exits at once with
 /// the signal's code (the journal keeps the run resumable anyway).
+/// Returns once the handlers are installed, so a signal that arrives later (e.g. during
+/// planning) is never the default action's kill.
 fn watch_signals(control: RunControl) {
+    let (ready_tx, ready_rx) = std::sync::mpsc::channel::<()>();
     std::thread::spawn(move || {
         let Ok(rt) = tokio::runtime::Builder::new_current_thread().enable_all().build() else {
+            let _ = ready_tx.send(());
             return;
         };
         rt.block_on(async {
-            let Some(first) = next_signal().await else { return };
+            let mut signals = Signals::install();
+            let _ = ready_tx.send(());
+            let Some(first) = signals.next().await else { return };
             let what = if first == Signal::Int { "Ctrl-C" } else { first.name() };
             eprintln!("\nbtfrig: {what}: finishing the frames in flight, then stopping ({what} again to quit at once)");
             control.interrupt(first);
-            if let Some(second) = next_signal().await {
+            if let Some(second) = signals.next().await {
                 std::process::exit(i32::from(second.exit_code()));
             }
         });
     });
+    let _ = ready_rx.recv();
 }
 
-/// The next SIGINT or SIGTERM; `None` when they cannot be watched.
-async fn next_signal() -> Option<Signal> {
+/// SIGINT and SIGTERM listeners, registered when made.
+struct Signals {
     #[cfg(unix)]
-    {
-        use tokio::signal::unix::{signal, SignalKind};
-        let mut term = signal(SignalKind::terminate()).ok()?;
-        tokio::select! {
-            _ = term.recv() => Some(Signal::Term),
-            r = tokio::signal::ctrl_c() => r.ok().map(|()| Signal::Int),
+    term: Option<tokio::signal::unix::Signal>,
+    #[cfg(unix)]
+    int: Option<tokio::signal::unix::Signal>,
+}
+
+impl Signals {
+    fn install() -> Signals {
+        #[cfg(unix)]
+        {
+            use tokio::signal::unix::{signal, SignalKind};
+            Signals { term: signal(SignalKind::terminate()).ok(), int: signal(SignalKind::interrupt()).ok() }
+        }
+        #[cfg(not(unix))]
+        {
+            Signals {}
         }
     }
-    #[cfg(not(unix))]
-    {
-        tokio::signal::ctrl_c().await.ok().map(|()| Signal::Int)
+
+    /// The next SIGINT or SIGTERM; `None` when they cannot be watched.
+    async fn next(&mut self) -> Option<Signal> {
+        #[cfg(unix)]
+        {
+            let (Some(term), Some(int)) = (self.term.as_mut(), self.int.as_mut()) else { return None };
+            tokio::select! {
+                _ = term.recv() => Some(Signal::Term),
+                _ = int.recv() => Some(Signal::Int),
+            }
+        }
+        #[cfg(not(unix))]
+        {
+            tokio::signal::ctrl_c().await.ok().map(|()| Signal::Int)
+        }
     }
 }
 
@@ -320,6 +356,9 @@ impl Progress {
     fn show(&mut self, e: &RunEvent) {
         let mut err = std::io::stderr().lock();
         match e {
+            RunEvent::Planning { captures } => {
+                let _ = writeln!(err, "planning {captures} captures");
+            }
             RunEvent::Started {
                 dataset,
                 resumed,

@@ -712,10 +712,16 @@ pub async fn start_run(
 ) -> Result<Response, Problem> {
     let (plan_text, plan_path, given_name) = s.plan_source(b.plan, b.plan_text)?;
     let (text, path, st) = (plan_text.clone(), plan_path.clone(), s.clone());
-    let checked = tokio::task::spawn_blocking(move || btfrig_runner::check::check_for_rig(&text, &path, &st.rig))
-        .await
-        .map_err(|e| Problem::internal(format!("plan validation crashed: {e}")))?
-        .map_err(|e| Problem::unprocessable(e.to_string()))?;
+    // Counted as a plan job: the validation is bounded by the plan limits (a runaway plan is
+    // refused from its counts), and the daemon's shutdown does not wait for it.
+    let (_guard, record) = s.metrics.plan_jobs.start();
+    let checked = tokio::task::spawn_blocking(move || {
+        let _record = record;
+        btfrig_runner::check::check_for_rig(&text, &path, &st.rig)
+    })
+    .await
+    .map_err(|e| Problem::internal(format!("plan validation crashed: {e}")))?
+    .map_err(|e| Problem::unprocessable(e.to_string()))?;
     let (kind, name) = (checked.kind(), checked.name().to_string());
     match checked {
         btfrig_runner::check::CheckedPlan::Gonio { validated, .. } => check_gonio_start(&validated)?,

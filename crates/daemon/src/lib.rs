@@ -17,6 +17,7 @@ pub mod api;
 pub mod auth;
 pub mod calibrations;
 pub mod metrics;
+pub mod plan_jobs;
 pub mod problem;
 pub mod runs;
 pub mod server;
@@ -329,7 +330,11 @@ impl AppState {
         };
         let kind = btfrig_runner::check::PlanKind::of_toml(&text);
         let state = self.clone();
+        // Cancelled when this future is dropped (the client went away), at the time limit,
+        // or at shutdown; the work checks the flag (crate::plan_jobs).
+        let (guard, record) = self.metrics.plan_jobs.start();
         let job = tokio::task::spawn_blocking(move || -> Result<PlanCheck, Vec<String>> {
+            let cancel = record.cancel();
             let errors = |e: btfrig_runner::RunError| match e {
                 btfrig_runner::RunError::Plan(p) => p.errors.iter().map(|e| e.to_string()).collect(),
                 e => vec![e.to_string()],
@@ -352,7 +357,7 @@ impl AppState {
             }
             match checked.kind() {
                 btfrig_runner::check::PlanKind::Gonio => {
-                    let d = btfrig_runner::dry_run::dry_run(&text, &path).map_err(errors)?;
+                    let d = btfrig_runner::dry_run::dry_run_cancellable(&text, &path, cancel).map_err(errors)?;
                     let mut shown = d.schedule.to_string();
                     if let Some(h) = &d.hdr {
                         shown.push('\n');
@@ -376,7 +381,22 @@ impl AppState {
             }
             Ok(c)
         });
-        match job.await {
+        let job = match tokio::time::timeout(crate::plan_jobs::PLAN_JOB_TIME_LIMIT, job).await {
+            Ok(j) => j,
+            Err(_) => {
+                guard.cancel();
+                return invalid(
+                    kind.map(Into::into),
+                    vec![format!(
+                        "the plan check took longer than its time limit of {} s and was cancelled: allowed are plans \
+                         that check and plan within it (fewer pairs; `btfrig plan show` has no time limit)",
+                        crate::plan_jobs::PLAN_JOB_TIME_LIMIT.as_secs()
+                    )],
+                );
+            }
+        };
+        drop(guard);
+        match job {
             Ok(Ok(c)) => c,
             Ok(Err(errors)) => invalid(kind.map(Into::into), errors),
             Err(e) => invalid(kind.map(Into::into), vec![format!("the plan check crashed: {e}")]),
@@ -737,6 +757,9 @@ pub async fn serve(cfg: ServeConfig) -> Result<(), ServeError> {
     server::serve_connections(listener, app, cfg.header_read_timeout, async move {
         let signal = shutdown_signal().await;
         eprintln!("shutting down on {}: interrupting the run under way (its dataset stays resumable)", signal.name());
+        // Plan checks and dry runs in flight stop too, so that the graceful shutdown does not
+        // wait for them.
+        shutdown_state.metrics.plan_jobs.cancel_all();
         let s = shutdown_state.clone();
         let _ = tokio::task::spawn_blocking(move || s.runs.interrupt_and_wait(signal)).await;
     })

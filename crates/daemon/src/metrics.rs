@@ -22,6 +22,8 @@ pub struct Metrics {
     /// Stage seconds of finished sessions, and of the session under way.
     stages_done: Mutex<BTreeMap<String, f64>>,
     stages_current: Mutex<BTreeMap<String, f64>>,
+    /// Plan checks and dry runs in flight, with their cancel flags.
+    pub plan_jobs: std::sync::Arc<crate::plan_jobs::PlanJobs>,
 }
 
 impl Metrics {
@@ -103,6 +105,16 @@ impl Metrics {
             "btfrig_events_dropped_total",
             "Run events a slow event-stream client skipped.",
             self.events_dropped.load(Ordering::Relaxed),
+        );
+        counter(
+            "btfrig_plan_jobs_cancelled_total",
+            "Plan checks and dry runs stopped by their cancel flag (client gone, time limit, shutdown).",
+            self.plan_jobs.cancelled(),
+        );
+        let _ = writeln!(
+            out,
+            "# HELP btfrig_plan_jobs_in_flight Plan checks and dry runs running now.\n# TYPE btfrig_plan_jobs_in_flight gauge\nbtfrig_plan_jobs_in_flight {}",
+            self.plan_jobs.in_flight()
         );
         let _ = writeln!(
             out,

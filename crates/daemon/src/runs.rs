@@ -181,6 +181,7 @@ impl Run {
 
     fn on_event(&self, e: &RunEvent, metrics: &Metrics) {
         let changed = match e {
+            RunEvent::Planning { .. } => None,
             RunEvent::Started { done_before, total, .. } => Some(self.update(|s| {
                 s.state = RunState::Running;
                 s.done = *done_before as u64;
@@ -263,6 +264,11 @@ impl Run {
                     s.eta_s = Some(0.0);
                 }
                 s.summary = Some(summary.to_json());
+            }
+            // Stopped by the daemon's shutdown while planning: nothing was written.
+            Err(e @ btfrig_runner::RunError::Interrupted(_)) => {
+                s.state = RunState::Interrupted;
+                s.message = Some(e.to_string());
             }
             Err(e) => {
                 s.state = RunState::Failed;

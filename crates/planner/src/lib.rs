@@ -21,6 +21,8 @@
 #![warn(missing_docs)]
 
 use std::fmt;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 
 use btfrig_core::config::timing::TimingConfig;
 use btfrig_core::kinematics::Gonio;
@@ -33,7 +35,7 @@ pub mod summary;
 pub mod timing;
 
 pub use expand::{expand, skip_counts, Expansion, PairSelection, PlanCapture, Skip, SkipKind, SkipReason};
-pub use order::{naive_order, optimise_order, OrderOptions};
+pub use order::{naive_order, optimise_order, optimise_order_cancellable, OrderOptions};
 pub use summary::{format_hms, DiskEstimate, DryRun};
 pub use timing::{MoveTime, ScheduleTiming, Start, StepCost, StepTiming, TimingModel};
 
@@ -69,6 +71,41 @@ pub enum PlanError {
     /// Frames of zero bytes.
     #[error("frame bytes = 0 is not allowed: must be >= 1")]
     ZeroFrameBytes,
+    /// The [`Cancel`] flag was set (a signal, a client that went away, a time limit).
+    #[error("cancelled")]
+    Cancelled,
+}
+
+/// A cancellation flag shared between threads: set it from a signal handler, a request
+/// guard's `Drop` or a timer, and the planner's loops stop soon after with
+/// [`PlanError::Cancelled`]. Clones share the flag.
+#[derive(Debug, Clone, Default)]
+pub struct Cancel(Arc<AtomicBool>);
+
+impl Cancel {
+    /// A flag that is not set.
+    pub fn new() -> Cancel {
+        Cancel::default()
+    }
+
+    /// Sets the flag (for every clone).
+    pub fn cancel(&self) {
+        self.0.store(true, Ordering::Relaxed);
+    }
+
+    /// Whether the flag is set.
+    pub fn is_cancelled(&self) -> bool {
+        self.0.load(Ordering::Relaxed)
+    }
+
+    /// `Err(PlanError::Cancelled)` once the flag is set.
+    pub fn check(&self) -> Result<(), PlanError> {
+        if self.is_cancelled() {
+            Err(PlanError::Cancelled)
+        } else {
+            Ok(())
+        }
+    }
 }
 
 /// Everything [`plan`] needs.
@@ -92,6 +129,8 @@ pub struct PlanRequest<'a> {
     pub start: Start,
     /// Improvement limits of the ordering.
     pub order: OrderOptions,
+    /// Stops the planning with [`PlanError::Cancelled`] when set (never, by default).
+    pub cancel: Cancel,
 }
 
 impl<'a> PlanRequest<'a> {
@@ -114,7 +153,14 @@ impl<'a> PlanRequest<'a> {
             frame_bytes,
             start: Start::homed(),
             order: OrderOptions::default(),
+            cancel: Cancel::new(),
         }
+    }
+
+    /// The same request, stopped when `cancel` is set.
+    pub fn with_cancel(mut self, cancel: &Cancel) -> Self {
+        self.cancel = cancel.clone();
+        self
     }
 
     /// The same request for other pairs.
@@ -177,15 +223,17 @@ impl Schedule {
 
 /// Expands, orders and times a request.
 pub fn plan(req: &PlanRequest) -> Result<Schedule, PlanError> {
+    req.cancel.check()?;
     let ex = expand(req.gonio, req.lights, req.views, &req.pairs, req.exposure_s, req.frame_bytes)?;
-    Ok(schedule_expansion(
+    schedule_expansion_cancellable(
         req.lights.name(),
         req.views.name(),
         ex,
         &TimingModel::new(req.timing),
         &req.start,
         &req.order,
-    ))
+        &req.cancel,
+    )
 }
 
 /// Orders and times an expansion (e.g. after [`Expansion::mark_not_needed`] or per-capture
@@ -198,10 +246,24 @@ pub fn schedule_expansion(
     start: &Start,
     opts: &OrderOptions,
 ) -> Schedule {
-    let order = optimise_order(model, &ex.captures, start, opts);
+    schedule_expansion_cancellable(lights, views, ex, model, start, opts, &Cancel::new()).expect("never cancelled")
+}
+
+/// [`schedule_expansion`], stopping with [`PlanError::Cancelled`] soon after `cancel` is set.
+pub fn schedule_expansion_cancellable(
+    lights: &str,
+    views: &str,
+    ex: Expansion,
+    model: &TimingModel,
+    start: &Start,
+    opts: &OrderOptions,
+    cancel: &Cancel,
+) -> Result<Schedule, PlanError> {
+    let order = optimise_order_cancellable(model, &ex.captures, start, opts, cancel)?;
+    cancel.check()?;
     let timing = model.schedule_time(&ex.captures, &order, start);
     let naive = model.schedule_time(&ex.captures, &naive_order(&ex.captures), start);
-    Schedule {
+    Ok(Schedule {
         lights: lights.to_string(),
         views: views.to_string(),
         requested: ex.captures.len() + ex.skipped.len(),
@@ -212,7 +274,7 @@ pub fn schedule_expansion(
         order,
         start: *start,
         timing,
-    }
+    })
 }
 
 impl fmt::Display for Schedule {

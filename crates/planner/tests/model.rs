@@ -233,8 +233,13 @@ fn slow_motion_rig_optimised_order_beats_naive_clearly() {
     // Nearest neighbour alone, for the record (docs/planner.md).
     let model = TimingModel::new(&timing);
     let nn = optimise_order(&model, &p.captures, &p.start, &OrderOptions { max_passes: 0, ..OrderOptions::default() });
-    println!("slow rig nearest neighbour only: {:.0} s", model.schedule_time(&p.captures, &nn, &p.start).hardware_s);
-    assert!(wall < 4.0, "planning took {wall} s");
+    let nn_s = model.schedule_time(&p.captures, &nn, &p.start).hardware_s;
+    println!("slow rig nearest neighbour only: {nn_s:.0} s");
+    // The improvement passes must help beyond the construction; and the result stays where
+    // it was before the ordering was bounded (37004 s against the bound 37004 s, issue 24).
+    // Planning speed is printed above, not asserted (shared machine).
+    assert!(hw < nn_s, "improved {hw} not below nearest neighbour {nn_s}");
+    assert!(hw <= 1.001 * lb, "hardware {hw} vs bound {lb}");
 }
 
 #[test]

@@ -26,6 +26,10 @@ impl PlanKind {
     /// The kind of the plan `text`: a dome plan when it has a `[dome]` table; `None` when it
     /// is not TOML at all.
     pub fn of_toml(text: &str) -> Option<PlanKind> {
+        // Too long to parse: the plan parser refuses it, naming the limit.
+        if text.len() > btfrig_core::plan::MAX_PLAN_BYTES {
+            return None;
+        }
         toml::from_str::<toml::Table>(text).ok().map(|t| {
             if t.contains_key("dome") {
                 PlanKind::Dome
@@ -179,7 +183,8 @@ pub fn check_for_rig(text: &str, file: &Path, rig: &RigConfig) -> Result<Checked
 }
 
 /// The rig a plan names, for a refusal: `"name" (kind)` when its config loads, else the
-/// `rig.config` value as written.
+/// `rig.config` value as written. Only called for text [`PlanKind::of_toml`] parsed (so
+/// within the size limit).
 fn plan_rig_label(text: &str, file: &Path, kind: PlanKind) -> String {
     let config = toml::from_str::<toml::Table>(text)
         .ok()

@@ -27,7 +27,9 @@ use crate::RunError;
 
 /// Whether `text` is a dome plan (it has a `[dome]` table; a gonio plan has none).
 pub fn is_dome_plan(text: &str) -> bool {
-    toml::from_str::<toml::Table>(text).is_ok_and(|t| t.contains_key("dome"))
+    // Too long to parse: the gonio plan parser refuses it, naming the limit.
+    text.len() <= btfrig_core::plan::MAX_PLAN_BYTES
+        && toml::from_str::<toml::Table>(text).is_ok_and(|t| t.contains_key("dome"))
 }
 
 /// What a dome plan would do.

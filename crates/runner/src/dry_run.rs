@@ -6,7 +6,7 @@ use std::path::Path;
 
 use btfrig_core::kinematics::Gonio;
 use btfrig_core::plan::{ExposurePolicy, HdrMode, HdrSettings, OutputFormat, ValidatedPlan};
-use btfrig_planner::{plan as plan_schedule, DiskEstimate, PairSelection, PlanRequest};
+use btfrig_planner::{plan as plan_schedule, Cancel, DiskEstimate, PairSelection, PlanRequest};
 
 use crate::plan::{exposure_s, frame_bytes, load_text, skip_counts};
 use crate::RunError;
@@ -36,7 +36,19 @@ pub struct DryRun {
 
 /// Validates `text` (named `file`, which anchors its relative paths) and plans it.
 pub fn dry_run(text: &str, file: &Path) -> Result<DryRun, RunError> {
+    dry_run_cancellable(text, file, &Cancel::new())
+}
+
+/// [`dry_run`], stopped with [`RunError::Cancelled`] soon after `cancel` is set (the
+/// daemon sets it when the request's client goes away, its time limit passes or the daemon
+/// shuts down). Validation is bounded by the plan limits; the planning checks the flag in
+/// its loops.
+pub fn dry_run_cancellable(text: &str, file: &Path, cancel: &Cancel) -> Result<DryRun, RunError> {
+    let cancelled = || RunError::Cancelled("the dry run was cancelled before it finished".into());
     let (plan, v) = load_text(text, file)?;
+    if cancel.is_cancelled() {
+        return Err(cancelled());
+    }
     let list = v.capture_list();
     if list.captures.is_empty() {
         return Err(RunError::Empty { plan: file.into() });
@@ -45,9 +57,13 @@ pub fn dry_run(text: &str, file: &Path) -> Result<DryRun, RunError> {
     let exposure_s = exposure_s(&plan, &v, file)?;
     let frame_bytes = frame_bytes(&v);
     let request = PlanRequest::new(&gonio, &v.light, &v.view, &v.rig.timing, exposure_s, frame_bytes)
-        .with_pairs(PairSelection::List(list.captures.clone()));
+        .with_pairs(PairSelection::List(list.captures.clone()))
+        .with_cancel(cancel);
     let started = std::time::Instant::now();
-    let schedule = plan_schedule(&request)?;
+    let schedule = match plan_schedule(&request) {
+        Err(btfrig_planner::PlanError::Cancelled) => return Err(cancelled()),
+        r => r?,
+    };
     let planning_s = started.elapsed().as_secs_f64();
     let cam = &v.rig.camera;
     let photosites = (cam.width_px * cam.height_px) as u64;

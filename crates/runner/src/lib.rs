@@ -43,6 +43,7 @@ use tokio::sync::mpsc;
 
 pub use crate::hdr::{journal_hdr, HdrFigures};
 use crate::report::Session;
+pub use btfrig_planner::Cancel;
 
 /// Frames the engine may hold ready ahead of the pipeline (back-pressure beyond that).
 const FRAME_CHANNEL: usize = 4;
@@ -116,6 +117,14 @@ pub enum RunError {
     /// The async runtime could not be built.
     #[error("runtime: {0}")]
     Runtime(std::io::Error),
+    /// A signal ([`RunControl::interrupt`]) stopped the run while it was planning, before
+    /// the dataset was created: nothing was written.
+    #[error("interrupted by {} while planning, before the dataset was created: nothing was written", .0.name())]
+    Interrupted(Signal),
+    /// A [`btfrig_planner::Cancel`] flag stopped the work (a dry run whose client went
+    /// away, a time limit).
+    #[error("cancelled: {0}")]
+    Cancelled(String),
 }
 
 /// What to run.
@@ -281,6 +290,10 @@ impl Signal {
 pub struct RunControl {
     tx: mpsc::UnboundedSender<Command>,
     rx: Arc<Mutex<Option<mpsc::UnboundedReceiver<Command>>>>,
+    /// Set by [`RunControl::interrupt`]: stops the planning, which runs before the engine
+    /// reads commands.
+    cancel: btfrig_planner::Cancel,
+    signal: Arc<Mutex<Option<Signal>>>,
 }
 
 impl Default for RunControl {
@@ -293,7 +306,12 @@ impl RunControl {
     /// A new control, not yet attached to a run.
     pub fn new() -> RunControl {
         let (tx, rx) = mpsc::unbounded_channel();
-        RunControl { tx, rx: Arc::new(Mutex::new(Some(rx))) }
+        RunControl {
+            tx,
+            rx: Arc::new(Mutex::new(Some(rx))),
+            cancel: btfrig_planner::Cancel::new(),
+            signal: Arc::new(Mutex::new(None)),
+        }
     }
 
     /// Pause after the step under way; the session waits for resume or abort.
@@ -311,9 +329,18 @@ impl RunControl {
         let _ = self.tx.send(Command::Abort);
     }
 
-    /// As [`RunControl::abort`], reported as `interrupted` by `signal`.
+    /// As [`RunControl::abort`], reported as `interrupted` by `signal`. During planning
+    /// (before the dataset is created) the run stops at once with
+    /// [`RunError::Interrupted`], leaving nothing behind.
     pub fn interrupt(&self, signal: Signal) {
+        self.signal.lock().unwrap_or_else(|e| e.into_inner()).get_or_insert(signal);
+        self.cancel.cancel();
         let _ = self.tx.send(Command::Interrupt(signal));
+    }
+
+    /// The first signal [`RunControl::interrupt`] was called with.
+    fn signal(&self) -> Option<Signal> {
+        *self.signal.lock().unwrap_or_else(|e| e.into_inner())
     }
 
     fn take(&self) -> Option<mpsc::UnboundedReceiver<Command>> {
@@ -324,6 +351,12 @@ impl RunControl {
 /// What a run tells its observer.
 #[derive(Debug, Clone, PartialEq)]
 pub enum RunEvent {
+    /// The plan validated; the schedule of this many captures is being planned (before
+    /// the dataset is created).
+    Planning {
+        /// Captures of the whole plan.
+        captures: usize,
+    },
     /// The dataset is open and the schedule planned; the rig is being prepared.
     Started {
         /// The dataset directory.
@@ -656,6 +689,19 @@ pub fn run(
             });
         }
     }
+    // Planned before the dataset exists: a signal during planning (the longest phase before
+    // the first capture) leaves nothing behind.
+    on_event(&RunEvent::Planning { captures: list.captures.len() });
+    let gonio = Gonio::new(v.rig.geometry.clone()).map_err(|e| RunError::Rig(e.to_string()))?;
+    let request = PlanRequest::new(&gonio, &v.light, &v.view, &v.rig.timing, exposure_s, plan::frame_bytes(&v))
+        .with_pairs(PairSelection::List(list.captures.clone()))
+        .with_cancel(&control.cancel);
+    let schedule = match plan_schedule(&request) {
+        Err(btfrig_planner::PlanError::Cancelled) => {
+            return Err(RunError::Interrupted(control.signal().unwrap_or(Signal::Int)))
+        }
+        r => r?,
+    };
     // The dataset: new, or the same plan's to resume; anything else is refused by the store.
     let mut manifest = plan::manifest(&plan, &v, &req.plan_text, file, &list)?;
     let color_file = btfrig_calibrate::color::processing_color(&v.rig, plan.rig_config_path(file).as_deref())
@@ -663,8 +709,15 @@ pub fn run(
     manifest.calibration =
         Some(calibration_record(&v.rig, color_file.as_ref(), req.light.as_ref(), req.dark_flat.as_ref()));
     let ds_err = |source| RunError::Dataset { dir: req.out.clone(), source };
+    if control.cancel.is_cancelled() {
+        return Err(RunError::Interrupted(control.signal().unwrap_or(Signal::Int)));
+    }
+    let mut new_dataset = NewDatasetGuard { dir: req.out.clone(), existed: req.out.exists(), armed: false };
     let (dataset, resumed, run_skips, repaired) = match Dataset::create(&req.out, manifest) {
-        Ok(d) => (d, false, BTreeMap::new(), None),
+        Ok(d) => {
+            new_dataset.armed = true;
+            (d, false, BTreeMap::new(), None)
+        }
         Err(StoreError::AlreadyExists { .. }) => {
             let (d, r) =
                 Dataset::open_for_resume(&req.out, &btfrig_store::plan_hash(&req.plan_text)).map_err(ds_err)?;
@@ -685,10 +738,6 @@ pub fn run(
         *skipped.entry(reason.clone()).or_insert(0) += 1;
     }
 
-    let gonio = Gonio::new(v.rig.geometry.clone()).map_err(|e| RunError::Rig(e.to_string()))?;
-    let request = PlanRequest::new(&gonio, &v.light, &v.view, &v.rig.timing, exposure_s, plan::frame_bytes(&v))
-        .with_pairs(PairSelection::List(list.captures.clone()));
-    let schedule = plan_schedule(&request)?;
     let steps = EngineStep::from_schedule(&schedule);
     let done: HashSet<StepKey> =
         dataset.completed().iter().chain(run_skips.keys()).map(|s| StepKey { light: s.light, view: s.view }).collect();
@@ -791,6 +840,10 @@ pub fn run(
         link_faults: &req.link_faults,
         on_event,
     }));
+    if !dataset.completed().is_empty() {
+        // Something is captured: the dataset stays, whatever happens next.
+        new_dataset.armed = false;
+    }
     let SessionResult {
         outcome,
         hardware_s,
@@ -841,7 +894,34 @@ pub fn run(
     let mut sessions: Vec<serde_json::Value> = previous.iter().map(Session::to_json).collect();
     sessions.push(this.to_json());
     dataset.finish(&report_of(&summary, &previous, &this, sessions)).map_err(RunError::Report)?;
+    new_dataset.armed = false;
     Ok(summary)
+}
+
+/// Removes the dataset a session created when the session fails before anything is
+/// captured, so that a failed start leaves no empty dataset directory behind (a directory
+/// that existed before, necessarily empty, is emptied again rather than removed). Disarmed
+/// once a capture is journaled or the session ends normally.
+struct NewDatasetGuard {
+    dir: PathBuf,
+    existed: bool,
+    armed: bool,
+}
+
+impl Drop for NewDatasetGuard {
+    fn drop(&mut self) {
+        if !self.armed {
+            return;
+        }
+        if !self.existed {
+            let _ = std::fs::remove_dir_all(&self.dir);
+        } else if let Ok(entries) = std::fs::read_dir(&self.dir) {
+            for e in entries.flatten() {
+                let p = e.path();
+                let _ = if p.is_dir() { std::fs::remove_dir_all(&p) } else { std::fs::remove_file(&p) };
+            }
+        }
+    }
 }
 
 /// Figures that do not depend on the session.

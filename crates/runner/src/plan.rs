@@ -43,7 +43,10 @@ pub fn load(file: &Path) -> Result<(Plan, ValidatedPlan), RunError> {
 
 /// Parses and validates plan text; `file` names it in errors and anchors its relative paths.
 /// The rig config it names is loaded first so the validation can check that the rig
-/// realises the plan's samplings.
+/// realises the plan's samplings; its simulated devices' options are checked as building
+/// them would ([`btfrig_sim::check_sim_options`]), and a material file the plan names is
+/// read and parsed, so that everything a run would trip over later is refused here, before
+/// a dataset directory exists.
 pub fn load_text(text: &str, file: &Path) -> Result<(Plan, ValidatedPlan), RunError> {
     let plan = Plan::from_toml(text, &file.display().to_string())?;
     let mut ctx = PlanContext::with_builtin_names();
@@ -56,7 +59,17 @@ pub fn load_text(text: &str, file: &Path) -> Result<(Plan, ValidatedPlan), RunEr
         e.origin = file.display().to_string();
         e
     })?;
+    check_rig_options(&validated.rig, &plan.rig.config)?;
+    if matches!(validated.material, Some(MaterialRef::File(_))) {
+        material(&plan, &validated, file)?;
+    }
     Ok((plan, validated))
+}
+
+/// The rig config's simulated device options, checked without building the rig.
+fn check_rig_options(rig: &RigConfig, source: &str) -> Result<(), RunError> {
+    btfrig_sim::check_sim_options(&rig.devices)
+        .map_err(|e| RunError::Input { what: format!("rig.config {source:?}"), message: e.to_string() })
 }
 
 /// Loads and validates a dome plan (`file` names it in errors and resolves a relative rig
@@ -80,7 +93,11 @@ pub fn load_dome(text: &str, file: &Path) -> Result<(ValidatedDomePlan, RigConfi
     if let Some(seed) = plan.rig.seed {
         rig.rig.seed = seed;
     }
+    check_rig_options(&rig, &name)?;
     let v = plan.validate(&rig).map_err(|e| dome_input(&origin, e))?;
+    if let Some(m) = v.plan.rig.material.as_deref().filter(|m| m.ends_with(".toml")) {
+        dome_material(Some(m), file)?;
+    }
     Ok((v, rig, rig_text))
 }
 
@@ -93,7 +110,10 @@ fn dome_input(what: &str, e: impl std::fmt::Display) -> RunError {
 pub fn load_material(name: Option<&str>) -> Result<MaterialSpec, RunError> {
     let name = name.unwrap_or(DEFAULT_MATERIAL);
     if name.ends_with(".toml") {
-        let text = read(Path::new(name))?;
+        let text = read(Path::new(name)).map_err(|e| RunError::Input {
+            what: format!("rig.material {name:?}"),
+            message: format!("{e}; allowed: an existing material file (relative to the plan) or an embedded name"),
+        })?;
         return MaterialSpec::from_toml(&text, name)
             .map_err(|e| RunError::Input { what: format!("material {name}"), message: e.to_string() });
     }

@@ -42,7 +42,9 @@ fn an_interrupted_run_resumes_and_the_report_covers_both_sessions() {
     })
     .unwrap();
     assert_eq!(first.outcome, RunOutcome::Interrupted(btfrig_runner::Signal::Int));
-    assert!(matches!(events[0], RunEvent::Started { resumed: false, to_do: 12, total: 12, .. }), "{events:?}");
+    // Planned before the dataset exists (issue 24), then started.
+    assert!(matches!(events[0], RunEvent::Planning { captures: 12 }), "{events:?}");
+    assert!(matches!(events[1], RunEvent::Started { resumed: false, to_do: 12, total: 12, .. }), "{events:?}");
     assert!(events.iter().any(|e| matches!(e, RunEvent::Stopping { .. })));
     assert!(first.captures >= 1 && first.captures < 12, "{first:?}");
     assert_eq!(report(&dir)["status"], "interrupted");

@@ -46,5 +46,5 @@ pub use btfrig_core::profile;
 pub use faults::{DeviceRole, FaultScenario};
 pub use frame_source::{FlatFrameSource, FrameSource, SensorFormat};
 pub use rendered::RenderedFrameSource;
-pub use rig::{SimRig, FACTORIES};
+pub use rig::{check_sim_options, SimRig, FACTORIES};
 pub use world::{FaultEvent, FaultKind, SimWorld, TrueState};

@@ -80,6 +80,48 @@ fn checked<T>(value: T, field: &str, validate: impl Fn(&T, &str, &mut Vec<Config
     ConfigError::from_list(errors).map(|()| value)
 }
 
+/// Checks the options of every simulated device of `devices` (and the simulated device behind
+/// each emulated one, [`DeviceEntry::simulated`]) as building them would, without building
+/// anything: so that `btfrig plan check` refuses a NaN `jitter_deg` or an inverted
+/// `exposure_range_s` before a run creates its dataset. Real devices are their backends'
+/// business. All problems at once.
+pub fn check_sim_options(devices: &DevicesConfig) -> Result<(), ConfigError> {
+    let mut errors = Vec::new();
+    devices.validate(&mut errors);
+    let mut check = |entry: Option<&DeviceEntry>, role: DeviceRole| {
+        let Some(sim) = entry.and_then(DeviceEntry::simulated) else { return };
+        let f = format!("devices.{}", role.as_str());
+        let o = &sim.options;
+        let r = match role {
+            DeviceRole::Robot => parse_over(SimRobotOptions::default(), o, &f).map(|v| v.validate(&f, &mut errors)),
+            DeviceRole::Rail => parse_over(SimAxisOptions::rail(), o, &f).map(|v| v.validate(&f, &mut errors)),
+            DeviceRole::Turntable => {
+                parse_over(SimAxisOptions::turntable(), o, &f).map(|v| v.validate(&f, &mut errors))
+            }
+            DeviceRole::Lamp => parse_over(SimLampOptions::default(), o, &f).map(|v| v.validate(&f, &mut errors)),
+            DeviceRole::LedArray => parse_over(SimLedOptions::default(), o, &f).map(|v| v.validate(&f, &mut errors)),
+            DeviceRole::Camera => parse_over(SimCameraOptions::default(), o, &f).map(|v| v.validate(&f, &mut errors)),
+        };
+        if let Err(e) = r {
+            errors.push(e);
+        }
+    };
+    check(Some(&devices.robot), DeviceRole::Robot);
+    check(Some(&devices.rail), DeviceRole::Rail);
+    check(devices.turntable.as_ref(), DeviceRole::Turntable);
+    check(Some(&devices.lamp), DeviceRole::Lamp);
+    check(devices.led_array.as_ref(), DeviceRole::LedArray);
+    check(Some(&devices.camera), DeviceRole::Camera);
+    let errors = errors
+        .into_iter()
+        .flat_map(|e| match e {
+            ConfigError::Many(list) => list,
+            e => vec![e],
+        })
+        .collect();
+    ConfigError::from_list(errors)
+}
+
 fn build_robot(cx: &BuildContext<'_>, options: &toml::Table) -> Result<Box<dyn Robot>, ConfigError> {
     let f = "devices.robot";
     let o = checked(parse_over(SimRobotOptions::default(), options, f)?, f, SimRobotOptions::validate)?;

@@ -148,6 +148,10 @@ impl DomePlan {
 
     /// Parses a dome plan; `origin` names the text in errors.
     pub fn from_toml(text: &str, origin: &str) -> Result<DomePlan, ConfigError> {
+        // Refused unparsed, as a gonio plan's ([`super::check_plan_size`]).
+        if let Err(e) = super::check_plan_size(text, origin) {
+            return Err(ConfigError::Parse { path: origin.into(), message: e.errors[0].to_string() });
+        }
         toml::from_str(text).map_err(|e| ConfigError::Parse { path: origin.into(), message: e.to_string() })
     }
 
@@ -165,6 +169,30 @@ impl DomePlan {
         let cameras: Vec<usize> = d.cameras.clone().unwrap_or_else(|| (0..dome.camera_count()).collect());
         let rotations: Vec<u32> = d.rotations.clone().unwrap_or_else(|| (0..dome.rotations).collect());
         let nc = dome.camera_count();
+        // Longer lists must repeat an index; refused before the duplicate scans below.
+        if cameras.len() > nc || rotations.len() > dome.rotations as usize {
+            let (field, n, max) = if cameras.len() > nc {
+                ("dome.cameras", cameras.len(), nc)
+            } else {
+                ("dome.rotations", rotations.len(), dome.rotations as usize)
+            };
+            return Err(ConfigError::out_of_range(
+                field,
+                format!("{n} entries"),
+                &format!("at most {max} distinct indices (the rig's count)"),
+            ));
+        }
+        let textures = dome.led_count().saturating_mul(cameras.len()).saturating_mul(rotations.len());
+        if textures > super::limits::DEFAULT_MAX_CAPTURES {
+            e.push(ConfigError::out_of_range(
+                "dome",
+                format!("{textures} textures ({} lights x {} cameras x {} rotations)", dome.led_count(), cameras.len(), rotations.len()),
+                &format!(
+                    "at most {} textures per plan (a fixed limit of dome plans): choose fewer [dome] cameras or rotations",
+                    super::limits::DEFAULT_MAX_CAPTURES
+                ),
+            ));
+        }
         if cameras.is_empty() {
             e.push(ConfigError::out_of_range("dome.cameras", "[]", &format!("camera indices in 0..{nc}")));
         }

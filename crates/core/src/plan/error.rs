@@ -67,6 +67,19 @@ pub enum PlanError {
         /// The first few, each as `(light i (theta, phi), view j (theta, phi)): reason`.
         first: Vec<String>,
     },
+    /// The plan asks for more than a limit allows ([`super::limits`]); checked from counts,
+    /// before anything of that size is built.
+    #[error("{field} = {value} exceeds the limit of {limit}: allowed at most that; to go beyond, {remedy}")]
+    TooLarge {
+        /// Dotted field path (or `plan text`).
+        field: String,
+        /// The plan's value, e.g. `12960000 pairs (3600 light x 3600 view directions)`.
+        value: String,
+        /// The limit and its name, e.g. `100000 (limits.max_captures)`.
+        limit: String,
+        /// How to raise the limit, or what to do instead.
+        remedy: String,
+    },
     /// The output directory already holds a dataset of a different plan.
     #[error(
         "{field} = {path:?} already holds a dataset of another plan (plan hash {found:016x}, this plan {expected:016x}): allowed an empty or new directory, or the same plan to resume"
@@ -92,6 +105,7 @@ impl PlanError {
             | PlanError::Unknown { field, .. }
             | PlanError::Invalid { field, .. }
             | PlanError::Unreachable { field, .. }
+            | PlanError::TooLarge { field, .. }
             | PlanError::OtherDataset { field, .. } => field,
         }
     }

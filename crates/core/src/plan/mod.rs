@@ -26,6 +26,7 @@
 
 pub mod dome;
 mod error;
+pub mod limits;
 mod validate;
 
 use std::fmt;
@@ -35,6 +36,7 @@ use serde::de::{self, Deserializer, MapAccess, SeqAccess, Visitor};
 use serde::{Deserialize, Serialize};
 
 pub use error::{PlanError, PlanErrors};
+pub use limits::{check_plan_size, LimitsSpec, MAX_PLAN_BYTES};
 
 pub use validate::{
     CaptureList, CompressedModel, ExistingDataset, ExposurePolicy, HdrMode, HdrSettings, MaterialRef,
@@ -101,6 +103,10 @@ pub struct Plan {
     /// `btfrig sparse select`); the others are skipped with reason `sparse`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sparse: Option<SparseSpec>,
+    /// Raised limits of this plan (`[limits] max_captures`); a run policy, not part of
+    /// [`Plan::content_hash`].
+    #[serde(default, skip_serializing_if = "LimitsSpec::is_default")]
+    pub limits: LimitsSpec,
 }
 
 /// The `[sparse]` table: the subset of the requested pairs a sparse acquisition captures
@@ -635,10 +641,12 @@ impl Default for RunSpec {
 }
 
 impl Plan {
-    /// Parses a plan from TOML text; `origin` names the file in error messages. Only syntax
+    /// Parses a plan from TOML text; `origin` names the file in error messages. Text longer
+    /// than [`MAX_PLAN_BYTES`] is refused unparsed ([`PlanError::TooLarge`]). Only syntax
     /// and schema are checked here (a wrong key or type stops parsing at the first); ranges,
     /// names and reachability are checked by [`Plan::validate`], which reports all at once.
     pub fn from_toml(text: &str, origin: &str) -> Result<Plan, PlanErrors> {
+        check_plan_size(text, origin)?;
         toml::from_str(text).map_err(|e: toml::de::Error| {
             let (line, column) = e.span().map(|s| line_column(text, s.start)).unwrap_or((0, 0));
             PlanErrors {
@@ -668,6 +676,7 @@ impl Plan {
             name: String::new(),
             description: String::new(),
             run: RunSpec::default(),
+            limits: LimitsSpec::default(),
             registration,
             outputs,
             ..self.clone()

@@ -1,6 +1,7 @@
 use super::*;
 use crate::kinematics::Gonio;
 use crate::sampling::Sampling;
+use crate::Direction;
 
 fn repo_dir(rel: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..").join(rel)
@@ -378,4 +379,103 @@ fn compressed_model_names_a_model_and_is_not_content() {
     let hash = |t: &str| Plan::from_toml(&format!("{MINIMAL}{t}"), "h").unwrap().content_hash();
     assert_eq!(hash("[outputs]\ncompressed_model = \"pcmf\"\n"), hash(""));
     assert_eq!(hash("[outputs]\ncompressed_model = false\n"), hash(""));
+}
+
+/// Issue 24's runaway plan: `rings` rings of `count` directions for light and view.
+fn runaway_plan(rings: usize, count: usize, extra: &str) -> String {
+    let ring_list: Vec<String> =
+        (0..rings).map(|r| format!("{{ theta_deg = {}, count = {count} }}", 5.0 + 4.0 * r as f64)).collect();
+    let rings = ring_list.join(", ");
+    format!("[sampling]\nlight = {{ rings = [{rings}] }}\nview = {{ rings = [{rings}] }}\n{extra}")
+}
+
+#[test]
+fn r24_the_runaway_plan_is_refused_from_its_pair_count_naming_the_limit_and_how_to_raise_it() {
+    let text = runaway_plan(10, 360, "");
+    assert!(text.len() < 1500, "the plan as found was 1.3 KB; this one is {} bytes", text.len());
+    let e = validate(&text).unwrap_err();
+    assert_eq!(e.errors.len(), 1, "{e}");
+    assert!(e.has_field("sampling.pairs"), "{e}");
+    let msg = e.to_string();
+    // The value is the count from the ring counts (3600 x 3600), not from an expanded list.
+    for want in [
+        "12960000 pairs (3600 light x 3600 view directions)",
+        "100000",
+        "limits.max_captures",
+        "[limits] max_captures = N",
+        "1000000",
+    ] {
+        assert!(msg.contains(want), "{want:?} missing: {msg}");
+    }
+    // `skip.max_captures` does not make it acceptable: the pairs are what gets expanded.
+    let e = validate(&runaway_plan(10, 360, "[skip]\nmax_captures = 60\n")).unwrap_err();
+    assert!(e.has_field("sampling.pairs"), "{e}");
+    // Raised within the ceiling, a plan of that size passes the limit (here: 60 x 60 pairs
+    // against a limit of 3000 refused, of 4000 accepted).
+    let small = |limit: usize| runaway_plan(2, 30, &format!("[limits]\nmax_captures = {limit}\n"));
+    assert!(validate(&small(3000)).unwrap_err().has_field("sampling.pairs"));
+    let v = validate(&small(4000)).unwrap();
+    assert_eq!(v.pairs.len(), 3600);
+    // The ceiling is a limit too, named.
+    let e = validate(&small(2_000_000)).unwrap_err();
+    assert!(e.has_field("limits.max_captures") && e.to_string().contains("1..=1000000"), "{e}");
+    // The limits are a run policy: the content hash does not change with them.
+    let a = Plan::from_toml(&small(4000), "a").unwrap().content_hash();
+    let b = Plan::from_toml(&runaway_plan(2, 30, ""), "b").unwrap().content_hash();
+    assert_eq!(a, b);
+}
+
+#[test]
+fn r24_more_directions_than_the_limit_are_refused_before_expansion() {
+    // 20 rings of 360: 7200 directions > 4096, counted from the rings.
+    let e = validate(&runaway_plan(20, 360, "")).unwrap_err();
+    assert!(e.has_field("sampling.light.rings") && e.has_field("sampling.view.rings"), "{e}");
+    assert!(e.to_string().contains("7200 directions") && e.to_string().contains("4096"), "{e}");
+}
+
+#[test]
+fn r24_a_50_mb_plan_is_refused_by_its_size_before_parsing() {
+    // A 4.2 M-entry pairs list, as found: about 50 MB of TOML.
+    let mut text = String::from("[sampling]\nlight = \"bonn81\"\nview = \"bonn81\"\npairs = [");
+    for k in 0..4_200_000u32 {
+        text.push_str(&format!("[ {}, {} ], ", k % 81, k % 79));
+    }
+    text.push_str("]\n");
+    assert!(text.len() > 48_000_000, "{}", text.len());
+    // Broken at the end: were it parsed, the error would be a syntax error.
+    text.push_str("[[[");
+    let e = Plan::from_toml(&text, "big.toml").unwrap_err();
+    assert_eq!(e.errors.len(), 1);
+    assert!(matches!(e.errors[0], PlanError::TooLarge { .. }), "{e}");
+    let msg = e.to_string();
+    assert!(msg.contains(&format!("{} bytes", text.len())) && msg.contains("1048576 bytes"), "{msg}");
+    // A dome plan is refused the same way.
+    let e = crate::plan::dome::DomePlan::from_toml(&text, "big.toml").unwrap_err().to_string();
+    assert!(e.contains("1048576 bytes"), "{e}");
+}
+
+#[test]
+fn r24_reciprocal_skips_are_the_quadratic_definitions() {
+    // The set-based reciprocal check equals the definition (an earlier capture with light and
+    // view swapped), on a plan whose light and view samplings differ and overlap.
+    let text = "[sampling]\nlight = { preset = \"bonn81\", theta_max_deg = 45 }\nview = { preset = \"bonn81\", theta_min_deg = 15 }\n[skip]\nreciprocal = true\n";
+    let v = validate(text).unwrap();
+    let list = v.capture_list();
+    let mut captured: Vec<(usize, usize)> = Vec::new();
+    let mut want_skipped = 0;
+    for &p in &v.pairs {
+        if v.unreachable.iter().any(|u| (u.light, u.view) == p) {
+            continue;
+        }
+        let (l, w) = (v.light.get(p.0), v.view.get(p.1));
+        let same = |a: Direction, b: Direction| a.angle_to(b) < 1e-6;
+        if !same(l, w) && captured.iter().any(|&(cl, cv)| same(v.light.get(cl), w) && same(v.view.get(cv), l)) {
+            want_skipped += 1;
+            continue;
+        }
+        captured.push(p);
+    }
+    assert!(want_skipped > 100, "{want_skipped}");
+    assert_eq!(list.captures, captured);
+    assert_eq!(list.skipped.iter().filter(|(_, r)| *r == SkipReason::Reciprocal).count(), want_skipped);
 }

@@ -6,6 +6,7 @@ use crate::direction::{angle_between, Direction};
 use crate::kinematics::{Gonio, Unreachable, UnreachableKind};
 use crate::sampling::{Sampling, BONN81_RINGS, BONN_DOME1_RINGS, DUPLICATE_TOLERANCE_RAD};
 
+use super::limits::{self, MAX_CAPTURES_CEILING, MAX_DIRECTIONS};
 use super::{
     is_path_like, ExposureSpec, FilterSpec, OutputsSpec, PairsSpec, Plan, PlanError, PlanErrors, RegionSpec,
     RegistrationSpec, RunSpec, SamplingSpec, SamplingTable, SkipSpec, BUILTIN_FAULT_SCENARIOS, BUILTIN_MATERIAL_NAMES,
@@ -414,7 +415,15 @@ impl ValidatedPlan {
     pub fn capture_list(&self) -> CaptureList {
         let unreachable: std::collections::HashMap<(usize, usize), UnreachableKind> =
             self.unreachable.iter().map(|u| ((u.light, u.view), u.reason.kind())).collect();
-        let mut captured_dirs: Vec<(Direction, Direction)> = Vec::new();
+        // The reciprocal of (l, v) is the pair (light with v's direction, view with l's
+        // direction); each sampling holds a direction at most once, so it is one pair, and a
+        // set of the captured pairs answers "captured earlier?" in constant time.
+        let (view_as_light, light_as_view) = if self.skip.reciprocal {
+            (same_directions(&self.view, &self.light), same_directions(&self.light, &self.view))
+        } else {
+            (Vec::new(), Vec::new())
+        };
+        let mut captured: std::collections::HashSet<(usize, usize)> = std::collections::HashSet::new();
         let mut captures = Vec::new();
         let mut skipped = Vec::new();
         for &p in &self.pairs {
@@ -426,10 +435,10 @@ impl ValidatedPlan {
                 skipped.push((p, SkipReason::Sparse));
                 continue;
             }
-            let (l, v) = (self.light.get(p.0), self.view.get(p.1));
             if self.skip.reciprocal {
-                let same = |a: Direction, b: Direction| a.angle_to(b) < 1e-6;
-                if !same(l, v) && captured_dirs.iter().any(|(cl, cv)| same(*cl, v) && same(*cv, l)) {
+                let same_dir = self.light.get(p.0).angle_to(self.view.get(p.1)) < RECIPROCAL_TOLERANCE_RAD;
+                let reciprocal = view_as_light[p.1].zip(light_as_view[p.0]);
+                if !same_dir && reciprocal.is_some_and(|r| captured.contains(&r)) {
                     skipped.push((p, SkipReason::Reciprocal));
                     continue;
                 }
@@ -439,12 +448,38 @@ impl ValidatedPlan {
                 continue;
             }
             if self.skip.reciprocal {
-                captured_dirs.push((l, v));
+                captured.insert(p);
             }
             captures.push(p);
         }
         CaptureList { captures, skipped }
     }
+}
+
+/// Angle below which two directions count as the same for `skip.reciprocal`, radians.
+const RECIPROCAL_TOLERANCE_RAD: f64 = 1e-6;
+
+/// For each direction of `from`, the index of the same direction in `to` (within
+/// [`RECIPROCAL_TOLERANCE_RAD`]), if any. Sorted by the polar angle's cosine, so each
+/// direction is compared only with those of nearly the same height: O(n log n) for the
+/// samplings of real plans.
+fn same_directions(from: &Sampling, to: &Sampling) -> Vec<Option<usize>> {
+    let mut by_z: Vec<(f64, usize)> = to.directions().iter().enumerate().map(|(i, d)| (d.theta.cos(), i)).collect();
+    by_z.sort_by(|a, b| a.0.total_cmp(&b.0));
+    from.directions()
+        .iter()
+        .map(|d| {
+            let z = d.theta.cos();
+            // |cos a - cos b| <= |a - b|: a direction within the tolerance lies in this window.
+            let lo = by_z.partition_point(|e| e.0 < z - 2.0 * RECIPROCAL_TOLERANCE_RAD);
+            by_z[lo..]
+                .iter()
+                .take_while(|e| e.0 <= z + 2.0 * RECIPROCAL_TOLERANCE_RAD)
+                .filter(|e| d.angle_to(to.get(e.1)) < RECIPROCAL_TOLERANCE_RAD)
+                .map(|e| e.1)
+                .min()
+        })
+        .collect()
 }
 
 impl Plan {
@@ -454,11 +489,29 @@ impl Plan {
         let mut errors: Vec<PlanError> = Vec::new();
         let rig = resolve_rig(self, ctx, &mut errors);
         let material = resolve_material(self, ctx, rig.as_ref(), &mut errors);
+        if let Some(m) = self.limits.max_captures.filter(|m| !(1..=MAX_CAPTURES_CEILING).contains(m)) {
+            errors.push(PlanError::out_of_range(
+                "limits.max_captures",
+                m,
+                format!("1..={MAX_CAPTURES_CEILING} (a fixed ceiling; default {})", limits::DEFAULT_MAX_CAPTURES),
+            ));
+        }
         let light = resolve_sampling(&self.sampling.light, "sampling.light", &mut errors);
         let view = resolve_sampling(&self.sampling.view, "sampling.view", &mut errors);
+        let max_pairs = self.limits.max_captures();
         let pairs = match (&light, &view) {
-            (Some(l), Some(v)) => resolve_pairs(&self.sampling.pairs, l.0.len(), v.0.len(), &mut errors),
+            (Some(l), Some(v)) => {
+                resolve_pairs(&self.sampling.pairs, l.dirs.len(), v.dirs.len(), max_pairs, &mut errors)
+            }
             _ => None,
+        };
+        // The samplings (with their triangulations) are built only for pairs within the limit.
+        let (light, view) = match pairs {
+            Some(_) => (
+                light.and_then(|k| k.build("sampling.light", &mut errors)),
+                view.and_then(|k| k.build("sampling.view", &mut errors)),
+            ),
+            None => (None, None),
         };
         let texture = resolve_texture(self, rig.as_ref(), &mut errors);
         let exposure = resolve_exposure(&self.exposure, rig.as_ref(), &mut errors);
@@ -761,7 +814,28 @@ struct Candidate {
     written: String,
 }
 
-fn resolve_sampling(spec: &SamplingSpec, prefix: &str, errors: &mut Vec<PlanError>) -> Option<(Sampling, Vec<usize>)> {
+/// The directions a sampling keeps after its filters, before the [`Sampling`] (and its
+/// triangulation) is built.
+struct KeptDirections {
+    name: String,
+    dirs: Vec<Direction>,
+    indices: Vec<usize>,
+}
+
+impl KeptDirections {
+    fn build(self, prefix: &str, errors: &mut Vec<PlanError>) -> Option<(Sampling, Vec<usize>)> {
+        match Sampling::from_list(&self.name, self.dirs) {
+            Ok(s) => Some((s, self.indices)),
+            Err(e) => {
+                // Unreachable after the checks of `resolve_sampling`; reported rather than panicking.
+                errors.push(PlanError::invalid(prefix, &self.name, e.to_string(), "a valid sampling"));
+                None
+            }
+        }
+    }
+}
+
+fn resolve_sampling(spec: &SamplingSpec, prefix: &str, errors: &mut Vec<PlanError>) -> Option<KeptDirections> {
     let table = match spec {
         SamplingSpec::Preset(p) => SamplingTable { preset: Some(p.clone()), ..Default::default() },
         SamplingSpec::Table(t) => t.clone(),
@@ -799,6 +873,8 @@ fn resolve_sampling(spec: &SamplingSpec, prefix: &str, errors: &mut Vec<PlanErro
             }
             None => errors.push(PlanError::unknown(field, p, PRESETS)),
         }
+    } else if too_many_directions(&table, prefix, errors).is_some() {
+        // Counted before expanding (reported): nothing of the refused size is built.
     } else if let Some(list) = &table.list {
         base_name = "list".into();
         if list.is_empty() {
@@ -922,14 +998,29 @@ fn resolve_sampling(spec: &SamplingSpec, prefix: &str, errors: &mut Vec<PlanErro
     }
     let dirs: Vec<Direction> = kept.iter().map(|c| c.dir).collect();
     let indices: Vec<usize> = kept.iter().map(|c| c.source_index).collect();
-    match Sampling::from_list(&name, dirs) {
-        Ok(s) => Some((s, indices)),
-        Err(e) => {
-            // Unreachable after the checks above; reported rather than panicking.
-            errors.push(PlanError::invalid(prefix, &name, e.to_string(), "a valid sampling"));
-            None
-        }
-    }
+    Some(KeptDirections { name, dirs, indices })
+}
+
+/// The number of directions a `list` or `rings` source would give, when it exceeds
+/// [`MAX_DIRECTIONS`] (reported); counted from the table without expanding it.
+fn too_many_directions(table: &SamplingTable, prefix: &str, errors: &mut Vec<PlanError>) -> Option<usize> {
+    let (field, n) = if let Some(list) = &table.list {
+        (format!("{prefix}.list"), list.len())
+    } else if let Some(rings) = &table.rings {
+        // Rings with a count out of range are reported by the ring check, not counted here.
+        (format!("{prefix}.rings"), rings.iter().map(|r| if r.count <= 360 { r.count } else { 0 }).sum())
+    } else {
+        return None;
+    };
+    (n > MAX_DIRECTIONS).then(|| {
+        errors.push(PlanError::TooLarge {
+            field,
+            value: format!("{n} directions"),
+            limit: format!("{MAX_DIRECTIONS} directions per sampling (a fixed limit)"),
+            remedy: "use fewer or sparser rings, or a shorter list".into(),
+        });
+        n
+    })
 }
 
 fn check_theta(t: f64, field: &str, errors: &mut Vec<PlanError>) -> bool {
@@ -950,9 +1041,22 @@ fn check_phi(p: f64, field: &str, errors: &mut Vec<PlanError>) -> bool {
 
 fn check_duplicates(candidates: &[Candidate], errors: &mut Vec<PlanError>) {
     let units: Vec<_> = candidates.iter().map(|c| c.dir.to_vector()).collect();
-    // Quadratic, but plans have at most a few thousand directions and this runs once.
-    for j in 1..units.len() {
-        if let Some(i) = (0..j).find(|&i| angle_between(&units[i], &units[j]) < DUPLICATE_TOLERANCE_RAD) {
+    // For each direction the first earlier one it repeats. Two directions closer than the
+    // tolerance differ in z by less than it, so only neighbours in z order are compared:
+    // O(n log n) but for many directions of one height (at most a ring's 360, or a list's).
+    let mut by_z: Vec<usize> = (0..units.len()).collect();
+    by_z.sort_by(|&a, &b| units[a].z.total_cmp(&units[b].z));
+    let mut first: Vec<Option<usize>> = vec![None; units.len()];
+    for (k, &a) in by_z.iter().enumerate() {
+        for &b in by_z[k + 1..].iter().take_while(|&&b| units[b].z - units[a].z <= DUPLICATE_TOLERANCE_RAD) {
+            if angle_between(&units[a], &units[b]) < DUPLICATE_TOLERANCE_RAD {
+                let (i, j) = (a.min(b), a.max(b));
+                first[j] = Some(first[j].map_or(i, |f| f.min(i)));
+            }
+        }
+    }
+    for (j, i) in first.iter().enumerate() {
+        if let Some(i) = *i {
             let (a, b) = (&candidates[i], &candidates[j]);
             let first = if a.field == b.field { a.written.clone() } else { format!("{} = {}", a.field, a.written) };
             errors.push(PlanError::invalid(
@@ -965,8 +1069,33 @@ fn check_duplicates(candidates: &[Candidate], errors: &mut Vec<PlanError>) {
     }
 }
 
-fn resolve_pairs(spec: &PairsSpec, nl: usize, nv: usize, errors: &mut Vec<PlanError>) -> Option<Vec<(usize, usize)>> {
+/// The requested pairs; more than `max_pairs` (`[limits] max_captures`) are refused from
+/// their count, before the list is built.
+fn resolve_pairs(
+    spec: &PairsSpec,
+    nl: usize,
+    nv: usize,
+    max_pairs: usize,
+    errors: &mut Vec<PlanError>,
+) -> Option<Vec<(usize, usize)>> {
     let allowed_modes = "\"all\", or a list of [light_index, view_index]";
+    let count = match spec {
+        PairsSpec::List(list) => list.len(),
+        PairsSpec::Mode(_) => nl.saturating_mul(nv),
+    };
+    if count > max_pairs {
+        let value = match spec {
+            PairsSpec::List(_) => format!("{count} pairs"),
+            PairsSpec::Mode(m) => format!("{m:?}: {count} pairs ({nl} light x {nv} view directions)"),
+        };
+        errors.push(PlanError::TooLarge {
+            field: "sampling.pairs".into(),
+            value,
+            limit: format!("{max_pairs} requested pairs per plan (limits.max_captures)"),
+            remedy: limits::raise_captures(),
+        });
+        return None;
+    }
     match spec {
         PairsSpec::Mode(m) if m == "all" => Some((0..nl).flat_map(|l| (0..nv).map(move |v| (l, v))).collect()),
         PairsSpec::Mode(m) => {
