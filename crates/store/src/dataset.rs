@@ -106,20 +106,18 @@ fn read_manifest<S: Storage + ?Sized>(s: &S) -> Result<(Manifest, Vec<u8>), Stor
     Ok((m, bytes))
 }
 
-/// What is wrong with a journaled file on disk, or `None` when it is as journaled. Reads
-/// and hashes the file when `hash` is true (else checks its size only).
-fn file_damage<S: Storage + ?Sized>(s: &S, file: &FileRecord, hash: bool) -> Result<Option<String>, StoreError> {
+/// What is wrong with a journaled file on disk (missing, another size, another content hash),
+/// or `None` when it is as journaled.
+fn file_damage<S: Storage + ?Sized>(s: &S, file: &FileRecord) -> Result<Option<String>, StoreError> {
     let Some(size) = s.size(&file.path).map_err(io_err(s, "stat", &file.path))? else {
         return Ok(Some("missing".into()));
     };
     if size != file.size {
         return Ok(Some(format!("{size} bytes, journaled with {}", file.size)));
     }
-    if hash {
-        let found = content_hash(&s.read(&file.path).map_err(io_err(s, "read", &file.path))?);
-        if found != file.hash {
-            return Ok(Some(format!("content hash {found}, journaled {}", file.hash)));
-        }
+    let found = content_hash(&s.read(&file.path).map_err(io_err(s, "read", &file.path))?);
+    if found != file.hash {
+        return Ok(Some(format!("content hash {found}, journaled {}", file.hash)));
     }
     Ok(None)
 }
@@ -319,7 +317,7 @@ impl<S: Storage> Dataset<S> {
             for file in &rec.files {
                 report.files_checked += 1;
                 report.bytes_checked += file.size;
-                if let Some(what) = file_damage(&storage, file, true)? {
+                if let Some(what) = file_damage(&storage, file)? {
                     found.push(format!("{}: {what}", file.path));
                 }
             }
@@ -585,17 +583,6 @@ impl<S: Storage> Dataset<S> {
         let mut journal = self.journal();
         self.check_open(step, &journal)?;
         journal.append(&self.storage, Record::Skip { step, reason: reason.into() })
-    }
-
-    /// Journals a compressed model the run wrote next to the dataset (durable before this
-    /// is called): a rerun that asks for the same model finds it here and builds none.
-    pub fn commit_model(&self, record: ModelRecord) -> Result<(), StoreError> {
-        self.journal().append(&self.storage, Record::Model(record))
-    }
-
-    /// The compressed models journaled, in order.
-    pub fn models(&self) -> Vec<ModelRecord> {
-        self.journal().state().models.clone()
     }
 
     /// Ends the run: writes `report.json` and the manifest's timing summary (both atomically).
