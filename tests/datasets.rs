@@ -35,10 +35,7 @@ fn tiny_plan(dir: &Path) -> PathBuf {
 /// The texture files of the journal's step records, in journal order, with their hashes.
 fn journaled_textures(out: &Path) -> Vec<(String, String)> {
     let j = read_journal(out);
-    j.committed()
-        .values()
-        .flat_map(|files| files.iter().filter(|(p, _)| p.starts_with("textures/")).cloned())
-        .collect()
+    j.committed().values().flat_map(|files| files.iter().filter(|(p, _)| p.starts_with("textures/")).cloned()).collect()
 }
 
 /// r24 item 4: after a texture of a finished dataset was deleted, truncated or bit-flipped,
@@ -149,7 +146,10 @@ fn r24_an_edited_manifest_is_refused_by_verify_and_resume() {
         std::fs::write(&path, &edited).unwrap();
         let v = run(btfrig().args(["dataset", "verify"]).arg(&out));
         let all = text(&v);
-        assert!(!v.status.success() && all.contains("manifest.json: changed since the dataset was created"), "{what}: {all}");
+        assert!(
+            !v.status.success() && all.contains("manifest.json: changed since the dataset was created"),
+            "{what}: {all}"
+        );
         let r = run_plan(&plan, &out, &[]);
         let all = text(&r);
         assert_eq!(r.status.code(), Some(1), "{what}: {all}");

@@ -582,7 +582,9 @@ impl Streaming {
             let f = e.file_name().to_string_lossy().into_owned();
             let Some(mid) = f.strip_prefix(&head).and_then(|r| r.strip_suffix(&tail)) else { continue };
             // `<label>` itself or `<label>-N`, never another model's name.
-            if mid.is_empty() || mid.strip_prefix('-').is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit())) {
+            if mid.is_empty()
+                || mid.strip_prefix('-').is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
+            {
                 std::fs::remove_file(e.path()).with_context(|| format!("cannot remove {}", e.path().display()))?;
                 removed.push(e.path());
             }
@@ -656,7 +658,10 @@ impl Streaming {
 /// One line per compression figure, for the run and demo summaries.
 pub fn print_streaming(v: &serde_json::Value) {
     for tmp in v["compression_removed_tmp"].as_array().into_iter().flatten() {
-        println!("  compression       removed {} (left by a run killed while writing its model)", tmp.as_str().unwrap_or("?"));
+        println!(
+            "  compression       removed {} (left by a run killed while writing its model)",
+            tmp.as_str().unwrap_or("?")
+        );
     }
     let f = |k: &str| v[k].as_f64().unwrap_or(f64::NAN);
     println!(

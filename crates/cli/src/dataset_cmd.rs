@@ -17,8 +17,7 @@ fn out(text: &str) -> anyhow::Result<()> {
 
 /// True if `e` is, or is caused by, a write to a closed pipe (the reader left: not an error).
 pub fn is_broken_pipe(e: &anyhow::Error) -> bool {
-    e.chain()
-        .any(|c| c.downcast_ref::<std::io::Error>().is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe))
+    e.chain().any(|c| c.downcast_ref::<std::io::Error>().is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe))
 }
 
 /// Prints what a dataset holds, and the compressed models next to it; or what a model file

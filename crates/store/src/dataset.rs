@@ -800,7 +800,11 @@ pub fn journal_model(dir: &Path, record: ModelRecord) -> Result<(), StoreError> 
     let (mut j, _) = Journal::open(&s, JOURNAL_FILE, &manifest.plan.hash, Some(&hash))?;
     if let Some(expected) = &j.state().manifest_hash {
         if *expected != hash {
-            return Err(StoreError::ManifestChanged { path: s.display(MANIFEST_FILE), expected: expected.clone(), found: hash });
+            return Err(StoreError::ManifestChanged {
+                path: s.display(MANIFEST_FILE),
+                expected: expected.clone(),
+                found: hash,
+            });
         }
     }
     j.append(&s, Record::Model(record))

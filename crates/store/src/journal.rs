@@ -389,8 +389,7 @@ mod tests {
     }
 
     fn journal(n: u32) -> (Vec<u8>, Vec<usize>) {
-        let mut bytes =
-            encode_record(&Record::Header {
+        let mut bytes = encode_record(&Record::Header {
             format: JOURNAL_FORMAT.into(),
             version: 1,
             plan_hash: "p".into(),
