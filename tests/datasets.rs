@@ -208,3 +208,35 @@ fn r24_verify_on_a_closed_pipe_exits_quietly() {
     assert_eq!(o.status.code(), Some(1), "{}", text(&o));
     assert!(o.stderr.is_empty(), "{}", text(&o));
 }
+
+/// r24 item 4 on a dome: a deleted texture of a finished dome dataset is named on resume and
+/// its view group is captured again (only the missing texture is written); the dataset
+/// verifies and the report counts every texture.
+#[test]
+fn r24_a_damaged_dome_texture_is_named_and_its_view_group_captured_again() {
+    let dir = scratch("dome");
+    let plan = dir.join("dome.toml");
+    std::fs::write(
+        &plan,
+        "name = \"r24-dome\"\ntexture_size = 8\n[rig]\nconfig = \"builtin:bonn-dome-sim\"\nmaterial = \"leather\"\n\
+         [dome]\ncameras = [4]\nrotations = [1]\n",
+    )
+    .unwrap();
+    let out = dir.join("run");
+    let first = run_plan(&plan, &out, &[]);
+    assert!(first.status.success(), "{}", text(&first));
+    let textures = journaled_textures(&out);
+    assert_eq!(textures.len(), 198);
+    let gone = &textures[100].0;
+    std::fs::remove_file(out.join(gone)).unwrap();
+
+    let again = run_plan(&plan, &out, &[]);
+    let all = text(&again);
+    assert!(again.status.success(), "{all}");
+    assert!(all.contains(&format!("{gone}: missing: step")) && all.contains("is captured again"), "{all}");
+    assert!(all.contains("textures          1 "), "{all}");
+    ok(btfrig().args(["dataset", "verify"]).arg(&out));
+    let report = read_json(&out.join("report.json"));
+    assert_eq!((report["status"].as_str(), report["captures"].as_u64()), (Some("finished"), Some(198)), "{report}");
+    assert_eq!(read_journal(&out).retakes.len(), 1);
+}
