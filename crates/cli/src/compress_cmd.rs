@@ -344,14 +344,16 @@ pub fn export(a: &ExportArgs) -> anyhow::Result<()> {
         "re-encoded"
     };
     println!(
-        "wrote     {} ({}, {} terms, f{}, {:.2} MB) in {:.1} s: {how}, relative RMS {:.2e} against the model (of the values written: terms kept, rounding to f{} included)",
+        "wrote     {} ({}, {} terms, f{}, {:.2} MB) in {:.1} s: {how}, relative RMS {} against the model (of the values written: terms kept, rounding to f{} included)",
         a.out.display(),
         a.format,
         fit.terms,
         size * 8,
         bytes as f64 / 1e6,
         t.elapsed().as_secs_f64(),
-        fit.rel_rmse,
+        // The factored figure resolves about 1e-7 (f64 cancellation): an f32 file's rounding
+        // lies below that, so it is bounded rather than printed as an exact 0.
+        if fit.rel_rmse < 1e-6 { "below 1e-6".to_string() } else { format!("{:.2e}", fit.rel_rmse) },
         size * 8
     );
     Ok(())
