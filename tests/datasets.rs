@@ -184,10 +184,12 @@ fn r24_a_broken_manifest_is_named_with_its_line() {
     assert!(!all.contains("another dataset"), "{all}");
 }
 
-/// `btfrig dataset verify DIR`, its stdout a pipe whose reader is gone before it writes.
+/// `btfrig dataset verify DIR`, its stdout a pipe whose reader is gone before it writes: the
+/// write end of `true`'s stdin, taken after `true` exited (its read end then closed).
 fn verify_into_closed_pipe(dir: &Path) -> Output {
-    let (reader, writer) = std::io::pipe().unwrap();
-    drop(reader);
+    let mut reader = Command::new("true").stdin(std::process::Stdio::piped()).spawn().expect("true runs");
+    let writer = reader.stdin.take().unwrap();
+    reader.wait().unwrap();
     btfrig().args(["dataset", "verify"]).arg(dir).stdout(writer).output().expect("btfrig runs")
 }
 
