@@ -51,16 +51,28 @@ pub struct Journal {
     pub steps: Vec<(Step, Vec<(String, String)>)>,
     /// Skip records: the step and its reason.
     pub skips: Vec<(Step, String)>,
+    /// Retake records (a done step found damaged on resume, to be captured again): the step
+    /// and what was found.
+    pub retakes: Vec<(Step, String)>,
+    /// Model records (a compressed model the run built), as JSON.
+    pub models: Vec<serde_json::Value>,
     /// A last record cut short (a killed writer); `None` if the journal ends cleanly.
     pub torn_tail: Option<String>,
 }
 
 impl Journal {
-    /// Each committed step once with its files; panics naming a step committed twice.
+    /// Each committed step once with its files (the last record of a step retaken); panics
+    /// naming a step committed twice without a retake between.
     pub fn committed(&self) -> BTreeMap<Step, Vec<(String, String)>> {
         let mut out = BTreeMap::new();
+        let mut times: BTreeMap<Step, usize> = BTreeMap::new();
         for (step, files) in &self.steps {
-            assert!(out.insert(*step, files.clone()).is_none(), "step {step:?} journaled twice");
+            *times.entry(*step).or_default() += 1;
+            out.insert(*step, files.clone());
+        }
+        for (step, n) in times {
+            let retaken = self.retakes.iter().filter(|r| r.0 == step).count();
+            assert!(n <= 1 + retaken, "step {step:?} journaled {n} times, retaken {retaken} times");
         }
         out
     }
@@ -106,6 +118,8 @@ pub fn read_journal(dir: &Path) -> Journal {
                 j.steps.push((step_of(&v["step"]), files));
             }
             Some("skip") => j.skips.push((step_of(&v["step"]), v["reason"].as_str().unwrap_or("").to_string())),
+            Some("retake") => j.retakes.push((step_of(&v["step"]), v["reason"].as_str().unwrap_or("").to_string())),
+            Some("model") => j.models.push(v),
             other => panic!("unknown journal record type {other:?}"),
         }
     }

@@ -344,14 +344,17 @@ pub fn export(a: &ExportArgs) -> anyhow::Result<()> {
         "re-encoded"
     };
     println!(
-        "wrote     {} ({}, {} terms, f{}, {:.2} MB) in {:.1} s: {how}, relative RMS {:.2e} against the model",
+        "wrote     {} ({}, {} terms, f{}, {:.2} MB) in {:.1} s: {how}, relative RMS {} against the model (of the values written: terms kept, rounding to f{} included)",
         a.out.display(),
         a.format,
         fit.terms,
         size * 8,
         bytes as f64 / 1e6,
         t.elapsed().as_secs_f64(),
-        fit.rel_rmse
+        // The factored figure resolves about 1e-7 (f64 cancellation): an f32 file's rounding
+        // lies below that, so it is bounded rather than printed as an exact 0.
+        if fit.rel_rmse < 1e-6 { "below 1e-6".to_string() } else { format!("{:.2e}", fit.rel_rmse) },
+        size * 8
     );
     Ok(())
 }
@@ -492,6 +495,22 @@ impl btfrig_pipeline::TextureSink for SinkAdapter {
     }
 }
 
+/// What a dataset's journal says of the model a run asks for ([`Streaming::journaled`]).
+#[derive(Debug, Clone, PartialEq)]
+pub enum JournaledModel {
+    /// Journaled, and its file is as journaled (size and content hash).
+    Built(PathBuf),
+    /// Journaled, but its file is missing or damaged: what was found.
+    Damaged(String),
+    /// Never journaled (not built, or the run was killed while writing it).
+    NotBuilt,
+}
+
+/// The directory that holds the dataset `dir` (its models are written there).
+fn holder(dir: &Path) -> &Path {
+    dir.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."))
+}
+
 /// A model built while a run captures (`btfrig run --compress`, `btfrig demo`).
 pub struct Streaming {
     compressor: std::sync::Arc<btfrig_compress::sink::StreamingCompressor>,
@@ -535,12 +554,54 @@ impl Streaming {
         Ok((Streaming { compressor: c, dir: dir.into(), params }, sink))
     }
 
+    /// The model of this run's method that the dataset's journal names, and whether its file
+    /// is intact: a rerun of a finished run builds the model only when it is not.
+    pub fn journaled(&self) -> anyhow::Result<JournaledModel> {
+        let label = path_label(&self.params.method);
+        let models = btfrig_store::journaled_models(&self.dir)?;
+        let Some(rec) = models.iter().rev().find(|m| m.method == label) else { return Ok(JournaledModel::NotBuilt) };
+        let path = holder(&self.dir).join(&rec.file);
+        let what = match std::fs::read(&path) {
+            Err(e) => format!("{}: {e}", path.display()),
+            Ok(b) if b.len() as u64 != rec.size => {
+                format!("{}: {} bytes, journaled with {}", path.display(), b.len(), rec.size)
+            }
+            Ok(b) if btfrig_store::content_hash(&b) != rec.hash => {
+                format!("{}: content hash {}, journaled {}", path.display(), btfrig_store::content_hash(&b), rec.hash)
+            }
+            Ok(_) => return Ok(JournaledModel::Built(path)),
+        };
+        Ok(JournaledModel::Damaged(what))
+    }
+
+    /// Deletes the temporary files of this run's model (`<DIR>.<label>[-N].btfm.tmp`) that a
+    /// run killed while writing it left next to the dataset; returns them.
+    fn remove_stale_tmp(&self, label: &str) -> anyhow::Result<Vec<PathBuf>> {
+        let name = self.dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        let (head, tail) = (format!("{name}.{label}"), format!(".{}.tmp", file::EXTENSION));
+        let mut removed = Vec::new();
+        for e in std::fs::read_dir(holder(&self.dir))?.flatten() {
+            let f = e.file_name().to_string_lossy().into_owned();
+            let Some(mid) = f.strip_prefix(&head).and_then(|r| r.strip_suffix(&tail)) else { continue };
+            // `<label>` itself or `<label>-N`, never another model's name.
+            if mid.is_empty()
+                || mid.strip_prefix('-').is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
+            {
+                std::fs::remove_file(e.path()).with_context(|| format!("cannot remove {}", e.path().display()))?;
+                removed.push(e.path());
+            }
+        }
+        Ok(removed)
+    }
+
     /// Finishes the model (the remaining passes over the dataset), writes it next to the
     /// dataset (`<DIR>.<method>.btfm`, never replacing a file: a new name then), measures
-    /// it against the dataset; the figures as JSON.
+    /// it against the dataset and journals it in the dataset (`docs/compression.md`: a rerun
+    /// finds it there; a kill before that builds it again); the figures as JSON.
     pub fn finish(self) -> anyhow::Result<serde_json::Value> {
-        let (model, report) = self.compressor.finish()?;
         let label = path_label(&self.params.method);
+        let removed_tmp = self.remove_stale_tmp(&label)?;
+        let (model, report) = self.compressor.finish()?;
         let mut out = default_model_path(&self.dir, &label);
         let mut n = 1;
         while out.exists() {
@@ -557,7 +618,22 @@ impl Streaming {
             "params": self.params, "streaming": report, "rel_rmse_vs_dataset": rel});
         let bytes = file::write(&out, &model, source, false)?;
         drop(model);
+        // The rename durable before the journal names the file.
+        std::fs::File::open(holder(&self.dir))
+            .and_then(|d| d.sync_all())
+            .with_context(|| format!("cannot fsync {}", holder(&self.dir).display()))?;
+        let written = std::fs::read(&out).with_context(|| format!("cannot read back {}", out.display()))?;
+        btfrig_store::journal_model(
+            &self.dir,
+            btfrig_store::ModelRecord {
+                method: label.clone(),
+                file: out.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default(),
+                size: written.len() as u64,
+                hash: btfrig_store::content_hash(&written),
+            },
+        )?;
         Ok(serde_json::json!({
+            "compression_removed_tmp": removed_tmp.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
             // The whole process (Linux VmHWM; null elsewhere), the run and every pass of the
             // model included: read after the model is written.
             "peak_rss_mib": btfrig_runner::peak_rss_mib(),
@@ -583,6 +659,12 @@ impl Streaming {
 
 /// One line per compression figure, for the run and demo summaries.
 pub fn print_streaming(v: &serde_json::Value) {
+    for tmp in v["compression_removed_tmp"].as_array().into_iter().flatten() {
+        println!(
+            "  compression       removed {} (left by a run killed while writing its model)",
+            tmp.as_str().unwrap_or("?")
+        );
+    }
     let f = |k: &str| v[k].as_f64().unwrap_or(f64::NAN);
     println!(
         "  compression       {} -> {} ({:.1} : 1, relative RMSE {:.5} against the textures)",

@@ -1,36 +1,59 @@
 //! `btfrig dataset info DIR` and `btfrig dataset verify DIR`.
+//!
+//! They write through [`out`], which returns write errors instead of panicking as `print!`
+//! does: `btfrig dataset verify DIR | head -1` then ends quietly (a closed pipe is
+//! [`is_broken_pipe`], exit 0, as ripgrep does).
 
+use std::io::Write;
 use std::path::Path;
+
+/// Writes `text` to stdout, returning (not panicking on) a write error such as a closed pipe.
+fn out(text: &str) -> anyhow::Result<()> {
+    let mut o = std::io::stdout().lock();
+    o.write_all(text.as_bytes())?;
+    o.flush()?;
+    Ok(())
+}
+
+/// True if `e` is, or is caused by, a write to a closed pipe (the reader left: not an error).
+pub fn is_broken_pipe(e: &anyhow::Error) -> bool {
+    e.chain().any(|c| c.downcast_ref::<std::io::Error>().is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe))
+}
 
 /// Prints what a dataset holds, and the compressed models next to it; or what a model file
 /// (`.btfm`) holds.
 pub fn info(dir: &Path) -> anyhow::Result<()> {
     if dir.is_file() {
-        println!("{}", crate::compress_cmd::describe(dir)?);
-        return Ok(());
+        return out(&format!("{}\n", crate::compress_cmd::describe(dir)?));
     }
-    print!("{}", btfrig_store::info(dir)?);
+    let mut text = btfrig_store::info(dir)?.to_string();
     for m in crate::compress_cmd::models_next_to(dir) {
-        println!();
+        text.push('\n');
         match crate::compress_cmd::describe(&m) {
-            Ok(s) => print!("{s}"),
-            Err(e) => print!("model     {}: unreadable: {e}", m.display()),
+            Ok(s) => text.push_str(&s),
+            Err(e) => text.push_str(&format!("model     {}: unreadable: {e}", m.display())),
         }
     }
-    println!();
-    Ok(())
+    text.push('\n');
+    out(&text)
 }
 
 /// Checks every journaled file's size and hash, completeness and orphans; fails when
-/// anything is wrong.
-pub fn verify(dir: &Path) -> anyhow::Result<()> {
+/// anything is wrong. A closed stdout (`| head -1`) ends it quietly, with the verdict as the
+/// exit code (0 sound, 1 problems found).
+pub fn verify(dir: &Path) -> anyhow::Result<std::process::ExitCode> {
     let report = btfrig_store::verify(dir);
-    print!("{report}");
+    match out(&format!("{report}\n")) {
+        Err(e) if is_broken_pipe(&e) => {
+            return Ok(if report.is_ok() { std::process::ExitCode::SUCCESS } else { std::process::ExitCode::FAILURE })
+        }
+        r => r?,
+    }
     anyhow::ensure!(
         report.is_ok(),
         "{}: dataset verification found {} problem(s)",
         dir.display(),
         report.problems.len()
     );
-    Ok(())
+    Ok(std::process::ExitCode::SUCCESS)
 }

@@ -49,7 +49,7 @@ fn main() -> std::process::ExitCode {
         Command::Plan(PlanCommand::Check { file }) => done(plan_cmd::check(&file)),
         Command::Plan(PlanCommand::Show { file }) => done(plan_cmd::show(&file)),
         Command::Dataset(DatasetCommand::Info { dir }) => done(dataset_cmd::info(&dir)),
-        Command::Dataset(DatasetCommand::Verify { dir }) => done(dataset_cmd::verify(&dir)),
+        Command::Dataset(DatasetCommand::Verify { dir }) => dataset_cmd::verify(&dir),
         Command::Dataset(DatasetCommand::Export(a)) => done(compress_cmd::export(&a)),
         Command::Compress(a) => done(compress_cmd::compress(&a)),
         Command::Sparse(args::SparseCommand::Select(a)) => done(compress_cmd::select(&a)),
@@ -72,6 +72,8 @@ fn main() -> std::process::ExitCode {
     };
     match result {
         Ok(code) => code,
+        // The reader of our output left (`btfrig dataset verify DIR | head -1`): not an error.
+        Err(e) if dataset_cmd::is_broken_pipe(&e) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("btfrig: {}", message(&e));
             std::process::ExitCode::FAILURE

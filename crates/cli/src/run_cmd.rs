@@ -37,17 +37,35 @@ pub fn run(a: &RunArgs) -> anyhow::Result<ExitCode> {
     };
     let req = req.with_sink(streaming.as_ref().map(|s| s.1.clone()));
     let summary = execute(&req)?;
-    if summary.outcome == RunOutcome::NothingToDo {
+    let nothing_to_do = summary.outcome == RunOutcome::NothingToDo;
+    if nothing_to_do {
         println!("{}: all {} captures already done; nothing to do", a.out.display(), summary.captures);
-        return Ok(ExitCode::SUCCESS);
+    } else {
+        print_summary(&summary);
     }
-    print_summary(&summary);
     if let Some((s, _)) = streaming {
-        if summary.outcome == RunOutcome::Finished {
-            crate::compress_cmd::print_streaming(&s.finish()?);
-        } else {
-            println!("  compression       not built: the run did not finish (resume it, or `btfrig compress` later)");
+        use crate::compress_cmd::JournaledModel;
+        // The model belongs to the run's outcome: a rerun of a finished run builds it when
+        // the journal does not name it intact (a kill while it was being written).
+        match (&summary.outcome, s.journaled()?) {
+            (RunOutcome::Finished | RunOutcome::NothingToDo, JournaledModel::Built(path)) => {
+                println!("  compression       {} (built and journaled earlier)", path.display())
+            }
+            (RunOutcome::Finished | RunOutcome::NothingToDo, state) => {
+                if let JournaledModel::Damaged(what) = &state {
+                    println!("  compression       journaled model damaged ({what}): building it again");
+                } else if nothing_to_do {
+                    println!("  compression       not built yet: building it from the dataset");
+                }
+                crate::compress_cmd::print_streaming(&s.finish()?);
+            }
+            _ => println!(
+                "  compression       not built: the run did not finish (resume it, or `btfrig compress` later)"
+            ),
         }
+    }
+    if nothing_to_do {
+        return Ok(ExitCode::SUCCESS);
     }
     Ok(finish(&summary, &format!("btfrig run --plan {} --out {}", a.plan.display(), a.out.display())))
 }

@@ -439,7 +439,8 @@ fn dirs(s: &btfrig_core::sampling::Sampling) -> Vec<(f32, f32)> {
 }
 
 /// What an export cost in accuracy: relative RMS of the exported BTF against the model's,
-/// over every (light, view) pair and texel (in the channels the format stores).
+/// over every (light, view) pair and texel (in the channels the format stores), of the values
+/// as written: truncation to the file's terms and rounding to its precision (f16) included.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ExportFit {
     /// Terms per factor set.
@@ -470,15 +471,18 @@ pub fn to_dfmf(model: &Model, rank: Option<usize>, scalar_size: u8) -> Result<(U
                 off += w;
             }
             let keep = rank.unwrap_or(r).min(r);
-            let total = (crate::linalg::at_b(&a, &a).component_mul(&crate::linalg::at_b(&c, &c))).sum();
             let (u, s, v) = factored_svd(&a, &c, keep);
-            let kept: f64 = s.iter().map(|x| x * x).sum();
-            tot2 += total;
-            err2 += (total - kept).max(0.0);
             let k = s.len();
             terms = terms.max(k);
             let sv = &v * DMatrix::from_diagonal(&nalgebra::DVector::from_vec(s.clone()));
-            factors.push(Factors { k, s: s.iter().map(|&x| x as f32).collect(), u: row_major(&u), sv: row_major(&sv) });
+            let f = Factors { k, s: s.iter().map(|&x| x as f32).collect(), u: row_major(&u), sv: row_major(&sv) }
+                .rounded(scalar_size);
+            // Of the factors as stored: the dropped terms and the rounding (f16: ~1e-4
+            // relative, far above the truncation of an exact conversion).
+            let (e2, total) = factored_err2(&a, &c, &f);
+            err2 += e2;
+            tot2 += total;
+            factors.push(f);
         }
     } else {
         // Log colour: decode and refit per RGB channel.
@@ -505,12 +509,15 @@ pub fn to_dfmf(model: &Model, rank: Option<usize>, scalar_size: u8) -> Result<(U
         for r in rs {
             let svd = r.finish()?;
             terms = terms.max(svd.s.len());
-            factors.push(Factors {
-                k: svd.s.len(),
-                s: svd.s.iter().map(|&x| x as f32).collect(),
-                u: row_major(&svd.u),
-                sv: row_major(&svd.sv),
-            });
+            factors.push(
+                Factors {
+                    k: svd.s.len(),
+                    s: svd.s.iter().map(|&x| x as f32).collect(),
+                    u: row_major(&svd.u),
+                    sv: row_major(&svd.sv),
+                }
+                .rounded(scalar_size),
+            );
         }
         let ubo = Ubo {
             format: UboFormat::Dfmf,
@@ -561,7 +568,8 @@ pub fn to_fmf1(model: &Model, rank: usize, scalar_size: u8) -> Result<(Ubo, Expo
         s: svd.s.iter().map(|&x| x as f32).collect(),
         u: row_major(&svd.u),
         sv: row_major(&svd.sv),
-    };
+    }
+    .rounded(scalar_size);
     let ubo = Ubo {
         format: UboFormat::Fmf1,
         light: dirs(&model.layout.light),
@@ -598,6 +606,40 @@ pub fn compare(model: &Model, ubo: &Ubo) -> ExportFit {
         terms: ubo.factors.iter().map(|f| f.k).max().unwrap_or(0),
         rel_rmse: (e / t.max(f64::MIN_POSITIVE)).sqrt(),
     }
+}
+
+/// `x` as a file of `scalar_size` stores it (2: rounded to f16; 4: as is), so the factors
+/// held in memory are the ones written and read back, and every figure is of them.
+fn stored(x: f32, scalar_size: u8) -> f32 {
+    if scalar_size == 2 {
+        half::f16::from_f32(x).to_f32()
+    } else {
+        x
+    }
+}
+
+impl Factors {
+    /// Rounds every value to what a file of `scalar_size` stores.
+    fn rounded(mut self, scalar_size: u8) -> Self {
+        for v in [&mut self.s, &mut self.u, &mut self.sv] {
+            v.iter_mut().for_each(|x| *x = stored(*x, scalar_size));
+        }
+        self
+    }
+}
+
+/// `||A C^T - U SV^T||_F^2` and `||A C^T||_F^2` in factored form (no m x n product):
+/// $\|X\|^2 = \sum (A^T A) \circ (C^T C)$, $\langle X, Y \rangle = \sum (A^T U) \circ (C^T SV)$.
+/// `f` holds `U` (m x k) and `SV` (n x k) row-major.
+fn factored_err2(a: &DMatrix<f64>, c: &DMatrix<f64>, f: &Factors) -> (f64, f64) {
+    use crate::linalg::at_b;
+    let (m, n) = (a.nrows(), c.nrows());
+    let u = DMatrix::<f64>::from_row_iterator(m, f.k, f.u.iter().map(|&x| f64::from(x)));
+    let sv = DMatrix::<f64>::from_row_iterator(n, f.k, f.sv.iter().map(|&x| f64::from(x)));
+    let xx = at_b(a, a).component_mul(&at_b(c, c)).sum();
+    let xy = at_b(a, &u).component_mul(&at_b(c, &sv)).sum();
+    let yy = at_b(&u, &u).component_mul(&at_b(&sv, &sv)).sum();
+    ((xx - 2.0 * xy + yy).max(0.0), xx)
 }
 
 fn row_major(m: &DMatrix<f64>) -> Vec<f32> {

@@ -324,6 +324,33 @@ fn model_files_round_trip_and_refuse_damage() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// r24: `btfrig dataset export` printed a relative RMS of 1.2e-8 "against the model" for the
+/// default f16 file, whose real difference is 2.6e-4: the figure ignored the rounding to f16.
+/// It must be the difference of what the file holds, computed here independently by decoding
+/// the bytes and comparing every texel.
+#[test]
+fn r24_export_figure_is_the_difference_of_the_values_written() {
+    let l = layout(6);
+    let btf = low_rank(&l, 3, 24);
+    for color in [ColorModel::Rgb, ColorModel::Yuv, ColorModel::YlogUv] {
+        let m = fit(&l, &btf, &params(Method::Fmf, color, 8));
+        for size in [2u8, 4] {
+            let (u, fit) = ubo::to_dfmf(&m, None, size).unwrap();
+            let back = Ubo::decode(std::path::Path::new("<mem>"), &u.encode().unwrap()).unwrap();
+            let decoded = ubo::compare(&m, &back).rel_rmse;
+            if size == 2 {
+                assert!(decoded > 1e-5, "{color:?}: f16 rounding must show: {decoded:e}");
+            }
+            assert!(
+                (fit.rel_rmse - decoded).abs() <= 0.02 * decoded + 2e-6,
+                "{color:?} f{}: printed {:e}, decoded file differs by {decoded:e}",
+                size * 8,
+                fit.rel_rmse
+            );
+        }
+    }
+}
+
 #[test]
 fn bonn_containers_follow_the_spec_bytes_and_decode_to_the_model() {
     let l = layout(5);

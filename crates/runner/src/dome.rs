@@ -322,14 +322,23 @@ pub fn run_controlled(
         rig.rig.seed,
     );
     let hash = manifest.plan.hash.clone();
-    let (dataset, resumed) = match Dataset::create(&req.out, manifest) {
-        Ok(d) => (d, false),
-        Err(StoreError::AlreadyExists { .. }) => (
-            Dataset::open_for_resume(&req.out, &hash)
-                .map_err(|source| RunError::Dataset { dir: req.out.clone(), source })?
-                .0,
-            true,
-        ),
+    let (dataset, resumed, repaired) = match Dataset::create(&req.out, manifest) {
+        Ok(d) => (d, false, None),
+        Err(StoreError::AlreadyExists { .. }) => {
+            let (d, r) = Dataset::open_for_resume(&req.out, &hash)
+                .map_err(|source| RunError::Dataset { dir: req.out.clone(), source })?;
+            // As a gonio run says it: what resuming found and repaired, each damaged texture
+            // named (its view group is captured again).
+            let mut notes = Vec::new();
+            if let Some(t) = &r.torn_tail {
+                notes.push(format!("torn journal tail dropped: {t}"));
+            }
+            if !r.removed_orphans.is_empty() {
+                notes.push(format!("{} unjournaled file(s) removed", r.removed_orphans.len()));
+            }
+            notes.extend(r.retaken.iter().map(|(step, what)| format!("{what}: step {step} is captured again")));
+            (d, true, (!notes.is_empty()).then(|| notes.join("; ")))
+        }
         Err(source) => return Err(RunError::Dataset { dir: req.out.clone(), source }),
     };
     let completed = dataset.completed();
@@ -387,7 +396,7 @@ pub fn run_controlled(
         planned_hardware_s: planned_s,
         // The dome's estimate leaves out the serial round trips: it is the bound.
         critical_path_s: planned_s,
-        repaired: None,
+        repaired,
     });
     let textures_total = pairs.len() as u64;
     let textures_before = pairs.iter().filter(|p| completed.contains(p)).count() as u64;

@@ -728,6 +728,7 @@ pub fn run(
             if !r.removed_orphans.is_empty() {
                 notes.push(format!("{} unjournaled file(s) removed", r.removed_orphans.len()));
             }
+            notes.extend(r.retaken.iter().map(|(step, what)| format!("{what}: step {step} is captured again")));
             let repaired = (!notes.is_empty()).then(|| notes.join("; "));
             (d, true, r.skipped.clone(), repaired)
         }

@@ -9,8 +9,8 @@ use btfrig_imageio::ExrPrecision;
 
 use crate::error::StoreError;
 use crate::hash::content_hash;
-use crate::journal::{self, Journal, Record, StepRecord, TornTail};
-use crate::manifest::{Manifest, TextureFormat, TimingSummary};
+use crate::journal::{self, Journal, ModelRecord, Record, StepRecord, TornTail};
+use crate::manifest::{manifest_fixed_part, manifest_hash, Manifest, TextureFormat, TimingSummary};
 use crate::storage::{parent, FsStorage, Storage};
 use crate::{FileRecord, RunReport, StepExtra, StepId, StepTiming};
 
@@ -91,7 +91,8 @@ fn write_atomic<S: Storage + ?Sized>(s: &S, path: &str, bytes: &[u8]) -> Result<
     Ok(FileRecord { path: path.to_string(), size: bytes.len() as u64, hash: content_hash(bytes) })
 }
 
-fn read_manifest<S: Storage + ?Sized>(s: &S) -> Result<Manifest, StoreError> {
+/// The manifest, and its bytes as on disk (for [`manifest_hash`]).
+fn read_manifest<S: Storage + ?Sized>(s: &S) -> Result<(Manifest, Vec<u8>), StoreError> {
     let bytes = match s.size(MANIFEST_FILE).map_err(io_err(s, "stat", MANIFEST_FILE))? {
         None => return Err(StoreError::NotADataset { path: s.display("") }),
         Some(_) => s.read(MANIFEST_FILE).map_err(io_err(s, "read", MANIFEST_FILE))?,
@@ -102,7 +103,23 @@ fn read_manifest<S: Storage + ?Sized>(s: &S) -> Result<Manifest, StoreError> {
     if !problems.is_empty() {
         return Err(bad(problems.join("; ")));
     }
-    Ok(m)
+    Ok((m, bytes))
+}
+
+/// What is wrong with a journaled file on disk (missing, another size, another content hash),
+/// or `None` when it is as journaled.
+fn file_damage<S: Storage + ?Sized>(s: &S, file: &FileRecord) -> Result<Option<String>, StoreError> {
+    let Some(size) = s.size(&file.path).map_err(io_err(s, "stat", &file.path))? else {
+        return Ok(Some("missing".into()));
+    };
+    if size != file.size {
+        return Ok(Some(format!("{size} bytes, journaled with {}", file.size)));
+    }
+    let found = content_hash(&s.read(&file.path).map_err(io_err(s, "read", &file.path))?);
+    if found != file.hash {
+        return Ok(Some(format!("content hash {found}, journaled {}", file.hash)));
+    }
+    Ok(None)
 }
 
 fn list_names<S: Storage + ?Sized>(s: &S, dir: &str) -> Result<Vec<crate::Entry>, StoreError> {
@@ -138,6 +155,14 @@ pub struct ResumeReport {
     pub removed_orphans: Vec<String>,
     /// True if the journal was missing (crash right after the manifest) and was created.
     pub journal_recreated: bool,
+    /// Done steps whose files were found damaged (missing, another size, another content
+    /// hash): journaled as retaken, their files deleted, to be captured again. One entry per
+    /// damaged file: `textures/l000_v003.exr: missing`.
+    pub retaken: Vec<(StepId, String)>,
+    /// Journaled files checked (size and content hash) before the journal was trusted.
+    pub files_checked: usize,
+    /// Their bytes.
+    pub bytes_checked: u64,
 }
 
 impl std::fmt::Display for ResumeReport {
@@ -154,6 +179,9 @@ impl std::fmt::Display for ResumeReport {
         }
         if !self.removed_orphans.is_empty() {
             write!(f, "; removed {} uncommitted file(s)", self.removed_orphans.len())?;
+        }
+        for (step, what) in &self.retaken {
+            write!(f, "\n  {what}: step {step} is captured again")?;
         }
         Ok(())
     }
@@ -198,9 +226,19 @@ impl<S: Storage> Dataset<S> {
         }
         let root = list_names(&storage, "")?;
         if root.iter().any(|e| e.name == MANIFEST_FILE) {
-            // Look at it leniently: even a manifest of another schema names its plan.
+            // Look at it leniently: even a manifest of another schema names its plan. One that
+            // is not JSON is named with the line where it breaks.
             let bytes = storage.read(MANIFEST_FILE).map_err(io_err(&storage, "read", MANIFEST_FILE))?;
-            let v: serde_json::Value = serde_json::from_slice(&bytes).unwrap_or_default();
+            let v: serde_json::Value = serde_json::from_slice(&bytes).map_err(|e| StoreError::BadManifest {
+                path: storage.display(MANIFEST_FILE),
+                reason: format!("does not parse as JSON: {e}"),
+            })?;
+            if !v["plan"]["hash"].is_string() {
+                return Err(StoreError::BadManifest {
+                    path: storage.display(MANIFEST_FILE),
+                    reason: "no plan.hash (a string): not a btfrig manifest, or damaged".into(),
+                });
+            }
             let get = |a: &str, b: Option<&str>| {
                 let x = &v[a];
                 let x = b.map_or(x, |b| &x[b]);
@@ -234,16 +272,17 @@ impl<S: Storage> Dataset<S> {
         // before the journal is written leaves a dataset with nothing done (resume recreates it).
         let json = serde_json::to_vec_pretty(&manifest).expect("manifest serialises");
         write_atomic(&storage, MANIFEST_FILE, &json)?;
-        let journal = Journal::create(&storage, JOURNAL_FILE, &manifest.plan.hash)?;
+        let journal = Journal::create(&storage, JOURNAL_FILE, &manifest.plan.hash, Some(&manifest_hash(&json)))?;
         let expected = manifest.samplings.expected_steps();
         Ok(Dataset { storage, manifest, expected, journal: Mutex::new(journal) })
     }
 
-    /// [`Dataset::open_for_resume`] on any storage: checks the manifest and plan hash,
-    /// replays the journal (cutting a torn tail), deletes files no journal record names, and
-    /// reports the completed steps.
+    /// [`Dataset::open_for_resume`] on any storage: checks the manifest (plan hash, and that
+    /// it is as created), replays the journal (cutting a torn tail), checks every journaled
+    /// file (size and content hash) and journals the steps of damaged ones as retaken, deletes
+    /// files no journal record names, and reports the completed steps.
     pub fn open_for_resume_in(storage: S, plan_hash: &str) -> Result<(Self, ResumeReport), StoreError> {
-        let manifest = read_manifest(&storage)?;
+        let (manifest, manifest_bytes) = read_manifest(&storage)?;
         if manifest.plan.hash != plan_hash {
             return Err(StoreError::PlanMismatch {
                 path: storage.display(MANIFEST_FILE),
@@ -252,14 +291,47 @@ impl<S: Storage> Dataset<S> {
             });
         }
         let mut report = ResumeReport::default();
-        let journal = if storage.size(JOURNAL_FILE).map_err(io_err(&storage, "stat", JOURNAL_FILE))?.is_none() {
+        let found_hash = manifest_hash(&manifest_bytes);
+        let mut journal = if storage.size(JOURNAL_FILE).map_err(io_err(&storage, "stat", JOURNAL_FILE))?.is_none() {
             report.journal_recreated = true;
-            Journal::create(&storage, JOURNAL_FILE, plan_hash)?
+            Journal::create(&storage, JOURNAL_FILE, plan_hash, Some(&found_hash))?
         } else {
-            let (j, torn) = Journal::open(&storage, JOURNAL_FILE, plan_hash)?;
+            let (j, torn) = Journal::open(&storage, JOURNAL_FILE, plan_hash, Some(&found_hash))?;
             report.torn_tail = torn;
             j
         };
+        if let Some(expected) = &journal.state().manifest_hash {
+            if *expected != found_hash {
+                return Err(StoreError::ManifestChanged {
+                    path: storage.display(MANIFEST_FILE),
+                    expected: expected.clone(),
+                    found: found_hash,
+                });
+            }
+        }
+        // Trust no journaled file unchecked: a damaged one sends its step back to be captured.
+        // The retake record is durable before the files are deleted (as orphans, below).
+        let mut damaged: Vec<(StepId, Vec<String>)> = Vec::new();
+        for (step, rec) in &journal.state().done {
+            let mut found = Vec::new();
+            for file in &rec.files {
+                report.files_checked += 1;
+                report.bytes_checked += file.size;
+                if let Some(what) = file_damage(&storage, file)? {
+                    found.push(format!("{}: {what}", file.path));
+                }
+            }
+            if !found.is_empty() {
+                damaged.push((*step, found));
+            }
+        }
+        let mut retaken_files = BTreeSet::new();
+        for (step, found) in damaged {
+            let files = journal.state().done[&step].files.iter().map(|f| f.path.clone());
+            retaken_files.extend(files);
+            journal.append(&storage, Record::Retake { step, reason: found.join("; ") })?;
+            report.retaken.extend(found.into_iter().map(|what| (step, what)));
+        }
         let expected = manifest.samplings.expected_steps();
         for dir in [
             manifest.textures.then_some(TEXTURES_DIR),
@@ -278,7 +350,10 @@ impl<S: Storage> Dataset<S> {
             if !named.contains(path.as_str()) {
                 storage.remove(&path).map_err(io_err(&storage, "remove", &path))?;
                 dirs_touched.insert(parent(&path).to_string());
-                report.removed_orphans.push(path);
+                // A retaken step's files are named in `retaken`, not as uncommitted.
+                if !retaken_files.contains(&path) {
+                    report.removed_orphans.push(path);
+                }
             }
         }
         for e in list_names(&storage, "")? {
@@ -511,7 +586,8 @@ impl<S: Storage> Dataset<S> {
     }
 
     /// Ends the run: writes `report.json` and the manifest's timing summary (both atomically).
-    /// Steps still missing are allowed (a stopped run); `verify` lists them.
+    /// Steps still missing are allowed (a stopped run); `verify` lists them. The manifest's
+    /// bytes before `timing` are kept as they are on disk, so its journaled hash still holds.
     pub fn finish(&mut self, report: &RunReport) -> Result<(), StoreError> {
         let json = serde_json::to_vec_pretty(report).expect("report serialises");
         write_atomic(&self.storage, REPORT_FILE, &json)?;
@@ -535,7 +611,11 @@ impl<S: Storage> Dataset<S> {
         };
         self.manifest.timing = Some(summary);
         let json = serde_json::to_vec_pretty(&self.manifest).expect("manifest serialises");
-        write_atomic(&self.storage, MANIFEST_FILE, &json)?;
+        let old = self.storage.read(MANIFEST_FILE).map_err(io_err(&self.storage, "read", MANIFEST_FILE))?;
+        let (fixed, fresh) = (manifest_fixed_part(&old), manifest_fixed_part(&json));
+        let mut bytes = fixed.to_vec();
+        bytes.extend_from_slice(&json[fresh.len()..]);
+        write_atomic(&self.storage, MANIFEST_FILE, &bytes)?;
         Ok(())
     }
 }
@@ -663,7 +743,7 @@ pub fn info(dir: &Path) -> Result<DatasetInfo, StoreError> {
 
 /// [`info`] on any storage.
 pub fn info_in<S: Storage + ?Sized>(s: &S) -> Result<DatasetInfo, StoreError> {
-    let manifest = read_manifest(s)?;
+    let (manifest, _) = read_manifest(s)?;
     let bytes = match s.size(JOURNAL_FILE).map_err(io_err(s, "stat", JOURNAL_FILE))? {
         Some(_) => s.read(JOURNAL_FILE).map_err(io_err(s, "read", JOURNAL_FILE))?,
         None => Vec::new(),
@@ -703,6 +783,33 @@ pub fn info_in<S: Storage + ?Sized>(s: &S) -> Result<DatasetInfo, StoreError> {
     })
 }
 
+/// The compressed models journaled in the dataset in `dir` (`btfrig run --compress`), in
+/// journal order (read only).
+pub fn journaled_models(dir: &Path) -> Result<Vec<ModelRecord>, StoreError> {
+    let s = FsStorage::new(dir);
+    let bytes = s.read(JOURNAL_FILE).map_err(io_err(&s, "read", JOURNAL_FILE))?;
+    Ok(journal::replay(&s.display(JOURNAL_FILE), &bytes)?.models)
+}
+
+/// Journals a compressed model written (durably) next to the dataset in `dir`, after its run
+/// ended: the journal is opened as a resume opens it (plan and manifest checked).
+pub fn journal_model(dir: &Path, record: ModelRecord) -> Result<(), StoreError> {
+    let s = FsStorage::new(dir);
+    let (manifest, bytes) = read_manifest(&s)?;
+    let hash = manifest_hash(&bytes);
+    let (mut j, _) = Journal::open(&s, JOURNAL_FILE, &manifest.plan.hash, Some(&hash))?;
+    if let Some(expected) = &j.state().manifest_hash {
+        if *expected != hash {
+            return Err(StoreError::ManifestChanged {
+                path: s.display(MANIFEST_FILE),
+                expected: expected.clone(),
+                found: hash,
+            });
+        }
+    }
+    j.append(&s, Record::Model(record))
+}
+
 /// One thing `verify` found wrong.
 #[derive(Debug, Clone, PartialEq)]
 #[non_exhaustive]
@@ -716,6 +823,13 @@ pub enum Problem {
     Manifest {
         /// What is wrong.
         reason: String,
+    },
+    /// The manifest's fixed part is not what the journal's header recorded at creation.
+    ManifestChanged {
+        /// The hash journaled.
+        expected: String,
+        /// The hash of the file now.
+        found: String,
     },
     /// The journal is missing, damaged in the middle, or belongs to another plan.
     Journal {
@@ -790,6 +904,10 @@ impl std::fmt::Display for Problem {
                 write!(f, "not a btfrig dataset: no {MANIFEST_FILE} (found: {})", found.join(", "))
             }
             Problem::Manifest { reason } => write!(f, "{MANIFEST_FILE}: {reason}"),
+            Problem::ManifestChanged { expected, found } => write!(
+                f,
+                "{MANIFEST_FILE}: changed since the dataset was created (content hash {found}, the journal's header recorded {expected}): it no longer describes the data"
+            ),
             Problem::Journal { reason } => write!(f, "{JOURNAL_FILE}: {reason}"),
             Problem::TornJournalTail(t) => write!(f, "{JOURNAL_FILE}: {t}; resuming the run cuts it"),
             Problem::UnexpectedStep { step } => write!(f, "{JOURNAL_FILE}: step {step} is not in the plan"),
@@ -875,7 +993,7 @@ pub fn verify(dir: &Path) -> VerifyReport {
 /// [`verify`] on any storage.
 pub fn verify_in<S: Storage + ?Sized>(s: &S) -> VerifyReport {
     let mut r = VerifyReport { dir: s.display(""), ..VerifyReport::default() };
-    let manifest = match read_manifest(s) {
+    let (manifest, manifest_bytes) = match read_manifest(s) {
         Ok(m) => m,
         Err(StoreError::NotADataset { .. }) => {
             let found = s.list("").map(|l| l.into_iter().take(10).map(|e| e.name).collect()).unwrap_or_default();
@@ -907,6 +1025,12 @@ pub fn verify_in<S: Storage + ?Sized>(s: &S) -> VerifyReport {
             r.problems.push(Problem::Journal {
                 reason: format!("belongs to plan {found}, the manifest to {}", manifest.plan.hash),
             });
+        }
+    }
+    if let Some(expected) = &replay.manifest_hash {
+        let found = manifest_hash(&manifest_bytes);
+        if *expected != found {
+            r.problems.push(Problem::ManifestChanged { expected: expected.clone(), found });
         }
     }
     if let Some(t) = &replay.torn_tail {

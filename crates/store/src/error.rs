@@ -80,6 +80,17 @@ pub enum StoreError {
         /// What is wrong.
         reason: String,
     },
+    /// The manifest's fixed part (everything but `timing`) is not what the dataset was
+    /// created with: an edited sampling, seed, plan or rig would no longer describe the data.
+    #[error("{path}: changed since the dataset was created (content hash {found}, the journal's header recorded {expected}); the samplings, seed, plan and rig must stay as the data was captured: restore the original manifest.json (or start a new dataset in another directory)")]
+    ManifestChanged {
+        /// The manifest file.
+        path: String,
+        /// The hash journaled at creation.
+        expected: String,
+        /// The hash of the file now.
+        found: String,
+    },
     /// A step was given that the plan does not hold.
     #[error("step {step} is not in the plan (lights 0..{lights}, views 0..{views}, or skipped by the plan)")]
     UnknownStep {

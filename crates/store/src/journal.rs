@@ -12,6 +12,11 @@
 //! and is followed by no valid record is a torn tail (the power went during the append):
 //! [`Journal::open`] cuts it away and reports it. A bad record followed by a valid one is
 //! damage in the middle and an error naming its byte offset.
+//!
+//! Version 2 adds the manifest's hash to the header (so a changed manifest is noticed), the
+//! `retake` record (a done step whose files resume found damaged: it counts as not done
+//! again, and a later `step` record of it is allowed) and the `model` record (a compressed
+//! model the run built, written next to the dataset).
 
 use std::collections::BTreeMap;
 
@@ -25,7 +30,7 @@ use crate::{FileRecord, StepHdr, StepId, StepRegistration, StepTiming};
 /// `format` field of the header record.
 pub const JOURNAL_FORMAT: &str = "btfrig-journal";
 /// Version of the record schema.
-pub const JOURNAL_VERSION: u32 = 1;
+pub const JOURNAL_VERSION: u32 = 2;
 const PREFIX: usize = 8 + 1 + 16 + 1;
 
 /// One journal record.
@@ -40,6 +45,10 @@ pub enum Record {
         version: u32,
         /// Content hash of the plan the dataset measures.
         plan_hash: String,
+        /// [`crate::manifest_hash`] of the manifest as created (absent in version 1 journals:
+        /// their manifest is not checked).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        manifest_hash: Option<String>,
     },
     /// A finished step and the files it wrote (already durable when this was appended).
     Step(StepRecord),
@@ -50,6 +59,31 @@ pub enum Record {
         /// Why it was skipped.
         reason: String,
     },
+    /// A done step whose files were found damaged when the run was resumed: it is not done
+    /// any more and is captured again (its files are deleted after this record is durable).
+    Retake {
+        /// The step.
+        step: StepId,
+        /// What was found (`textures/l000_v003.exr: missing`).
+        reason: String,
+    },
+    /// A compressed model the run built, durable (written, fsync'd, renamed) before this
+    /// record was appended.
+    Model(ModelRecord),
+}
+
+/// The journal record of a compressed model a run built (`btfrig run --compress`).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelRecord {
+    /// The model's label (`fmf`, `pcmf-w64`, ...): a rerun asking for this model builds none.
+    pub method: String,
+    /// The file's name in the directory that holds the dataset (`run1.fmf.btfm`).
+    pub file: String,
+    /// Its size, bytes.
+    pub size: u64,
+    /// Its content hash.
+    pub hash: String,
 }
 
 /// The journal record of a finished step.
@@ -151,10 +185,16 @@ impl std::fmt::Display for TornTail {
 pub struct Replay {
     /// Plan hash from the header (`None` for an empty journal).
     pub plan_hash: Option<String>,
+    /// Manifest hash from the header (`None`: an empty or version 1 journal).
+    pub manifest_hash: Option<String>,
     /// Finished steps.
     pub done: BTreeMap<StepId, StepRecord>,
     /// Skipped steps and why.
     pub skipped: BTreeMap<StepId, String>,
+    /// Steps retaken (found damaged on a resume), with what was found, in journal order.
+    pub retaken: Vec<(StepId, String)>,
+    /// Compressed models built, in journal order.
+    pub models: Vec<ModelRecord>,
     /// Length of the valid prefix.
     pub valid_len: u64,
     /// The bad tail, if any.
@@ -186,7 +226,7 @@ pub fn replay(path: &str, bytes: &[u8]) -> Result<Replay, StoreError> {
         };
         let corrupt = |reason: String| StoreError::JournalCorrupt { path: path.into(), offset: off as u64, reason };
         match record {
-            Record::Header { format, version, plan_hash } => {
+            Record::Header { format, version, plan_hash, manifest_hash } => {
                 if off != 0 {
                     return Err(corrupt("second header record".into()));
                 }
@@ -196,6 +236,7 @@ pub fn replay(path: &str, bytes: &[u8]) -> Result<Replay, StoreError> {
                     )));
                 }
                 r.plan_hash = Some(plan_hash);
+                r.manifest_hash = manifest_hash;
             }
             _ if off == 0 => return Err(corrupt("first record is not the header".into())),
             Record::Step(s) => {
@@ -210,6 +251,13 @@ pub fn replay(path: &str, bytes: &[u8]) -> Result<Replay, StoreError> {
                 }
                 r.skipped.insert(step, reason);
             }
+            Record::Retake { step, reason } => {
+                if r.done.remove(&step).is_none() {
+                    return Err(corrupt(format!("step {step} retaken but not done")));
+                }
+                r.retaken.push((step, reason));
+            }
+            Record::Model(m) => r.models.push(m),
         }
         off += len;
     }
@@ -226,28 +274,44 @@ pub struct Journal {
 
 impl Journal {
     /// Creates a journal holding only the header, durable (file and directory entry) on return.
-    pub fn create<S: Storage + ?Sized>(storage: &S, path: &str, plan_hash: &str) -> Result<Journal, StoreError> {
+    pub fn create<S: Storage + ?Sized>(
+        storage: &S,
+        path: &str,
+        plan_hash: &str,
+        manifest_hash: Option<&str>,
+    ) -> Result<Journal, StoreError> {
         let io = |op: &'static str, p: &str| {
             let p = storage.display(p);
             move |source| StoreError::Io { op, path: p, source }
         };
-        let header =
-            Record::Header { format: JOURNAL_FORMAT.into(), version: JOURNAL_VERSION, plan_hash: plan_hash.into() };
+        let header = Record::Header {
+            format: JOURNAL_FORMAT.into(),
+            version: JOURNAL_VERSION,
+            plan_hash: plan_hash.into(),
+            manifest_hash: manifest_hash.map(str::to_string),
+        };
         let bytes = encode_record(&header);
         storage.create(path).map_err(io("create", path))?;
         storage.append(path, &bytes).map_err(io("append", path))?;
         storage.fsync(path).map_err(io("fsync", path))?;
         storage.fsync(parent(path)).map_err(io("fsync", parent(path)))?;
-        let state = Replay { plan_hash: Some(plan_hash.into()), valid_len: bytes.len() as u64, ..Replay::default() };
+        let state = Replay {
+            plan_hash: Some(plan_hash.into()),
+            manifest_hash: manifest_hash.map(str::to_string),
+            valid_len: bytes.len() as u64,
+            ..Replay::default()
+        };
         Ok(Journal { path: path.into(), state })
     }
 
     /// Opens an existing journal for appending: replays it, checks the plan hash, and cuts a
     /// torn tail away (durably), returning it so the caller can report it.
+    /// A journal with not even its header intact is created afresh, with `manifest_hash`.
     pub fn open<S: Storage + ?Sized>(
         storage: &S,
         path: &str,
         plan_hash: &str,
+        manifest_hash: Option<&str>,
     ) -> Result<(Journal, Option<TornTail>), StoreError> {
         let bytes =
             storage.read(path).map_err(|source| StoreError::Io { op: "read", path: storage.display(path), source })?;
@@ -255,7 +319,7 @@ impl Journal {
         if state.valid_len == 0 {
             // Not even the header survived: nothing was journaled, start afresh.
             let torn = state.torn_tail.take();
-            return Ok((Journal::create(storage, path, plan_hash)?, torn));
+            return Ok((Journal::create(storage, path, plan_hash, manifest_hash)?, torn));
         }
         if state.plan_hash.as_deref() != Some(plan_hash) {
             return Err(StoreError::PlanMismatch {
@@ -293,6 +357,11 @@ impl Journal {
             Record::Skip { step, reason } => {
                 self.state.skipped.insert(step, reason);
             }
+            Record::Retake { step, reason } => {
+                self.state.done.remove(&step);
+                self.state.retaken.push((step, reason));
+            }
+            Record::Model(m) => self.state.models.push(m),
             Record::Header { .. } => {}
         }
         Ok(())
@@ -320,8 +389,12 @@ mod tests {
     }
 
     fn journal(n: u32) -> (Vec<u8>, Vec<usize>) {
-        let mut bytes =
-            encode_record(&Record::Header { format: JOURNAL_FORMAT.into(), version: 1, plan_hash: "p".into() });
+        let mut bytes = encode_record(&Record::Header {
+            format: JOURNAL_FORMAT.into(),
+            version: 1,
+            plan_hash: "p".into(),
+            manifest_hash: None,
+        });
         let mut starts = vec![0];
         for i in 0..n {
             starts.push(bytes.len());
@@ -396,6 +469,31 @@ mod tests {
                     Err(e) => panic!("{e}"),
                 }
             }
+        }
+    }
+
+    #[test]
+    fn a_retake_makes_a_step_not_done_and_allows_one_more_record() {
+        let (mut bytes, _) = journal(2);
+        let again = |bytes: &[u8]| replay("j", bytes);
+        let retake = |l: u32, v: u32| {
+            encode_record(&Record::Retake { step: StepId { light: l, view: v }, reason: "x: missing".into() })
+        };
+        bytes.extend(retake(0, 1));
+        let r = again(&bytes).unwrap();
+        assert!(!r.done.contains_key(&StepId { light: 0, view: 1 }));
+        assert_eq!(r.retaken, vec![(StepId { light: 0, view: 1 }, "x: missing".to_string())]);
+        bytes.extend(encode_record(&step(0, 1)));
+        assert!(again(&bytes).unwrap().done.contains_key(&StepId { light: 0, view: 1 }));
+        // A third record of it without another retake, or a retake of a step not done, is damage.
+        let mut twice = bytes.clone();
+        twice.extend(encode_record(&step(0, 1)));
+        assert!(matches!(again(&twice), Err(StoreError::JournalCorrupt { .. })));
+        let mut not_done = bytes.clone();
+        not_done.extend(retake(7, 7));
+        match again(&not_done) {
+            Err(StoreError::JournalCorrupt { reason, .. }) => assert!(reason.contains("not done"), "{reason}"),
+            other => panic!("{other:?}"),
         }
     }
 

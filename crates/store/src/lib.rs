@@ -40,15 +40,15 @@ mod manifest;
 mod storage;
 
 pub use dataset::{
-    info, info_in, verify, verify_in, Dataset, DatasetInfo, Problem, ResumeReport, VerifyReport, JOURNAL_FILE,
-    MANIFEST_FILE, PREVIEW_FILE, RAW_DIR, REPORT_FILE, TEXTURES_DIR,
+    info, info_in, journal_model, journaled_models, verify, verify_in, Dataset, DatasetInfo, Problem, ResumeReport,
+    VerifyReport, JOURNAL_FILE, MANIFEST_FILE, PREVIEW_FILE, RAW_DIR, REPORT_FILE, TEXTURES_DIR,
 };
 pub use error::StoreError;
 pub use hash::{content_hash, sha256, HASH_PREFIX};
-pub use journal::TornTail;
+pub use journal::{ModelRecord, TornTail};
 pub use manifest::{
-    plan_hash, rfc3339_utc, DirectionDeg, Manifest, PlanInfo, RigInfo, Samplings, SkippedStep, Software, TextureFormat,
-    TextureRegion, TextureSpec, TimingSummary, MANIFEST_SCHEMA_VERSION,
+    manifest_hash, plan_hash, rfc3339_utc, DirectionDeg, Manifest, PlanInfo, RigInfo, Samplings, SkippedStep, Software,
+    TextureFormat, TextureRegion, TextureSpec, TimingSummary, MANIFEST_SCHEMA_VERSION,
 };
 pub use storage::{Entry, FsStorage, MemStorage, Storage, TornAppend};
 

@@ -199,6 +199,27 @@ pub struct TimingSummary {
     pub retries: u64,
 }
 
+/// Where the manifest's last member, `timing` (the only one `finish` rewrites), starts in
+/// `manifest.json` as this crate writes it (pretty JSON, two-space indent; the strings hold
+/// no raw newline, so only the top-level key starts a line with this indent).
+const TIMING_KEY: &[u8] = b"\n  \"timing\": ";
+
+/// The part of `manifest.json` that never changes after creation: its bytes before the
+/// top-level `timing` member (the whole file when there is none).
+pub(crate) fn manifest_fixed_part(bytes: &[u8]) -> &[u8] {
+    match bytes.windows(TIMING_KEY.len()).rposition(|w| w == TIMING_KEY) {
+        Some(at) => &bytes[..at],
+        None => bytes,
+    }
+}
+
+/// The manifest hash journaled when a dataset is created: [`content_hash`] of the bytes of
+/// `manifest.json` before its `timing` member. Bytes, not parsed values: any edit of a
+/// sampling, the seed, the plan or the rig (even of a float in its last digit) changes it.
+pub fn manifest_hash(manifest_json: &[u8]) -> String {
+    content_hash(manifest_fixed_part(manifest_json))
+}
+
 /// The plan hash of a plan text: [`content_hash`] of its UTF-8 bytes.
 pub fn plan_hash(plan_text: &str) -> String {
     content_hash(plan_text.as_bytes())
@@ -307,6 +328,36 @@ pub fn rfc3339_utc(unix_s: i64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_manifest_hash_ignores_timing_only() {
+        let d = [Direction::from_degrees(0.0, 0.0), Direction::from_degrees(30.0, 90.0)];
+        let texture = TextureSpec {
+            width: 4,
+            height: 4,
+            region: TextureRegion { center_m: [0.0, 0.0], size_m: [0.1, 0.1] },
+            format: TextureFormat::ExrHalf,
+        };
+        let rig = RigInfo { name: "r".into(), config_toml: "[rig]\nname = \"r\"\n".into() };
+        let mut m = Manifest::new(rig, "[plan]\n", Samplings::full(&d, &d), texture, false, 7);
+        let created = serde_json::to_vec_pretty(&m).unwrap();
+        let h = manifest_hash(&created);
+        m.timing = Some(TimingSummary {
+            first_step_unix_s: 1.0,
+            finished_unix_s: 2.0,
+            wall_s: 1.0,
+            hardware_s: None,
+            steps_done: 4,
+            steps_skipped: 0,
+            retries: 0,
+        });
+        assert_eq!(manifest_hash(&serde_json::to_vec_pretty(&m).unwrap()), h, "timing is not protected");
+        m.seed = 8;
+        assert_ne!(manifest_hash(&serde_json::to_vec_pretty(&m).unwrap()), h, "the seed is protected");
+        m.seed = 7;
+        m.samplings.view[1].theta_deg = 30.000000000000004;
+        assert_ne!(manifest_hash(&serde_json::to_vec_pretty(&m).unwrap()), h, "an angle is protected");
+    }
 
     #[test]
     fn rfc3339_matches_known_dates() {

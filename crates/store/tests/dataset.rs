@@ -284,3 +284,83 @@ fn resume_cuts_a_torn_journal_tail_and_reports_it() {
     ds.commit_step(s, vec![t], 1, timing()).unwrap();
     assert_eq!(ds.completed(), BTreeSet::from([step(0, 0), step(0, 1)]));
 }
+
+/// r24: resume trusted the journal without looking at the files. A done step whose texture
+/// or raw frame is missing, shorter, or altered is now journaled as retaken (named with what
+/// was found), its files deleted, and it is to be captured again; the rest stays done.
+#[test]
+fn r24_resume_retakes_the_steps_of_damaged_files_and_names_them() {
+    let tmp = TempDir::new("retake");
+    let dir = tmp.path().join("ds");
+    complete(&dir);
+    let (missing, short, altered, intact) = (step(0, 0), step(0, 1), step(1, 0), step(0, 2));
+    std::fs::remove_file(dir.join(format!("textures/{}.exr", missing.stem()))).unwrap();
+    let raw = dir.join(format!("raw/{}.exr", short.stem()));
+    let len = std::fs::metadata(&raw).unwrap().len();
+    std::fs::OpenOptions::new().write(true).open(&raw).unwrap().set_len(len - 1).unwrap();
+    let tex = dir.join(format!("textures/{}.exr", altered.stem()));
+    let mut bytes = std::fs::read(&tex).unwrap();
+    let last = bytes.len() - 1;
+    bytes[last] ^= 0x01;
+    std::fs::write(&tex, &bytes).unwrap();
+
+    let (ds, resume) = Dataset::open_for_resume(&dir, &plan_hash(PLAN)).unwrap();
+    let named: Vec<(StepId, &str)> = resume.retaken.iter().map(|(s, w)| (*s, w.as_str())).collect();
+    assert_eq!(named.len(), 3, "{named:?}");
+    assert_eq!(named[0], (missing, "textures/l000_v000.exr: missing"));
+    assert_eq!(named[1].0, short);
+    assert_eq!(named[1].1, format!("raw/l000_v001.exr: {} bytes, journaled with {len}", len - 1));
+    assert_eq!(named[2].0, altered);
+    assert!(named[2].1.starts_with("textures/l001_v000.exr: content hash sha256:"), "{}", named[2].1);
+    assert_eq!(resume.remaining, BTreeSet::from([missing, short, altered]));
+    assert!(resume.completed.contains(&intact) && !resume.completed.contains(&missing));
+    assert!(resume.removed_orphans.is_empty(), "{:?}", resume.removed_orphans);
+    // Every file of a retaken step is gone (the intact texture of `short` too): captured again.
+    assert!(!dir.join(format!("textures/{}.exr", short.stem())).exists());
+    assert!(!tex.exists() && !raw.exists());
+    assert!(resume.to_string().contains("textures/l000_v000.exr: missing: step (light 0, view 0) is captured again"));
+
+    // The retaken steps are written and committed again; the dataset verifies.
+    for s in [missing, short, altered] {
+        let t = ds.write_texture(s, &texels(s), W, H).unwrap();
+        let r = ds.write_raw(s, &raw_frame(s)).unwrap();
+        ds.commit_step(s, vec![t, r], 1, timing()).unwrap();
+    }
+    drop(ds);
+    let report = verify(&dir);
+    assert!(report.is_ok(), "{report}");
+    let (_, resume) = Dataset::open_for_resume(&dir, &plan_hash(PLAN)).unwrap();
+    assert!(resume.retaken.is_empty() && resume.remaining.is_empty());
+    assert_eq!(resume.files_checked, 10);
+}
+
+/// r24: the manifest was not protected. The journal's header holds its hash; an edited seed
+/// is refused by resume and reported by verify, naming manifest.json; `finish` rewrites only
+/// `timing` and keeps the hash valid.
+#[test]
+fn r24_the_manifest_is_protected_by_the_journal_header() {
+    let tmp = TempDir::new("manifest-hash");
+    let dir = tmp.path().join("ds");
+    complete(&dir);
+    // finish wrote the timing summary; the manifest still checks.
+    let text = std::fs::read_to_string(dir.join("manifest.json")).unwrap();
+    assert!(text.contains("\"steps_done\": 5"), "{text}");
+    assert!(verify(&dir).is_ok());
+    let (mut ds, _) = Dataset::open_for_resume(&dir, &plan_hash(PLAN)).unwrap();
+    ds.finish(&RunReport::default()).unwrap();
+    drop(ds);
+    assert!(verify(&dir).is_ok(), "{}", verify(&dir));
+
+    let seed = text.find("\"seed\": ").unwrap() + "\"seed\": ".len();
+    let edited = format!("{}9{}", &text[..seed], &text[seed..]);
+    std::fs::write(dir.join("manifest.json"), &edited).unwrap();
+    match Dataset::open_for_resume(&dir, &plan_hash(PLAN)) {
+        Err(e @ StoreError::ManifestChanged { .. }) => {
+            assert!(e.to_string().contains("manifest.json: changed since the dataset was created"), "{e}")
+        }
+        other => panic!("{other:?}"),
+    }
+    let report = verify(&dir);
+    assert!(matches!(report.problems.as_slice(), [Problem::ManifestChanged { .. }]), "{report}");
+    assert!(report.to_string().contains("manifest.json: changed since the dataset was created"), "{report}");
+}
