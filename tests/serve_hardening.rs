@@ -260,3 +260,44 @@ fn the_token_file_is_private_never_written_through_a_link_and_never_printed() {
     let _ = child.kill();
     let _ = child.wait();
 }
+
+#[test]
+fn serve_refuses_a_rig_whose_device_options_would_fail_a_run() {
+    // As found: a NaN `jitter_deg` or an inverted `exposure_range_s` passed `serve --rig`,
+    // and every run on that rig then failed.
+    let dir = scratch("hardening_serve_rig");
+    let rig = std::fs::read_to_string(repo("rig-configs/bonn-gonio-sim.toml")).unwrap();
+    for (name, text, field) in [
+        ("nan-jitter", rig.replace("jitter_deg = 0.1", "jitter_deg = nan"), "jitter_deg"),
+        (
+            "inverted-exposure",
+            rig.replace("exposure_range_s = [0.0001, 30.0]", "exposure_range_s = [30.0, 0.0001]"),
+            "exposure_range_s",
+        ),
+    ] {
+        assert_ne!(text, rig, "{name}: the replacement matched nothing");
+        let path = dir.join(format!("{name}.toml"));
+        std::fs::write(&path, text).unwrap();
+        let data = dir.join(format!("{name}-data"));
+        let mut child = support::btfrig()
+            .args(["serve", "--listen", "127.0.0.1:0", "--rig", path.to_str().unwrap()])
+            .args(["--data", data.to_str().unwrap()])
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        // Its first line on stdout, or EOF when it exits: a daemon that listens is killed, so
+        // the test fails rather than hangs.
+        let mut first = String::new();
+        std::io::BufRead::read_line(&mut std::io::BufReader::new(child.stdout.take().unwrap()), &mut first).unwrap();
+        if first.starts_with("listening") {
+            let _ = child.kill();
+        }
+        let out = child.wait_with_output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!first.starts_with("listening"), "{name}: serve started: {first}{err}");
+        assert!(!out.status.success(), "{name}: serve exited 0: {err}");
+        assert!(err.contains(field), "{name}: the error names {field}: {err}");
+    }
+}

@@ -151,6 +151,9 @@ impl AppState {
                 )
             }
         };
+        // Options that pass the config's own ranges but would fail when a run builds the
+        // devices (a NaN jitter, an inverted exposure range) stop the daemon here, not a run.
+        btfrig_runner::plan::check_rig_options(&rig, &rig_source).map_err(|e| bad(e.to_string()))?;
         std::fs::create_dir_all(&cfg.data)
             .map_err(|e| bad(format!("--data {}: cannot create it: {e}", cfg.data.display())))?;
         let (auth, generated) = match &cfg.auth {

@@ -66,8 +66,9 @@ pub fn load_text(text: &str, file: &Path) -> Result<(Plan, ValidatedPlan), RunEr
     Ok((plan, validated))
 }
 
-/// The rig config's simulated device options, checked without building the rig.
-fn check_rig_options(rig: &RigConfig, source: &str) -> Result<(), RunError> {
+/// The rig config's simulated device options, checked without building the rig (`btfrig
+/// serve --rig` checks its rig with this at start-up, as plans check theirs).
+pub fn check_rig_options(rig: &RigConfig, source: &str) -> Result<(), RunError> {
     btfrig_sim::check_sim_options(&rig.devices)
         .map_err(|e| RunError::Input { what: format!("rig.config {source:?}"), message: e.to_string() })
 }
