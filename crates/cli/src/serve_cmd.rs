@@ -17,6 +17,7 @@ pub fn serve(a: &ServeArgs) -> anyhow::Result<()> {
         auth: a.auth.clone(),
         plans: a.plans.clone(),
         header_read_timeout: btfrig_daemon::server::HEADER_READ_TIMEOUT,
+        plan_job_time_limit: btfrig_daemon::plan_jobs::PLAN_JOB_TIME_LIMIT,
     }))?;
     Ok(())
 }

@@ -84,6 +84,9 @@ pub struct ServeConfig {
     /// Time a client has to send a request's head before its connection is closed:
     /// [`server::HEADER_READ_TIMEOUT`] (tests use less).
     pub header_read_timeout: std::time::Duration,
+    /// Longest a plan check or dry run may take before it is cancelled:
+    /// [`plan_jobs::PLAN_JOB_TIME_LIMIT`] (tests use less).
+    pub plan_job_time_limit: std::time::Duration,
 }
 
 /// Everything the handlers share.
@@ -103,6 +106,8 @@ pub struct AppState {
     pub plans_dir: Option<PathBuf>,
     /// Plans by name.
     pub plans: Vec<NamedPlan>,
+    /// Longest a plan check or dry run may take ([`ServeConfig::plan_job_time_limit`]).
+    pub plan_job_time_limit: std::time::Duration,
     /// Runs.
     pub runs: Runs,
     /// Calibrations.
@@ -176,6 +181,7 @@ impl AppState {
             rig_source,
             data: cfg.data.clone(),
             plans_dir: cfg.plans.as_deref().and_then(|d| d.canonicalize().ok()),
+            plan_job_time_limit: cfg.plan_job_time_limit,
             plans,
             runs: Runs::new(cfg.data.clone(), metrics.clone()),
             calibrations: Calibrations::default(),
@@ -384,7 +390,8 @@ impl AppState {
             }
             Ok(c)
         });
-        let job = match tokio::time::timeout(crate::plan_jobs::PLAN_JOB_TIME_LIMIT, job).await {
+        let limit = self.plan_job_time_limit;
+        let job = match tokio::time::timeout(limit, job).await {
             Ok(j) => j,
             Err(_) => {
                 guard.cancel();
@@ -393,7 +400,7 @@ impl AppState {
                     vec![format!(
                         "the plan check took longer than its time limit of {} s and was cancelled: allowed are plans \
                          that check and plan within it (fewer pairs; `btfrig plan show` has no time limit)",
-                        crate::plan_jobs::PLAN_JOB_TIME_LIMIT.as_secs()
+                        limit.as_secs_f64()
                     )],
                 );
             }

@@ -75,6 +75,16 @@ impl Daemon {
 
     /// [`Daemon::start`] with another header-read timeout.
     pub fn start_with(name: &str, rig: Option<&str>, header_read_timeout: Duration) -> Daemon {
+        Daemon::start_limits(name, rig, header_read_timeout, btfrig_daemon::plan_jobs::PLAN_JOB_TIME_LIMIT)
+    }
+
+    /// [`Daemon::start`] with another header-read timeout and plan-job time limit.
+    pub fn start_limits(
+        name: &str,
+        rig: Option<&str>,
+        header_read_timeout: Duration,
+        plan_job_time_limit: Duration,
+    ) -> Daemon {
         let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
@@ -86,6 +96,7 @@ impl Daemon {
             auth: Some(dir.join("auth.toml")),
             plans: None,
             header_read_timeout,
+            plan_job_time_limit,
         };
         let (state, _) = AppState::load(&cfg).unwrap_or_else(|e| panic!("{e}"));
         let state = Arc::new(state);
