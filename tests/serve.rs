@@ -6,27 +6,8 @@ mod support;
 
 use std::time::Duration;
 
-use support::http::{request, Daemon, EventStream};
+use support::http::{request, Daemon, EventStream, AUTH};
 use support::{read_journal, scratch};
-
-const AUTH: &str = r#"
-[[token]]
-name = "viewer"
-token = "viewer-token"
-role = "viewer"
-[[token]]
-name = "ada"
-token = "operator-ada"
-role = "operator"
-[[token]]
-name = "bob"
-token = "operator-bob"
-role = "operator"
-[[token]]
-name = "root"
-token = "admin-token"
-role = "admin"
-"#;
 
 /// A small plan on the embedded rig: `n` captures of 32-texel textures.
 fn plan(n: usize) -> String {

@@ -7,19 +7,8 @@ mod support;
 use std::path::Path;
 use std::process::Stdio;
 
-use support::http::Daemon;
+use support::http::{Daemon, AUTH};
 use support::{repo, scratch};
-
-const AUTH: &str = r#"
-[[token]]
-name = "viewer"
-token = "viewer-token"
-role = "viewer"
-[[token]]
-name = "ada"
-token = "operator-ada"
-role = "operator"
-"#;
 
 /// A secret on the host that no API answer may contain (it is valid TOML up to a line that
 /// is not, so a parser's error would quote that line).

@@ -192,3 +192,24 @@ impl Drop for Daemon {
         let _ = self.child.wait();
     }
 }
+
+/// Tokens of the daemon tests that start `btfrig serve` with `--auth`: a viewer, two
+/// operators (ada, bob) and an admin.
+pub const AUTH: &str = r#"
+[[token]]
+name = "viewer"
+token = "viewer-token"
+role = "viewer"
+[[token]]
+name = "ada"
+token = "operator-ada"
+role = "operator"
+[[token]]
+name = "bob"
+token = "operator-bob"
+role = "operator"
+[[token]]
+name = "root"
+token = "admin-token"
+role = "admin"
+"#;
