@@ -27,7 +27,7 @@ use btfrig_core::Direction;
 use btfrig_markers::GrayImage;
 use btfrig_register::PlateRegistrar;
 use btfrig_render::chart::{ColorChart, CHART_NAMES};
-use btfrig_render::demosaic::demosaic_bilinear;
+use btfrig_imageio::demosaic::demosaic_bilinear;
 use btfrig_render::renderer::RenderOptions;
 use btfrig_render::rig_scene::RigScene;
 use nalgebra::{Point3, Vector3};

@@ -24,7 +24,7 @@ use btfrig_core::frame::RawFrame;
 use btfrig_core::kinematics::JointState;
 use btfrig_core::Direction;
 use btfrig_markers::{detect, DetectParams, Detection, Dictionary, GrayImage};
-use btfrig_render::demosaic::demosaic_bilinear;
+use btfrig_imageio::demosaic::demosaic_bilinear;
 use btfrig_render::renderer::RenderOptions;
 use btfrig_render::rig_scene::RigScene;
 use btfrig_render::target::TargetBoard;

@@ -20,7 +20,7 @@ use btfrig_calib::light::{lambertian_signal, plate_patch_points, rate_radiometry
 use btfrig_calib::{LinearImage, Radiometry};
 use btfrig_core::config::RigConfig;
 use btfrig_core::Direction;
-use btfrig_render::demosaic::demosaic_bilinear;
+use btfrig_imageio::demosaic::demosaic_bilinear;
 use btfrig_render::material::{AlbedoSpec, MaterialSpec, Pattern};
 use btfrig_render::renderer::RenderOptions;
 use btfrig_render::rig_scene::{resolve_spectrum, RigScene};

@@ -19,6 +19,8 @@
 //! ```
 #![warn(missing_docs)]
 
+pub mod demosaic;
+
 use std::path::{Path, PathBuf};
 
 use btfrig_core::frame::{FrameMeta, RawFrame};

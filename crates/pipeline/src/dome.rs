@@ -319,7 +319,7 @@ impl DomeProcessing {
         gain: f64,
     ) -> Result<Vec<[f32; 3]>, DomeError> {
         let (w, h) = (self.camera.width, self.camera.height);
-        let rgb = btfrig_render::demosaic::demosaic_bilinear_values(w, h, self.bayer, mosaic);
+        let rgb = btfrig_imageio::demosaic::demosaic_bilinear_values(w, h, self.bayer, mosaic);
         let img = LinearImage { width: w, height: h, data: rgb.data };
         let pose = self.dome.scene_pose(camera, turntable_rad, led);
         let region = Region::centred_square(self.sample_side_m);

@@ -49,7 +49,7 @@ use btfrig_core::pose::ScenePose;
 use btfrig_engine::CapturedFrame;
 use btfrig_markers::GrayImage;
 use btfrig_register::{texel_position_error_with_cameras, FrameError, PlateRegistrar, RegisterOptions};
-use btfrig_render::demosaic::demosaic_bilinear;
+use btfrig_imageio::demosaic::demosaic_bilinear;
 use btfrig_render::rig_scene::RigScene;
 use btfrig_sim::{FrameSource, SensorFormat, TrueState};
 use btfrig_store::{Dataset, StepExtra, StepHdr, StepId, StepTiming, StoreError};
@@ -780,7 +780,7 @@ impl Processor {
         &self,
         step: StepId,
         frames: &[&RawFrame],
-    ) -> Result<(btfrig_render::demosaic::CameraRgbImage, u64), PipelineError> {
+    ) -> Result<(btfrig_imageio::demosaic::CameraRgbImage, u64), PipelineError> {
         use btfrig_calib::hdr::{merge_bracket, MergeOptions, NoiseModel, NominalCalibration};
         let base = frames[0];
         let sensor = self.scene.sensor();
@@ -807,7 +807,7 @@ impl Processor {
         let range = (f64::from(base.meta.white_level) - f64::from(base.meta.black_level)).max(1.0);
         let scale = base.meta.exposure_s * sensor.dn_per_electron(base.meta.gain.max(1.0)) / range;
         let values: Vec<f32> = merged.rate.iter().map(|&r| (f64::from(r) * scale) as f32).collect();
-        let dm = btfrig_render::demosaic::demosaic_bilinear_values(base.width, base.height, base.meta.bayer, &values);
+        let dm = btfrig_imageio::demosaic::demosaic_bilinear_values(base.width, base.height, base.meta.bayer, &values);
         Ok((dm, merged.saturated_everywhere() as u64))
     }
 

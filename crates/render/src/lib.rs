@@ -42,7 +42,8 @@
 pub mod brdf;
 pub mod chart;
 pub mod colour;
-pub mod demosaic;
+/// Demosaicing lives in `btfrig-imageio` (processing needs it without the simulator).
+pub use btfrig_imageio::demosaic;
 pub mod dome_scene;
 pub mod flat_field;
 pub mod ground_truth;

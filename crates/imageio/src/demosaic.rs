@@ -61,7 +61,7 @@ pub fn demosaic_bilinear(raw: &RawFrame) -> CameraRgbImage {
 
 /// An 8-bit sRGB preview, interleaved `RGBRGB...`, row-major: per pixel
 /// `srgb_encode(clamp(exposure · M · (wb ⊙ rgb), 0, 1))`, rounded. `wb` and `M` usually come
-/// from [`crate::colour::ColourSystem::colorchecker_matrix`].
+/// from a colour calibration or the simulator's manufacturer-style matrix.
 pub fn preview_srgb8(img: &CameraRgbImage, white_balance: [f64; 3], matrix: &[[f64; 3]; 3], exposure: f64) -> Vec<u8> {
     // Fold white balance and exposure into one matrix.
     let m: [[f32; 3]; 3] =
@@ -69,7 +69,7 @@ pub fn preview_srgb8(img: &CameraRgbImage, white_balance: [f64; 3], matrix: &[[f
     // The sRGB curve through a 4096-entry table: previews need 8 bits, not powf per pixel.
     const N: usize = 4096;
     let lut: Vec<u8> =
-        (0..N).map(|i| (crate::colour::srgb_encode(i as f64 / (N - 1) as f64) * 255.0).round() as u8).collect();
+        (0..N).map(|i| (btfrig_color::space::srgb_encode(i as f64 / (N - 1) as f64) * 255.0).round() as u8).collect();
     let mut out = vec![0u8; img.width * img.height * 3];
     out.par_chunks_mut(3 * img.width.max(1)).zip(img.data.par_chunks(img.width.max(1))).for_each(|(o, row)| {
         for (px, v) in o.chunks_exact_mut(3).zip(row) {
