@@ -4,6 +4,9 @@
 //! cut the texels' mean CIEDE2000 and the texture's relative RMSE; the figures are in
 //! docs/color.md.
 
+use btfrig_hw::truth::ExposureTruth;
+use btfrig_sim::truth::SceneTruth;
+use btfrig_sim::RenderedFrameSource;
 use std::sync::Arc;
 
 use btfrig_calib::{Filter, Region};
@@ -86,13 +89,21 @@ fn colour_calibration_cuts_a_materials_colour_error() {
         let (frame, _) = scene.capture(&joints, 1.0, exposure, 1.0, 21, &RenderOptions::default()).unwrap();
         let step = StepId { light: 0, view: 0 };
         let run = |c: Option<ColorCorrection>| {
-            let p = Processor::new(scene.clone(), &cfg.plate, settings)
-                .unwrap()
-                .with_camera(cam.clone())
-                .unwrap()
-                .with_color_correction(c);
-            let out = p.process(step, &frame, &joints, Some((joints, 1.0))).unwrap();
-            let gt = p.ground_truth(&joints, 1.0);
+            // The simulator's own constants, the calibrated camera, and the colour under test
+            // (`None`: the simulator's manufacturer-style matrix).
+            let mut model = btfrig_sim_calibration::perfect::truth_model(&cfg, &scene);
+            model.camera = cam.clone();
+            if c.is_some() {
+                model = model.with_color(c);
+            }
+            let probe = SceneTruth::new(
+                scene.clone(),
+                Arc::new(RenderedFrameSource::new(scene.clone(), RenderOptions::default())),
+            );
+            let p = Processor::new(model, settings).unwrap().with_truth(Some(Arc::new(probe)));
+            let truth = ExposureTruth { joints, lamp_intensity: 1.0 };
+            let out = p.process(step, &frame, &joints, Some(truth)).unwrap();
+            let gt = p.ground_truth(&joints, 1.0).unwrap();
             (
                 mean_de00(&out.texels, &gt),
                 block_de00(&out.texels, &gt, 128, 8),

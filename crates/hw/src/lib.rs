@@ -23,6 +23,7 @@ pub mod device;
 pub mod error;
 pub mod light;
 pub mod motion;
+pub mod truth;
 
 pub use camera::{frame_checksum, verify_frame, Camera, CameraCapabilities, CaptureSettings};
 pub use clock::{Clock, ScaledClock, SharedClock, TokioClock};
@@ -30,3 +31,4 @@ pub use device::{Device, DeviceInfo, Health};
 pub use error::{DeviceError, ErrorKind};
 pub use light::{Lamp, LampCapabilities, LampStatus, LedArray, LedCapabilities, LedPattern, WarmUp};
 pub use motion::{AxisLimits, MoveOptions, Rail, Robot, Turntable};
+pub use truth::{ExposureTruth, SampleRegion, TruthProbe};

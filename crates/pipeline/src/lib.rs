@@ -32,8 +32,11 @@ pub mod color;
 pub mod dark_flat;
 pub mod dome;
 pub mod light;
+pub mod model;
 
-use std::collections::{BTreeMap, HashMap, VecDeque};
+pub use model::{ModelSource, ProcessingModel, SensorConstants};
+
+use std::collections::{BTreeMap, VecDeque};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -41,17 +44,15 @@ use btfrig_calib::{
     rectify, to_radiance_factor, vignetting_map, Filter, LinearImage, Radiometry, RectifyError, Region,
 };
 use btfrig_core::camera::CameraModel;
-use btfrig_core::config::plate::PlateConfig;
 use btfrig_core::frame::RawFrame;
 use btfrig_core::kinematics::JointState;
 pub use btfrig_core::plan::{OnRegistrationFailure, RegistrationMethod, RegistrationPolicy};
 use btfrig_core::pose::ScenePose;
 use btfrig_engine::CapturedFrame;
+use btfrig_hw::truth::{ExposureTruth, SampleRegion, TruthProbe};
+use btfrig_imageio::demosaic::demosaic_bilinear;
 use btfrig_markers::GrayImage;
 use btfrig_register::{texel_position_error_with_cameras, FrameError, PlateRegistrar, RegisterOptions};
-use btfrig_imageio::demosaic::demosaic_bilinear;
-use btfrig_render::rig_scene::RigScene;
-use btfrig_sim::{FrameSource, SensorFormat, TrueState};
 use btfrig_store::{Dataset, StepExtra, StepHdr, StepId, StepTiming, StoreError};
 pub use btfrig_store::{PoseSource, StepRegistration};
 use tokio::sync::{mpsc, watch};
@@ -234,41 +235,6 @@ pub enum PipelineError {
     },
 }
 
-/// Records, for each frame a wrapped source renders, the true state it was rendered from,
-/// keyed by the frame's time stamp (the simulated camera stamps each frame with the true
-/// state's time), so the pipeline can compare a texture with the truth of its exposure.
-pub struct TruthLog {
-    inner: Arc<dyn FrameSource>,
-    log: Mutex<HashMap<u64, (JointState, f64)>>,
-}
-
-impl TruthLog {
-    /// Wraps `inner`.
-    pub fn new(inner: Arc<dyn FrameSource>) -> Self {
-        TruthLog { inner, log: Mutex::new(HashMap::new()) }
-    }
-
-    /// Removes and returns the true joints and lamp intensity of the frame stamped
-    /// `timestamp_s` (`None` if no frame with that stamp was rendered).
-    pub fn take(&self, timestamp_s: f64) -> Option<(JointState, f64)> {
-        self.log.lock().unwrap_or_else(|e| e.into_inner()).remove(&timestamp_s.to_bits())
-    }
-}
-
-impl FrameSource for TruthLog {
-    fn format(&self) -> SensorFormat {
-        self.inner.format()
-    }
-
-    fn render(&self, truth: &TrueState, settings: &btfrig_hw::CaptureSettings, seed: u64) -> RawFrame {
-        self.log
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .insert(truth.time_s.to_bits(), (truth.joints, truth.lamp_intensity));
-        self.inner.render(truth, settings, seed)
-    }
-}
-
 /// What to make of each frame.
 #[derive(Debug, Clone, Copy)]
 pub struct ProcessSettings {
@@ -333,13 +299,10 @@ impl Processed {
     }
 }
 
-/// Turns raw frames into textures for one rig scene.
+/// Turns raw frames into textures with one processing model.
 pub struct Processor {
-    scene: Arc<RigScene>,
-    /// The camera model frames are registered and rectified with: the rig's calibrated one
-    /// ([`Processor::with_camera`]); by default the scene's (on the simulator: the true lens).
-    camera: CameraModel,
-    plate: PlateConfig,
+    /// What the rig is known as: camera, sensor, plate, kinematics, calibrations.
+    model: ProcessingModel,
     settings: ProcessSettings,
     /// `None` when the plan asks for the nominal pose.
     registrar: Option<PlateRegistrar>,
@@ -347,16 +310,14 @@ pub struct Processor {
     outputs: Outputs,
     preview: watch::Sender<Option<Arc<Preview>>>,
     preview_gate: Mutex<PreviewGate>,
-    /// The measured colour calibration textures are converted with, if any.
-    color: Option<Arc<color::ColorCorrection>>,
-    /// Measured dark model and flats ([`Processor::with_dark_flat`]); `None`: the model's.
-    dark_flat: Option<Arc<dark_flat::DarkFlat>>,
-    /// The light calibration and the plate points of the drift patch.
-    light: Option<(light::LightCorrection, Vec<nalgebra::Point2<f64>>)>,
+    /// The plate points of the light calibration's drift patch.
+    light_points: Vec<nalgebra::Point2<f64>>,
     /// With HDR on: what each step's journal record says of its exposures.
     hdr: Option<HdrRecording>,
     /// Receives every committed texture ([`Processor::with_sink`]).
     sink: Option<Arc<dyn TextureSink>>,
+    /// The truth behind the frames (simulated rigs only), for the error figures.
+    truth: Option<Arc<dyn TruthProbe>>,
 }
 
 /// Receives every committed texture, after its journal commit, in commit order, on a
@@ -417,33 +378,53 @@ fn claim_preview(pr: &Arc<Processor>) -> Option<PreviewClaim> {
 }
 
 impl Processor {
-    /// A processor for `scene` (rig geometry, camera model, sensor, colour) whose holder
-    /// plate is `plate` (the rig config's `[plate]`, validated), writing textures only
-    /// ([`Outputs::default`]). One marker registrar is built here for the whole run, with the
-    /// scene's camera model and the registrar's default settings (their pose tolerance,
+    /// A processor with `model` (camera, sensor, plate, kinematics, calibrations), writing
+    /// textures only ([`Outputs::default`]). One marker registrar is built here for the whole
+    /// run, with the model's camera and the registrar's default settings (their pose tolerance,
     /// 2 degrees / 10 mm from the nominal pose, is a real rig's, not the simulator's jitter).
-    pub fn new(scene: Arc<RigScene>, plate: &PlateConfig, settings: ProcessSettings) -> Result<Self, PipelineError> {
+    /// Refused: a light calibration with an unusable figure, a dark/flat calibration of
+    /// another sensor size.
+    pub fn new(model: ProcessingModel, settings: ProcessSettings) -> Result<Self, PipelineError> {
+        let camera = &model.camera;
         let registrar = match settings.registration.method {
             RegistrationMethod::Markers => {
-                Some(PlateRegistrar::new(scene.camera().model().clone(), plate, RegisterOptions::default())?)
+                let mut r = PlateRegistrar::new(camera.clone(), &model.plate, RegisterOptions::default())?;
+                r.detect = btfrig_markers::DetectParams { camera: Some(camera.clone()), ..r.detect.clone() };
+                Some(r)
             }
             RegistrationMethod::Nominal => None,
         };
+        if let Some(cal) = &model.dark_flat {
+            let (w, h) = (camera.width, camera.height);
+            if (cal.dark.width, cal.dark.height) != (w, h) {
+                let source = btfrig_calib::dark_flat::DarkFlatError::SizeMismatch {
+                    got_w: w,
+                    got_h: h,
+                    cal_w: cal.dark.width,
+                    cal_h: cal.dark.height,
+                };
+                return Err(PipelineError::DarkFlatSetup(source));
+            }
+        }
+        let light_points = match &model.light {
+            Some(l) => {
+                l.validate()?;
+                light::patch_points(l, &model.plate)
+            }
+            None => Vec::new(),
+        };
         Ok(Processor {
-            camera: scene.camera().model().clone(),
-            scene,
-            plate: plate.clone(),
+            model,
             settings,
             registrar,
             compare_nominal: false,
             outputs: Outputs::default(),
             preview: watch::Sender::new(None),
             preview_gate: Mutex::new(PreviewGate::default()),
-            color: None,
-            dark_flat: None,
-            light: None,
+            light_points,
             hdr: None,
             sink: None,
+            truth: None,
         })
     }
 
@@ -453,53 +434,26 @@ impl Processor {
         self
     }
 
-    /// The same processor registering and rectifying with `camera` (a calibration of the rig's
-    /// camera, e.g. from `btfrig_calibrate::processing_camera`) instead of the scene's model;
-    /// the simulator keeps rendering with the true lens, and the ground-truth figures cast
-    /// pixels back with the true lens, so a calibration error shows in them.
-    pub fn with_camera(mut self, camera: CameraModel) -> Result<Self, PipelineError> {
-        if let Some(r) = &self.registrar {
-            let mut next = PlateRegistrar::new(camera.clone(), &self.plate, r.options.clone())?;
-            next.detect = btfrig_markers::DetectParams { camera: Some(camera.clone()), ..r.detect.clone() };
-            self.registrar = Some(next);
-        }
-        self.camera = camera;
-        Ok(self)
+    /// The same processor measuring its results against `truth` (a simulated rig's probe):
+    /// texture, pose and brightness errors. The probe never changes a texture.
+    pub fn with_truth(mut self, truth: Option<Arc<dyn TruthProbe>>) -> Self {
+        self.truth = truth;
+        self
     }
 
-    /// The same processor converting colours with a measured colour calibration (white
-    /// balance, then the model) instead of the rig model's matrix (`docs/color.md`).
-    pub fn with_color_correction(mut self, color: Option<color::ColorCorrection>) -> Self {
-        self.color = color.map(Arc::new);
-        self
+    /// The processing model.
+    pub fn model(&self) -> &ProcessingModel {
+        &self.model
     }
 
     /// The colour calibration in use, if any.
     pub fn color_correction(&self) -> Option<&color::ColorCorrection> {
-        self.color.as_deref()
-    }
-
-    /// The same processor correcting every frame with a measured dark model and master flat
-    /// ([`dark_flat`]) before demosaicing; the radiometric conversion then uses no dark current
-    /// and no model vignetting. Refused if the calibration's size is not the camera's.
-    pub fn with_dark_flat(mut self, cal: Arc<dark_flat::DarkFlat>) -> Result<Self, PipelineError> {
-        let (w, h) = (self.camera.width, self.camera.height);
-        if (cal.dark.width, cal.dark.height) != (w, h) {
-            let source = btfrig_calib::dark_flat::DarkFlatError::SizeMismatch {
-                got_w: w,
-                got_h: h,
-                cal_w: cal.dark.width,
-                cal_h: cal.dark.height,
-            };
-            return Err(PipelineError::DarkFlatSetup(source));
-        }
-        self.dark_flat = Some(cal);
-        Ok(self)
+        self.model.color.as_ref()
     }
 
     /// The camera model frames are registered and rectified with.
     pub fn camera(&self) -> &CameraModel {
-        &self.camera
+        &self.model.camera
     }
 
     /// With `on`, each frame that has a truth and was registered is also rectified with the
@@ -508,16 +462,6 @@ impl Processor {
     pub fn with_nominal_comparison(mut self, on: bool) -> Self {
         self.compare_nominal = on;
         self
-    }
-
-    /// The same processor converting with a light calibration (lamp power and colour) and,
-    /// if `correction.correct_drift`, correcting each frame by the lamp factor measured on
-    /// the plate (see [`light`]).
-    pub fn with_light(mut self, correction: light::LightCorrection) -> Result<Self, PipelineError> {
-        correction.validate()?;
-        let points = light::patch_points(&correction, &self.plate);
-        self.light = Some((correction, points));
-        Ok(self)
     }
 
     /// The same processor journaling each step's exposures ([`HdrRecording`]); `None`: HDR off.
@@ -536,8 +480,11 @@ impl Processor {
     /// of `frames`.
     pub fn saturated_on_sample(&self, frames: &[&RawFrame], commanded: &JointState) -> u64 {
         let Some(first) = frames.first() else { return 0 };
-        let fp =
-            btfrig_calib::exposure::sample_footprint(&self.camera, &self.scene.pose(commanded), self.settings.region);
+        let fp = btfrig_calib::exposure::sample_footprint(
+            &self.model.camera,
+            &self.model.gonio.scene_pose(commanded),
+            self.settings.region,
+        );
         if (fp.width, fp.height) != (first.width, first.height) {
             return 0;
         }
@@ -547,7 +494,7 @@ impl Processor {
 
     /// The light correction, if any.
     pub fn light(&self) -> Option<&light::LightCorrection> {
-        self.light.as_ref().map(|(l, _)| l)
+        self.model.light.as_ref()
     }
 
     /// The same processor writing `outputs`.
@@ -577,45 +524,31 @@ impl Processor {
         self.preview.borrow().clone()
     }
 
-    /// The radiometric parameters of `frame` (its exposure and gain; the rig's sensor and
-    /// manufacturer-style colour matrix).
+    /// The radiometric parameters of `frame` before the light calibration: its exposure and
+    /// gain, the model's sensor, the colour calibration's white balance (1 without one), no
+    /// matrix (a colour calibration's model does the rest), and a nominal irradiance of 1
+    /// e-/s per photosite (relative units, until the light calibration replaces it).
     pub fn radiometry(&self, frame: &RawFrame) -> Radiometry {
-        let sensor = self.scene.sensor();
+        let sensor = &self.model.sensor;
         let gain = frame.meta.gain.max(1.0);
-        let mut fit = self.scene.colour().colorchecker_matrix();
-        if let Some(c) = &self.color {
-            // The calibration's own white balance, no matrix: its model does the rest.
-            fit.white_balance = c.white_balance;
-            fit.matrix = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-        }
         Radiometry {
             dn_range: (f64::from(frame.meta.white_level) - f64::from(frame.meta.black_level)).max(1.0),
             exposure_s: frame.meta.exposure_s,
             dn_per_electron: sensor.dn_per_electron(gain),
-            dark_e_per_s: if self.dark_flat.is_some() { 0.0 } else { sensor.dark_current_e_per_s },
-            // RigScene keeps the nominal irradiance private; white_signal_dn(1 s, gain 1) is
-            // nominal_irradiance * dn_per_electron(1).
-            nominal_irradiance: self.scene.white_signal_dn(1.0, 1.0) / sensor.dn_per_electron(1.0),
-            white_balance: fit.white_balance,
-            matrix: fit.matrix,
+            dark_e_per_s: if self.model.dark_flat.is_some() { 0.0 } else { sensor.dark_current_e_per_s },
+            nominal_irradiance: 1.0,
+            white_balance: self.model.color.as_ref().map_or([1.0; 3], |c| c.white_balance),
+            matrix: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
         }
     }
 
-    /// Ground truth of the texture region for true `joints` and `lamp_intensity`, as a
-    /// radiance factor relative to the nominal lamp (what [`Processor::process`] estimates).
-    /// A texel stands for its area, so the truth is the mean of `k x k` point samples of the
-    /// renderer over the texel ([`area_truth_subsamples`]).
-    pub fn ground_truth(&self, joints: &JointState, lamp_intensity: f64) -> Vec<[f32; 3]> {
+    /// The truth probe's texture of the region for true `joints` and `lamp_intensity`
+    /// (radiance factor relative to the nominal lamp: what [`Processor::process`] estimates);
+    /// `None` without a probe.
+    pub fn ground_truth(&self, joints: &JointState, lamp_intensity: f64) -> Option<Vec<[f32; 3]>> {
         let r = self.settings.region;
-        let region =
-            btfrig_render::ground_truth::Region { x_min: r.x_min, x_max: r.x_max, y_min: r.y_min, y_max: r.y_max };
-        let n = self.settings.size;
-        let k = area_truth_subsamples(n);
-        let truth =
-            self.scene.renderer().ground_truth(&self.scene.pose(joints), n * k, n * k, Some(region)).box_average(k);
-        let sensor = self.scene.sensor();
-        let scale = (lamp_intensity * sensor.dn_per_electron(1.0) / self.scene.white_signal_dn(1.0, 1.0)) as f32;
-        truth.data.into_iter().map(|p| p.map(|c| c * scale)).collect()
+        let region = SampleRegion { x_min: r.x_min, x_max: r.x_max, y_min: r.y_min, y_max: r.y_max };
+        Some(self.truth.as_ref()?.texture(joints, lamp_intensity, region, self.settings.size))
     }
 
     /// Demosaic, register (or take the nominal pose of `commanded`, per the plan's policy),
@@ -626,7 +559,7 @@ impl Processor {
         step: StepId,
         frame: &RawFrame,
         commanded: &JointState,
-        truth: Option<(JointState, f64)>,
+        truth: Option<ExposureTruth>,
     ) -> Result<Processed, PipelineError> {
         self.process_bracket(step, &[frame], commanded, truth)
     }
@@ -642,7 +575,7 @@ impl Processor {
         step: StepId,
         frames: &[&RawFrame],
         commanded: &JointState,
-        truth: Option<(JointState, f64)>,
+        truth: Option<ExposureTruth>,
     ) -> Result<Processed, PipelineError> {
         let err = |source| PipelineError::Rectify { step, source };
         let Some(&frame) = frames.first() else {
@@ -652,7 +585,7 @@ impl Processor {
         let t = Instant::now();
         let mut saturated_photosites = None;
         // For a mono sensor this only normalises to [0, 1] with equal channels.
-        let dm = match (&self.dark_flat, frames.len()) {
+        let dm = match (&self.model.dark_flat, frames.len()) {
             (_, 2..) => {
                 let (dm, saturated) = self.demosaic_merged(step, frames)?;
                 saturated_photosites = Some(saturated);
@@ -666,9 +599,8 @@ impl Processor {
         let image = LinearImage { width: dm.width, height: dm.height, data: dm.data };
         stage_s.insert(if frames.len() > 1 { "hdr_merge" } else { "demosaic" }.to_string(), t.elapsed().as_secs_f64());
 
-        let nominal = self.scene.pose(commanded);
-        let cam = &self.camera;
-        let true_cam = self.scene.camera().model();
+        let nominal = self.model.gonio.scene_pose(commanded);
+        let cam = &self.model.camera;
         let s = &self.settings;
         let (pose, registration) = match &self.registrar {
             None => (nominal, record(PoseSource::NominalByPlan)),
@@ -699,8 +631,8 @@ impl Processor {
             radiometry.dark_e_per_s = 0.0;
         }
         let mut lamp_factor = None;
-        if let Some((l, points)) = &self.light {
-            let d = self.scene.gonio().geometry().lamp_distance_m;
+        if let Some(l) = &self.model.light {
+            let (d, points) = (self.model.gonio.geometry().lamp_distance_m, &self.light_points);
             // A frame whose plate cannot be measured keeps factor 1 (counted in the totals).
             lamp_factor = l
                 .correct_drift
@@ -708,33 +640,42 @@ impl Processor {
                 .flatten();
             let factor = lamp_factor.map_or([1.0; 3], |f| f.factor);
             radiometry = l.apply(&radiometry, factor);
-            if let Some(c) = &self.color {
+            if let Some(c) = &self.model.color {
                 // The colour model was fitted to camera RGB balanced with the chart's white:
                 // keep that balance, corrected by this frame's lamp factor only.
                 radiometry.white_balance = std::array::from_fn(|k| c.white_balance[k] / factor[k]);
             }
         }
         let mut vig = vignetting_map(cam, &pose, s.region, s.size).map_err(err)?;
-        if self.dark_flat.is_some() {
+        if self.model.dark_flat.is_some() {
             vig = dark_flat::unit_vignetting(vig);
         }
         let mut tex = to_radiance_factor(&tex, &vig, &radiometry).map_err(err)?;
-        if let Some(c) = &self.color {
+        if let Some(c) = &self.model.color {
             c.apply(&mut tex.data);
         }
         stage_s.insert("radiometry".to_string(), t.elapsed().as_secs_f64());
 
         let (mut error, mut pose_errors, mut error_nominal, mut brightness_err) = (None, None, None, None);
-        if let Some((joints, lamp)) = truth {
+        // Truth figures need a probe, and textures in absolute units to compare.
+        let probe = self.truth.as_deref().filter(|_| self.model.is_absolute());
+        if let (Some(ExposureTruth { joints, lamp_intensity: lamp }), Some(probe)) = (truth, probe) {
             // Drift-corrected textures estimate the radiance factor under the calibrated
             // (nominal) lamp, the others under the lamp of the exposure.
             let gt_lamp = if self.light().is_some_and(|l| l.correct_drift) { 1.0 } else { lamp };
-            let gt = self.ground_truth(&joints, gt_lamp);
+            let region = SampleRegion {
+                x_min: s.region.x_min,
+                x_max: s.region.x_max,
+                y_min: s.region.y_min,
+                y_max: s.region.y_max,
+            };
+            let gt = probe.texture(&joints, gt_lamp, region, s.size);
+            let true_cam = probe.camera();
             error = Some(squared_error(&tex.data, &gt));
             brightness_err = (gt_lamp > 0.0)
                 .then(|| (1.0 + light::brightness_error(&tex.data, &gt)) * gt_lamp - 1.0)
                 .filter(|e| e.is_finite());
-            let true_pose = self.scene.pose(&joints);
+            let true_pose = probe.pose(&joints);
             let used = texel_position_error_with_cameras(&true_pose, true_cam, &pose, cam, s.region, s.size);
             let nominal_err = if registration.pose == PoseSource::Markers {
                 texel_position_error_with_cameras(&true_pose, true_cam, &nominal, cam, s.region, s.size)
@@ -746,11 +687,11 @@ impl Processor {
                 error_nominal = if registration.pose == PoseSource::Markers {
                     let tex = rectify(&image, cam, &nominal, s.region, s.size, s.filter).map_err(err)?;
                     let mut vig = vignetting_map(cam, &nominal, s.region, s.size).map_err(err)?;
-                    if self.dark_flat.is_some() {
+                    if self.model.dark_flat.is_some() {
                         vig = dark_flat::unit_vignetting(vig);
                     }
                     let mut tex = to_radiance_factor(&tex, &vig, &radiometry).map_err(err)?;
-                    if let Some(c) = &self.color {
+                    if let Some(c) = &self.model.color {
                         c.apply(&mut tex.data);
                     }
                     Some(squared_error(&tex.data, &gt))
@@ -783,11 +724,11 @@ impl Processor {
     ) -> Result<(btfrig_imageio::demosaic::CameraRgbImage, u64), PipelineError> {
         use btfrig_calib::hdr::{merge_bracket, MergeOptions, NoiseModel, NominalCalibration};
         let base = frames[0];
-        let sensor = self.scene.sensor();
+        let sensor = &self.model.sensor;
         let noise = NoiseModel { electrons_per_dn: sensor.electrons_per_dn, read_noise_e: sensor.read_noise_e };
         let opts = MergeOptions::default();
         let hdr_err = |source| PipelineError::Hdr { step, source };
-        let merged = match &self.dark_flat {
+        let merged = match &self.model.dark_flat {
             Some(cal) => {
                 let mc = cal
                     .merge_calibration(base.meta.f_number)
@@ -893,14 +834,6 @@ impl TexelErrorTotals {
     }
 }
 
-/// Point samples per texel axis of the pipeline's area-averaged ground truth: 4 (as the
-/// rectification benchmarks use) while the fine grid stays within 512 x 512, fewer for larger
-/// textures (2 at 256 texels, 1 from 512 on), so the truth costs at most about as much as a
-/// 512-texel point-sampled one.
-pub fn area_truth_subsamples(size: usize) -> usize {
-    (512 / size.max(1)).clamp(1, 4)
-}
-
 /// Running totals of a pipeline.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Totals {
@@ -956,9 +889,6 @@ impl Totals {
     }
 }
 
-/// Where the pipeline looks up the true state of a frame.
-pub type TruthLookup = Arc<dyn Fn(&CapturedFrame) -> Option<(JointState, f64)> + Send + Sync>;
-
 /// Processes every frame from `frames` until the channel closes: process and write on
 /// blocking threads (at most [`MAX_IN_FLIGHT`]), commit in arrival order. `on_commit` is
 /// called after each commit with the totals so far (for progress displays). Stops at the
@@ -967,7 +897,6 @@ pub async fn run<S>(
     dataset: Arc<Dataset<S>>,
     processor: Arc<Processor>,
     mut frames: mpsc::Receiver<CapturedFrame>,
-    truth: TruthLookup,
     mut on_commit: impl FnMut(&Totals),
 ) -> Result<Totals, PipelineError>
 where
@@ -1002,7 +931,13 @@ where
             Next::Frame(None) => open = false,
             Next::Frame(Some(f)) => {
                 let step = StepId { light: f.key.light, view: f.key.view };
-                let t = truth(&f);
+                let t = processor.truth.as_ref().and_then(|probe| {
+                    // The further exposures of a bracket were taken at the same true pose.
+                    for b in &f.bracket {
+                        probe.take_exposure(b.meta.timestamp_s);
+                    }
+                    probe.take_exposure(f.frame.meta.timestamp_s)
+                });
                 let (ds, pr) = (dataset.clone(), processor.clone());
                 let job = tokio::task::spawn_blocking(move || {
                     let started = Instant::now();

@@ -1,6 +1,8 @@
 //! Dark and flat-field correction measured on the simulated rig (btfrig-calibrate) against the
 //! lens model's own vignetting and against no correction, on textures vs the ground truth.
 
+mod common;
+
 use std::sync::Arc;
 
 use btfrig_calib::dark_flat::{DarkFlat, DarkModel, FlatField};
@@ -77,17 +79,15 @@ fn measured_dark_and_flat_correct_textures_as_well_as_the_model_and_far_better_t
         filter: Filter::Bilinear,
         registration: RegistrationPolicy { method: RegistrationMethod::Nominal, ..Default::default() },
     };
-    let model = Processor::new(scene.clone(), &cfg.plate, settings).unwrap();
-    let measured = Processor::new(scene.clone(), &cfg.plate, settings).unwrap().with_dark_flat(cal.clone()).unwrap();
+    let base = common::truth_model(&cfg, &scene);
+    let model = common::processor(&cfg, &scene, settings);
+    let measured = common::processor_with(base.clone().with_dark_flat(Some(cal.clone())), &scene, settings);
     // A calibration of another size is refused when the processor is built.
     let mut wrong = (*cal).clone();
     wrong.dark.width += 2;
-    let e = Processor::new(scene.clone(), &cfg.plate, settings).unwrap().with_dark_flat(Arc::new(wrong)).err();
+    let e = Processor::new(base.clone().with_dark_flat(Some(Arc::new(wrong))), settings).err();
     assert!(e.unwrap().to_string().contains("the calibration 162x120"));
-    let none = Processor::new(scene.clone(), &cfg.plate, settings)
-        .unwrap()
-        .with_dark_flat(Arc::new(no_correction(&cfg, &cal)))
-        .unwrap();
+    let none = common::processor_with(base.with_dark_flat(Some(Arc::new(no_correction(&cfg, &cal)))), &scene, settings);
     let joints = scene.gonio().ik(Direction::from_degrees(30.0, 0.0), Direction::from_degrees(0.0, 0.0)).unwrap();
     let exposure = scene.exposure_for_white(0.5, 1e-4, 30.0);
     let corner = |i: usize| {
@@ -96,7 +96,7 @@ fn measured_dark_and_flat_correct_textures_as_well_as_the_model_and_far_better_t
         edge(x) && edge(y)
     };
     let step = StepId { light: 0, view: 0 };
-    let gt = model.ground_truth(&joints, 1.0);
+    let gt = model.ground_truth(&joints, 1.0).unwrap();
     let (mut whole, mut corners) = ([0.0; 3], [0.0; 3]);
     let seeds = 4;
     for seed in 0..seeds {

@@ -2,6 +2,8 @@
 //! simulator rendered with: at moderate and grazing angles, on a material with strong relief
 //! (whose shadows and occlusion reach the plate next to the sample).
 
+mod common;
+
 use std::sync::Arc;
 
 use btfrig_calib::{Filter, Region};
@@ -9,7 +11,7 @@ use btfrig_core::config::RigConfig;
 use btfrig_core::plan::BUILTIN_RIGS;
 use btfrig_core::Direction;
 use btfrig_pipeline::light::{LampReference, LightCorrection};
-use btfrig_pipeline::{ProcessSettings, Processor};
+use btfrig_pipeline::ProcessSettings;
 use btfrig_render::material::MaterialSpec;
 use btfrig_render::renderer::RenderOptions;
 use btfrig_render::rig_scene::{resolve_spectrum, RigScene};
@@ -35,7 +37,7 @@ fn the_plate_measures_the_lamp_intensity_of_each_frame_at_moderate_and_grazing_a
         white_rate: std::array::from_fn(|c| nominal * white[c]),
         plate_albedo: std::array::from_fn(|c| plate[c] / white[c]),
     });
-    let p = Processor::new(scene.clone(), &cfg.plate, settings).unwrap().with_light(light).unwrap();
+    let p = common::processor_with(common::truth_model(&cfg, &scene).with_light(Some(light)), &scene, settings);
     let exposure = scene.exposure_for_white(0.5, 1e-4, 30.0);
     let cases = [
         ((30.0, 0.0), (20.0, 180.0), 1.0),
@@ -47,7 +49,7 @@ fn the_plate_measures_the_lamp_intensity_of_each_frame_at_moderate_and_grazing_a
     for (i, ((lt, lp), (vt, vp), lamp)) in cases.into_iter().enumerate() {
         let joints = scene.gonio().ik(Direction::from_degrees(lt, lp), Direction::from_degrees(vt, vp)).unwrap();
         let (frame, _) = scene.capture(&joints, lamp, exposure, 1.0, 20 + i as u64, &RenderOptions::default()).unwrap();
-        let out = p.process(StepId { light: i as u32, view: 0 }, &frame, &joints, Some((joints, lamp))).unwrap();
+        let out = p.process(StepId { light: i as u32, view: 0 }, &frame, &joints, common::at(joints, lamp)).unwrap();
         let f = out.lamp_factor.expect("the plate is measurable");
         let b = out.brightness_err.unwrap();
         println!(

@@ -1,6 +1,8 @@
 //! The plan's outputs through the pipeline: raw frames committed with their textures in one
 //! journal record (also across crashes), raw-only runs, and the rate-limited live preview.
 
+mod common;
+
 use std::collections::BTreeSet;
 use std::sync::Arc;
 use std::time::Instant;
@@ -10,9 +12,7 @@ use btfrig_core::config::RigConfig;
 use btfrig_core::plan::BUILTIN_RIGS;
 use btfrig_core::Direction;
 use btfrig_engine::{CapturedFrame, StepKey, StepTimes};
-use btfrig_pipeline::{
-    tone_map_preview, Outputs, PipelineError, PreviewSettings, ProcessSettings, Processor, Totals, TruthLookup,
-};
+use btfrig_pipeline::{tone_map_preview, Outputs, PipelineError, PreviewSettings, ProcessSettings, Processor, Totals};
 use btfrig_render::material::MaterialSpec;
 use btfrig_render::renderer::RenderOptions;
 use btfrig_render::rig_scene::RigScene;
@@ -46,7 +46,9 @@ fn fixture() -> Fixture {
         for (v, &view) in views.iter().enumerate() {
             let joints = scene.gonio().ik(light, view).unwrap();
             let seed = 100 + frames.len() as u64;
-            let (frame, _) = scene.capture(&joints, 1.0, exposure, 1.0, seed, &RenderOptions::default()).unwrap();
+            let (mut frame, _) = scene.capture(&joints, 1.0, exposure, 1.0, seed, &RenderOptions::default()).unwrap();
+            // A time stamp per frame: the truth probe knows exposures by it.
+            frame.meta.timestamp_s = 1.0 + frames.len() as f64;
             let times = StepTimes {
                 move_start_s: 0.0,
                 move_end_s: 1.0,
@@ -90,7 +92,9 @@ fn processor(f: &Fixture, size: usize, outputs: Outputs) -> Arc<Processor> {
         filter: Filter::Bilinear,
         registration: Default::default(),
     };
-    Arc::new(Processor::new(f.scene.clone(), &builtin_rig().plate, settings).unwrap().with_outputs(outputs))
+    let probe = common::KnownExposures::new(&f.scene, f.frames.iter().map(|c| (c.frame.meta.timestamp_s, c.joints)));
+    let pr = Processor::new(common::truth_model(&builtin_rig(), &f.scene), settings).unwrap();
+    Arc::new(pr.with_truth(Some(Arc::new(probe))).with_outputs(outputs))
 }
 
 fn run(ds: &Arc<Dataset<MemStorage>>, pr: &Arc<Processor>, frames: &[CapturedFrame]) -> Result<Totals, PipelineError> {
@@ -98,7 +102,6 @@ fn run(ds: &Arc<Dataset<MemStorage>>, pr: &Arc<Processor>, frames: &[CapturedFra
     let frames = frames.to_vec();
     rt.block_on(async {
         let (tx, rx) = tokio::sync::mpsc::channel(1);
-        let truth: TruthLookup = Arc::new(|f: &CapturedFrame| Some((f.joints, 1.0)));
         let producer = async move {
             for f in frames {
                 if tx.send(f).await.is_err() {
@@ -106,7 +109,7 @@ fn run(ds: &Arc<Dataset<MemStorage>>, pr: &Arc<Processor>, frames: &[CapturedFra
                 }
             }
         };
-        let ((), totals) = tokio::join!(producer, btfrig_pipeline::run(ds.clone(), pr.clone(), rx, truth, |_| {}));
+        let ((), totals) = tokio::join!(producer, btfrig_pipeline::run(ds.clone(), pr.clone(), rx, |_| {}));
         totals
     })
 }

@@ -1,5 +1,7 @@
 //! The processing of one frame against the simulator's ground truth.
 
+mod common;
+
 use std::sync::Arc;
 
 use btfrig_calib::{Filter, Region};
@@ -21,7 +23,7 @@ fn processor(size: usize) -> (Arc<RigScene>, Processor) {
         filter: Filter::Bilinear,
         registration: Default::default(),
     };
-    (scene.clone(), Processor::new(scene, &cfg.plate, settings).unwrap())
+    (scene.clone(), common::processor(&cfg, &scene, settings))
 }
 
 #[test]
@@ -31,10 +33,10 @@ fn a_frame_at_the_nominal_pose_matches_its_ground_truth_and_the_error_sums_agree
     let exposure = scene.exposure_for_white(0.5, 1e-4, 30.0);
     let (frame, _) = scene.capture(&joints, 1.0, exposure, 1.0, 11, &RenderOptions::default()).unwrap();
     let step = StepId { light: 0, view: 0 };
-    let out = p.process(step, &frame, &joints, Some((joints, 1.0))).unwrap();
+    let out = p.process(step, &frame, &joints, common::at(joints, 1.0)).unwrap();
     assert_eq!(out.texels.len(), 64 * 64);
     let (se, st) = out.error.unwrap();
-    let gt = p.ground_truth(&joints, 1.0);
+    let gt = p.ground_truth(&joints, 1.0).unwrap();
     let independent = btfrig_calib::rel_rmse(&out.texels, &gt).unwrap();
     assert!(((se / st).sqrt() - independent).abs() < 1e-6, "{} vs {independent}", (se / st).sqrt());
     // docs/rectification.md: ~0.08-0.10 for this material near these angles (noise, colour matrix).
@@ -42,7 +44,7 @@ fn a_frame_at_the_nominal_pose_matches_its_ground_truth_and_the_error_sums_agree
 
     // Half the lamp intensity in the truth: the texture (which assumes the nominal lamp) is
     // then twice the truth, rel. error about 1; a lamp factor lost in the chain would fail here.
-    let (se2, st2) = p.process(step, &frame, &joints, Some((joints, 0.5))).unwrap().error.unwrap();
+    let (se2, st2) = p.process(step, &frame, &joints, common::at(joints, 0.5)).unwrap().error.unwrap();
     let r2 = (se2 / st2).sqrt();
     assert!((r2 - 1.0).abs() < 0.25, "rel_rmse against half-lamp truth {r2}");
     for stage in ["demosaic", "rectify", "radiometry"] {

@@ -1,6 +1,8 @@
 //! Registration in the pipeline: each frame rectified with the pose measured from the plate's
 //! markers, against the truth; and the plan's policy when the markers are hidden.
 
+mod common;
+
 use std::sync::Arc;
 
 use btfrig_calib::{Filter, Region};
@@ -48,7 +50,7 @@ fn processor(f: &Fixture, registration: RegistrationPolicy) -> Processor {
     let side = f.cfg.plate.sample_side_m / 2.0;
     let settings =
         ProcessSettings { size: 64, region: Region::centred_square(side), filter: Filter::Bilinear, registration };
-    Processor::new(f.scene.clone(), &f.cfg.plate, settings).unwrap().with_nominal_comparison(true)
+    common::processor(&f.cfg, &f.scene, settings).with_nominal_comparison(true)
 }
 
 fn policy(method: RegistrationMethod, on_failure: OnRegistrationFailure) -> RegistrationPolicy {
@@ -65,7 +67,7 @@ const STEP: StepId = StepId { light: 3, view: 17 };
 fn a_registered_frame_lands_on_the_true_texels_and_beats_the_nominal_pose() {
     let f = fixture();
     let p = processor(&f, RegistrationPolicy::default());
-    let out = p.process(STEP, &f.frame, &f.commanded, Some((f.truth, 1.0))).unwrap();
+    let out = p.process(STEP, &f.frame, &f.commanded, common::at(f.truth, 1.0)).unwrap();
     let reg = out.registration.unwrap();
     assert_eq!(reg.pose, PoseSource::Markers);
     assert_eq!(reg.markers.len(), 12, "{reg:?}");
@@ -90,7 +92,7 @@ fn hidden_markers_fall_back_to_the_nominal_pose_on_record_or_stop_naming_the_ste
     btfrig_sim::faults::cover_markers(&mut frame, f.scene.camera().model(), &pose, &f.cfg.plate.marker_placements());
 
     let p = processor(&f, RegistrationPolicy::default());
-    let out = p.process(STEP, &frame, &f.commanded, Some((f.truth, 1.0))).unwrap();
+    let out = p.process(STEP, &frame, &f.commanded, common::at(f.truth, 1.0)).unwrap();
     let reg = out.registration.unwrap();
     assert_eq!(reg.pose, PoseSource::NominalFallback);
     let reason = reg.reason.unwrap();
@@ -113,7 +115,7 @@ fn hidden_markers_fall_back_to_the_nominal_pose_on_record_or_stop_naming_the_ste
 fn the_nominal_method_skips_registration_visibly() {
     let f = fixture();
     let p = processor(&f, policy(RegistrationMethod::Nominal, OnRegistrationFailure::Fail));
-    let out = p.process(STEP, &f.frame, &f.commanded, Some((f.truth, 1.0))).unwrap();
+    let out = p.process(STEP, &f.frame, &f.commanded, common::at(f.truth, 1.0)).unwrap();
     assert_eq!(out.registration.unwrap().pose, PoseSource::NominalByPlan);
     assert!(!out.stage_s.contains_key("register"));
     let e = out.pose_errors.unwrap();

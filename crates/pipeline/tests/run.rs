@@ -1,5 +1,7 @@
 //! The pipeline loop: frames in, committed textures out, into an in-memory dataset.
 
+mod common;
+
 use std::sync::Arc;
 
 use btfrig_calib::{Filter, Region};
@@ -7,7 +9,7 @@ use btfrig_core::config::RigConfig;
 use btfrig_core::plan::BUILTIN_RIGS;
 use btfrig_core::Direction;
 use btfrig_engine::{CapturedFrame, StepKey, StepTimes};
-use btfrig_pipeline::{ProcessSettings, Processor, TruthLookup};
+use btfrig_pipeline::{ProcessSettings, Processor};
 use btfrig_render::material::MaterialSpec;
 use btfrig_render::renderer::RenderOptions;
 use btfrig_render::rig_scene::RigScene;
@@ -35,14 +37,15 @@ fn every_frame_is_written_and_committed_once_and_the_dataset_verifies() {
         filter: Filter::Bilinear,
         registration: Default::default(),
     };
-    let processor = Arc::new(Processor::new(scene.clone(), &cfg.plate, settings).unwrap());
 
     let exposure = scene.exposure_for_white(0.5, 1e-4, 30.0);
     let mut frames = Vec::new();
     for (l, &light) in lights.iter().enumerate() {
         for (v, &view) in views.iter().enumerate() {
             let joints = scene.gonio().ik(light, view).unwrap();
-            let (frame, _) = scene.capture(&joints, 1.0, exposure, 1.0, 5, &RenderOptions::default()).unwrap();
+            let (mut frame, _) = scene.capture(&joints, 1.0, exposure, 1.0, 5, &RenderOptions::default()).unwrap();
+            // A time stamp per frame: the truth probe knows exposures by it.
+            frame.meta.timestamp_s = 1.0 + frames.len() as f64;
             let t = StepTimes {
                 move_start_s: 0.0,
                 move_end_s: 1.0,
@@ -65,18 +68,21 @@ fn every_frame_is_written_and_committed_once_and_the_dataset_verifies() {
             });
         }
     }
+    let probe = common::KnownExposures::new(&scene, frames.iter().map(|c| (c.frame.meta.timestamp_s, c.joints)));
+    let processor = Arc::new(
+        Processor::new(common::truth_model(&cfg, &scene), settings).unwrap().with_truth(Some(Arc::new(probe))),
+    );
     let rt = tokio::runtime::Builder::new_current_thread().enable_time().build().unwrap();
     let (totals, seen) = rt.block_on(async {
         // Capacity 1: the pipeline's receive loop is the only thing draining it.
         let (tx, rx) = tokio::sync::mpsc::channel(1);
-        let truth: TruthLookup = Arc::new(|f: &CapturedFrame| Some((f.joints, 1.0)));
         let mut seen = Vec::new();
         let producer = async move {
             for f in frames {
                 tx.send(f).await.unwrap();
             }
         };
-        let consumer = btfrig_pipeline::run(ds.clone(), processor, rx, truth, |t| seen.push(t.committed));
+        let consumer = btfrig_pipeline::run(ds.clone(), processor, rx, |t| seen.push(t.committed));
         let ((), totals) = tokio::join!(producer, consumer);
         (totals.unwrap(), seen)
     });

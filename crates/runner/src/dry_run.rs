@@ -54,7 +54,7 @@ pub fn dry_run_cancellable(text: &str, file: &Path, cancel: &Cancel) -> Result<D
         return Err(RunError::Empty { plan: file.into() });
     }
     let gonio = Gonio::new(v.rig.geometry.clone()).map_err(|e| RunError::Rig(e.to_string()))?;
-    let exposure_s = exposure_s(&plan, &v, file)?;
+    let exposure_s = exposure_s(&plan, &v, file, None)?;
     let frame_bytes = frame_bytes(&v);
     let request = PlanRequest::new(&gonio, &v.light, &v.view, &v.rig.timing, exposure_s, frame_bytes)
         .with_pairs(PairSelection::List(list.captures.clone()))

@@ -18,6 +18,7 @@ pub mod dry_run;
 pub mod emulated;
 mod hdr;
 mod light;
+pub mod model;
 pub mod plan;
 pub mod report;
 
@@ -32,10 +33,11 @@ use btfrig_engine::{
     Devices, Engine, EngineSettings, EngineStep, Event, PauseReason, RunOutcome as EngineOutcome, StepKey,
 };
 use btfrig_hw::{ScaledClock, SharedClock};
-use btfrig_pipeline::{ProcessSettings, Processor, TruthLog};
+use btfrig_pipeline::{ProcessSettings, Processor};
 use btfrig_planner::{plan as plan_schedule, PairSelection, PlanRequest};
 use btfrig_render::renderer::RenderOptions;
 use btfrig_render::rig_scene::RigScene;
+use btfrig_sim::truth::SceneTruth;
 use btfrig_sim::{RenderedFrameSource, SimRig};
 use btfrig_store::{Dataset, RunReport, StoreError};
 use serde_json::json;
@@ -576,6 +578,10 @@ pub struct RunSummary {
     /// This session's cost of each emulated device's link (serial and PTP backends against
     /// emulated firmware); empty on a rig of in-process simulated devices.
     pub links: Vec<emulated::LinkUse>,
+    /// What frames were processed with: each part of the processing model and where it came
+    /// from (`camera`, `sensor`, `color`, `light`, `dark_flat`), and what the output lacks
+    /// because a calibration is absent (`docs/pipeline.md`, "The processing model").
+    pub processing: Option<ProcessingInfo>,
     /// Wall seconds the engine waited on robot and rail moves this session beyond the camera
     /// work that overlaps them ([`btfrig_engine::RunSummary::motion_wait_wall_s`]).
     pub motion_wait_wall_s: f64,
@@ -591,6 +597,32 @@ pub fn peak_rss_mib() -> Option<f64> {
     let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
     let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kib / 1024.0)
+}
+
+/// Where a run's processing model came from, and its notes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ProcessingInfo {
+    /// `(part, source)`.
+    pub sources: Vec<(String, String)>,
+    /// What the output lacks (e.g. "no light calibration: textures in relative units ...").
+    pub notes: Vec<String>,
+}
+
+impl ProcessingInfo {
+    /// Of `model`.
+    pub fn of(model: &btfrig_pipeline::ProcessingModel) -> Self {
+        ProcessingInfo {
+            sources: model.sources.iter().map(|s| (s.part.to_string(), s.source.clone())).collect(),
+            notes: model.notes.clone(),
+        }
+    }
+
+    /// As a JSON object: `{"sources": {part: source}, "notes": [...]}`.
+    pub fn to_json(&self) -> serde_json::Value {
+        let sources: serde_json::Map<String, serde_json::Value> =
+            self.sources.iter().map(|(k, v)| (k.clone(), json!(v))).collect();
+        json!({"sources": sources, "notes": self.notes})
+    }
 }
 
 impl RunSummary {
@@ -627,6 +659,7 @@ impl RunSummary {
             "motion_wait_wall_s": self.motion_wait_wall_s,
             "link_added_wall_s": self.link_added_wall_s,
             "dataset": self.dataset.display().to_string(),
+            "processing_notes": self.processing.as_ref().map(|p| p.notes.clone()),
         });
         light::add_summary_fields(&mut v, self.lamp.as_ref());
         if let (Some(h), Some(o)) = (&self.hdr, v.as_object_mut()) {
@@ -669,7 +702,7 @@ pub fn run(
         (None, None) => btfrig_sim::FaultScenario::none(),
     };
     let material = plan::material(&plan, &v, file)?;
-    let exposure_s = plan::exposure_s(&plan, &v, file)?;
+    let exposure_s = plan::exposure_s(&plan, &v, file, req.light.as_ref())?;
     let hdr = match &v.exposure {
         btfrig_core::plan::ExposurePolicy::Auto { hdr, .. } if hdr.is_on() => Some(hdr.clone()),
         _ => None,
@@ -795,15 +828,15 @@ pub fn run(
         registration: v.registration,
     };
 
-    // The camera model frames are processed with: the rig's calibration when its config names
-    // one (`[camera] calibration`), else the config's own lens.
-    let camera = btfrig_calibrate::processing_camera(&v.rig, plan.rig_config_path(file).as_deref())
-        .map_err(|e| RunError::Rig(format!("the rig's camera calibration: {e}")))?;
-    // The colour calibration textures are converted with (`[camera] color_calibration`).
-    let color = color_file.map(|f| {
-        let model = f.to_model().expect("checked when read");
-        btfrig_pipeline::color::ColorCorrection { name: f.source.plan.clone(), white_balance: f.white_balance, model }
-    });
+    // What frames are processed with: the rig config and the calibration files it names, the
+    // run's own light and dark/flat calibrations (`docs/pipeline.md`, "The processing model").
+    let model = model::gonio_model(
+        &v.rig,
+        plan.rig_config_path(file).as_deref(),
+        req.light.clone(),
+        req.dark_flat.as_ref().map(|d| d.calibration.clone()),
+    )?;
+    let processing = ProcessingInfo::of(&model);
     let light_cos: std::collections::HashMap<StepKey, f64> = schedule
         .captures
         .iter()
@@ -820,8 +853,7 @@ pub fn run(
         done,
         settings,
         process,
-        camera,
-        color,
+        model,
         // From the dataset's manifest (the plan's for a new one): a dataset resumed from an
         // older build may say otherwise, and the store refuses files its manifest does not ask for.
         outputs: btfrig_pipeline::Outputs {
@@ -834,8 +866,6 @@ pub fn run(
         commands,
         stop_on_fault: req.stop_on_fault,
         compare_nominal: req.compare_nominal,
-        light: req.light.clone(),
-        dark_flat: req.dark_flat.as_ref().map(|d| d.calibration.clone()),
         sink: req.sink.as_ref().map(|s| s.0.clone()),
         hdr: hdr.map(|settings| SessionHdr { settings, reference_s: exposure_s, light_cos }),
         link_faults: &req.link_faults,
@@ -890,6 +920,7 @@ pub fn run(
     // only with a light calibration.
     summary.lamp = (req.light.is_some() || !totals.lamp.steps.is_empty()).then(|| totals.lamp.clone());
     summary.links = links;
+    summary.processing = Some(processing);
     summary.motion_wait_wall_s = motion_wait_wall_s;
     summary.link_added_wall_s = link_added_wall_s;
     let mut sessions: Vec<serde_json::Value> = previous.iter().map(Session::to_json).collect();
@@ -1021,6 +1052,7 @@ fn summarise(
         lamp: None,
         hdr: journal_hdr(dataset, fixed.per_exposure_overhead_s),
         links: Vec::new(),
+        processing: None,
         motion_wait_wall_s: 0.0,
         link_added_wall_s: None,
     }
@@ -1039,6 +1071,9 @@ fn report_of(s: &RunSummary, previous: &[Session], this: &Session, sessions: Vec
             "paused_step",
             json!({"index": f.index, "light": f.light, "view": f.view, "device": f.device, "kind": f.kind, "message": f.message}),
         );
+    }
+    if let Some(p) = &s.processing {
+        put("processing", p.to_json());
     }
     put("texture_rel_rmse", json!(s.texture_rel_rmse));
     put("texture_rel_rmse_nominal", json!(s.texture_rel_rmse_nominal));
@@ -1096,15 +1131,13 @@ struct SessionInput<'a> {
     done: HashSet<StepKey>,
     settings: EngineSettings,
     process: ProcessSettings,
-    camera: btfrig_core::camera::CameraModel,
-    color: Option<btfrig_pipeline::color::ColorCorrection>,
+    /// What frames are processed with.
+    model: btfrig_pipeline::ProcessingModel,
     outputs: btfrig_pipeline::Outputs,
     dataset: Arc<Dataset>,
     commands: mpsc::UnboundedReceiver<Command>,
     stop_on_fault: bool,
     compare_nominal: bool,
-    light: Option<btfrig_pipeline::light::LightCorrection>,
-    dark_flat: Option<Arc<btfrig_pipeline::dark_flat::DarkFlat>>,
     sink: Option<Arc<dyn btfrig_pipeline::TextureSink>>,
     hdr: Option<SessionHdr>,
     link_faults: &'a [emulated::LinkFault],
@@ -1162,15 +1195,12 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
         done,
         settings,
         process,
-        camera,
-        color,
+        model,
         outputs,
         dataset,
         mut commands,
         stop_on_fault,
         compare_nominal,
-        light,
-        dark_flat,
         sink,
         hdr,
         link_faults,
@@ -1190,7 +1220,9 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
         .map_err(|e| RunError::Input { what: "fault scenario [hidden_markers]".into(), message: e.to_string() })?;
         source = Arc::new(occluder);
     }
-    let truth = Arc::new(TruthLog::new(source));
+    // The simulator's truth, for the error figures only: the processor gets it beside its
+    // model, never in it.
+    let truth = Arc::new(SceneTruth::new(scene.clone(), source));
     // An emulated device is the simulator's behind emulated firmware and its real backend.
     emulated::check(&rig.devices).map_err(RunError::Rig)?;
     let mut sim_cfg = rig.clone();
@@ -1222,9 +1254,9 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
     let _lamp = lamp; // stays on for the whole run
     let exposure_control: Box<dyn btfrig_engine::ExposureControl> = match &hdr {
         Some(h) => {
-            let sensor = scene.sensor();
+            let sensor = model.sensor;
             let hdr_rig = hdr::HdrRig {
-                camera: camera.clone(),
+                camera: model.camera.clone(),
                 gonio: Gonio::new(rig.geometry.clone()).map_err(|e| RunError::Rig(e.to_string()))?,
                 region: process.region,
                 noise: btfrig_calib::hdr::NoiseModel {
@@ -1242,20 +1274,11 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
         None => Box::new(btfrig_engine::SingleExposure),
     };
     let processor = Arc::new(
-        Processor::new(scene, &rig.plate, process)
-            .and_then(|p| p.with_camera(camera))
-            .and_then(|p| match light {
-                Some(l) => p.with_light(l),
-                None => Ok(p),
-            })
-            .and_then(|p| match dark_flat {
-                Some(cal) => p.with_dark_flat(cal),
-                None => Ok(p),
-            })
+        Processor::new(model, process)
             .map_err(|e| RunError::Rig(e.to_string()))?
+            .with_truth(Some(truth as Arc<dyn btfrig_hw::truth::TruthProbe>))
             .with_outputs(outputs)
             .with_sink(sink)
-            .with_color_correction(color)
             .with_nominal_comparison(compare_nominal)
             .with_hdr_recording(
                 hdr.as_ref().map(|h| btfrig_pipeline::HdrRecording { always_stops: hdr::always_stops(&h.settings) }),
@@ -1266,20 +1289,13 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
     let (tx, rx) = mpsc::channel(FRAME_CHANNEL);
     let mut handle = Engine::spawn_with_exposure(devices, steps, done, settings, tx, exposure_control);
     let mut events = handle.events();
-    let lookup: btfrig_pipeline::TruthLookup = Arc::new(move |f| {
-        // The further exposures of a bracket were rendered at the same true pose: drop them.
-        for b in &f.bracket {
-            truth.take(b.meta.timestamp_s);
-        }
-        truth.take(f.frame.meta.timestamp_s)
-    });
     // The pipeline's totals as of its last commit (kept if it stops at an error) and its
     // fallbacks, which become warnings on the listening side.
     let last_totals = Arc::new(Mutex::new(btfrig_pipeline::Totals::default()));
     let (fallback_tx, mut fallback_rx) = mpsc::unbounded_channel::<String>();
     let (commit_tx, mut commit_rx) = mpsc::unbounded_channel::<(u64, u64, BTreeMap<String, f64>)>();
     let kept = last_totals.clone();
-    let pipeline = btfrig_pipeline::run(dataset, processor, rx, lookup, move |t| {
+    let pipeline = btfrig_pipeline::run(dataset, processor, rx, move |t| {
         let mut k = kept.lock().unwrap_or_else(|e| e.into_inner());
         for (step, reason) in &t.fallback_steps[k.fallback_steps.len()..] {
             let _ = fallback_tx

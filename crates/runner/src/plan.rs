@@ -11,7 +11,6 @@ use btfrig_core::plan::{
     CaptureList, ExposurePolicy, MaterialRef, OutputFormat, Plan, PlanContext, SkipReason, ValidatedPlan, BUILTIN_RIGS,
 };
 use btfrig_render::material::{MaterialSpec, BUILTIN_MATERIALS};
-use btfrig_render::rig_scene::RigScene;
 use btfrig_sim::FaultScenario;
 use btfrig_store::{
     DirectionDeg, Manifest, RigInfo, Samplings, SkippedStep, StepId, TextureFormat, TextureRegion, TextureSpec,
@@ -151,14 +150,34 @@ pub fn dome_material(name: Option<&str>, plan_path: &Path) -> Result<MaterialSpe
     }
 }
 
-/// The exposure per capture: fixed, or auto (white at the policy's fraction of full scale).
-pub fn exposure_s(plan: &Plan, v: &ValidatedPlan, file: &Path) -> Result<f64, RunError> {
+/// The exposure per capture: fixed, or auto: a white Lambertian reflector facing the lamp at
+/// the policy's fraction of full scale, from the light calibration's white signal rate
+/// (`light`, else the one the rig config names) and the config's `[sensor]` datasheet values.
+/// Auto exposure without a light calibration is refused: nothing says how bright the lamp is.
+pub fn exposure_s(
+    plan: &Plan,
+    v: &ValidatedPlan,
+    file: &Path,
+    light: Option<&btfrig_pipeline::light::LightCorrection>,
+) -> Result<f64, RunError> {
     Ok(match v.exposure {
         ExposurePolicy::Fixed { exposure_s, .. } => exposure_s,
         ExposurePolicy::Auto { white_fraction, .. } => {
-            let scene = RigScene::new(&v.rig, &material(plan, v, file)?)
-                .map_err(|e| RunError::Input { what: "rig scene".into(), message: e.to_string() })?;
-            scene.exposure_for_white(white_fraction, 1e-6, 3600.0)
+            let rig_path = plan.rig_config_path(file);
+            let config = match light {
+                Some(_) => None,
+                None => crate::model::config_light(&v.rig, rig_path.as_deref())?,
+            };
+            let Some(l) = light.or(config.as_ref().map(|(l, _)| l)) else {
+                return Err(RunError::Input {
+                    what: "[exposure] mode = \"auto\"".into(),
+                    message: format!(
+                        "the rig {} has no light calibration ([lamp] calibration), so the lamp's brightness is unknown: name one (btfrig calibrate light) or set a fixed exposure_s",
+                        v.rig.rig.name
+                    ),
+                });
+            };
+            crate::model::exposure_for_white(&v.rig.sensor, l, white_fraction).clamp(1e-6, 3600.0)
         }
     })
 }

@@ -38,6 +38,7 @@ pub mod frame_source;
 pub mod options;
 pub mod rendered;
 pub mod rig;
+pub mod truth;
 pub mod world;
 
 /// The trapezoidal move-time profile; it lives in `btfrig-core` so the planner shares it.

@@ -42,11 +42,22 @@ pub struct LampConfig {
     /// Whether the lamp is on when the rig starts (a real HMI lamp is switched on, and warms
     /// up, under the run's control).
     pub on_at_start: bool,
+    /// Optional light calibration the pipeline converts to radiance factor with (the lamp's
+    /// power and colour, `docs/light.md`): a file made by `btfrig calibrate light`, as a path
+    /// relative to the rig config's directory (ending in `.toml`) or `builtin:NAME`. None:
+    /// textures in relative units, and the run's report says so.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<String>,
 }
 
 impl Default for LampConfig {
     fn default() -> Self {
-        LampConfig { spectrum: "LS_Metal_Halide".into(), irradiance_at_1m_w_m2: 50.0, on_at_start: false }
+        LampConfig {
+            spectrum: "LS_Metal_Halide".into(),
+            irradiance_at_1m_w_m2: 50.0,
+            on_at_start: false,
+            calibration: None,
+        }
     }
 }
 
@@ -63,6 +74,19 @@ impl LampConfig {
         let e = self.irradiance_at_1m_w_m2;
         if !(e.is_finite() && e > 0.0 && e <= 1e5) {
             errors.push(ConfigError::out_of_range("lamp.irradiance_at_1m_w_m2", e, "0 < E <= 1e5 W/m²"));
+        }
+        if let Some(c) = &self.calibration {
+            let ok = match c.strip_prefix("builtin:") {
+                Some(name) => !name.trim().is_empty(),
+                None => c.trim().ends_with(".toml") && c.trim().len() > 5,
+            };
+            if !ok {
+                errors.push(ConfigError::Unknown {
+                    field: "lamp.calibration".into(),
+                    value: format!("{c:?}"),
+                    allowed: "a light calibration file path ending in .toml, or builtin:NAME".into(),
+                });
+            }
         }
     }
 }
