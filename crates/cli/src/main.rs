@@ -35,6 +35,8 @@ use clap::Parser;
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
 fn main() -> std::process::ExitCode {
+    // The device backends every run of this binary opens rigs with (`btfrig_runner::backend`).
+    btfrig_sim_backend::install();
     let cli = Cli::parse();
     let done = |r: anyhow::Result<()>| r.map(|()| std::process::ExitCode::SUCCESS);
     let result = match cli.command {

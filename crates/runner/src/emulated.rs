@@ -771,3 +771,21 @@ async fn probe_real(role: &'static str, e: &DeviceEntry, limits: &ConfiguredLimi
     };
     Ok(Probed { role, kind: e.kind.clone(), link: Some(format!("{port} at {baud} baud")), info, health })
 }
+
+impl crate::backend::LinkReport for Firmware {
+    fn link_use(&self) -> Vec<LinkUse> {
+        Firmware::link_use(self)
+    }
+
+    fn skipped_lines(&self) -> Vec<(&'static str, u64)> {
+        Firmware::skipped_lines(self)
+    }
+
+    fn camera_coding_wall_s(&self) -> Option<f64> {
+        Firmware::camera_coding_wall_s(self)
+    }
+
+    fn count(&self) -> usize {
+        Firmware::count(self)
+    }
+}

@@ -11,6 +11,7 @@
 
 #![warn(missing_docs)]
 
+pub mod backend;
 pub mod check;
 pub mod dome;
 pub mod dome_dry_run;
@@ -28,17 +29,12 @@ use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use btfrig_core::kinematics::Gonio;
-use btfrig_core::plan::ResampleFilter;
+use btfrig_core::plan::{ResampleFilter, ValidatedPlan};
 use btfrig_engine::{
     Devices, Engine, EngineSettings, EngineStep, Event, PauseReason, RunOutcome as EngineOutcome, StepKey,
 };
-use btfrig_hw::{ScaledClock, SharedClock};
 use btfrig_pipeline::{ProcessSettings, Processor};
 use btfrig_planner::{plan as plan_schedule, PairSelection, PlanRequest};
-use btfrig_render::renderer::RenderOptions;
-use btfrig_render::rig_scene::RigScene;
-use btfrig_sim::truth::SceneTruth;
-use btfrig_sim::{RenderedFrameSource, SimRig};
 use btfrig_store::{Dataset, RunReport, StoreError};
 use serde_json::json;
 use tokio::sync::mpsc;
@@ -169,6 +165,19 @@ pub struct RunRequest {
     /// so the same request without them resumes a dataset they paused. Empty by default;
     /// a fault for a device that is not emulated is an error.
     pub link_faults: Vec<emulated::LinkFault>,
+    /// The device backends to open the rig with; `None`: the process's
+    /// ([`backend::installed`]).
+    pub backends: Option<BackendsHandle>,
+}
+
+/// A [`backend::BackendRegistry`] in a [`RunRequest`].
+#[derive(Clone)]
+pub struct BackendsHandle(pub backend::BackendRegistry);
+
+impl std::fmt::Debug for BackendsHandle {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("BackendRegistry")
+    }
 }
 
 /// A [`btfrig_pipeline::TextureSink`] in a [`RunRequest`].
@@ -210,6 +219,7 @@ impl RunRequest {
             dark_flat: None,
             sink: None,
             link_faults: Vec::new(),
+            backends: None,
         }
     }
 
@@ -240,6 +250,12 @@ impl RunRequest {
     /// With a fault-scenario override (see [`RunRequest::faults`]).
     pub fn with_faults(mut self, faults: Option<String>) -> RunRequest {
         self.faults = faults;
+        self
+    }
+
+    /// With these device backends (see [`RunRequest::backends`]).
+    pub fn with_backends(mut self, backends: backend::BackendRegistry) -> RunRequest {
+        self.backends = Some(BackendsHandle(backends));
         self
     }
 
@@ -694,14 +710,17 @@ pub fn run(
     if list.captures.is_empty() {
         return Err(RunError::Empty { plan: file.into() });
     }
-    let faults = match (&req.faults, &plan.run.fault_scenario) {
+    // Checked before anything is created; the device backend loads them again.
+    let _faults = match (&req.faults, &plan.run.fault_scenario) {
         (Some(name), _) => plan::fault_scenario(name, Path::new("."), "--faults")?,
         (None, Some(name)) => {
             plan::fault_scenario(name, file.parent().unwrap_or(Path::new(".")), "run.fault_scenario")?
         }
         (None, None) => btfrig_sim::FaultScenario::none(),
     };
-    let material = plan::material(&plan, &v, file)?;
+    let _material = plan::material(&plan, &v, file)?;
+    let backends = req.backends.as_ref().map_or_else(backend::installed, |b| b.0.clone());
+    backends.for_rig(&v.rig)?;
     let exposure_s = plan::exposure_s(&plan, &v, file, req.light.as_ref())?;
     let hdr = match &v.exposure {
         btfrig_core::plan::ExposurePolicy::Auto { hdr, .. } if hdr.is_on() => Some(hdr.clone()),
@@ -847,8 +866,11 @@ pub fn run(
     let rt = virtual_time_runtime()?;
     let session = rt.block_on(session(SessionInput {
         rig: &v.rig,
-        material: &material,
-        faults: &faults,
+        backends: &backends,
+        plan: &plan,
+        validated: &v,
+        plan_file: file,
+        fault_override: req.faults.as_deref(),
         steps,
         done,
         settings,
@@ -1125,8 +1147,12 @@ fn report_of(s: &RunSummary, previous: &[Session], this: &Session, sessions: Vec
 
 struct SessionInput<'a> {
     rig: &'a btfrig_core::config::RigConfig,
-    material: &'a btfrig_render::material::MaterialSpec,
-    faults: &'a btfrig_sim::FaultScenario,
+    /// Where the devices come from.
+    backends: &'a backend::BackendRegistry,
+    plan: &'a btfrig_core::plan::Plan,
+    validated: &'a ValidatedPlan,
+    plan_file: &'a Path,
+    fault_override: Option<&'a str>,
     steps: Vec<EngineStep>,
     done: HashSet<StepKey>,
     settings: EngineSettings,
@@ -1177,20 +1203,15 @@ fn fault_of(r: &PauseReason) -> Option<Fault> {
     }
 }
 
-/// The rig clock of a simulated session: tokio's paused time, slowed a thousandfold. Paused
-/// timers fire on whole milliseconds, so at 1:1 every device wait would be rounded up to the
-/// next millisecond: about 6 s over the 6480 captures of the Bonn plan, more than the
-/// motion-optimised order gains over the naive one there. Slowed, the rounding is 1 us per wait.
-fn sim_clock() -> SharedClock {
-    Arc::new(ScaledClock::new(1e-3).expect("a positive, finite speed"))
-}
-
 /// One engine run with its pipeline, on the current (virtual-time) runtime.
 async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
     let SessionInput {
         rig,
-        material,
-        faults,
+        backends,
+        plan,
+        validated,
+        plan_file,
+        fault_override,
         steps,
         done,
         settings,
@@ -1206,39 +1227,21 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
         link_faults,
         on_event,
     } = input;
-    let scene = Arc::new(RigScene::new(rig, material).map_err(|e| RunError::Rig(e.to_string()))?);
-    let mut source: Arc<dyn btfrig_sim::FrameSource> =
-        Arc::new(RenderedFrameSource::new(scene.clone(), RenderOptions::default()));
-    if faults.hidden_markers.is_active() {
-        let occluder = btfrig_sim::faults::MarkerOccluder::new(
-            source,
-            scene.clone(),
-            &rig.plate,
-            faults.hidden_markers.clone(),
-            rig.rig.seed,
-        )
-        .map_err(|e| RunError::Input { what: "fault scenario [hidden_markers]".into(), message: e.to_string() })?;
-        source = Arc::new(occluder);
-    }
-    // The simulator's truth, for the error figures only: the processor gets it beside its
-    // model, never in it.
-    let truth = Arc::new(SceneTruth::new(scene.clone(), source));
-    // An emulated device is the simulator's behind emulated firmware and its real backend.
-    emulated::check(&rig.devices).map_err(RunError::Rig)?;
-    let mut sim_cfg = rig.clone();
-    sim_cfg.devices = rig.devices.simulated().ok_or_else(|| {
-        RunError::Rig("a device is real hardware: only simulated and emulated rigs run plans so far".into())
-    })?;
-    let sim = SimRig::from_rig_config(&sim_cfg, faults, sim_clock(), truth.clone())
-        .map_err(|e| RunError::Rig(e.to_string()))?;
-    let clock = sim.world.clock().clone();
-    let SimRig { robot, rail, turntable, lamp, led_array, camera: sim_camera, .. } = sim;
-    let parts = emulated::SimDevices { robot, rail, turntable, lamp, led_array, camera: sim_camera };
-    let emulated::Connected { mut robot, mut rail, mut lamp, camera: rig_camera, firmware, .. } =
-        emulated::connect(&rig.devices, parts, clock.clone(), settings.read_timeout_s).await.map_err(RunError::Rig)?;
-    for f in link_faults {
-        firmware.inject(f).map_err(RunError::Rig)?;
-    }
+    // The devices, from the backend the rig's device kinds select (`backend`): the run never
+    // builds a device itself.
+    let backend = backends.for_rig(rig)?;
+    let backend::OpenedGonio { mut robot, mut rail, mut lamp, camera: rig_camera, clock, truth, links: firmware } =
+        backend
+            .open_gonio(backend::GonioOpenRequest {
+                rig,
+                plan,
+                validated,
+                plan_file,
+                fault_override,
+                read_timeout_s: settings.read_timeout_s,
+                link_faults,
+            })
+            .await?;
     // Home, ignite and warm up (as btfrig_sim::capture::prepare), through the backends.
     let prepare = async {
         let opts = btfrig_hw::MoveOptions::default();
@@ -1276,7 +1279,7 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
     let processor = Arc::new(
         Processor::new(model, process)
             .map_err(|e| RunError::Rig(e.to_string()))?
-            .with_truth(Some(truth as Arc<dyn btfrig_hw::truth::TruthProbe>))
+            .with_truth(truth)
             .with_outputs(outputs)
             .with_sink(sink)
             .with_nominal_comparison(compare_nominal)

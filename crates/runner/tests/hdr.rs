@@ -47,6 +47,7 @@ fn step(view: usize) -> StepId {
 
 #[test]
 fn adaptive_hdr_brackets_the_highlights_only_and_the_merged_textures_match_the_truth() {
+    btfrig_sim_backend::install();
     let (off, off_dir) = run_plan("off", "mode = \"auto\"");
     let (hdr, hdr_dir) = run_plan("adaptive", "mode = \"auto\"\nhdr = \"adaptive\"");
     let (off_err, hdr_err) = (off.texture_rel_rmse.unwrap(), hdr.texture_rel_rmse.unwrap());
@@ -104,6 +105,7 @@ fn adaptive_hdr_brackets_the_highlights_only_and_the_merged_textures_match_the_t
 
 #[test]
 fn always_bracketing_costs_what_the_report_s_time_model_says() {
+    btfrig_sim_backend::install();
     let (s, _) = run_plan("always", "mode = \"bracket\"\nstops = [1.0, 0.125]");
     let h = s.hdr.expect("HDR figures");
     assert_eq!(h.exposures_per_capture.get(&2), Some(&(VIEWS.len() as u64)), "{h:?}");

@@ -97,6 +97,7 @@ fn by_step(t: &LampTotals) -> Steps {
 
 #[test]
 fn a_drifting_lamp_is_corrected_to_under_half_a_percent() {
+    btfrig_sim_backend::install();
     let (_, cfg_text) = BUILTIN_RIGS.iter().find(|(n, _)| *n == btfrig_core::plan::BUILTIN_RIG).unwrap();
     let cfg = RigConfig::from_toml(cfg_text, "builtin rig").unwrap();
     let cal = calibrate_light_simulated(&cfg, &LightPlan::default_plan(), 3).unwrap();

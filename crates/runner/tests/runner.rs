@@ -27,6 +27,7 @@ fn report(dir: &Path) -> serde_json::Value {
 
 #[test]
 fn an_interrupted_run_resumes_and_the_report_covers_both_sessions() {
+    btfrig_sim_backend::install();
     let dir = scratch("interrupt");
     let req = request(&dir, "none");
     // Interrupt at the first progress event: the engine stops after the step under way and
@@ -77,6 +78,7 @@ fn an_interrupted_run_resumes_and_the_report_covers_both_sessions() {
 
 #[test]
 fn with_an_operator_a_fatal_fault_pauses_and_resume_retries_the_step() {
+    btfrig_sim_backend::install();
     let dir = scratch("operator");
     // The daemon's way: keep the engine paused and wait for the operator (here: resume at
     // once; the injected failure hits one call only, so the retried move succeeds).
@@ -101,6 +103,7 @@ fn with_an_operator_a_fatal_fault_pauses_and_resume_retries_the_step() {
 
 #[test]
 fn fault_override_keeps_the_plan_hash_and_unknown_names_are_refused() {
+    btfrig_sim_backend::install();
     let dir = scratch("override");
     let req = request(&dir, "robot-fault");
     let s = run(&req, &RunControl::new(), &mut |_| {}).unwrap();
@@ -118,6 +121,7 @@ fn fault_override_keeps_the_plan_hash_and_unknown_names_are_refused() {
 
 #[test]
 fn hidden_markers_fall_back_on_record_or_pause_naming_the_step_and_the_run_resumes() {
+    btfrig_sim_backend::install();
     // on_failure = "nominal" (the default): the run finishes, the two frames whose markers
     // are covered use the nominal pose, are counted and warned about by step.
     let dir = scratch("hidden-nominal");

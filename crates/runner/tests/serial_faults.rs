@@ -77,18 +77,21 @@ fn finished_with(name: &str, faults: Vec<LinkFault>) -> RunSummary {
 
 #[test]
 fn rail_port_closed_mid_move_is_retried_and_nothing_is_lost() {
+    btfrig_sim_backend::install();
     let s = finished_with("rail-unplug", vec![LinkFault::Rail(LinkFault::on_move_grbl(3, grbl::Fault::Unplug))]);
     assert!(s.retries >= 1, "{s:?}");
 }
 
 #[test]
 fn robot_port_closed_mid_move_is_retried_and_nothing_is_lost() {
+    btfrig_sim_backend::install();
     let s = finished_with("robot-unplug", vec![LinkFault::Robot(LinkFault::on_move_robot(4, robot::Fault::Unplug))]);
     assert!(s.retries >= 1, "{s:?}");
 }
 
 #[test]
 fn garbage_on_the_lines_is_skipped() {
+    btfrig_sim_backend::install();
     let noise = || b"\xff\xfe\x00 noise\r\n<Bogus|MPos:x,y>\r\nok ok ok what\r\n".to_vec();
     let s = finished_with(
         "garbage",
@@ -112,6 +115,7 @@ fn garbage_on_the_lines_is_skipped() {
 
 #[test]
 fn camera_without_object_added_is_retried() {
+    btfrig_sim_backend::install();
     let s = finished_with("no-object-added", vec![LinkFault::Camera(btfrig_ptp::responder::Fault::DropObjectAdded)]);
     assert!(s.retries >= 1, "{s:?}");
     assert!(s.warnings.iter().any(|w| w.contains("ObjectAdded")), "{:?}", s.warnings);
@@ -147,11 +151,13 @@ fn paused_then_resumed(name: &str, fault: LinkFault, device: &str, says: &str) {
 
 #[test]
 fn grbl_alarm_pauses_and_the_run_resumes() {
+    btfrig_sim_backend::install();
     paused_then_resumed("alarm", LinkFault::Rail(LinkFault::on_move_grbl(5, grbl::Fault::Alarm(1))), "rail", "ALARM:1");
 }
 
 #[test]
 fn robot_drive_fault_pauses_and_the_run_resumes() {
+    btfrig_sim_backend::install();
     paused_then_resumed(
         "drive-fault",
         LinkFault::Robot(LinkFault::on_move_robot(5, robot::Fault::DriveFault)),

@@ -53,6 +53,7 @@ fn measure(name: &str, rig: &str) -> (RunSummary, BTreeMap<String, String>) {
 
 #[test]
 fn serial_path_gives_the_direct_path_textures() {
+    btfrig_sim_backend::install();
     let (direct, direct_tex) = measure("direct", "builtin:bonn-gonio-sim");
     let (serial, serial_tex) = measure("serial", "builtin:bonn-gonio-serial");
     assert_eq!(direct_tex.len(), 12, "{direct_tex:?}");

@@ -1,0 +1,120 @@
+//! The simulator stays out of the processing crates (issue 25, docs/ARCHITECTURE.md): no
+//! library crate of the workspace depends, directly or through other crates, on `btfrig-sim`
+//! or `btfrig-render` in its normal (non-dev) dependencies, except the simulator's own crates.
+//! Read from `cargo metadata`, so a dependency cannot creep back unnoticed.
+//!
+//! `STILL_DEPENDING` lists the crates that still do while the redesign is under way, each with
+//! why; the test fails when one of them no longer does (take it off the list) as well as when
+//! any other crate starts to.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::process::Command;
+
+/// The simulator's own crates: they may depend on it.
+const SIMULATOR_CRATES: &[&str] = &["btfrig-sim", "btfrig-render", "btfrig-sim-backend", "btfrig-sim-calibration"];
+
+/// What the simulator is.
+const SIMULATOR: &[&str] = &["btfrig-sim", "btfrig-render"];
+
+/// Crates that still depend on the simulator, and why (to be emptied).
+const STILL_DEPENDING: &[(&str, &str)] = &[
+    ("btfrig-runner", "the dome run builds its simulated rig itself; plan checks load materials and fault scenarios"),
+    ("btfrig-daemon", "through btfrig-runner"),
+    ("btfrig-calibrate", "the calibration procedures render their own frames"),
+];
+
+/// Each workspace package with a library target, and its normal dependencies inside the workspace.
+fn workspace_libraries() -> BTreeMap<String, BTreeSet<String>> {
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let out = Command::new(cargo)
+        .args(["metadata", "--format-version", "1", "--no-deps", "--offline"])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .expect("cargo metadata runs");
+    assert!(out.status.success(), "cargo metadata: {}", String::from_utf8_lossy(&out.stderr));
+    let meta: serde_json::Value = serde_json::from_slice(&out.stdout).expect("cargo metadata prints JSON");
+    let packages = meta["packages"].as_array().expect("packages");
+    let names: BTreeSet<String> = packages.iter().map(|p| p["name"].as_str().unwrap().to_string()).collect();
+    let mut libs = BTreeMap::new();
+    for p in packages {
+        let is_lib = p["targets"].as_array().unwrap().iter().any(|t| {
+            t["kind"].as_array().unwrap().iter().any(|k| matches!(k.as_str(), Some("lib" | "rlib" | "proc-macro")))
+        });
+        let deps: BTreeSet<String> = p["dependencies"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|d| d["kind"].is_null())
+            .map(|d| d["name"].as_str().unwrap().to_string())
+            .filter(|n| names.contains(n))
+            .collect();
+        if is_lib {
+            libs.insert(p["name"].as_str().unwrap().to_string(), deps);
+        } else {
+            // Binaries may depend on anything, but their dependencies are still walked.
+            libs.entry(p["name"].as_str().unwrap().to_string()).or_insert(deps);
+        }
+    }
+    libs
+}
+
+/// The workspace crates `name` depends on, directly or not, through normal dependencies.
+fn closure(graph: &BTreeMap<String, BTreeSet<String>>, name: &str) -> BTreeSet<String> {
+    let mut seen = BTreeSet::new();
+    let mut stack = vec![name.to_string()];
+    while let Some(n) = stack.pop() {
+        for d in graph.get(&n).into_iter().flatten() {
+            if seen.insert(d.clone()) {
+                stack.push(d.clone());
+            }
+        }
+    }
+    seen
+}
+
+#[test]
+fn no_library_outside_the_simulator_depends_on_it() {
+    let graph = workspace_libraries();
+    assert!(graph.contains_key("btfrig-pipeline") && graph.contains_key("btfrig-sim"), "{graph:?}");
+    let mut offenders = BTreeMap::new();
+    for name in graph.keys() {
+        if SIMULATOR_CRATES.contains(&name.as_str()) || name == "btfrig-cli" {
+            continue;
+        }
+        let reached: Vec<String> =
+            closure(&graph, name).into_iter().filter(|d| SIMULATOR.contains(&d.as_str())).collect();
+        if !reached.is_empty() {
+            offenders.insert(name.clone(), reached);
+        }
+    }
+    let listed: BTreeSet<&str> = STILL_DEPENDING.iter().map(|(n, _)| *n).collect();
+    let new: Vec<String> = offenders
+        .iter()
+        .filter(|(n, _)| !listed.contains(n.as_str()))
+        .map(|(n, d)| format!("{n} -> {}", d.join(", ")))
+        .collect();
+    assert!(new.is_empty(), "library crates that now depend on the simulator: {new:?}");
+    let freed: Vec<&str> = listed.iter().copied().filter(|n| !offenders.contains_key(*n)).collect();
+    assert!(freed.is_empty(), "no longer depend on the simulator, take them off STILL_DEPENDING: {freed:?}");
+}
+
+#[test]
+fn the_processing_crates_never_depend_on_the_simulator() {
+    let graph = workspace_libraries();
+    for name in [
+        "btfrig-pipeline",
+        "btfrig-calib",
+        "btfrig-imageio",
+        "btfrig-register",
+        "btfrig-markers",
+        "btfrig-engine",
+        "btfrig-store",
+        "btfrig-compress",
+        "btfrig-color",
+        "btfrig-mux",
+    ] {
+        let reached: Vec<String> =
+            closure(&graph, name).into_iter().filter(|d| SIMULATOR.contains(&d.as_str())).collect();
+        assert!(reached.is_empty(), "{name} depends on {reached:?}");
+    }
+}
