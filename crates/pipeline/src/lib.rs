@@ -526,8 +526,8 @@ impl Processor {
 
     /// The radiometric parameters of `frame` before the light calibration: its exposure and
     /// gain, the model's sensor, the colour calibration's white balance (1 without one), no
-    /// matrix (a colour calibration's model does the rest), and a nominal irradiance of 1
-    /// e-/s per photosite (relative units, until the light calibration replaces it).
+    /// matrix (a colour calibration's model does the rest), and as nominal irradiance the
+    /// sensor's full scale per second (relative units, until the light calibration replaces it).
     pub fn radiometry(&self, frame: &RawFrame) -> Radiometry {
         let sensor = &self.model.sensor;
         let gain = frame.meta.gain.max(1.0);
@@ -536,7 +536,7 @@ impl Processor {
             exposure_s: frame.meta.exposure_s,
             dn_per_electron: sensor.dn_per_electron(gain),
             dark_e_per_s: if self.model.dark_flat.is_some() { 0.0 } else { sensor.dark_current_e_per_s },
-            nominal_irradiance: 1.0,
+            nominal_irradiance: sensor.full_scale_e,
             white_balance: self.model.color.as_ref().map_or([1.0; 3], |c| c.white_balance),
             matrix: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
         }

@@ -10,8 +10,9 @@
 //!
 //! A calibration that is absent degrades the output visibly, never silently: each absence
 //! adds a [`ProcessingModel::notes`] line that the run's report carries, e.g. "no light
-//! calibration: textures in relative units (e-/s per photosite at gain 1, not radiance
-//! factor)".
+//! calibration: textures in relative units (full scales per second of exposure at gain 1,
+//! not radiance factor)": the signal rate divided by the sensor's full scale, so a relative
+//! texture stays in the range a half-float file holds.
 
 use std::sync::Arc;
 
@@ -32,6 +33,8 @@ pub struct SensorConstants {
     pub read_noise_e: f64,
     /// Mean dark current, electrons per second per photosite (subtracted without a dark model).
     pub dark_current_e_per_s: f64,
+    /// Electrons from black to the white level at gain 1: the unit of relative textures.
+    pub full_scale_e: f64,
 }
 
 impl SensorConstants {
@@ -88,7 +91,7 @@ impl std::fmt::Debug for ProcessingModel {
 
 /// The note of a model without a light calibration.
 pub const NO_LIGHT_NOTE: &str =
-    "no light calibration: textures in relative units (e-/s per photosite at gain 1, not radiance factor)";
+    "no light calibration: textures in relative units (full scales per second of exposure at gain 1, not radiance factor)";
 
 /// The note of a model without a colour calibration.
 pub const NO_COLOR_NOTE: &str =

@@ -20,6 +20,7 @@ pub fn truth_model(cfg: &RigConfig, scene: &RigScene) -> ProcessingModel {
         electrons_per_dn: s.electrons_per_dn,
         read_noise_e: s.read_noise_e,
         dark_current_e_per_s: s.dark_current_e_per_s,
+        full_scale_e: f64::from(s.white_level(1.0) - s.black_level_dn) * s.electrons_per_dn,
     };
     let fit = scene.colour().colorchecker_matrix();
     let nominal = scene.white_signal_dn(1.0, 1.0) / s.dn_per_electron(1.0);
