@@ -456,3 +456,50 @@ fn r25_a_plan_with_a_compressed_model_gets_its_model_across_an_abort_and_a_resum
     assert_eq!(s["summary"]["compression_model"].as_str(), Some(model.to_str().unwrap()), "{s}");
     assert!(!data.join("modelled.fmf-2.btfm").exists(), "a second model was built");
 }
+
+/// Issue 25 item 5: when the model a plan asks for cannot be written (here a directory is
+/// where its temporary file goes), the daemon's run ends `failed` with a message naming the
+/// model and why, the complete dataset is kept, and the same start builds the model from it.
+#[test]
+fn r25_a_model_that_cannot_be_written_fails_the_run_visibly_and_the_same_start_builds_it() {
+    const N: u64 = 16;
+    let (auth, data) = setup("serve_compress_failed");
+    let blocker = data.join("blocked.fmf.btfm.tmp");
+    std::fs::create_dir_all(blocker.join("keep")).unwrap();
+    let text = plan(N as usize).replace("[outputs]\n", "[outputs]\ncompressed_model = \"fmf\"\n");
+    let body = serde_json::json!({ "plan_text": text, "dataset": "blocked" }).to_string();
+    let d = daemon(&auth, &data);
+    assert_eq!(d.post("/api/v1/runs", "operator-ada", &body).status, 201);
+    let s = d.wait_run("r1", "viewer-token", 600, "over", |s| {
+        !matches!(s["state"].as_str(), Some("starting" | "running" | "stopping"))
+    });
+    assert_eq!(s["state"], "failed", "{s}");
+    let message = s["message"].as_str().unwrap_or_default();
+    eprintln!("the failed run's message: {message}");
+    assert!(
+        message.contains("outputs.compressed_model")
+            && message.contains(blocker.to_str().unwrap())
+            && message.contains("same plan into the same dataset"),
+        "{s}"
+    );
+    assert_eq!(s["summary"]["compression_status"], "failed", "{s}");
+    assert_eq!(s["summary"]["captures"], N, "{s}");
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(data.join("blocked/report.json")).unwrap()).unwrap();
+    assert_eq!(report["status"], "finished", "the captures are complete: {report}");
+    assert!(read_journal(&data.join("blocked")).models.is_empty());
+    assert!(!data.join("blocked.fmf.btfm").exists());
+
+    std::fs::remove_dir_all(&blocker).unwrap();
+    assert_eq!(d.post("/api/v1/runs", "operator-ada", &body).status, 201);
+    let s = d.wait_run("r2", "viewer-token", 120, "finished", |s| s["state"] == "finished");
+    let sum = &s["summary"];
+    assert_eq!(sum["compression_status"], "built", "{s}");
+    assert_eq!(
+        (sum["compression_from_disk"].as_u64(), sum["compression_streamed"].as_u64()),
+        (Some(N), Some(0)),
+        "{s}"
+    );
+    assert!(data.join("blocked.fmf.btfm").exists(), "{s}");
+    assert_eq!(read_journal(&data.join("blocked")).models.len(), 1);
+}
