@@ -376,3 +376,130 @@ fn r24_sigterm_during_a_dry_run_cancels_it_and_the_daemon_exits() {
     let _ = conn.read_to_string(&mut answer);
     assert!(answer.contains("\"valid\":false") && answer.contains("cancelled"), "{answer}");
 }
+
+/// Issue 25 item 5: the daemon builds the compressed model a plan asks for
+/// (`outputs.compressed_model`), as `btfrig run` does, also across an abort and a resume
+/// (the first session's textures are read back from the dataset). The model is written next
+/// to the dataset and journaled in it, the run's status names it with its figures, it loads,
+/// and it reconstructs the daemon's textures within the error `btfrig run` reports for the
+/// same plan.
+#[test]
+fn r25_a_plan_with_a_compressed_model_gets_its_model_across_an_abort_and_a_resume() {
+    const N: u64 = 20; // the streaming FMF's 16 terms need at least 16 captures
+    let (auth, data) = setup("serve_compress");
+    let text = plan(N as usize).replace("[outputs]\n", "[outputs]\ncompressed_model = \"fmf\"\n");
+    assert!(text.contains("compressed_model = \"fmf\""));
+    let body = serde_json::json!({ "plan_text": text, "dataset": "modelled" }).to_string();
+    let d = daemon(&auth, &data);
+    let r = d.post("/api/v1/runs", "operator-ada", &body);
+    assert_eq!(r.status, 201, "the daemon must accept outputs.compressed_model: {}", r.text());
+    d.wait_run("r1", "viewer-token", 120, "capturing", |s| s["done"].as_u64().unwrap_or(0) >= 4);
+    assert_eq!(d.post("/api/v1/runs/r1/abort", "operator-ada", "").status, 200);
+    let aborted = d.wait_run("r1", "viewer-token", 120, "aborted", |s| s["state"] == "aborted");
+    let before = read_journal(&data.join("modelled")).committed().len() as u64;
+    assert!((4..N).contains(&before), "captured before the abort: {before}");
+    assert_eq!(aborted["summary"]["compression_status"], "not_finished", "{aborted}");
+    let model = data.join("modelled.fmf.btfm");
+    assert!(!model.exists(), "an unfinished run wrote a model");
+
+    // The same plan into the same dataset resumes it and builds the model.
+    let r = d.post("/api/v1/runs", "operator-ada", &body);
+    assert_eq!(r.status, 201, "{}", r.text());
+    let s = d.wait_run("r2", "viewer-token", 600, "over", |s| {
+        s["state"] != "starting" && s["state"] != "running" && s["state"] != "stopping"
+    });
+    assert_eq!(s["state"], "finished", "{s}");
+    let sum = &s["summary"];
+    assert_eq!((sum["captures"].as_u64(), sum["captures_this_session"].as_u64()), (Some(N), Some(N - before)), "{s}");
+    assert_eq!(sum["compression_status"], "built", "{s}");
+    assert_eq!(sum["compression_model"].as_str(), Some(model.to_str().unwrap()), "{s}");
+    assert_eq!(sum["compression_method"], "fmf");
+    // The first session's textures were read back from the dataset, the second's streamed.
+    assert_eq!(
+        (sum["compression_from_disk"].as_u64(), sum["compression_streamed"].as_u64()),
+        (Some(before), Some(N - before)),
+        "{s}"
+    );
+    assert!(sum["compression_ratio"].as_f64().unwrap() > 1.0, "{s}");
+    let models = read_journal(&data.join("modelled")).models;
+    assert_eq!(models.len(), 1, "{models:?}");
+    assert_eq!(models[0]["file"], "modelled.fmf.btfm");
+    let written = std::fs::read(&model).unwrap();
+    assert_eq!(models[0]["hash"].as_str(), Some(btfrig_store::content_hash(&written).as_str()));
+
+    // It loads, and is as close to the daemon's textures as the status says.
+    let m = btfrig_compress::file::read(&model).unwrap();
+    assert_eq!(m.method, btfrig_compress::Method::Fmf);
+    let mut src = btfrig_compress::dataset::DatasetSource::open(&data.join("modelled")).unwrap();
+    let err = btfrig_compress::eval::error_against(&m, &mut src).unwrap().rel_rmse();
+    let reported = sum["compression_rel_rmse"].as_f64().unwrap();
+    assert!((err - reported).abs() <= 1e-6 * reported.max(1e-3), "measured {err}, status says {reported}");
+
+    // `btfrig run` of the same plan (same seed) in one go: the daemon's model is as good.
+    let dir = data.parent().unwrap();
+    let file = dir.join("plan.toml");
+    std::fs::write(&file, &text).unwrap();
+    let out = support::ok(support::btfrig().args(["run", "--plan"]).arg(&file).arg("--out").arg(dir.join("cli")));
+    let cli: f64 = out
+        .split("relative RMSE ")
+        .nth(1)
+        .and_then(|r| r.split_whitespace().next())
+        .and_then(|x| x.parse().ok())
+        .unwrap_or_else(|| panic!("no model error in `btfrig run`'s output:\n{out}"));
+    eprintln!("model rel. RMSE against the textures: daemon (aborted, resumed) {err:.6}, btfrig run {cli:.6}");
+    assert!(cli > 0.0 && err <= cli * 1.02 + 1e-5, "daemon's model {err}, btfrig run's {cli}");
+    // A third start has nothing to capture and finds the model journaled.
+    let r = d.post("/api/v1/runs", "operator-ada", &body);
+    assert_eq!(r.status, 201, "{}", r.text());
+    let s = d.wait_run("r3", "viewer-token", 120, "finished", |s| s["state"] == "finished");
+    assert_eq!(s["summary"]["compression_status"], "built_earlier", "{s}");
+    assert_eq!(s["summary"]["compression_model"].as_str(), Some(model.to_str().unwrap()), "{s}");
+    assert!(!data.join("modelled.fmf-2.btfm").exists(), "a second model was built");
+}
+
+/// Issue 25 item 5: when the model a plan asks for cannot be written (here a directory is
+/// where its temporary file goes), the daemon's run ends `failed` with a message naming the
+/// model and why, the complete dataset is kept, and the same start builds the model from it.
+#[test]
+fn r25_a_model_that_cannot_be_written_fails_the_run_visibly_and_the_same_start_builds_it() {
+    const N: u64 = 16;
+    let (auth, data) = setup("serve_compress_failed");
+    let blocker = data.join("blocked.fmf.btfm.tmp");
+    std::fs::create_dir_all(blocker.join("keep")).unwrap();
+    let text = plan(N as usize).replace("[outputs]\n", "[outputs]\ncompressed_model = \"fmf\"\n");
+    let body = serde_json::json!({ "plan_text": text, "dataset": "blocked" }).to_string();
+    let d = daemon(&auth, &data);
+    assert_eq!(d.post("/api/v1/runs", "operator-ada", &body).status, 201);
+    let s = d.wait_run("r1", "viewer-token", 600, "over", |s| {
+        !matches!(s["state"].as_str(), Some("starting" | "running" | "stopping"))
+    });
+    assert_eq!(s["state"], "failed", "{s}");
+    let message = s["message"].as_str().unwrap_or_default();
+    eprintln!("the failed run's message: {message}");
+    assert!(
+        message.contains("outputs.compressed_model")
+            && message.contains(blocker.to_str().unwrap())
+            && message.contains("same plan into the same dataset"),
+        "{s}"
+    );
+    assert_eq!(s["summary"]["compression_status"], "failed", "{s}");
+    assert_eq!(s["summary"]["captures"], N, "{s}");
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(data.join("blocked/report.json")).unwrap()).unwrap();
+    assert_eq!(report["status"], "finished", "the captures are complete: {report}");
+    assert!(read_journal(&data.join("blocked")).models.is_empty());
+    assert!(!data.join("blocked.fmf.btfm").exists());
+
+    std::fs::remove_dir_all(&blocker).unwrap();
+    assert_eq!(d.post("/api/v1/runs", "operator-ada", &body).status, 201);
+    let s = d.wait_run("r2", "viewer-token", 120, "finished", |s| s["state"] == "finished");
+    let sum = &s["summary"];
+    assert_eq!(sum["compression_status"], "built", "{s}");
+    assert_eq!(
+        (sum["compression_from_disk"].as_u64(), sum["compression_streamed"].as_u64()),
+        (Some(N), Some(0)),
+        "{s}"
+    );
+    assert!(data.join("blocked.fmf.btfm").exists(), "{s}");
+    assert_eq!(read_journal(&data.join("blocked")).models.len(), 1);
+}

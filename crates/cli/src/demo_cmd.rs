@@ -39,20 +39,16 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<ExitCode> {
         // The lamp's power and colour from a light calibration run first, its drift corrected
         // per frame (docs/light.md).
         .with_light(Some(crate::calibrate_light_cmd::calibrated_lamp(&crate::rig::load(a.rig.as_deref())?)?));
-    // The default model is built while the demo captures (docs/compression.md).
-    let (streaming, sink) = crate::compress_cmd::Streaming::start(&out, crate::compress_cmd::default_stream_params())?;
-    let req = req.with_sink(Some(sink));
+    // The default model (FMF) is built while the demo captures (docs/compression.md).
+    let req = req.with_compressed_model(Some(btfrig_core::plan::CompressedModel::Fmf));
     let s = crate::run_cmd::execute(&req)?;
-    let compression = if s.outcome == btfrig_runner::RunOutcome::Finished { Some(streaming.finish()?) } else { None };
+    if let Some(btfrig_runner::sinks::CompressionOutcome::Failed(e)) = &s.compression {
+        anyhow::bail!("the demo's compressed model was not built: {e}");
+    }
     if a.json {
-        let mut j = s.to_json();
-        if let (Some(obj), Some(c)) = (j.as_object_mut(), compression.as_ref().and_then(|c| c.as_object())) {
-            // `peak_rss_mib` becomes the whole process's (read after the model is written);
-            // the figure at the end of the capture stays as `run_peak_rss_mib`.
-            obj.insert("run_peak_rss_mib".into(), serde_json::json!(s.peak_rss_mib));
-            obj.extend(c.clone());
-        }
-        println!("{j}");
+        // With the model's figures (`RunSummary::to_json`): `peak_rss_mib` is the whole
+        // process's, read after the model is written; `run_peak_rss_mib` the capture's.
+        println!("{}", s.to_json());
     } else {
         let skipped: Vec<String> = s.skipped.iter().map(|(r, n)| format!("{n} {r}")).collect();
         let stages: Vec<String> = s.stage_s.iter().map(|(k, v)| format!("{k} {v:.2} s")).collect();
@@ -88,8 +84,8 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<ExitCode> {
         if let Some((lo, hi)) = s.lamp.as_ref().and_then(|l| l.factor_range()) {
             println!("  lamp factor       {lo:.4} .. {hi:.4}: lamp output against the light calibration, measured on the plate per frame and divided out");
         }
-        if let Some(c) = &compression {
-            crate::compress_cmd::print_streaming(c);
+        if let Some(btfrig_runner::sinks::CompressionOutcome::Built { figures, .. }) = &s.compression {
+            crate::compress_cmd::print_streaming(figures);
         }
         println!("  retries           {}, warnings {}", s.retries, s.warnings.len());
         println!("  dataset           {}", s.dataset.display());

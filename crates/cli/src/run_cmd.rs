@@ -31,11 +31,8 @@ pub fn run(a: &RunArgs) -> anyhow::Result<ExitCode> {
         .with_faults(a.faults.clone())
         .with_light(a.light.as_deref().map(crate::calibrate_light_cmd::load).transpose()?)
         .with_dark_flat(a.dark_flat.as_deref().map(load_dark_flat).transpose()?);
-    let streaming = match model_to_build(a.compress.as_deref(), &req.plan_text, &a.plan)? {
-        None => None,
-        Some(m) => Some(crate::compress_cmd::Streaming::start(&a.out, crate::compress_cmd::stream_params(m))?),
-    };
-    let req = req.with_sink(streaming.as_ref().map(|s| s.1.clone()));
+    let model = compress_flag(a.compress.as_deref(), &req.plan_text, &a.plan)?;
+    let req = req.with_compressed_model(model);
     let summary = execute(&req)?;
     let nothing_to_do = summary.outcome == RunOutcome::NothingToDo;
     if nothing_to_do {
@@ -43,26 +40,8 @@ pub fn run(a: &RunArgs) -> anyhow::Result<ExitCode> {
     } else {
         print_summary(&summary);
     }
-    if let Some((s, _)) = streaming {
-        use crate::compress_cmd::JournaledModel;
-        // The model belongs to the run's outcome: a rerun of a finished run builds it when
-        // the journal does not name it intact (a kill while it was being written).
-        match (&summary.outcome, s.journaled()?) {
-            (RunOutcome::Finished | RunOutcome::NothingToDo, JournaledModel::Built(path)) => {
-                println!("  compression       {} (built and journaled earlier)", path.display())
-            }
-            (RunOutcome::Finished | RunOutcome::NothingToDo, state) => {
-                if let JournaledModel::Damaged(what) = &state {
-                    println!("  compression       journaled model damaged ({what}): building it again");
-                } else if nothing_to_do {
-                    println!("  compression       not built yet: building it from the dataset");
-                }
-                crate::compress_cmd::print_streaming(&s.finish()?);
-            }
-            _ => println!(
-                "  compression       not built: the run did not finish (resume it, or `btfrig compress` later)"
-            ),
-        }
+    if let Some(c) = &summary.compression {
+        print_compression(c, nothing_to_do)?;
     }
     if nothing_to_do {
         return Ok(ExitCode::SUCCESS);
@@ -132,15 +111,42 @@ fn run_dome(a: &RunArgs, plan_text: String) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::from(signal.exit_code()))
 }
 
-/// The model a run builds while it captures: `--compress` if given, else the plan's
-/// `outputs.compressed_model`. A plan that does not parse or names no known model builds
-/// none here: the run refuses it with the plan's own validation error.
-pub fn model_to_build(
+/// What the runner did with the run's compressed model (`btfrig_runner::sinks`): the model
+/// belongs to the run's outcome, so a rerun of a finished run builds it when the journal
+/// does not name it intact (a kill while it was being written). A model that could not be
+/// built is an error, after the run's summary.
+pub fn print_compression(c: &btfrig_runner::sinks::CompressionOutcome, nothing_to_do: bool) -> anyhow::Result<()> {
+    use btfrig_runner::sinks::CompressionOutcome;
+    match c {
+        CompressionOutcome::BuiltEarlier { model } => {
+            println!("  compression       {} (built and journaled earlier)", model.display())
+        }
+        CompressionOutcome::Built { figures, replaced_damaged } => {
+            if let Some(what) = replaced_damaged {
+                println!("  compression       journaled model damaged ({what}): building it again");
+            } else if nothing_to_do {
+                println!("  compression       not built yet: building it from the dataset");
+            }
+            crate::compress_cmd::print_streaming(figures);
+        }
+        CompressionOutcome::NotFinished => {
+            println!("  compression       not built: the run did not finish (resume it, or `btfrig compress` later)")
+        }
+        CompressionOutcome::Failed(e) => anyhow::bail!(
+            "the compressed model was not built: {e} (the dataset is complete; run the same command again to build it)"
+        ),
+    }
+    Ok(())
+}
+
+/// The model `--compress` asks for instead of the plan's `outputs.compressed_model` (the
+/// runner builds it), checked before anything is captured; `None` without the flag.
+pub fn compress_flag(
     flag: Option<&str>,
     plan_text: &str,
     plan_path: &std::path::Path,
 ) -> anyhow::Result<Option<btfrig_core::plan::CompressedModel>> {
-    use btfrig_core::plan::{CompressedModel, Plan};
+    use btfrig_core::plan::CompressedModel;
     if let Some(m) = flag {
         let model = CompressedModel::from_name(m)
             .ok_or_else(|| anyhow::anyhow!("--compress {m:?}: allowed fmf, pvmf, pcmf, pcmf-shared"))?;
@@ -157,7 +163,7 @@ pub fn model_to_build(
         }
         return Ok(Some(model));
     }
-    Ok(Plan::from_toml(plan_text, "plan").ok().and_then(|p| p.outputs.compressed_model.model().ok().flatten()))
+    Ok(None)
 }
 
 /// Runs a request with the progress display on stderr and Ctrl-C / SIGTERM wired to a clean

@@ -752,14 +752,6 @@ fn check_gonio_start(v: &btfrig_core::plan::ValidatedPlan) -> Result<(), Problem
     if v.capture_list().captures.is_empty() {
         return Err(Problem::unprocessable("the plan captures nothing"));
     }
-    if let Some(m) = v.outputs.compressed_model {
-        // The model is built by `btfrig run` (the CLI owns the compression sink).
-        return Err(Problem::unprocessable(format!(
-            "outputs.compressed_model = {:?}: the daemon does not build compressed models; allowed here: false              (run `btfrig compress DIR --method {}` on the finished dataset, or the plan with `btfrig run`)",
-            m.name(),
-            m.name()
-        )));
-    }
     Ok(())
 }
 

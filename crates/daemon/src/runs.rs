@@ -263,6 +263,15 @@ impl Run {
                 if s.state == RunState::Finished {
                     s.eta_s = Some(0.0);
                 }
+                // Every capture is in, but the model the plan asks for is not: the run did not
+                // give what it was asked for. The same plan into the same dataset builds it.
+                if let Some(btfrig_runner::sinks::CompressionOutcome::Failed(e)) = &summary.compression {
+                    s.state = RunState::Failed;
+                    s.message = Some(format!(
+                        "the compressed model (outputs.compressed_model) was not built: {e}; the dataset is complete: \
+                         start the same plan into the same dataset to build it"
+                    ));
+                }
                 s.summary = Some(summary.to_json());
             }
             // Stopped by the daemon's shutdown while planning: nothing was written.

@@ -22,6 +22,7 @@ mod light;
 pub mod model;
 pub mod plan;
 pub mod report;
+pub mod sinks;
 
 use std::collections::{BTreeMap, HashSet};
 use std::path::{Path, PathBuf};
@@ -157,8 +158,10 @@ pub struct RunRequest {
     /// demosaicing (`docs/dark-flat.md`); `None`: the sensor model's black level, dark current
     /// and the lens model's vignetting.
     pub dark_flat: Option<DarkFlatInput>,
-    /// Receives every committed texture (e.g. `btfrig-compress`'s streaming compressor).
-    pub sink: Option<TextureSinkHandle>,
+    /// The compressed model to build while the run captures, instead of the plan's
+    /// `outputs.compressed_model` (`btfrig run --compress`, `btfrig demo`); `None`: the
+    /// plan's. The runner builds its sink ([`sinks::CompressionSink`]).
+    pub compressed_model: Option<btfrig_core::plan::CompressedModel>,
     /// Faults injected into the emulated firmware of an emulated rig right after its backends
     /// connect, before the rig is prepared (fault tests, `crates/runner/tests/serial_faults.rs`;
     /// see [`emulated::LinkFault`]). Like [`RunRequest::faults`] it is not part of the plan,
@@ -177,16 +180,6 @@ pub struct BackendsHandle(pub backend::BackendRegistry);
 impl std::fmt::Debug for BackendsHandle {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str("BackendRegistry")
-    }
-}
-
-/// A [`btfrig_pipeline::TextureSink`] in a [`RunRequest`].
-#[derive(Clone)]
-pub struct TextureSinkHandle(pub Arc<dyn btfrig_pipeline::TextureSink>);
-
-impl std::fmt::Debug for TextureSinkHandle {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str("TextureSink")
     }
 }
 
@@ -217,15 +210,15 @@ impl RunRequest {
             compare_nominal: false,
             light: None,
             dark_flat: None,
-            sink: None,
+            compressed_model: None,
             link_faults: Vec::new(),
             backends: None,
         }
     }
 
-    /// With a sink for the committed textures (see [`RunRequest::sink`]).
-    pub fn with_sink(mut self, sink: Option<Arc<dyn btfrig_pipeline::TextureSink>>) -> RunRequest {
-        self.sink = sink.map(TextureSinkHandle);
+    /// With a compressed model instead of the plan's (see [`RunRequest::compressed_model`]).
+    pub fn with_compressed_model(mut self, model: Option<btfrig_core::plan::CompressedModel>) -> RunRequest {
+        self.compressed_model = model;
         self
     }
 
@@ -605,6 +598,9 @@ pub struct RunSummary {
     /// for in-process simulated devices, whose moves take rig time only) plus the camera's
     /// PTP coding; `None` without emulated devices (docs/serial.md).
     pub link_added_wall_s: Option<f64>,
+    /// What became of the compressed model the run was asked for (`outputs.compressed_model`
+    /// or [`RunRequest::compressed_model`]); `None` when none was.
+    pub compression: Option<sinks::CompressionOutcome>,
 }
 
 /// The process's peak resident set size in MiB, from `/proc/self/status` (Linux).
@@ -678,6 +674,14 @@ impl RunSummary {
             "processing_notes": self.processing.as_ref().map(|p| p.notes.clone()),
         });
         light::add_summary_fields(&mut v, self.lamp.as_ref());
+        if let (Some(c), Some(o)) = (&self.compression, v.as_object_mut()) {
+            // A model's `peak_rss_mib` is the whole process's, read after the model was
+            // written; the figure at the end of the capture stays as `run_peak_rss_mib`.
+            o.insert("run_peak_rss_mib".into(), json!(self.peak_rss_mib));
+            if let Some(fields) = c.to_json().as_object() {
+                o.extend(fields.clone());
+            }
+        }
         if let (Some(h), Some(o)) = (&self.hdr, v.as_object_mut()) {
             if let Some(fields) = h.to_json().as_object() {
                 o.extend(fields.clone());
@@ -695,9 +699,24 @@ pub fn virtual_time_runtime() -> Result<tokio::runtime::Runtime, RunError> {
 
 /// Runs `req` to its end, to a pause that ends the session, or to an abort; see the crate
 /// documentation. Builds and drives its own virtual-time runtime: call it from a plain
-/// thread (a daemon: `spawn_blocking`). `on_event` is called on that thread.
+/// thread (a daemon: `spawn_blocking`). `on_event` is called on that thread. The compressed
+/// model the request asks for is streamed while the run captures and built once it has
+/// finished ([`sinks`], [`RunSummary::compression`]).
 pub fn run(
     req: &RunRequest,
+    control: &RunControl,
+    on_event: &mut dyn FnMut(&RunEvent),
+) -> Result<RunSummary, RunError> {
+    let model = sinks::CompressionSink::start(req)?;
+    let mut summary = run_capture(req, model.as_ref().map(|m| m.texture_sink()), control, on_event)?;
+    summary.compression = model.map(|m| m.finish(&summary.outcome));
+    Ok(summary)
+}
+
+/// [`run`] without building the model: `sink` receives every committed texture.
+fn run_capture(
+    req: &RunRequest,
+    sink: Option<Arc<dyn btfrig_pipeline::TextureSink>>,
     control: &RunControl,
     on_event: &mut dyn FnMut(&RunEvent),
 ) -> Result<RunSummary, RunError> {
@@ -888,7 +907,7 @@ pub fn run(
         commands,
         stop_on_fault: req.stop_on_fault,
         compare_nominal: req.compare_nominal,
-        sink: req.sink.as_ref().map(|s| s.0.clone()),
+        sink,
         hdr: hdr.map(|settings| SessionHdr { settings, reference_s: exposure_s, light_cos }),
         link_faults: &req.link_faults,
         on_event,
@@ -1077,6 +1096,7 @@ fn summarise(
         processing: None,
         motion_wait_wall_s: 0.0,
         link_added_wall_s: None,
+        compression: None,
     }
 }
 

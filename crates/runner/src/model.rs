@@ -87,7 +87,8 @@ pub fn gonio_model(
         electrons_per_dn: rig.sensor.electrons_per_dn,
         read_noise_e: rig.sensor.read_noise_e,
         dark_current_e_per_s: rig.sensor.dark_current_e_per_s,
-        full_scale_e: (white_level_dn(&rig.sensor) - f64::from(rig.sensor.black_level_dn)) * rig.sensor.electrons_per_dn,
+        full_scale_e: (white_level_dn(&rig.sensor) - f64::from(rig.sensor.black_level_dn))
+            * rig.sensor.electrons_per_dn,
     };
     let color = btfrig_calibrate::color::processing_color(rig, rig_path)
         .map_err(|e| RunError::Rig(format!("the rig's colour calibration: {e}")))?
