@@ -14,7 +14,7 @@ mod support;
 use std::path::{Path, PathBuf};
 
 use btfrig_compress::dataset::DatasetSource;
-use btfrig_compress::{file, ubo, Model, ModelParams, Method, RowSource};
+use btfrig_compress::{file, ubo, Method, Model, ModelParams, RowSource};
 use btfrig_core::config::RigConfig;
 use btfrig_core::Direction;
 use support::{btfrig, ok, repo, scratch, text};
@@ -76,6 +76,38 @@ fn error_against_textures(model: &Model, dir: &Path) -> f64 {
     (e / t).sqrt()
 }
 
+/// The least relative RMSE any model of the form "row mean + rank `k`" per RGB channel can
+/// reach on the stored textures (an FMF in RGB): Eckart–Young on each channel's row-centred
+/// captures x texels matrix, from a dense SVD here.
+fn optimal_rel_error(dir: &Path, k: usize) -> f64 {
+    let mut src = DatasetSource::open(dir).unwrap();
+    let (m, n) = (src.layout().n_measured(), src.layout().texels());
+    let mut b = vec![nalgebra::DMatrix::<f64>::zeros(m, n); 3];
+    let mut row = 0;
+    src.for_each(&mut |_, _, tex| {
+        for (x, p) in tex.iter().enumerate() {
+            for c in 0..3 {
+                b[c][(row, x)] = f64::from(p[c]);
+            }
+        }
+        row += 1;
+        Ok(())
+    })
+    .unwrap();
+    let (mut e, mut t) = (0.0, 0.0);
+    for mut bc in b {
+        t += bc.norm_squared();
+        for mut r in bc.row_iter_mut() {
+            let mean = r.mean();
+            r.add_scalar_mut(-mean);
+        }
+        let mut s: Vec<f64> = bc.singular_values().iter().copied().collect();
+        s.sort_by(|a, b| b.total_cmp(a));
+        e += s.iter().skip(k).map(|x| x * x).sum::<f64>();
+    }
+    (e / t).sqrt()
+}
+
 fn compress_json(dir: &Path, args: &[&str]) -> serde_json::Value {
     let out = ok(btfrig().arg("compress").arg(dir).args(args).arg("--json"));
     serde_json::from_str(out.trim()).unwrap_or_else(|e| panic!("{e}: {out}"))
@@ -94,7 +126,8 @@ fn a_dome_dataset_compresses_with_each_captures_directions_and_its_export_is_ref
     let ds = dir.join("dome");
     run(&dome_plan(&dir), &ds);
 
-    // FMF 8,4,4 terms (yuv, f16): captures, layout and ratio as configured.
+    // FMF 8,4,4 terms (yuv, f16, the defaults but the terms): captures, layout and ratio as
+    // configured.
     let j = compress_json(&ds, &["--terms", "8,4,4"]);
     assert_eq!(j["captures"], 396, "{j}");
     assert_eq!((j["lights"].as_u64(), j["views"].as_u64()), (Some(198), Some(2)), "{j}");
@@ -105,20 +138,24 @@ fn a_dome_dataset_compresses_with_each_captures_directions_and_its_export_is_ref
     let bytes = std::fs::metadata(&path).unwrap().len() as f64;
     let raw = (396 * 16 * 16 * 3 * 2) as f64;
     assert!((j["compression_ratio"].as_f64().unwrap() - raw / bytes).abs() < 1e-9, "{j}");
-
-    // The error it reports is the error of the file against the textures, recomputed here.
     let model = file::read(&path).unwrap();
     assert!(model.channels.iter().zip([8, 4, 4]).all(|(c, k)| c.parts.iter().all(|p| p.k == k)));
+    // The error it reports is the error of the file against the textures, recomputed here.
     let rel = error_against_textures(&model, &ds);
     let reported = j["rel_rmse_vs_dataset"].as_f64().unwrap();
     assert!((rel - reported).abs() < 1e-6 * rel.max(1e-3), "recomputed {rel}, reported {reported}");
-    // Measured: 0.0566 with 8,4,4 terms (the dome demo's textures are noisy: its error against
-    // ground truth is of order 1, so the noise floor is most of this); bound 25 % above.
-    assert!(rel < 0.071, "relative RMSE {rel}");
-    // More terms fit better: a real fit, not a constant.
-    let j32 = compress_json(&ds, &["--terms", "32,16,16", "--out", dir.join("dome-32.btfm").to_str().unwrap()]);
-    let rel32 = j32["rel_rmse_vs_dataset"].as_f64().unwrap();
-    assert!(rel32 < 0.9 * rel, "32 terms {rel32} vs 8 terms {rel}");
+
+    // In RGB and f32 an FMF of 8 terms is within a bound of the best rank-8 fit (row mean +
+    // rank 8 per channel, dense SVD here): the randomized SVD's 4 passes lose little.
+    let out = dir.join("dome-rgb8.btfm");
+    let j8 =
+        compress_json(&ds, &["--color", "rgb", "--precision", "f32", "--terms", "8", "--out", out.to_str().unwrap()]);
+    let rel8 = error_against_textures(&file::read(&out).unwrap(), &ds);
+    let best = optimal_rel_error(&ds, 8);
+    eprintln!("dome: FMF 8 rgb f32 relative RMSE {rel8}, best rank-8 {best}, yuv 8,4,4 f16 {rel}; {j8}");
+    // Measured: 1.0066 x the optimum (0.3607 against 0.3584: the demo's textures are noisy);
+    // bound 3 % above it.
+    assert!(rel8 >= best * (1.0 - 1e-6) && rel8 <= 1.03 * best, "FMF 8 {rel8} vs best rank 8 {best}");
 
     // Each capture's directions in the sample frame, from the rig config's geometry here.
     let manifest: serde_json::Value =
@@ -187,8 +224,10 @@ fn a_camera_array_dataset_exports_when_every_camera_is_measured_and_is_refused_o
     let path = PathBuf::from(j["model"].as_str().unwrap());
     let model = file::read(&path).unwrap();
     let rel = error_against_textures(&model, &ds);
-    // Measured: 0.0107 (49 captures, 6 terms); bound 25 % above.
-    assert!(rel < 0.0134, "relative RMSE {rel}");
+    let best = optimal_rel_error(&ds, 6);
+    eprintln!("camera array: FMF 6 rgb f32 relative RMSE {rel}, best rank-6 {best}; {j}");
+    // Measured: 1.0107 x the optimum (0.4246 against 0.4201); bound 3 % above it.
+    assert!(rel >= best * (1.0 - 1e-6) && rel <= 1.03 * best, "FMF 6 {rel} vs best rank 6 {best}");
     let btf = dir.join("all.btf");
     ok(btfrig().args(["dataset", "export"]).arg(&ds).args(["--format", "ubo-dfmf", "--f32", "--out"]).arg(&btf));
     // Read back: the container's directions are the captures' sample-frame directions (no
@@ -227,7 +266,13 @@ fn a_camera_array_dataset_exports_when_every_camera_is_measured_and_is_refused_o
     let ds2 = dir.join("two");
     run(&camera_array_plan(&dir, "two", "[0, 3]"), &ds2);
     let btf2 = dir.join("two.btf");
-    let o = btfrig().args(["dataset", "export"]).arg(&ds2).args(["--format", "ubo-dfmf", "--out"]).arg(&btf2).output().unwrap();
+    let o = btfrig()
+        .args(["dataset", "export"])
+        .arg(&ds2)
+        .args(["--format", "ubo-dfmf", "--out"])
+        .arg(&btf2)
+        .output()
+        .unwrap();
     let t = text(&o);
     assert!(!o.status.success() && t.contains("as many lights as views") && t.contains("7 lights, 2 views"), "{t}");
     assert!(!btf2.exists() && !t.contains("building"), "{t}");

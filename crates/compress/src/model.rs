@@ -539,7 +539,9 @@ impl Model {
                 let (l, v) = self.layout.directions(a);
                 light.angle_to(l) + view.angle_to(v)
             };
-            let best = (0..self.layout.n_angular()).filter(|&a| self.layout.measured[a]).min_by(|&x, &y| d(x).total_cmp(&d(y)));
+            let best = (0..self.layout.n_angular())
+                .filter(|&a| self.layout.measured[a])
+                .min_by(|&x, &y| d(x).total_cmp(&d(y)));
             combos.extend(best.map(|a| (a, 1.0f32)));
         } else {
             let wv = self.layout.view.interpolate(view);

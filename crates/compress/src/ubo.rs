@@ -489,10 +489,10 @@ fn view_dirs(layout: &crate::model::Layout) -> Vec<(f32, f32)> {
 
 fn to_pairs(d: impl Iterator<Item = btfrig_core::Direction>) -> Vec<(f32, f32)> {
     d.map(|d| {
-            let phi = if d.phi > std::f64::consts::PI { d.phi - std::f64::consts::TAU } else { d.phi };
-            (d.theta as f32, phi as f32)
-        })
-        .collect()
+        let phi = if d.phi > std::f64::consts::PI { d.phi - std::f64::consts::TAU } else { d.phi };
+        (d.theta as f32, phi as f32)
+    })
+    .collect()
 }
 
 /// What an export cost in accuracy: relative RMS of the exported BTF against the model's,
