@@ -168,6 +168,8 @@ pub fn compress(a: &CompressArgs) -> anyhow::Result<()> {
             "passes": stats.passes, "pass_s": stats.pass_s, "build_s": stats.total_s,
             "builder_peak_bytes": stats.peak_bytes, "process_peak_rss_bytes": rss,
             "file_bytes": bytes, "raw_half_bytes": raw, "compression_ratio": ratio, "rel_rmse_vs_dataset": rel,
+            "lights": model.layout.n_light(), "views": model.layout.n_view(),
+            "view_ids": model.layout.captures.as_ref().map(|c| c.view_ids.clone()),
         });
         println!("{j}");
         return Ok(());
@@ -178,6 +180,14 @@ pub fn compress(a: &CompressArgs) -> anyhow::Result<()> {
         model.layout.width,
         model.layout.height
     );
+    if let Some(c) = &model.layout.captures {
+        println!(
+            "layout    {} lights x {} views (dataset view ids {:?}), each capture's directions in the sample frame",
+            model.layout.n_light(),
+            model.layout.n_view(),
+            c.view_ids
+        );
+    }
     println!(
         "model     {} {:?} terms, colour {}, {:?}",
         params.method.label(),
@@ -300,12 +310,14 @@ pub fn export(a: &ExportArgs) -> anyhow::Result<()> {
                     file::read(one)?
                 }
                 [] => {
+                    let mut src = DatasetSource::open(&a.dir)?;
+                    // A sampling no Bonn container holds is refused before the build.
+                    ubo::check_exportable(src.layout())?;
                     println!("model     none next to the dataset: building an FMF (rgb, 64 terms) from it");
                     let mut p = ModelParams::new(Method::Fmf);
                     p.color = ColorModel::Rgb;
                     p.terms = [64; 3];
                     p.precision = Precision::F32;
-                    let mut src = DatasetSource::open(&a.dir)?;
                     build::<f32>(src.layout().clone(), &p, &mut src)?.0
                 }
                 many => anyhow::bail!(

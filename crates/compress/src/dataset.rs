@@ -11,7 +11,7 @@ use rayon::prelude::*;
 
 use crate::build::{check_finite, RowSink, RowSource};
 use crate::error::{CompressError, Result};
-use crate::model::Layout;
+use crate::model::{CaptureDirections, Layout};
 
 /// A finished (or partial) dataset as a source of textures.
 pub struct DatasetSource {
@@ -32,6 +32,93 @@ fn sampling(name: &str, d: &[btfrig_store::DirectionDeg]) -> Result<Sampling> {
         .map_err(|e| CompressError::Dataset { dir: PathBuf::new(), what: format!("{name} sampling: {e}") })
 }
 
+/// The layout of a dome or camera-array dataset (`None`: the manifest's rig is a
+/// gonioreflectometer, or a synthetic dataset without a rig config), from the manifest alone:
+/// its rig config (`rig.config_toml`, the dome geometry) and its steps. Lights are the
+/// manifest's light list (LEDs or flashes, rig frame); views are the dataset's view ids that
+/// the plan measures (`rotation x rig cameras + camera`), in increasing order; each capture's
+/// directions in the sample frame are `DomeConfig::sample_directions(camera, turntable,
+/// light)`. Every expected step is marked measured.
+pub fn dome_layout(manifest: &Manifest) -> std::result::Result<Option<Layout>, String> {
+    if manifest.rig.config_toml.trim().is_empty() {
+        return Ok(None);
+    }
+    // A config that does not parse is no dome this build knows: the samplings as written.
+    let Ok(rig) = btfrig_core::config::RigConfig::from_toml(&manifest.rig.config_toml, "manifest rig.config_toml")
+    else {
+        return Ok(None);
+    };
+    let Some(dome) = rig.dome.as_ref().filter(|_| rig.rig.kind.is_dome()) else { return Ok(None) };
+    let (ncams, nl) = (dome.camera_count(), manifest.samplings.light.len());
+    if nl != dome.led_count() {
+        return Err(format!(
+            "the manifest lists {nl} lights, its rig config ({}) has {} {}",
+            rig.rig.name,
+            dome.led_count(),
+            if dome.is_flash() { "flashes" } else { "LEDs" }
+        ));
+    }
+    let expected = manifest.samplings.expected_steps();
+    let mut view_ids: Vec<u32> = expected.iter().map(|s| s.view).collect();
+    view_ids.dedup();
+    view_ids.sort_unstable();
+    view_ids.dedup();
+    let camera_rotation = |id: u32| -> std::result::Result<(usize, u32), String> {
+        let (c, k) = (id as usize % ncams, id / ncams as u32);
+        if k >= dome.rotations {
+            return Err(format!(
+                "view {id} is rotation {k} of camera {c}: the rig has {} rotations and {ncams} cameras",
+                dome.rotations
+            ));
+        }
+        Ok((c, k))
+    };
+    let mut views = Vec::with_capacity(view_ids.len());
+    for &id in &view_ids {
+        let (c, k) = camera_rotation(id)?;
+        views.push(dome.sample_directions(c, dome.rotation_rad(k), 0).1);
+    }
+    let light_dirs: Vec<Direction> =
+        manifest.samplings.light.iter().map(|x| Direction::from_degrees(x.theta_deg, x.phi_deg)).collect();
+    let (lname, vname) = if dome.is_flash() { ("flashes", "cameras") } else { ("dome-leds", "dome-views") };
+    let light = Sampling::from_list(lname, light_dirs).map_err(|e| format!("light list: {e}"))?;
+    let view = Sampling::from_list(vname, views).map_err(|e| match e {
+        btfrig_core::sampling::SamplingError::Duplicate { first, second, .. } => {
+            let (c1, k1) = camera_rotation(view_ids[first]).unwrap_or_default();
+            let (c2, k2) = camera_rotation(view_ids[second]).unwrap_or_default();
+            format!(
+                "views {} (camera {c1}, rotation {k1}) and {} (camera {c2}, rotation {k2}) look along the same \
+                 direction in the sample frame (a camera on the turntable axis): a model's views must differ; \
+                 keep one rotation of that camera in the plan",
+                view_ids[first], view_ids[second]
+            )
+        }
+        e => format!("view list: {e}"),
+    })?;
+    let (w, h) = (manifest.texture.width as usize, manifest.texture.height as usize);
+    let mut layout = Layout::full(light, view, w, h);
+    let n = layout.n_angular();
+    let (mut ld, mut vd) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    for a in 0..n {
+        let (l, v) = layout.pair(a);
+        let (c, k) = camera_rotation(view_ids[v])?;
+        let (dl, dv) = dome.sample_directions(c, dome.rotation_rad(k), l);
+        ld.push(dl);
+        vd.push(dv);
+    }
+    layout.measured.fill(false);
+    for s in &expected {
+        if s.light as usize >= nl {
+            return Err(format!("step {s}: light {} of {nl}", s.light));
+        }
+        let v = view_ids.binary_search(&s.view).expect("listed above");
+        let a = layout.index(s.light as usize, v);
+        layout.measured[a] = true;
+    }
+    layout.captures = Some(CaptureDirections { view_ids, light: ld, view: vd });
+    Ok(Some(layout))
+}
+
 impl DatasetSource {
     /// Opens `dir`: every journaled step with a texture is a measured capture.
     pub fn open(dir: &Path) -> Result<Self> {
@@ -48,19 +135,26 @@ impl DatasetSource {
         let jp = dir.join(JOURNAL_FILE);
         let jb = std::fs::read(&jp).map_err(io(jp.clone()))?;
         let replay = journal::replay(&jp.display().to_string(), &jb).map_err(|e| fail(e.to_string()))?;
-        let light = sampling("light", &manifest.samplings.light).map_err(|e| fail(e.to_string()))?;
-        let view = sampling("view", &manifest.samplings.view).map_err(|e| fail(e.to_string()))?;
-        let (w, h) = (manifest.texture.width as usize, manifest.texture.height as usize);
-        let mut layout = Layout::full(light, view, w, h);
+        let mut layout = match dome_layout(&manifest).map_err(&fail)? {
+            Some(l) => l,
+            None => {
+                let light = sampling("light", &manifest.samplings.light).map_err(|e| fail(e.to_string()))?;
+                let view = sampling("view", &manifest.samplings.view).map_err(|e| fail(e.to_string()))?;
+                let (w, h) = (manifest.texture.width as usize, manifest.texture.height as usize);
+                Layout::full(light, view, w, h)
+            }
+        };
         layout.measured.fill(false);
         let mut steps = Vec::new();
         for (&s, rec) in &replay.done {
             let stem = format!("{TEXTURES_DIR}/{}.exr", s.stem());
             if rec.files.iter().any(|f| f.path == stem) {
-                let a = layout.index(s.light as usize, s.view as usize);
-                if s.light as usize >= layout.n_light() || s.view as usize >= layout.n_view() {
-                    return Err(fail(format!("journaled step {s} is outside the samplings")));
-                }
+                let v = layout.view_of_id(s.view);
+                let (l, v) = match v {
+                    Some(v) if (s.light as usize) < layout.n_light() => (s.light as usize, v as usize),
+                    _ => return Err(fail(format!("journaled step {s} is outside the samplings"))),
+                };
+                let a = layout.index(l, v);
                 layout.measured[a] = true;
                 steps.push(s);
             }
@@ -81,9 +175,15 @@ impl DatasetSource {
         &self.manifest
     }
 
-    /// The captured steps.
+    /// The captured steps (the dataset's light and view ids).
     pub fn steps(&self) -> &[StepId] {
         &self.steps
+    }
+
+    /// The layout's `(light, view)` of a captured step (a dome's view id is mapped to the
+    /// layout's view; a gonio dataset's is the same number).
+    pub fn layout_pair(&self, step: StepId) -> (u32, u32) {
+        (step.light, self.layout.view_of_id(step.view).expect("a captured step's view is in the layout"))
     }
 
     /// Reads the texture of `step`, checking size and finiteness.
@@ -111,7 +211,8 @@ impl RowSource for DatasetSource {
         for chunk in self.steps.chunks(self.chunk.max(1)) {
             let read: Vec<Result<Vec<[f32; 3]>>> = chunk.par_iter().map(|&s| self.read(s)).collect();
             for (s, t) in chunk.iter().zip(read) {
-                f(s.light, s.view, &t?)?;
+                let (l, v) = self.layout_pair(*s);
+                f(l, v, &t?)?;
             }
         }
         Ok(())

@@ -80,6 +80,17 @@ pub struct ArrayHeader {
     pub len: usize,
 }
 
+/// The per-capture directions of a dome model, in the header.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CapturesHeader {
+    /// The dataset's view id of every view (a dome: `rotation x rig cameras + camera`).
+    pub view_ids: Vec<u32>,
+    /// Per angular index, `[light theta, light phi, view theta, view phi]`, degrees, in the
+    /// sample frame.
+    pub directions: Vec<[f64; 4]>,
+}
+
 /// The JSON header.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -114,6 +125,11 @@ pub struct Header {
     /// Angular indices (`view * n_light + light`) that were not measured (rows filled by
     /// interpolation).
     pub unmeasured: Vec<usize>,
+    /// A dome or camera array ([`crate::model::CaptureDirections`]): the dataset's view id
+    /// of every view and each capture's directions in the sample frame; absent on a gonio
+    /// model.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub captures: Option<CapturesHeader>,
     /// Per channel, its parts.
     pub channels: Vec<Vec<PartHeader>>,
     /// The arrays that follow, in order.
@@ -191,6 +207,15 @@ pub fn header_of(model: &Model, source: serde_json::Value) -> Header {
         width: model.layout.width,
         height: model.layout.height,
         unmeasured: (0..model.layout.n_angular()).filter(|&a| !model.layout.measured[a]).collect(),
+        captures: model.layout.captures.as_ref().map(|c| CapturesHeader {
+            view_ids: c.view_ids.clone(),
+            directions: c
+                .light
+                .iter()
+                .zip(&c.view)
+                .map(|(l, v)| [l.theta.to_degrees(), l.phi.to_degrees(), v.theta.to_degrees(), v.phi.to_degrees()])
+                .collect(),
+        }),
         channels,
         arrays,
         source,
@@ -388,6 +413,22 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<Model> {
             return Err(fail(format!("unmeasured index {a} >= {} angular rows", layout.n_angular())));
         }
         layout.measured[a] = false;
+    }
+    if let Some(c) = &h.captures {
+        if c.view_ids.len() != layout.n_view() || c.directions.len() != layout.n_angular() {
+            return Err(fail(format!(
+                "captures: {} view ids and {} directions for {} views and {} angular rows",
+                c.view_ids.len(),
+                c.directions.len(),
+                layout.n_view(),
+                layout.n_angular()
+            )));
+        }
+        layout.captures = Some(crate::model::CaptureDirections {
+            view_ids: c.view_ids.clone(),
+            light: c.directions.iter().map(|d| Direction::from_degrees(d[0], d[1])).collect(),
+            view: c.directions.iter().map(|d| Direction::from_degrees(d[2], d[3])).collect(),
+        });
     }
     let mut arrays = h.arrays.iter();
     let mut next = |r: &mut Reader, want_len: usize, want_name: &str| -> Result<Vec<f32>> {

@@ -55,5 +55,5 @@ pub mod ubo;
 pub use build::{build, check_finite, BuildStats, Builder, MemorySource, ModelParams, RowSink, RowSource};
 pub use color::ColorModel;
 pub use error::{CompressError, Result};
-pub use model::{Channel, Layout, Method, Model, Part, PartRows, Precision, Query, SharedBasis};
+pub use model::{CaptureDirections, Channel, Layout, Method, Model, Part, PartRows, Precision, Query, SharedBasis};
 pub use rsvd::{Real, RsvdParams, StreamingRsvd, Svd};

@@ -92,9 +92,10 @@ impl Method {
 /// The shape of a BTF: samplings, texture size, which pairs were measured.
 #[derive(Debug, Clone)]
 pub struct Layout {
-    /// Light directions.
+    /// Light directions (a dome: the lights' directions in the rig frame, i.e. in the sample
+    /// frame at turntable rotation 0; [`Layout::captures`] has each capture's).
     pub light: Sampling,
-    /// View directions.
+    /// View directions (a dome: each view's direction in the sample frame).
     pub view: Sampling,
     /// Texture width, texels.
     pub width: usize,
@@ -102,13 +103,55 @@ pub struct Layout {
     pub height: usize,
     /// Per angular index `a = view * n_light + light`: measured.
     pub measured: Vec<bool>,
+    /// A dome or camera array: the dataset's view ids and each capture's own directions in
+    /// the sample frame; `None`: a gonioreflectometer's layout, capture `(l, v)` is exactly
+    /// `(light[l], view[v])` and views are the dataset's view indices.
+    pub captures: Option<CaptureDirections>,
+}
+
+/// The (light, view) directions of every capture of a dome or camera array, in the sample
+/// frame. A dome's view is a camera at a turntable rotation, so a light's direction in the
+/// sample frame depends on the view: the layout is not a product of two samplings.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CaptureDirections {
+    /// The dataset's view id of each view of the layout (a dome: `rotation x rig cameras +
+    /// camera`); the layout holds only the measured views, in this order.
+    pub view_ids: Vec<u32>,
+    /// Per angular index, the light's direction in the sample frame.
+    pub light: Vec<Direction>,
+    /// Per angular index, the view's direction in the sample frame.
+    pub view: Vec<Direction>,
 }
 
 impl Layout {
     /// A layout in which every pair is measured.
     pub fn full(light: Sampling, view: Sampling, width: usize, height: usize) -> Self {
         let m = light.len() * view.len();
-        Layout { light, view, width, height, measured: vec![true; m] }
+        Layout { light, view, width, height, measured: vec![true; m], captures: None }
+    }
+
+    /// The (light, view) directions of angular index `a` in the sample frame.
+    pub fn directions(&self, a: usize) -> (Direction, Direction) {
+        match &self.captures {
+            Some(c) => (c.light[a], c.view[a]),
+            None => {
+                let (l, v) = self.pair(a);
+                (self.light.get(l), self.view.get(v))
+            }
+        }
+    }
+
+    /// The layout's view of the dataset's view id `id` (the same number on a gonio layout).
+    pub fn view_of_id(&self, id: u32) -> Option<u32> {
+        match &self.captures {
+            Some(c) => c.view_ids.iter().position(|&v| v == id).map(|v| v as u32),
+            None => ((id as usize) < self.n_view()).then_some(id),
+        }
+    }
+
+    /// The dataset's view id of the layout's view `v`.
+    pub fn view_id(&self, v: usize) -> u32 {
+        self.captures.as_ref().map_or(v as u32, |c| c.view_ids[v])
     }
 
     /// Lights.
@@ -487,14 +530,27 @@ impl Model {
     /// A query for arbitrary directions: the interpolated angular factors, ready to evaluate
     /// any texel ([`Query::texel`], [`Query::texture`]).
     pub fn query(&self, view: Direction, light: Direction) -> Query<'_> {
-        let wv = self.layout.view.interpolate(view);
-        let wl = self.layout.light.interpolate(light);
         let nl = self.layout.n_light();
         let mut combos = Vec::with_capacity(9);
-        for (v, a) in wv.iter() {
-            for (l, b) in wl.iter() {
-                if a * b > 0.0 {
-                    combos.push((v * nl + l, (a * b) as f32));
+        if self.layout.captures.is_some() {
+            // A dome's captures are no product of two triangulated samplings: the measured
+            // capture nearest to the pair (summed angles in the sample frame).
+            let d = |a: usize| {
+                let (l, v) = self.layout.directions(a);
+                light.angle_to(l) + view.angle_to(v)
+            };
+            let best = (0..self.layout.n_angular())
+                .filter(|&a| self.layout.measured[a])
+                .min_by(|&x, &y| d(x).total_cmp(&d(y)));
+            combos.extend(best.map(|a| (a, 1.0f32)));
+        } else {
+            let wv = self.layout.view.interpolate(view);
+            let wl = self.layout.light.interpolate(light);
+            for (v, a) in wv.iter() {
+                for (l, b) in wl.iter() {
+                    if a * b > 0.0 {
+                        combos.push((v * nl + l, (a * b) as f32));
+                    }
                 }
             }
         }

@@ -70,12 +70,16 @@ pub struct StreamingCompressor {
     counters: Arc<Counters>,
 }
 
-/// The layout a dataset is meant to have: its samplings, texture size and expected steps.
+/// The layout a dataset is meant to have: its samplings (a dome or camera array: its
+/// per-capture directions, [`crate::dataset::dome_layout`]), texture size and expected steps.
 pub fn expected_layout(dir: &Path) -> Result<Layout> {
     let fail = |what: String| CompressError::Dataset { dir: dir.into(), what };
     let p = dir.join(MANIFEST_FILE);
     let text = std::fs::read(&p).map_err(|source| CompressError::Io { path: p.clone(), source })?;
     let m: Manifest = serde_json::from_slice(&text).map_err(|e| fail(format!("{MANIFEST_FILE}: {e}")))?;
+    if let Some(layout) = crate::dataset::dome_layout(&m).map_err(&fail)? {
+        return Ok(layout);
+    }
     let s = |name: &str, d: &[btfrig_store::DirectionDeg]| {
         Sampling::from_list(name, d.iter().map(|x| Direction::from_degrees(x.theta_deg, x.phi_deg)).collect())
             .map_err(|e| fail(format!("{name} sampling: {e}")))
@@ -108,13 +112,20 @@ impl StreamingCompressor {
             .name("btfrig-compress".into())
             .spawn(move || -> Result<Option<Builder<f32>>> {
                 let mut b: Option<Builder<f32>> = None;
-                for (l, v, t) in rx {
+                for (l, id, t) in rx {
                     c.popped.fetch_add(1, Ordering::Relaxed);
                     let start = Instant::now();
                     if b.is_none() {
                         b = Some(Builder::new(expected_layout(&d)?, p.clone())?);
                     }
-                    b.as_mut().expect("just set").push(l, v, &t)?;
+                    let b = b.as_mut().expect("just set");
+                    // A dome's view ids map to the layout's measured views.
+                    let v = b.layout().view_of_id(id).ok_or_else(|| CompressError::UnknownCapture {
+                        light: l,
+                        view: id,
+                        why: "the view is not among the dataset's expected views".into(),
+                    })?;
+                    b.push(l, v, &t)?;
                     c.busy_ns.fetch_add(start.elapsed().as_nanos() as u64, Ordering::Relaxed);
                 }
                 Ok(b)
@@ -170,9 +181,10 @@ impl StreamingCompressor {
         // Pass 1: the captures the sink did not see.
         let mut from_disk = 0;
         for &s in src.steps().to_vec().iter() {
-            if !b.seen(s.light, s.view) {
+            let (l, v) = src.layout_pair(s);
+            if !b.seen(l, v) {
                 let tex = src.read(s)?;
-                b.push(s.light, s.view, &tex)?;
+                b.push(l, v, &tex)?;
                 from_disk += 1;
             }
         }

@@ -428,14 +428,71 @@ fn put_f32(o: &mut Vec<u8>, v: f32) {
     o.extend_from_slice(&v.to_le_bytes());
 }
 
-fn dirs(s: &btfrig_core::sampling::Sampling) -> Vec<(f32, f32)> {
-    s.directions()
-        .iter()
-        .map(|d| {
-            let phi = if d.phi > std::f64::consts::PI { d.phi - std::f64::consts::TAU } else { d.phi };
-            (d.theta as f32, phi as f32)
-        })
-        .collect()
+/// Light directions shared by every view within this angle count as one light list.
+pub const SAME_LIGHT_TOLERANCE_DEG: f64 = 0.01;
+
+/// Whether a layout's sampling fits a Bonn container, checked before any work: the readers
+/// take one light list (the first view's) for every view, and need as many lights as views.
+/// A dome whose turntable turns between views moves its lights in the sample frame, which
+/// no `.btf` reader can express; the error says which field cannot hold what.
+pub fn check_exportable(layout: &crate::model::Layout) -> Result<()> {
+    if let Some(c) = &layout.captures {
+        let (nl, nv) = (layout.n_light(), layout.n_view());
+        let mut worst = (0.0f64, 0usize, 0usize);
+        for v in 1..nv {
+            for l in 0..nl {
+                let d = c.light[layout.index(l, v)].angle_to(c.light[layout.index(l, 0)]).to_degrees();
+                if d > worst.0 {
+                    worst = (d, l, v);
+                }
+            }
+        }
+        if worst.0 > SAME_LIGHT_TOLERANCE_DEG {
+            let (d, l, v) = worst;
+            return Err(CompressError::Export(format!(
+                "the .btf sampling block stores one light list per view, but btf.hh and btf-extractor read the \
+                 first view's list for every view; in this dataset the lights move in the sample frame from view to \
+                 view (the turntable turns: light {l} is {d:.1} deg away from its direction at view id {} when \
+                 seen from view id {}), so no Bonn container can hold its sampling. Export one turntable rotation \
+                 of a dome, or a camera array",
+                c.view_ids[0], c.view_ids[v]
+            )));
+        }
+    }
+    if layout.n_light() != layout.n_view() {
+        return Err(CompressError::Export(format!(
+            "the Bonn readers need as many lights as views (btf.hh sizes U as lights^2): {} lights, {} views{}",
+            layout.n_light(),
+            layout.n_view(),
+            if layout.captures.is_some() { " measured by the plan (a full-hemisphere plan has as many)" } else { "" }
+        )));
+    }
+    Ok(())
+}
+
+/// The light list of the container (a dome or camera array: the sample-frame directions of
+/// the first view's captures, the same at every view once [`check_exportable`] passed).
+fn light_dirs(layout: &crate::model::Layout) -> Vec<(f32, f32)> {
+    match &layout.captures {
+        Some(c) => to_pairs((0..layout.n_light()).map(|l| c.light[layout.index(l, 0)])),
+        None => to_pairs(layout.light.directions().iter().copied()),
+    }
+}
+
+/// The view list of the container (a dome or camera array: each view's sample-frame direction).
+fn view_dirs(layout: &crate::model::Layout) -> Vec<(f32, f32)> {
+    match &layout.captures {
+        Some(c) => to_pairs((0..layout.n_view()).map(|v| c.view[layout.index(0, v)])),
+        None => to_pairs(layout.view.directions().iter().copied()),
+    }
+}
+
+fn to_pairs(d: impl Iterator<Item = btfrig_core::Direction>) -> Vec<(f32, f32)> {
+    d.map(|d| {
+        let phi = if d.phi > std::f64::consts::PI { d.phi - std::f64::consts::TAU } else { d.phi };
+        (d.theta as f32, phi as f32)
+    })
+    .collect()
 }
 
 /// What an export cost in accuracy: relative RMS of the exported BTF against the model's,
@@ -452,6 +509,7 @@ pub struct ExportFit {
 /// The model as a DFMF container with `rank` terms per channel (`None`: every term the
 /// factors have, i.e. exact up to rounding).
 pub fn to_dfmf(model: &Model, rank: Option<usize>, scalar_size: u8) -> Result<(Ubo, ExportFit)> {
+    check_exportable(&model.layout)?;
     let (m, n) = (model.layout.n_angular(), model.layout.texels());
     let mut factors = Vec::new();
     let (mut err2, mut tot2) = (0.0f64, 0.0f64);
@@ -521,8 +579,8 @@ pub fn to_dfmf(model: &Model, rank: Option<usize>, scalar_size: u8) -> Result<(U
         }
         let ubo = Ubo {
             format: UboFormat::Dfmf,
-            light: dirs(&model.layout.light),
-            view: dirs(&model.layout.view),
+            light: light_dirs(&model.layout),
+            view: view_dirs(&model.layout),
             width: model.layout.width,
             height: model.layout.height,
             scalar_size,
@@ -534,8 +592,8 @@ pub fn to_dfmf(model: &Model, rank: Option<usize>, scalar_size: u8) -> Result<(U
     }
     let ubo = Ubo {
         format: UboFormat::Dfmf,
-        light: dirs(&model.layout.light),
-        view: dirs(&model.layout.view),
+        light: light_dirs(&model.layout),
+        view: view_dirs(&model.layout),
         width: model.layout.width,
         height: model.layout.height,
         scalar_size,
@@ -548,6 +606,7 @@ pub fn to_dfmf(model: &Model, rank: Option<usize>, scalar_size: u8) -> Result<(U
 /// The model as an FMF1 container (log domain, `rank` terms shared by the channels): the
 /// model is decoded at every (light, view) pair and refitted.
 pub fn to_fmf1(model: &Model, rank: usize, scalar_size: u8) -> Result<(Ubo, ExportFit)> {
+    check_exportable(&model.layout)?;
     let (m, n) = (model.layout.n_angular(), model.layout.texels());
     let mut r = StreamingRsvd::<f32>::new(3 * m, n, &RsvdParams { seed: 17, ..RsvdParams::rank(rank) })?;
     loop {
@@ -572,8 +631,8 @@ pub fn to_fmf1(model: &Model, rank: usize, scalar_size: u8) -> Result<(Ubo, Expo
     .rounded(scalar_size);
     let ubo = Ubo {
         format: UboFormat::Fmf1,
-        light: dirs(&model.layout.light),
-        view: dirs(&model.layout.view),
+        light: light_dirs(&model.layout),
+        view: view_dirs(&model.layout),
         width: model.layout.width,
         height: model.layout.height,
         scalar_size,
