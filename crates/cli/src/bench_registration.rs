@@ -19,11 +19,11 @@ use btfrig_core::config::RigConfig;
 use btfrig_core::kinematics::JointState;
 use btfrig_core::pose::ScenePose;
 use btfrig_core::Direction;
-use btfrig_imageio::demosaic::demosaic_bilinear;
 use btfrig_markers::{detect, Detection, Dictionary, GrayImage};
 use btfrig_register::{
     back_project, register, sample_to_camera, texel_position_error, PlateRegistrar, RegisterOptions,
 };
+use btfrig_imageio::demosaic::demosaic_bilinear;
 use btfrig_render::material::MaterialSpec;
 use btfrig_render::renderer::RenderOptions;
 use btfrig_render::rig_scene::RigScene;
