@@ -1,12 +1,14 @@
 //! Colour calibration on a rig: a colour calibration plan ([`ColorPlan`],
 //! `rig-configs/plans/calibration-color.toml`) names colour charts mounted in the sample
 //! region of the holder plate (which of their patches are held out of the fit), one view and
-//! one lamp direction; [`calibrate_color_simulated`] photographs each chart on the simulated rig (true lens,
-//! lamp, seeded sensor noise), registers each frame against the plate's markers, rectifies
-//! it and converts it to white-balanced camera RGB radiance factor (the pipeline's radiometry
-//! with an identity matrix), averages each patch's interior, screens clipped and dark patches,
-//! fits every candidate model with `btfrig-color` on the fitting patches, chooses by
-//! cross-validated CIEDE2000 and reports every model's CIEDE2000 on the held-out patches.
+//! one lamp direction; [`calibrate_color`] has a [`ChartCamera`] photograph each chart (on the
+//! simulated rig: `btfrig_sim_calibration::color`, true lens, lamp, seeded sensor noise),
+//! registers each frame against the plate's markers, rectifies it and converts it to
+//! white-balanced camera RGB radiance factor (the pipeline's radiometry with an identity
+//! matrix), averages each patch's interior, screens clipped and dark patches, fits every
+//! candidate model with `btfrig-color` on the fitting patches against the patches' reference
+//! colours ([`ChartReferences`]), chooses by cross-validated CIEDE2000 and reports every
+//! model's CIEDE2000 on the held-out patches.
 //! [`ColorCalibrationFile`] is the file it writes (`calibration/*-color.toml`);
 //! [`processing_color`] reads the one a rig config names. Format and figures:
 //! `docs/color.md`.
@@ -15,6 +17,7 @@ use std::path::Path;
 use std::time::Instant;
 
 use btfrig_calib::{rectify, to_radiance_factor, vignetting_map, Filter, LinearImage, Radiometry, Region};
+use btfrig_color::chart::{ChartLayout, CHART_NAMES};
 use btfrig_color::{
     evaluate, select_model, ColorError, ColorModel, DeltaEStats, FitOptions, ModelKind, PatchStatus, ScreenOptions,
     TargetSpace,
@@ -22,14 +25,12 @@ use btfrig_color::{
 use btfrig_core::camera::CameraModel;
 use btfrig_core::config::RigConfig;
 use btfrig_core::frame::RawFrame;
+use btfrig_core::kinematics::{Gonio, JointState};
 use btfrig_core::pose::ScenePose;
 use btfrig_core::Direction;
 use btfrig_imageio::demosaic::demosaic_bilinear;
 use btfrig_markers::GrayImage;
 use btfrig_register::PlateRegistrar;
-use btfrig_render::chart::{ColorChart, CHART_NAMES};
-use btfrig_render::renderer::RenderOptions;
-use btfrig_render::rig_scene::RigScene;
 use nalgebra::{Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -134,7 +135,7 @@ impl ColorPlan {
             out.push("charts: at least one chart".into());
         }
         for (i, c) in self.charts.iter().enumerate() {
-            if let Err(e) = ColorChart::by_name(&c.name) {
+            if let Err(e) = ChartLayout::by_name(&c.name) {
                 out.push(format!("charts[{i}].name: {e}"));
             }
         }
@@ -224,7 +225,7 @@ pub struct ModelResult {
     pub model: Result<ColorModel, ColorError>,
 }
 
-/// Result of [`calibrate_color_simulated`].
+/// Result of [`calibrate_color`].
 #[derive(Debug, Clone)]
 pub struct ColorCalibration {
     /// Every measured patch, fitting chart first.
@@ -237,7 +238,7 @@ pub struct ColorCalibration {
     pub chosen: usize,
     /// Exposure of the captures, seconds.
     pub exposure_s: f64,
-    /// Seconds rendering frames.
+    /// Seconds capturing (on the simulated rig: rendering) frames, metering included.
     pub render_s: f64,
     /// Seconds registering, rectifying and averaging.
     pub measure_s: f64,
@@ -458,76 +459,103 @@ pub fn processing_color(
 
 /// A captured chart frame with the pose it was taken at.
 struct ChartShot {
-    chart: ColorChart,
-    scene: RigScene,
+    chart: ChartLayout,
     raw: RawFrame,
     nominal: ScenePose,
 }
 
-/// Runs `plan` on the simulated rig `cfg`: photographs the fitting and test charts (noise
-/// seeded from `seed`), registers and rectifies with `camera` (the processing camera,
-/// e.g. [`crate::processing_camera`]), measures the patches and fits and evaluates every
-/// candidate model. `progress` receives one line per stage.
-pub fn calibrate_color_simulated(
-    cfg: &RigConfig,
-    camera: &CameraModel,
-    plan: &ColorPlan,
-    seed: u64,
-    progress: impl FnMut(&str),
-) -> Result<ColorCalibration, RigCalibError> {
-    run(cfg, camera, plan, seed, 1.0, progress)
+/// Which frame [`calibrate_color`] asks a [`ChartCamera`] for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ChartFrame {
+    /// The metering shot of the plan's first chart, at [`ChartCamera::metering_exposure_s`].
+    Metering,
+    /// The capture of the plan's chart of this index, at the metered exposure.
+    Chart(usize),
 }
 
-/// [`calibrate_color_simulated`] with the metered exposure multiplied by `exposure_scale`
-/// (stress tests: over-exposure clips bright patches, under-exposure buries dark ones).
-pub fn calibrate_color_simulated_with_exposure_scale(
-    cfg: &RigConfig,
-    camera: &CameraModel,
-    plan: &ColorPlan,
-    seed: u64,
-    exposure_scale: f64,
-) -> Result<ColorCalibration, RigCalibError> {
-    run(cfg, camera, plan, seed, exposure_scale, |_| {})
+/// The rig side of a colour calibration: photographs the plan's charts, each mounted in the
+/// sample region of the holder plate, with the lamp on.
+pub trait ChartCamera {
+    /// Exposure of the metering shot, seconds: a first guess that keeps the chart's white
+    /// below full scale (the procedure rescales from what it measures).
+    fn metering_exposure_s(&self) -> f64;
+    /// A raw frame of `frame` with the goniometer at `joints`, exposure `exposure_s` at gain 1.
+    fn capture(&mut self, frame: ChartFrame, joints: &JointState, exposure_s: f64) -> Result<RawFrame, String>;
 }
 
-fn run(
+/// What a colour calibration knows besides its frames: the charts' reference colours and the
+/// lamp's level (from the light calibration on a real rig).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ChartReferences {
+    /// Per chart of the plan, per patch: the reference colour at full illumination (linear
+    /// sRGB, D65, adapted from the lamp white; a real rig computes it from the chart maker's
+    /// data and the lamp's white).
+    pub patches: Vec<Vec<[f64; 3]>>,
+    /// Signal rate of a white Lambertian reflector facing the lamp along its normal at the
+    /// nominal lamp distance, e-/s per photosite at gain 1 (the light calibration's green
+    /// `white_rate_e_per_s`): the radiance factor's unit.
+    pub white_rate_e_per_s: f64,
+}
+
+/// Runs `plan` on a rig: `rig` photographs a metering shot of the first chart, then every
+/// chart at the exposure that puts the brightest patch at `plan.exposure_fraction` of full
+/// scale (times `exposure_scale`, 1 normally; stress tests over- or under-expose); each frame
+/// is registered and rectified with `camera` (the processing camera, e.g.
+/// [`crate::processing_camera`]) at the pose of the rig config's nominal kinematics, its patches
+/// measured against `references`, and every candidate model fitted and evaluated.
+/// `progress` receives one line per stage.
+#[allow(clippy::too_many_arguments)]
+pub fn calibrate_color(
     cfg: &RigConfig,
     camera: &CameraModel,
     plan: &ColorPlan,
-    seed: u64,
+    references: &ChartReferences,
     exposure_scale: f64,
+    rig: &mut dyn ChartCamera,
     mut progress: impl FnMut(&str),
 ) -> Result<ColorCalibration, RigCalibError> {
     let problems = plan.problems();
     if !problems.is_empty() {
         return Err(RigCalibError::Plan { origin: plan.name.clone(), message: problems.join("; ") });
     }
-    let rig = |e: String| RigCalibError::Rig(e);
+    let rig_err = |e: String| RigCalibError::Rig(e);
+    let charts: Vec<ChartLayout> =
+        plan.charts.iter().map(|c| ChartLayout::by_name(&c.name)).collect::<Result<_, _>>().map_err(rig_err)?;
+    let counts: Vec<usize> = references.patches.iter().map(Vec::len).collect();
+    let want: Vec<usize> = charts.iter().map(|c| c.patches.len()).collect();
+    if counts != want {
+        return Err(rig_err(format!(
+            "chart references: patches per chart {counts:?}, the plan's charts have {want:?}"
+        )));
+    }
+    if !(references.white_rate_e_per_s.is_finite() && references.white_rate_e_per_s > 0.0) {
+        return Err(rig_err(format!(
+            "chart references: white_rate_e_per_s = {}: allowed finite and > 0",
+            references.white_rate_e_per_s
+        )));
+    }
+    let gonio = Gonio::new(cfg.geometry.clone()).map_err(|e| rig_err(e.to_string()))?;
     let view = Direction::from_degrees(plan.view_theta_deg, plan.view_phi_deg);
     let light = Direction::from_degrees(plan.light_theta_deg, plan.light_phi_deg);
 
-    // 1. Capture: a metering shot of the fitting chart, then both charts at the exposure that
+    // 1. Capture: a metering shot of the fitting chart, then every chart at the exposure that
     // puts the brightest patch at `exposure_fraction` of full scale.
     let t = Instant::now();
-    let charts: Vec<ColorChart> =
-        plan.charts.iter().map(|c| ColorChart::by_name(&c.name)).collect::<Result<_, _>>().map_err(rig)?;
-    let opts = RenderOptions::default();
-    let mut scenes = Vec::new();
-    for chart in &charts {
-        scenes.push(RigScene::with_chart(cfg, chart).map_err(|e| rig(e.to_string()))?);
-    }
-    let joints = scenes[0].gonio().ik(light, view).map_err(|e| rig(format!("chart view unreachable: {e}")))?;
-    let meter_exposure = scenes[0].exposure_for_white(0.3, 1e-4, 30.0);
-    let (meter, _) = scenes[0]
-        .capture(&joints, 1.0, meter_exposure, 1.0, seed ^ 0x4D_45_54_45_52, &opts)
-        .map_err(|e| rig(format!("metering capture: {e}")))?;
+    let joints = gonio.ik(light, view).map_err(|e| rig_err(format!("chart view unreachable: {e}")))?;
+    let nominal = gonio.scene_pose(&joints);
+    let meter_exposure = rig.metering_exposure_s();
+    let meter = rig
+        .capture(ChartFrame::Metering, &joints, meter_exposure)
+        .map_err(|e| rig_err(format!("metering capture: {e}")))?;
     let registrar = PlateRegistrar::new(camera.clone(), &cfg.plate, Default::default())
-        .map_err(|e| rig(format!("registrar: {e}")))?;
-    let nominal = scenes[0].pose(&joints);
-    let m = measure(&scenes[0], &charts[0], &meter, &nominal, camera, &registrar, cfg, plan, [1.0; 3])?;
+        .map_err(|e| rig_err(format!("registrar: {e}")))?;
+    let irradiance = references.white_rate_e_per_s;
+    let m = measure(irradiance, &charts[0], &meter, &nominal, camera, &registrar, cfg, plan, [1.0; 3])?;
     let brightest = m.iter().map(|p| p.peak_raw_mean).fold(0.0, f64::max);
     if !(brightest > 1e-4) {
-        return Err(rig(format!("metering shot: brightest patch at {brightest:.2e} of full scale; is the lamp on?")));
+        return Err(rig_err(format!(
+            "metering shot: brightest patch at {brightest:.2e} of full scale; is the lamp on?"
+        )));
     }
     let exposure_s = (meter_exposure * plan.exposure_fraction / brightest * exposure_scale).clamp(1e-4, 30.0);
     progress(&format!(
@@ -535,12 +563,10 @@ fn run(
         brightest, meter_exposure, exposure_s
     ));
     let mut shots = Vec::new();
-    for (i, (chart, scene)) in charts.into_iter().zip(scenes).enumerate() {
-        let s = seed ^ (i as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15);
-        let (raw, _) =
-            scene.capture(&joints, 1.0, exposure_s, 1.0, s, &opts).map_err(|e| rig(format!("capture: {e}")))?;
-        let nominal = scene.pose(&joints);
-        shots.push(ChartShot { chart, scene, raw, nominal });
+    for (i, chart) in charts.into_iter().enumerate() {
+        let raw =
+            rig.capture(ChartFrame::Chart(i), &joints, exposure_s).map_err(|e| rig_err(format!("capture: {e}")))?;
+        shots.push(ChartShot { chart, raw, nominal });
     }
     let render_s = t.elapsed().as_secs_f64();
     progress(&format!("captured {} chart(s) in {render_s:.1} s", shots.len()));
@@ -548,7 +574,7 @@ fn run(
     // 2. Measure: the fitting chart first without white balance, to find it.
     let t = Instant::now();
     let fit_raw = measure(
-        &shots[0].scene,
+        irradiance,
         &shots[0].chart,
         &shots[0].raw,
         &shots[0].nominal,
@@ -558,16 +584,13 @@ fn run(
         plan,
         [1.0; 3],
     )?;
-    let refs: Vec<[f64; 3]> =
-        shots[0].chart.patches.iter().map(|p| shots[0].scene.colour().output_rgb(&p.spectrum)).collect();
-    let white_balance = white_balance_from(&fit_raw, &refs)?;
+    let white_balance = white_balance_from(&fit_raw, &references.patches[0])?;
     let mut patches = Vec::new();
     for (ci, shot) in shots.iter().enumerate() {
         let raw =
-            measure(&shot.scene, &shot.chart, &shot.raw, &shot.nominal, camera, &registrar, cfg, plan, white_balance)?;
-        let colour = shot.scene.colour();
+            measure(irradiance, &shot.chart, &shot.raw, &shot.nominal, camera, &registrar, cfg, plan, white_balance)?;
         for (k, r) in raw.into_iter().enumerate() {
-            let reference = colour.output_rgb(&shot.chart.patches[k].spectrum);
+            let reference = references.patches[ci][k];
             patches.push(PatchMeasurement {
                 chart: shot.chart.name.clone(),
                 index: k,
@@ -623,7 +646,7 @@ fn run(
             .iter()
             .find_map(|m| m.model.as_ref().err().or(m.cv.as_ref().err()))
             .map_or_else(|| "no candidate".to_string(), |e| e.to_string());
-        rig(format!("no colour model could be fitted on {} patches: {first}", fit.len()))
+        rig_err(format!("no colour model could be fitted on {} patches: {first}", fit.len()))
     })?;
     Ok(ColorCalibration { patches, white_balance, models, chosen, exposure_s, render_s, measure_s })
 }
@@ -691,12 +714,12 @@ struct RawPatch {
 }
 
 /// Registers, rectifies and converts one chart frame; per patch the interior mean of the
-/// camera RGB radiance factor (white balance `wb`, identity matrix), screening verdict and
-/// illumination factor.
+/// camera RGB radiance factor (white balance `wb`, identity matrix, `white_rate_e_per_s` the
+/// unit, see [`ChartReferences`]), screening verdict and illumination factor.
 #[allow(clippy::too_many_arguments)]
 fn measure(
-    scene: &RigScene,
-    chart: &ColorChart,
+    white_rate_e_per_s: f64,
+    chart: &ChartLayout,
     raw: &RawFrame,
     nominal: &ScenePose,
     camera: &CameraModel,
@@ -720,15 +743,15 @@ fn measure(
     let tex =
         rectify(&image, camera, &pose, region, n, Filter::Supersample { n: 2 }).map_err(|e| rig(e.to_string()))?;
     let vig = vignetting_map(camera, &pose, region, n).map_err(|e| rig(e.to_string()))?;
-    // The same parameters as the pipeline's `Processor::radiometry` (sensor model, nominal
-    // irradiance from the lamp model), with a white balance measured here and no matrix.
-    let sensor = scene.sensor();
+    // The same parameters as the pipeline's `Processor::radiometry` (the rig config's sensor
+    // constants, the lamp's nominal irradiance), with a white balance measured here and no matrix.
+    let sensor = &cfg.sensor;
     let radiometry = Radiometry {
         dn_range: (f64::from(raw.meta.white_level) - f64::from(raw.meta.black_level)).max(1.0),
         exposure_s: raw.meta.exposure_s,
-        dn_per_electron: sensor.dn_per_electron(raw.meta.gain.max(1.0)),
+        dn_per_electron: raw.meta.gain.max(1.0) / sensor.electrons_per_dn,
         dark_e_per_s: sensor.dark_current_e_per_s,
-        nominal_irradiance: scene.white_signal_dn(1.0, 1.0) / sensor.dn_per_electron(1.0),
+        nominal_irradiance: white_rate_e_per_s,
         white_balance: wb,
         matrix: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
     };

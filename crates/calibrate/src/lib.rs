@@ -1,11 +1,16 @@
-//! Calibration on a rig: a calibration plan ([`CalibrationPlan`], `rig-configs/plans/
-//! calibration-*.toml`) says where the rig photographs a [`TargetBoard`] mounted on the holder;
-//! [`calibrate_simulated`] renders those captures on the simulated rig (true lens, seeded
-//! sensor noise), detects the board's markers in the green channel, pairs their corners with
-//! the board and calibrates; [`processing_camera`] is the camera model the pipeline processes
-//! frames with (the calibrated one when the rig config points to a calibration file).
+//! Calibration procedures on a rig, from frames: a calibration plan ([`CalibrationPlan`],
+//! `rig-configs/plans/calibration-*.toml`) says where the rig photographs a [`TargetBoard`]
+//! mounted on the holder ([`plan_captures`]: the joint values of each view);
+//! [`calibrate_captures`] detects the board's markers in the green channel of the captured
+//! frames, pairs their corners with the board and calibrates; [`processing_camera`] is the
+//! camera model the pipeline processes frames with (the calibrated one when the rig config
+//! points to a calibration file). The colour ([`color`]), light ([`light`]) and dark/flat
+//! ([`dark_flat`]) procedures work the same way.
 //!
-//! The numerics are in `btfrig-camcal` (which knows nothing of rigs, renderers or files); this
+//! Everything here is a function of frames, the rig config and the plan: whoever took the
+//! frames. The simulated rig's side (rendering the frames, comparing with the simulator's
+//! truth) is `btfrig-sim-calibration`; this crate does not depend on the simulator. The
+//! numerics are in `btfrig-camcal` (which knows nothing of rigs, renderers or files); this
 //! crate is the procedure around them, and does I/O in one place only: [`processing_camera`]
 //! reads the calibration file a rig config names.
 #![warn(missing_docs)]
@@ -19,15 +24,13 @@ use std::time::Instant;
 
 use btfrig_core::camera::CameraModel;
 use btfrig_core::config::plate::MarkerPlacement;
+pub use btfrig_core::config::target::TargetBoard;
 use btfrig_core::config::RigConfig;
 use btfrig_core::frame::RawFrame;
-use btfrig_core::kinematics::JointState;
+use btfrig_core::kinematics::{Gonio, JointState};
 use btfrig_core::Direction;
 use btfrig_imageio::demosaic::demosaic_bilinear;
 use btfrig_markers::{detect, DetectParams, Detection, Dictionary, GrayImage};
-use btfrig_render::renderer::RenderOptions;
-use btfrig_render::rig_scene::RigScene;
-use btfrig_render::target::TargetBoard;
 use nalgebra::Point2;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -204,7 +207,7 @@ pub enum RigCalibError {
         /// What is wrong.
         message: String,
     },
-    /// The rig cannot be simulated (config, target).
+    /// The rig (config, kinematics, a capture) cannot take or measure the plan's captures.
     #[error("simulated rig: {0}")]
     Rig(String),
     /// Too few views had enough detected board corners.
@@ -250,18 +253,16 @@ pub struct CaptureReport {
     pub skipped: Option<String>,
 }
 
-/// Result of [`calibrate_simulated`].
+/// Result of [`calibrate_captures`].
 #[derive(Debug, Clone)]
 pub struct RigCalibration {
     /// The calibration of the last pass (views: the used captures, in plan order).
     pub calibration: Calibration,
-    /// The true camera of the simulated rig (the rig config's own `[camera]` fields).
-    pub truth: CameraModel,
     /// Every planned capture.
     pub captures: Vec<CaptureReport>,
     /// Board corners detected over the used views (last pass).
     pub points_detected: usize,
-    /// Seconds rendering and capturing frames.
+    /// Seconds capturing (on the simulated rig: rendering) frames, as [`BoardCaptures`] says.
     pub render_s: f64,
     /// Seconds detecting markers (all passes).
     pub detect_s: f64,
@@ -395,85 +396,60 @@ pub fn green(raw: &RawFrame) -> Vec<f32> {
     demosaic_bilinear(raw).data.iter().map(|p| p[1]).collect()
 }
 
-/// Runs `plan` on the simulated rig `cfg`: renders every capture with the rig's true lens
-/// and sensor noise seeded from `seed` and the view index, detects the board, calibrates
-/// (`plan.passes` times, see [`CalibrationPlan::passes`]). `progress` receives one line per
-/// stage.
-pub fn calibrate_simulated(
-    cfg: &RigConfig,
-    plan: &CalibrationPlan,
-    seed: u64,
-    mut progress: impl FnMut(&str),
-) -> Result<RigCalibration, RigCalibError> {
-    let shots = capture_simulated(cfg, plan, seed)?;
-    progress(&format!("captured {} views in {:.1} s", shots.frames.iter().flatten().count(), shots.render_s));
-    calibrate_captures(cfg, plan, &shots, progress)
-}
-
-/// The raw frames of a plan's captures on the simulated rig (`None`: view unreachable).
+/// The raw frames of a plan's captures (`None`: view unreachable), however they were taken.
 #[derive(Debug, Clone)]
-pub struct SimCaptures {
+pub struct BoardCaptures {
     /// One per planned view.
     pub frames: Vec<Option<RawFrame>>,
-    /// One per planned view (detection fields not yet filled).
+    /// One per planned view (detection fields not yet filled), as [`plan_captures`] gives them.
     pub captures: Vec<CaptureReport>,
-    /// Seconds spent.
+    /// Seconds spent capturing.
     pub render_s: f64,
 }
 
-/// Renders the plan's captures (first half of [`calibrate_simulated`]).
-pub fn capture_simulated(cfg: &RigConfig, plan: &CalibrationPlan, seed: u64) -> Result<SimCaptures, RigCalibError> {
+/// The captures of a valid `plan` on the rig `cfg`: per view the joint values from the rig's
+/// nominal kinematics, or why the view is unreachable (then it is skipped, not an error).
+pub fn plan_captures(cfg: &RigConfig, plan: &CalibrationPlan) -> Result<Vec<CaptureReport>, RigCalibError> {
     let problems = plan.problems();
     if !problems.is_empty() {
         return Err(RigCalibError::Plan { origin: plan.name.clone(), message: problems.join("; ") });
     }
-    let scene = RigScene::with_target(cfg, &plan.target).map_err(|e| RigCalibError::Rig(e.to_string()))?;
-    let exposure = scene.exposure_for_white(plan.exposure_fraction, 1e-4, 30.0);
-    let opts = RenderOptions { marker_supersampling: plan.marker_supersampling, ..RenderOptions::default() };
-
-    // 1. Capture every view (kept as raw frames: half the memory of a float image).
-    let t = Instant::now();
-    let mut frames: Vec<Option<RawFrame>> = Vec::new();
-    let mut captures = Vec::new();
-    for (i, view) in plan.views().into_iter().enumerate() {
-        let light = plan.light_for(view);
-        match scene.gonio().ik(light, view) {
-            Ok(joints) => {
-                let s = seed ^ (i as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15);
-                let (raw, _) = scene
-                    .capture(&joints, 1.0, exposure, 1.0, s, &opts)
-                    .map_err(|e| RigCalibError::Rig(format!("capture of view {i}: {e}")))?;
-                frames.push(Some(raw));
-                captures.push(CaptureReport { view, joints, markers: 0, skipped: None });
-            }
-            Err(e) => {
-                frames.push(None);
-                captures.push(CaptureReport {
-                    view,
-                    joints: JointState::default(),
-                    markers: 0,
-                    skipped: Some(format!("unreachable: {e}")),
-                });
-            }
-        }
-    }
-    let render_s = t.elapsed().as_secs_f64();
-    Ok(SimCaptures { frames, captures, render_s })
+    let gonio = Gonio::new(cfg.geometry.clone()).map_err(|e| RigCalibError::Rig(e.to_string()))?;
+    Ok(plan
+        .views()
+        .into_iter()
+        .map(|view| match gonio.ik(plan.light_for(view), view) {
+            Ok(joints) => CaptureReport { view, joints, markers: 0, skipped: None },
+            Err(e) => CaptureReport {
+                view,
+                joints: JointState::default(),
+                markers: 0,
+                skipped: Some(format!("unreachable: {e}")),
+            },
+        })
+        .collect())
 }
 
-/// Detects the board in captured frames and calibrates (second half of
-/// [`calibrate_simulated`]; `plan` supplies the board, passes and estimated parameters).
+/// Detects the board in captured frames and calibrates (`plan` supplies the board, passes
+/// and estimated parameters; `shots` the frames of [`plan_captures`], `plan.passes` times,
+/// see [`CalibrationPlan::passes`]). `progress` receives one line per pass.
 pub fn calibrate_captures(
     cfg: &RigConfig,
     plan: &CalibrationPlan,
-    shots: &SimCaptures,
+    shots: &BoardCaptures,
     mut progress: impl FnMut(&str),
 ) -> Result<RigCalibration, RigCalibError> {
-    let scene = RigScene::with_target(cfg, &plan.target).map_err(|e| RigCalibError::Rig(e.to_string()))?;
-    let truth = scene.camera().model().clone();
-    // The lens the rig config states (for a real rig its nominal lens; here also the truth):
-    // only used to predict roughly where each board marker appears.
+    let gonio = Gonio::new(cfg.geometry.clone()).map_err(|e| RigCalibError::Rig(e.to_string()))?;
+    // The lens the rig config states (for a real rig its nominal lens): only used to predict
+    // roughly where each board marker appears.
     let nominal = cfg.camera.to_model().map_err(|e| RigCalibError::Rig(format!("[camera]: {e}")))?;
+    if shots.frames.len() != shots.captures.len() {
+        return Err(RigCalibError::Rig(format!(
+            "{} frames for {} planned captures",
+            shots.frames.len(),
+            shots.captures.len()
+        )));
+    }
     let dict = Dictionary::by_name(&plan.target.dictionary).ok_or_else(|| {
         RigCalibError::Rig(format!("target.dictionary {:?} unknown to the detector", plan.target.dictionary))
     })?;
@@ -483,7 +459,7 @@ pub fn calibrate_captures(
     let mut captures = shots.captures.clone();
     let render_s = shots.render_s;
 
-    let mut opts_cal = Options::new(truth.width, truth.height);
+    let mut opts_cal = Options::new(nominal.width, nominal.height);
     opts_cal.estimate_k3 = plan.estimate_k3;
     opts_cal.estimate_tangential = plan.estimate_tangential;
     let (mut detect_s, mut calibrate_s) = (0.0, 0.0);
@@ -500,7 +476,7 @@ pub fn calibrate_captures(
             let Some(det) = det else { continue };
             let det = det.map_err(|e| RigCalibError::Rig(format!("detector: {e}")))?;
             // Where the kinematics and the nominal lens put each board point.
-            let pose = scene.pose(&cap.joints);
+            let pose = gonio.scene_pose(&cap.joints);
             let s2c = pose.camera_to_world.inverse() * pose.sample_to_world;
             let predict = |p: Point2<f64>| nominal.project(&(s2c * nalgebra::Point3::new(p.x, p.y, 0.0)));
             let corr = correspondences(&markers, &det, &predict);
@@ -554,7 +530,6 @@ pub fn calibrate_captures(
     let (calibration, points_detected, views) = result.expect("at least one pass");
     Ok(RigCalibration {
         calibration,
-        truth,
         captures,
         points_detected,
         render_s,

@@ -13,17 +13,19 @@
 //!
 //! The result ([`LightCalibrationFile`], TOML) is keyed by light id: `"lamp"` for the
 //! gonioreflectometer's lamp; a dome's LEDs will add one entry each.
+//!
+//! [`calibrate_light`] is the procedure on frames a [`TileCamera`] takes; the simulated rig's
+//! camera and the comparison with the simulator's truth are `btfrig_sim_calibration::light`.
 
 use std::collections::BTreeMap;
 
 use btfrig_calib::light::{lambertian_signal, plate_patch_points, rate_radiometry, square_points, PatchOptions};
 use btfrig_calib::{LinearImage, Radiometry};
 use btfrig_core::config::RigConfig;
+use btfrig_core::frame::RawFrame;
+use btfrig_core::kinematics::{Gonio, JointState};
 use btfrig_core::Direction;
 use btfrig_imageio::demosaic::demosaic_bilinear;
-use btfrig_render::material::{AlbedoSpec, MaterialSpec, Pattern};
-use btfrig_render::renderer::RenderOptions;
-use btfrig_render::rig_scene::{resolve_spectrum, RigScene};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -266,17 +268,11 @@ impl LightCalibrationFile {
     }
 }
 
-/// A light calibration with the simulator's truth next to it.
+/// A light calibration and its per-frame figures.
 #[derive(Debug, Clone, PartialEq)]
-pub struct SimLightCalibration {
+pub struct LightCalibration {
     /// The calibration.
     pub file: LightCalibrationFile,
-    /// The true `W_c` of the simulated lamp (model's nominal irradiance times the camera's
-    /// white).
-    pub true_white_rate: [f64; 3],
-    /// The true plate albedo relative to a white reflector (camera RGB of the plate's
-    /// spectrum over the camera's white).
-    pub true_plate_albedo: [f64; 3],
     /// Per frame: `W_c` estimated from it (scatter shows the geometry model holds).
     pub per_frame_white_rate: Vec<[f64; 3]>,
 }
@@ -284,37 +280,35 @@ pub struct SimLightCalibration {
 /// One frame's figures: `W_c`, its sigma, the plate albedo, its sigma.
 type FrameFigures = ([f64; 3], [f64; 3], [f64; 3], [f64; 3]);
 
-/// The white reference tile as a material: flat, Lambertian, spectrally flat reflectance.
-pub fn white_tile(albedo: f64) -> MaterialSpec {
-    MaterialSpec {
-        name: "white-reference".into(),
-        description: "flat Lambertian white reference tile".into(),
-        texels: 16,
-        seed: 0,
-        basis: vec![format!("flat:{albedo}")],
-        height: Vec::new(),
-        albedo: AlbedoSpec { pattern: Pattern::Constant { value: 1.0 }, stops: vec![vec![1.0], vec![1.0]] },
-        specular: None,
-    }
+/// The rig side of a light calibration: photographs the white reference tile on the holder.
+/// Frames are taken in parallel, so it is `Sync`.
+pub trait TileCamera: Sync {
+    /// Exposure, seconds, at which a white reflector facing the lamp reaches `fraction` of
+    /// full scale at gain 1.
+    fn exposure_for_white(&self, fraction: f64) -> f64;
+    /// Frame `frame` of the plan (capture by capture, repeats adjacent) with the goniometer at
+    /// `joints`, lamp at its settled output, exposure `exposure_s` at gain 1.
+    fn capture(&self, frame: usize, joints: &JointState, exposure_s: f64) -> Result<RawFrame, String>;
 }
 
-/// Runs `plan` on the simulated rig `cfg`: the tile rendered with the true lens, the lamp at
-/// its settled output, sensor noise seeded from `seed` and the frame index; measures `W_c` and
-/// the plate albedo per frame and averages them.
-pub fn calibrate_light_simulated(
+/// Runs `plan` on a rig: `rig` photographs the tile at every capture of the plan (joint values
+/// from the rig config's nominal kinematics); per frame `W_c` and the plate albedo are
+/// measured (the rig config's lens, sensor constants and lamp distance), then averaged.
+/// `source` is the file's provenance line.
+pub fn calibrate_light(
     cfg: &RigConfig,
     plan: &LightPlan,
-    seed: u64,
-) -> Result<SimLightCalibration, LightCalibError> {
+    rig: &dyn TileCamera,
+    source: String,
+) -> Result<LightCalibration, LightCalibError> {
     let problems = plan.problems();
     if !problems.is_empty() {
         return Err(LightCalibError::Plan { origin: plan.name.clone(), message: problems.join("; ") });
     }
-    let scene =
-        RigScene::new(cfg, &white_tile(plan.reference_albedo)).map_err(|e| LightCalibError::Rig(e.to_string()))?;
-    let exposure = scene.exposure_for_white(plan.exposure_fraction, 1e-4, 30.0);
-    let sensor = scene.sensor();
-    let camera = scene.camera().model().clone();
+    let gonio = Gonio::new(cfg.geometry.clone()).map_err(|e| LightCalibError::Rig(e.to_string()))?;
+    let camera = cfg.camera.to_model().map_err(|e| LightCalibError::Rig(format!("[camera]: {e}")))?;
+    let exposure = rig.exposure_for_white(plan.exposure_fraction);
+    let sensor = &cfg.sensor;
     let lamp_distance = cfg.geometry.lamp_distance_m;
     let tile_pts = square_points(cfg.plate.sample_side_m - 2.0 * plan.tile_margin_m, plan.step_m);
     let patch = PatchOptions { sample_margin_m: plan.tile_margin_m, step_m: plan.step_m, ..PatchOptions::default() };
@@ -324,8 +318,7 @@ pub fn calibrate_light_simulated(
     for (i, c) in plan.captures.iter().enumerate() {
         let light = Direction::from_degrees(c.light_theta_deg, c.light_phi_deg);
         let view = Direction::from_degrees(c.view_theta_deg, c.view_phi_deg);
-        let joints = scene
-            .gonio()
+        let joints = gonio
             .ik(light, view)
             .map_err(|e| LightCalibError::Rig(format!("capture {i} of the plan is unreachable: {e:?}")))?;
         let deg = ([c.light_theta_deg, c.light_phi_deg], [c.view_theta_deg, c.view_phi_deg]);
@@ -333,28 +326,25 @@ pub fn calibrate_light_simulated(
             jobs.push((i, deg.0, deg.1, joints, r));
         }
     }
-    // Frames are independent: measured in parallel, each one's noise seeded by its index.
+    // Frames are independent: measured in parallel.
     let measured: Vec<Result<FrameFigures, LightCalibError>> = jobs
         .par_iter()
         .enumerate()
         .map(|(k, &(index, light_deg, view_deg, joints, _))| {
-            let s = seed ^ (k as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15);
-            let (frame, _) = scene
-                .capture(&joints, 1.0, exposure, 1.0, s, &RenderOptions::default())
-                .map_err(|e| LightCalibError::Rig(e.to_string()))?;
+            let frame = rig.capture(k, &joints, exposure).map_err(LightCalibError::Rig)?;
             let dm = demosaic_bilinear(&frame);
             let image = LinearImage { width: dm.width, height: dm.height, data: dm.data };
             let r = Radiometry {
                 dn_range: (f64::from(frame.meta.white_level) - f64::from(frame.meta.black_level)).max(1.0),
                 exposure_s: frame.meta.exposure_s,
-                dn_per_electron: sensor.dn_per_electron(frame.meta.gain.max(1.0)),
+                dn_per_electron: frame.meta.gain.max(1.0) / sensor.electrons_per_dn,
                 dark_e_per_s: sensor.dark_current_e_per_s,
                 nominal_irradiance: 1.0,
                 white_balance: [1.0; 3],
                 matrix: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
             };
             let to_rate = rate_radiometry(&r);
-            let pose = scene.pose(&joints);
+            let pose = gonio.scene_pose(&joints);
             let measure = |pts| {
                 lambertian_signal(&image, &camera, &pose, lamp_distance, &to_rate, pts)
                     .map_err(|source| LightCalibError::Measure { index, light_deg, view_deg, source })
@@ -389,18 +379,8 @@ pub fn calibrate_light_simulated(
     };
     let file = LightCalibrationFile {
         format_version: LIGHT_FORMAT_VERSION,
-        source: format!("plan {}, rig {}, seed {seed}, simulated", plan.name, cfg.rig.name),
+        source,
         lights: BTreeMap::from([(plan.light.clone(), entry)]),
     };
-    // The truth: the model's nominal irradiance (green rate of a white reflector) times the
-    // camera's white, and the plate spectrum's camera RGB over the camera's white.
-    let nominal = scene.white_signal_dn(1.0, 1.0) / sensor.dn_per_electron(1.0);
-    let white = scene.colour().camera_white();
-    let (plate_cam, _) = resolve_spectrum(scene.colour(), &cfg.plate.albedo).map_err(LightCalibError::Rig)?;
-    Ok(SimLightCalibration {
-        file,
-        true_white_rate: std::array::from_fn(|c| nominal * white[c]),
-        true_plate_albedo: std::array::from_fn(|c| plate_cam[c] / white[c]),
-        per_frame_white_rate: measured.iter().map(|m| m.0).collect(),
-    })
+    Ok(LightCalibration { file, per_frame_white_rate: measured.iter().map(|m| m.0).collect() })
 }

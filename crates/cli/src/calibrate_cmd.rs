@@ -1,12 +1,14 @@
 //! `btfrig calibrate geometry`: runs a geometric calibration plan on the (simulated) rig and
-//! writes the calibration file. The work is in `btfrig-calibrate`.
+//! writes the calibration file. The frames are rendered by `btfrig-sim-calibration`, the
+//! procedure is in `btfrig-calibrate`.
 
 use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{bail, Context};
-use btfrig_calibrate::{calibrate_simulated, CalibrationPlan};
+use btfrig_calibrate::CalibrationPlan;
 use btfrig_camcal::{distortion_difference, mapping_difference_up_to_rotation, CalibrationFile};
+use btfrig_sim_calibration::calibrate_simulated;
 
 use crate::args::CalibrateGeometryArgs;
 
@@ -48,10 +50,11 @@ pub fn geometry(a: &CalibrateGeometryArgs) -> anyhow::Result<()> {
         b.dictionary,
         n = b.markers_per_side,
     );
-    let r =
+    let sim =
         calibrate_simulated(&cfg, &plan, seed, |line| println!("  {line}")).context("geometric calibration failed")?;
+    let r = &sim.result;
     let c = &r.calibration;
-    let (e, t, u) = (&c.camera, &r.truth, &c.uncertainty);
+    let (e, t, u) = (&c.camera, &sim.truth, &c.uncertainty);
     println!("{:<6} {:>14} {:>12} {:>14} {:>12}", "param", "estimate", "sigma", "truth", "error");
     let rows: [(&str, f64, f64, f64); 9] = [
         ("fx_px", e.fx, u.fx_px, t.fx),

@@ -1,13 +1,15 @@
 //! `btfrig calibrate color`: runs a colour calibration plan on the (simulated) rig, prints
 //! every model's held-out CIEDE2000 and fit time, writes the chosen model's calibration file.
-//! The work is in `btfrig_calibrate::color`.
+//! The work is in `btfrig_calibrate::color`, the simulated captures in
+//! `btfrig_sim_calibration::color`.
 
 use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{bail, Context};
-use btfrig_calibrate::color::{calibrate_color_simulated, describe_status, ColorPlan};
+use btfrig_calibrate::color::{describe_status, ColorPlan};
 use btfrig_calibrate::processing_camera;
+use btfrig_sim_calibration::color::calibrate_color_simulated;
 use serde_json::json;
 
 use crate::args::CalibrateColorArgs;

@@ -1,15 +1,17 @@
 //! `btfrig calibrate light`: runs a light calibration plan on the (simulated) rig: a white
 //! reference tile on the holder gives each light's power and colour, the plate around it its
 //! albedo relative to the tile (the drift reference of every run); writes the light calibration
-//! file. The work is in `btfrig_calibrate::light` (docs/light.md).
+//! file. The work is in `btfrig_calibrate::light` (docs/light.md), the simulated frames and the
+//! truth in `btfrig_sim_calibration::light`.
 
 use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{bail, Context};
-use btfrig_calibrate::light::{calibrate_light_simulated, LightCalibrationFile, LightPlan, SimLightCalibration, LAMP};
+use btfrig_calibrate::light::{LightCalibrationFile, LightPlan, LAMP};
 use btfrig_core::config::RigConfig;
 use btfrig_pipeline::light::{LampReference, LightCorrection};
+use btfrig_sim_calibration::light::{calibrate_light_simulated, SimLightCalibration};
 
 /// `btfrig calibrate light`.
 #[derive(Debug, clap::Args)]

@@ -1,12 +1,14 @@
 //! `btfrig calibrate radiometric`: runs a dark/flat calibration plan on the (simulated) rig,
 //! prints the figures (and, on the simulator, the errors against its truth) and writes the
-//! maps. The work is in `btfrig_calibrate::dark_flat`.
+//! maps. The work is in `btfrig_calibrate::dark_flat`, the simulated frames and the truth in
+//! `btfrig_sim_calibration::dark_flat`.
 
 use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{bail, Context};
-use btfrig_calibrate::dark_flat::{calibrate_simulated, compare_with_truth, write_calibration, RadiometricPlan};
+use btfrig_calibrate::dark_flat::{write_calibration, RadiometricPlan};
+use btfrig_sim_calibration::dark_flat::{calibrate_simulated, compare_with_truth};
 use clap::Args;
 
 /// `btfrig calibrate radiometric`.

@@ -23,6 +23,7 @@
 //! ```
 #![warn(missing_docs)]
 
+pub mod chart;
 pub mod delta_e;
 pub mod error;
 pub mod eval;

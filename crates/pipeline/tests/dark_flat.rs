@@ -7,7 +7,7 @@ use std::sync::Arc;
 
 use btfrig_calib::dark_flat::{DarkFlat, DarkModel, FlatField};
 use btfrig_calib::{Filter, Region};
-use btfrig_calibrate::dark_flat::{calibrate_simulated, RadiometricPlan};
+use btfrig_calibrate::dark_flat::RadiometricPlan;
 use btfrig_core::config::RigConfig;
 use btfrig_core::Direction;
 use btfrig_pipeline::dark_flat::{demosaic_corrected, photosite_rates};
@@ -16,6 +16,7 @@ use btfrig_render::material::MaterialSpec;
 use btfrig_render::radiance::RadianceImage;
 use btfrig_render::renderer::RenderOptions;
 use btfrig_render::rig_scene::RigScene;
+use btfrig_sim_calibration::dark_flat::calibrate_simulated;
 use btfrig_store::StepId;
 
 const SMALL: &str = include_str!("../../../rig-configs/bonn-gonio-sim-small.toml");

@@ -1,24 +1,24 @@
-//! Colour charts for colour calibration: a flat, matte chart mounted in the sample region of
-//! the holder plate (so the plate's markers register it like any sample).
+//! Colour charts for colour calibration as the simulator renders them: a flat, matte chart
+//! mounted in the sample region of the holder plate (so the plate's markers register it like
+//! any sample).
 //!
-//! Brief overview: a [`ColorChart`] is a grid of square patches (`rows x cols`, centres
-//! `pitch_m` apart, each `pitch_m - gap_m` wide, black gaps and a black surround), each with a
-//! reflectance spectrum and its published L*a*b* (D50). Two charts are built in:
+//! The layout and published references (rows, columns, pitch, gap, patch names and L*a*b*
+//! D50) are [`btfrig_color::chart::ChartLayout`], which the calibration procedure uses on any
+//! rig; a [`ColorChart`] adds what only rendering needs, a reflectance spectrum per patch.
+//! Two charts are built in:
 //!
 //! * [`ColorChart::colorchecker24`]: ColorChecker Classic, 4 x 6, the Ohta / ISO 17321-1
-//!   spectra of [`spectral::colorchecker24`] and the published Lab of the edition made after
-//!   November 2014 ([`spectral::colorchecker24_reference`]);
+//!   spectra of [`spectral::colorchecker24`] with the published Lab of the edition made after
+//!   November 2014;
 //! * [`ColorChart::colorchecker_sg140`]: ColorChecker SG, 10 x 14, whose published data
 //!   (`sim/spectra/colorcheckersg140_lab_d50.csv`) is Lab only: each patch gets a synthetic
 //!   smooth reflectance that reproduces its XYZ under CIE D50 ([`synthesise_reflectance`]:
 //!   least squares with a curvature penalty, bounded to `[0, 1]`), the fit error recorded in
 //!   [`ChartPatch::synthesis_delta_e76`].
-//!
-//! Patch `k` sits at row `k / cols`, column `k % cols`; row 0 is at `+y` (the top edge seen
-//! by a frontal camera, like a texture) and column 0 at `-x`.
 
 use std::sync::LazyLock;
 
+pub use btfrig_color::chart::{ChartLayout, PatchReference, CHART_NAMES};
 use btfrig_core::config::plate::PlateConfig;
 use nalgebra::{DMatrix, DVector};
 
@@ -34,41 +34,25 @@ pub const GAP_REFLECTANCE: f64 = 0.03;
 /// 0.1 m sample, a quarter of a default camera pixel, so a patch edge blurs by one texel.
 pub const CHART_TEXELS: usize = 1000;
 
-/// One patch of a chart.
+/// What the renderer needs of one patch (its name and published Lab are the layout's
+/// [`PatchReference`] of the same index).
 #[derive(Debug, Clone, PartialEq)]
 pub struct ChartPatch {
-    /// Name, e.g. `dark skin` or `A1`.
-    pub name: String,
     /// Spectral reflectance (measured, or synthesised from the Lab for the SG chart).
     pub spectrum: Spectrum,
-    /// Published CIE L*a*b* under ICC D50 (for real rigs: the chart maker's values).
-    pub lab_d50: [f64; 3],
-    /// ΔE*ab between `lab_d50` and the Lab of `spectrum` under CIE D50: the synthesis error
-    /// for synthetic spectra (for measured spectra the two come from different charts).
+    /// ΔE*ab between the published Lab and the Lab of `spectrum` under CIE D50: the synthesis
+    /// error for synthetic spectra (for measured spectra the two come from different charts).
     pub synthesis_delta_e76: f64,
 }
 
-/// A colour chart: layout and patches.
+/// A colour chart to render: layout and references, and a spectrum per patch.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ColorChart {
-    /// Name, e.g. `colorchecker24`.
-    pub name: String,
-    /// Which published data (edition) the patches' Lab come from.
-    pub edition: String,
-    /// Patch rows.
-    pub rows: usize,
-    /// Patch columns.
-    pub cols: usize,
-    /// Distance between neighbouring patch centres, metres.
-    pub pitch_m: f64,
-    /// Black gap between neighbouring patches, metres (patch side = pitch - gap).
-    pub gap_m: f64,
-    /// `rows * cols` patches, row-major.
+    /// Layout and published references.
+    pub layout: ChartLayout,
+    /// One per layout patch, same order.
     pub patches: Vec<ChartPatch>,
 }
-
-/// The names of the built-in charts.
-pub const CHART_NAMES: [&str; 2] = ["colorchecker24", "colorchecker-sg140"];
 
 impl ColorChart {
     /// ColorChecker Classic 24 (4 x 6), 16 mm pitch and 3 mm gaps: 96 x 64 mm in the default
@@ -76,40 +60,22 @@ impl ColorChart {
     pub fn colorchecker24() -> ColorChart {
         let d50 = d50_system();
         let white = d50.lamp_white_xyz();
+        let layout = ChartLayout::colorchecker24();
         let patches = spectral::colorchecker24()
             .iter()
-            .zip(spectral::colorchecker24_reference())
+            .zip(&layout.patches)
             .map(|(s, r)| ChartPatch {
-                name: r.name.clone(),
                 spectrum: *s,
-                lab_d50: r.lab_d50,
                 synthesis_delta_e76: delta_e76(xyz_to_lab(d50.xyz(s), white), r.lab_d50),
             })
             .collect();
-        ColorChart {
-            name: "colorchecker24".into(),
-            edition: "ColorChecker Classic, X-Rite data after November 2014 (Lab D50); spectra Ohta 1997 / ISO 17321-1"
-                .into(),
-            rows: 4,
-            cols: 6,
-            pitch_m: 0.016,
-            gap_m: 0.003,
-            patches,
-        }
+        ColorChart { layout, patches }
     }
 
     /// ColorChecker SG (10 x 14), 7 mm pitch and 1.5 mm gaps: 98 x 70 mm. Spectra synthesised
     /// from the published Lab (computed once, on first use).
     pub fn colorchecker_sg140() -> ColorChart {
-        ColorChart {
-            name: "colorchecker-sg140".into(),
-            edition: "ColorChecker SG, X-Rite data after November 2014 (Lab D50); spectra synthesised".into(),
-            rows: 10,
-            cols: 14,
-            pitch_m: 0.007,
-            gap_m: 0.0015,
-            patches: SG140.clone(),
-        }
+        ColorChart { layout: ChartLayout::colorchecker_sg140(), patches: SG140.clone() }
     }
 
     /// A built-in chart by name ([`CHART_NAMES`]).
@@ -117,62 +83,8 @@ impl ColorChart {
         match name {
             "colorchecker24" => Ok(Self::colorchecker24()),
             "colorchecker-sg140" => Ok(Self::colorchecker_sg140()),
-            _ => Err(format!("unknown colour chart {name:?}: built in are {}", CHART_NAMES.join(", "))),
+            _ => Err(ChartLayout::by_name(name).expect_err("every built-in layout has spectra")),
         }
-    }
-
-    /// Side of a patch, metres.
-    pub fn patch_side_m(&self) -> f64 {
-        self.pitch_m - self.gap_m
-    }
-
-    /// Width and height of the patch grid (outer patch edges), metres.
-    pub fn extent_m(&self) -> (f64, f64) {
-        (self.cols as f64 * self.pitch_m - self.gap_m, self.rows as f64 * self.pitch_m - self.gap_m)
-    }
-
-    /// Centre of patch `k` in the sample frame (metres, chart centred on the origin).
-    pub fn patch_centre_m(&self, k: usize) -> [f64; 2] {
-        let (r, c) = ((k / self.cols) as f64, (k % self.cols) as f64);
-        [(c - (self.cols as f64 - 1.0) / 2.0) * self.pitch_m, ((self.rows as f64 - 1.0) / 2.0 - r) * self.pitch_m]
-    }
-
-    /// The patch under sample point `(x, y)`, or `None` on a gap or off the chart.
-    pub fn patch_at(&self, x: f64, y: f64) -> Option<usize> {
-        let c = (x / self.pitch_m + (self.cols as f64 - 1.0) / 2.0).round();
-        let r = ((self.rows as f64 - 1.0) / 2.0 - y / self.pitch_m).round();
-        if c < 0.0 || r < 0.0 || c >= self.cols as f64 || r >= self.rows as f64 {
-            return None;
-        }
-        let k = r as usize * self.cols + c as usize;
-        let [cx, cy] = self.patch_centre_m(k);
-        let h = self.patch_side_m() / 2.0;
-        ((x - cx).abs() <= h && (y - cy).abs() <= h).then_some(k)
-    }
-
-    /// Every problem of the layout on a sample region of side `sample_side_m`.
-    pub fn problems(&self, sample_side_m: f64) -> Vec<String> {
-        let mut out = Vec::new();
-        if self.patches.len() != self.rows * self.cols {
-            out.push(format!("chart {}: {} patches for {} x {}", self.name, self.patches.len(), self.rows, self.cols));
-        }
-        if !(self.pitch_m > 0.0 && self.gap_m >= 0.0 && self.gap_m < self.pitch_m) {
-            out.push(format!(
-                "chart {}: pitch {} m, gap {} m: need 0 <= gap < pitch",
-                self.name, self.pitch_m, self.gap_m
-            ));
-        }
-        let (w, h) = self.extent_m();
-        if w > sample_side_m || h > sample_side_m {
-            out.push(format!(
-                "chart {} is {:.1} x {:.1} mm, larger than the {:.1} mm sample region",
-                self.name,
-                w * 1e3,
-                h * 1e3,
-                sample_side_m * 1e3
-            ));
-        }
-        out
     }
 }
 
@@ -182,29 +94,17 @@ fn d50_system() -> ColourSystem {
 }
 
 static SG140: LazyLock<Vec<ChartPatch>> = LazyLock::new(|| {
-    let text = include_str!("../../../sim/spectra/colorcheckersg140_lab_d50.csv");
     let d50 = d50_system();
     let white = d50.lamp_white_xyz();
     let weights = d50_xyz_weights();
-    text.lines()
-        .filter(|l| !l.starts_with('#'))
-        .skip(1)
-        .filter(|l| !l.trim().is_empty())
-        .map(|line| {
-            let f: Vec<&str> = line.split(',').collect();
-            let num = |i: usize| -> f64 {
-                f[i].trim().parse().unwrap_or_else(|e| panic!("colorcheckersg140_lab_d50.csv: {line}: {e}"))
-            };
-            let lab = [num(2), num(3), num(4)];
+    ChartLayout::colorchecker_sg140()
+        .patches
+        .iter()
+        .map(|r| {
             // Lab relative to the spectral D50 white, so that the Lab (not just the XYZ) is kept.
-            let target = lab_to_xyz(lab, white);
+            let target = lab_to_xyz(r.lab_d50, white);
             let spectrum = synthesise_reflectance(&weights, target);
-            ChartPatch {
-                name: f[1].trim().to_string(),
-                spectrum,
-                lab_d50: lab,
-                synthesis_delta_e76: delta_e76(xyz_to_lab(d50.xyz(&spectrum), white), lab),
-            }
+            ChartPatch { spectrum, synthesis_delta_e76: delta_e76(xyz_to_lab(d50.xyz(&spectrum), white), r.lab_d50) }
         })
         .collect()
 });
@@ -321,16 +221,19 @@ pub fn chart_scene(
         &format!(
             "name = \"{}\"\ntexels = {CHART_TEXELS}\nseed = 0\nbasis = [\"flat:0\"]\n\
              [albedo]\npattern = {{ kind = \"constant\", value = 0.0 }}\nstops = [[1.0]]\n",
-            chart.name
+            chart.layout.name
         ),
         "<colour chart placeholder material>",
     )?;
     let mut scene = Scene::build(plate, &spec, resolve)?;
-    let problems = chart.problems(scene.layout.sample_side_m);
+    let mut problems = chart.layout.problems(scene.layout.sample_side_m);
+    if chart.patches.len() != chart.layout.patches.len() {
+        problems.push(format!("{} spectra for {} patches", chart.patches.len(), chart.layout.patches.len()));
+    }
     if !problems.is_empty() {
         return Err(SceneError::Colour {
             field: "chart".into(),
-            name: chart.name.clone(),
+            name: chart.layout.name.clone(),
             message: problems.join("; "),
         });
     }
@@ -341,7 +244,7 @@ pub fn chart_scene(
         let y = side / 2.0 - (row as f64 + 0.5) * texel;
         for col in 0..n {
             let x = -side / 2.0 + (col as f64 + 0.5) * texel;
-            let (cam, out) = chart.patch_at(x, y).map_or(gap, |k| colours[k]);
+            let (cam, out) = chart.layout.patch_at(x, y).map_or(gap, |k| colours[k]);
             scene.albedo[0][row * n + col] = cam.map(|v| v as f32);
             scene.albedo[1][row * n + col] = out.map(|v| v as f32);
         }
@@ -353,42 +256,22 @@ pub fn chart_scene(
 mod tests {
     use super::*;
 
-    #[test]
-    fn layouts_fit_the_default_sample_region_and_patches_are_found_at_their_centres() {
-        for name in CHART_NAMES {
-            let c = ColorChart::by_name(name).unwrap();
-            assert!(c.problems(0.1).is_empty(), "{:?}", c.problems(0.1));
-            for k in 0..c.patches.len() {
-                let [x, y] = c.patch_centre_m(k);
-                assert_eq!(c.patch_at(x, y), Some(k));
-                // Half a gap beyond the patch edge: black.
-                let h = c.patch_side_m() / 2.0 + c.gap_m / 4.0;
-                assert_eq!(c.patch_at(x + h, y), None);
-            }
-        }
-        // Row 0 at +y, column 0 at -x.
-        let c = ColorChart::colorchecker24();
-        let [x0, y0] = c.patch_centre_m(0);
-        assert!(x0 < 0.0 && y0 > 0.0);
-        assert!(ColorChart::by_name("it8").unwrap_err().contains("colorchecker24"));
-    }
-
     /// The synthetic SG spectra reproduce the published Lab under D50, stay in [0, 1] and are
     /// smooth (no 10 nm step larger than 0.2).
     #[test]
     fn sg140_synthesis_reproduces_published_lab() {
         let c = ColorChart::colorchecker_sg140();
         assert_eq!(c.patches.len(), 140);
-        assert_eq!(c.patches[0].name, "A1");
+        assert_eq!(c.layout.patches[0].name, "A1");
         let errs: Vec<f64> = c.patches.iter().map(|p| p.synthesis_delta_e76).collect();
         let mean = errs.iter().sum::<f64>() / errs.len() as f64;
         let max = errs.iter().cloned().fold(0.0, f64::max);
         eprintln!("SG140 synthesis: mean dE76 {mean:.2e}, max {max:.2e}");
         assert!(max < 0.05, "max synthesis error {max}");
-        for p in &c.patches {
+        for (p, r) in c.patches.iter().zip(&c.layout.patches) {
             assert!(p.spectrum.0.iter().all(|v| (0.0..=1.0).contains(v)));
             let step = p.spectrum.0.windows(2).map(|w| (w[1] - w[0]).abs()).fold(0.0, f64::max);
-            assert!(step < 0.2, "{}: step {step}", p.name);
+            assert!(step < 0.2, "{}: step {step}", r.name);
         }
     }
 

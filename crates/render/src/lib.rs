@@ -17,8 +17,13 @@
 //! reflectance spectrum into camera RGB and into the ground-truth output colour (linear sRGB,
 //! D65, adapted); [`sensor::SensorModel`] turns a [`radiance::RadianceImage`] of
 //! photo-electron rates into a noisy [`btfrig_core::frame::RawFrame`]; [`demosaic`] makes
-//! previews from raw frames; [`target::TargetBoard`] is the geometric calibration board
-//! that replaces the plate for calibration captures; [`chart::ColorChart`] is the colour chart mounted in the sample region for colour calibration; [`rig_scene::RigScene`] assembles all of it from a rig config.
+//! previews from raw frames; [`scene::Scene::build_target`] renders the geometric
+//! calibration board (its layout, `btfrig_core::config::target::TargetBoard`, is shared with
+//! the calibration procedure) that replaces the plate for calibration captures;
+//! [`chart::ColorChart`] is the colour chart mounted in the sample region for colour
+//! calibration (its spectra; the layout and published references are
+//! `btfrig_color::chart::ChartLayout`); [`rig_scene::RigScene`] assembles all of it from a rig
+//! config.
 //!
 //! ```
 //! use btfrig_core::{Direction, pose::ScenePose, config::plate::PlateConfig};
@@ -57,4 +62,3 @@ pub mod rig_scene;
 pub mod scene;
 pub mod sensor;
 pub mod spectral;
-pub mod target;

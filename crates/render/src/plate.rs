@@ -13,7 +13,7 @@ use btfrig_core::config::plate::PlateConfig;
 use btfrig_core::ConfigError;
 
 use crate::markers::MarkerDictionary;
-use crate::target::TargetBoard;
+use btfrig_core::config::target::TargetBoard;
 
 /// What the plate surface is at a point of the `z = 0` plane outside the sample region.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

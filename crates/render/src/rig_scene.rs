@@ -27,7 +27,7 @@ use crate::renderer::{PixelRays, RenderOptions, RenderStats, Renderer};
 use crate::scene::{Scene, SceneError};
 use crate::sensor::{electrons_per_second_scale, SensorError, SensorModel};
 use crate::spectral::{self, Spectrum};
-use crate::target::TargetBoard;
+use btfrig_core::config::target::TargetBoard;
 
 /// Why a rig scene could not be built.
 #[derive(Debug, thiserror::Error)]

@@ -12,7 +12,7 @@ use btfrig_core::ConfigError;
 
 use crate::material::{Material, MaterialError, MaterialSpec};
 use crate::plate::PlateLayout;
-use crate::target::TargetBoard;
+use btfrig_core::config::target::TargetBoard;
 
 /// Maps a spectrum name to its `(camera RGB, output RGB)` response, or says why it cannot.
 pub type Resolver<'a> = dyn Fn(&str) -> Result<([f64; 3], [f64; 3]), String> + 'a;

@@ -5,11 +5,12 @@
 
 use std::path::{Path, PathBuf};
 
-use btfrig_calibrate::light::{calibrate_light_simulated, LightPlan, LAMP};
+use btfrig_calibrate::light::{LightPlan, LAMP};
 use btfrig_core::config::RigConfig;
 use btfrig_core::plan::BUILTIN_RIGS;
 use btfrig_pipeline::light::{LampReference, LampTotals, LightCorrection};
 use btfrig_runner::{run, RunControl, RunOutcome, RunRequest};
+use btfrig_sim_calibration::light::calibrate_light_simulated;
 
 fn scratch(name: &str) -> PathBuf {
     let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("lamp-{name}"));

@@ -11,6 +11,7 @@ pub mod geometry;
 pub mod lamp;
 pub mod plate;
 pub mod sensor;
+pub mod target;
 pub mod timing;
 
 use serde::{Deserialize, Serialize};

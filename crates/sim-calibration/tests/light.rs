@@ -1,8 +1,9 @@
 //! Light calibration on the simulated rig against the simulator's truth.
 
-use btfrig_calibrate::light::{calibrate_light_simulated, LightCalibrationFile, LightPlan, LAMP};
+use btfrig_calibrate::light::{LightCalibrationFile, LightPlan, LAMP};
 use btfrig_core::config::RigConfig;
 use btfrig_core::plan::BUILTIN_RIGS;
+use btfrig_sim_calibration::light::calibrate_light_simulated;
 
 #[test]
 fn measured_lamp_power_colour_and_plate_albedo_match_the_truth() {

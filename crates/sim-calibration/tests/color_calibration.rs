@@ -3,10 +3,11 @@
 //! (clipped and very dark patches, a near-singular fit) give named errors or exclusions,
 //! never NaN.
 
-use btfrig_calibrate::color::{calibrate_color_simulated, ColorCalibrationFile, ColorPlan};
+use btfrig_calibrate::color::{ColorCalibrationFile, ColorPlan};
 use btfrig_calibrate::processing_camera;
 use btfrig_color::PatchStatus;
 use btfrig_core::config::RigConfig;
+use btfrig_sim_calibration::color::{calibrate_color_simulated, calibrate_color_simulated_with_exposure_scale};
 
 fn rig() -> RigConfig {
     RigConfig::from_toml(include_str!("../../../rig-configs/bonn-gonio-sim.toml"), "bonn-gonio-sim.toml").unwrap()
@@ -84,8 +85,7 @@ fn clipped_and_dark_patches_are_excluded_with_reasons() {
         // exposure_fraction is range-checked in plans: over- and under-expose by hand.
         let mut p = plan.clone();
         p.exposure_fraction = 0.5;
-        let r =
-            btfrig_calibrate::color::calibrate_color_simulated_with_exposure_scale(&cfg, &cam, &p, 5, fraction / 0.5);
+        let r = calibrate_color_simulated_with_exposure_scale(&cfg, &cam, &p, 5, fraction / 0.5);
         match r {
             Ok(cal) => {
                 let bad: Vec<_> = cal.patches.iter().filter(|q| !q.status.is_valid()).collect();

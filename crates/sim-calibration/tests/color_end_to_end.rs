@@ -10,7 +10,7 @@ use btfrig_sim::RenderedFrameSource;
 use std::sync::Arc;
 
 use btfrig_calib::{Filter, Region};
-use btfrig_calibrate::color::{calibrate_color_simulated, ColorPlan};
+use btfrig_calibrate::color::ColorPlan;
 use btfrig_calibrate::processing_camera;
 use btfrig_color::{delta_e_2000, space::linear_srgb_to_lab};
 use btfrig_core::config::RigConfig;
@@ -20,6 +20,7 @@ use btfrig_pipeline::{ProcessSettings, Processor};
 use btfrig_render::material::MaterialSpec;
 use btfrig_render::renderer::RenderOptions;
 use btfrig_render::rig_scene::RigScene;
+use btfrig_sim_calibration::color::calibrate_color_simulated;
 use btfrig_store::StepId;
 
 fn rig() -> RigConfig {

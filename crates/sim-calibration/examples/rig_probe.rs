@@ -1,13 +1,15 @@
-//! `cargo run --release -p btfrig-camcal --example rig_probe [PLAN|-] [SEED]`: runs a
+//! `cargo run --release -p btfrig-sim-calibration --example rig_probe [PLAN|-] [SEED]`: runs a
 //! calibration plan on the default simulated rig and prints the errors against the truth, for
 //! the plan as given and with k3 held at 0, with one and two detection passes (tuning plans).
-use btfrig_calibrate::{calibrate_captures, capture_simulated, CalibrationPlan, RigCalibration};
+use btfrig_calibrate::{calibrate_captures, CalibrationPlan, RigCalibration};
 use btfrig_camcal::{distortion_difference, mapping_difference_up_to_rotation};
+use btfrig_core::camera::CameraModel;
 use btfrig_core::config::RigConfig;
+use btfrig_sim_calibration::capture_simulated;
 use rand::SeedableRng;
 
-fn show(label: &str, r: &RigCalibration) {
-    let (c, t) = (&r.calibration, &r.truth);
+fn show(label: &str, r: &RigCalibration, t: &CameraModel) {
+    let c = &r.calibration;
     let e = &c.camera;
     let u = &c.uncertainty;
     eprintln!(
@@ -44,11 +46,12 @@ fn main() {
     let shots = capture_simulated(&cfg, &plan, seed).unwrap();
     eprintln!("{} views rendered in {:.1} s", shots.frames.len(), shots.render_s);
     let r = calibrate_captures(&cfg, &plan, &shots, |_| {}).unwrap();
-    show(&format!("plan as given (k3 {} passes {})", plan.estimate_k3, plan.passes), &r);
+    let scene = btfrig_render::rig_scene::RigScene::with_target(&cfg, &plan.target).unwrap();
+    let truth = scene.camera().model().clone();
+    show(&format!("plan as given (k3 {} passes {})", plan.estimate_k3, plan.passes), &r, &truth);
     // Diagnostic: detected corners against their true projections (true lens, true joints),
     // and the same calibration on the true projections plus Gaussian noise of the detector's
     // stated sigma (geometry alone, without the capture chain).
-    let scene = btfrig_render::rig_scene::RigScene::with_target(&cfg, &plan.target).unwrap();
     let used: Vec<_> = r.captures.iter().filter(|c| c.skipped.is_none()).collect();
     let (mut sx, mut sy, mut s2, mut n) = (0.0, 0.0, 0.0, 0usize);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
@@ -60,7 +63,7 @@ fn main() {
         let s2c = pose.camera_to_world.inverse() * pose.sample_to_world;
         let mut pts = Vec::new();
         for c in &view.points {
-            let p = r.truth.project(&(s2c * nalgebra::Point3::new(c.target.x, c.target.y, 0.0))).unwrap();
+            let p = truth.project(&(s2c * nalgebra::Point3::new(c.target.x, c.target.y, 0.0))).unwrap();
             let d = c.pixel - p;
             let rv = nalgebra::Vector2::new(p.x - 799.5, p.y - 599.5);
             let rn = rv.norm();
@@ -106,14 +109,14 @@ fn main() {
             points: v.points.iter().map(|c| btfrig_camcal::Correspondence { sigma_px: None, ..*c }).collect(),
         })
         .collect();
-    let mut o = btfrig_camcal::Options::new(r.truth.width, r.truth.height);
+    let mut o = btfrig_camcal::Options::new(truth.width, truth.height);
     o.estimate_k3 = plan.estimate_k3;
     let mut ru = r.clone();
     ru.calibration = btfrig_camcal::calibrate(&unweighted, &o).unwrap();
-    show("detected corners, equal weights", &ru);
+    show("detected corners, equal weights", &ru, &truth);
     o.estimate_k3 = plan.estimate_k3;
     let c = btfrig_camcal::calibrate(&synth, &o).unwrap();
     let mut rs = r.clone();
     rs.calibration = c;
-    show("true corners + stated noise", &rs);
+    show("true corners + stated noise", &rs, &truth);
 }

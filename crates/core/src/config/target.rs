@@ -4,13 +4,17 @@
 //! The board lies in the sample frame's `z = 0` plane, centred on the origin, like the plate;
 //! `n x n` markers of the plate's dictionary sit on a square grid of pitch `pitch_m`, ids
 //! counting row by row from the marker at `(-x, +y)` (top-left seen frontally) starting at
-//! `first_id`, the block of `ids_per_side²` ids repeating over larger boards. Marker images are laid out as on the plate ([`crate::plate`]): rows along
+//! `first_id`, the block of `ids_per_side²` ids repeating over larger boards. Marker images
+//! are laid out as on the plate ([`super::plate`]): rows along
 //! `-y`, columns along `+x`, corners in OpenCV's order. Every corner of every marker is a
 //! known target point, so a detector that decodes the ids pairs image points with board
 //! points without any search.
+//!
+//! The layout is what both sides need: the calibration procedure pairs detected corners with
+//! it, the simulator's renderer (`btfrig_render::scene::Scene::build_target`) draws it.
 
-use btfrig_core::config::plate::{MarkerPlacement, MARKER_DICTIONARIES};
-use btfrig_core::ConfigError;
+use crate::config::plate::{MarkerPlacement, MARKER_DICTIONARIES};
+use crate::ConfigError;
 use nalgebra::Point2;
 use serde::{Deserialize, Serialize};
 
