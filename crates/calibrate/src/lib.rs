@@ -12,6 +12,7 @@
 
 pub mod color;
 pub mod dark_flat;
+pub mod leds;
 pub mod light;
 
 use std::path::{Path, PathBuf};
@@ -23,8 +24,8 @@ use btfrig_core::config::RigConfig;
 use btfrig_core::frame::RawFrame;
 use btfrig_core::kinematics::JointState;
 use btfrig_core::Direction;
-use btfrig_markers::{detect, DetectParams, Detection, Dictionary, GrayImage};
 use btfrig_imageio::demosaic::demosaic_bilinear;
+use btfrig_markers::{detect, DetectParams, Detection, Dictionary, GrayImage};
 use btfrig_render::renderer::RenderOptions;
 use btfrig_render::rig_scene::RigScene;
 use btfrig_render::target::TargetBoard;

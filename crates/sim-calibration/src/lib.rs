@@ -5,3 +5,5 @@
 //! LEDs and sensor, seeded noise) and may read the simulator's truth to report how far a
 //! calibration is from it. Processing crates never depend on it.
 #![warn(missing_docs)]
+
+pub mod leds;
