@@ -295,6 +295,13 @@ pub fn run_controlled(
             pairs.push(StepId { light: j as u32, view: view_id(c, k) });
         }
     }
+    // The processing model before the dataset: a missing calibration stops the run with
+    // nothing written.
+    let rig_path = (!v.plan.rig.config.starts_with("builtin:")).then(|| base.join(&v.plan.rig.config));
+    let (processing, calibration, notes) = dome_processing(&rig, rig_path.as_deref(), size)?;
+    for n in &notes {
+        on_line(n);
+    }
     let samplings = Samplings {
         // World directions of the LEDs (= sample frame at rotation 0); the exact per-capture
         // sample-frame directions are in the report's `dome.directions`.
@@ -354,11 +361,6 @@ pub fn run_controlled(
         })
         .collect();
 
-    let rig_path = (!v.plan.rig.config.starts_with("builtin:")).then(|| base.join(&v.plan.rig.config));
-    let (processing, calibration, notes) = dome_processing(&rig, rig_path.as_deref(), size)?;
-    for n in &notes {
-        on_line(n);
-    }
     // The lights' calibrated power at the power the patterns fire them at.
     let fired: Vec<f64> = processing.led_power.iter().map(|p| p * schedule.pattern_scale).collect();
     let code = match schedule.mode {

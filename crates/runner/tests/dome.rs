@@ -48,6 +48,12 @@ fn a_dome_run_multiplexes_demultiplexes_stores_and_beats_single_light() {
     assert!(s.time_saved_fraction > 0.3, "{}", s.time_saved_fraction);
     let report = btfrig_store::verify(&out);
     assert!(report.is_ok(), "{report:?}");
+    // Demultiplexed and converted with the LED calibration file the rig names, not the
+    // simulator's LED powers.
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    assert_eq!(json["calibration"]["leds"], "builtin:bonn-dome-sim-leds", "{json}");
+    assert_eq!(json["calibration"]["units"], "radiance factor", "{json}");
     // The same plan again resumes: every view is committed, nothing is captured.
     let again = go(plan(""), &out, None);
     assert_eq!((again.textures, again.frames, again.views_resumed), (0, 0, 1));

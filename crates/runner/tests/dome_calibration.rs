@@ -76,6 +76,7 @@ fn a_missing_led_calibration_file_is_named_and_none_runs_in_relative_units() {
     let e = go(&dir, &rig_text("led_calibration = \"no-such-leds.toml\"")).unwrap_err().to_string();
     assert!(e.contains("led_calibration") && e.contains("no-such-leds.toml"), "{e}");
     assert!(e.contains("btfrig calibrate leds"), "{e}");
+    assert!(!dir.join("data").exists(), "the run stops before it creates the dataset");
     let none = tmp("none");
     let s = go(&none, &rig_text("")).unwrap();
     assert_eq!(s.textures, 198);
