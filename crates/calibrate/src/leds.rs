@@ -99,7 +99,8 @@ pub struct LedSource {
 pub struct LedEntry {
     /// Output relative to the file's reference (green channel).
     pub power: f64,
-    /// Standard uncertainty of `power`.
+    /// Standard uncertainty of `power` (from the frames' scatter over the tile, scaled to the
+    /// scatter between repeated frames of the same light).
     pub power_sigma: f64,
     /// Camera-RGB ratios of the light on a white reflector, green = 1.
     pub colour: [f64; 3],
@@ -322,11 +323,14 @@ pub fn fit_leds(
         return Err(LedCalibError::Rig(format!("light {j} has no calibration frame (every one of the {n} needs one)")));
     }
     let frames = sum.iter().map(|s| s.2).min().unwrap_or(0);
+    let mean: Vec<[f64; 3]> = sum.iter().map(|(w, _, k)| w.map(|x| x / *k as f64)).collect();
+    let inflation = scatter_inflation(&measured, &mean);
     let per: Vec<([f64; 3], [f64; 3])> = sum
         .iter()
-        .map(|(w, v, k)| {
+        .zip(&mean)
+        .map(|((_, v, k), w)| {
             let k = *k as f64;
-            (w.map(|x| x / k), v.map(|x| x.sqrt() / k))
+            (*w, std::array::from_fn(|c| v[c].sqrt() / k * inflation[c]))
         })
         .collect();
     let reference_rate = per.iter().map(|(w, _)| w[1]).sum::<f64>() / n as f64;
@@ -361,5 +365,42 @@ pub fn fit_leds(
             frames_per_light: frames,
         },
         leds,
+    })
+}
+
+/// Per channel, how much larger the frame-to-frame scatter of the lights' measurements is than
+/// the standard errors `lambertian_signal` states (a lower bound: neighbouring points share
+/// photosites through the demosaic): the root of the mean, over the lights measured more than
+/// once, of their frames' sample variance over their mean squared stated error. At least 1; 1
+/// when no light has two frames.
+fn scatter_inflation(measured: &[(usize, [f64; 3], [f64; 3])], mean: &[[f64; 3]]) -> [f64; 3] {
+    let n = mean.len();
+    let mut dev = vec![([0.0f64; 3], [0.0f64; 3], 0usize); n];
+    for (j, w, s) in measured {
+        for c in 0..3 {
+            dev[*j].0[c] += (w[c] - mean[*j][c]).powi(2);
+            dev[*j].1[c] += s[c] * s[c];
+        }
+        dev[*j].2 += 1;
+    }
+    let used: Vec<_> = dev.iter().filter(|d| d.2 >= 2).collect();
+    if used.is_empty() {
+        return [1.0; 3];
+    }
+    std::array::from_fn(|c| {
+        let ratio = used
+            .iter()
+            .map(|(d, v, k)| {
+                let k = *k as f64;
+                let stated = v[c] / k;
+                if stated > 0.0 {
+                    d[c] / (k - 1.0) / stated
+                } else {
+                    1.0
+                }
+            })
+            .sum::<f64>()
+            / used.len() as f64;
+        ratio.sqrt().max(1.0)
     })
 }

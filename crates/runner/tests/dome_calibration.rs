@@ -28,6 +28,9 @@ fn rig_text(line: &str) -> String {
 const PLAN: &str = "name = \"dome-cal\"\ntexture_size = 16\n[rig]\nconfig = \"rig.toml\"\nmaterial = \"leather\"\n\
                     [dome]\ncameras = [4]\nrotations = [1]\nreference_leds = 0\nexposure_s = 0.5\nmultiplex = \"on\"\n";
 
+/// About half the increase of the texture error measured with the wrong file (0.5830 -> 0.6231).
+const MARGIN: f64 = 0.02;
+
 fn go(dir: &Path, rig: &str) -> Result<DomeRunSummary, btfrig_runner::RunError> {
     std::fs::write(dir.join("rig.toml"), rig).unwrap();
     let req = DomeRunRequest {
@@ -58,14 +61,16 @@ fn a_wrong_led_calibration_makes_the_texture_error_measurably_worse() {
     std::fs::write(good.join("leds.toml"), led_file(1.0)).unwrap();
     let g = go(&good, &rig_text("led_calibration = \"leds.toml\"")).unwrap();
     let wrong = tmp("wrong");
-    std::fs::write(wrong.join("leds.toml"), led_file(1.1)).unwrap();
+    std::fs::write(wrong.join("leds.toml"), led_file(0.9)).unwrap();
     let w = go(&wrong, &rig_text("led_calibration = \"leds.toml\"")).unwrap();
     let (eg, ew) = (g.texture_rel_rmse.unwrap(), w.texture_rel_rmse.unwrap());
-    eprintln!("texture error: right file {eg:.4}, powers x1.1 on every other LED {ew:.4}");
+    eprintln!("texture error: right file {eg:.4}, powers x0.9 on every other LED {ew:.4}");
     assert!(g.warnings.iter().all(|w| !w.contains("relative units")), "{:?}", g.warnings);
-    // Every other LED's texture 1/1.1 of its truth: a 9.1 % scale error on half the textures
-    // on top of the noise (measured: see the report).
-    assert!(ew > eg + 0.02, "right file {eg}, wrong file {ew}");
+    // Every other LED's texture (and its noise) 1/0.9 of what it should be: an 11 % scale
+    // error on half the textures on top of the noise. (Powers too HIGH would shrink those
+    // textures and their noise with them, which lowers a noise-dominated RMSE: x1.1 measured
+    // 0.5594 against 0.5830, so the test uses x0.9.)
+    assert!(ew > eg + MARGIN, "right file {eg}, wrong file {ew}");
     let _ = std::fs::remove_dir_all(&good);
     let _ = std::fs::remove_dir_all(&wrong);
 }
