@@ -17,6 +17,7 @@
 
 pub mod color;
 pub mod dark_flat;
+pub mod leds;
 pub mod light;
 
 use std::path::{Path, PathBuf};

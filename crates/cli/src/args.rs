@@ -107,6 +107,10 @@ pub enum CalibrateCommand {
     /// fit colour models, choose by cross-validated CIEDE2000, report held-out CIEDE2000 and
     /// write the calibration file (docs/color.md).
     Color(CalibrateColorArgs),
+    /// LED calibration of a dome (flash calibration of a camera array): photograph a white
+    /// reference tile under one light at a time (simulated rig), measure each light's power
+    /// and colour, write the file a rig's `[dome] led_calibration` names (docs/rig-config.md).
+    Leds(crate::calibrate_leds_cmd::CalibrateLedsArgs),
 }
 
 /// `btfrig calibrate color`.

@@ -9,6 +9,7 @@ mod bench_registration;
 mod bench_serve;
 mod calibrate_cmd;
 mod calibrate_color_cmd;
+mod calibrate_leds_cmd;
 mod calibrate_light_cmd;
 mod calibrate_radiometric_cmd;
 mod captures_cmd;
@@ -62,6 +63,7 @@ fn main() -> std::process::ExitCode {
         Command::Calibrate(CalibrateCommand::Color(a)) => done(calibrate_color_cmd::color(&a)),
         Command::Calibrate(CalibrateCommand::Radiometric(a)) => done(calibrate_radiometric_cmd::run(&a)),
         Command::Calibrate(CalibrateCommand::Light(a)) => done(calibrate_light_cmd::light(&a)),
+        Command::Calibrate(CalibrateCommand::Leds(a)) => done(calibrate_leds_cmd::leds(&a)),
         Command::Bench(BenchCommand::Render { rig, material, texels, repeat }) => {
             done(bench_cmd::render(rig.as_deref(), &material, texels, repeat))
         }

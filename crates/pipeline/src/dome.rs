@@ -48,12 +48,13 @@ pub enum DomeError {
 }
 
 /// What the dome processor needs to know about the rig: geometry, lens, sensor, LED
-/// calibration and colour.
+/// calibration and colour, all from the rig config and the calibration files it names
+/// (`docs/pipeline.md`, "LED dome"), never from the simulator.
 #[derive(Debug, Clone)]
 pub struct DomeProcessing {
     /// The dome geometry.
     pub dome: DomeConfig,
-    /// The lens every arc camera has.
+    /// The lens every arc camera has (the calibrated one when the rig names a calibration).
     pub camera: CameraModel,
     /// Colour filter array.
     pub bayer: Option<BayerPattern>,
@@ -61,16 +62,22 @@ pub struct DomeProcessing {
     pub electrons_per_dn: f64,
     /// Dark current, e-/s (its mean is subtracted before demultiplexing).
     pub dark_e_per_s: f64,
-    /// Calibrated power factor of each LED.
+    /// Calibrated power of each LED relative to `nominal_irradiance` (the LED calibration
+    /// file's `power`; all 1 without one).
     pub led_power: Vec<f64>,
-    /// Calibrated camera-RGB colour factor of each LED.
+    /// Calibrated camera-RGB colour of each LED on a white reflector, green = 1 (the LED
+    /// calibration file's `colour`: it white-balances; all 1 without one).
     pub led_colour: Vec<[f64; 3]>,
-    /// Camera-RGB rate of a white reflector facing a nominal LED at the dome radius, e-/s.
+    /// Green camera-RGB rate of a white reflector lit along its normal by an LED of power 1 at
+    /// the dome radius, e-/s (the LED calibration file's `reference_rate`; 1 without one:
+    /// textures then are in relative units).
     pub nominal_irradiance: f64,
-    /// White balance of the LED spectrum (nominal colour).
+    /// White balance applied before each LED's colour (1 with an LED calibration, which
+    /// white-balances per LED; a colour calibration's without one).
     pub white_balance: [f64; 3],
-    /// Camera RGB to linear sRGB.
-    pub matrix: [[f64; 3]; 3],
+    /// White-balanced camera RGB to linear sRGB (a colour calibration file's model); `None`:
+    /// textures stay in white-balanced camera RGB.
+    pub colour: Option<crate::color::ColorCorrection>,
     /// Side of the sample square the textures tile, metres.
     pub sample_side_m: f64,
     /// Texture side, texels.
@@ -302,9 +309,21 @@ impl DomeProcessing {
         Ok(())
     }
 
-    /// Demultiplexes a complete group (in place; single-light groups pass through).
+    /// Demultiplexes a complete group (in place; single-light groups pass through). Every
+    /// result mosaic is its LED's image at the LED's own (calibrated) power, as a single-light
+    /// frame is: the demultiplexer returns images per unit of the calibrated intensities it
+    /// was given (`led_power` times the pattern scale), so they are multiplied back by
+    /// `led_power` here and [`DomeProcessing::texture`] divides it out once for every mode.
     pub fn demultiplex(&self, stack: GroupStack, code: &GroupCode) -> Result<GroupResult, DomeError> {
-        code.demultiplex(stack)
+        let mut result = code.demultiplex(stack)?;
+        if result.report.is_some() {
+            let cols = result.cols;
+            for (j, &p) in self.led_power.iter().enumerate() {
+                let k = p as f32;
+                result.mosaics[j * cols..(j + 1) * cols].iter_mut().for_each(|v| *v *= k);
+            }
+        }
+        Ok(result)
     }
 
     /// The radiance-factor texture of LED `led` from its single-light `mosaic`, seen by
@@ -335,9 +354,13 @@ impl DomeProcessing {
             dark_e_per_s: 0.0,
             nominal_irradiance: self.nominal_irradiance * self.led_power[led],
             white_balance: [self.white_balance[0] / c[0], self.white_balance[1] / c[1], self.white_balance[2] / c[2]],
-            matrix: self.matrix,
+            matrix: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
         };
-        Ok(to_radiance_factor(&tex, &vig, &r)?.data)
+        let mut out = to_radiance_factor(&tex, &vig, &r)?.data;
+        if let Some(colour) = &self.colour {
+            colour.apply(&mut out);
+        }
+        Ok(out)
     }
 }
 

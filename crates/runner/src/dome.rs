@@ -295,6 +295,13 @@ pub fn run_controlled(
             pairs.push(StepId { light: j as u32, view: view_id(c, k) });
         }
     }
+    // The processing model before the dataset: a missing calibration stops the run with
+    // nothing written.
+    let rig_path = (!v.plan.rig.config.starts_with("builtin:")).then(|| base.join(&v.plan.rig.config));
+    let (processing, calibration, notes) = dome_processing(&rig, rig_path.as_deref(), size)?;
+    for n in &notes {
+        on_line(n);
+    }
     let samplings = Samplings {
         // World directions of the LEDs (= sample frame at rotation 0); the exact per-capture
         // sample-frame directions are in the report's `dome.directions`.
@@ -354,23 +361,8 @@ pub fn run_controlled(
         })
         .collect();
 
-    let processing = DomeProcessing {
-        dome: dome.clone(),
-        camera: scene.camera().model().clone(),
-        bayer: scene.sensor().bayer,
-        electrons_per_dn: rig.sensor.electrons_per_dn,
-        dark_e_per_s: rig.sensor.dark_current_e_per_s,
-        led_power: scene.led_power().to_vec(),
-        led_colour: scene.led_colour().to_vec(),
-        nominal_irradiance: scene.nominal_irradiance(),
-        white_balance: scene.colour().white_balance(),
-        matrix: scene.color_matrix(),
-        sample_side_m: side,
-        size,
-        filter: Filter::Footprint { max: 4 },
-    };
     // The lights' calibrated power at the power the patterns fire them at.
-    let fired: Vec<f64> = scene.led_power().iter().map(|p| p * schedule.pattern_scale).collect();
+    let fired: Vec<f64> = processing.led_power.iter().map(|p| p * schedule.pattern_scale).collect();
     let code = match schedule.mode {
         DomeMode::Single => GroupCode::Single,
         DomeMode::Multiplexed { order } => {
@@ -410,7 +402,9 @@ pub fn run_controlled(
     let rt = crate::virtual_time_runtime()?;
     let cameras = v.cameras.clone();
     let (commit_tx, mut commit_rx) = mpsc::unbounded_channel::<RunEvent>();
-    let mut state = Consumer::new(&v, &schedule, &processing, &code, &dataset, &scene, &faults, view_id);
+    // The simulator's truth, for the report's error figures only (a real rig has none).
+    let truth = Some(TruthProbe::new(scene.clone(), &faults));
+    let mut state = Consumer::new(&v, &schedule, &processing, &code, &dataset, truth, view_id);
     state.commits = Some(Committing {
         tx: commit_tx,
         textures: textures_before,
@@ -467,6 +461,7 @@ pub fn run_controlled(
     let (engine, stop) = outcome?;
     let mut s = state.finish();
     s.warnings.splice(0..0, engine.warnings.iter().cloned());
+    s.warnings.splice(0..0, notes.iter().cloned());
     s.dataset = req.out.clone();
     s.rig_kind = rig.rig.kind.as_str();
     s.light = light;
@@ -503,6 +498,7 @@ pub fn run_controlled(
             "directions": "light j, view v: DomeConfig::sample_directions(camera, turntable, j) (sample frame)",
         }),
     );
+    extra.insert("calibration".into(), calibration);
     // Like the gonio report: every texture of the dataset, and this session's apart.
     extra.insert("captures_this_session".into(), json!(s.textures));
     if let (Some(RunOutcome::Paused { .. }), Some(step)) = (&s.stopped, stop.paused_step) {
@@ -610,6 +606,104 @@ async fn listen(
     }
 }
 
+/// The dome pipeline's processing model from the rig config and the calibration files it
+/// names, never the simulator: the lens from `[camera] calibration` (else the config's
+/// nominal lens), LED powers and colours from `[dome] led_calibration` (else equal lights,
+/// relative units), the colour model from `[camera] color_calibration` (else white-balanced
+/// camera RGB). Returns it, the report's `calibration` record, and one line per missing
+/// calibration (the report's warnings say what the textures are then).
+fn dome_processing(
+    rig: &btfrig_core::config::RigConfig,
+    rig_path: Option<&Path>,
+    size: usize,
+) -> Result<(DomeProcessing, serde_json::Value, Vec<String>), RunError> {
+    let dome = rig.require_dome("a dome run").map_err(|e| input("rig.config", e))?.clone();
+    let camera = btfrig_calibrate::processing_camera(rig, rig_path).map_err(|e| input("camera calibration", e))?;
+    let leds = btfrig_calibrate::leds::processing_leds(rig, rig_path).map_err(|e| input("LED calibration", e))?;
+    let colour_file =
+        btfrig_calibrate::color::processing_color(rig, rig_path).map_err(|e| input("colour calibration", e))?;
+    let light = if dome.is_flash() { "flash" } else { "LED" };
+    let mut notes = Vec::new();
+    let n = dome.led_count();
+    let (led_power, led_colour, nominal_irradiance) = match &leds {
+        Some(f) => (f.powers(), f.colours(), f.reference_rate),
+        None => {
+            notes.push(format!(
+                "no {light} calibration: textures in relative units (every {light} counted equal; name one with \
+                 [dome] led_calibration)"
+            ));
+            (vec![1.0; n], vec![[1.0; 3]; n], 1.0)
+        }
+    };
+    let colour = match &colour_file {
+        Some(f) => {
+            let model = f.to_model().map_err(|e| input("colour calibration", e))?;
+            Some(btfrig_pipeline::color::ColorCorrection {
+                name: f.source.plan.clone(),
+                white_balance: f.white_balance,
+                model,
+            })
+        }
+        None => {
+            notes.push("no colour calibration: textures in white-balanced camera RGB, not sRGB".to_string());
+            None
+        }
+    };
+    // The LED calibration white-balances each light; without one, the colour file's white
+    // balance does it for all.
+    let white_balance = match (&leds, &colour) {
+        (None, Some(c)) => c.white_balance,
+        _ => [1.0; 3],
+    };
+    let record = json!({
+        "camera": rig.camera.calibration,
+        "leds": dome.led_calibration,
+        "colour": rig.camera.color_calibration,
+        "units": if leds.is_some() { "radiance factor" } else { "relative" },
+    });
+    let processing = DomeProcessing {
+        bayer: rig.sensor.cfa.bayer(),
+        camera,
+        electrons_per_dn: rig.sensor.electrons_per_dn,
+        dark_e_per_s: rig.sensor.dark_current_e_per_s,
+        led_power,
+        led_colour,
+        nominal_irradiance,
+        white_balance,
+        colour,
+        sample_side_m: rig.plate.sample_side_m,
+        size,
+        filter: Filter::Footprint { max: 4 },
+        dome,
+    };
+    Ok((processing, record, notes))
+}
+
+/// The simulator's truth, consulted only for the report's error figures (texture error,
+/// measured multiplexing gain); a run on a real rig has none.
+struct TruthProbe {
+    scene: Arc<DomeScene>,
+    /// LEDs the fault scenario holds on (the reference frames saw them too).
+    stuck_on: Vec<usize>,
+}
+
+impl TruthProbe {
+    fn new(scene: Arc<DomeScene>, faults: &FaultScenario) -> TruthProbe {
+        let stuck_on = faults
+            .stuck_leds
+            .iter()
+            .filter(|s| s.state == btfrig_sim::faults::StuckState::On)
+            .map(|s| s.index)
+            .collect();
+        TruthProbe { scene, stuck_on }
+    }
+
+    /// The true texture of camera `c`, turntable `rad`, LED `j`.
+    fn texture(&self, c: usize, rad: f64, j: usize, size: usize) -> Vec<[f32; 3]> {
+        self.scene.ground_truth(c, rad, j, size).data
+    }
+}
+
 /// The pipeline side of a dome run: collects frames per view group, demultiplexes, stores.
 struct Consumer<'a, F: Fn(usize, u32) -> u32> {
     v: &'a ValidatedDomePlan,
@@ -617,8 +711,7 @@ struct Consumer<'a, F: Fn(usize, u32) -> u32> {
     processing: &'a DomeProcessing,
     code: &'a GroupCode,
     dataset: &'a Dataset,
-    scene: &'a DomeScene,
-    stuck_on: Vec<usize>,
+    truth: Option<TruthProbe>,
     view_id: F,
     stacks: HashMap<usize, GroupStack>,
     references: Vec<(usize, f64, Vec<f32>)>,
@@ -648,24 +741,16 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
         processing: &'a DomeProcessing,
         code: &'a GroupCode,
         dataset: &'a Dataset,
-        scene: &'a DomeScene,
-        faults: &FaultScenario,
+        truth: Option<TruthProbe>,
         view_id: F,
     ) -> Self {
-        let stuck_on = faults
-            .stuck_leds
-            .iter()
-            .filter(|s| s.state == btfrig_sim::faults::StuckState::On)
-            .map(|s| s.index)
-            .collect();
         Consumer {
             v,
             schedule,
             processing,
             code,
             dataset,
-            scene,
-            stuck_on,
+            truth,
             view_id,
             stacks: HashMap::new(),
             references: Vec::new(),
@@ -789,9 +874,8 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
                 Some(all) => std::mem::take(&mut all[j]),
                 None => texture(j).map_err(|e| input("dome pipeline", e))?,
             };
-            let truth = self.scene.ground_truth(c, rad, j, self.v.plan.texture_size);
-            if !faulty.contains(&j) {
-                self.rmse.push(sq_err(&tex, &truth.data));
+            if let Some(truth) = self.truth.as_ref().filter(|_| !faulty.contains(&j)) {
+                self.rmse.push(sq_err(&tex, &truth.texture(c, rad, j, size)));
             }
             let file = self.dataset.write_texture(id, &tex, size, size).map_err(|e| input("dataset", e))?;
             let timing = StepTiming {
@@ -842,6 +926,7 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
     /// The measured gain and the reference textures' error (module docs).
     fn measure(&mut self, source: &btfrig_sim::dome::DomeFrameSource, rad: f64) -> Result<(), RunError> {
         let Some((mosaics, cols, exp, gain)) = self.first_group.as_ref() else { return Ok(()) };
+        let Some(probe) = self.truth.as_ref() else { return Ok(()) };
         let leds = self.schedule.leds;
         let c = source.camera();
         let (mut g, mut ref_err, mut mux_err) = (Vec::new(), Vec::new(), Vec::new());
@@ -850,7 +935,7 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
             single[*j] = 1.0;
             let truth_mux = source.noise_free_dn(rad, &single, *exp, *gain);
             // The reference frame saw the stuck LEDs too.
-            for &s in &self.stuck_on {
+            for &s in &probe.stuck_on {
                 single[s] = 1.0;
             }
             let truth_ref = source.noise_free_dn(rad, &single, *ref_exp, *gain);
@@ -858,11 +943,11 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
             g.push(snr(demuxed, &truth_mux) / snr(sig, &truth_ref));
             let tex =
                 self.processing.texture(sig, c, rad, *j, *ref_exp, *gain).map_err(|e| input("dome pipeline", e))?;
-            let truth = self.scene.ground_truth(c, rad, *j, self.v.plan.texture_size);
-            ref_err.push(sq_err(&tex, &truth.data));
+            let truth = probe.texture(c, rad, *j, self.v.plan.texture_size);
+            ref_err.push(sq_err(&tex, &truth));
             let tex =
                 self.processing.texture(demuxed, c, rad, *j, *exp, *gain).map_err(|e| input("dome pipeline", e))?;
-            mux_err.push(sq_err(&tex, &truth.data));
+            mux_err.push(sq_err(&tex, &truth));
         }
         if !g.is_empty() {
             self.out.multiplex_gain_measured = Some(g.iter().sum::<f64>() / g.len() as f64);

@@ -76,3 +76,4 @@ pub fn capture_simulated(cfg: &RigConfig, plan: &CalibrationPlan, seed: u64) -> 
     let render_s = t.elapsed().as_secs_f64();
     Ok(BoardCaptures { frames, captures, render_s })
 }
+pub mod leds;

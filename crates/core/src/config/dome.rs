@@ -108,6 +108,12 @@ pub struct DomeConfig {
     /// camera array has no turntable: 1, the default).
     #[serde(default = "one")]
     pub rotations: u32,
+    /// The lights' power and colour calibration the pipeline demultiplexes and converts with:
+    /// `builtin:NAME` or a path relative to the rig file (made by `btfrig calibrate leds`,
+    /// `docs/rig-config.md`, "LED calibration"). Without one, every light counts as equal and
+    /// textures are in relative units.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub led_calibration: Option<String>,
 }
 
 impl DomeConfig {
@@ -486,6 +492,7 @@ mod tests {
             camera_distance_m: 0.7,
             camera_azimuth_deg: 0.0,
             rotations: 12,
+            led_calibration: None,
         }
     }
 
