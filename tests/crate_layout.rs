@@ -19,8 +19,7 @@ const SIMULATOR: &[&str] = &["btfrig-sim", "btfrig-render"];
 /// Crates that still depend on the simulator, and why (to be emptied).
 const STILL_DEPENDING: &[(&str, &str)] = &[
     ("btfrig-runner", "the dome run builds its simulated rig itself; plan checks load materials and fault scenarios"),
-    ("btfrig-daemon", "through btfrig-runner"),
-    ("btfrig-calibrate", "the calibration procedures render their own frames"),
+    ("btfrig-daemon", "through btfrig-runner; its /calibrations colour job runs on the simulated rig"),
 ];
 
 /// Each workspace package with a library target, and its normal dependencies inside the workspace.
