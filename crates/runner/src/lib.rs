@@ -21,6 +21,7 @@ mod light;
 pub mod model;
 pub mod plan;
 pub mod report;
+pub mod reprocess;
 
 use std::collections::{BTreeMap, HashSet};
 use std::path::{Path, PathBuf};
