@@ -110,11 +110,8 @@ fn read_source(dir: &Path) -> Result<Source, RunError> {
 /// and content hash.
 fn read_raw_frames(dir: &Path, record: &StepRecord) -> Result<Vec<btfrig_core::frame::RawFrame>, RunError> {
     let stem = record.step.stem();
-    let mut raw: Vec<&btfrig_store::FileRecord> = record
-        .files
-        .iter()
-        .filter(|f| f.path.starts_with(&format!("{}/{stem}", btfrig_store::RAW_DIR)))
-        .collect();
+    let mut raw: Vec<&btfrig_store::FileRecord> =
+        record.files.iter().filter(|f| f.path.starts_with(&format!("{}/{stem}", btfrig_store::RAW_DIR))).collect();
     // raw/<stem>.exr, then raw/<stem>_e1.exr, _e2, ... (the order of the bracket).
     raw.sort_by_key(|f| {
         f.path.rsplit_once("_e").and_then(|(_, k)| k.trim_end_matches(".exr").parse::<usize>().ok()).unwrap_or(0)
@@ -229,7 +226,8 @@ fn calibrations(rig: &RigConfig, manifest: &Manifest, dir: Option<&Path>) -> Res
         if let Some(run_light) = &recorded {
             // The run had its own light calibration: the new file takes its place, drift
             // correction as the run had it.
-            let text = std::fs::read_to_string(&path).map_err(|source| RunError::Read { path: path.clone(), source })?;
+            let text =
+                std::fs::read_to_string(&path).map_err(|source| RunError::Read { path: path.clone(), source })?;
             let origin = path.display().to_string();
             let what = format!("[lamp] calibration {origin}");
             let file = btfrig_calibrate::light::LightCalibrationFile::from_toml(&text, &origin)
@@ -356,7 +354,8 @@ pub fn reprocess(req: &ReprocessRequest) -> Result<ReprocessSummary, RunError> {
     }
 
     let mut manifest = src.manifest.clone();
-    let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs_f64()).unwrap_or(0.0);
+    let now =
+        std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs_f64()).unwrap_or(0.0);
     manifest.created_unix_s = now;
     manifest.created_utc = btfrig_store::rfc3339_utc(now as i64);
     manifest.timing = None;
@@ -385,8 +384,8 @@ pub fn reprocess(req: &ReprocessRequest) -> Result<ReprocessSummary, RunError> {
         o.insert("reprocessed_from".into(), reprocessed_from.clone());
     }
     manifest.calibration = Some(record);
-    let dataset = Dataset::create(&req.out, manifest)
-        .map_err(|source| RunError::Dataset { dir: req.out.clone(), source })?;
+    let dataset =
+        Dataset::create(&req.out, manifest).map_err(|source| RunError::Dataset { dir: req.out.clone(), source })?;
     let dataset = Arc::new(dataset);
 
     let hdr = match &v.exposure {
@@ -403,8 +402,7 @@ pub fn reprocess(req: &ReprocessRequest) -> Result<ReprocessSummary, RunError> {
                 preview: None,
             })
             .with_hdr_recording(
-                hdr.as_ref()
-                    .map(|h| btfrig_pipeline::HdrRecording { always_stops: crate::hdr::always_stops(h) }),
+                hdr.as_ref().map(|h| btfrig_pipeline::HdrRecording { always_stops: crate::hdr::always_stops(h) }),
             ),
     );
     let rt = tokio::runtime::Builder::new_current_thread().enable_time().build().map_err(RunError::Runtime)?;

@@ -63,13 +63,18 @@ fn request(dataset: &Path, out: &Path, calibration: Option<&Path>) -> ReprocessR
     ReprocessRequest { dataset: dataset.into(), out: out.into(), calibration: calibration.map(Path::to_path_buf) }
 }
 
-/// `textures/*.exr` by name, as bytes.
-fn textures(dataset: &Path) -> std::collections::BTreeMap<String, Vec<u8>> {
+/// `textures/*.exr` by name, with their content hashes.
+fn textures(dataset: &Path) -> std::collections::BTreeMap<String, String> {
     std::fs::read_dir(dataset.join("textures"))
         .unwrap()
         .map(|e| e.unwrap().path())
         .filter(|p| p.extension().is_some_and(|x| x == "exr"))
-        .map(|p| (p.file_name().unwrap().to_string_lossy().into_owned(), std::fs::read(&p).unwrap()))
+        .map(|p| {
+            (
+                p.file_name().unwrap().to_string_lossy().into_owned(),
+                btfrig_store::content_hash(&std::fs::read(&p).unwrap()),
+            )
+        })
         .collect()
 }
 
@@ -116,7 +121,8 @@ fn same_calibrations_give_the_same_textures_and_a_brighter_light_calibration_dar
     assert_eq!(s.steps, 6);
     assert_eq!(textures(&same), original);
     assert!(btfrig_store::verify(&same).is_ok(), "{:?}", btfrig_store::verify(&same).problems);
-    let manifest: serde_json::Value = serde_json::from_slice(&std::fs::read(same.join("manifest.json")).unwrap()).unwrap();
+    let manifest: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(same.join("manifest.json")).unwrap()).unwrap();
     let from = &manifest["calibration"]["reprocessed_from"];
     assert_eq!(from["dataset"], source.display().to_string(), "{manifest}");
     assert_eq!(manifest["raw_frames"], false);
@@ -133,15 +139,15 @@ fn same_calibrations_give_the_same_textures_and_a_brighter_light_calibration_dar
     let brighter = dir.join("brighter");
     let s = reprocess(&request(&source, &brighter, Some(&cal))).unwrap();
     assert_eq!(s.steps, 6);
-    let light_source = s.processing.sources.iter().find(|(p, _)| p == "light").unwrap();
-    assert!(light_source.1.ends_with("cal/bonn-gonio-sim-light.toml"), "{:?}", s.processing);
-    let files = &manifest_of(&brighter)["calibration"]["reprocessed_from"]["calibration_files"];
-    assert_eq!(files[0]["part"], "[lamp] calibration", "{files}");
     for name in original.keys() {
         let ratio = texel_sum(&brighter, name) / texel_sum(&source, name);
         // Half-float textures: about 5e-4 per texel, much less over 768 values.
         assert!((ratio - 1.0 / 1.1).abs() < 1e-3, "{name}: ratio {ratio}, expected {}", 1.0 / 1.1);
     }
+    let light_source = s.processing.sources.iter().find(|(p, _)| p == "light").unwrap();
+    assert!(light_source.1.ends_with("cal/bonn-gonio-sim-light.toml"), "{:?}", s.processing);
+    let files = &manifest_of(&brighter)["calibration"]["reprocessed_from"]["calibration_files"];
+    assert_eq!(files[0]["part"], "[lamp] calibration", "{files}");
 }
 
 fn manifest_of(dataset: &Path) -> serde_json::Value {
@@ -163,8 +169,14 @@ fn refuses_what_it_cannot_reprocess_naming_the_cause() {
     std::fs::create_dir_all(&busy).unwrap();
     std::fs::write(busy.join("keep"), b"mine").unwrap();
     let e = refusal(&request(&source, &busy, None));
-    assert!(e.contains("not empty") && e.contains("busy"), "{e}");
+    assert!(e.contains("not empty") && e.contains("busy") && e.contains("overwrites nothing"), "{e}");
     assert_eq!(std::fs::read(busy.join("keep")).unwrap(), b"mine");
+    // Into itself (a dataset of the same plan, which a run would resume): refused, untouched.
+    let before = textures(&source);
+    let e = refusal(&request(&source, &source, None));
+    assert!(e.contains("not empty") && e.contains("overwrites nothing"), "{e}");
+    assert_eq!(textures(&source), before);
+    assert!(btfrig_store::verify(&source).is_ok());
 
     // A calibration file that does not parse: named, with the field.
     let cal = dir.join("cal");
