@@ -323,7 +323,12 @@ pub fn reprocess(req: &ReprocessRequest) -> Result<ReprocessSummary, RunError> {
     if let Some(d) = req.calibration.as_deref().filter(|d| !d.is_dir()) {
         return Err(input(format!("--calibration {}", d.display()), "not a directory"));
     }
-    let cal = calibrations(&rig, &src.manifest, req.calibration.as_deref())?;
+    // Absolute: the files' paths go into the rig config, which has no base directory here.
+    let cal_dir = match req.calibration.as_deref() {
+        Some(d) => Some(d.canonicalize().map_err(|source| RunError::Read { path: d.into(), source })?),
+        None => None,
+    };
+    let cal = calibrations(&rig, &src.manifest, cal_dir.as_deref())?;
     let model = crate::model::gonio_model(&cal.rig, None, cal.light.clone(), cal.dark_flat.clone())?;
     let processing = ProcessingInfo::of(&model);
     // The commanded joints of each step: the planner's expansion (inverse kinematics of the
