@@ -43,6 +43,9 @@ pub enum Command {
     Calibrate(CalibrateCommand),
     /// Compress a dataset into a linear BTF model file: FMF, PVMF or PCMF (docs/compression.md).
     Compress(crate::compress_cmd::CompressArgs),
+    /// Process a gonio dataset's raw frames again, e.g. after a better calibration, into a new
+    /// dataset, without the rig (docs/pipeline.md, "Reprocessing").
+    Reprocess(crate::reprocess_cmd::ReprocessArgs),
     /// Sparse acquisition with a linear basis: choose the captures, reconstruct the full BTF.
     #[command(subcommand)]
     Sparse(crate::compress_cmd::SparseCommand),

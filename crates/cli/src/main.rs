@@ -20,6 +20,7 @@ mod hw_cmd;
 mod kinematics_cmd;
 mod material;
 mod plan_cmd;
+mod reprocess_cmd;
 mod rig;
 mod run_cmd;
 mod serve_cmd;
@@ -55,6 +56,7 @@ fn main() -> std::process::ExitCode {
         Command::Dataset(DatasetCommand::Verify { dir }) => dataset_cmd::verify(&dir),
         Command::Dataset(DatasetCommand::Export(a)) => done(compress_cmd::export(&a)),
         Command::Compress(a) => done(compress_cmd::compress(&a)),
+        Command::Reprocess(a) => done(reprocess_cmd::run(&a)),
         Command::Sparse(args::SparseCommand::Select(a)) => done(compress_cmd::select(&a)),
         Command::Sparse(args::SparseCommand::Reconstruct(a)) => done(compress_cmd::reconstruct(&a)),
         Command::Serve(a) => done(serve_cmd::serve(&a)),

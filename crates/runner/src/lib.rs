@@ -22,6 +22,7 @@ mod light;
 pub mod model;
 pub mod plan;
 pub mod report;
+pub mod reprocess;
 pub mod sinks;
 
 use std::collections::{BTreeMap, HashSet};
