@@ -41,7 +41,10 @@ fn camera_array_plan(dir: &Path, name: &str, cameras: &str) -> PathBuf {
         &cfg[end..]
     )
     .replace("count = 151", "count = 7")
-    .replace("name = \"bonn-camera-array-sim\"", "name = \"camera-array-7\"");
+    .replace("name = \"bonn-camera-array-sim\"", "name = \"camera-array-7\"")
+    // The shipped flash calibration is of all 151 flashes: this 7-flash array has none
+    // (relative units, which compress as well).
+    .replace("led_calibration = \"builtin:bonn-camera-array-sim-flashes\"", "");
     std::fs::write(dir.join("array7.toml"), cfg).unwrap();
     let demo = std::fs::read_to_string(repo("rig-configs/plans/camera-array-demo.toml")).unwrap();
     let text = demo
