@@ -85,6 +85,8 @@ impl Daemon {
         header_read_timeout: Duration,
         plan_job_time_limit: Duration,
     ) -> Daemon {
+        // The device backends runs open rigs with, as the btfrig binary installs them.
+        btfrig_sim_backend::install();
         let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
