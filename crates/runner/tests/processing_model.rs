@@ -37,7 +37,7 @@ fn a_missing_calibration_file_is_named_and_nothing_is_created() {
     btfrig_sim_backend::install();
     let dir = scratch("missing");
     let rig = SMALL_RIG.replace(LIGHT_LINE, "calibration = \"lamp-light.toml\"");
-    let fixed = "[exposure]\nmode = \"fixed\"\nexposure_s = 0.05";
+    let fixed = "[exposure]\nmode = \"fixed\"\nexposure_s = 0.004";
     let e = run(&request(&dir, &rig, fixed), &RunControl::new(), &mut |_| {}).unwrap_err().to_string();
     assert!(e.contains("[lamp] calibration") && e.contains("lamp-light.toml"), "{e}");
     assert!(!dir.join("dataset").exists(), "a dataset was created: {e}");
@@ -53,7 +53,7 @@ fn a_missing_calibration_file_is_named_and_nothing_is_created() {
 #[test]
 fn without_a_light_calibration_textures_are_relative_and_the_report_says_so() {
     btfrig_sim_backend::install();
-    let fixed = "[exposure]\nmode = \"fixed\"\nexposure_s = 0.05";
+    let fixed = "[exposure]\nmode = \"fixed\"\nexposure_s = 0.004";
     let dir = scratch("relative");
     let with = run(&request(&dir, SMALL_RIG, fixed), &RunControl::new(), &mut |_| {}).unwrap();
     assert_eq!(with.outcome, RunOutcome::Finished);

@@ -110,6 +110,7 @@ fn scaled_light_calibration(factor: f64) -> String {
 
 #[test]
 fn same_calibrations_give_the_same_textures_and_a_brighter_light_calibration_darker_ones() {
+    btfrig_sim_backend::install();
     let dir = scratch("same-and-light");
     let source = measure(&dir, true);
     let original = textures(&source);
@@ -160,6 +161,7 @@ fn refusal(req: &ReprocessRequest) -> String {
 
 #[test]
 fn refuses_what_it_cannot_reprocess_naming_the_cause() {
+    btfrig_sim_backend::install();
     let dir = scratch("refusals");
     let source = measure(&dir, true);
     let new = dir.join("new");
