@@ -31,7 +31,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use btfrig_core::kinematics::Gonio;
-use btfrig_core::plan::{ResampleFilter, ValidatedPlan};
+use btfrig_core::plan::ValidatedPlan;
 use btfrig_engine::{
     Devices, Engine, EngineSettings, EngineStep, Event, PauseReason, RunOutcome as EngineOutcome, StepKey,
 };
@@ -850,22 +850,7 @@ fn run_capture(
         trigger_timeout_s: v.run.capture_timeout_s,
         ..EngineSettings::default()
     };
-    let process = ProcessSettings {
-        size: v.texture.size,
-        region: btfrig_calib::Region {
-            x_min: v.texture.region.x_min_m,
-            x_max: v.texture.region.x_max_m,
-            y_min: v.texture.region.y_min_m,
-            y_max: v.texture.region.y_max_m,
-        },
-        filter: match v.texture.filter {
-            ResampleFilter::Bilinear => btfrig_calib::Filter::Bilinear,
-            ResampleFilter::Supersample { n } => btfrig_calib::Filter::Supersample { n },
-            ResampleFilter::Footprint { max } => btfrig_calib::Filter::Footprint { max },
-            ResampleFilter::Ewa => btfrig_calib::Filter::Ewa,
-        },
-        registration: v.registration,
-    };
+    let process = reprocess::process_settings(&v);
 
     // What frames are processed with: the rig config and the calibration files it names, the
     // run's own light and dark/flat calibrations (`docs/pipeline.md`, "The processing model").

@@ -283,8 +283,8 @@ fn calibrations(rig: &RigConfig, manifest: &Manifest, dir: Option<&Path>) -> Res
     Ok(Calibrations { rig, light, dark_flat, used })
 }
 
-/// The pipeline's settings of a validated plan (as a run sets them).
-fn process_settings(v: &ValidatedPlan) -> ProcessSettings {
+/// The pipeline's settings of a validated plan (a run's and a reprocessing's).
+pub(crate) fn process_settings(v: &ValidatedPlan) -> ProcessSettings {
     ProcessSettings {
         size: v.texture.size,
         region: btfrig_calib::Region {
