@@ -11,12 +11,12 @@
 #![warn(missing_docs)]
 
 pub mod file;
-pub mod homography;
 pub mod metric;
 mod refine;
 pub mod zhang;
 
 use btfrig_core::camera::{CameraError, CameraModel, Distortion, Vignetting};
+use btfrig_core::homography;
 use nalgebra::{Isometry3, Matrix3, Point2, Translation3, UnitQuaternion};
 
 pub use file::{CalibrationFile, FileError};

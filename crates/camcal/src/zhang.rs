@@ -115,6 +115,6 @@ pub fn focal_with_centre(hs: &[Matrix3<f64>], cx: f64, cy: f64) -> Result<Pinhol
 
 /// Pose of the target (rotation, translation: target to camera) from its homography and `K`.
 pub fn pose(h: &Matrix3<f64>, k: &Matrix3<f64>) -> Option<(Rotation3<f64>, Vector3<f64>)> {
-    let iso = crate::homography::decompose(&(k.try_inverse()? * h))?;
+    let iso = btfrig_core::homography::decompose(&(k.try_inverse()? * h))?;
     Some((iso.rotation.to_rotation_matrix(), iso.translation.vector))
 }

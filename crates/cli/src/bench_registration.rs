@@ -13,7 +13,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 use btfrig_calib::{rectify, to_radiance_factor, vignetting_map, Filter, LinearImage, Radiometry, Region};
-use btfrig_camcal::homography::{decompose, dlt};
+use btfrig_core::homography::{decompose, dlt};
 use btfrig_core::camera::CameraModel;
 use btfrig_core::config::RigConfig;
 use btfrig_core::kinematics::JointState;
@@ -515,7 +515,7 @@ impl Bench {
         for row in 0..size {
             for col in 0..size {
                 let (x, y) = r.point(size, size, col as f64 + 0.5, row as f64 + 0.5);
-                let Some(u) = btfrig_camcal::homography::map(h, &Point2::new(x, y)) else { continue };
+                let Some(u) = btfrig_core::homography::map(h, &Point2::new(x, y)) else { continue };
                 let n_pt = Point3::new((u.x - cam.cx) / cam.fx, (u.y - cam.cy) / cam.fy, 1.0);
                 let Some(px) = cam.project(&n_pt) else { continue };
                 let Some(q) = back_project(cam, &truth, px) else { continue };

@@ -6,8 +6,10 @@
 //! barycentric interpolation; [`kinematics`] turns a (light, view) pair into the poses of a
 //! gonioreflectometer and back; [`config::RigConfig`] is a rig described as data;
 //! [`camera`] is the pinhole-plus-distortion camera model shared by the simulator and the
-//! calibration; [`frame`] is a raw sensor frame with its full metadata; [`plan`] is a
-//! measurement plan (TOML) validated against a rig, reporting every problem at once.
+//! calibration; [`homography`] is the one plane homography (normalised DLT) and its
+//! decomposition into a pose; [`frame`] is a raw sensor frame with its full metadata;
+//! [`plan`] is a measurement plan (TOML) validated against a rig, reporting every problem at
+//! once.
 #![warn(missing_docs)]
 
 pub mod camera;
@@ -15,6 +17,7 @@ pub mod config;
 pub mod direction;
 pub mod error;
 pub mod frame;
+pub mod homography;
 pub mod kinematics;
 pub mod plan;
 pub mod pose;

@@ -23,7 +23,6 @@
 #![warn(missing_docs)]
 
 pub mod frame;
-pub mod homography;
 pub mod metric;
 pub mod refine;
 
@@ -31,6 +30,7 @@ use std::collections::BTreeMap;
 
 use btfrig_calib::Region;
 use btfrig_core::camera::CameraModel;
+use btfrig_core::homography;
 use btfrig_core::pose::ScenePose;
 use nalgebra::{Isometry3, Point2, Vector3};
 use rand::seq::SliceRandom;

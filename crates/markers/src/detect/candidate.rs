@@ -1,38 +1,13 @@
 //! Steps 3 to 6 for one dark region: quad check, corner refinement, unwarp and decoding.
 
-use nalgebra::{Matrix3, Point2, SMatrix, SVector};
+use btfrig_core::homography::{dlt, map};
+use nalgebra::Point2;
 
 use super::edge::{fit_edge, from_fit, intersect, EdgeFit};
 use super::edge_model::{fit_edge_model, B_MIN};
 use super::quad::{cross, initial_quad, module_across};
 use super::{DetectParams, Detection, GrayImage, Quality};
 use crate::dictionary::Dictionary;
-
-/// Homography from module coordinates (corner `k` of the unit square scaled by `m`) to the
-/// image quad `q`.
-fn homography(q: &[Point2<f64>; 4], m: f64) -> Option<Matrix3<f64>> {
-    let src = [(0.0, 0.0), (m, 0.0), (m, m), (0.0, m)];
-    let mut a = SMatrix::<f64, 8, 8>::zeros();
-    let mut b = SVector::<f64, 8>::zeros();
-    for k in 0..4 {
-        let (x, y) = src[k];
-        let (u, v) = (q[k].x, q[k].y);
-        a.set_row(2 * k, &nalgebra::RowSVector::<f64, 8>::from_row_slice(&[x, y, 1.0, 0.0, 0.0, 0.0, -u * x, -u * y]));
-        a.set_row(
-            2 * k + 1,
-            &nalgebra::RowSVector::<f64, 8>::from_row_slice(&[0.0, 0.0, 0.0, x, y, 1.0, -v * x, -v * y]),
-        );
-        b[2 * k] = u;
-        b[2 * k + 1] = v;
-    }
-    let hv = a.lu().solve(&b)?;
-    Some(Matrix3::new(hv[0], hv[1], hv[2], hv[3], hv[4], hv[5], hv[6], hv[7], 1.0))
-}
-
-fn apply_h(hm: &Matrix3<f64>, x: f64, y: f64) -> Point2<f64> {
-    let p = hm * nalgebra::Vector3::new(x, y, 1.0);
-    Point2::new(p.x / p.z, p.y / p.z)
-}
 
 pub(super) fn candidate(
     img: &GrayImage,
@@ -162,7 +137,9 @@ pub(super) fn candidate(
     }
     let thr = 0.5 * (dark + light);
     // Sample the module grid: mean of 3x3 points in each module's central half.
-    let hm = homography(&q, modules)?;
+    // Module coordinates (the unit square scaled by the module count) to the image quad.
+    let square = [(0.0, 0.0), (modules, 0.0), (modules, modules), (0.0, modules)].map(|(x, y)| Point2::new(x, y));
+    let hm = dlt(&square, &q)?;
     let n = dict.size + 2;
     let mut white = vec![false; n * n];
     for r in 0..n {
@@ -170,7 +147,7 @@ pub(super) fn candidate(
             let mut s = 0.0;
             for a in [-0.25, 0.0, 0.25] {
                 for b in [-0.25, 0.0, 0.25] {
-                    let pt = apply_h(&hm, c as f64 + 0.5 + a, r as f64 + 0.5 + b);
+                    let pt = map(&hm, &Point2::new(c as f64 + 0.5 + a, r as f64 + 0.5 + b))?;
                     s += img.bilinear(pt.x, pt.y);
                 }
             }
