@@ -19,10 +19,12 @@
 use std::sync::LazyLock;
 
 pub use btfrig_color::chart::{ChartLayout, PatchReference, CHART_NAMES};
+use btfrig_color::delta_e_76;
+use btfrig_color::space::{lab_to_xyz, xyz_to_lab};
 use btfrig_core::config::plate::PlateConfig;
 use nalgebra::{DMatrix, DVector};
 
-use crate::colour::{delta_e76, lab_to_xyz, xyz_to_lab, ColourSystem};
+use crate::colour::ColourSystem;
 use crate::material::MaterialSpec;
 use crate::scene::{Resolver, Scene, SceneError};
 use crate::spectral::{self, Spectrum, LEN};
@@ -66,7 +68,7 @@ impl ColorChart {
             .zip(&layout.patches)
             .map(|(s, r)| ChartPatch {
                 spectrum: *s,
-                synthesis_delta_e76: delta_e76(xyz_to_lab(d50.xyz(s), white), r.lab_d50),
+                synthesis_delta_e76: delta_e_76(xyz_to_lab(d50.xyz(s), white), r.lab_d50),
             })
             .collect();
         ColorChart { layout, patches }
@@ -104,7 +106,7 @@ static SG140: LazyLock<Vec<ChartPatch>> = LazyLock::new(|| {
             // Lab relative to the spectral D50 white, so that the Lab (not just the XYZ) is kept.
             let target = lab_to_xyz(r.lab_d50, white);
             let spectrum = synthesise_reflectance(&weights, target);
-            ChartPatch { spectrum, synthesis_delta_e76: delta_e76(xyz_to_lab(d50.xyz(&spectrum), white), r.lab_d50) }
+            ChartPatch { spectrum, synthesis_delta_e76: delta_e_76(xyz_to_lab(d50.xyz(&spectrum), white), r.lab_d50) }
         })
         .collect()
 });

@@ -17,112 +17,15 @@
 //! observer's, so no 3x3 matrix maps one to the other exactly:
 //! [`ColourSystem::fit_camera_to_output`] finds the least-squares matrix over a set of
 //! reflectances (the 24 ColorChecker patches) and reports the residuals (`docs/colour.md`).
+//!
+//! The colour-space conversions (sRGB, XYZ, L*a*b*, Bradford) are `btfrig_color::space`'s;
+//! this module holds what only the simulator has: the lamp and the camera's spectra.
 
+use btfrig_color::delta_e_76;
+use btfrig_color::space::{bradford, d65_white, linear_srgb_to_lab, mat3_apply, mat3_mul, xyz_to_srgb_matrix, Mat3};
 use nalgebra::{Matrix3, Vector3};
 
 use crate::spectral::{self, SpectralError, Spectrum};
-
-/// sRGB / Rec. 709 primaries and D65 white, CIE 1931 xy chromaticities.
-const SRGB_PRIMARIES: [[f64; 2]; 3] = [[0.64, 0.33], [0.30, 0.60], [0.15, 0.06]];
-/// D65 white point chromaticity of sRGB.
-pub const D65_XY: [f64; 2] = [0.3127, 0.3290];
-
-/// Bradford cone-response matrix (Lam 1985).
-const BRADFORD: [[f64; 3]; 3] = [[0.8951, 0.2664, -0.1614], [-0.7502, 1.7135, 0.0367], [0.0389, -0.0685, 1.0296]];
-
-fn m3(a: [[f64; 3]; 3]) -> Matrix3<f64> {
-    Matrix3::from_fn(|r, c| a[r][c])
-}
-
-fn arr(m: &Matrix3<f64>) -> [[f64; 3]; 3] {
-    std::array::from_fn(|r| std::array::from_fn(|c| m[(r, c)]))
-}
-
-/// XYZ (Y = 1) of a chromaticity `xy`.
-pub fn xy_to_xyz(xy: [f64; 2]) -> [f64; 3] {
-    [xy[0] / xy[1], 1.0, (1.0 - xy[0] - xy[1]) / xy[1]]
-}
-
-/// The linear-sRGB-to-XYZ matrix, derived from the primaries and D65 white (rather than
-/// copied with 4 decimals) so that RGB (1, 1, 1) is D65 white to rounding error.
-pub fn srgb_to_xyz_matrix() -> [[f64; 3]; 3] {
-    arr(&srgb_to_xyz())
-}
-
-fn srgb_to_xyz() -> Matrix3<f64> {
-    let p = Matrix3::from_columns(&SRGB_PRIMARIES.map(|xy| Vector3::from(xy_to_xyz(xy))));
-    let w = Vector3::from(xy_to_xyz(D65_XY));
-    let s = p.try_inverse().expect("sRGB primaries are independent") * w;
-    p * Matrix3::from_diagonal(&s)
-}
-
-/// The XYZ-to-linear-sRGB matrix (inverse of [`srgb_to_xyz_matrix`]).
-pub fn xyz_to_srgb_matrix() -> [[f64; 3]; 3] {
-    arr(&srgb_to_xyz().try_inverse().expect("invertible"))
-}
-
-/// Bradford chromatic adaptation matrix from white `src` to white `dst` (XYZ).
-pub fn bradford(src: [f64; 3], dst: [f64; 3]) -> [[f64; 3]; 3] {
-    let b = m3(BRADFORD);
-    let s = b * Vector3::from(src);
-    let d = b * Vector3::from(dst);
-    let scale = Matrix3::from_diagonal(&d.component_div(&s));
-    arr(&(b.try_inverse().expect("invertible") * scale * b))
-}
-
-/// Applies a 3x3 matrix to a triple.
-pub fn apply(m: &[[f64; 3]; 3], v: [f64; 3]) -> [f64; 3] {
-    std::array::from_fn(|r| m[r][0] * v[0] + m[r][1] * v[1] + m[r][2] * v[2])
-}
-
-/// The sRGB transfer function (IEC 61966-2-1): linear value to encoded value. Not clamped:
-/// callers clamp to [0, 1] before quantising.
-pub fn srgb_encode(linear: f64) -> f64 {
-    if linear <= 0.003_130_8 {
-        12.92 * linear
-    } else {
-        1.055 * linear.powf(1.0 / 2.4) - 0.055
-    }
-}
-
-/// Inverse of [`srgb_encode`].
-pub fn srgb_decode(encoded: f64) -> f64 {
-    if encoded <= 0.040_45 {
-        encoded / 12.92
-    } else {
-        ((encoded + 0.055) / 1.055).powf(2.4)
-    }
-}
-
-const LAB_EPS: f64 = 216.0 / 24389.0; // (6/29)^3
-const LAB_KAPPA: f64 = 24389.0 / 27.0; // (29/3)^3
-
-/// CIE XYZ to L*a*b* relative to the white `white` (XYZ).
-pub fn xyz_to_lab(xyz: [f64; 3], white: [f64; 3]) -> [f64; 3] {
-    let f = |t: f64| if t > LAB_EPS { t.cbrt() } else { (LAB_KAPPA * t + 16.0) / 116.0 };
-    let [fx, fy, fz] = [0, 1, 2].map(|i| f(xyz[i] / white[i]));
-    [116.0 * fy - 16.0, 500.0 * (fx - fy), 200.0 * (fy - fz)]
-}
-
-/// CIE L*a*b* to XYZ relative to the white `white`.
-pub fn lab_to_xyz(lab: [f64; 3], white: [f64; 3]) -> [f64; 3] {
-    let fy = (lab[0] + 16.0) / 116.0;
-    let fx = fy + lab[1] / 500.0;
-    let fz = fy - lab[2] / 200.0;
-    let inv = |f: f64| if f * f * f > LAB_EPS { f * f * f } else { (116.0 * f - 16.0) / LAB_KAPPA };
-    let y = if lab[0] > LAB_KAPPA * LAB_EPS { fy * fy * fy } else { lab[0] / LAB_KAPPA };
-    [inv(fx) * white[0], y * white[1], inv(fz) * white[2]]
-}
-
-/// CIE 1976 colour difference ΔE*ab (Euclidean distance in L*a*b*).
-pub fn delta_e76(a: [f64; 3], b: [f64; 3]) -> f64 {
-    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
-}
-
-/// L*a*b* (D65 white) of a linear sRGB triple.
-pub fn srgb_linear_to_lab(rgb: [f64; 3]) -> [f64; 3] {
-    xyz_to_lab(apply(&srgb_to_xyz_matrix(), rgb), xy_to_xyz(D65_XY))
-}
 
 /// A lamp spectrum paired with a camera's sensitivities and the CIE 1931 observer.
 #[derive(Debug, Clone, PartialEq)]
@@ -164,8 +67,8 @@ impl ColourSystem {
         let camera_weights = camera.map(|s| lamp.mul(&s).scale(1.0 / g));
         let xyz_weights = cmf.map(|s| lamp.mul(&s).scale(1.0 / y));
         let lamp_white = xyz_weights.map(|w| w.sum());
-        let adapt = bradford(lamp_white, xy_to_xyz(D65_XY));
-        let xyz_to_output = arr(&(m3(xyz_to_srgb_matrix()) * m3(adapt)));
+        let adapt = bradford(lamp_white, d65_white());
+        let xyz_to_output = mat3_mul(&xyz_to_srgb_matrix(), &adapt);
         let (peak, peak_nm) =
             camera.iter().map(|s| s.peak()).fold((f64::NEG_INFINITY, 0.0), |a, b| if b.0 > a.0 { b } else { a });
         ColourSystem {
@@ -196,7 +99,7 @@ impl ColourSystem {
 
     /// Output colour (linear sRGB, D65, adapted from the lamp white; see the module docs).
     pub fn output_rgb(&self, r: &Spectrum) -> [f64; 3] {
-        apply(&self.xyz_to_output, self.xyz(r))
+        mat3_apply(&self.xyz_to_output, self.xyz(r))
     }
 
     /// The matrix taking lamp-relative XYZ ([`ColourSystem::xyz`]) to output RGB.
@@ -255,7 +158,7 @@ impl ColourSystem {
             }
             m.set_row(r, &row.transpose());
         }
-        let matrix = arr(&m);
+        let matrix: Mat3 = std::array::from_fn(|r| std::array::from_fn(|c| m[(r, c)]));
         let mut fit = CameraMatrixFit { matrix, white_balance: wb, ..Default::default() };
         let n = patches.len() as f64;
         for (c, o) in cams.iter().zip(&outs) {
@@ -264,7 +167,7 @@ impl ColourSystem {
             fit.mean_rgb_error += e / n;
             fit.rms_rgb_error += e * e / n;
             fit.max_rgb_error = fit.max_rgb_error.max(e);
-            let de = delta_e76(srgb_linear_to_lab(pred.into()), srgb_linear_to_lab((*o).into()));
+            let de = delta_e_76(linear_srgb_to_lab(pred.into()), linear_srgb_to_lab((*o).into()));
             fit.mean_delta_e76 += de / n;
             fit.max_delta_e76 = fit.max_delta_e76.max(de);
         }
@@ -302,7 +205,7 @@ impl CameraMatrixFit {
     /// Output RGB of a camera RGB triple.
     pub fn apply(&self, camera_rgb: [f64; 3]) -> [f64; 3] {
         let wb: [f64; 3] = std::array::from_fn(|i| camera_rgb[i] * self.white_balance[i]);
-        apply(&self.matrix, wb)
+        mat3_apply(&self.matrix, wb)
     }
 }
 
@@ -310,6 +213,7 @@ impl CameraMatrixFit {
 mod tests {
     use super::*;
     use crate::spectral::{colorchecker24, colorchecker24_reference};
+    use btfrig_color::space::xyz_to_lab;
 
     fn sys(lamp: &str) -> ColourSystem {
         ColourSystem::new(lamp, "nikon_d5100").unwrap()
@@ -328,50 +232,6 @@ mod tests {
         }
     }
 
-    #[test]
-    fn srgb_matrix_matches_the_standard() {
-        // IEC 61966-2-1 gives the matrix to 4 decimals.
-        let m = xyz_to_srgb_matrix();
-        let std = [[3.2406, -1.5372, -0.4986], [-0.9689, 1.8758, 0.0415], [0.0557, -0.2040, 1.0570]];
-        for r in 0..3 {
-            for c in 0..3 {
-                assert!((m[r][c] - std[r][c]).abs() < 6e-4, "{r}{c}: {}", m[r][c]);
-            }
-        }
-    }
-
-    #[test]
-    fn srgb_transfer_and_lab_round_trip() {
-        for i in 0..=1000 {
-            let x = i as f64 / 1000.0;
-            assert!((srgb_decode(srgb_encode(x)) - x).abs() < 1e-12);
-        }
-        assert!((srgb_encode(1.0) - 1.0).abs() < 1e-12);
-        assert!((srgb_encode(0.18) - 0.461_356).abs() < 1e-6);
-        let white = xy_to_xyz(D65_XY);
-        for xyz in [[0.2, 0.3, 0.1], [0.001, 0.002, 0.003], [0.9, 1.0, 1.05]] {
-            let back = lab_to_xyz(xyz_to_lab(xyz, white), white);
-            assert!((0..3).all(|i| (back[i] - xyz[i]).abs() < 1e-12), "{xyz:?} {back:?}");
-        }
-        assert_eq!(xyz_to_lab(white, white).map(|v| (v * 1e9).round()), [100e9, 0.0, 0.0]);
-    }
-
-    #[test]
-    fn bradford_matches_published_d50_to_d65() {
-        // Lindbloom's Bradford D50 -> D65 matrix (reference whites of ASTM E308).
-        let m = bradford([0.96422, 1.0, 0.82521], [0.95047, 1.0, 1.08883]);
-        let ref_m = [
-            [0.9555766, -0.0230393, 0.0631636],
-            [-0.0282895, 1.0099416, 0.0210077],
-            [0.0122982, -0.0204830, 1.3299098],
-        ];
-        for r in 0..3 {
-            for c in 0..3 {
-                assert!((m[r][c] - ref_m[r][c]).abs() < 1e-6);
-            }
-        }
-    }
-
     /// Lab of the chart spectra under a D50 lamp against the published (measured) chart Lab.
     #[test]
     fn colorchecker_under_d50_matches_published_lab() {
@@ -380,8 +240,11 @@ mod tests {
         // The computed D50 white equals ICC D50 closely.
         assert!((white[0] - 0.9642).abs() < 2e-3 && (white[2] - 0.8249).abs() < 2e-3, "{white:?}");
         let refs = colorchecker24_reference();
-        let des: Vec<f64> =
-            colorchecker24().iter().zip(refs).map(|(p, r)| delta_e76(xyz_to_lab(s.xyz(p), white), r.lab_d50)).collect();
+        let des: Vec<f64> = colorchecker24()
+            .iter()
+            .zip(refs)
+            .map(|(p, r)| delta_e_76(xyz_to_lab(s.xyz(p), white), r.lab_d50))
+            .collect();
         let mean = des.iter().sum::<f64>() / 24.0;
         let max = des.iter().cloned().fold(0.0, f64::max);
         eprintln!("Ohta spectra vs published Lab (D50): mean dE76 {mean:.2}, max {max:.2}");
