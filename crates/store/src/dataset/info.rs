@@ -73,7 +73,13 @@ impl std::fmt::Display for DatasetInfo {
             m.texture.region.size_m[1],
             m.texture.region.center_m[0],
             m.texture.region.center_m[1],
-            if m.raw_frames { ", raw frames kept" } else { "" }
+            if m.raw_frames {
+                ", raw frames kept"
+            } else if m.raw_groups.is_some() {
+                ", raw frames kept per view group"
+            } else {
+                ""
+            }
         )?;
         let pct = if self.expected == 0 { 100.0 } else { 100.0 * self.done as f64 / self.expected as f64 };
         writeln!(

@@ -51,6 +51,12 @@ pub(super) fn raw_path(step: StepId) -> String {
     format!("{RAW_DIR}/{}.exr", step.stem())
 }
 
+/// Frame `pattern` of view `view`'s group of raw frames (a dome's pattern frames):
+/// `raw/v003_p007.exr`.
+pub(super) fn group_frame_path(view: u32, pattern: usize) -> String {
+    format!("{RAW_DIR}/v{view:03}_p{pattern:03}.exr")
+}
+
 /// Exposure `k >= 1` of an HDR bracket (exposure 0 is [`raw_path`]).
 pub(super) fn raw_exposure_path(step: StepId, k: usize) -> String {
     format!("{RAW_DIR}/{}_e{k}.exr", step.stem())

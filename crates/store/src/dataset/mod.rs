@@ -9,7 +9,7 @@ use btfrig_core::frame::RawFrame;
 use btfrig_imageio::ExrPrecision;
 
 use crate::error::StoreError;
-use crate::journal::{Journal, Record, StepRecord, TornTail};
+use crate::journal::{FramesRecord, Journal, Record, StepRecord, TornTail};
 use crate::manifest::{manifest_fixed_part, manifest_hash, Manifest, TextureFormat, TimingSummary};
 use crate::storage::{parent, FsStorage, Storage};
 use crate::{FileRecord, RunReport, StepExtra, StepId, StepTiming};
@@ -21,7 +21,10 @@ mod verify;
 
 use files::{file_damage, io_err, read_manifest, tmp_name, write_atomic};
 pub use info::{info, info_in, journal_model, journaled_models, DatasetInfo};
-use layout::{data_files, list_names, raw_exposure_path, raw_path, required_files, texture_path, texture_preview_path};
+use layout::{
+    data_files, group_frame_path, list_names, raw_exposure_path, raw_path, required_files, texture_path,
+    texture_preview_path,
+};
 pub use layout::{JOURNAL_FILE, MANIFEST_FILE, PREVIEWS_DIR, PREVIEW_FILE, RAW_DIR, REPORT_FILE, TEXTURES_DIR};
 pub use verify::{verify, verify_in, Problem, VerifyReport};
 
@@ -147,7 +150,7 @@ impl<S: Storage> Dataset<S> {
         if manifest.textures {
             storage.create_dir(TEXTURES_DIR).map_err(io_err(&storage, "create directory", TEXTURES_DIR))?;
         }
-        if manifest.raw_frames {
+        if manifest.raw_frames || manifest.raw_groups.is_some() {
             storage.create_dir(RAW_DIR).map_err(io_err(&storage, "create directory", RAW_DIR))?;
         }
         if manifest.texture_previews {
@@ -217,10 +220,38 @@ impl<S: Storage> Dataset<S> {
             journal.append(&storage, Record::Retake { step, reason: found.join("; ") })?;
             report.retaken.extend(found.into_iter().map(|what| (step, what)));
         }
+        // A view group's damaged raw frames send the group back to be captured, with every
+        // texture of its view: a texture is never kept without the frames it was made from.
+        let mut damaged: Vec<(u32, Vec<String>)> = Vec::new();
+        for (view, rec) in &journal.state().frames {
+            let mut found = Vec::new();
+            for file in &rec.files {
+                report.files_checked += 1;
+                report.bytes_checked += file.size;
+                if let Some(what) = file_damage(&storage, file)? {
+                    found.push(format!("{}: {what}", file.path));
+                }
+            }
+            if !found.is_empty() {
+                damaged.push((*view, found));
+            }
+        }
+        for (view, found) in damaged {
+            retaken_files.extend(journal.state().frames[&view].files.iter().map(|f| f.path.clone()));
+            let reason = found.join("; ");
+            journal.append(&storage, Record::RetakeFrames { view, reason: reason.clone() })?;
+            let steps: Vec<StepId> = journal.state().done.keys().filter(|s| s.view == view).copied().collect();
+            for step in steps {
+                retaken_files.extend(journal.state().done[&step].files.iter().map(|f| f.path.clone()));
+                let why = format!("the raw frames of its view group are damaged ({reason})");
+                journal.append(&storage, Record::Retake { step, reason: why })?;
+            }
+            report.retaken.extend(found.into_iter().map(|what| (StepId { light: 0, view }, what)));
+        }
         let expected = manifest.samplings.expected_steps();
         for dir in [
             manifest.textures.then_some(TEXTURES_DIR),
-            manifest.raw_frames.then_some(RAW_DIR),
+            (manifest.raw_frames || manifest.raw_groups.is_some()).then_some(RAW_DIR),
             manifest.texture_previews.then_some(PREVIEWS_DIR),
         ]
         .into_iter()
@@ -229,7 +260,13 @@ impl<S: Storage> Dataset<S> {
             storage.create_dir(dir).map_err(io_err(&storage, "create directory", dir))?;
         }
         let state = journal.state();
-        let named: BTreeSet<&str> = state.done.values().flat_map(|r| r.files.iter().map(|f| f.path.as_str())).collect();
+        let named: BTreeSet<&str> = state
+            .done
+            .values()
+            .flat_map(|r| r.files.iter())
+            .chain(state.frames.values().flat_map(|r| r.files.iter()))
+            .map(|f| f.path.as_str())
+            .collect();
         let mut dirs_touched = BTreeSet::new();
         for path in data_files(&storage)? {
             if !named.contains(path.as_str()) {
@@ -392,6 +429,72 @@ impl<S: Storage> Dataset<S> {
         }
         let bytes = btfrig_imageio::encode_raw_exr(Path::new(&path), frame)?;
         write_atomic(&self.storage, &path, &bytes)
+    }
+
+    /// Writes frame `pattern` of view `view`'s group of raw frames (a dome's pattern frames of
+    /// one camera at one rotation) to `raw/v<view>_p<pattern>.exr`, durably, as
+    /// [`Dataset::write_raw`] writes a frame; [`Dataset::commit_frames`] journals the group.
+    /// Fails unless the manifest keeps raw frames per view group (`raw_groups`), or when the
+    /// view's group is already journaled.
+    pub fn write_group_frame(&self, view: u32, pattern: usize, frame: &RawFrame) -> Result<FileRecord, StoreError> {
+        let path = group_frame_path(view, pattern);
+        self.check_group_open(view, &self.journal(), &path)?;
+        let bytes = btfrig_imageio::encode_raw_exr(Path::new(&path), frame)?;
+        write_atomic(&self.storage, &path, &bytes)
+    }
+
+    /// Journals view `view`'s group of raw frames (`files` in pattern order, as
+    /// [`Dataset::write_group_frame`] returned them, checked present with their sizes). The
+    /// record is fsync'd before this returns; commit it before any texture of the view, so a
+    /// crash never leaves a texture without its frames.
+    pub fn commit_frames(&self, view: u32, files: Vec<FileRecord>) -> Result<(), StoreError> {
+        let mut journal = self.journal();
+        let what = format!("{RAW_DIR}/v{view:03}_p*.exr");
+        self.check_group_open(view, &journal, &what)?;
+        if files.is_empty() {
+            return Err(StoreError::BadInput {
+                what: self.storage.display(&what),
+                reason: "a view group's raw frames committed without any frame".into(),
+            });
+        }
+        for (k, f) in files.iter().enumerate() {
+            if f.path != group_frame_path(view, k) {
+                return Err(StoreError::BadInput {
+                    what: self.storage.display(&f.path),
+                    reason: format!("frame {k} of view {view}'s group must be {}", group_frame_path(view, k)),
+                });
+            }
+            let found = self.storage.size(&f.path).map_err(io_err(&self.storage, "stat", &f.path))?;
+            if found != Some(f.size) {
+                return Err(StoreError::BadInput {
+                    what: self.storage.display(&f.path),
+                    reason: format!("{found:?} bytes on disk, committed with {} bytes", f.size),
+                });
+            }
+        }
+        journal.append(&self.storage, Record::Frames(FramesRecord { view, files }))
+    }
+
+    /// The journal record of view `view`'s raw frames, if journaled.
+    pub fn frames_record(&self, view: u32) -> Option<FramesRecord> {
+        self.journal().state().frames.get(&view).cloned()
+    }
+
+    /// Fails unless the manifest keeps raw frames per view group, `view` is one of its views,
+    /// and its group is not journaled yet (`what` names the file in the error).
+    fn check_group_open(&self, view: u32, journal: &Journal, what: &str) -> Result<(), StoreError> {
+        let bad = |reason: String| StoreError::BadInput { what: self.storage.display(what), reason };
+        if self.manifest.raw_groups.is_none() {
+            return Err(bad("the manifest keeps no raw frames per view group (raw_groups is absent)".into()));
+        }
+        let views = self.manifest.samplings.view.len();
+        if view as usize >= views {
+            return Err(bad(format!("view {view} is not in the dataset (views 0..{views})")));
+        }
+        if journal.state().frames.contains_key(&view) {
+            return Err(bad(format!("the raw frames of view {view} are already journaled")));
+        }
+        Ok(())
     }
 
     /// Journals `step` as done with the files it wrote (checked present with their sizes),

@@ -86,6 +86,22 @@ pub enum Problem {
         /// The file it should have recorded.
         path: String,
     },
+    /// A file of a view group's journaled raw frames is missing, or has another size or
+    /// content hash than journaled.
+    GroupFrame {
+        /// The view.
+        view: u32,
+        /// The file.
+        path: String,
+        /// What is wrong (`missing`, `100 bytes, journaled with 120`, ...).
+        what: String,
+    },
+    /// The manifest keeps raw frames per view group, but a view with journaled textures has no
+    /// journaled raw frames.
+    NoGroupFrames {
+        /// The view.
+        view: u32,
+    },
     /// A file that no journal record names, or an entry that does not belong in a dataset.
     Orphan {
         /// The path.
@@ -127,6 +143,13 @@ impl std::fmt::Display for Problem {
             Problem::Unrecorded { step, path } => {
                 write!(f, "{path}: the manifest asks for it, but the journal record of step {step} does not name it")
             }
+            Problem::GroupFrame { view, path, what } => {
+                write!(f, "{path}: {what} (journaled as a raw frame of view {view}'s group)")
+            }
+            Problem::NoGroupFrames { view } => write!(
+                f,
+                "view {view}: textures journaled but no raw frames, though the manifest keeps them per view group"
+            ),
             Problem::Orphan { path } => write!(f, "{path}: not named by any journal record"),
             Problem::Incomplete { missing } => {
                 write!(f, "incomplete: {missing} expected step(s) neither done nor skipped")
@@ -281,6 +304,35 @@ pub fn verify_in<S: Storage + ?Sized>(s: &S) -> VerifyReport {
                     found,
                 });
             }
+        }
+    }
+    for (view, rec) in &replay.frames {
+        for file in &rec.files {
+            named.insert(file.path.clone());
+            let what = match s.read(&file.path) {
+                Err(_) => Some("missing".to_string()),
+                Ok(bytes) => {
+                    r.files_checked += 1;
+                    r.bytes_checked += bytes.len() as u64;
+                    let found = content_hash(&bytes);
+                    if bytes.len() as u64 != file.size {
+                        Some(format!("{} bytes, journaled with {}", bytes.len(), file.size))
+                    } else if found != file.hash {
+                        Some(format!("content hash {found}, journaled {}", file.hash))
+                    } else {
+                        None
+                    }
+                }
+            };
+            if let Some(what) = what {
+                r.problems.push(Problem::GroupFrame { view: *view, path: file.path.clone(), what });
+            }
+        }
+    }
+    if manifest.raw_groups.is_some() {
+        let views: BTreeSet<u32> = replay.done.keys().map(|s| s.view).collect();
+        for view in views.into_iter().filter(|v| !replay.frames.contains_key(v)) {
+            r.problems.push(Problem::NoGroupFrames { view });
         }
     }
     for (step, reason) in &replay.skipped {
