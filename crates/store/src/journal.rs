@@ -16,7 +16,9 @@
 //! Version 2 adds the manifest's hash to the header (so a changed manifest is noticed), the
 //! `retake` record (a done step whose files resume found damaged: it counts as not done
 //! again, and a later `step` record of it is allowed) and the `model` record (a compressed
-//! model the run built, written next to the dataset).
+//! model the run built, written next to the dataset). Version 3 adds the `frames` record (the
+//! raw frames of a view group: a dome's pattern frames of one camera at one rotation) and the
+//! `retake_frames` record (a view group's raw frames found damaged on a resume).
 
 use std::collections::BTreeMap;
 
@@ -30,7 +32,7 @@ use crate::{FileRecord, StepHdr, StepId, StepRegistration, StepTiming};
 /// `format` field of the header record.
 pub const JOURNAL_FORMAT: &str = "btfrig-journal";
 /// Version of the record schema.
-pub const JOURNAL_VERSION: u32 = 2;
+pub const JOURNAL_VERSION: u32 = 3;
 const PREFIX: usize = 8 + 1 + 16 + 1;
 
 /// One journal record.
@@ -70,6 +72,29 @@ pub enum Record {
     /// A compressed model the run built, durable (written, fsync'd, renamed) before this
     /// record was appended.
     Model(ModelRecord),
+    /// The raw frames of a view group, durable before this record was appended. A dome run
+    /// appends it before the first texture of the view, so no texture is journaled without the
+    /// frames it was made from.
+    Frames(FramesRecord),
+    /// A view group whose raw frames were found damaged when the run was resumed: they are not
+    /// kept any more (deleted after this record is durable) and the group is captured again.
+    RetakeFrames {
+        /// The view.
+        view: u32,
+        /// What was found (`raw/v003_p001.exr: missing`).
+        reason: String,
+    },
+}
+
+/// The journal record of a view group's raw frames.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FramesRecord {
+    /// The view (index into `samplings.view`).
+    pub view: u32,
+    /// The frames in pattern order (`raw/v003_p000.exr`, `raw/v003_p001.exr`, ...), with size
+    /// and content hash.
+    pub files: Vec<FileRecord>,
 }
 
 /// The journal record of a compressed model a run built (`btfrig run --compress`).
@@ -195,6 +220,8 @@ pub struct Replay {
     pub retaken: Vec<(StepId, String)>,
     /// Compressed models built, in journal order.
     pub models: Vec<ModelRecord>,
+    /// Raw frames kept per view group, by view.
+    pub frames: BTreeMap<u32, FramesRecord>,
     /// Length of the valid prefix.
     pub valid_len: u64,
     /// The bad tail, if any.
@@ -258,6 +285,17 @@ pub fn replay(path: &str, bytes: &[u8]) -> Result<Replay, StoreError> {
                 r.retaken.push((step, reason));
             }
             Record::Model(m) => r.models.push(m),
+            Record::Frames(f) => {
+                if r.frames.contains_key(&f.view) {
+                    return Err(corrupt(format!("raw frames of view {} recorded twice", f.view)));
+                }
+                r.frames.insert(f.view, f);
+            }
+            Record::RetakeFrames { view, .. } => {
+                if r.frames.remove(&view).is_none() {
+                    return Err(corrupt(format!("raw frames of view {view} retaken but not recorded")));
+                }
+            }
         }
         off += len;
     }
@@ -362,6 +400,12 @@ impl Journal {
                 self.state.retaken.push((step, reason));
             }
             Record::Model(m) => self.state.models.push(m),
+            Record::Frames(f) => {
+                self.state.frames.insert(f.view, f);
+            }
+            Record::RetakeFrames { view, .. } => {
+                self.state.frames.remove(&view);
+            }
             Record::Header { .. } => {}
         }
         Ok(())

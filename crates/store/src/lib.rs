@@ -45,7 +45,7 @@ pub use dataset::{
 };
 pub use error::StoreError;
 pub use hash::{content_hash, sha256, HASH_PREFIX};
-pub use journal::{ModelRecord, TornTail};
+pub use journal::{FramesRecord, ModelRecord, TornTail};
 pub use manifest::{
     manifest_hash, plan_hash, rfc3339_utc, DirectionDeg, Manifest, PlanInfo, RigInfo, Samplings, SkippedStep, Software,
     TextureFormat, TextureRegion, TextureSpec, TimingSummary, MANIFEST_SCHEMA_VERSION,

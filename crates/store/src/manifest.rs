@@ -37,6 +37,11 @@ pub struct Manifest {
     /// written before this field existed: false). Requires `textures`.
     #[serde(default)]
     pub texture_previews: bool,
+    /// Raw frames kept per view group (a dome's pattern frames, `raw/v<view>_p<k>.exr`, one
+    /// journal `frames` record per group), and what re-demultiplexing them needs: the capture
+    /// schedule as the run recorded it (the runner's `RawSchedule`). Absent: none kept.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub raw_groups: Option<serde_json::Value>,
     /// Calibration the run used (`null` until the calibration issue provides one).
     pub calibration: Option<serde_json::Value>,
     /// Seed of every random process of the run (simulated rigs).
@@ -252,6 +257,7 @@ impl Manifest {
             raw_frames,
             textures: true,
             texture_previews: false,
+            raw_groups: None,
             calibration: None,
             seed,
             created_unix_s: now,

@@ -364,3 +364,86 @@ fn r24_the_manifest_is_protected_by_the_journal_header() {
     assert!(matches!(report.problems.as_slice(), [Problem::ManifestChanged { .. }]), "{report}");
     assert!(report.to_string().contains("manifest.json: changed since the dataset was created"), "{report}");
 }
+
+/// A dome-style dataset: raw frames per view group (`raw_groups`), no per-step raw frame.
+fn group_manifest() -> btfrig_store::Manifest {
+    let mut m = manifest(PLAN, TextureFormat::ExrFloat, false);
+    m.raw_groups = Some(serde_json::json!({"mode": "test", "patterns": 3}));
+    m
+}
+
+/// Writes and journals view `view`'s 3 group frames, then its textures.
+fn commit_view(ds: &Dataset, view: u32) {
+    let files: Vec<_> =
+        (0..3).map(|p| ds.write_group_frame(view, p, &raw_frame(step(p as u32, view))).unwrap()).collect();
+    ds.commit_frames(view, files).unwrap();
+    for s in ds.expected_steps().clone().into_iter().filter(|s| s.view == view) {
+        let t = ds.write_texture(s, &texels(s), W, H).unwrap();
+        ds.commit_step(s, vec![t], 1, timing()).unwrap();
+    }
+}
+
+#[test]
+fn r25_view_group_raw_frames_are_journaled_verified_and_retaken_when_damaged() {
+    let tmp = TempDir::new("groups");
+    let dir = tmp.path().join("ds");
+    let mut ds = Dataset::create(&dir, group_manifest()).unwrap();
+    for view in 0..3 {
+        commit_view(&ds, view);
+    }
+    // Refusals: a journaled group again, a view outside the dataset, a group out of order.
+    let again = ds.write_group_frame(0, 0, &raw_frame(step(0, 0)));
+    assert!(
+        matches!(&again, Err(StoreError::BadInput { reason, .. }) if reason.contains("already journaled")),
+        "{again:?}"
+    );
+    let outside = ds.write_group_frame(3, 0, &raw_frame(step(0, 0)));
+    assert!(
+        matches!(&outside, Err(StoreError::BadInput { reason, .. }) if reason.contains("views 0..3")),
+        "{outside:?}"
+    );
+    ds.finish(&RunReport::default()).unwrap();
+    drop(ds);
+    let r = verify(&dir);
+    assert!(r.is_ok(), "{r}");
+    assert_eq!(r.files_checked, 5 + 9, "5 textures and 9 group frames hashed");
+    // The frames read back as written.
+    assert_eq!(btfrig_imageio::read_raw_exr(&dir.join("raw/v001_p002.exr")).unwrap(), raw_frame(step(2, 1)));
+
+    // Damage one frame of view 1: verify names it, and a resume retakes the group with every
+    // texture of its view (a texture is never kept without its frames).
+    std::fs::write(dir.join("raw/v001_p002.exr"), b"torn").unwrap();
+    let r = verify(&dir);
+    assert!(
+        r.problems.iter().any(|p| matches!(p, Problem::GroupFrame { view: 1, path, what }
+            if path == "raw/v001_p002.exr" && what.contains("journaled with"))),
+        "{r}"
+    );
+    // An uncommitted frame (a crash before the group's record) is an orphan.
+    std::fs::write(dir.join("raw/v002_p003.exr"), b"partial").unwrap();
+    let (ds, resume) = Dataset::open_for_resume(&dir, &plan_hash(PLAN)).unwrap();
+    assert_eq!(resume.remaining, BTreeSet::from([step(0, 1), step(1, 1)]), "{resume}");
+    assert!(resume.retaken.iter().any(|(_, what)| what.starts_with("raw/v001_p002.exr")), "{resume}");
+    assert_eq!(resume.removed_orphans, vec!["raw/v002_p003.exr".to_string()]);
+    assert!(ds.frames_record(1).is_none() && ds.frames_record(0).is_some());
+    assert!(!dir.join("raw/v001_p000.exr").exists(), "the retaken group's frames are deleted");
+    commit_view(&ds, 1);
+    drop(ds);
+    let r = verify(&dir);
+    assert!(r.is_ok(), "{r}");
+
+    // Textures of a view without its raw frames: refused by verify.
+    let dir2 = tmp.path().join("ds2");
+    let ds = Dataset::create(&dir2, group_manifest()).unwrap();
+    let s = step(0, 0);
+    let t = ds.write_texture(s, &texels(s), W, H).unwrap();
+    ds.commit_step(s, vec![t], 1, timing()).unwrap();
+    drop(ds);
+    let r = verify(&dir2);
+    assert!(r.problems.iter().any(|p| matches!(p, Problem::NoGroupFrames { view: 0 })), "{r}");
+    // A dataset without raw_groups refuses group frames.
+    let dir3 = tmp.path().join("ds3");
+    let ds = Dataset::create(&dir3, manifest(PLAN, TextureFormat::ExrFloat, false)).unwrap();
+    let e = ds.write_group_frame(0, 0, &raw_frame(s));
+    assert!(matches!(&e, Err(StoreError::BadInput { reason, .. }) if reason.contains("raw_groups")), "{e:?}");
+}
