@@ -168,24 +168,31 @@ pub enum DomeEvent {
 /// or its first failure, as before).
 #[derive(Debug, Default)]
 pub struct DomeControl {
-    /// Pause, resume and abort, read between steps. When every sender is gone the run goes
+    /// Pause, resume and abort, read between steps (bounded, [`crate::COMMAND_CAPACITY`]:
+    /// a sender's `try_send` fails when it is full). When every sender is gone the run goes
     /// on, but a paused run aborts (nobody can resume it).
-    pub commands: Option<mpsc::UnboundedReceiver<DomeCommand>>,
-    /// Events; a closed receiver is ignored (events are advisory).
-    pub events: Option<mpsc::UnboundedSender<DomeEvent>>,
+    pub commands: Option<mpsc::Receiver<DomeCommand>>,
+    /// Events, bounded: the run never waits for its listener; an event that finds the queue
+    /// full is dropped and counted ([`DomeRunSummary::events_dropped`]). A closed receiver is
+    /// ignored (events are advisory).
+    pub events: Option<mpsc::Sender<DomeEvent>>,
+    dropped: std::sync::atomic::AtomicU64,
 }
 
 impl DomeControl {
-    /// A control with both channels: the caller's command sender and event receiver.
-    pub fn channels() -> (DomeControl, mpsc::UnboundedSender<DomeCommand>, mpsc::UnboundedReceiver<DomeEvent>) {
-        let (cmd_tx, cmd_rx) = mpsc::unbounded_channel();
-        let (ev_tx, ev_rx) = mpsc::unbounded_channel();
-        (DomeControl { commands: Some(cmd_rx), events: Some(ev_tx) }, cmd_tx, ev_rx)
+    /// A control with both channels: the caller's command sender and event receiver, the
+    /// event queue holding `event_capacity` events.
+    pub fn channels(event_capacity: usize) -> (DomeControl, mpsc::Sender<DomeCommand>, mpsc::Receiver<DomeEvent>) {
+        let (cmd_tx, cmd_rx) = mpsc::channel(crate::COMMAND_CAPACITY);
+        let (ev_tx, ev_rx) = mpsc::channel(event_capacity.max(1));
+        (DomeControl { commands: Some(cmd_rx), events: Some(ev_tx), dropped: Default::default() }, cmd_tx, ev_rx)
     }
 
     fn emit(&self, e: DomeEvent) {
         if let Some(tx) = &self.events {
-            let _ = tx.send(e);
+            if let Err(mpsc::error::TrySendError::Full(_)) = tx.try_send(e) {
+                self.dropped.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            }
         }
     }
 }
@@ -222,6 +229,8 @@ pub struct DomeRunSummary {
     pub warnings: Vec<String>,
     /// True when [`DomeCommand::Abort`] ended the run before its last step.
     pub aborted: bool,
+    /// Events dropped because the listener's queue was full.
+    pub events_dropped: u64,
 }
 
 /// Why a dome run stopped early.
@@ -383,6 +392,7 @@ pub async fn run_dome(
         run.progress();
     }
     summary.hardware_s = devices.clock.now_s() - start;
+    summary.events_dropped = run.control.dropped.load(std::sync::atomic::Ordering::Relaxed);
     Ok(summary)
 }
 

@@ -142,6 +142,11 @@ pub struct EngineSettings {
     pub overlap: bool,
     /// Number of recent measured step times the ETA averages.
     pub eta_window: usize,
+    /// Events the broadcast keeps for a listener that has not read them yet. A listener that
+    /// falls further behind loses the oldest ones (it gets `Lagged(n)`); the engine never
+    /// waits for listeners and counts every event it overwrote unseen
+    /// ([`RunSummary::events_dropped`]). Rounded up to a power of two (tokio's broadcast).
+    pub event_capacity: usize,
 }
 
 impl Default for EngineSettings {
@@ -156,6 +161,7 @@ impl Default for EngineSettings {
             max_backoff_s: 30.0,
             overlap: true,
             eta_window: 20,
+            event_capacity: 4096,
         }
     }
 }
@@ -307,6 +313,11 @@ pub struct RunSummary {
     /// that overlaps them. Near zero on simulated devices (moves take rig time only); on
     /// serial backends it is what their exchanges add to the run (docs/serial.md).
     pub motion_wait_wall_s: f64,
+    /// Events overwritten in the broadcast before a listener alive at the time had read them
+    /// (a listener that does not keep up, e.g. one that never reads; the handle's first
+    /// receiver counts as one until [`RunHandle::events`] takes it). Events are advisory: the
+    /// run and its frames do not depend on them.
+    pub events_dropped: u64,
 }
 
 /// What the engine tells its listeners.
@@ -373,11 +384,42 @@ pub enum RunOutcome {
     },
 }
 
+/// How a run is steered ([`RunHandle::pause`], [`RunHandle::resume`], [`RunHandle::abort`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum Command {
+pub enum Command {
+    /// Pause after the step under way.
     Pause,
+    /// Resume a paused run (a failed step is tried again).
     Resume,
+    /// End the run after the step under way (at once when paused).
     Abort,
+}
+
+/// Commands a run holds unread. Commands are tiny and rare and the engine reads them between
+/// steps, so a full queue means a caller is flooding a run that is busy with one long step:
+/// [`RunHandle`]'s methods then fail with [`CommandError::Full`] rather than wait or grow.
+pub const COMMAND_CAPACITY: usize = 16;
+
+/// Why a command did not reach the run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum CommandError {
+    /// The queue holds [`COMMAND_CAPACITY`] unread commands.
+    #[error("{command:?} refused: the run already holds {COMMAND_CAPACITY} unread commands (it reads them between steps); wait for it to act on them")]
+    Full {
+        /// The command refused.
+        command: Command,
+    },
+    /// The run has ended; there is nothing to steer.
+    #[error("{command:?} refused: the run has ended")]
+    Ended {
+        /// The command refused.
+        command: Command,
+    },
+}
+
+/// The event queue's real length: `event_capacity` as tokio's broadcast rounds it.
+pub(crate) fn event_queue_len(s: &EngineSettings) -> usize {
+    s.event_capacity.max(1).next_power_of_two()
 }
 
 /// Starts runs.
@@ -406,8 +448,8 @@ impl Engine {
         frames: mpsc::Sender<CapturedFrame>,
         exposure: Box<dyn ExposureControl>,
     ) -> RunHandle {
-        let (cmd_tx, cmd_rx) = mpsc::unbounded_channel();
-        let (ev_tx, ev_rx) = broadcast::channel(4096);
+        let (cmd_tx, cmd_rx) = mpsc::channel(COMMAND_CAPACITY);
+        let (ev_tx, ev_rx) = broadcast::channel(event_queue_len(&settings));
         let (state_tx, state_rx) = watch::channel(RunState::Running);
         let runner =
             run::Runner::new(devices, schedule, done, settings, frames, ev_tx.clone(), state_tx, cmd_rx, exposure);
@@ -418,7 +460,7 @@ impl Engine {
 
 /// The caller's side of a run.
 pub struct RunHandle {
-    cmd: mpsc::UnboundedSender<Command>,
+    cmd: mpsc::Sender<Command>,
     events: broadcast::Sender<Event>,
     first_events: Option<broadcast::Receiver<Event>>,
     state: watch::Receiver<RunState>,
@@ -426,20 +468,28 @@ pub struct RunHandle {
 }
 
 impl RunHandle {
+    /// Sends `command` without waiting: fails when the queue is full ([`COMMAND_CAPACITY`])
+    /// or the run has ended.
+    pub fn command(&self, command: Command) -> Result<(), CommandError> {
+        self.cmd.try_send(command).map_err(|e| match e {
+            mpsc::error::TrySendError::Full(_) => CommandError::Full { command },
+            mpsc::error::TrySendError::Closed(_) => CommandError::Ended { command },
+        })
+    }
+
     /// Asks the run to pause after the step under way.
-    pub fn pause(&self) {
-        // The task may have ended already; then there is nothing to pause.
-        let _ = self.cmd.send(Command::Pause);
+    pub fn pause(&self) -> Result<(), CommandError> {
+        self.command(Command::Pause)
     }
 
     /// Resumes a paused run (retrying the failed step, if one failed).
-    pub fn resume(&self) {
-        let _ = self.cmd.send(Command::Resume);
+    pub fn resume(&self) -> Result<(), CommandError> {
+        self.command(Command::Resume)
     }
 
     /// Asks the run to stop after the step under way (or at once when paused).
-    pub fn abort(&self) {
-        let _ = self.cmd.send(Command::Abort);
+    pub fn abort(&self) -> Result<(), CommandError> {
+        self.command(Command::Abort)
     }
 
     /// Events from now on; the first call also gets every event since spawn.

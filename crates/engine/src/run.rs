@@ -176,7 +176,7 @@ pub(crate) struct Runner {
     frames: mpsc::Sender<CapturedFrame>,
     events: broadcast::Sender<Event>,
     state: watch::Sender<RunState>,
-    cmd: mpsc::UnboundedReceiver<Command>,
+    cmd: mpsc::Receiver<Command>,
     captured: usize,
     skipped: usize,
     retries: u32,
@@ -191,6 +191,7 @@ pub(crate) struct Runner {
     abort_req: bool,
     exposure: Box<dyn ExposureControl>,
     motion_wait_wall_s: f64,
+    events_dropped: u64,
 }
 
 impl Runner {
@@ -203,7 +204,7 @@ impl Runner {
         frames: mpsc::Sender<CapturedFrame>,
         events: broadcast::Sender<Event>,
         state: watch::Sender<RunState>,
-        cmd: mpsc::UnboundedReceiver<Command>,
+        cmd: mpsc::Receiver<Command>,
         exposure: Box<dyn ExposureControl>,
     ) -> Self {
         Runner {
@@ -229,10 +230,17 @@ impl Runner {
             abort_req: false,
             exposure,
             motion_wait_wall_s: 0.0,
+            events_dropped: 0,
         }
     }
 
-    fn emit(&self, e: Event) {
+    fn emit(&mut self, e: Event) {
+        // The broadcast never waits: a full queue overwrites its oldest event, one that a
+        // listener alive when it was sent has not read. Counted, as the policy for a full
+        // event queue (docs/engine.md, "Tasks and messages").
+        if self.events.receiver_count() > 0 && self.events.len() >= crate::event_queue_len(&self.s) {
+            self.events_dropped += 1;
+        }
         // No listener is fine: events are advisory.
         let _ = self.events.send(e);
     }
@@ -328,7 +336,7 @@ impl Runner {
         self.captured + self.skipped
     }
 
-    fn progress(&self) {
+    fn progress(&mut self) {
         let remaining = self.steps.len() - self.done_count();
         let eta_s = (!self.recent.is_empty())
             .then(|| self.recent.iter().sum::<f64>() / self.recent.len() as f64 * remaining as f64);
@@ -618,21 +626,25 @@ impl Runner {
             hardware_s: self.now() - self.start_s,
             mean_step_s: if self.measured_n > 0 { self.measured_sum_s / self.measured_n as f64 } else { 0.0 },
             motion_wait_wall_s: self.motion_wait_wall_s,
+            events_dropped: self.events_dropped,
         }
     }
 
     fn aborted(mut self) -> (RunOutcome, Devices) {
-        let summary = self.summary();
+        let mut summary = self.summary();
         self.state.send_replace(RunState::Aborted);
         self.emit(Event::Aborted(summary.clone()));
+        // The last event may have overwritten one too.
+        summary.events_dropped = self.events_dropped;
         let done = std::mem::take(&mut self.done);
         (RunOutcome::Aborted { done, summary }, self.dev)
     }
 
-    fn finished(self) -> (RunOutcome, Devices) {
-        let summary = self.summary();
+    fn finished(mut self) -> (RunOutcome, Devices) {
+        let mut summary = self.summary();
         self.state.send_replace(RunState::Finished);
         self.emit(Event::Finished(summary.clone()));
+        summary.events_dropped = self.events_dropped;
         (RunOutcome::Finished(summary), self.dev)
     }
 

@@ -126,6 +126,9 @@ pub struct DomeRunSummary {
     pub denoise_energy_kept: Vec<f64>,
     /// Wall time of rectifying and projecting the denoised groups, s.
     pub denoise_s: f64,
+    /// Engine events dropped because the session's listener fell behind the event queue
+    /// (a warning says so); progress only, frames and journal are complete.
+    pub events_dropped: u64,
     /// How the session ended before the last step (aborted or interrupted through its
     /// [`RunControl`], or paused on a failed step when the session stops on faults); `None`
     /// when it captured every step.
@@ -163,6 +166,7 @@ impl DomeRunSummary {
             "denoise_terms": self.denoise_terms,
             "denoise_energy_kept": self.denoise_energy_kept,
             "denoise_s": self.denoise_s,
+            "events_dropped": self.events_dropped,
             "wall_s": self.wall_s,
         })
     }
@@ -401,7 +405,9 @@ pub fn run_controlled(
 
     let rt = crate::virtual_time_runtime()?;
     let cameras = v.cameras.clone();
-    let (commit_tx, mut commit_rx) = mpsc::unbounded_channel::<RunEvent>();
+    // The consumer's latest `TexturesCommitted` (cumulative, so the newest says all: a full
+    // queue of one keeps the latest).
+    let (commit_tx, mut commit_rx) = tokio::sync::watch::channel::<Option<RunEvent>>(None);
     // The simulator's truth, for the report's error figures only (a real rig has none).
     let truth = Some(TruthProbe::new(scene.clone(), &faults));
     let mut state = Consumer::new(&v, &schedule, &processing, &code, &dataset, truth, view_id);
@@ -437,7 +443,8 @@ pub fn run_controlled(
         let steps = schedule.steps.clone();
         let patterns = schedule.patterns.clone();
         let (exp, ref_exp) = (schedule.exposure_s, schedule.single_exposure_s);
-        let (steering, engine_commands, events) = DomeControl::channels();
+        let (steering, engine_commands, events) =
+            DomeControl::channels(btfrig_engine::EngineSettings::default().event_capacity);
         // The engine pauses on a fault; a session that stops on faults ends there (`listen`),
         // with the report's status "paused", as a gonio run does.
         let settings = DomeSettings { pause_on_fault: true, ..DomeSettings::default() };
@@ -455,8 +462,10 @@ pub fn run_controlled(
         Ok((e.map_err(|e| RunError::Rig(e.to_string()))?, stop))
     });
     // The view groups committed after the engine's last event (the last one always is).
-    while let Ok(e) = commit_rx.try_recv() {
-        on_event(&e);
+    if commit_rx.has_changed().unwrap_or(true) {
+        if let Some(e) = commit_rx.borrow_and_update().clone() {
+            on_event(&e);
+        }
     }
     let (engine, stop) = outcome?;
     let mut s = state.finish();
@@ -473,6 +482,14 @@ pub fn run_controlled(
     s.multiplex_gain_predicted = schedule.predicted_gain;
     s.time_saved_fraction = schedule.time_saved_fraction;
     s.hardware_s = engine.hardware_s;
+    s.events_dropped = engine.events_dropped;
+    if engine.events_dropped > 0 {
+        s.warnings.push(format!(
+            "{} engine event(s) dropped: the run's listener fell behind the event queue; progress lines were \
+             lost, frames and the journal are complete",
+            engine.events_dropped
+        ));
+    }
     s.exposure_time_s = engine.exposure_s;
     s.frames = engine.captured as u64;
     s.views_resumed = engine.skipped_done / schedule.steps.len().div_ceil(v.rotations.len()).max(1);
@@ -541,15 +558,26 @@ struct Stop {
 /// commits to `on_event`, until the engine ends. `stop_on_fault`: a step that failed (the
 /// engine pauses on it) ends the session as paused, resumable by running the plan again.
 async fn listen(
-    mut control: tokio::sync::mpsc::UnboundedReceiver<Command>,
-    engine: tokio::sync::mpsc::UnboundedSender<DomeCommand>,
-    mut events: tokio::sync::mpsc::UnboundedReceiver<DomeEvent>,
-    commits: &mut tokio::sync::mpsc::UnboundedReceiver<RunEvent>,
+    mut control: mpsc::Receiver<Command>,
+    engine: mpsc::Sender<DomeCommand>,
+    mut events: mpsc::Receiver<DomeEvent>,
+    commits: &mut tokio::sync::watch::Receiver<Option<RunEvent>>,
     stop_on_fault: bool,
     on_event: &mut dyn FnMut(&RunEvent),
 ) -> Stop {
     let mut stop = Stop::default();
     let mut control_open = true;
+    let mut commits_open = true;
+    // A command the engine's queue refused (full) is a warning; after the engine ended there
+    // is nothing to steer.
+    let mut send = |command: DomeCommand, on_event: &mut dyn FnMut(&RunEvent)| {
+        if let Err(mpsc::error::TrySendError::Full(c)) = engine.try_send(command) {
+            on_event(&RunEvent::Warning(format!(
+                "engine: {c:?} refused: the run already holds {} unread commands",
+                btfrig_engine::COMMAND_CAPACITY
+            )));
+        }
+    };
     loop {
         tokio::select! {
             ev = events.recv() => match ev {
@@ -568,7 +596,7 @@ async fn listen(
                                 "device": device, "kind": kind.to_string(), "message": message,
                             }));
                             // The engine is paused on the failed step: end it there.
-                            let _ = engine.send(DomeCommand::Abort);
+                            send(DomeCommand::Abort, on_event);
                         }
                     }
                 }
@@ -578,7 +606,14 @@ async fn listen(
                     on_event(&RunEvent::DomeStepDone { index, rotation, attempts })
                 }
             },
-            Some(e) = commits.recv() => on_event(&e),
+            r = commits.changed(), if commits_open => match r {
+                Ok(()) => {
+                    if let Some(e) = commits.borrow_and_update().clone() {
+                        on_event(&e);
+                    }
+                }
+                Err(_) => commits_open = false,
+            },
             c = control.recv(), if control_open => {
                 let command = match c {
                     None => {
@@ -599,8 +634,7 @@ async fn listen(
                         DomeCommand::Abort
                     }
                 };
-                // The engine may have ended already: nothing to steer.
-                let _ = engine.send(command);
+                send(command, on_event);
             }
         }
     }
@@ -723,7 +757,7 @@ struct Consumer<'a, F: Fn(usize, u32) -> u32> {
 
 /// What the consumer reports after each view group it commits.
 struct Committing {
-    tx: mpsc::UnboundedSender<RunEvent>,
+    tx: tokio::sync::watch::Sender<Option<RunEvent>>,
     /// Textures in the dataset (earlier sessions included).
     textures: u64,
     total: u64,
@@ -913,12 +947,12 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
                 *commits.stage_s.entry("preview".into()).or_insert(0.0) += t0.elapsed().as_secs_f64();
             }
             // The listener may be gone (the session is ending): the commit stands regardless.
-            let _ = commits.tx.send(RunEvent::TexturesCommitted {
+            commits.tx.send_replace(Some(RunEvent::TexturesCommitted {
                 textures: commits.textures,
                 total: commits.total,
                 previews: commits.previews,
                 stage_s: commits.stage_s.clone(),
-            });
+            }));
         }
         Ok(())
     }
