@@ -570,7 +570,7 @@ async fn listen(
     let mut commits_open = true;
     // A command the engine's queue refused (full) is a warning; after the engine ended there
     // is nothing to steer.
-    let mut send = |command: DomeCommand, on_event: &mut dyn FnMut(&RunEvent)| {
+    let send = |command: DomeCommand, on_event: &mut dyn FnMut(&RunEvent)| {
         if let Err(mpsc::error::TrySendError::Full(c)) = engine.try_send(command) {
             on_event(&RunEvent::Warning(format!(
                 "engine: {c:?} refused: the run already holds {} unread commands",
