@@ -76,6 +76,37 @@ impl fmt::Display for StepKey {
     }
 }
 
+/// What a step does, by the kind of rig: the one vocabulary events and pause reasons use for
+/// every rig.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum StepKind {
+    /// A gonioreflectometer capture: robot and rail to `joints`, one camera.
+    Gonio {
+        /// Commanded joint state.
+        joints: JointState,
+    },
+    /// A dome (or camera-array) step: the turntable to `rotation`, the LEDs (flashes) to
+    /// `shot`, every camera triggered together.
+    Dome {
+        /// Turntable rotation index (0 on a camera array).
+        rotation: u32,
+        /// Its angle, rad.
+        turntable_rad: f64,
+        /// The pattern or reference light fired.
+        shot: btfrig_planner::dome::DomeShot,
+    },
+}
+
+impl StepKind {
+    /// The step as people name it: `light 3, view 2` (gonio: its key) or `rotation 1, Pattern(29)`.
+    pub fn label(&self, key: StepKey) -> String {
+        match self {
+            StepKind::Gonio { .. } => key.to_string(),
+            StepKind::Dome { rotation, shot, .. } => format!("rotation {rotation}, {shot:?}"),
+        }
+    }
+}
+
 /// One step of a run: where the devices go and how long the camera exposes.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct EngineStep {
@@ -267,6 +298,8 @@ pub enum PauseReason {
         index: usize,
         /// Which capture.
         key: StepKey,
+        /// What the step does.
+        step: StepKind,
         /// The device that failed.
         device: String,
         /// The error's kind.
@@ -282,9 +315,11 @@ impl fmt::Display for PauseReason {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             PauseReason::Requested => f.write_str("paused on request"),
-            PauseReason::StepFailed { index, key, message, .. } => {
-                write!(f, "step {index} ({key}) failed: {message}; fix the cause and resume to retry the step")
-            }
+            PauseReason::StepFailed { index, key, step, message, .. } => write!(
+                f,
+                "step {index} ({}) failed: {message}; fix the cause and resume to retry the step",
+                step.label(*key)
+            ),
             PauseReason::ConsumerGone => f.write_str("the frame consumer is gone"),
         }
     }
@@ -307,6 +342,9 @@ pub struct RunSummary {
     pub warnings: usize,
     /// Rig-clock time from the start of the run to its end, seconds (pauses included).
     pub hardware_s: f64,
+    /// Rig time the delivered steps spent exposing (every frame of a step counted once, the
+    /// cameras of a dome step exposing together), seconds.
+    pub exposure_s: f64,
     /// Mean measured time per captured step, seconds.
     pub mean_step_s: f64,
     /// Wall-clock seconds the engine waited on robot and rail moves beyond the camera work
@@ -329,6 +367,8 @@ pub enum Event {
         index: usize,
         /// Which capture.
         key: StepKey,
+        /// What the step did.
+        step: StepKind,
         /// 1 + retries of this step.
         attempts: u32,
     },

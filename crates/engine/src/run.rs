@@ -10,7 +10,7 @@ use tokio::sync::{broadcast, mpsc, watch};
 
 use crate::{
     CapturedFrame, Command, Devices, EngineSettings, EngineStep, Event, ExposureControl, PauseReason, RunOutcome,
-    RunState, RunSummary, StepKey, StepTimes, MAX_EXPOSURES_PER_STEP,
+    RunState, RunSummary, StepKey, StepKind, StepTimes, MAX_EXPOSURES_PER_STEP,
 };
 
 /// Device calls without a timeout argument (settings, reconnect) are guarded with this many
@@ -192,6 +192,7 @@ pub(crate) struct Runner {
     exposure: Box<dyn ExposureControl>,
     motion_wait_wall_s: f64,
     events_dropped: u64,
+    exposure_s: f64,
 }
 
 impl Runner {
@@ -231,6 +232,7 @@ impl Runner {
             exposure,
             motion_wait_wall_s: 0.0,
             events_dropped: 0,
+            exposure_s: 0.0,
         }
     }
 
@@ -300,6 +302,7 @@ impl Runner {
         PauseReason::StepFailed {
             index: f.index,
             key: self.steps[f.index].key,
+            step: StepKind::Gonio { joints: self.steps[f.index].joints },
             device: e.device().to_string(),
             kind: e.kind(),
             message,
@@ -347,6 +350,7 @@ impl Runner {
     async fn deliver(&mut self, index: usize, frames: Vec<RawFrame>, times: StepTimes) -> Result<(), Stop> {
         let step = self.steps[index];
         let attempts = 1 + self.step_retries.get(&index).copied().unwrap_or(0);
+        let exposed: f64 = frames.iter().map(|f| f.meta.exposure_s).sum();
         let mut frames = frames.into_iter();
         let frame = frames.next().expect("a step delivers at least one frame");
         let cf = CapturedFrame {
@@ -362,6 +366,7 @@ impl Runner {
             return Err(Stop::ConsumerGone);
         }
         self.captured += 1;
+        self.exposure_s += exposed;
         self.done.insert(step.key);
         // Measured step time: between successive deliveries (pauses excluded).
         let dt = times.transfer_end_s - self.last_mark_s;
@@ -372,7 +377,7 @@ impl Runner {
         }
         self.measured_sum_s += dt;
         self.measured_n += 1;
-        self.emit(Event::StepDone { index, key: step.key, attempts });
+        self.emit(Event::StepDone { index, key: step.key, step: StepKind::Gonio { joints: step.joints }, attempts });
         self.progress();
         Ok(())
     }
@@ -624,6 +629,7 @@ impl Runner {
             retried_steps: retried.into_iter().map(|(i, n)| (self.steps[i].key, n)).collect(),
             warnings: self.warnings,
             hardware_s: self.now() - self.start_s,
+            exposure_s: self.exposure_s,
             mean_step_s: if self.measured_n > 0 { self.measured_sum_s / self.measured_n as f64 } else { 0.0 },
             motion_wait_wall_s: self.motion_wait_wall_s,
             events_dropped: self.events_dropped,

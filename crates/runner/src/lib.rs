@@ -1232,7 +1232,7 @@ struct SessionResult {
 
 fn fault_of(r: &PauseReason) -> Option<Fault> {
     match r {
-        PauseReason::StepFailed { index, key, device, kind, message } => Some(Fault {
+        PauseReason::StepFailed { index, key, device, kind, message, .. } => Some(Fault {
             index: *index,
             light: key.light,
             view: key.view,
