@@ -224,11 +224,8 @@ pub async fn run_dome(
             match capture_step(devices, step, &pattern, exposure, &mut table_at, &settings).await {
                 Ok(f) => break Some(f),
                 Err(e) if e.is_retryable() && attempt <= settings.max_retries => {
-                    let w = format!(
-                        "step {index} ({}): {e}; retry {attempt} of {}",
-                        kind.label(key),
-                        settings.max_retries
-                    );
+                    let w =
+                        format!("step {index} ({}): {e}; retry {attempt} of {}", kind.label(key), settings.max_retries);
                     tracing::warn!("{w}");
                     summary.warnings += 1;
                     run.emit(Event::Warning(w));

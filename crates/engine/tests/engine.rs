@@ -10,8 +10,8 @@ use btfrig_core::frame::RawFrame;
 use btfrig_core::kinematics::Gonio;
 use btfrig_core::sampling::Sampling;
 use btfrig_engine::{
-    CapturedFrame, Command, CommandError, Devices, Engine, EngineSettings, EngineStep, Event, ExposureControl, PauseReason, RunHandle,
-    RunOutcome, RunState, RunSummary, StepKey,
+    CapturedFrame, Command, CommandError, Devices, Engine, EngineSettings, EngineStep, Event, ExposureControl,
+    PauseReason, RunHandle, RunOutcome, RunState, RunSummary, StepKey,
 };
 use btfrig_hw::CaptureSettings;
 use btfrig_hw::{AxisLimits, Device, DeviceError, DeviceInfo, ErrorKind, MoveOptions, Rail, TokioClock};
