@@ -315,7 +315,10 @@ fn watch_signals(control: RunControl) {
             let Some(first) = signals.next().await else { return };
             let what = if first == Signal::Int { "Ctrl-C" } else { first.name() };
             eprintln!("\nbtfrig: {what}: finishing the frames in flight, then stopping ({what} again to quit at once)");
-            control.interrupt(first);
+            if let Err(e) = control.interrupt(first) {
+                // The planning is cancelled anyway; the engine did not get the stop.
+                eprintln!("btfrig: {what}: could not stop the engine: {e}; {what} again to quit at once");
+            }
             if let Some(second) = signals.next().await {
                 std::process::exit(i32::from(second.exit_code()));
             }

@@ -491,7 +491,11 @@ impl Runs {
     /// reported.
     pub fn interrupt_and_wait(&self, signal: btfrig_runner::Signal) {
         let Some(run) = self.current() else { return };
-        run.control.interrupt(signal);
+        // Shutdown must reach the run: while its bounded command queue is full (a client
+        // flooding it), wait for the session to take a command, then send again.
+        while run.control.interrupt(signal) == Err(btfrig_runner::ControlError::Full) {
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
         // Stopping waits for the frames in flight; a paused engine takes the interrupt too.
         let t = run.thread.lock().unwrap_or_else(|e| e.into_inner()).take();
         if let Some(t) = t {
@@ -528,11 +532,14 @@ impl Run {
             };
             return Err(Problem::conflict(format!("run {} is {:?}; {:?} applies only to {allowed}", s.id, s.state, c)));
         }
-        match c {
+        let sent = match c {
             Control::Pause => self.control.pause(),
             Control::Resume => self.control.resume(),
             Control::Abort => self.control.abort(),
-        }
+        };
+        // The run's command queue is bounded (`btfrig_runner::CONTROL_CAPACITY`): a full one
+        // refuses rather than grows.
+        sent.map_err(|e| Problem::conflict(format!("run {}: {:?} not sent: {e}", s.id, c)))?;
         Ok(s)
     }
 }

@@ -17,22 +17,24 @@
 //! commits is a view group (all patterns of one rotation); rotations in `done` are skipped, a
 //! partly captured rotation is captured again.
 //!
-//! Steering and watching ([`DomeControl`]), as the gonio engine's `RunHandle`: pause and abort
-//! take effect between steps (the step under way is delivered first), a paused run waits for
-//! resume or abort, and [`DomeEvent`]s report every delivered step, progress with an ETA
+//! Steering and watching with the gonio engine's vocabulary ([`Command`], [`Event`],
+//! [`PauseReason`], [`RunSummary`], [`StepKind::Dome`]): pause and abort take effect between
+//! steps (the step under way is delivered first), a paused run waits for resume or abort, and
+//! events report every delivered step, progress with an ETA
 //! (the mean of the last `eta_window` measured step times, pauses excluded, times the steps
 //! left), retries, pauses and resumes.
 
 use std::collections::{HashSet, VecDeque};
-use std::fmt;
 use std::future::Future;
 use std::pin::Pin;
 use std::task::Poll;
 
 use btfrig_core::frame::RawFrame;
-use btfrig_hw::{Camera, DeviceError, ErrorKind, LedArray, LedPattern, MoveOptions, SharedClock, Turntable};
+use btfrig_hw::{Camera, DeviceError, LedArray, LedPattern, MoveOptions, SharedClock, Turntable};
 use btfrig_planner::dome::{DomeShot, DomeStep};
-use tokio::sync::mpsc;
+use tokio::sync::{broadcast, mpsc};
+
+use crate::{Command, Event, PauseReason, RunOutcome, RunSummary, StepKey, StepKind};
 
 /// The devices of a dome run.
 pub struct DomeDevices {
@@ -60,13 +62,14 @@ pub struct DomeSettings {
     pub max_retries: u32,
     /// Backoff before the first retry, s (doubling).
     pub backoff_s: f64,
-    /// When a step fails for good: pause and wait for [`DomeCommand::Resume`] (the step is
-    /// tried again) or [`DomeCommand::Abort`] (true; needs [`DomeControl::commands`]), or end
-    /// the run with [`DomeRunError::StepFailed`] (false, the default: nobody is there to fix
-    /// the cause).
+    /// When a step fails for good: pause and wait for [`Command::Resume`] (the step is tried
+    /// again) or [`Command::Abort`] (true; needs a command channel), or end the run with
+    /// [`DomeRunError::StepFailed`] (false, the default: nobody is there to fix the cause).
     pub pause_on_fault: bool,
     /// Number of recent measured step times the ETA averages.
     pub eta_window: usize,
+    /// Events the broadcast keeps for a listener (as `EngineSettings::event_capacity`).
+    pub event_capacity: usize,
 }
 
 impl Default for DomeSettings {
@@ -79,113 +82,7 @@ impl Default for DomeSettings {
             backoff_s: 0.5,
             pause_on_fault: false,
             eta_window: 20,
-        }
-    }
-}
-
-/// Steers a running dome run (sent through [`DomeControl::commands`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum DomeCommand {
-    /// Pause after the step under way.
-    Pause,
-    /// Resume a paused run (a failed step is tried again).
-    Resume,
-    /// End the run after the step under way (at once when paused).
-    Abort,
-}
-
-/// Why a dome run is paused.
-#[derive(Debug, Clone, PartialEq)]
-pub enum DomePauseReason {
-    /// [`DomeCommand::Pause`].
-    Requested,
-    /// A step failed with an error no retry helps, or ran out of retries
-    /// ([`DomeSettings::pause_on_fault`]).
-    StepFailed {
-        /// Position of the step in the schedule.
-        index: usize,
-        /// Its rotation.
-        rotation: u32,
-        /// What it captures.
-        shot: DomeShot,
-        /// The device that failed.
-        device: String,
-        /// The error's kind.
-        kind: ErrorKind,
-        /// The device error as displayed, plus what the engine did.
-        message: String,
-    },
-}
-
-impl fmt::Display for DomePauseReason {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            DomePauseReason::Requested => f.write_str("paused on request"),
-            DomePauseReason::StepFailed { index, rotation, shot, message, .. } => write!(
-                f,
-                "step {index} (rotation {rotation}, {shot:?}) failed: {message}; fix the cause and resume to retry the step"
-            ),
-        }
-    }
-}
-
-/// What a dome run tells its listener ([`DomeControl::events`]).
-#[derive(Debug, Clone, PartialEq)]
-pub enum DomeEvent {
-    /// A step's frames were delivered.
-    StepDone {
-        /// Position in the schedule.
-        index: usize,
-        /// Its rotation.
-        rotation: u32,
-        /// What it captured.
-        shot: DomeShot,
-        /// 1 + retries of this step.
-        attempts: u32,
-    },
-    /// Progress after a step (captured, or skipped because its rotation is done).
-    Progress {
-        /// Steps done (captured by this run or skipped as done).
-        done: usize,
-        /// Steps in the schedule.
-        total: usize,
-        /// Remaining rig time from the moving average of measured step times, s; `None`
-        /// before the first measurement.
-        eta_s: Option<f64>,
-    },
-    /// A step was retried; the run goes on.
-    Warning(String),
-    /// The run is paused; it waits for resume or abort.
-    Paused {
-        /// Why.
-        reason: DomePauseReason,
-    },
-    /// The run goes on after a pause.
-    Resumed,
-}
-
-/// How a dome run is steered and watched; the default does neither (the run goes to its end
-/// or its first failure, as before).
-#[derive(Debug, Default)]
-pub struct DomeControl {
-    /// Pause, resume and abort, read between steps. When every sender is gone the run goes
-    /// on, but a paused run aborts (nobody can resume it).
-    pub commands: Option<mpsc::UnboundedReceiver<DomeCommand>>,
-    /// Events; a closed receiver is ignored (events are advisory).
-    pub events: Option<mpsc::UnboundedSender<DomeEvent>>,
-}
-
-impl DomeControl {
-    /// A control with both channels: the caller's command sender and event receiver.
-    pub fn channels() -> (DomeControl, mpsc::UnboundedSender<DomeCommand>, mpsc::UnboundedReceiver<DomeEvent>) {
-        let (cmd_tx, cmd_rx) = mpsc::unbounded_channel();
-        let (ev_tx, ev_rx) = mpsc::unbounded_channel();
-        (DomeControl { commands: Some(cmd_rx), events: Some(ev_tx) }, cmd_tx, ev_rx)
-    }
-
-    fn emit(&self, e: DomeEvent) {
-        if let Some(tx) = &self.events {
-            let _ = tx.send(e);
+            event_capacity: 4096,
         }
     }
 }
@@ -203,25 +100,6 @@ pub struct DomeCapture {
     pub attempts: u32,
     /// Rig clock at the end of the step, s.
     pub time_s: f64,
-}
-
-/// What a finished dome run did.
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct DomeRunSummary {
-    /// Steps captured.
-    pub captured: usize,
-    /// Steps skipped because their rotation was done.
-    pub skipped_done: usize,
-    /// Retries over all steps.
-    pub retries: u32,
-    /// Rig time of the run, s.
-    pub hardware_s: f64,
-    /// Rig time spent exposing (pattern and reference frames), s.
-    pub exposure_s: f64,
-    /// Warnings (retries with their cause).
-    pub warnings: Vec<String>,
-    /// True when [`DomeCommand::Abort`] ended the run before its last step.
-    pub aborted: bool,
 }
 
 /// Why a dome run stopped early.
@@ -275,8 +153,19 @@ fn pattern_of(step: &DomeStep, patterns: &[Vec<f64>], leds: usize) -> LedPattern
     }
 }
 
+/// A dome step's kind and key (`view` = its rotation, `light` = its position in the schedule).
+fn describe(index: usize, step: &DomeStep) -> (StepKey, StepKind) {
+    (
+        StepKey { light: index as u32, view: step.rotation },
+        StepKind::Dome { rotation: step.rotation, turntable_rad: step.turntable_rad, shot: step.shot },
+    )
+}
+
 /// Runs `steps` on `devices`: pattern frames at `exposure_s`, reference frames at
-/// `reference_exposure_s`, steered and watched through `control`. The devices must be homed.
+/// `reference_exposure_s`. Steered through `commands` (bounded, [`crate::COMMAND_CAPACITY`];
+/// `None`: nobody steers) and watched through `events` (the engine's [`Event`]s, counted
+/// drops as [`crate::Engine`]'s). The devices must be homed. An abort returns
+/// [`RunOutcome::Aborted`] with the keys of the steps delivered.
 #[allow(clippy::too_many_arguments)]
 pub async fn run_dome(
     devices: &mut DomeDevices,
@@ -286,11 +175,15 @@ pub async fn run_dome(
     reference_exposure_s: f64,
     done: &HashSet<u32>,
     settings: DomeSettings,
-    control: DomeControl,
+    commands: Option<mpsc::Receiver<Command>>,
+    events: broadcast::Sender<Event>,
     frames: mpsc::Sender<DomeCapture>,
-) -> Result<DomeRunSummary, DomeRunError> {
+) -> Result<RunOutcome, DomeRunError> {
     let mut run = Steering {
-        control,
+        commands,
+        events,
+        event_capacity: settings.event_capacity.max(1).next_power_of_two(),
+        events_dropped: 0,
         pause_req: false,
         abort_req: false,
         recent: VecDeque::new(),
@@ -301,9 +194,13 @@ pub async fn run_dome(
     };
     let start = devices.clock.now_s();
     let leds = devices.leds.capabilities().count;
-    let mut summary = DomeRunSummary::default();
+    let mut summary = RunSummary { total: steps.len(), ..RunSummary::default() };
+    let mut delivered = HashSet::new();
+    let mut measured_sum_s = 0.0;
+    let mut aborted = false;
     let mut table_at: Option<u32> = None;
     for (index, step) in steps.iter().enumerate() {
+        let (key, kind) = describe(index, step);
         if done.contains(&step.rotation) {
             summary.skipped_done += 1;
             run.done += 1;
@@ -311,7 +208,7 @@ pub async fn run_dome(
             continue;
         }
         if !run.between_steps(&devices.clock).await {
-            summary.aborted = true;
+            aborted = true;
             break;
         }
         let exposure = match step.shot {
@@ -327,26 +224,25 @@ pub async fn run_dome(
             match capture_step(devices, step, &pattern, exposure, &mut table_at, &settings).await {
                 Ok(f) => break Some(f),
                 Err(e) if e.is_retryable() && attempt <= settings.max_retries => {
-                    let w = format!(
-                        "step {index} (rotation {}, {:?}): {e}; retry {attempt} of {}",
-                        step.rotation, step.shot, settings.max_retries
-                    );
-                    run.control.emit(DomeEvent::Warning(w.clone()));
-                    summary.warnings.push(w);
+                    let w =
+                        format!("step {index} ({}): {e}; retry {attempt} of {}", kind.label(key), settings.max_retries);
+                    tracing::warn!("{w}");
+                    summary.warnings += 1;
+                    run.emit(Event::Warning(w));
                     // The table may have been left anywhere: move it again.
                     table_at = None;
                     devices.clock.sleep_s(settings.backoff_s * 2f64.powi(attempt as i32 - 1)).await;
                 }
-                Err(error) if settings.pause_on_fault && run.control.commands.is_some() => {
+                Err(error) if settings.pause_on_fault && run.commands.is_some() => {
                     let message = if error.is_retryable() {
                         format!("{error} (retryable, gave up after {} retries)", settings.max_retries)
                     } else {
                         format!("{error} (not retryable)")
                     };
-                    let reason = DomePauseReason::StepFailed {
+                    let reason = PauseReason::StepFailed {
                         index,
-                        rotation: step.rotation,
-                        shot: step.shot,
+                        key,
+                        step: kind,
                         device: error.device().to_string(),
                         kind: error.kind(),
                         message,
@@ -365,11 +261,14 @@ pub async fn run_dome(
             }
         };
         let Some(captured) = captured else {
-            summary.aborted = true;
+            aborted = true;
             break;
         };
         let attempts = retried + attempt;
         summary.retries += attempts - 1;
+        if attempts > 1 {
+            summary.retried_steps.push((key, attempts - 1));
+        }
         summary.captured += 1;
         summary.exposure_s += exposure;
         let now = devices.clock.now_s();
@@ -377,18 +276,25 @@ pub async fn run_dome(
         if frames.send(cap).await.is_err() {
             return Err(DomeRunError::ConsumerGone);
         }
-        run.measured(now);
-        run.control.emit(DomeEvent::StepDone { index, rotation: step.rotation, shot: step.shot, attempts });
+        delivered.insert(key);
+        measured_sum_s += run.measured(now);
+        run.emit(Event::StepDone { index, key, step: kind, attempts });
         run.done += 1;
         run.progress();
     }
     summary.hardware_s = devices.clock.now_s() - start;
-    Ok(summary)
+    summary.mean_step_s = if summary.captured > 0 { measured_sum_s / summary.captured as f64 } else { 0.0 };
+    summary.events_dropped = run.events_dropped;
+    Ok(if aborted { RunOutcome::Aborted { done: delivered, summary } } else { RunOutcome::Finished(summary) })
 }
 
-/// Commands, pauses, step times and progress of a dome run.
+/// Commands, pauses, events, step times and progress of a dome run.
 struct Steering {
-    control: DomeControl,
+    commands: Option<mpsc::Receiver<Command>>,
+    events: broadcast::Sender<Event>,
+    /// The broadcast's real length.
+    event_capacity: usize,
+    events_dropped: u64,
     pause_req: bool,
     abort_req: bool,
     /// The last `eta_window` measured step times, s.
@@ -402,14 +308,23 @@ struct Steering {
 }
 
 impl Steering {
+    /// As the gonio engine: the broadcast never waits; an event overwritten before a live
+    /// receiver read it is counted.
+    fn emit(&mut self, e: Event) {
+        if self.events.receiver_count() > 0 && self.events.len() >= self.event_capacity {
+            self.events_dropped += 1;
+        }
+        let _ = self.events.send(e);
+    }
+
     /// Reads the waiting commands; waits while a pause is asked for. `false` on abort.
     async fn between_steps(&mut self, clock: &SharedClock) -> bool {
-        if let Some(rx) = self.control.commands.as_mut() {
+        if let Some(rx) = self.commands.as_mut() {
             while let Ok(c) = rx.try_recv() {
                 match c {
-                    DomeCommand::Pause => self.pause_req = true,
-                    DomeCommand::Resume => self.pause_req = false,
-                    DomeCommand::Abort => self.abort_req = true,
+                    Command::Pause => self.pause_req = true,
+                    Command::Resume => self.pause_req = false,
+                    Command::Abort => self.abort_req = true,
                 }
             }
         }
@@ -417,30 +332,30 @@ impl Steering {
             return false;
         }
         if self.pause_req {
-            return self.pause(DomePauseReason::Requested, clock).await;
+            return self.pause(PauseReason::Requested, clock).await;
         }
         true
     }
 
     /// Waits for resume (`true`) or abort (`false`; also when no sender is left).
-    async fn pause(&mut self, reason: DomePauseReason, clock: &SharedClock) -> bool {
+    async fn pause(&mut self, reason: PauseReason, clock: &SharedClock) -> bool {
         tracing::info!("dome run paused: {reason}");
         self.pause_req = false;
-        self.control.emit(DomeEvent::Paused { reason });
-        let Some(rx) = self.control.commands.as_mut() else {
-            self.abort_req = true;
-            return false;
-        };
+        self.emit(Event::Paused { reason });
         loop {
+            let Some(rx) = self.commands.as_mut() else {
+                self.abort_req = true;
+                return false;
+            };
             match rx.recv().await {
-                Some(DomeCommand::Resume) => {
-                    self.control.emit(DomeEvent::Resumed);
+                Some(Command::Resume) => {
+                    self.emit(Event::Resumed);
                     // The pause is not a step time.
                     self.last_mark_s = clock.now_s();
                     return true;
                 }
-                Some(DomeCommand::Pause) => {}
-                Some(DomeCommand::Abort) | None => {
+                Some(Command::Pause) => {}
+                Some(Command::Abort) | None => {
                     self.abort_req = true;
                     return false;
                 }
@@ -448,20 +363,22 @@ impl Steering {
         }
     }
 
-    /// A step delivered at `now_s`: its time since the last delivery (or resume).
-    fn measured(&mut self, now_s: f64) {
-        self.recent.push_back(now_s - self.last_mark_s);
+    /// A step delivered at `now_s`: its time since the last delivery (or resume), returned.
+    fn measured(&mut self, now_s: f64) -> f64 {
+        let dt = now_s - self.last_mark_s;
+        self.recent.push_back(dt);
         self.last_mark_s = now_s;
         while self.recent.len() > self.eta_window {
             self.recent.pop_front();
         }
+        dt
     }
 
-    fn progress(&self) {
+    fn progress(&mut self) {
         let left = self.total - self.done;
         let eta_s =
             (!self.recent.is_empty()).then(|| self.recent.iter().sum::<f64>() / self.recent.len() as f64 * left as f64);
-        self.control.emit(DomeEvent::Progress { done: self.done, total: self.total, eta_s });
+        self.emit(Event::Progress { done: self.done, total: self.total, eta_s });
     }
 }
 

@@ -76,6 +76,37 @@ impl fmt::Display for StepKey {
     }
 }
 
+/// What a step does, by the kind of rig: the one vocabulary events and pause reasons use for
+/// every rig.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum StepKind {
+    /// A gonioreflectometer capture: robot and rail to `joints`, one camera.
+    Gonio {
+        /// Commanded joint state.
+        joints: JointState,
+    },
+    /// A dome (or camera-array) step: the turntable to `rotation`, the LEDs (flashes) to
+    /// `shot`, every camera triggered together.
+    Dome {
+        /// Turntable rotation index (0 on a camera array).
+        rotation: u32,
+        /// Its angle, rad.
+        turntable_rad: f64,
+        /// The pattern or reference light fired.
+        shot: btfrig_planner::dome::DomeShot,
+    },
+}
+
+impl StepKind {
+    /// The step as people name it: `light 3, view 2` (gonio: its key) or `rotation 1, Pattern(29)`.
+    pub fn label(&self, key: StepKey) -> String {
+        match self {
+            StepKind::Gonio { .. } => key.to_string(),
+            StepKind::Dome { rotation, shot, .. } => format!("rotation {rotation}, {shot:?}"),
+        }
+    }
+}
+
 /// One step of a run: where the devices go and how long the camera exposes.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct EngineStep {
@@ -142,6 +173,11 @@ pub struct EngineSettings {
     pub overlap: bool,
     /// Number of recent measured step times the ETA averages.
     pub eta_window: usize,
+    /// Events the broadcast keeps for a listener that has not read them yet. A listener that
+    /// falls further behind loses the oldest ones (it gets `Lagged(n)`); the engine never
+    /// waits for listeners and counts every event it overwrote unseen
+    /// ([`RunSummary::events_dropped`]). Rounded up to a power of two (tokio's broadcast).
+    pub event_capacity: usize,
 }
 
 impl Default for EngineSettings {
@@ -156,6 +192,7 @@ impl Default for EngineSettings {
             max_backoff_s: 30.0,
             overlap: true,
             eta_window: 20,
+            event_capacity: 4096,
         }
     }
 }
@@ -261,6 +298,8 @@ pub enum PauseReason {
         index: usize,
         /// Which capture.
         key: StepKey,
+        /// What the step does.
+        step: StepKind,
         /// The device that failed.
         device: String,
         /// The error's kind.
@@ -276,9 +315,11 @@ impl fmt::Display for PauseReason {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             PauseReason::Requested => f.write_str("paused on request"),
-            PauseReason::StepFailed { index, key, message, .. } => {
-                write!(f, "step {index} ({key}) failed: {message}; fix the cause and resume to retry the step")
-            }
+            PauseReason::StepFailed { index, key, step, message, .. } => write!(
+                f,
+                "step {index} ({}) failed: {message}; fix the cause and resume to retry the step",
+                step.label(*key)
+            ),
             PauseReason::ConsumerGone => f.write_str("the frame consumer is gone"),
         }
     }
@@ -301,12 +342,20 @@ pub struct RunSummary {
     pub warnings: usize,
     /// Rig-clock time from the start of the run to its end, seconds (pauses included).
     pub hardware_s: f64,
+    /// Rig time the delivered steps spent exposing (every frame of a step counted once, the
+    /// cameras of a dome step exposing together), seconds.
+    pub exposure_s: f64,
     /// Mean measured time per captured step, seconds.
     pub mean_step_s: f64,
     /// Wall-clock seconds the engine waited on robot and rail moves beyond the camera work
     /// that overlaps them. Near zero on simulated devices (moves take rig time only); on
     /// serial backends it is what their exchanges add to the run (docs/serial.md).
     pub motion_wait_wall_s: f64,
+    /// Events overwritten in the broadcast before a listener alive at the time had read them
+    /// (a listener that does not keep up, e.g. one that never reads; the handle's first
+    /// receiver counts as one until [`RunHandle::events`] takes it). Events are advisory: the
+    /// run and its frames do not depend on them.
+    pub events_dropped: u64,
 }
 
 /// What the engine tells its listeners.
@@ -318,6 +367,8 @@ pub enum Event {
         index: usize,
         /// Which capture.
         key: StepKey,
+        /// What the step did.
+        step: StepKind,
         /// 1 + retries of this step.
         attempts: u32,
     },
@@ -373,11 +424,42 @@ pub enum RunOutcome {
     },
 }
 
+/// How a run is steered ([`RunHandle::pause`], [`RunHandle::resume`], [`RunHandle::abort`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum Command {
+pub enum Command {
+    /// Pause after the step under way.
     Pause,
+    /// Resume a paused run (a failed step is tried again).
     Resume,
+    /// End the run after the step under way (at once when paused).
     Abort,
+}
+
+/// Commands a run holds unread. Commands are tiny and rare and the engine reads them between
+/// steps, so a full queue means a caller is flooding a run that is busy with one long step:
+/// [`RunHandle`]'s methods then fail with [`CommandError::Full`] rather than wait or grow.
+pub const COMMAND_CAPACITY: usize = 16;
+
+/// Why a command did not reach the run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum CommandError {
+    /// The queue holds [`COMMAND_CAPACITY`] unread commands.
+    #[error("{command:?} refused: the run already holds {COMMAND_CAPACITY} unread commands (it reads them between steps); wait for it to act on them")]
+    Full {
+        /// The command refused.
+        command: Command,
+    },
+    /// The run has ended; there is nothing to steer.
+    #[error("{command:?} refused: the run has ended")]
+    Ended {
+        /// The command refused.
+        command: Command,
+    },
+}
+
+/// The event queue's real length: `event_capacity` as tokio's broadcast rounds it.
+pub(crate) fn event_queue_len(s: &EngineSettings) -> usize {
+    s.event_capacity.max(1).next_power_of_two()
 }
 
 /// Starts runs.
@@ -406,8 +488,8 @@ impl Engine {
         frames: mpsc::Sender<CapturedFrame>,
         exposure: Box<dyn ExposureControl>,
     ) -> RunHandle {
-        let (cmd_tx, cmd_rx) = mpsc::unbounded_channel();
-        let (ev_tx, ev_rx) = broadcast::channel(4096);
+        let (cmd_tx, cmd_rx) = mpsc::channel(COMMAND_CAPACITY);
+        let (ev_tx, ev_rx) = broadcast::channel(event_queue_len(&settings));
         let (state_tx, state_rx) = watch::channel(RunState::Running);
         let runner =
             run::Runner::new(devices, schedule, done, settings, frames, ev_tx.clone(), state_tx, cmd_rx, exposure);
@@ -418,7 +500,7 @@ impl Engine {
 
 /// The caller's side of a run.
 pub struct RunHandle {
-    cmd: mpsc::UnboundedSender<Command>,
+    cmd: mpsc::Sender<Command>,
     events: broadcast::Sender<Event>,
     first_events: Option<broadcast::Receiver<Event>>,
     state: watch::Receiver<RunState>,
@@ -426,20 +508,28 @@ pub struct RunHandle {
 }
 
 impl RunHandle {
+    /// Sends `command` without waiting: fails when the queue is full ([`COMMAND_CAPACITY`])
+    /// or the run has ended.
+    pub fn command(&self, command: Command) -> Result<(), CommandError> {
+        self.cmd.try_send(command).map_err(|e| match e {
+            mpsc::error::TrySendError::Full(_) => CommandError::Full { command },
+            mpsc::error::TrySendError::Closed(_) => CommandError::Ended { command },
+        })
+    }
+
     /// Asks the run to pause after the step under way.
-    pub fn pause(&self) {
-        // The task may have ended already; then there is nothing to pause.
-        let _ = self.cmd.send(Command::Pause);
+    pub fn pause(&self) -> Result<(), CommandError> {
+        self.command(Command::Pause)
     }
 
     /// Resumes a paused run (retrying the failed step, if one failed).
-    pub fn resume(&self) {
-        let _ = self.cmd.send(Command::Resume);
+    pub fn resume(&self) -> Result<(), CommandError> {
+        self.command(Command::Resume)
     }
 
     /// Asks the run to stop after the step under way (or at once when paused).
-    pub fn abort(&self) {
-        let _ = self.cmd.send(Command::Abort);
+    pub fn abort(&self) -> Result<(), CommandError> {
+        self.command(Command::Abort)
     }
 
     /// Events from now on; the first call also gets every event since spawn.

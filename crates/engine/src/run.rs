@@ -10,7 +10,7 @@ use tokio::sync::{broadcast, mpsc, watch};
 
 use crate::{
     CapturedFrame, Command, Devices, EngineSettings, EngineStep, Event, ExposureControl, PauseReason, RunOutcome,
-    RunState, RunSummary, StepKey, StepTimes, MAX_EXPOSURES_PER_STEP,
+    RunState, RunSummary, StepKey, StepKind, StepTimes, MAX_EXPOSURES_PER_STEP,
 };
 
 /// Device calls without a timeout argument (settings, reconnect) are guarded with this many
@@ -176,7 +176,7 @@ pub(crate) struct Runner {
     frames: mpsc::Sender<CapturedFrame>,
     events: broadcast::Sender<Event>,
     state: watch::Sender<RunState>,
-    cmd: mpsc::UnboundedReceiver<Command>,
+    cmd: mpsc::Receiver<Command>,
     captured: usize,
     skipped: usize,
     retries: u32,
@@ -191,6 +191,8 @@ pub(crate) struct Runner {
     abort_req: bool,
     exposure: Box<dyn ExposureControl>,
     motion_wait_wall_s: f64,
+    events_dropped: u64,
+    exposure_s: f64,
 }
 
 impl Runner {
@@ -203,7 +205,7 @@ impl Runner {
         frames: mpsc::Sender<CapturedFrame>,
         events: broadcast::Sender<Event>,
         state: watch::Sender<RunState>,
-        cmd: mpsc::UnboundedReceiver<Command>,
+        cmd: mpsc::Receiver<Command>,
         exposure: Box<dyn ExposureControl>,
     ) -> Self {
         Runner {
@@ -229,10 +231,18 @@ impl Runner {
             abort_req: false,
             exposure,
             motion_wait_wall_s: 0.0,
+            events_dropped: 0,
+            exposure_s: 0.0,
         }
     }
 
-    fn emit(&self, e: Event) {
+    fn emit(&mut self, e: Event) {
+        // The broadcast never waits: a full queue overwrites its oldest event, one that a
+        // listener alive when it was sent has not read. Counted, as the policy for a full
+        // event queue (docs/engine.md, "Tasks and messages").
+        if self.events.receiver_count() > 0 && self.events.len() >= crate::event_queue_len(&self.s) {
+            self.events_dropped += 1;
+        }
         // No listener is fine: events are advisory.
         let _ = self.events.send(e);
     }
@@ -292,6 +302,7 @@ impl Runner {
         PauseReason::StepFailed {
             index: f.index,
             key: self.steps[f.index].key,
+            step: StepKind::Gonio { joints: self.steps[f.index].joints },
             device: e.device().to_string(),
             kind: e.kind(),
             message,
@@ -328,7 +339,7 @@ impl Runner {
         self.captured + self.skipped
     }
 
-    fn progress(&self) {
+    fn progress(&mut self) {
         let remaining = self.steps.len() - self.done_count();
         let eta_s = (!self.recent.is_empty())
             .then(|| self.recent.iter().sum::<f64>() / self.recent.len() as f64 * remaining as f64);
@@ -339,6 +350,7 @@ impl Runner {
     async fn deliver(&mut self, index: usize, frames: Vec<RawFrame>, times: StepTimes) -> Result<(), Stop> {
         let step = self.steps[index];
         let attempts = 1 + self.step_retries.get(&index).copied().unwrap_or(0);
+        let exposed: f64 = frames.iter().map(|f| f.meta.exposure_s).sum();
         let mut frames = frames.into_iter();
         let frame = frames.next().expect("a step delivers at least one frame");
         let cf = CapturedFrame {
@@ -354,6 +366,7 @@ impl Runner {
             return Err(Stop::ConsumerGone);
         }
         self.captured += 1;
+        self.exposure_s += exposed;
         self.done.insert(step.key);
         // Measured step time: between successive deliveries (pauses excluded).
         let dt = times.transfer_end_s - self.last_mark_s;
@@ -364,7 +377,7 @@ impl Runner {
         }
         self.measured_sum_s += dt;
         self.measured_n += 1;
-        self.emit(Event::StepDone { index, key: step.key, attempts });
+        self.emit(Event::StepDone { index, key: step.key, step: StepKind::Gonio { joints: step.joints }, attempts });
         self.progress();
         Ok(())
     }
@@ -616,23 +629,28 @@ impl Runner {
             retried_steps: retried.into_iter().map(|(i, n)| (self.steps[i].key, n)).collect(),
             warnings: self.warnings,
             hardware_s: self.now() - self.start_s,
+            exposure_s: self.exposure_s,
             mean_step_s: if self.measured_n > 0 { self.measured_sum_s / self.measured_n as f64 } else { 0.0 },
             motion_wait_wall_s: self.motion_wait_wall_s,
+            events_dropped: self.events_dropped,
         }
     }
 
     fn aborted(mut self) -> (RunOutcome, Devices) {
-        let summary = self.summary();
+        let mut summary = self.summary();
         self.state.send_replace(RunState::Aborted);
         self.emit(Event::Aborted(summary.clone()));
+        // The last event may have overwritten one too.
+        summary.events_dropped = self.events_dropped;
         let done = std::mem::take(&mut self.done);
         (RunOutcome::Aborted { done, summary }, self.dev)
     }
 
-    fn finished(self) -> (RunOutcome, Devices) {
-        let summary = self.summary();
+    fn finished(mut self) -> (RunOutcome, Devices) {
+        let mut summary = self.summary();
         self.state.send_replace(RunState::Finished);
         self.emit(Event::Finished(summary.clone()));
+        summary.events_dropped = self.events_dropped;
         (RunOutcome::Finished(summary), self.dev)
     }
 

@@ -10,8 +10,8 @@ use btfrig_core::frame::RawFrame;
 use btfrig_core::kinematics::Gonio;
 use btfrig_core::sampling::Sampling;
 use btfrig_engine::{
-    CapturedFrame, Devices, Engine, EngineSettings, EngineStep, Event, ExposureControl, PauseReason, RunHandle,
-    RunOutcome, RunState, RunSummary, StepKey,
+    CapturedFrame, Command, CommandError, Devices, Engine, EngineSettings, EngineStep, Event, ExposureControl,
+    PauseReason, RunHandle, RunOutcome, RunState, RunSummary, StepKey,
 };
 use btfrig_hw::CaptureSettings;
 use btfrig_hw::{AxisLimits, Device, DeviceError, DeviceInfo, ErrorKind, MoveOptions, Rail, TokioClock};
@@ -268,10 +268,10 @@ async fn permanent_disconnect_pauses_with_a_message_naming_the_camera_then_abort
     assert!(text.starts_with("step "), "{text}");
     assert!(matches!(*h.state().borrow(), RunState::Paused(_)));
     // Resuming retries the step; the camera stays away, so the run pauses again.
-    h.resume();
+    h.resume().unwrap();
     next_matching(&mut ev, |e| matches!(e, Event::Resumed)).await;
     next_matching(&mut ev, |e| matches!(e, Event::Paused { .. })).await;
-    h.abort();
+    h.abort().unwrap();
     let RunOutcome::Aborted { done, summary } = h.join().await else { panic!() };
     let frames = frames.await.unwrap();
     let keys = check_delivered(&frames, &steps);
@@ -373,7 +373,7 @@ async fn non_retryable_error_pauses_and_resume_after_the_fix_completes() {
     tokio::time::sleep(std::time::Duration::from_secs(3600)).await;
     assert!(matches!(*h.state().borrow(), RunState::Paused(_)));
     stopped.store(false, Ordering::SeqCst);
-    h.resume();
+    h.resume().unwrap();
     let RunOutcome::Finished(sum) = h.join().await else { panic!() };
     let frames = frames.await.unwrap();
     assert_eq!(frames.len(), 40);
@@ -396,7 +396,7 @@ async fn out_of_range_move_pauses_naming_the_rail_and_is_not_retried() {
     let PauseReason::StepFailed { index, device, kind, .. } = &reason else { panic!("{reason:?}") };
     assert_eq!((*index, device.as_str(), *kind), (1, "rail", ErrorKind::OutOfRange));
     assert!(reason.to_string().contains("(not retryable)"), "{reason}");
-    h.abort();
+    h.abort().unwrap();
     let RunOutcome::Aborted { done, summary } = h.join().await else { panic!() };
     assert_eq!(done, HashSet::from([steps[0].key]));
     assert_eq!(summary.retries, 0);
@@ -405,7 +405,7 @@ async fn out_of_range_move_pauses_naming_the_rail_and_is_not_retried() {
 
 async fn pause_after(h: &mut RunHandle, ev: &mut broadcast::Receiver<Event>, index: usize) {
     next_matching(ev, |e| matches!(e, Event::StepDone { index: i, .. } if *i == index)).await;
-    h.pause();
+    h.pause().unwrap();
 }
 
 #[tokio::test(start_paused = true)]
@@ -432,7 +432,7 @@ async fn pause_holds_between_steps_and_resume_finishes() {
     assert!((1..=2).contains(&done_at_pause), "{done_at_pause} steps after the pause request");
     tokio::time::sleep(std::time::Duration::from_secs(3600)).await;
     assert!(ev.try_recv().is_err(), "no events while paused");
-    h.resume();
+    h.resume().unwrap();
     let RunOutcome::Finished(sum) = h.join().await else { panic!() };
     assert_eq!(sum.captured, 40);
     let frames = frames.await.unwrap();
@@ -456,7 +456,7 @@ async fn abort_stops_after_the_current_step_and_resume_with_done_skips_them() {
     let mut h = Engine::spawn(devices, steps.clone(), HashSet::new(), EngineSettings::default(), tx);
     let mut ev = h.events();
     next_matching(&mut ev, |e| matches!(e, Event::StepDone { index: 11, .. })).await;
-    h.abort();
+    h.abort().unwrap();
     let (outcome, devices) = h.join_with_devices().await;
     let RunOutcome::Aborted { done, summary } = outcome else { panic!("{outcome:?}") };
     let first = frames.await.unwrap();
@@ -521,6 +521,69 @@ async fn slow_consumer_backpressure_delays_the_run_without_losing_frames() {
     assert_eq!(consumer.await.unwrap(), 10);
     // With a 1-frame channel the engine can be at most ~2 frames ahead of the consumer.
     assert!(sum.hardware_s > 8.0 * 12.0, "{} s", sum.hardware_s);
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_listener_that_never_reads_counts_dropped_events_and_the_run_still_delivers_every_frame() {
+    let cfg = cfg();
+    let steps = EngineStep::from_schedule(&forty(&cfg))[..10].to_vec();
+    let (devices, _world) = rig(&cfg, &FaultScenario::none()).await;
+    let (tx, frames) = consumer(4);
+    // Ten steps send 2 events each (StepDone, Progress) and a Finished: 21 into a queue of 4.
+    let settings = EngineSettings { event_capacity: 4, ..EngineSettings::default() };
+    let mut h = Engine::spawn(devices, steps.clone(), HashSet::new(), settings, tx);
+    let mut stalled = h.events();
+    let RunOutcome::Finished(sum) = h.join().await else { panic!() };
+    let frames = frames.await.unwrap();
+    assert_eq!(frames.len(), 10);
+    check_delivered(&frames, &steps);
+    assert_eq!(sum.captured, 10);
+    assert_eq!(sum.events_dropped, 21 - 4, "every event but the last 4 was overwritten unseen");
+    // The listener's side agrees: it lagged by exactly what the engine counted.
+    let Err(broadcast::error::RecvError::Lagged(n)) = stalled.recv().await else { panic!("no lag") };
+    assert_eq!(n, sum.events_dropped);
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_listener_that_keeps_up_loses_nothing() {
+    let cfg = cfg();
+    let steps = EngineStep::from_schedule(&forty(&cfg))[..10].to_vec();
+    let (devices, _world) = rig(&cfg, &FaultScenario::none()).await;
+    let (tx, frames) = consumer(4);
+    let settings = EngineSettings { event_capacity: 4, ..EngineSettings::default() };
+    let mut h = Engine::spawn(devices, steps, HashSet::new(), settings, tx);
+    let mut ev = h.events();
+    let listener = tokio::spawn(async move {
+        let mut n = 0;
+        while let Ok(e) = ev.recv().await {
+            n += 1;
+            if matches!(e, Event::Finished(_)) {
+                break;
+            }
+        }
+        n
+    });
+    let RunOutcome::Finished(sum) = h.join().await else { panic!() };
+    assert_eq!(frames.await.unwrap().len(), 10);
+    assert_eq!((listener.await.unwrap(), sum.events_dropped), (21, 0));
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_full_command_queue_refuses_the_command_by_name() {
+    let cfg = cfg();
+    let steps = EngineStep::from_schedule(&forty(&cfg))[..3].to_vec();
+    let (devices, _world) = rig(&cfg, &FaultScenario::none()).await;
+    let (tx, frames) = consumer(4);
+    let h = Engine::spawn(devices, steps, HashSet::new(), EngineSettings::default(), tx);
+    // The engine task has not run yet (current-thread runtime): nothing reads the queue.
+    for _ in 0..btfrig_engine::COMMAND_CAPACITY {
+        h.resume().unwrap();
+    }
+    let e = h.pause().unwrap_err();
+    assert_eq!(e, CommandError::Full { command: Command::Pause });
+    assert!(e.to_string().contains("16 unread commands"), "{e}");
+    let RunOutcome::Finished(sum) = h.join().await else { panic!() };
+    assert_eq!((sum.captured, frames.await.unwrap().len()), (3, 3));
 }
 
 /// Brackets of three kinds on the 40-step schedule: light 1 plans two exposures at the pose,

@@ -13,7 +13,7 @@
 //! their SNRs. Reference frames are only measured, not stored.
 //!
 //! Steering ([`run_controlled`]): a [`RunControl`] pauses, resumes, aborts or interrupts the
-//! engine between steps (`btfrig_engine::dome::DomeControl`), and the run reports
+//! engine between steps (`btfrig_engine::dome::run_dome`), and the run reports
 //! [`RunEvent`]s: `Started`, `Progress` with an ETA, warnings, pauses (also on a device fault),
 //! resumes and `Stopping`. A dome's step is one frame
 //! per camera (a pattern at a rotation), so `Progress` counts steps, not textures; textures are
@@ -31,9 +31,8 @@ use std::time::Instant;
 
 use btfrig_calib::rectify::Filter;
 use btfrig_core::plan::dome::{DomePlan, ValidatedDomePlan};
-use btfrig_engine::dome::{
-    run_dome as drive, DomeCapture, DomeCommand, DomeControl, DomeDevices, DomeEvent, DomePauseReason, DomeSettings,
-};
+use btfrig_engine::dome::{run_dome as drive, DomeCapture, DomeDevices, DomeSettings};
+use btfrig_engine::{Command as EngineCommand, Event, PauseReason, RunOutcome as EngineOutcome, StepKind};
 use btfrig_hw::{MoveOptions, TokioClock};
 use btfrig_pipeline::dome::{signal_dn, DomeProcessing, GroupCode, GroupStack};
 use btfrig_planner::dome::{plan_dome, DomeMode, DomeSchedule, DomeShot};
@@ -126,6 +125,9 @@ pub struct DomeRunSummary {
     pub denoise_energy_kept: Vec<f64>,
     /// Wall time of rectifying and projecting the denoised groups, s.
     pub denoise_s: f64,
+    /// Engine events dropped because the session's listener fell behind the event queue
+    /// (a warning says so); progress only, frames and journal are complete.
+    pub events_dropped: u64,
     /// How the session ended before the last step (aborted or interrupted through its
     /// [`RunControl`], or paused on a failed step when the session stops on faults); `None`
     /// when it captured every step.
@@ -163,6 +165,7 @@ impl DomeRunSummary {
             "denoise_terms": self.denoise_terms,
             "denoise_energy_kept": self.denoise_energy_kept,
             "denoise_s": self.denoise_s,
+            "events_dropped": self.events_dropped,
             "wall_s": self.wall_s,
         })
     }
@@ -401,7 +404,9 @@ pub fn run_controlled(
 
     let rt = crate::virtual_time_runtime()?;
     let cameras = v.cameras.clone();
-    let (commit_tx, mut commit_rx) = mpsc::unbounded_channel::<RunEvent>();
+    // The consumer's latest `TexturesCommitted` (cumulative, so the newest says all: a full
+    // queue of one keeps the latest).
+    let (commit_tx, mut commit_rx) = tokio::sync::watch::channel::<Option<RunEvent>>(None);
     // The simulator's truth, for the report's error figures only (a real rig has none).
     let truth = Some(TruthProbe::new(scene.clone(), &faults));
     let mut state = Consumer::new(&v, &schedule, &processing, &code, &dataset, truth, view_id);
@@ -413,7 +418,7 @@ pub fn run_controlled(
         preview: req.preview,
         stage_s: BTreeMap::new(),
     });
-    let outcome: Result<(btfrig_engine::dome::DomeRunSummary, Stop), RunError> = rt.block_on(async {
+    let outcome: Result<(EngineOutcome, Stop), RunError> = rt.block_on(async {
         let clock = TokioClock::shared();
         // Emulated devices (serial turntable and LED controller) are the simulator's behind
         // their firmware, driven by the real backends (docs/serial.md).
@@ -437,12 +442,14 @@ pub fn run_controlled(
         let steps = schedule.steps.clone();
         let patterns = schedule.patterns.clone();
         let (exp, ref_exp) = (schedule.exposure_s, schedule.single_exposure_s);
-        let (steering, engine_commands, events) = DomeControl::channels();
         // The engine pauses on a fault; a session that stops on faults ends there (`listen`),
         // with the report's status "paused", as a gonio run does.
         let settings = DomeSettings { pause_on_fault: true, ..DomeSettings::default() };
-        let engine =
-            async move { drive(&mut devices, &steps, &patterns, exp, ref_exp, &done, settings, steering, tx).await };
+        let (engine_commands, steering) = mpsc::channel(btfrig_engine::COMMAND_CAPACITY);
+        let (events_tx, events) = tokio::sync::broadcast::channel(settings.event_capacity);
+        let engine = async move {
+            drive(&mut devices, &steps, &patterns, exp, ref_exp, &done, settings, Some(steering), events_tx, tx).await
+        };
         let consume = async {
             while let Some(cap) = rx.recv().await {
                 state.take(cap, &sources)?;
@@ -455,12 +462,18 @@ pub fn run_controlled(
         Ok((e.map_err(|e| RunError::Rig(e.to_string()))?, stop))
     });
     // The view groups committed after the engine's last event (the last one always is).
-    while let Ok(e) = commit_rx.try_recv() {
-        on_event(&e);
+    if commit_rx.has_changed().unwrap_or(true) {
+        if let Some(e) = commit_rx.borrow_and_update().clone() {
+            on_event(&e);
+        }
     }
     let (engine, stop) = outcome?;
+    let (engine, aborted) = match engine {
+        EngineOutcome::Finished(summary) => (summary, false),
+        EngineOutcome::Aborted { summary, .. } => (summary, true),
+    };
     let mut s = state.finish();
-    s.warnings.splice(0..0, engine.warnings.iter().cloned());
+    s.warnings.splice(0..0, stop.warnings.iter().cloned());
     s.warnings.splice(0..0, notes.iter().cloned());
     s.dataset = req.out.clone();
     s.rig_kind = rig.rig.kind.as_str();
@@ -473,13 +486,22 @@ pub fn run_controlled(
     s.multiplex_gain_predicted = schedule.predicted_gain;
     s.time_saved_fraction = schedule.time_saved_fraction;
     s.hardware_s = engine.hardware_s;
+    // What the session's listener lost (it fell behind the engine's event queue).
+    s.events_dropped = stop.events_dropped;
+    if stop.events_dropped > 0 {
+        s.warnings.push(format!(
+            "{} engine event(s) dropped: the run's listener fell behind the event queue; progress lines and \
+             retry warnings were lost, frames and the journal are complete",
+            stop.events_dropped
+        ));
+    }
     s.exposure_time_s = engine.exposure_s;
     s.frames = engine.captured as u64;
     s.views_resumed = engine.skipped_done / schedule.steps.len().div_ceil(v.rotations.len()).max(1);
     s.wall_s = wall.elapsed().as_secs_f64();
     s.peak_rss_mib = crate::peak_rss_mib();
     // A stop asked for after the last step leaves a complete run.
-    s.stopped = engine.aborted.then(|| stop.outcome.clone().unwrap_or(RunOutcome::Aborted));
+    s.stopped = aborted.then(|| stop.outcome.clone().unwrap_or(RunOutcome::Aborted));
 
     let mut extra = BTreeMap::new();
     // RunReport's own fields are not repeated in its flattened extra.
@@ -535,31 +557,60 @@ struct Stop {
     outcome: Option<RunOutcome>,
     /// The failed step a session that stops on faults paused on (`paused_step` in the report).
     paused_step: Option<serde_json::Value>,
+    /// The engine's warnings (retries with their cause).
+    warnings: Vec<String>,
+    /// Engine events the listener lost (`Lagged`).
+    events_dropped: u64,
 }
 
 /// Forwards `control`'s commands to the engine, and the engine's events and the consumer's
 /// commits to `on_event`, until the engine ends. `stop_on_fault`: a step that failed (the
 /// engine pauses on it) ends the session as paused, resumable by running the plan again.
 async fn listen(
-    mut control: tokio::sync::mpsc::UnboundedReceiver<Command>,
-    engine: tokio::sync::mpsc::UnboundedSender<DomeCommand>,
-    mut events: tokio::sync::mpsc::UnboundedReceiver<DomeEvent>,
-    commits: &mut tokio::sync::mpsc::UnboundedReceiver<RunEvent>,
+    mut control: mpsc::Receiver<Command>,
+    engine: mpsc::Sender<EngineCommand>,
+    mut events: tokio::sync::broadcast::Receiver<Event>,
+    commits: &mut tokio::sync::watch::Receiver<Option<RunEvent>>,
     stop_on_fault: bool,
     on_event: &mut dyn FnMut(&RunEvent),
 ) -> Stop {
     let mut stop = Stop::default();
     let mut control_open = true;
+    let mut commits_open = true;
+    // A command the engine's queue refused (full) is a warning; after the engine ended there
+    // is nothing to steer.
+    let send = |command: EngineCommand, on_event: &mut dyn FnMut(&RunEvent)| {
+        if let Err(mpsc::error::TrySendError::Full(c)) = engine.try_send(command) {
+            on_event(&RunEvent::Warning(format!(
+                "engine: {c:?} refused: the run already holds {} unread commands",
+                btfrig_engine::COMMAND_CAPACITY
+            )));
+        }
+    };
     loop {
         tokio::select! {
             ev = events.recv() => match ev {
                 // The engine is done (it dropped its sender).
-                None => return stop,
-                Some(DomeEvent::Progress { done, total, eta_s }) => on_event(&RunEvent::Progress { done, total, eta_s }),
-                Some(DomeEvent::Warning(w)) => on_event(&RunEvent::Warning(w)),
-                Some(DomeEvent::Paused { reason }) => {
+                Err(tokio::sync::broadcast::error::RecvError::Closed)
+                | Ok(Event::Finished(_) | Event::Aborted(_)) => return stop,
+                // Events are advisory: counted and reported, frames and journal unaffected.
+                Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => stop.events_dropped += n,
+                Ok(Event::Progress { done, total, eta_s }) => on_event(&RunEvent::Progress { done, total, eta_s }),
+                Ok(Event::Warning(w)) => {
+                    on_event(&RunEvent::Warning(w.clone()));
+                    stop.warnings.push(w);
+                }
+                Ok(Event::Paused { reason }) => {
                     on_event(&RunEvent::Paused { reason: reason.to_string(), fault: None });
-                    if let DomePauseReason::StepFailed { index, rotation, shot, device, kind, message } = &reason {
+                    if let PauseReason::StepFailed {
+                        index,
+                        step: StepKind::Dome { rotation, shot, .. },
+                        device,
+                        kind,
+                        message,
+                        ..
+                    } = &reason
+                    {
                         if stop_on_fault && stop.outcome.is_none() {
                             on_event(&RunEvent::Stopping { reason: reason.to_string() });
                             stop.outcome = Some(RunOutcome::Paused { reason: reason.to_string(), fault: None });
@@ -568,25 +619,33 @@ async fn listen(
                                 "device": device, "kind": kind.to_string(), "message": message,
                             }));
                             // The engine is paused on the failed step: end it there.
-                            let _ = engine.send(DomeCommand::Abort);
+                            send(EngineCommand::Abort, on_event);
                         }
                     }
                 }
-                Some(DomeEvent::Resumed) => on_event(&RunEvent::Resumed),
+                Ok(Event::Resumed) => on_event(&RunEvent::Resumed),
                 // A step is a pattern at a rotation, not a (light, view) capture.
-                Some(DomeEvent::StepDone { index, rotation, attempts, .. }) => {
+                Ok(Event::StepDone { index, step: StepKind::Dome { rotation, .. }, attempts, .. }) => {
                     on_event(&RunEvent::DomeStepDone { index, rotation, attempts })
                 }
+                Ok(Event::StepDone { .. }) => {}
             },
-            Some(e) = commits.recv() => on_event(&e),
+            r = commits.changed(), if commits_open => match r {
+                Ok(()) => {
+                    if let Some(e) = commits.borrow_and_update().clone() {
+                        on_event(&e);
+                    }
+                }
+                Err(_) => commits_open = false,
+            },
             c = control.recv(), if control_open => {
                 let command = match c {
                     None => {
                         control_open = false;
                         continue;
                     }
-                    Some(Command::Pause) => DomeCommand::Pause,
-                    Some(Command::Resume) => DomeCommand::Resume,
+                    Some(Command::Pause) => EngineCommand::Pause,
+                    Some(Command::Resume) => EngineCommand::Resume,
                     Some(c @ (Command::Abort | Command::Interrupt(_))) => {
                         let end = match c {
                             Command::Interrupt(signal) => RunOutcome::Interrupted(signal),
@@ -596,11 +655,10 @@ async fn listen(
                             on_event(&RunEvent::Stopping { reason: end.reason().unwrap_or_default() });
                             stop.outcome = Some(end);
                         }
-                        DomeCommand::Abort
+                        EngineCommand::Abort
                     }
                 };
-                // The engine may have ended already: nothing to steer.
-                let _ = engine.send(command);
+                send(command, on_event);
             }
         }
     }
@@ -723,7 +781,7 @@ struct Consumer<'a, F: Fn(usize, u32) -> u32> {
 
 /// What the consumer reports after each view group it commits.
 struct Committing {
-    tx: mpsc::UnboundedSender<RunEvent>,
+    tx: tokio::sync::watch::Sender<Option<RunEvent>>,
     /// Textures in the dataset (earlier sessions included).
     textures: u64,
     total: u64,
@@ -913,12 +971,12 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
                 *commits.stage_s.entry("preview".into()).or_insert(0.0) += t0.elapsed().as_secs_f64();
             }
             // The listener may be gone (the session is ending): the commit stands regardless.
-            let _ = commits.tx.send(RunEvent::TexturesCommitted {
+            commits.tx.send_replace(Some(RunEvent::TexturesCommitted {
                 textures: commits.textures,
                 total: commits.total,
                 previews: commits.previews,
                 stage_s: commits.stage_s.clone(),
-            });
+            }));
         }
         Ok(())
     }

@@ -296,12 +296,30 @@ impl Signal {
     }
 }
 
+/// Commands a [`RunControl`] holds before the session reads them. Commands are tiny and
+/// rare (an operator's pause, resume or abort, a signal); the session forwards them to the
+/// engine as they come, so a full queue means a caller floods a run: the command fails with
+/// [`ControlError::Full`] instead of waiting or growing the queue.
+pub const CONTROL_CAPACITY: usize = 16;
+
+/// Why a command did not reach the run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum ControlError {
+    /// [`CONTROL_CAPACITY`] commands are waiting unread.
+    #[error("the run already holds {CONTROL_CAPACITY} unread commands; wait for it to act on them")]
+    Full,
+    /// The session has ended; there is nothing to steer.
+    #[error("the run has ended")]
+    Ended,
+}
+
 /// Steers a run from outside, from any thread: clone it, hand one clone to [`run`].
-/// Commands sent before the engine starts take effect when it does.
+/// Commands sent before the engine starts take effect when it does (at most
+/// [`CONTROL_CAPACITY`] of them wait).
 #[derive(Debug, Clone)]
 pub struct RunControl {
-    tx: mpsc::UnboundedSender<Command>,
-    rx: Arc<Mutex<Option<mpsc::UnboundedReceiver<Command>>>>,
+    tx: mpsc::Sender<Command>,
+    rx: Arc<Mutex<Option<mpsc::Receiver<Command>>>>,
     /// Set by [`RunControl::interrupt`]: stops the planning, which runs before the engine
     /// reads commands.
     cancel: btfrig_planner::Cancel,
@@ -317,7 +335,7 @@ impl Default for RunControl {
 impl RunControl {
     /// A new control, not yet attached to a run.
     pub fn new() -> RunControl {
-        let (tx, rx) = mpsc::unbounded_channel();
+        let (tx, rx) = mpsc::channel(CONTROL_CAPACITY);
         RunControl {
             tx,
             rx: Arc::new(Mutex::new(Some(rx))),
@@ -326,28 +344,35 @@ impl RunControl {
         }
     }
 
+    fn send(&self, c: Command) -> Result<(), ControlError> {
+        self.tx.try_send(c).map_err(|e| match e {
+            mpsc::error::TrySendError::Full(_) => ControlError::Full,
+            mpsc::error::TrySendError::Closed(_) => ControlError::Ended,
+        })
+    }
+
     /// Pause after the step under way; the session waits for resume or abort.
-    pub fn pause(&self) {
-        let _ = self.tx.send(Command::Pause);
+    pub fn pause(&self) -> Result<(), ControlError> {
+        self.send(Command::Pause)
     }
 
     /// Resume a paused run (a failed step is tried again).
-    pub fn resume(&self) {
-        let _ = self.tx.send(Command::Resume);
+    pub fn resume(&self) -> Result<(), ControlError> {
+        self.send(Command::Resume)
     }
 
     /// End the session after the step under way; report status `aborted`, resumable.
-    pub fn abort(&self) {
-        let _ = self.tx.send(Command::Abort);
+    pub fn abort(&self) -> Result<(), ControlError> {
+        self.send(Command::Abort)
     }
 
     /// As [`RunControl::abort`], reported as `interrupted` by `signal`. During planning
     /// (before the dataset is created) the run stops at once with
-    /// [`RunError::Interrupted`], leaving nothing behind.
-    pub fn interrupt(&self, signal: Signal) {
+    /// [`RunError::Interrupted`], leaving nothing behind (that part cannot fail).
+    pub fn interrupt(&self, signal: Signal) -> Result<(), ControlError> {
         self.signal.lock().unwrap_or_else(|e| e.into_inner()).get_or_insert(signal);
         self.cancel.cancel();
-        let _ = self.tx.send(Command::Interrupt(signal));
+        self.send(Command::Interrupt(signal))
     }
 
     /// The first signal [`RunControl::interrupt`] was called with.
@@ -355,7 +380,7 @@ impl RunControl {
         *self.signal.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    fn take(&self) -> Option<mpsc::UnboundedReceiver<Command>> {
+    fn take(&self) -> Option<mpsc::Receiver<Command>> {
         self.rx.lock().unwrap_or_else(|e| e.into_inner()).take()
     }
 }
@@ -599,6 +624,9 @@ pub struct RunSummary {
     /// for in-process simulated devices, whose moves take rig time only) plus the camera's
     /// PTP coding; `None` without emulated devices (docs/serial.md).
     pub link_added_wall_s: Option<f64>,
+    /// Engine events this session's listener lost because it fell behind the engine's event
+    /// queue (a warning says so); advisory progress only, frames and journal are complete.
+    pub events_dropped: u64,
     /// What became of the compressed model the run was asked for (`outputs.compressed_model`
     /// or [`RunRequest::compressed_model`]); `None` when none was.
     pub compression: Option<sinks::CompressionOutcome>,
@@ -671,6 +699,7 @@ impl RunSummary {
             "peak_rss_mib": self.peak_rss_mib,
             "motion_wait_wall_s": self.motion_wait_wall_s,
             "link_added_wall_s": self.link_added_wall_s,
+            "events_dropped": self.events_dropped,
             "dataset": self.dataset.display().to_string(),
             "processing_notes": self.processing.as_ref().map(|p| p.notes.clone()),
         });
@@ -911,6 +940,7 @@ fn run_capture(
         links,
         motion_wait_wall_s,
         link_added_wall_s,
+        events_dropped,
     } = session?;
     let totals = totals?;
     let mut warnings = warnings;
@@ -950,6 +980,7 @@ fn run_capture(
     summary.processing = Some(processing);
     summary.motion_wait_wall_s = motion_wait_wall_s;
     summary.link_added_wall_s = link_added_wall_s;
+    summary.events_dropped = events_dropped;
     let mut sessions: Vec<serde_json::Value> = previous.iter().map(Session::to_json).collect();
     sessions.push(this.to_json());
     dataset.finish(&report_of(&summary, &previous, &this, sessions)).map_err(RunError::Report)?;
@@ -1082,6 +1113,7 @@ fn summarise(
         processing: None,
         motion_wait_wall_s: 0.0,
         link_added_wall_s: None,
+        events_dropped: 0,
         compression: None,
     }
 }
@@ -1133,6 +1165,7 @@ fn report_of(s: &RunSummary, previous: &[Session], this: &Session, sessions: Vec
     put("unreported_captures", json!(s.unreported_captures));
     put("peak_rss_mib", json!(s.peak_rss_mib));
     put("motion_wait_wall_s", json!(s.motion_wait_wall_s));
+    put("events_dropped", json!(s.events_dropped));
     if !s.links.is_empty() {
         put("link_added_wall_s", json!(s.link_added_wall_s));
         put("links", s.links.iter().map(emulated::LinkUse::to_json).collect());
@@ -1167,7 +1200,7 @@ struct SessionInput<'a> {
     model: btfrig_pipeline::ProcessingModel,
     outputs: btfrig_pipeline::Outputs,
     dataset: Arc<Dataset>,
-    commands: mpsc::UnboundedReceiver<Command>,
+    commands: mpsc::Receiver<Command>,
     stop_on_fault: bool,
     compare_nominal: bool,
     sink: Option<Arc<dyn btfrig_pipeline::TextureSink>>,
@@ -1193,11 +1226,13 @@ struct SessionResult {
     links: Vec<emulated::LinkUse>,
     motion_wait_wall_s: f64,
     link_added_wall_s: Option<f64>,
+    /// Engine events the session's listener lost (it fell behind the event queue).
+    events_dropped: u64,
 }
 
 fn fault_of(r: &PauseReason) -> Option<Fault> {
     match r {
-        PauseReason::StepFailed { index, key, device, kind, message } => Some(Fault {
+        PauseReason::StepFailed { index, key, device, kind, message, .. } => Some(Fault {
             index: *index,
             light: key.light,
             view: key.view,
@@ -1296,28 +1331,51 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
     let index_of: std::collections::HashMap<StepKey, usize> =
         steps.iter().enumerate().map(|(i, s)| (s.key, i)).collect();
     let (tx, rx) = mpsc::channel(FRAME_CHANNEL);
+    let event_capacity = settings.event_capacity;
     let mut handle = Engine::spawn_with_exposure(devices, steps, done, settings, tx, exposure_control);
     let mut events = handle.events();
-    // The pipeline's totals as of its last commit (kept if it stops at an error) and its
-    // fallbacks, which become warnings on the listening side.
-    let last_totals = Arc::new(Mutex::new(btfrig_pipeline::Totals::default()));
-    let (fallback_tx, mut fallback_rx) = mpsc::unbounded_channel::<String>();
-    let (commit_tx, mut commit_rx) = mpsc::unbounded_channel::<(u64, u64, BTreeMap<String, f64>)>();
-    let kept = last_totals.clone();
+    // The pipeline's totals as of its last commit (kept if it stops at an error), as a watch:
+    // the listener reports the newest (a full queue of one keeps the latest), and the totals
+    // are cumulative, so a listener that falls behind skips intermediate figures only: every
+    // registration fallback is still warned about, and the last commit always reported.
+    let (totals_tx, mut totals_rx) = tokio::sync::watch::channel(btfrig_pipeline::Totals::default());
     let pipeline = btfrig_pipeline::run(dataset, processor, rx, move |t| {
-        let mut k = kept.lock().unwrap_or_else(|e| e.into_inner());
-        for (step, reason) in &t.fallback_steps[k.fallback_steps.len()..] {
-            let _ = fallback_tx
-                .send(format!("step {step}: registration failed, rectified with the nominal pose: {reason}"));
-        }
-        let _ = commit_tx.send((t.committed, t.previews, t.stage_s.clone()));
-        *k = t.clone();
+        totals_tx.send_replace(t.clone());
     });
     let mut delivered: u64 = 0;
+    let mut fallbacks_warned = 0usize;
+    // What changed in the totals since the listener last looked: new fallbacks as warnings,
+    // then the commit.
+    let mut report_totals = |t: &btfrig_pipeline::Totals,
+                             delivered: u64,
+                             warnings: &mut Vec<String>,
+                             on_event: &mut dyn FnMut(&RunEvent)| {
+        for (step, reason) in t.fallback_steps.iter().skip(fallbacks_warned) {
+            let w = format!("step {step}: registration failed, rectified with the nominal pose: {reason}");
+            on_event(&RunEvent::Warning(w.clone()));
+            warnings.push(w);
+        }
+        fallbacks_warned = t.fallback_steps.len();
+        on_event(&RunEvent::Committed {
+            committed: t.committed,
+            previews: t.previews,
+            queued: delivered.saturating_sub(t.committed),
+            stage_s: t.stage_s.clone(),
+        });
+    };
+    // A command the engine refused (its queue full) is a warning; one sent after the engine
+    // ended has nothing to steer.
+    let refused = |r: Result<(), btfrig_engine::CommandError>, warnings: &mut Vec<String>| {
+        if let Err(e @ btfrig_engine::CommandError::Full { .. }) = r {
+            warnings.push(format!("engine: {e}"));
+        }
+    };
+    let mut events_dropped: u64 = 0;
     let listen = async {
         let mut stop: Option<RunOutcome> = None;
         let mut warnings = Vec::new();
         let mut commands_open = true;
+        let mut totals_open = true;
         loop {
             tokio::select! {
                 ev = events.recv() => match ev {
@@ -1346,28 +1404,28 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
                                 on_event(&RunEvent::Stopping { reason: reason.to_string() });
                                 stop = Some(end);
                             }
-                            handle.abort();
+                            refused(handle.abort(), &mut warnings);
                         }
                     }
                     Ok(Event::Resumed) => on_event(&RunEvent::Resumed),
                     Ok(Event::Finished(_) | Event::Aborted(_)) => break,
-                    Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {}
+                    // Events are advisory: the listener fell behind the engine's queue and
+                    // lost the oldest. Counted and reported; frames and journal are unaffected.
+                    Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => events_dropped += n,
                     Err(tokio::sync::broadcast::error::RecvError::Closed) => break,
                 },
-                Some(w) = fallback_rx.recv() => {
-                    on_event(&RunEvent::Warning(w.clone()));
-                    warnings.push(w);
-                }
-                Some((committed, previews, stage_s)) = commit_rx.recv() => on_event(&RunEvent::Committed {
-                    committed,
-                    previews,
-                    queued: delivered.saturating_sub(committed),
-                    stage_s,
-                }),
+                r = totals_rx.changed(), if totals_open => match r {
+                    Ok(()) => {
+                        let t = totals_rx.borrow_and_update().clone();
+                        report_totals(&t, delivered, &mut warnings, on_event);
+                    }
+                    // The pipeline has ended; its last totals are reported after the join.
+                    Err(_) => totals_open = false,
+                },
                 c = commands.recv(), if commands_open => match c {
                     None => commands_open = false,
-                    Some(Command::Pause) => handle.pause(),
-                    Some(Command::Resume) => handle.resume(),
+                    Some(Command::Pause) => refused(handle.pause(), &mut warnings),
+                    Some(Command::Resume) => refused(handle.resume(), &mut warnings),
                     Some(c @ (Command::Abort | Command::Interrupt(_))) => {
                         let end = match c {
                             Command::Interrupt(signal) => RunOutcome::Interrupted(signal),
@@ -1377,7 +1435,7 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
                             on_event(&RunEvent::Stopping { reason: end.reason().unwrap_or_default() });
                             stop = Some(end);
                         }
-                        handle.abort();
+                        refused(handle.abort(), &mut warnings);
                     }
                 },
             }
@@ -1386,12 +1444,18 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
     };
     let (totals, (mut stop, mut warnings)) = tokio::join!(pipeline, listen);
     // Fallbacks and commits of the frames committed after the engine finished.
-    while let Ok(w) = fallback_rx.try_recv() {
+    if totals_rx.has_changed().unwrap_or(true) {
+        let t = totals_rx.borrow_and_update().clone();
+        report_totals(&t, delivered, &mut warnings, on_event);
+    }
+    if events_dropped > 0 {
+        let w = format!(
+            "{events_dropped} engine event(s) dropped: the run's listener fell behind the engine's event queue \
+             ({} events); progress lines were lost, frames and the journal are complete",
+            event_capacity
+        );
         on_event(&RunEvent::Warning(w.clone()));
         warnings.push(w);
-    }
-    while let Ok((committed, previews, stage_s)) = commit_rx.try_recv() {
-        on_event(&RunEvent::Committed { committed, previews, queued: delivered.saturating_sub(committed), stage_s });
     }
     // A registration failure under `on_failure = "fail"` ends the session like a device
     // fault: paused on that step, resumable, the report written.
@@ -1409,7 +1473,7 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
             let why = format!("step {step}: registration failed and the plan says on_failure = \"fail\": {reason}");
             on_event(&RunEvent::Paused { reason: why.clone(), fault: Some(fault.clone()) });
             stop = Some(RunOutcome::Paused { reason: why, fault: Some(fault) });
-            Ok(last_totals.lock().unwrap_or_else(|e| e.into_inner()).clone())
+            Ok(totals_rx.borrow().clone())
         }
         other => other,
     };
@@ -1433,5 +1497,6 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
         motion_wait_wall_s: summary.motion_wait_wall_s,
         link_added_wall_s: (firmware.count() > 0)
             .then(|| summary.motion_wait_wall_s + firmware.camera_coding_wall_s().unwrap_or(0.0)),
+        events_dropped,
     })
 }

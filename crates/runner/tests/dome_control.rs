@@ -54,7 +54,7 @@ fn resume_later(c: &RunControl) {
     let c = c.clone();
     std::thread::spawn(move || {
         std::thread::sleep(Duration::from_millis(300));
-        c.resume();
+        c.resume().unwrap();
     });
 }
 
@@ -72,7 +72,7 @@ fn a_dome_run_pauses_between_steps_aborts_resumably_and_its_eta_is_the_remaining
     let (s, events) = steered(&request(&dir, None), true, |e, c| match e {
         RunEvent::Progress { done: 50, .. } if !paused => {
             paused = true;
-            c.pause();
+            c.pause().unwrap();
         }
         RunEvent::Paused { .. } => resume_later(c),
         _ => {}
@@ -126,7 +126,7 @@ fn a_dome_run_pauses_between_steps_aborts_resumably_and_its_eta_is_the_remaining
     let req2 = request(&dir2, None);
     let (a, events) = steered(&req2, true, |e, c| {
         if let RunEvent::Progress { done: 300, .. } = e {
-            c.abort();
+            c.abort().unwrap();
         }
     });
     assert_eq!(a.stopped, Some(RunOutcome::Aborted));

@@ -37,7 +37,8 @@ fn an_interrupted_run_resumes_and_the_report_covers_both_sessions() {
     let mut events = Vec::new();
     let first = run(&req, &control, &mut |e| {
         if matches!(e, RunEvent::Progress { .. }) {
-            c.interrupt(btfrig_runner::Signal::Int);
+            // Sent on every progress line: the later ones may find the bounded queue full.
+            let _ = c.interrupt(btfrig_runner::Signal::Int);
         }
         events.push(e.clone());
     })
@@ -90,7 +91,7 @@ fn with_an_operator_a_fatal_fault_pauses_and_resume_retries_the_step() {
     let s = run(&req, &control, &mut |e| {
         if let RunEvent::Paused { fault: Some(f), .. } = e {
             paused.push(f.clone());
-            c.resume();
+            c.resume().unwrap();
         }
     })
     .unwrap();
@@ -169,4 +170,17 @@ fn hidden_markers_fall_back_on_record_or_pause_naming_the_step_and_the_run_resum
     assert_eq!(s.outcome, RunOutcome::Finished);
     assert_eq!((s.captures, s.captures_this_session, s.sessions), (12, 10, 2));
     assert_eq!((s.registered, s.fallbacks), (12, 0));
+}
+
+/// The control's queue is bounded: commands beyond `CONTROL_CAPACITY` waiting unread are
+/// refused with `ControlError::Full`, never queued without bound.
+#[test]
+fn a_control_refuses_commands_beyond_its_capacity() {
+    let control = RunControl::new();
+    for _ in 0..btfrig_runner::CONTROL_CAPACITY {
+        control.pause().unwrap();
+    }
+    let e = control.abort().unwrap_err();
+    assert_eq!(e, btfrig_runner::ControlError::Full);
+    assert!(e.to_string().contains("16 unread commands"), "{e}");
 }
