@@ -49,7 +49,7 @@ pub fn probe(rig: Option<&Path>) -> anyhow::Result<()> {
     let Some(path) = rig else { return Ok(()) };
     let cfg = crate::rig::load(Some(path))?;
     println!("rig {} ({}):", cfg.rig.name, path.display());
-    let devices = btfrig_runner::emulated::probe(&cfg).map_err(anyhow::Error::msg)?;
+    let devices = btfrig_sim_backend::probe(&cfg).map_err(anyhow::Error::msg)?;
     for d in devices {
         let link = d.link.map_or(String::new(), |l| format!(" on {l}"));
         println!(

@@ -763,7 +763,10 @@ fn check_dome_start(
     plan_path: &std::path::Path,
     rig: &btfrig_core::config::RigConfig,
 ) -> Result<(), Problem> {
-    btfrig_runner::plan::dome_material(plan.plan.rig.material.as_deref(), plan_path)
+    let material = btfrig_runner::plan::dome_material_name(plan.plan.rig.material.as_deref(), plan_path);
+    btfrig_runner::backend::installed()
+        .for_rig(rig)
+        .and_then(|b| b.check_scene(&btfrig_runner::backend::SceneOptions { material: material.as_deref(), faults: None }))
         .map_err(|e| Problem::unprocessable(format!("rig.material: {e}")))?;
     if rig.devices.simulated().is_none() {
         return Err(Problem::unprocessable(format!(

@@ -126,10 +126,11 @@ pub fn start(s: &Arc<AppState>, caller: &Caller, b: StartCalibration) -> Result<
 /// The colour calibration of `btfrig calibrate color`, written to `calibrations/<id>-color.toml`.
 fn color(s: &AppState, id: &str, seed: u64) -> Result<(serde_json::Value, String), String> {
     use btfrig_calibrate::color::ColorPlan;
-    use btfrig_sim_calibration::color::calibrate_color_simulated;
     let camera = btfrig_calibrate::processing_camera(&s.rig, s.rig_path.as_deref()).map_err(|e| e.to_string())?;
     let plan = ColorPlan::default_plan();
-    let r = calibrate_color_simulated(&s.rig, &camera, &plan, seed, |_| {}).map_err(|e| e.to_string())?;
+    // The chart is photographed by the rig's device backend (the simulated one renders it).
+    let backend = btfrig_runner::backend::installed().for_rig(&s.rig).map_err(|e| e.to_string())?;
+    let r = backend.calibrate_color(&s.rig, &camera, &plan, seed)?;
     let chosen = r.chosen();
     let held = chosen.held_out.as_ref().map_err(|e| e.to_string())?;
     let rel = format!("calibrations/{id}-color.toml");

@@ -312,7 +312,7 @@ impl AppState {
             if !(in_plans(&real) || is_rig(&real)) {
                 return Err(refused());
             }
-            check_named_file(&f, &real)?;
+            check_named_file(&self.rig, &f, &real)?;
         }
         Ok(())
     }
@@ -549,9 +549,17 @@ fn lexically_normal(p: &Path) -> PathBuf {
     out
 }
 
-/// Loads a file a plan sent over the API names (already confined) as what its key says;
+/// Loads a file a plan sent over the API names (already confined) as what its key says (a
+/// material or fault scenario through the device backend of `rig`, which builds them);
 /// when it does not load, the error names the key, the file and the parser's position only.
-fn check_named_file(f: &btfrig_runner::check::NamedFile, real: &Path) -> Result<(), Problem> {
+fn check_named_file(rig: &RigConfig, f: &btfrig_runner::check::NamedFile, real: &Path) -> Result<(), Problem> {
+    let real_name = real.display().to_string();
+    let scene = |options: btfrig_runner::backend::SceneOptions<'_>| {
+        btfrig_runner::backend::installed()
+            .for_rig(rig)
+            .and_then(|b| b.check_scene(&options))
+            .map_err(|e| e.to_string())
+    };
     let (what, result) = match f.field {
         "rig.config" => (
             "a rig config",
@@ -561,13 +569,14 @@ fn check_named_file(f: &btfrig_runner::check::NamedFile, real: &Path) -> Result<
         ),
         "rig.material" => (
             "a material",
-            btfrig_runner::plan::load_material(Some(&real.display().to_string())).map(drop).map_err(|e| e.to_string()),
+            scene(btfrig_runner::backend::SceneOptions { material: Some(&real_name), faults: None }),
         ),
         _ => (
             "a fault scenario",
-            btfrig_runner::plan::fault_scenario(&real.display().to_string(), Path::new("/"), f.field)
-                .map(drop)
-                .map_err(|e| e.to_string()),
+            scene(btfrig_runner::backend::SceneOptions {
+                material: None,
+                faults: Some((&real_name, Path::new("/"), f.field)),
+            }),
         ),
     };
     result.map_err(|message| {

@@ -51,3 +51,22 @@ pub trait TruthProbe: Send + Sync {
     /// The camera's true lens.
     fn camera(&self) -> &CameraModel;
 }
+
+/// The truth behind a simulated dome's or camera array's frames (see the module
+/// documentation): what a dome run's report measures its textures and its multiplexing gain
+/// against. A light is an LED (a camera array's: a flash); a camera is an index into the
+/// rig's cameras (`[dome]`), not into the plan's.
+pub trait DomeTruthProbe: Send + Sync {
+    /// The sample's true texture seen by camera `camera` at turntable angle `turntable_rad`
+    /// under light `light` alone at its nominal power: `size x size` texels, row-major,
+    /// radiance factor in the pipeline's colour space, as the dome pipeline's textures are.
+    fn texture(&self, camera: usize, turntable_rad: f64, light: usize, size: usize) -> Vec<[f32; 3]>;
+
+    /// The noise-free signal of every photosite of camera `camera` (DN above the black and
+    /// dark level, before rounding) with the lights at intensities `lights` (1: full power),
+    /// exposed `exposure_s` at `gain`: the reference the measured noise is the difference from.
+    fn noise_free_dn(&self, camera: usize, turntable_rad: f64, lights: &[f64], exposure_s: f64, gain: f64) -> Vec<f32>;
+
+    /// Lights the rig really held on whatever was asked (stuck on): every frame saw them.
+    fn stuck_on(&self) -> Vec<usize>;
+}

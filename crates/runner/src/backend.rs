@@ -6,13 +6,23 @@
 //! error figures. The simulated and emulated-serial backends live in `btfrig-sim-backend`;
 //! the `btfrig` binary installs them ([`install`]); a library user may install others or pass
 //! a registry with the request.
+//!
+//! A backend also checks what only it understands, before a run creates anything: the rig's
+//! device options ([`RigBackend::check_rig`]) and a plan's scene options, the material and
+//! fault scenario a simulated rig builds ([`RigBackend::check_scene`]); and it may offer the
+//! colour-chart capture of a colour calibration ([`RigBackend::calibrate_color`]). The runner
+//! itself knows no simulator type.
 
 use std::path::Path;
 use std::sync::{Arc, OnceLock};
 
+use btfrig_calibrate::color::{ColorCalibration, ColorPlan};
+use btfrig_core::camera::CameraModel;
 use btfrig_core::config::RigConfig;
+use btfrig_core::plan::dome::ValidatedDomePlan;
 use btfrig_core::plan::{Plan, ValidatedPlan};
-use btfrig_hw::truth::TruthProbe;
+use btfrig_engine::dome::DomeDevices;
+use btfrig_hw::truth::{DomeTruthProbe, TruthProbe};
 use btfrig_hw::{Camera, Lamp, Rail, Robot, SharedClock};
 
 use crate::emulated::{LinkFault, LinkUse};
@@ -66,6 +76,42 @@ pub struct OpenedGonio {
     pub links: Box<dyn LinkReport>,
 }
 
+/// What a run asks a backend for: a dome's devices (an LED dome's, or a camera array's,
+/// whose flash triggers are its LED array).
+pub struct DomeOpenRequest<'a> {
+    /// The rig config.
+    pub rig: &'a RigConfig,
+    /// The dome plan, validated (its cameras are the ones opened, in its order).
+    pub plan: &'a ValidatedDomePlan,
+    /// The plan file (its directory resolves relative names).
+    pub plan_file: &'a Path,
+    /// The fault scenario: the plan's or an override (`--faults`); it resolves from the
+    /// plan's directory.
+    pub fault_scenario: &'a str,
+}
+
+/// A dome's devices as a backend opened them (the turntable not yet homed).
+pub struct OpenedDome {
+    /// The turntable, LED array, one camera per plan camera, and their clock.
+    pub devices: DomeDevices,
+    /// The truth behind the frames: simulated backends only.
+    pub truth: Option<Arc<dyn DomeTruthProbe>>,
+    /// Keeps any firmware emulators alive: drop it after the devices.
+    pub links: Box<dyn Send>,
+}
+
+/// A plan's scene options: what a simulated rig builds its scene and its faults from. A real
+/// rig has neither, and its backend refuses them.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct SceneOptions<'a> {
+    /// `[rig] material`: an embedded name, or a material file's path as resolved against the
+    /// plan's directory; `None`: the backend's default.
+    pub material: Option<&'a str>,
+    /// A fault scenario: an embedded name or a file, the directory it resolves from, and the
+    /// setting that names it (`run.fault_scenario`, `fault_scenario`, `--faults`) for errors.
+    pub faults: Option<(&'a str, &'a Path, &'a str)>,
+}
+
 /// A device backend.
 #[async_trait::async_trait]
 pub trait RigBackend: Send + Sync {
@@ -77,6 +123,54 @@ pub trait RigBackend: Send + Sync {
 
     /// Opens a gonioreflectometer's devices.
     async fn open_gonio(&self, req: GonioOpenRequest<'_>) -> Result<OpenedGonio, RunError>;
+
+    /// Opens a dome's devices. Call inside the tokio runtime the devices run on.
+    async fn open_dome(&self, req: DomeOpenRequest<'_>) -> Result<OpenedDome, RunError> {
+        let _ = req;
+        Err(RunError::Rig(format!("the device backend {} does not open LED domes or camera arrays", self.name())))
+    }
+
+    /// Checks the rig config's device options as opening the devices would, without opening
+    /// them (the message says what is wrong; the caller names the rig config).
+    fn check_rig(&self, rig: &RigConfig) -> Result<(), String> {
+        let _ = rig;
+        Ok(())
+    }
+
+    /// Loads a plan's scene options as opening would, so that a plan is refused before a
+    /// dataset exists. A backend of real devices has no scene: it refuses any.
+    fn check_scene(&self, options: &SceneOptions<'_>) -> Result<(), RunError> {
+        let (what, value) = match (options.material, options.faults) {
+            (Some(m), _) => ("rig.material".to_string(), m),
+            (None, Some((f, _, field))) => (field.to_string(), f),
+            (None, None) => return Ok(()),
+        };
+        Err(RunError::Input {
+            what: format!("{what} {value:?}"),
+            message: format!(
+                "the rig's devices are opened by {}, which has no simulated scene: materials and fault scenarios \
+                 are options of simulated rigs (kind = \"sim\")",
+                self.name()
+            ),
+        })
+    }
+
+    /// Photographs the colour chart of `plan` on the rig through `camera` (the processing
+    /// model's lens) and fits the colour calibration (`btfrig calibrate color`).
+    fn calibrate_color(
+        &self,
+        rig: &RigConfig,
+        camera: &CameraModel,
+        plan: &ColorPlan,
+        seed: u64,
+    ) -> Result<ColorCalibration, String> {
+        let _ = (rig, camera, plan, seed);
+        Err(format!(
+            "the device backend {} cannot photograph a colour chart: calibrate on the rig with `btfrig calibrate color` \
+             and name the file in [camera] color_calibration",
+            self.name()
+        ))
+    }
 }
 
 /// The backends a run may use.

@@ -243,7 +243,7 @@ pub fn named_files(text: &str, file: &Path) -> Vec<NamedFile> {
     {
         out.push(NamedFile { field: "rig.material", path: resolve(&m), value: m });
     }
-    let embedded_fault = |f: &str| crate::plan::FAULT_FILES.iter().any(|(n, _)| *n == f);
+    let embedded_fault = |f: &str| btfrig_core::plan::BUILTIN_FAULT_SCENARIOS.contains(&f);
     if let Some(f) = at(t.get("run"), "fault_scenario").filter(|f| !embedded_fault(f)) {
         out.push(NamedFile { field: "run.fault_scenario", path: resolve(&f), value: f });
     }

@@ -1,15 +1,17 @@
 //! A whole dome run (an LED dome, or a camera array whose flashes are the lights: light =
-//! flash index, view = camera) as one library call: plan -> schedule (with the multiplexing choice)
-//! -> simulated dome rig -> engine (`btfrig_engine::dome`) -> pipeline
-//! (`btfrig_pipeline::dome`: collect, demultiplex, fault detection, rectify, radiometry) ->
-//! dataset store, plus the figures measured against the simulator's ground truth
+//! flash index, view = camera) as one library call: plan -> schedule (with the multiplexing
+//! choice, planned for the lights' brightness from the LED calibration or the rig config's
+//! nominal) -> the devices the rig's backend opens (`crate::backend`) -> engine
+//! (`btfrig_engine::dome`) -> pipeline (`btfrig_pipeline::dome`: collect, demultiplex, fault
+//! detection, rectify, radiometry) -> dataset store, plus, where the backend offers a truth
+//! probe (a simulated rig), the figures measured against its ground truth
 //! (`docs/pipeline.md`, "LED dome").
 //!
 //! Measured gain: in the first view group of the first camera, `reference_leds` LEDs are also
 //! captured alone (single-light frames at the single-light exposure, so both modes spend the
 //! same time per LED). The noise of a demultiplexed single-LED image and of the single-light
 //! frame of the same LED are the RMS differences from the noise-free render of that LED
-//! (`DomeFrameSource::noise_free_dn`, photosites imaging the sample); the gain is the ratio of
+//! (`DomeTruthProbe::noise_free_dn`, photosites imaging the sample); the gain is the ratio of
 //! their SNRs. Reference frames are only measured, not stored.
 //!
 //! Steering ([`run_controlled`]): a [`RunControl`] pauses, resumes, aborts or interrupts the
@@ -31,15 +33,12 @@ use std::time::Instant;
 
 use btfrig_calib::rectify::Filter;
 use btfrig_core::plan::dome::{DomePlan, ValidatedDomePlan};
-use btfrig_engine::dome::{run_dome as drive, DomeCapture, DomeDevices, DomeSettings};
+use btfrig_engine::dome::{run_dome as drive, DomeCapture, DomeSettings};
 use btfrig_engine::{Command as EngineCommand, Event, PauseReason, RunOutcome as EngineOutcome, StepKind};
-use btfrig_hw::{MoveOptions, TokioClock};
+use btfrig_hw::truth::DomeTruthProbe;
+use btfrig_hw::MoveOptions;
 use btfrig_pipeline::dome::{signal_dn, DomeProcessing, GroupCode, GroupStack};
 use btfrig_planner::dome::{plan_dome, DomeMode, DomeSchedule, DomeShot};
-use btfrig_render::dome_scene::DomeScene;
-use btfrig_render::renderer::RenderOptions;
-use btfrig_sim::dome::DomeRig;
-use btfrig_sim::FaultScenario;
 use btfrig_store::{
     Dataset, DirectionDeg, Manifest, RigInfo, RunReport, Samplings, StepId, StepTiming, StoreError, TextureFormat,
     TextureRegion, TextureSpec,
@@ -47,6 +46,7 @@ use btfrig_store::{
 use serde_json::json;
 use tokio::sync::mpsc;
 
+use crate::backend::{DomeOpenRequest, OpenedDome};
 use crate::{Command, RunControl, RunError, RunEvent, RunOutcome};
 
 /// A dome run: the plan text (a dome plan, `docs/plan-format.md`), where its relative names
@@ -272,11 +272,17 @@ pub fn run_controlled(
     let (v, rig, rig_text) = crate::plan::load_dome(&req.plan_text, &req.plan_path)?;
     let base = req.plan_path.parent().unwrap_or(Path::new("."));
     let fault_name = req.faults.clone().unwrap_or_else(|| v.plan.fault_scenario.clone());
-    let faults = crate::plan::fault_scenario(&fault_name, base, "fault_scenario")?;
-    let material = crate::plan::dome_material(v.plan.rig.material.as_deref(), &req.plan_path)?;
-    let scene = Arc::new(DomeScene::new(&rig, &material).map_err(|e| input("dome scene", e))?);
-    let dome = scene.dome().clone();
-    let schedule = plan_dome(&rig, &v, scene.nominal_irradiance()).map_err(|e| input("dome planning", e))?;
+    // The scene's options are the backend's to check, before anything is created.
+    let backend = crate::backend::installed().for_rig(&rig)?;
+    let material = crate::plan::dome_material_name(v.plan.rig.material.as_deref(), &req.plan_path);
+    backend.check_scene(&crate::backend::SceneOptions {
+        material: material.as_deref(),
+        faults: Some((&fault_name, base, "fault_scenario")),
+    })?;
+    let dome = rig.require_dome("a dome run").map_err(|e| input("rig.config", e))?.clone();
+    let rig_path = (!v.plan.rig.config.starts_with("builtin:")).then(|| base.join(&v.plan.rig.config));
+    let brightness = crate::dome_dry_run::planning_brightness(&rig, rig_path.as_deref())?;
+    let schedule = plan_dome(&rig, &v, brightness.e_per_s).map_err(|e| input("dome planning", e))?;
     let (what, light) = if dome.is_flash() { ("camera-array", "flash") } else { ("dome", "LED") };
     on_line(&format!(
         "{what} plan: {} {light}{} x {} views; {}",
@@ -285,6 +291,7 @@ pub fn run_controlled(
         v.cameras.len() * v.rotations.len(),
         schedule.reason
     ));
+    on_line(&brightness.line());
 
     // Dataset: light = LED (or flash), view = rotation x cameras + camera over all the rig's
     // cameras (a camera array has one rotation: view = camera).
@@ -300,7 +307,6 @@ pub fn run_controlled(
     }
     // The processing model before the dataset: a missing calibration stops the run with
     // nothing written.
-    let rig_path = (!v.plan.rig.config.starts_with("builtin:")).then(|| base.join(&v.plan.rig.config));
     let (processing, calibration, notes) = dome_processing(&rig, rig_path.as_deref(), size)?;
     for n in &notes {
         on_line(n);
@@ -403,13 +409,10 @@ pub fn run_controlled(
     });
 
     let rt = crate::virtual_time_runtime()?;
-    let cameras = v.cameras.clone();
     // The consumer's latest `TexturesCommitted` (cumulative, so the newest says all: a full
     // queue of one keeps the latest).
     let (commit_tx, mut commit_rx) = tokio::sync::watch::channel::<Option<RunEvent>>(None);
-    // The simulator's truth, for the report's error figures only (a real rig has none).
-    let truth = Some(TruthProbe::new(scene.clone(), &faults));
-    let mut state = Consumer::new(&v, &schedule, &processing, &code, &dataset, truth, view_id);
+    let mut state = Consumer::new(&v, &schedule, &processing, &code, &dataset, view_id);
     state.commits = Some(Committing {
         tx: commit_tx,
         textures: textures_before,
@@ -419,22 +422,17 @@ pub fn run_controlled(
         stage_s: BTreeMap::new(),
     });
     let outcome: Result<(EngineOutcome, Stop), RunError> = rt.block_on(async {
-        let clock = TokioClock::shared();
-        // Emulated devices (serial turntable and LED controller) are the simulator's behind
-        // their firmware, driven by the real backends (docs/serial.md).
-        let mut sim_cfg = rig.clone();
-        sim_cfg.devices = rig.devices.simulated().ok_or_else(|| {
-            RunError::Rig("a device is real hardware: only simulated and emulated domes run plans so far".into())
-        })?;
-        let rig_dev =
-            DomeRig::build(&sim_cfg, &faults, clock.clone(), scene.clone(), &cameras, RenderOptions::default())
-                .map_err(|e| RunError::Rig(e.to_string()))?;
-        let sources = rig_dev.sources.clone();
-        let (turntable, leds, _firmware) =
-            crate::emulated::connect_dome(&rig.devices, rig_dev.turntable, rig_dev.led_array, clock.clone())
-                .await
-                .map_err(RunError::Rig)?;
-        let mut devices = DomeDevices { turntable, leds, cameras: rig_dev.cameras, clock };
+        let opened = backend
+            .open_dome(DomeOpenRequest {
+                rig: &rig,
+                plan: &v,
+                plan_file: &req.plan_path,
+                fault_scenario: &fault_name,
+            })
+            .await?;
+        let OpenedDome { mut devices, truth, links: _links } = opened;
+        // The truth behind the frames, for the report's error figures only (a real rig has none).
+        state.truth = truth;
         if let Some(t) = devices.turntable.as_mut() {
             t.home(MoveOptions::default()).await.map_err(|e| RunError::Rig(e.to_string()))?;
         }
@@ -452,7 +450,7 @@ pub fn run_controlled(
         };
         let consume = async {
             while let Some(cap) = rx.recv().await {
-                state.take(cap, &sources)?;
+                state.take(cap)?;
             }
             Ok::<(), RunError>(())
         };
@@ -521,6 +519,7 @@ pub fn run_controlled(
         }),
     );
     extra.insert("calibration".into(), calibration);
+    extra.insert("planning_brightness".into(), json!({ "e_per_s": brightness.e_per_s, "source": brightness.source }));
     // Like the gonio report: every texture of the dataset, and this session's apart.
     extra.insert("captures_this_session".into(), json!(s.textures));
     if let (Some(RunOutcome::Paused { .. }), Some(step)) = (&s.stopped, stop.paused_step) {
@@ -737,31 +736,6 @@ fn dome_processing(
     Ok((processing, record, notes))
 }
 
-/// The simulator's truth, consulted only for the report's error figures (texture error,
-/// measured multiplexing gain); a run on a real rig has none.
-struct TruthProbe {
-    scene: Arc<DomeScene>,
-    /// LEDs the fault scenario holds on (the reference frames saw them too).
-    stuck_on: Vec<usize>,
-}
-
-impl TruthProbe {
-    fn new(scene: Arc<DomeScene>, faults: &FaultScenario) -> TruthProbe {
-        let stuck_on = faults
-            .stuck_leds
-            .iter()
-            .filter(|s| s.state == btfrig_sim::faults::StuckState::On)
-            .map(|s| s.index)
-            .collect();
-        TruthProbe { scene, stuck_on }
-    }
-
-    /// The true texture of camera `c`, turntable `rad`, LED `j`.
-    fn texture(&self, c: usize, rad: f64, j: usize, size: usize) -> Vec<[f32; 3]> {
-        self.scene.ground_truth(c, rad, j, size).data
-    }
-}
-
 /// The pipeline side of a dome run: collects frames per view group, demultiplexes, stores.
 struct Consumer<'a, F: Fn(usize, u32) -> u32> {
     v: &'a ValidatedDomePlan,
@@ -769,7 +743,8 @@ struct Consumer<'a, F: Fn(usize, u32) -> u32> {
     processing: &'a DomeProcessing,
     code: &'a GroupCode,
     dataset: &'a Dataset,
-    truth: Option<TruthProbe>,
+    /// The truth behind the frames, consulted only for the report's error figures.
+    truth: Option<Arc<dyn DomeTruthProbe>>,
     view_id: F,
     stacks: HashMap<usize, GroupStack>,
     references: Vec<(usize, f64, Vec<f32>)>,
@@ -799,7 +774,6 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
         processing: &'a DomeProcessing,
         code: &'a GroupCode,
         dataset: &'a Dataset,
-        truth: Option<TruthProbe>,
         view_id: F,
     ) -> Self {
         Consumer {
@@ -808,7 +782,7 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
             processing,
             code,
             dataset,
-            truth,
+            truth: None,
             view_id,
             stacks: HashMap::new(),
             references: Vec::new(),
@@ -819,7 +793,7 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
         }
     }
 
-    fn take(&mut self, cap: DomeCapture, sources: &[Arc<btfrig_sim::dome::DomeFrameSource>]) -> Result<(), RunError> {
+    fn take(&mut self, cap: DomeCapture) -> Result<(), RunError> {
         let leds = self.schedule.leds;
         let frames_per_group = self.code.frames(leds);
         let step = cap.step;
@@ -830,7 +804,7 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
                 let sig = signal_dn(f, self.processing.electrons_per_dn, self.processing.dark_e_per_s);
                 self.references.push((j, f.meta.exposure_s, sig));
                 if self.references.len() == self.v.plan.dome.reference_leds.min(leds) {
-                    self.measure(&sources[0], step.turntable_rad)?;
+                    self.measure(self.v.cameras[0], step.turntable_rad)?;
                 }
             }
             DomeShot::Pattern(p) => {
@@ -982,21 +956,21 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
     }
 
     /// The measured gain and the reference textures' error (module docs).
-    fn measure(&mut self, source: &btfrig_sim::dome::DomeFrameSource, rad: f64) -> Result<(), RunError> {
+    fn measure(&mut self, c: usize, rad: f64) -> Result<(), RunError> {
         let Some((mosaics, cols, exp, gain)) = self.first_group.as_ref() else { return Ok(()) };
         let Some(probe) = self.truth.as_ref() else { return Ok(()) };
         let leds = self.schedule.leds;
-        let c = source.camera();
+        let stuck_on = probe.stuck_on();
         let (mut g, mut ref_err, mut mux_err) = (Vec::new(), Vec::new(), Vec::new());
         for (j, ref_exp, sig) in &self.references {
             let mut single = vec![0.0; leds];
             single[*j] = 1.0;
-            let truth_mux = source.noise_free_dn(rad, &single, *exp, *gain);
+            let truth_mux = probe.noise_free_dn(c, rad, &single, *exp, *gain);
             // The reference frame saw the stuck LEDs too.
-            for &s in &probe.stuck_on {
+            for &s in &stuck_on {
                 single[s] = 1.0;
             }
-            let truth_ref = source.noise_free_dn(rad, &single, *ref_exp, *gain);
+            let truth_ref = probe.noise_free_dn(c, rad, &single, *ref_exp, *gain);
             let demuxed = &mosaics[j * cols..(j + 1) * cols];
             g.push(snr(demuxed, &truth_mux) / snr(sig, &truth_ref));
             let tex =

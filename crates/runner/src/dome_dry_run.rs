@@ -21,7 +21,6 @@ use btfrig_core::plan::dome::{MultiplexPolicy, ValidatedDomePlan};
 use btfrig_core::profile::move_time_s;
 use btfrig_mux::{Mode, Prediction};
 use btfrig_planner::dome::{plan_dome, DomeSchedule, DomeShot};
-use btfrig_render::dome_scene::DomeScene;
 
 use crate::RunError;
 
@@ -30,6 +29,52 @@ pub fn is_dome_plan(text: &str) -> bool {
     // Too long to parse: the gonio plan parser refuses it, naming the limit.
     text.len() <= btfrig_core::plan::MAX_PLAN_BYTES
         && toml::from_str::<toml::Table>(text).is_ok_and(|t| t.contains_key("dome"))
+}
+
+/// How bright the planner takes a light of nominal power to be (`plan_dome`'s
+/// `led_e_per_s`): it chooses the capture mode and, against saturation, the exposure.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlanningBrightness {
+    /// e-/s per photosite (e- per flash) of a white reflector facing a light of nominal power.
+    pub e_per_s: f64,
+    /// Where it comes from: the LED calibration file, or the rig config's nominal value.
+    pub source: String,
+}
+
+impl PlanningBrightness {
+    /// The line a dry run and a run print.
+    pub fn line(&self) -> String {
+        format!("planned for lights of {:.4} e-/s at a white reflector ({})", self.e_per_s, self.source)
+    }
+}
+
+/// The planner's brightness of a dome rig's lights, never the simulator's: the
+/// `reference_rate` of the LED calibration `[dome] led_calibration` names (resolved against
+/// `rig_path`'s directory), else the rig config's `[dome] nominal_signal_e_per_s`. With
+/// neither, nothing says how bright the lights are: an error naming both settings.
+pub fn planning_brightness(rig: &RigConfig, rig_path: Option<&Path>) -> Result<PlanningBrightness, RunError> {
+    let input = |e: String| RunError::Input { what: "dome planning".into(), message: e };
+    let dome = rig.require_dome("dome planning").map_err(|e| input(e.to_string()))?;
+    let leds = btfrig_calibrate::leds::processing_leds(rig, rig_path)
+        .map_err(|e| RunError::Input { what: "LED calibration".into(), message: e.to_string() })?;
+    match (leds, dome.nominal_signal_e_per_s) {
+        (Some(f), _) => Ok(PlanningBrightness {
+            e_per_s: f.reference_rate,
+            source: format!(
+                "reference_rate of the LED calibration {}",
+                dome.led_calibration.as_deref().unwrap_or_default()
+            ),
+        }),
+        (None, Some(n)) => Ok(PlanningBrightness {
+            e_per_s: n,
+            source: "no LED calibration: the rig config's nominal [dome] nominal_signal_e_per_s".into(),
+        }),
+        (None, None) => Err(input(format!(
+            "the rig {} names no [dome] led_calibration and no [dome] nominal_signal_e_per_s, so the lights' \
+             brightness is unknown: name one (btfrig calibrate leds) or set the nominal value",
+            rig.rig.name
+        ))),
+    }
 }
 
 /// What a dome plan would do.
@@ -47,6 +92,8 @@ pub struct DomeDryRun {
     pub rotations: Vec<u32>,
     /// The schedule (mode, reason, candidates, patterns, steps).
     pub schedule: DomeSchedule,
+    /// The lights' brightness it was planned for, and where that comes from.
+    pub brightness: PlanningBrightness,
     /// Frames per camera (pattern and reference frames).
     pub frames: usize,
     /// Textures the run stores (lights x views).
@@ -164,11 +211,11 @@ fn forcing(v: &ValidatedDomePlan, mode: Mode) -> ValidatedDomePlan {
 /// relative rig configs).
 pub fn dry_run(text: &str, file: &Path) -> Result<DomeDryRun, RunError> {
     let (v, rig, _) = crate::plan::load_dome(text, file)?;
-    let material = crate::plan::dome_material(v.plan.rig.material.as_deref(), file)?;
-    let scene = DomeScene::new(&rig, &material)
-        .map_err(|e| RunError::Input { what: "dome scene".into(), message: e.to_string() })?;
+    let rig_path = (!v.plan.rig.config.starts_with("builtin:"))
+        .then(|| file.parent().unwrap_or(Path::new(".")).join(&v.plan.rig.config));
+    let brightness = planning_brightness(&rig, rig_path.as_deref())?;
     let planning = |v: &ValidatedDomePlan| {
-        plan_dome(&rig, v, scene.nominal_irradiance())
+        plan_dome(&rig, v, brightness.e_per_s)
             .map_err(|e| RunError::Input { what: "dome planning".into(), message: e.to_string() })
     };
     let schedule = planning(&v)?;
@@ -218,6 +265,7 @@ pub fn dry_run(text: &str, file: &Path) -> Result<DomeDryRun, RunError> {
         group_bytes: group_bytes(&rig, v.cameras.len(), &schedule),
         candidates,
         schedule,
+        brightness,
     })
 }
 
@@ -270,6 +318,7 @@ impl DomeDryRun {
                 self.textures
             ),
             format!("mode {}: {}", s.mode.describe(), s.reason),
+            self.brightness.line(),
         ];
         out.push("noise model candidates (equal total exposure time):".into());
         out.extend(candidate_lines(self).into_iter().map(|l| format!("  {l}")));

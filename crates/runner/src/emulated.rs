@@ -595,11 +595,17 @@ pub struct Probed {
     pub health: String,
 }
 
+/// Opens the simulated devices of a rig config whose devices are all simulated, on a clock:
+/// what [`probe`] puts behind emulated firmware (the simulated backend provides it,
+/// `btfrig_sim_backend::probe`).
+pub type OpenSimulated<'a> = &'a dyn Fn(&btfrig_core::config::RigConfig, SharedClock) -> Result<SimDevices, String>;
+
 /// Asks every device of `rig` for its identity and health through its real backend:
-/// emulated devices behind their firmware on a pty (started here), real serial controllers
-/// on the ports their `link.port` names (at `link.baud`). Simulated devices answer as
-/// themselves. Builds its own runtime: call from a plain thread.
-pub fn probe(rig: &btfrig_core::config::RigConfig) -> Result<Vec<Probed>, String> {
+/// emulated devices behind their firmware on a pty (started here) in front of the simulated
+/// devices `open` builds, real serial controllers on the ports their `link.port` names (at
+/// `link.baud`). Simulated devices answer as themselves. Builds its own runtime: call from a
+/// plain thread.
+pub fn probe(rig: &btfrig_core::config::RigConfig, open: OpenSimulated<'_>) -> Result<Vec<Probed>, String> {
     check_probe(&rig.devices)?;
     // Real controllers are probed on their ports; the simulated device built from the same
     // options stands in for them in the emulated rig and lends its configured limits.
@@ -625,11 +631,7 @@ pub fn probe(rig: &btfrig_core::config::RigConfig) -> Result<Vec<Probed>, String
     let rt = crate::virtual_time_runtime().map_err(|e| e.to_string())?;
     rt.block_on(async {
         let clock: SharedClock = Arc::new(btfrig_hw::ScaledClock::new(1e-3).map_err(|e| e.to_string())?);
-        let source = Arc::new(btfrig_sim::FlatFrameSource::new(8, 6, 100.0));
-        let sim =
-            btfrig_sim::SimRig::from_rig_config(&sim_cfg, &btfrig_sim::FaultScenario::none(), clock.clone(), source)
-                .map_err(|e| e.to_string())?;
-        let btfrig_sim::SimRig { robot, rail, turntable, lamp, led_array, camera, .. } = sim;
+        let SimDevices { robot, rail, turntable, lamp, led_array, camera } = open(&sim_cfg, clock.clone())?;
         let limits = ConfiguredLimits {
             robot: robot.joint_limits(),
             rail: rail.limits(),

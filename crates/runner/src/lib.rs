@@ -754,22 +754,20 @@ fn run_capture(
     let started_unix_s =
         std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs_f64()).unwrap_or(0.0);
     let file = req.plan_path.as_path();
-    let (plan, v) = plan::load_text(&req.plan_text, file)?;
+    let backends = req.backends.as_ref().map_or_else(backend::installed, |b| b.0.clone());
+    let (plan, v) = plan::load_text_with(&req.plan_text, file, &backends)?;
     let list = v.capture_list();
     if list.captures.is_empty() {
         return Err(RunError::Empty { plan: file.into() });
     }
     // Checked before anything is created; the device backend loads them again.
-    let _faults = match (&req.faults, &plan.run.fault_scenario) {
-        (Some(name), _) => plan::fault_scenario(name, Path::new("."), "--faults")?,
-        (None, Some(name)) => {
-            plan::fault_scenario(name, file.parent().unwrap_or(Path::new(".")), "run.fault_scenario")?
-        }
-        (None, None) => btfrig_sim::FaultScenario::none(),
+    let faults = match (&req.faults, &plan.run.fault_scenario) {
+        (Some(name), _) => Some((name.as_str(), Path::new("."), "--faults")),
+        (None, Some(name)) => Some((name.as_str(), file.parent().unwrap_or(Path::new(".")), "run.fault_scenario")),
+        (None, None) => None,
     };
-    let _material = plan::material(&plan, &v, file)?;
-    let backends = req.backends.as_ref().map_or_else(backend::installed, |b| b.0.clone());
-    backends.for_rig(&v.rig)?;
+    let material = plan::material_name(&plan, &v, file);
+    backends.for_rig(&v.rig)?.check_scene(&backend::SceneOptions { material: material.as_deref(), faults })?;
     let exposure_s = plan::exposure_s(&plan, &v, file, req.light.as_ref())?;
     let hdr = match &v.exposure {
         btfrig_core::plan::ExposurePolicy::Auto { hdr, .. } if hdr.is_on() => Some(hdr.clone()),

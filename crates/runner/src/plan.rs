@@ -1,5 +1,6 @@
-//! Loading a plan and what it names: the rig config, the material, the fault scenario, the
-//! exposure; and the dataset manifest of a plan. Shared by `btfrig run`, `btfrig plan` and
+//! Loading a plan and what it names: the rig config, the material and fault scenario (which
+//! the device backend checks: they are a simulated rig's options), the exposure; and the
+//! dataset manifest of a plan. Shared by `btfrig run`, `btfrig plan` and
 //! the daemon.
 
 use std::collections::BTreeMap;
@@ -10,26 +11,12 @@ use btfrig_core::plan::dome::{DomePlan, ValidatedDomePlan};
 use btfrig_core::plan::{
     CaptureList, ExposurePolicy, MaterialRef, OutputFormat, Plan, PlanContext, SkipReason, ValidatedPlan, BUILTIN_RIGS,
 };
-use btfrig_render::material::{MaterialSpec, BUILTIN_MATERIALS};
-use btfrig_sim::FaultScenario;
 use btfrig_store::{
     DirectionDeg, Manifest, RigInfo, Samplings, SkippedStep, StepId, TextureFormat, TextureRegion, TextureSpec,
 };
 
+use crate::backend::{BackendRegistry, SceneOptions};
 use crate::RunError;
-
-/// The material used when a plan names none: deep relief, so that shadowing and masking show.
-pub const DEFAULT_MATERIAL: &str = "corduroy";
-
-/// The embedded fault scenarios (`sim/faults/*.toml`), by the names plans and `--faults` use.
-pub const FAULT_FILES: &[(&str, &str)] = &[
-    ("none", include_str!("../../../sim/faults/none.toml")),
-    ("flaky", include_str!("../../../sim/faults/flaky.toml")),
-    ("lamp-drift", include_str!("../../../sim/faults/lamp-drift.toml")),
-    ("stuck-led", include_str!("../../../sim/faults/stuck-led.toml")),
-    ("robot-fault", include_str!("../../../sim/faults/robot-fault.toml")),
-    ("hidden-markers", include_str!("../../../sim/faults/hidden-markers.toml")),
-];
 
 fn read(path: &Path) -> Result<String, RunError> {
     std::fs::read_to_string(path).map_err(|source| RunError::Read { path: path.to_path_buf(), source })
@@ -40,13 +27,18 @@ pub fn load(file: &Path) -> Result<(Plan, ValidatedPlan), RunError> {
     load_text(&read(file)?, file)
 }
 
+/// Parses and validates plan text with the process's device backends ([`load_text_with`]).
+pub fn load_text(text: &str, file: &Path) -> Result<(Plan, ValidatedPlan), RunError> {
+    load_text_with(text, file, &crate::backend::installed())
+}
+
 /// Parses and validates plan text; `file` names it in errors and anchors its relative paths.
 /// The rig config it names is loaded first so the validation can check that the rig
-/// realises the plan's samplings; its simulated devices' options are checked as building
-/// them would ([`btfrig_sim::check_sim_options`]), and a material file the plan names is
-/// read and parsed, so that everything a run would trip over later is refused here, before
-/// a dataset directory exists.
-pub fn load_text(text: &str, file: &Path) -> Result<(Plan, ValidatedPlan), RunError> {
+/// realises the plan's samplings; the backend of `backends` that opens the rig checks its
+/// device options as opening them would, and a material file the plan names (read and
+/// parsed by that backend), so that everything a run would trip over later is refused here,
+/// before a dataset directory exists.
+pub fn load_text_with(text: &str, file: &Path, backends: &BackendRegistry) -> Result<(Plan, ValidatedPlan), RunError> {
     let plan = Plan::from_toml(text, &file.display().to_string())?;
     let mut ctx = PlanContext::with_builtin_names();
     if let Some(rig) = plan.rig_config_path(file) {
@@ -58,18 +50,26 @@ pub fn load_text(text: &str, file: &Path) -> Result<(Plan, ValidatedPlan), RunEr
         e.origin = file.display().to_string();
         e
     })?;
-    check_rig_options(&validated.rig, &plan.rig.config)?;
+    check_rig_with(&validated.rig, &plan.rig.config, backends)?;
     if matches!(validated.material, Some(MaterialRef::File(_))) {
-        material(&plan, &validated, file)?;
+        let backend = backends.for_rig(&validated.rig)?;
+        backend.check_scene(&SceneOptions { material: material_name(&plan, &validated, file).as_deref(), faults: None })?;
     }
     Ok((plan, validated))
 }
 
-/// The rig config's simulated device options, checked without building the rig (`btfrig
-/// serve --rig` checks its rig with this at start-up, as plans check theirs).
+/// The rig config's device options, checked by the process's backend for the rig without
+/// opening the devices (`btfrig serve --rig` checks its rig with this at start-up, as plans
+/// check theirs); `source` names the config in errors.
 pub fn check_rig_options(rig: &RigConfig, source: &str) -> Result<(), RunError> {
-    btfrig_sim::check_sim_options(&rig.devices)
-        .map_err(|e| RunError::Input { what: format!("rig.config {source:?}"), message: e.to_string() })
+    check_rig_with(rig, source, &crate::backend::installed())
+}
+
+fn check_rig_with(rig: &RigConfig, source: &str, backends: &BackendRegistry) -> Result<(), RunError> {
+    backends
+        .for_rig(rig)?
+        .check_rig(rig)
+        .map_err(|message| RunError::Input { what: format!("rig.config {source:?}"), message })
 }
 
 /// Loads and validates a dome plan (`file` names it in errors and resolves a relative rig
@@ -96,7 +96,9 @@ pub fn load_dome(text: &str, file: &Path) -> Result<(ValidatedDomePlan, RigConfi
     check_rig_options(&rig, &name)?;
     let v = plan.validate(&rig).map_err(|e| dome_input(&origin, e))?;
     if let Some(m) = v.plan.rig.material.as_deref().filter(|m| m.ends_with(".toml")) {
-        dome_material(Some(m), file)?;
+        let backend = crate::backend::installed().for_rig(&rig)?;
+        let material = dome_material_name(Some(m), file);
+        backend.check_scene(&SceneOptions { material: material.as_deref(), faults: None })?;
     }
     Ok((v, rig, rig_text))
 }
@@ -105,48 +107,25 @@ fn dome_input(what: &str, e: impl std::fmt::Display) -> RunError {
     RunError::Input { what: what.into(), message: e.to_string() }
 }
 
-/// Loads an embedded material by name, or a material file if `name` ends in `.toml`
-/// (default: [`DEFAULT_MATERIAL`]).
-pub fn load_material(name: Option<&str>) -> Result<MaterialSpec, RunError> {
-    let name = name.unwrap_or(DEFAULT_MATERIAL);
-    if name.ends_with(".toml") {
-        let text = read(Path::new(name)).map_err(|e| RunError::Input {
-            what: format!("rig.material {name:?}"),
-            message: format!("{e}; allowed: an existing material file (relative to the plan) or an embedded name"),
-        })?;
-        return MaterialSpec::from_toml(&text, name)
-            .map_err(|e| RunError::Input { what: format!("material {name}"), message: e.to_string() });
-    }
-    MaterialSpec::builtin(name).map_err(|e| {
-        let names: Vec<&str> = BUILTIN_MATERIALS.iter().map(|(n, _)| *n).collect();
-        RunError::Input {
-            what: format!("material {name:?}"),
-            message: format!("{e}; allowed: {} or a path ending in .toml", names.join(", ")),
-        }
-    })
-}
-
-/// The plan's material: an embedded name, a file next to the plan, or the default.
-pub fn material(plan: &Plan, v: &ValidatedPlan, file: &Path) -> Result<MaterialSpec, RunError> {
+/// The plan's material as the device backend loads it: an embedded name, a material file's
+/// path resolved against the plan's directory, or `None` (the backend's default).
+pub fn material_name(plan: &Plan, v: &ValidatedPlan, file: &Path) -> Option<String> {
     match &v.material {
-        Some(MaterialRef::Builtin(name)) => load_material(Some(name)),
-        Some(MaterialRef::File(_)) => {
-            let path = plan.material_path(file).expect("a material file reference has a path");
-            load_material(Some(&path.display().to_string()))
-        }
-        None => load_material(None),
+        Some(MaterialRef::Builtin(name)) => Some(name.clone()),
+        Some(MaterialRef::File(_)) => plan.material_path(file).map(|p| p.display().to_string()),
+        None => None,
     }
 }
 
-/// A dome plan's `[rig] material`: an embedded name, a material file resolved against the
-/// directory of the plan file `plan_path` (as a gonio plan's, [`material`]), or the default.
-pub fn dome_material(name: Option<&str>, plan_path: &Path) -> Result<MaterialSpec, RunError> {
+/// A dome plan's `[rig] material` as the device backend loads it: an embedded name, a
+/// material file (`.toml`) resolved against the directory of the plan file `plan_path` (as a
+/// gonio plan's, [`material_name`]), or `None` (the backend's default).
+pub fn dome_material_name(name: Option<&str>, plan_path: &Path) -> Option<String> {
     match name {
         Some(file) if file.ends_with(".toml") => {
-            let path = plan_path.parent().unwrap_or(Path::new(".")).join(file);
-            load_material(Some(&path.display().to_string()))
+            Some(plan_path.parent().unwrap_or(Path::new(".")).join(file).display().to_string())
         }
-        _ => load_material(name),
+        n => n.map(String::from),
     }
 }
 
@@ -206,23 +185,6 @@ pub fn skip_map(skipped: &[((usize, usize), SkipReason)]) -> BTreeMap<String, u6
     skip_counts(skipped).into_iter().map(|(k, n)| (k, n as u64)).collect()
 }
 
-/// A fault scenario by name: an embedded one ([`FAULT_FILES`]) or a TOML file, relative to
-/// `base` (the plan's directory for the plan's own field, the working directory for an
-/// override). `field` names the setting in errors.
-pub fn fault_scenario(name: &str, base: &Path, field: &str) -> Result<FaultScenario, RunError> {
-    let bad = |message: String| RunError::Input { what: format!("{field} {name:?}"), message };
-    if let Some((_, text)) = FAULT_FILES.iter().find(|(n, _)| *n == name) {
-        return FaultScenario::from_toml(text, &format!("<embedded sim/faults/{name}.toml>"))
-            .map_err(|e| bad(e.to_string()));
-    }
-    let path = base.join(name);
-    let text = std::fs::read_to_string(&path).map_err(|e| {
-        let names: Vec<&str> = FAULT_FILES.iter().map(|(n, _)| *n).collect();
-        bad(format!("cannot read {}: {e}; allowed: {} or a scenario file", path.display(), names.join(", ")))
-    })?;
-    FaultScenario::from_toml(&text, &path.display().to_string()).map_err(|e| bad(e.to_string()))
-}
-
 /// The manifest of a new dataset of this plan.
 pub fn manifest(
     plan: &Plan,
@@ -268,26 +230,4 @@ pub fn manifest(
     m.textures = v.outputs.textures;
     m.texture_previews = v.outputs.texture_previews;
     Ok(m)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn embedded_fault_files_are_the_names_plans_may_use_and_all_parse() {
-        let mut ours: Vec<&str> = FAULT_FILES.iter().map(|(n, _)| *n).collect();
-        let mut core: Vec<&str> = btfrig_core::plan::BUILTIN_FAULT_SCENARIOS.to_vec();
-        ours.sort_unstable();
-        core.sort_unstable();
-        assert_eq!(ours, core);
-        for (name, _) in FAULT_FILES {
-            fault_scenario(name, Path::new("/nonexistent"), "--faults").unwrap();
-        }
-        let e = fault_scenario("nosuch", Path::new("/nonexistent"), "--faults").unwrap_err().to_string();
-        assert!(
-            e.contains("--faults \"nosuch\"") && e.contains("robot-fault") && e.contains("/nonexistent/nosuch"),
-            "{e}"
-        );
-    }
 }

@@ -65,7 +65,7 @@ fn probe_opens_the_ports_a_rig_config_names() {
     let rig =
         rig_with_links(&[("robot", link(&robot_port, 115_200)), ("rail", rail_link), ("lamp", link(&lamp_port, 9600))])
             .unwrap();
-    let probed = emulated::probe(&rig).unwrap();
+    let probed = btfrig_sim_backend::probe(&rig).unwrap();
     for p in &probed {
         println!("{:<6} {:<6} {:?} {:?}: {}", p.role, p.kind, p.link, p.info, p.health);
     }
@@ -89,7 +89,7 @@ fn probe_opens_the_ports_a_rig_config_names() {
     // A port with nothing behind it is that device's health error; the others still answer.
     let rig =
         rig_with_links(&[("robot", link(&dir.join("unplugged"), 115_200)), ("lamp", link(&lamp_port, 9600))]).unwrap();
-    let probed = emulated::probe(&rig).unwrap();
+    let probed = btfrig_sim_backend::probe(&rig).unwrap();
     let robot = probed.iter().find(|p| p.role == "robot").unwrap();
     assert!(robot.health.starts_with("error:") && robot.health.contains("unplugged"), "{robot:?}");
     assert_eq!(probed.iter().find(|p| p.role == "lamp").unwrap().health, "Ok");

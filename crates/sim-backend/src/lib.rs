@@ -5,18 +5,32 @@
 //! the scene (the plan's material on the holder), the rendered frame source (with the fault
 //! scenario's hidden markers), the simulated devices on virtual time, puts emulated firmware
 //! in front where asked (`btfrig_runner::emulated`), and hands the run the devices and the
-//! scene's truth probe (`btfrig_sim::truth::SceneTruth`), which only the report's error
-//! figures read. [`install`] registers it as the process's backend.
+//! scene's truth probe (`btfrig_sim::truth::SceneTruth`; a dome's: [`DomeSceneTruth`]), which
+//! only the report's error figures read. It checks the simulator's options of rigs and plans
+//! (device options, materials, fault scenarios) for the runner, which knows no simulator
+//! type, photographs the simulated colour chart of a colour calibration
+//! (`btfrig_sim_calibration`), and opens the stand-ins `btfrig hw probe` puts behind emulated
+//! firmware ([`probe`]). [`install`] registers it as the process's backend.
 #![warn(missing_docs)]
 
 use std::path::Path;
 use std::sync::Arc;
 
-use btfrig_hw::{ScaledClock, SharedClock};
+use btfrig_calibrate::color::{ColorCalibration, ColorPlan};
+use btfrig_core::camera::CameraModel;
+use btfrig_core::config::RigConfig;
+use btfrig_engine::dome::DomeDevices;
+use btfrig_hw::truth::DomeTruthProbe;
+use btfrig_hw::{ScaledClock, SharedClock, TokioClock};
+use btfrig_render::dome_scene::DomeScene;
+use btfrig_render::material::{MaterialSpec, BUILTIN_MATERIALS};
 use btfrig_render::renderer::RenderOptions;
 use btfrig_render::rig_scene::RigScene;
-use btfrig_runner::backend::{BackendRegistry, GonioOpenRequest, OpenedGonio, RigBackend};
+use btfrig_runner::backend::{
+    BackendRegistry, DomeOpenRequest, GonioOpenRequest, OpenedDome, OpenedGonio, RigBackend, SceneOptions,
+};
 use btfrig_runner::{emulated, plan, RunError};
+use btfrig_sim::dome::{DomeFrameSource, DomeRig};
 use btfrig_sim::truth::SceneTruth;
 use btfrig_sim::{FaultScenario, RenderedFrameSource, SimRig};
 
@@ -45,15 +59,136 @@ fn sim_clock() -> SharedClock {
     Arc::new(ScaledClock::new(1e-3).expect("a positive, finite speed"))
 }
 
+/// The material used when a plan names none: deep relief, so that shadowing and masking show.
+pub const DEFAULT_MATERIAL: &str = "corduroy";
+
+/// The embedded fault scenarios (`sim/faults/*.toml`), by the names plans and `--faults` use
+/// (`btfrig_core::plan::BUILTIN_FAULT_SCENARIOS`).
+pub const FAULT_FILES: &[(&str, &str)] = &[
+    ("none", include_str!("../../../sim/faults/none.toml")),
+    ("flaky", include_str!("../../../sim/faults/flaky.toml")),
+    ("lamp-drift", include_str!("../../../sim/faults/lamp-drift.toml")),
+    ("stuck-led", include_str!("../../../sim/faults/stuck-led.toml")),
+    ("robot-fault", include_str!("../../../sim/faults/robot-fault.toml")),
+    ("hidden-markers", include_str!("../../../sim/faults/hidden-markers.toml")),
+];
+
+/// Loads an embedded material by name, or a material file if `name` ends in `.toml`
+/// (default: [`DEFAULT_MATERIAL`]).
+pub fn load_material(name: Option<&str>) -> Result<MaterialSpec, RunError> {
+    let name = name.unwrap_or(DEFAULT_MATERIAL);
+    if name.ends_with(".toml") {
+        let text = std::fs::read_to_string(name)
+            .map_err(|source| RunError::Read { path: name.into(), source })
+            .map_err(|e| RunError::Input {
+                what: format!("rig.material {name:?}"),
+                message: format!("{e}; allowed: an existing material file (relative to the plan) or an embedded name"),
+            })?;
+        return MaterialSpec::from_toml(&text, name)
+            .map_err(|e| RunError::Input { what: format!("material {name}"), message: e.to_string() });
+    }
+    MaterialSpec::builtin(name).map_err(|e| {
+        let names: Vec<&str> = BUILTIN_MATERIALS.iter().map(|(n, _)| *n).collect();
+        RunError::Input {
+            what: format!("material {name:?}"),
+            message: format!("{e}; allowed: {} or a path ending in .toml", names.join(", ")),
+        }
+    })
+}
+
+/// A fault scenario by name: an embedded one ([`FAULT_FILES`]) or a TOML file, relative to
+/// `base` (the plan's directory for the plan's own field, the working directory for an
+/// override). `field` names the setting in errors.
+pub fn fault_scenario(name: &str, base: &Path, field: &str) -> Result<FaultScenario, RunError> {
+    let bad = |message: String| RunError::Input { what: format!("{field} {name:?}"), message };
+    if let Some((_, text)) = FAULT_FILES.iter().find(|(n, _)| *n == name) {
+        return FaultScenario::from_toml(text, &format!("<embedded sim/faults/{name}.toml>"))
+            .map_err(|e| bad(e.to_string()));
+    }
+    let path = base.join(name);
+    let text = std::fs::read_to_string(&path).map_err(|e| {
+        let names: Vec<&str> = FAULT_FILES.iter().map(|(n, _)| *n).collect();
+        bad(format!("cannot read {}: {e}; allowed: {} or a scenario file", path.display(), names.join(", ")))
+    })?;
+    FaultScenario::from_toml(&text, &path.display().to_string()).map_err(|e| bad(e.to_string()))
+}
+
 /// The fault scenario of a request: the override, the plan's, or none.
 fn faults(req: &GonioOpenRequest<'_>) -> Result<FaultScenario, RunError> {
     match (req.fault_override, &req.plan.run.fault_scenario) {
-        (Some(name), _) => plan::fault_scenario(name, Path::new("."), "--faults"),
+        (Some(name), _) => fault_scenario(name, Path::new("."), "--faults"),
         (None, Some(name)) => {
-            plan::fault_scenario(name, req.plan_file.parent().unwrap_or(Path::new(".")), "run.fault_scenario")
+            fault_scenario(name, req.plan_file.parent().unwrap_or(Path::new(".")), "run.fault_scenario")
         }
         (None, None) => Ok(FaultScenario::none()),
     }
+}
+
+/// The simulated devices of `rig` (every device simulated), rendering nothing: the stand-ins
+/// `btfrig hw probe` asks through emulated firmware ([`probe`]).
+fn stand_ins(rig: &RigConfig, clock: SharedClock) -> Result<emulated::SimDevices, String> {
+    let source = Arc::new(btfrig_sim::FlatFrameSource::new(8, 6, 100.0));
+    let sim = SimRig::from_rig_config(rig, &FaultScenario::none(), clock, source).map_err(|e| e.to_string())?;
+    let SimRig { robot, rail, turntable, lamp, led_array, camera, .. } = sim;
+    Ok(emulated::SimDevices { robot, rail, turntable, lamp, led_array, camera })
+}
+
+/// `btfrig hw probe`: every device of `rig` asked for its identity and health through its
+/// real backend, emulated ones in front of the simulator's devices
+/// (`btfrig_runner::emulated::probe`). Builds its own runtime: call from a plain thread.
+pub fn probe(rig: &RigConfig) -> Result<Vec<emulated::Probed>, String> {
+    emulated::probe(rig, &stand_ins)
+}
+
+/// The truth behind a simulated dome's frames: the scene's ground truth and the cameras'
+/// own frame sources (whose single-light images are cached per view, so the truth costs no
+/// second rendering), and the LEDs the fault scenario holds on.
+pub struct DomeSceneTruth {
+    scene: Arc<DomeScene>,
+    sources: Vec<Arc<DomeFrameSource>>,
+    stuck_on: Vec<usize>,
+}
+
+impl DomeSceneTruth {
+    /// The truth of `scene` as the cameras of `sources` see it, under `faults`.
+    pub fn new(scene: Arc<DomeScene>, sources: Vec<Arc<DomeFrameSource>>, faults: &FaultScenario) -> Self {
+        let stuck_on = faults
+            .stuck_leds
+            .iter()
+            .filter(|s| s.state == btfrig_sim::faults::StuckState::On)
+            .map(|s| s.index)
+            .collect();
+        DomeSceneTruth { scene, sources, stuck_on }
+    }
+}
+
+impl DomeTruthProbe for DomeSceneTruth {
+    fn texture(&self, camera: usize, turntable_rad: f64, light: usize, size: usize) -> Vec<[f32; 3]> {
+        self.scene.ground_truth(camera, turntable_rad, light, size).data
+    }
+
+    fn noise_free_dn(&self, camera: usize, turntable_rad: f64, lights: &[f64], exposure_s: f64, gain: f64) -> Vec<f32> {
+        match self.sources.iter().find(|s| s.camera() == camera) {
+            Some(s) => s.noise_free_dn(turntable_rad, lights, exposure_s, gain),
+            // A camera the run did not open: rendered afresh.
+            None => DomeFrameSource::new(self.scene.clone(), camera, RenderOptions::default())
+                .noise_free_dn(turntable_rad, lights, exposure_s, gain),
+        }
+    }
+
+    fn stuck_on(&self) -> Vec<usize> {
+        self.stuck_on.clone()
+    }
+}
+
+/// The rig config with its emulated devices as the simulated ones behind the firmware; a
+/// real device is refused (`what`: the rig, for the message).
+fn simulated(rig: &RigConfig, what: &str) -> Result<RigConfig, RunError> {
+    let mut sim_cfg = rig.clone();
+    sim_cfg.devices = rig.devices.simulated().ok_or_else(|| {
+        RunError::Rig(format!("a device is real hardware: the simulated backend opens simulated and emulated {what}"))
+    })?;
+    Ok(sim_cfg)
 }
 
 #[async_trait::async_trait]
@@ -69,7 +204,7 @@ impl RigBackend for SimBackend {
     async fn open_gonio(&self, req: GonioOpenRequest<'_>) -> Result<OpenedGonio, RunError> {
         let rig = req.rig;
         let faults = faults(&req)?;
-        let material = plan::material(req.plan, req.validated, req.plan_file)?;
+        let material = load_material(plan::material_name(req.plan, req.validated, req.plan_file).as_deref())?;
         let scene = Arc::new(RigScene::new(rig, &material).map_err(|e| RunError::Rig(e.to_string()))?);
         let mut source: Arc<dyn btfrig_sim::FrameSource> =
             Arc::new(RenderedFrameSource::new(scene.clone(), RenderOptions::default()));
@@ -88,12 +223,7 @@ impl RigBackend for SimBackend {
         let truth = Arc::new(SceneTruth::new(scene, source));
         // An emulated device is the simulator's behind emulated firmware and its real backend.
         emulated::check(&rig.devices).map_err(RunError::Rig)?;
-        let mut sim_cfg = rig.clone();
-        sim_cfg.devices = rig.devices.simulated().ok_or_else(|| {
-            RunError::Rig(
-                "a device is real hardware: the simulated backend opens simulated and emulated devices".into(),
-            )
-        })?;
+        let sim_cfg = simulated(rig, "devices")?;
         let sim = SimRig::from_rig_config(&sim_cfg, &faults, sim_clock(), truth.clone())
             .map_err(|e| RunError::Rig(e.to_string()))?;
         let clock = sim.world.clock().clone();
@@ -105,5 +235,58 @@ impl RigBackend for SimBackend {
             firmware.inject(f).map_err(RunError::Rig)?;
         }
         Ok(OpenedGonio { robot, rail, lamp, camera, clock, truth: Some(truth), links: Box::new(firmware) })
+    }
+
+    async fn open_dome(&self, req: DomeOpenRequest<'_>) -> Result<OpenedDome, RunError> {
+        let rig = req.rig;
+        let base = req.plan_file.parent().unwrap_or(Path::new("."));
+        let faults = fault_scenario(req.fault_scenario, base, "fault_scenario")?;
+        let material = load_material(plan::dome_material_name(req.plan.plan.rig.material.as_deref(), req.plan_file).as_deref())?;
+        let scene = Arc::new(
+            DomeScene::new(rig, &material)
+                .map_err(|e| RunError::Input { what: "dome scene".into(), message: e.to_string() })?,
+        );
+        // Emulated devices (serial turntable and LED controller) are the simulator's behind
+        // their firmware, driven by the real backends (docs/serial.md).
+        let sim_cfg = simulated(rig, "domes")?;
+        let clock = TokioClock::shared();
+        let dome =
+            DomeRig::build(&sim_cfg, &faults, clock.clone(), scene.clone(), &req.plan.cameras, RenderOptions::default())
+                .map_err(|e| RunError::Rig(e.to_string()))?;
+        let truth = Arc::new(DomeSceneTruth::new(scene, dome.sources.clone(), &faults));
+        let (turntable, leds, firmware) =
+            emulated::connect_dome(&rig.devices, dome.turntable, dome.led_array, clock.clone())
+                .await
+                .map_err(RunError::Rig)?;
+        Ok(OpenedDome {
+            devices: DomeDevices { turntable, leds, cameras: dome.cameras, clock },
+            truth: Some(truth),
+            links: Box::new(firmware),
+        })
+    }
+
+    fn check_rig(&self, rig: &RigConfig) -> Result<(), String> {
+        btfrig_sim::check_sim_options(&rig.devices).map_err(|e| e.to_string())
+    }
+
+    fn check_scene(&self, options: &SceneOptions<'_>) -> Result<(), RunError> {
+        if let Some(m) = options.material {
+            load_material(Some(m))?;
+        }
+        if let Some((name, base, field)) = options.faults {
+            fault_scenario(name, base, field)?;
+        }
+        Ok(())
+    }
+
+    fn calibrate_color(
+        &self,
+        rig: &RigConfig,
+        camera: &CameraModel,
+        plan: &ColorPlan,
+        seed: u64,
+    ) -> Result<ColorCalibration, String> {
+        btfrig_sim_calibration::color::calibrate_color_simulated(rig, camera, plan, seed, |_| {})
+            .map_err(|e| e.to_string())
     }
 }

@@ -114,6 +114,13 @@ pub struct DomeConfig {
     /// textures are in relative units.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub led_calibration: Option<String>,
+    /// The brightness the planner assumes for a light of nominal power when the rig names no
+    /// `led_calibration` (whose `reference_rate` it takes otherwise): e-/s per photosite
+    /// (green, gain 1; e- per flash on a camera array) of a white Lambertian reflector lit
+    /// along its normal from the nominal light distance. A datasheet figure; it only chooses
+    /// the capture mode and exposure, never converts a texture.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub nominal_signal_e_per_s: Option<f64>,
 }
 
 impl DomeConfig {
@@ -121,6 +128,9 @@ impl DomeConfig {
     /// `led_rings`, a camera array `[dome.flash]` and no LED fields).
     pub fn validate(&self, kind: RigKind, errors: &mut Vec<ConfigError>) {
         let f = "dome";
+        if let Some(n) = self.nominal_signal_e_per_s.filter(|n| !(n.is_finite() && *n > 0.0 && *n <= 1e12)) {
+            errors.push(ConfigError::out_of_range(&format!("{f}.nominal_signal_e_per_s"), n, "0 < rate <= 1e12"));
+        }
         let flashes = kind == RigKind::CameraArray;
         if flashes {
             // The lights are the flashes: every LED field must stay unset.
@@ -493,6 +503,7 @@ mod tests {
             camera_azimuth_deg: 0.0,
             rotations: 12,
             led_calibration: None,
+            nominal_signal_e_per_s: None,
         }
     }
 
