@@ -105,6 +105,11 @@ pub struct DomeRunSummary {
     /// Relative RMS error of the stored textures against the ground truth, pooled over every
     /// texture but those of LEDs reported faulty.
     pub texture_rel_rmse: Option<f64>,
+    /// Pooled brightness error of the stored textures against the ground truth:
+    /// `sum(texture) / sum(truth) - 1` over the same texels as `texture_rel_rmse`. Noise
+    /// averages out of it, so it shows a calibration's scale error (LED powers, flat) that the
+    /// RMSE of dim LEDs' noisy textures hides.
+    pub texture_brightness_err: Option<f64>,
     /// The same for the single-light reference textures (first view group).
     pub reference_texture_rel_rmse: Option<f64>,
     /// The same for the demultiplexed textures of the reference LEDs (same LEDs, same view).
@@ -168,6 +173,7 @@ impl DomeRunSummary {
             "hardware_s": self.hardware_s,
             "exposure_time_s": self.exposure_time_s,
             "texture_rel_rmse": self.texture_rel_rmse,
+            "texture_brightness_err": self.texture_brightness_err,
             "reference_texture_rel_rmse": self.reference_texture_rel_rmse,
             "reference_mux_texture_rel_rmse": self.reference_mux_texture_rel_rmse,
             "registered": self.registered,
@@ -749,6 +755,8 @@ struct Consumer<'a, F: Fn(usize, u32) -> u32> {
     first_group: Option<(Vec<f32>, usize, f64, f64, GroupPose, f64)>,
     out: DomeRunSummary,
     rmse: Vec<(f64, f64)>,
+    /// Sums of the stored textures and of their truths (brightness error).
+    brightness: (f64, f64),
     texel_err: TexelErrorTotals,
     nominal_texel_err: TexelErrorTotals,
     commits: Option<Committing>,
@@ -790,6 +798,7 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
             first_group: None,
             out: DomeRunSummary::default(),
             rmse: Vec::new(),
+            brightness: (0.0, 0.0),
             texel_err: TexelErrorTotals::default(),
             nominal_texel_err: TexelErrorTotals::default(),
             commits: None,
@@ -941,7 +950,11 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
                 None => texture(j).map_err(|e| input("dome pipeline", e))?,
             };
             if let Some(truth) = self.truth.as_ref().filter(|_| !faulty.contains(&j)) {
-                self.rmse.push(sq_err(&tex, &truth.texture(c, true_rad, j, size)));
+                let gt = truth.texture(c, true_rad, j, size);
+                self.rmse.push(sq_err(&tex, &gt));
+                let sum = |t: &[[f32; 3]]| t.iter().map(|p| f64::from(p[0] + p[1] + p[2])).sum::<f64>();
+                self.brightness.0 += sum(&tex);
+                self.brightness.1 += sum(&gt);
             }
             let file = self.dataset.write_texture(id, &tex, size, size).map_err(|e| input("dataset", e))?;
             let timing = StepTiming {
@@ -1039,6 +1052,8 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
 
     fn finish(mut self) -> DomeRunSummary {
         self.out.texture_rel_rmse = pooled(&self.rmse);
+        let (b, t) = self.brightness;
+        self.out.texture_brightness_err = (t > 0.0).then(|| b / t - 1.0);
         self.out.registration_mean_texel_err = self.texel_err.mean();
         self.out.registration_max_texel_err = self.texel_err.max();
         self.out.nominal_mean_texel_err = self.nominal_texel_err.mean();
