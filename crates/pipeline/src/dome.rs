@@ -18,7 +18,7 @@
 //!
 //! The stack holds photosites, not demosaiced RGB: demultiplexing is linear per photosite, so
 //! it runs on a third of the data and demosaicing happens once per LED image. Memory: one
-//! group is `patterns x width x height` f32 (Paley 199 at 160 x 120: 15.3 MB; at 1600 x 1200:
+//! group is `patterns x width x height` f32 (Paley 199 at 320 x 240: 61.1 MB; at 1600 x 1200:
 //! 1.5 GB, which is why the stack is per camera and freed after each group), and the
 //! demultiplexer works on it in place in column tiles (`btfrig_mux::DemuxParams::tile`).
 //! Single-light groups skip demultiplexing.

@@ -45,9 +45,9 @@ fn a_turntable_positioning_error_is_measured_by_registration_not_taken_from_the_
     eprintln!("{}", s.to_json());
     assert_eq!((s.registered, s.fallbacks), (1, 0), "{:?}", s.warnings);
     let (reg, nominal) = (s.registration_mean_texel_err.unwrap(), s.nominal_mean_texel_err.unwrap());
-    // 1 degree about the sample centre moves the 0.1 m sample's texels by up to 0.9 mm, about
-    // a quarter of a 16-texel texel at the corners: the nominal pose is that far off.
-    assert!(nominal > 0.1, "nominal pose error {nominal} texels");
+    // 1 degree about the sample centre moves the 0.1 m sample's texels by up to 1.2 mm (0.19
+    // texel of 16 at the corners, 0.11 on average): the nominal pose is that far off.
+    assert!(nominal > 0.08, "nominal pose error {nominal} texels");
     assert!(reg < 0.05 && reg < nominal / 5.0, "registered {reg} texels vs nominal {nominal}");
     let json = s.to_json();
     assert_eq!(json["registered"], 1);

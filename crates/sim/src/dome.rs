@@ -7,7 +7,7 @@
 //! seed. A frame is, by linearity, the true LED intensities (stuck LEDs included) times the
 //! single-LED radiance images of the current view, summed, then the sensor model adds noise
 //! once. The single-LED images are rendered on first use and cached for the current turntable
-//! angle only (a view's 198 images of 160 x 120 are 45 MB), so memory stays bounded by one
+//! angle only (a view's 198 images of 320 x 240 are 182 MB), so memory stays bounded by one
 //! view per camera.
 
 use std::collections::HashMap;
