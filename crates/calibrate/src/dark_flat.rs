@@ -445,10 +445,87 @@ pub fn write_calibration(
     Ok(header)
 }
 
+/// One embedded dark/flat calibration directory: its name and its files (name, bytes).
+type EmbeddedDarkFlat = (&'static str, &'static [(&'static str, &'static [u8])]);
+
+/// Dark/flat calibrations embedded in the binary, for `[camera] dark_flat = "builtin:NAME"`
+/// (the directories `btfrig calibrate radiometric` wrote into `calibration/`).
+pub const BUILTIN_DARK_FLATS: &[EmbeddedDarkFlat] = &[
+    (
+        "bonn-dome-sim-dark-flat",
+        &[
+            (HEADER_FILE, include_bytes!("../../../calibration/bonn-dome-sim-dark-flat/dark-flat.toml")),
+            ("dark.exr", include_bytes!("../../../calibration/bonn-dome-sim-dark-flat/dark.exr")),
+            ("dark-sigma.exr", include_bytes!("../../../calibration/bonn-dome-sim-dark-flat/dark-sigma.exr")),
+            ("flat-f8.exr", include_bytes!("../../../calibration/bonn-dome-sim-dark-flat/flat-f8.exr")),
+        ],
+    ),
+    (
+        "bonn-camera-array-sim-dark-flat",
+        &[
+            (HEADER_FILE, include_bytes!("../../../calibration/bonn-camera-array-sim-dark-flat/dark-flat.toml")),
+            ("dark.exr", include_bytes!("../../../calibration/bonn-camera-array-sim-dark-flat/dark.exr")),
+            ("dark-sigma.exr", include_bytes!("../../../calibration/bonn-camera-array-sim-dark-flat/dark-sigma.exr")),
+            ("flat-f8.exr", include_bytes!("../../../calibration/bonn-camera-array-sim-dark-flat/flat-f8.exr")),
+        ],
+    ),
+];
+
+/// The dark/flat calibration the rig config names (`[camera] dark_flat`: a directory relative
+/// to the rig config's directory, or `builtin:NAME`), checked against the config's sensor
+/// size, with where it came from; `None` when the config names none.
+pub fn processing_dark_flat(
+    rig: &RigConfig,
+    rig_path: Option<&Path>,
+) -> Result<Option<(DarkFlat, String)>, DarkFlatCalError> {
+    let Some(reference) = rig.camera.dark_flat.as_deref() else { return Ok(None) };
+    let key = format!("[camera] dark_flat = {reference:?}");
+    let (header, cal, origin) = if let Some(name) = reference.strip_prefix("builtin:") {
+        let (_, files) = BUILTIN_DARK_FLATS.iter().find(|(n, _)| *n == name).ok_or_else(|| {
+            let known: Vec<&str> = BUILTIN_DARK_FLATS.iter().map(|(n, _)| *n).collect();
+            file_err(Path::new(&key), format!("no built-in dark/flat calibration {name:?} (built in: {})", known.join(", ")))
+        })?;
+        let dir = Path::new("<embedded calibration>").join(name);
+        let (header, cal) = read_calibration_with(&dir, |p| {
+            let file = p.file_name().and_then(|f| f.to_str()).unwrap_or_default();
+            files.iter().find(|(n, _)| *n == file).map(|(_, b)| b.to_vec()).ok_or_else(|| "not embedded".to_string())
+        })?;
+        (header, cal, format!("<embedded calibration/{name}>"))
+    } else {
+        let base = rig_path.and_then(Path::parent).map(Path::to_path_buf).unwrap_or_default();
+        let dir = base.join(reference);
+        let (header, cal) = read_calibration(&dir).map_err(|e| {
+            file_err(
+                Path::new(&key),
+                format!("{e} (make one with `btfrig calibrate radiometric --out DIR`, or remove the key)"),
+            )
+        })?;
+        (header, cal, dir.display().to_string())
+    };
+    let (w, h) = (rig.camera.width_px, rig.camera.height_px);
+    if (header.width, header.height) != (w, h) {
+        return Err(file_err(
+            Path::new(&key),
+            format!("{origin} is {}x{} photosites, the rig's camera {w}x{h}", header.width, header.height),
+        ));
+    }
+    Ok(Some((cal, origin)))
+}
+
 /// Reads a calibration written by [`write_calibration`] from `dir`.
 pub fn read_calibration(dir: &Path) -> Result<(DarkFlatHeader, DarkFlat), DarkFlatCalError> {
+    read_calibration_with(dir, |p| std::fs::read(p).map_err(|e| e.to_string()))
+}
+
+/// Reads a calibration like [`read_calibration`] with `read` fetching each file's bytes by
+/// its path under `dir` (e.g. from files embedded in the binary; `dir` then only names them).
+pub fn read_calibration_with(
+    dir: &Path,
+    read: impl Fn(&Path) -> Result<Vec<u8>, String>,
+) -> Result<(DarkFlatHeader, DarkFlat), DarkFlatCalError> {
     let p = dir.join(HEADER_FILE);
-    let text = std::fs::read_to_string(&p).map_err(|e| file_err(&p, e))?;
+    let bytes = read(&p).map_err(|e| file_err(&p, e))?;
+    let text = String::from_utf8(bytes).map_err(|e| file_err(&p, e))?;
     let header: DarkFlatHeader = toml::from_str(&text).map_err(|e| file_err(&p, e))?;
     if header.format_version != DARK_FLAT_FORMAT_VERSION {
         return Err(file_err(
@@ -459,7 +536,8 @@ pub fn read_calibration(dir: &Path) -> Result<(DarkFlatHeader, DarkFlat), DarkFl
     let (w, h) = (header.width, header.height);
     let read = |name: &str| -> Result<Vec<[f32; 3]>, DarkFlatCalError> {
         let p = dir.join(name);
-        let (rw, rh, data) = btfrig_imageio::read_rgb_exr(&p).map_err(|e| file_err(&p, e))?;
+        let bytes = read(&p).map_err(|e| file_err(&p, e))?;
+        let (rw, rh, data) = btfrig_imageio::decode_rgb_exr(&p, &bytes).map_err(|e| file_err(&p, e))?;
         if (rw, rh) != (w, h) {
             return Err(file_err(&p, format!("{rw}x{rh}, the header says {w}x{h}")));
         }

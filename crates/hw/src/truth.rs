@@ -69,4 +69,11 @@ pub trait DomeTruthProbe: Send + Sync {
 
     /// Lights the rig really held on whatever was asked (stuck on): every frame saw them.
     fn stuck_on(&self) -> Vec<usize>;
+    /// The turntable's true angle, radians, at the exposure of camera `camera`'s frame
+    /// stamped `timestamp_s` (`None` if the probe never saw that frame).
+    fn true_turntable(&self, camera: usize, timestamp_s: f64) -> Option<f64>;
+    /// The true scene pose of camera `camera` with the turntable truly at `turntable_rad`.
+    fn pose(&self, camera: usize, turntable_rad: f64) -> ScenePose;
+    /// The cameras' true lens.
+    fn camera(&self) -> &CameraModel;
 }

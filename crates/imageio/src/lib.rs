@@ -303,7 +303,16 @@ fn rgb_exr_image(
 /// Reads the `R`, `G`, `B` channels of an OpenEXR file as linear floats:
 /// `(width, height, row-major pixels)`.
 pub fn read_rgb_exr(path: &Path) -> Result<(usize, usize, Vec<[f32; 3]>), ImageIoError> {
-    let layer = read_flat_layer(path)?;
+    rgb_from_layer(path, read_flat_layer(path)?)
+}
+
+/// Decodes an RGB OpenEXR image held in memory, as [`read_rgb_exr`] reads one from a file
+/// (e.g. a calibration embedded in the binary). `name` only labels errors.
+pub fn decode_rgb_exr(name: &Path, bytes: &[u8]) -> Result<(usize, usize, Vec<[f32; 3]>), ImageIoError> {
+    rgb_from_layer(name, decode_flat_layer(name, bytes)?)
+}
+
+fn rgb_from_layer(path: &Path, layer: FlatLayer) -> Result<(usize, usize, Vec<[f32; 3]>), ImageIoError> {
     let (w, h) = (layer.size.0, layer.size.1);
     let [r, g, b] = ["R", "G", "B"].map(|n| channel(path, &layer, n).map(|s| s.values_as_f32().collect::<Vec<f32>>()));
     let (r, g, b) = (r?, g?, b?);

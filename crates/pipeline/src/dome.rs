@@ -1,14 +1,24 @@
 //! Processing a dome rig's frames (`docs/pipeline.md`, "LED dome"; a camera array's flashes
 //! are its lights, processed the same way): the frames of one view
 //! group (one camera, one rotation, all patterns) are collected into a pattern-major stack of
-//! photosite values, demultiplexed with `btfrig_mux` (fast path, fault detection, least
+//! photosite values (dark-subtracted and flat-fielded per photosite with the model's dark/flat
+//! calibration: linear per photosite, so it commutes with demultiplexing; each pattern frame
+//! has its own dark), demultiplexed with `btfrig_mux` (fast path, fault detection, least
 //! squares around dead or stuck LEDs), and each single-LED mosaic then goes through demosaic,
-//! rectification (nominal pose: the dome has no moving part between the captures of a view
-//! but the turntable), and radiometry with that LED's calibrated power and colour.
+//! rectification and radiometry with that LED's calibrated power and colour.
+//!
+//! Registration: every LED image of a view group shares one pose (one camera, one turntable
+//! stop), so the group is registered once ([`DomeProcessing::register`]) from the SUM of its
+//! pattern frames: it is the plate under every light at once (no shadowed or dark marker
+//! whatever the LED), with the summed exposure of all patterns (the highest SNR the group
+//! has), and it is there before demultiplexing, so registration does not wait for it. Its
+//! markers give the sample's pose (`btfrig_register::PlateRegistrar`, the camera fixed, as on
+//! the gonio); each LED's pose is that pose with the LED's position. When the markers do not
+//! give a pose the group falls back to the nominal pose, which the [`GroupPose`] says.
 //!
 //! The stack holds photosites, not demosaiced RGB: demultiplexing is linear per photosite, so
 //! it runs on a third of the data and demosaicing happens once per LED image. Memory: one
-//! group is `patterns x width x height` f32 (Paley 199 at 160 x 120: 15.3 MB; at 1600 x 1200:
+//! group is `patterns x width x height` f32 (Paley 199 at 320 x 240: 61.1 MB; at 1600 x 1200:
 //! 1.5 GB, which is why the stack is per camera and freed after each group), and the
 //! demultiplexer works on it in place in column tiles (`btfrig_mux::DemuxParams::tile`).
 //! Single-light groups skip demultiplexing.
@@ -20,10 +30,14 @@
 
 use btfrig_calib::radiometry::{to_radiance_factor, vignetting_map, Radiometry};
 use btfrig_calib::rectify::{rectify, Filter, LinearImage, Region};
-use btfrig_core::camera::CameraModel;
 use btfrig_core::config::dome::DomeConfig;
 use btfrig_core::frame::{BayerPattern, RawFrame};
+use btfrig_core::pose::ScenePose;
+use btfrig_markers::GrayImage;
 use btfrig_mux::{Demultiplexer, DemultiplexerParams, DemuxParams, DemuxReport, SMatrix};
+use btfrig_register::{PlateRegistrar, RegisterOptions};
+
+use crate::{PoseSource, ProcessingModel};
 
 /// Errors of dome processing.
 #[derive(Debug, thiserror::Error)]
@@ -45,45 +59,68 @@ pub enum DomeError {
         /// Why.
         detail: String,
     },
+    /// The dark/flat calibration does not fit a frame (size, f-number).
+    #[error("dark/flat: {0}")]
+    DarkFlat(#[from] btfrig_calib::dark_flat::DarkFlatError),
+    /// The marker registrar cannot be built from the model (camera, plate layout).
+    #[error("registration setup: {0}")]
+    Registrar(#[from] btfrig_register::FrameError),
 }
 
-/// What the dome processor needs to know about the rig: geometry, lens, sensor, LED
-/// calibration and colour, all from the rig config and the calibration files it names
-/// (`docs/pipeline.md`, "LED dome"), never from the simulator.
+/// A dome's light calibration: the per-LED (per-flash) power and colour from the rig's
+/// `[dome] led_calibration` file.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LedLight {
+    /// Calibrated power of each LED relative to `nominal_irradiance` (all 1 without a file).
+    pub power: Vec<f64>,
+    /// Calibrated camera-RGB colour of each LED on a white reflector, green = 1 (it
+    /// white-balances; all 1 without a file).
+    pub colour: Vec<[f64; 3]>,
+    /// Green camera-RGB rate of a white reflector lit along its normal by an LED of power 1 at
+    /// the dome radius, e-/s (the file's `reference_rate`; 1 without one: relative units).
+    pub nominal_irradiance: f64,
+}
+
+/// What the dome processor works with: the rig's [`ProcessingModel`] (lens, sensor,
+/// dark/flat, colour, plate), the dome geometry and the per-LED light calibration, all from
+/// the rig config and the calibration files it names (`docs/pipeline.md`, "LED dome"), never
+/// from the simulator.
 #[derive(Debug, Clone)]
 pub struct DomeProcessing {
+    /// The model every rig's pipeline shares (its `light`, the gonio lamp's, is unused).
+    pub model: ProcessingModel,
     /// The dome geometry.
     pub dome: DomeConfig,
-    /// The lens every arc camera has (the calibrated one when the rig names a calibration).
-    pub camera: CameraModel,
     /// Colour filter array.
     pub bayer: Option<BayerPattern>,
-    /// Photo-electrons per DN at gain 1.
-    pub electrons_per_dn: f64,
-    /// Dark current, e-/s (its mean is subtracted before demultiplexing).
-    pub dark_e_per_s: f64,
-    /// Calibrated power of each LED relative to `nominal_irradiance` (the LED calibration
-    /// file's `power`; all 1 without one).
-    pub led_power: Vec<f64>,
-    /// Calibrated camera-RGB colour of each LED on a white reflector, green = 1 (the LED
-    /// calibration file's `colour`: it white-balances; all 1 without one).
-    pub led_colour: Vec<[f64; 3]>,
-    /// Green camera-RGB rate of a white reflector lit along its normal by an LED of power 1 at
-    /// the dome radius, e-/s (the LED calibration file's `reference_rate`; 1 without one:
-    /// textures then are in relative units).
-    pub nominal_irradiance: f64,
+    /// The per-LED light calibration.
+    pub leds: LedLight,
     /// White balance applied before each LED's colour (1 with an LED calibration, which
-    /// white-balances per LED; a colour calibration's without one).
+    /// white-balances per LED; the colour calibration's without one).
     pub white_balance: [f64; 3],
-    /// White-balanced camera RGB to linear sRGB (a colour calibration file's model); `None`:
-    /// textures stay in white-balanced camera RGB.
-    pub colour: Option<crate::color::ColorCorrection>,
-    /// Side of the sample square the textures tile, metres.
-    pub sample_side_m: f64,
     /// Texture side, texels.
     pub size: usize,
     /// Resampling filter.
     pub filter: Filter,
+    /// The plate's marker registrar (with the model's camera).
+    registrar: PlateRegistrar,
+}
+
+/// The pose a view group's textures are rectified with (see the module documentation).
+#[derive(Debug, Clone)]
+pub struct GroupPose {
+    /// The sample's pose (the lamp position is set per LED by [`DomeProcessing::texture`]).
+    pub pose: ScenePose,
+    /// The nominal pose of the group (turntable as commanded).
+    pub nominal: ScenePose,
+    /// `Markers`, or `NominalFallback` when the markers gave no pose.
+    pub source: PoseSource,
+    /// Markers used (inliers).
+    pub markers: usize,
+    /// RMS reprojection error of the markers, pixels.
+    pub rms_px: Option<f64>,
+    /// Why the markers gave no pose.
+    pub reason: Option<String>,
 }
 
 /// The code of a view group.
@@ -227,6 +264,8 @@ pub struct GroupStack {
     pub exposure_s: f64,
     /// Analogue gain.
     pub gain: f64,
+    /// Time stamp of the group's first pattern frame, s.
+    pub timestamp_s: f64,
     width: usize,
     height: usize,
     data: Vec<f32>,
@@ -242,6 +281,7 @@ impl GroupStack {
             turntable_rad,
             exposure_s: 0.0,
             gain: 1.0,
+            timestamp_s: f64::NAN,
             width,
             height,
             data: vec![0.0; frames * width * height],
@@ -258,13 +298,6 @@ impl GroupStack {
     pub fn bytes(&self) -> usize {
         self.data.len() * 4
     }
-}
-
-/// Photosite values of `frame` in DN above black level and mean dark signal.
-pub fn signal_dn(frame: &RawFrame, electrons_per_dn: f64, dark_e_per_s: f64) -> Vec<f32> {
-    let dark = (dark_e_per_s * frame.meta.exposure_s * frame.meta.gain / electrons_per_dn) as f32;
-    let black = f32::from(frame.meta.black_level);
-    frame.data.iter().map(|&v| f32::from(v) - black - dark).collect()
 }
 
 /// One demultiplexed view group.
@@ -285,6 +318,104 @@ impl GroupResult {
 }
 
 impl DomeProcessing {
+    /// The processor of `model`, `dome` and the LED calibration `leds` (`None`: every light
+    /// counted equal, relative units) writing `size`-texel textures; refused: a model whose
+    /// camera and plate give no marker registrar, a dark/flat calibration of another sensor
+    /// size.
+    pub fn new(
+        model: ProcessingModel,
+        dome: DomeConfig,
+        bayer: Option<BayerPattern>,
+        leds: Option<LedLight>,
+        size: usize,
+        filter: Filter,
+    ) -> Result<DomeProcessing, DomeError> {
+        let camera = model.camera.clone();
+        if let Some(cal) = &model.dark_flat {
+            if (cal.dark.width, cal.dark.height) != (camera.width, camera.height) {
+                return Err(DomeError::DarkFlat(btfrig_calib::dark_flat::DarkFlatError::SizeMismatch {
+                    got_w: camera.width,
+                    got_h: camera.height,
+                    cal_w: cal.dark.width,
+                    cal_h: cal.dark.height,
+                }));
+            }
+        }
+        let mut registrar = PlateRegistrar::new(camera.clone(), &model.plate, RegisterOptions::default())?;
+        registrar.detect = btfrig_markers::DetectParams { camera: Some(camera), ..registrar.detect.clone() };
+        // The LED calibration white-balances each light; without one, the colour file's white
+        // balance does it for all.
+        let white_balance = match (&leds, &model.color) {
+            (None, Some(c)) => c.white_balance,
+            _ => [1.0; 3],
+        };
+        let n = dome.led_count();
+        let leds = leds.unwrap_or(LedLight { power: vec![1.0; n], colour: vec![[1.0; 3]; n], nominal_irradiance: 1.0 });
+        Ok(DomeProcessing { model, dome, bayer, leds, white_balance, size, filter, registrar })
+    }
+
+    /// Photosite values of `frame` in DN above the dark signal: `(DN - dark(x, y, t, g)) /
+    /// flat(x, y)` with the model's dark/flat calibration (defective photosites replaced by
+    /// their neighbours), else `DN - black - mean dark current` (no flat: the lens model's
+    /// vignetting is divided out later).
+    pub fn signal(&self, frame: &RawFrame) -> Result<Vec<f32>, DomeError> {
+        if let Some(cal) = &self.model.dark_flat {
+            return Ok(cal.corrected_dn(frame)?);
+        }
+        let s = &self.model.sensor;
+        let dark = (s.dark_current_e_per_s * frame.meta.exposure_s * frame.meta.gain / s.electrons_per_dn) as f32;
+        let black = f32::from(frame.meta.black_level);
+        Ok(frame.data.iter().map(|&v| f32::from(v) - black - dark).collect())
+    }
+
+    /// The nominal pose of camera `camera` with the sample at `turntable_rad` (lamp: LED 0).
+    pub fn nominal_pose(&self, camera: usize, turntable_rad: f64) -> ScenePose {
+        self.dome.scene_pose(camera, turntable_rad, 0)
+    }
+
+    /// Registers a complete group from the sum of its pattern frames (module documentation),
+    /// falling back to the nominal pose when the markers give none.
+    pub fn register(&self, stack: &GroupStack) -> GroupPose {
+        let nominal = self.nominal_pose(stack.camera, stack.turntable_rad);
+        let cols = stack.width * stack.height;
+        let mut sum = vec![0.0f32; cols];
+        for frame in stack.data.chunks_exact(cols.max(1)) {
+            sum.iter_mut().zip(frame).for_each(|(s, v)| *s += v);
+        }
+        let (w, h) = (stack.width, stack.height);
+        let rgb = btfrig_imageio::demosaic::demosaic_bilinear_values(w, h, self.bayer, &sum);
+        let green: Vec<f32> = rgb.data.iter().map(|p| p[1]).collect();
+        let found = GrayImage::new(w, h, &green)
+            .map_err(|e| e.to_string())
+            .and_then(|g| self.registrar.register_image(&g, &nominal).map_err(|e| e.to_string()));
+        match found {
+            Ok(r) => {
+                let r = r.registration;
+                GroupPose {
+                    pose: r.pose,
+                    nominal,
+                    source: PoseSource::Markers,
+                    markers: r.inlier_markers.len(),
+                    rms_px: Some(r.rms_px),
+                    reason: None,
+                }
+            }
+            Err(reason) => GroupPose {
+                pose: nominal,
+                nominal,
+                source: PoseSource::NominalFallback,
+                markers: 0,
+                rms_px: None,
+                reason: Some(reason),
+            },
+        }
+    }
+
+    /// The texture region on the sample plane.
+    pub fn region(&self) -> Region {
+        Region::centred_square(self.model.plate.sample_side_m)
+    }
+
     /// Adds pattern `index`'s frame to `stack`.
     pub fn add(&self, stack: &mut GroupStack, index: usize, frame: &RawFrame) -> Result<(), DomeError> {
         let cols = stack.width * stack.height;
@@ -303,7 +434,10 @@ impl DomeProcessing {
         }
         stack.exposure_s = frame.meta.exposure_s;
         stack.gain = frame.meta.gain;
-        let v = signal_dn(frame, self.electrons_per_dn, self.dark_e_per_s);
+        if index == 0 {
+            stack.timestamp_s = frame.meta.timestamp_s;
+        }
+        let v = self.signal(frame)?;
         stack.data[index * cols..(index + 1) * cols].copy_from_slice(&v);
         stack.filled[index] = true;
         Ok(())
@@ -312,13 +446,13 @@ impl DomeProcessing {
     /// Demultiplexes a complete group (in place; single-light groups pass through). Every
     /// result mosaic is its LED's image at the LED's own (calibrated) power, as a single-light
     /// frame is: the demultiplexer returns images per unit of the calibrated intensities it
-    /// was given (`led_power` times the pattern scale), so they are multiplied back by
-    /// `led_power` here and [`DomeProcessing::texture`] divides it out once for every mode.
+    /// was given (the LED powers times the pattern scale), so they are multiplied back by the
+    /// LED powers here and [`DomeProcessing::texture`] divides them out once for every mode.
     pub fn demultiplex(&self, stack: GroupStack, code: &GroupCode) -> Result<GroupResult, DomeError> {
         let mut result = code.demultiplex(stack)?;
         if result.report.is_some() {
             let cols = result.cols;
-            for (j, &p) in self.led_power.iter().enumerate() {
+            for (j, &p) in self.leds.power.iter().enumerate() {
                 let k = p as f32;
                 result.mosaics[j * cols..(j + 1) * cols].iter_mut().for_each(|v| *v *= k);
             }
@@ -326,38 +460,42 @@ impl DomeProcessing {
         Ok(result)
     }
 
-    /// The radiance-factor texture of LED `led` from its single-light `mosaic`, seen by
-    /// camera `camera` at `turntable_rad` with `exposure_s` and `gain`.
+    /// The radiance-factor texture of LED `led` from its single-light `mosaic`, seen from the
+    /// group's sample pose `pose` (its lamp replaced by the LED) with `exposure_s` and `gain`.
     pub fn texture(
         &self,
         mosaic: &[f32],
-        camera: usize,
-        turntable_rad: f64,
+        pose: &ScenePose,
         led: usize,
         exposure_s: f64,
         gain: f64,
     ) -> Result<Vec<[f32; 3]>, DomeError> {
-        let (w, h) = (self.camera.width, self.camera.height);
+        let camera = &self.model.camera;
+        let (w, h) = (camera.width, camera.height);
         let rgb = btfrig_imageio::demosaic::demosaic_bilinear_values(w, h, self.bayer, mosaic);
         let img = LinearImage { width: w, height: h, data: rgb.data };
-        let pose = self.dome.scene_pose(camera, turntable_rad, led);
-        let region = Region::centred_square(self.sample_side_m);
-        let tex = rectify(&img, &self.camera, &pose, region, self.size, self.filter)?;
-        let vig = vignetting_map(&self.camera, &pose, region, self.size)?;
-        let c = self.led_colour[led];
+        let pose = ScenePose { lamp_position: self.dome.led_position(led), ..*pose };
+        let region = self.region();
+        let tex = rectify(&img, camera, &pose, region, self.size, self.filter)?;
+        let mut vig = vignetting_map(camera, &pose, region, self.size)?;
+        if self.model.dark_flat.is_some() {
+            // The flat divided the lens's vignetting out already.
+            vig = crate::dark_flat::unit_vignetting(vig);
+        }
+        let c = self.leds.colour[led];
         let r = Radiometry {
             dn_range: 1.0,
             // What the frame collected of the light: the exposure for an LED, the fraction of
             // the pulse for a flash (whose nominal irradiance is per flash).
             exposure_s: self.dome.light_units(exposure_s),
-            dn_per_electron: gain / self.electrons_per_dn,
+            dn_per_electron: self.model.sensor.dn_per_electron(gain),
             dark_e_per_s: 0.0,
-            nominal_irradiance: self.nominal_irradiance * self.led_power[led],
+            nominal_irradiance: self.leds.nominal_irradiance * self.leds.power[led],
             white_balance: [self.white_balance[0] / c[0], self.white_balance[1] / c[1], self.white_balance[2] / c[2]],
             matrix: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
         };
         let mut out = to_radiance_factor(&tex, &vig, &r)?.data;
-        if let Some(colour) = &self.colour {
+        if let Some(colour) = &self.model.color {
             colour.apply(&mut out);
         }
         Ok(out)

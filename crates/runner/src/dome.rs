@@ -37,7 +37,8 @@ use btfrig_engine::dome::{run_dome as drive, DomeCapture, DomeSettings};
 use btfrig_engine::{Command as EngineCommand, Event, PauseReason, RunOutcome as EngineOutcome, StepKind};
 use btfrig_hw::truth::DomeTruthProbe;
 use btfrig_hw::MoveOptions;
-use btfrig_pipeline::dome::{signal_dn, DomeProcessing, GroupCode, GroupStack};
+use btfrig_pipeline::dome::{DomeProcessing, GroupCode, GroupPose, GroupStack, LedLight};
+use btfrig_pipeline::{PoseSource, TexelErrorTotals};
 use btfrig_planner::dome::{plan_dome, DomeMode, DomeSchedule, DomeShot};
 use btfrig_store::{
     Dataset, DirectionDeg, Manifest, RigInfo, RunReport, Samplings, StepId, StepTiming, StoreError, TextureFormat,
@@ -103,10 +104,29 @@ pub struct DomeRunSummary {
     /// Relative RMS error of the stored textures against the ground truth, pooled over every
     /// texture but those of LEDs reported faulty.
     pub texture_rel_rmse: Option<f64>,
+    /// Pooled brightness error of the stored textures against the ground truth:
+    /// `sum(texture) / sum(truth) - 1` over the same texels as `texture_rel_rmse`. Noise
+    /// averages out of it, so it shows a calibration's scale error (LED powers, flat) that the
+    /// RMSE of dim LEDs' noisy textures hides.
+    pub texture_brightness_err: Option<f64>,
     /// The same for the single-light reference textures (first view group).
     pub reference_texture_rel_rmse: Option<f64>,
     /// The same for the demultiplexed textures of the reference LEDs (same LEDs, same view).
     pub reference_mux_texture_rel_rmse: Option<f64>,
+    /// View groups rectified with the pose registered from the plate's markers.
+    pub registered: u64,
+    /// View groups rectified with the nominal pose because registration failed (each one's
+    /// reason is a warning).
+    pub fallbacks: u64,
+    /// Mean texel position error of the poses used against the true poses, texels (mean over
+    /// view groups of the mean over texels; simulated rig).
+    pub registration_mean_texel_err: Option<f64>,
+    /// Largest texel position error of the poses used, texels.
+    pub registration_max_texel_err: Option<f64>,
+    /// Mean texel position error of the nominal poses, texels.
+    pub nominal_mean_texel_err: Option<f64>,
+    /// Largest texel position error of the nominal poses, texels.
+    pub nominal_max_texel_err: Option<f64>,
     /// Dead and stuck LEDs the demultiplexer found, e.g. `camera 0 rotation 0: LED 3 stuck`.
     pub faults: Vec<String>,
     /// Warnings (faults solved around, retries, skipped demultiplexing).
@@ -155,8 +175,15 @@ impl DomeRunSummary {
             "hardware_s": self.hardware_s,
             "exposure_time_s": self.exposure_time_s,
             "texture_rel_rmse": self.texture_rel_rmse,
+            "texture_brightness_err": self.texture_brightness_err,
             "reference_texture_rel_rmse": self.reference_texture_rel_rmse,
             "reference_mux_texture_rel_rmse": self.reference_mux_texture_rel_rmse,
+            "registered": self.registered,
+            "fallbacks": self.fallbacks,
+            "registration_mean_texel_err": self.registration_mean_texel_err,
+            "registration_max_texel_err": self.registration_max_texel_err,
+            "nominal_mean_texel_err": self.nominal_mean_texel_err,
+            "nominal_max_texel_err": self.nominal_max_texel_err,
             "faults": self.faults,
             "warnings": self.warnings,
             "group_bytes": self.group_bytes,
@@ -371,7 +398,7 @@ pub fn run_controlled(
         .collect();
 
     // The lights' calibrated power at the power the patterns fire them at.
-    let fired: Vec<f64> = processing.led_power.iter().map(|p| p * schedule.pattern_scale).collect();
+    let fired: Vec<f64> = processing.leds.power.iter().map(|p| p * schedule.pattern_scale).collect();
     let code = match schedule.mode {
         DomeMode::Single => GroupCode::Single,
         DomeMode::Multiplexed { order } => {
@@ -664,75 +691,65 @@ async fn listen(
 }
 
 /// The dome pipeline's processing model from the rig config and the calibration files it
-/// names, never the simulator: the lens from `[camera] calibration` (else the config's
-/// nominal lens), LED powers and colours from `[dome] led_calibration` (else equal lights,
-/// relative units), the colour model from `[camera] color_calibration` (else white-balanced
-/// camera RGB). Returns it, the report's `calibration` record, and one line per missing
-/// calibration (the report's warnings say what the textures are then).
+/// names, never the simulator: the model every rig shares (`crate::model::rig_model`: the lens
+/// from `[camera] calibration`, the colour model from `[camera] color_calibration`, dark/flat
+/// from `[camera] dark_flat`), and LED powers and colours from `[dome] led_calibration` (else
+/// equal lights, relative units). Returns it, the report's `calibration` record, and one line
+/// per missing calibration (the report's warnings say what the textures are then).
 fn dome_processing(
     rig: &btfrig_core::config::RigConfig,
     rig_path: Option<&Path>,
     size: usize,
 ) -> Result<(DomeProcessing, serde_json::Value, Vec<String>), RunError> {
     let dome = rig.require_dome("a dome run").map_err(|e| input("rig.config", e))?.clone();
-    let camera = btfrig_calibrate::processing_camera(rig, rig_path).map_err(|e| input("camera calibration", e))?;
     let leds = btfrig_calibrate::leds::processing_leds(rig, rig_path).map_err(|e| input("LED calibration", e))?;
-    let colour_file =
-        btfrig_calibrate::color::processing_color(rig, rig_path).map_err(|e| input("colour calibration", e))?;
+    let mut model = crate::model::rig_model(rig, rig_path, None)?;
     let light = if dome.is_flash() { "flash" } else { "LED" };
-    let mut notes = Vec::new();
-    let n = dome.led_count();
-    let (led_power, led_colour, nominal_irradiance) = match &leds {
-        Some(f) => (f.powers(), f.colours(), f.reference_rate),
-        None => {
-            notes.push(format!(
+    // The gonio lamp's note does not apply: a dome's light is its per-LED calibration.
+    model.notes.retain(|n| n != btfrig_pipeline::model::NO_LIGHT_NOTE);
+    if leds.is_none() {
+        model.notes.insert(
+            0,
+            format!(
                 "no {light} calibration: textures in relative units (every {light} counted equal; name one with \
                  [dome] led_calibration)"
-            ));
-            (vec![1.0; n], vec![[1.0; 3]; n], 1.0)
-        }
-    };
-    let colour = match &colour_file {
-        Some(f) => {
-            let model = f.to_model().map_err(|e| input("colour calibration", e))?;
-            Some(btfrig_pipeline::color::ColorCorrection {
-                name: f.source.plan.clone(),
-                white_balance: f.white_balance,
-                model,
-            })
-        }
-        None => {
-            notes.push("no colour calibration: textures in white-balanced camera RGB, not sRGB".to_string());
-            None
-        }
-    };
-    // The LED calibration white-balances each light; without one, the colour file's white
-    // balance does it for all.
-    let white_balance = match (&leds, &colour) {
-        (None, Some(c)) => c.white_balance,
-        _ => [1.0; 3],
-    };
+            ),
+        );
+    }
+    if model.dark_flat.is_none() {
+        model.notes.push(
+            "no dark/flat calibration: the mean dark current is subtracted and the lens model's vignetting divided \
+             out (name one with [camera] dark_flat)"
+                .to_string(),
+        );
+    }
+    let model = model.with_source(
+        "light",
+        dome.led_calibration.clone().unwrap_or_else(|| "none: relative units".to_string()),
+    );
     let record = json!({
         "camera": rig.camera.calibration,
         "leds": dome.led_calibration,
         "colour": rig.camera.color_calibration,
+        "dark_flat": model.dark_flat.as_ref().map(|d| json!({
+            "reference": rig.camera.dark_flat,
+            "source": model.sources.iter().find(|s| s.part == "dark_flat").map(|s| s.source.clone()),
+            "defects": d.dark.defects(),
+            "f_numbers": d.flats.iter().map(|f| f.f_number).collect::<Vec<_>>(),
+        })),
         "units": if leds.is_some() { "radiance factor" } else { "relative" },
     });
-    let processing = DomeProcessing {
-        bayer: rig.sensor.cfa.bayer(),
-        camera,
-        electrons_per_dn: rig.sensor.electrons_per_dn,
-        dark_e_per_s: rig.sensor.dark_current_e_per_s,
-        led_power,
-        led_colour,
-        nominal_irradiance,
-        white_balance,
-        colour,
-        sample_side_m: rig.plate.sample_side_m,
-        size,
-        filter: Filter::Footprint { max: 4 },
+    let notes = model.notes.clone();
+    let leds = leds.map(|f| LedLight { power: f.powers(), colour: f.colours(), nominal_irradiance: f.reference_rate });
+    let processing = DomeProcessing::new(
+        model,
         dome,
-    };
+        rig.sensor.cfa.bayer(),
+        leds,
+        size,
+        Filter::Footprint { max: 4 },
+    )
+    .map_err(|e| input("dome processing model", e))?;
     Ok((processing, record, notes))
 }
 
@@ -748,9 +765,15 @@ struct Consumer<'a, F: Fn(usize, u32) -> u32> {
     view_id: F,
     stacks: HashMap<usize, GroupStack>,
     references: Vec<(usize, f64, Vec<f32>)>,
-    first_group: Option<(Vec<f32>, usize, f64, f64)>,
+    /// The first camera's first group: its mosaics, photosites per mosaic, exposure, gain,
+    /// pose used and the true turntable angle (for the reference figures).
+    first_group: Option<(Vec<f32>, usize, f64, f64, GroupPose, f64)>,
     out: DomeRunSummary,
     rmse: Vec<(f64, f64)>,
+    /// Sums of the stored textures and of their truths (brightness error).
+    brightness: (f64, f64),
+    texel_err: TexelErrorTotals,
+    nominal_texel_err: TexelErrorTotals,
     commits: Option<Committing>,
 }
 
@@ -789,6 +812,9 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
             first_group: None,
             out: DomeRunSummary::default(),
             rmse: Vec::new(),
+            brightness: (0.0, 0.0),
+            texel_err: TexelErrorTotals::default(),
+            nominal_texel_err: TexelErrorTotals::default(),
             commits: None,
         }
     }
@@ -801,10 +827,10 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
             DomeShot::Reference(j) => {
                 // Only the first camera's reference frame is measured.
                 let f = &cap.frames[0];
-                let sig = signal_dn(f, self.processing.electrons_per_dn, self.processing.dark_e_per_s);
+                let sig = self.processing.signal(f).map_err(|e| input("dome pipeline", e))?;
                 self.references.push((j, f.meta.exposure_s, sig));
                 if self.references.len() == self.v.plan.dome.reference_leds.min(leds) {
-                    self.measure(self.v.cameras[0], step.turntable_rad)?;
+                    self.measure(self.v.cameras[0])?;
                 }
             }
             DomeShot::Pattern(p) => {
@@ -834,7 +860,12 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
         Ok(())
     }
 
-    fn finish_group(&mut self, stack: GroupStack, first_camera: bool, attempts: u32) -> Result<(), RunError> {
+    fn finish_group(
+        &mut self,
+        stack: GroupStack,
+        first_camera: bool,
+        attempts: u32,
+    ) -> Result<(), RunError> {
         if !stack.is_complete() {
             return Err(input(
                 "dome pipeline",
@@ -842,6 +873,31 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
             ));
         }
         let (c, k, rad, exp, gain) = (stack.camera, stack.rotation, stack.turntable_rad, stack.exposure_s, stack.gain);
+        let t0 = Instant::now();
+        let pose = self.processing.register(&stack);
+        let register_s = t0.elapsed().as_secs_f64();
+        match pose.source {
+            PoseSource::Markers => self.out.registered += 1,
+            _ => {
+                self.out.fallbacks += 1;
+                self.out.warnings.push(format!(
+                    "camera {c} rotation {k}: registration failed ({}), the nominal pose is used",
+                    pose.reason.as_deref().unwrap_or("no reason")
+                ));
+            }
+        }
+        // The truth of the view: the turntable's true angle (the sim's positioning error).
+        let true_rad = self.truth.as_ref().map_or(rad, |t| t.true_turntable(c, stack.timestamp_s).unwrap_or(rad));
+        if let Some(truth) = &self.truth {
+            let true_pose = truth.pose(c, true_rad);
+            let (cam, region) = (&self.processing.model.camera, self.processing.region());
+            let size = self.v.plan.texture_size;
+            let err = |p| {
+                btfrig_register::texel_position_error_with_cameras(&true_pose, truth.camera(), p, cam, region, size)
+            };
+            self.texel_err.add(err(&pose.pose));
+            self.nominal_texel_err.add(err(&pose.nominal));
+        }
         let started = Instant::now();
         let result = self.processing.demultiplex(stack, self.code).map_err(|e| input("demultiplexing", e))?;
         if let Some(report) = &result.report {
@@ -868,7 +924,7 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
             result.report.as_ref().map_or(Vec::new(), |r| r.faults.iter().map(|f| f.source).collect());
         let leds = self.schedule.leds;
         let size = self.v.plan.texture_size;
-        let texture = |j: usize| self.processing.texture(result.mosaic(j), c, rad, j, exp, gain);
+        let texture = |j: usize| self.processing.texture(result.mosaic(j), &pose.pose, j, exp, gain);
         // Denoising projects the whole group's textures at once; otherwise they stream one by
         // one (the group's memory is then one texture, not `leds`).
         let mut denoised: Option<Vec<Vec<[f32; 3]>>> = None;
@@ -881,7 +937,7 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
             // The pipeline is linear, so a mosaic of ones gives each texel's DN-to-texture factor.
             let ones = vec![1.0f32; result.cols];
             let scales: Vec<Vec<[f32; 3]>> = (0..leds)
-                .map(|j| self.processing.texture(&ones, c, rad, j, exp, gain))
+                .map(|j| self.processing.texture(&ones, &pose.pose, j, exp, gain))
                 .collect::<Result<_, _>>()
                 .map_err(|e| input("dome pipeline", e))?;
             let (texes, p) = denoise_group(texes, &scales, terms, &skip).map_err(|e| input("denoising", e))?;
@@ -907,7 +963,11 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
                 None => texture(j).map_err(|e| input("dome pipeline", e))?,
             };
             if let Some(truth) = self.truth.as_ref().filter(|_| !faulty.contains(&j)) {
-                self.rmse.push(sq_err(&tex, &truth.texture(c, rad, j, size)));
+                let gt = truth.texture(c, true_rad, j, size);
+                self.rmse.push(sq_err(&tex, &gt));
+                let sum = |t: &[[f32; 3]]| t.iter().map(|p| f64::from(p[0] + p[1] + p[2])).sum::<f64>();
+                self.brightness.0 += sum(&tex);
+                self.brightness.1 += sum(&gt);
             }
             let file = self.dataset.write_texture(id, &tex, size, size).map_err(|e| input("dataset", e))?;
             let timing = StepTiming {
@@ -928,10 +988,11 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
         }
         let textures_s = textures_started.elapsed().as_secs_f64();
         if first_camera && self.first_group.is_none() {
-            self.first_group = Some((result.mosaics, result.cols, exp, gain));
+            self.first_group = Some((result.mosaics, result.cols, exp, gain, pose, true_rad));
         }
         if let Some(commits) = self.commits.as_mut() {
             commits.textures += written;
+            *commits.stage_s.entry("register".into()).or_insert(0.0) += register_s;
             *commits.stage_s.entry("demultiplex".into()).or_insert(0.0) += demux_s;
             *commits.stage_s.entry("textures".into()).or_insert(0.0) += textures_s;
             if self.v.plan.dome.denoise_terms.is_some() {
@@ -956,29 +1017,42 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
     }
 
     /// The measured gain and the reference textures' error (module docs).
-    fn measure(&mut self, c: usize, rad: f64) -> Result<(), RunError> {
-        let Some((mosaics, cols, exp, gain)) = self.first_group.as_ref() else { return Ok(()) };
+    fn measure(&mut self, c: usize) -> Result<(), RunError> {
+        let Some((mosaics, cols, exp, gain, pose, true_rad)) = self.first_group.as_ref() else { return Ok(()) };
         let Some(probe) = self.truth.as_ref() else { return Ok(()) };
-        let leds = self.schedule.leds;
+        let (leds, rad) = (self.schedule.leds, *true_rad);
         let stuck_on = probe.stuck_on();
+        // The measured signals are flat-fielded when the model has a flat: the noise-free
+        // references are divided by the same flat, so the SNRs compare noise, not vignetting.
+        let flat = self.processing.model.dark_flat.as_ref().and_then(|d| d.flat_for(None).ok());
+        let fielded = |mut t: Vec<f32>| {
+            if let Some(f) = flat {
+                t.iter_mut().zip(&f.gain).filter(|(_, g)| **g > 0.0).for_each(|(v, g)| *v /= g);
+            }
+            t
+        };
         let (mut g, mut ref_err, mut mux_err) = (Vec::new(), Vec::new(), Vec::new());
         for (j, ref_exp, sig) in &self.references {
             let mut single = vec![0.0; leds];
             single[*j] = 1.0;
-            let truth_mux = probe.noise_free_dn(c, rad, &single, *exp, *gain);
+            let truth_mux = fielded(probe.noise_free_dn(c, rad, &single, *exp, *gain));
             // The reference frame saw the stuck LEDs too.
             for &s in &stuck_on {
                 single[s] = 1.0;
             }
-            let truth_ref = probe.noise_free_dn(c, rad, &single, *ref_exp, *gain);
+            let truth_ref = fielded(probe.noise_free_dn(c, rad, &single, *ref_exp, *gain));
             let demuxed = &mosaics[j * cols..(j + 1) * cols];
             g.push(snr(demuxed, &truth_mux) / snr(sig, &truth_ref));
-            let tex =
-                self.processing.texture(sig, c, rad, *j, *ref_exp, *gain).map_err(|e| input("dome pipeline", e))?;
+            let tex = self
+                .processing
+                .texture(sig, &pose.pose, *j, *ref_exp, *gain)
+                .map_err(|e| input("dome pipeline", e))?;
             let truth = probe.texture(c, rad, *j, self.v.plan.texture_size);
             ref_err.push(sq_err(&tex, &truth));
-            let tex =
-                self.processing.texture(demuxed, c, rad, *j, *exp, *gain).map_err(|e| input("dome pipeline", e))?;
+            let tex = self
+                .processing
+                .texture(demuxed, &pose.pose, *j, *exp, *gain)
+                .map_err(|e| input("dome pipeline", e))?;
             mux_err.push(sq_err(&tex, &truth));
         }
         if !g.is_empty() {
@@ -991,6 +1065,12 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
 
     fn finish(mut self) -> DomeRunSummary {
         self.out.texture_rel_rmse = pooled(&self.rmse);
+        let (b, t) = self.brightness;
+        self.out.texture_brightness_err = (t > 0.0).then(|| b / t - 1.0);
+        self.out.registration_mean_texel_err = self.texel_err.mean();
+        self.out.registration_max_texel_err = self.texel_err.max();
+        self.out.nominal_mean_texel_err = self.nominal_texel_err.mean();
+        self.out.nominal_max_texel_err = self.nominal_texel_err.max();
         self.out
     }
 }

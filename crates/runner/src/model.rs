@@ -1,7 +1,8 @@
-//! Loading a gonioreflectometer's processing model (`btfrig_pipeline::ProcessingModel`) from
-//! its rig config and the calibration files the config names: `[camera] calibration`
-//! (geometry), `[camera] color_calibration`, `[lamp] calibration` (light), and a dark/flat
-//! calibration given with the run. Every part records where it came from; an absent
+//! Loading a rig's processing model (`btfrig_pipeline::ProcessingModel`) from its rig config
+//! and the calibration files the config names: `[camera] calibration` (geometry),
+//! `[camera] color_calibration`, `[camera] dark_flat` (or a dark/flat calibration given with
+//! the run), and the light: `[lamp] calibration` for a gonioreflectometer ([`gonio_model`]),
+//! `[dome] led_calibration` for a dome or camera array (`crate::dome`, on [`rig_model`]). Every part records where it came from; an absent
 //! calibration leaves a note in the model that the run's report carries. A named file that
 //! cannot be read or does not fit is an error naming the file and the field.
 
@@ -70,14 +71,32 @@ pub fn lamp_correction(file: &LightCalibrationFile) -> Result<LightCorrection, S
 }
 
 /// The processing model of the gonioreflectometer `rig` (its config file at `rig_path`, for
-/// relative calibration paths): the config's nominal kinematics, plate and `[sensor]`
-/// datasheet values, the geometric, colour and light calibrations it names, `light` instead
-/// of the config's light calibration when given (a run's own, e.g. with drift correction),
-/// and `dark_flat` when given.
+/// relative calibration paths): [`rig_model`], with `light` instead of the config's light
+/// calibration when given (a run's own, e.g. with drift correction).
 pub fn gonio_model(
     rig: &RigConfig,
     rig_path: Option<&Path>,
     light: Option<LightCorrection>,
+    dark_flat: Option<Arc<DarkFlat>>,
+) -> Result<ProcessingModel, RunError> {
+    let (light, light_source) = match light {
+        Some(l) => (Some(l), "the run's light calibration (drift corrected)".to_string()),
+        None => match config_light(rig, rig_path)? {
+            Some((l, origin)) => (Some(l), origin),
+            None => (None, "none: relative units".to_string()),
+        },
+    };
+    Ok(rig_model(rig, rig_path, dark_flat)?.with_source("light", light_source).with_light(light))
+}
+
+/// The processing model every rig shares, from `rig`'s config (its file at `rig_path`, for
+/// relative calibration paths): the config's nominal kinematics, plate and `[sensor]`
+/// datasheet values, the geometric and colour calibrations it names, and the dark/flat
+/// calibration `dark_flat` (a run's own) or else the one `[camera] dark_flat` names. No light
+/// calibration: a gonio adds its lamp's ([`gonio_model`]), a dome its per-LED one.
+pub fn rig_model(
+    rig: &RigConfig,
+    rig_path: Option<&Path>,
     dark_flat: Option<Arc<DarkFlat>>,
 ) -> Result<ProcessingModel, RunError> {
     let gonio = Gonio::new(rig.geometry.clone()).map_err(|e| rig_err("[geometry]", e))?;
@@ -96,14 +115,15 @@ pub fn gonio_model(
             let model = f.to_model().expect("checked when read");
             ColorCorrection { name: f.source.plan.clone(), white_balance: f.white_balance, model }
         });
-    let (light, light_source) = match light {
-        Some(l) => (Some(l), "the run's light calibration (drift corrected)".to_string()),
-        None => match config_light(rig, rig_path)? {
-            Some((l, origin)) => (Some(l), origin),
-            None => (None, "none: relative units".to_string()),
+    let (dark_flat, dark_flat_source) = match dark_flat {
+        Some(d) => (Some(d), "the run's dark/flat calibration".to_string()),
+        None => match btfrig_calibrate::dark_flat::processing_dark_flat(rig, rig_path)
+            .map_err(|e| RunError::Rig(format!("the rig's dark/flat calibration: {e}")))?
+        {
+            Some((d, origin)) => (Some(Arc::new(d)), origin),
+            None => (None, "none: mean dark current, lens model vignetting".to_string()),
         },
     };
-    let has_dark_flat = dark_flat.is_some();
     let model = ProcessingModel::uncalibrated(rig.rig.name.clone(), gonio, camera, sensor, rig.plate.clone())
         .with_source(
             "camera",
@@ -114,16 +134,7 @@ pub fn gonio_model(
             "color",
             rig.camera.color_calibration.clone().unwrap_or_else(|| "none: white-balanced camera RGB".into()),
         )
-        .with_source("light", light_source)
-        .with_source(
-            "dark_flat",
-            if has_dark_flat {
-                "the run's dark/flat calibration"
-            } else {
-                "none: mean dark current, lens model vignetting"
-            },
-        )
-        .with_light(light)
+        .with_source("dark_flat", dark_flat_source)
         .with_color(color)
         .with_dark_flat(dark_flat);
     Ok(model)

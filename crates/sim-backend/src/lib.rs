@@ -19,6 +19,7 @@ use std::sync::Arc;
 use btfrig_calibrate::color::{ColorCalibration, ColorPlan};
 use btfrig_core::camera::CameraModel;
 use btfrig_core::config::RigConfig;
+use btfrig_core::pose::ScenePose;
 use btfrig_engine::dome::DomeDevices;
 use btfrig_hw::truth::DomeTruthProbe;
 use btfrig_hw::{ScaledClock, SharedClock, TokioClock};
@@ -147,18 +148,25 @@ pub struct DomeSceneTruth {
     scene: Arc<DomeScene>,
     sources: Vec<Arc<DomeFrameSource>>,
     stuck_on: Vec<usize>,
+    /// The cameras' true lens.
+    camera: CameraModel,
 }
 
 impl DomeSceneTruth {
     /// The truth of `scene` as the cameras of `sources` see it, under `faults`.
-    pub fn new(scene: Arc<DomeScene>, sources: Vec<Arc<DomeFrameSource>>, faults: &FaultScenario) -> Self {
+    pub fn new(
+        scene: Arc<DomeScene>,
+        sources: Vec<Arc<DomeFrameSource>>,
+        faults: &FaultScenario,
+        camera: CameraModel,
+    ) -> Self {
         let stuck_on = faults
             .stuck_leds
             .iter()
             .filter(|s| s.state == btfrig_sim::faults::StuckState::On)
             .map(|s| s.index)
             .collect();
-        DomeSceneTruth { scene, sources, stuck_on }
+        DomeSceneTruth { scene, sources, stuck_on, camera }
     }
 }
 
@@ -178,6 +186,19 @@ impl DomeTruthProbe for DomeSceneTruth {
 
     fn stuck_on(&self) -> Vec<usize> {
         self.stuck_on.clone()
+    }
+
+    fn true_turntable(&self, camera: usize, timestamp_s: f64) -> Option<f64> {
+        self.sources.iter().filter(|s| s.camera() == camera).find_map(|s| s.true_turntable(timestamp_s))
+    }
+
+    fn pose(&self, camera: usize, turntable_rad: f64) -> ScenePose {
+        // The pose does not depend on the light: LED 0 stands for any.
+        self.scene.pose(camera, turntable_rad, 0)
+    }
+
+    fn camera(&self) -> &CameraModel {
+        &self.camera
     }
 }
 
@@ -253,7 +274,8 @@ impl RigBackend for SimBackend {
         let dome =
             DomeRig::build(&sim_cfg, &faults, clock.clone(), scene.clone(), &req.plan.cameras, RenderOptions::default())
                 .map_err(|e| RunError::Rig(e.to_string()))?;
-        let truth = Arc::new(DomeSceneTruth::new(scene, dome.sources.clone(), &faults));
+        let camera = rig.camera.to_model().map_err(|e| RunError::Input { what: "rig.config [camera]".into(), message: e.to_string() })?;
+        let truth = Arc::new(DomeSceneTruth::new(scene, dome.sources.clone(), &faults, camera));
         let (turntable, leds, firmware) =
             emulated::connect_dome(&rig.devices, dome.turntable, dome.led_array, clock.clone())
                 .await

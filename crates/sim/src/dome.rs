@@ -7,9 +7,10 @@
 //! seed. A frame is, by linearity, the true LED intensities (stuck LEDs included) times the
 //! single-LED radiance images of the current view, summed, then the sensor model adds noise
 //! once. The single-LED images are rendered on first use and cached for the current turntable
-//! angle only (a view's 198 images of 160 x 120 are 45 MB), so memory stays bounded by one
+//! angle only (a view's 198 images of 320 x 240 are 182 MB), so memory stays bounded by one
 //! view per camera.
 
+use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
 use btfrig_core::config::RigConfig;
@@ -32,12 +33,21 @@ pub struct DomeFrameSource {
     camera: usize,
     options: RenderOptions,
     cache: Mutex<ViewCache>,
+    /// The true turntable angle behind each frame rendered, by the frame's time stamp (the
+    /// simulated camera stamps a frame with its true state's time): for the truth figures.
+    turntable_log: Mutex<HashMap<u64, f64>>,
 }
 
 impl DomeFrameSource {
     /// The source of camera `camera` of the arc.
     pub fn new(scene: Arc<DomeScene>, camera: usize, options: RenderOptions) -> Self {
-        DomeFrameSource { scene, camera, options, cache: Mutex::new(None) }
+        DomeFrameSource { scene, camera, options, cache: Mutex::new(None), turntable_log: Mutex::new(HashMap::new()) }
+    }
+
+    /// The true turntable angle, radians, at the exposure of the frame stamped `timestamp_s`
+    /// (`None` if this source never rendered it).
+    pub fn true_turntable(&self, timestamp_s: f64) -> Option<f64> {
+        self.turntable_log.lock().unwrap_or_else(|e| e.into_inner()).get(&timestamp_s.to_bits()).copied()
     }
 
     /// Which camera of the arc this is.
@@ -119,6 +129,10 @@ impl FrameSource for DomeFrameSource {
     fn render(&self, truth: &TrueState, settings: &CaptureSettings, seed: u64) -> RawFrame {
         let sensor = self.scene.sensor();
         let (exposure_s, gain) = crate::rendered::sensor_settings(sensor, settings);
+        self.turntable_log
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .insert(truth.time_s.to_bits(), truth.joints.turntable);
         let mut img = self.radiance(truth.joints.turntable, &truth.leds);
         if self.scene.dome().is_flash() {
             // A flash's image is its signal per flash: spread it over the exposure as a rate,

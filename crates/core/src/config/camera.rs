@@ -64,6 +64,12 @@ pub struct CameraConfig {
     /// through the rig model's matrix.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub color_calibration: Option<String>,
+    /// Optional dark and flat-field calibration the pipeline corrects every photosite with
+    /// (`docs/dark-flat.md`): the directory `btfrig calibrate radiometric --out` wrote, relative
+    /// to the rig config's directory, or `builtin:NAME`. None: the mean dark current is
+    /// subtracted and the lens model's vignetting divided out. A run's `--dark-flat` replaces it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dark_flat: Option<String>,
 }
 
 impl Default for CameraConfig {
@@ -86,6 +92,7 @@ impl Default for CameraConfig {
             lens_transmittance: 0.9,
             calibration: None,
             color_calibration: None,
+            dark_flat: None,
         }
     }
 }
@@ -152,6 +159,11 @@ impl CameraConfig {
                     format!("{c:?}"),
                     "a colour calibration file path ending in .toml, or builtin:NAME",
                 );
+            }
+        }
+        if let Some(c) = &self.dark_flat {
+            if c.strip_prefix("builtin:").unwrap_or(c).trim().is_empty() {
+                push("dark_flat", format!("{c:?}"), "a dark/flat calibration directory, or builtin:NAME");
             }
         }
         // Only when the numbers are individually sane: does the distortion fold inside the image?
