@@ -34,6 +34,7 @@ fn go(text: String, out: &Path) -> DomeRunSummary {
 
 #[test]
 fn a_camera_array_run_multiplexes_all_151_flashes_and_beats_single_flash_frames() {
+    btfrig_sim_backend::install();
     let out = tmp("whole");
     let s = go(plan(""), &out);
     eprintln!("{}", s.to_json());
@@ -85,6 +86,7 @@ fn brighter_array(dir: &Path, factor: f64) -> PathBuf {
 #[test]
 #[ignore = "issue 25: since the dome pipeline stopped dividing multiplexed images by the LED power twice (merge of h25-d), the measured gain of bright flashes disagrees with the noise model; open, see the stop-31 note"]
 fn bright_flashes_are_captured_one_at_a_time_which_is_the_better_mode() {
+    btfrig_sim_backend::install();
     // Flashes 4x brighter and a white sample estimate: about 360 e- per flash against 12 e-
     // read noise, photon-noise dominated (σ_p²/κ² about 2.5), and 76 flashes still fit the
     // well (a brighter flash would make the forced S-matrix saturation-limited instead).
@@ -111,6 +113,7 @@ fn bright_flashes_are_captured_one_at_a_time_which_is_the_better_mode() {
 #[test]
 #[ignore = "issue 25: since the dome pipeline stopped dividing multiplexed images by the LED power twice (merge of h25-d), the measured gain of bright flashes disagrees with the noise model; open, see the stop-31 note"]
 fn a_saturating_pattern_fires_the_flashes_at_reduced_power() {
+    btfrig_sim_backend::install();
     // Flashes 300x brighter: 76 of them would overfill the well, and a shorter exposure would
     // not dim a flash, so the forced S-matrix fires them at a few percent of their power; the
     // demultiplexer divides that power out again and the gain is the (poor) predicted one.

@@ -32,6 +32,7 @@ fn go(text: String, out: &Path, faults: Option<String>) -> DomeRunSummary {
 
 #[test]
 fn a_dome_run_multiplexes_demultiplexes_stores_and_beats_single_light() {
+    btfrig_sim_backend::install();
     let out = tmp("whole");
     let s = go(plan(""), &out, None);
     eprintln!("{}", s.to_json());
@@ -62,6 +63,7 @@ fn a_dome_run_multiplexes_demultiplexes_stores_and_beats_single_light() {
 
 #[test]
 fn a_stuck_led_is_detected_reported_and_solved_around() {
+    btfrig_sim_backend::install();
     // Longer exposures than the demo's so the stuck LED's light stands out of the noise of the
     // demultiplexed images (z about 10; at 0.05 s it is z = 2.6 and reads as a dead LED).
     let p = "reference_leds = 0\nexposure_s = 0.2\nmultiplex = \"on\"\n";
@@ -86,6 +88,7 @@ fn a_stuck_led_is_detected_reported_and_solved_around() {
 
 #[test]
 fn a_photon_noise_dominated_dome_is_captured_single_light_which_is_the_better_mode() {
+    btfrig_sim_backend::install();
     // A bright sample estimate and long exposures: about 300 e- per LED per frame.
     let bright = "exposure_s = 0.18\nsample_brightness = 1.0\n";
     let out = tmp("photon");
@@ -115,6 +118,7 @@ fn a_photon_noise_dominated_dome_is_captured_single_light_which_is_the_better_mo
 
 #[test]
 fn highlights_that_would_saturate_the_full_s_matrix_are_captured_with_a_grouped_code_which_gains() {
+    btfrig_sim_backend::install();
     // The leather's albedo estimate as in the demo (0.3, 43 e- per LED per frame at 0.08 s)
     // but highlights estimated at 16x white: 100 lit LEDs at the highlight would overfill the
     // well, so the full S-matrix has to cut its exposure to 16 %; groups of 31 light 16 LEDs
@@ -161,6 +165,7 @@ fn texture_hashes(dataset: &Path) -> std::collections::BTreeMap<String, String> 
 
 #[test]
 fn the_serial_dome_gives_the_direct_dome_textures() {
+    btfrig_sim_backend::install();
     // bonn-dome-serial: the turntable on GRBL and the LEDs on the LED controller, both real
     // backends against emulated firmware on ptys. Two rotations, so the turntable moves.
     let serial_rig = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../rig-configs/bonn-dome-serial.toml");
@@ -189,6 +194,7 @@ fn the_serial_dome_gives_the_direct_dome_textures() {
 
 #[test]
 fn a_stuck_led_under_a_grouped_code_is_reported_with_its_own_index() {
+    btfrig_sim_backend::install();
     // Groups of 31 (LED 40 is slot 9 of group 1), forced, at the stuck test's 0.2 s. The stuck
     // LED also lights every other group's frames: those groups' demultiplexers see a constant
     // offset (2/32 of its image added to each of their LEDs), which is not corrected; the

@@ -57,6 +57,7 @@ fn led_file(k: f64) -> String {
 
 #[test]
 fn a_wrong_led_calibration_makes_the_texture_error_measurably_worse() {
+    btfrig_sim_backend::install();
     let good = tmp("good");
     std::fs::write(good.join("leds.toml"), led_file(1.0)).unwrap();
     let g = go(&good, &rig_text("led_calibration = \"leds.toml\"")).unwrap();
@@ -77,6 +78,7 @@ fn a_wrong_led_calibration_makes_the_texture_error_measurably_worse() {
 
 #[test]
 fn a_missing_led_calibration_file_is_named_and_none_runs_in_relative_units() {
+    btfrig_sim_backend::install();
     let dir = tmp("missing");
     let e = go(&dir, &rig_text("led_calibration = \"no-such-leds.toml\"")).unwrap_err().to_string();
     assert!(e.contains("led_calibration") && e.contains("no-such-leds.toml"), "{e}");

@@ -67,6 +67,7 @@ fn report_status(dir: &Path) -> String {
 /// against the rig time the paused (complete) run still took from there.
 #[test]
 fn a_dome_run_pauses_between_steps_aborts_resumably_and_its_eta_is_the_remaining_rig_time() {
+    btfrig_sim_backend::install();
     let dir = tmp("pause");
     let mut paused = false;
     let (s, events) = steered(&request(&dir, None), true, |e, c| match e {
@@ -155,6 +156,7 @@ fn a_dome_run_pauses_between_steps_aborts_resumably_and_its_eta_is_the_remaining
 
 #[test]
 fn a_device_fault_pauses_the_dome_run_until_resumed_unless_the_session_stops_on_faults() {
+    btfrig_sim_backend::install();
     let dir = tmp("fault");
     // The LED controller fails for good on its 30th pattern (step 29).
     std::fs::write(dir.join("leds.toml"), "[[failures]]\ndevice = \"led_array\"\ncalls = [30]\n").unwrap();

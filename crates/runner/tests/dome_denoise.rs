@@ -33,6 +33,7 @@ fn go(extra: &str, name: &str) -> DomeRunSummary {
 /// 10 s exposures: 200 times the photons of the 0.05 s the others use).
 #[test]
 fn projection_onto_the_groups_own_basis_removes_most_of_the_demultiplexing_noise() {
+    btfrig_sim_backend::install();
     let floor = go("exposure_s = 10.0\nmultiplex = \"off\"\n", "floor").texture_rel_rmse.unwrap();
     let noise = |e: f64| (e * e - floor * floor).max(0.0).sqrt();
     let plain = go("", "plain");

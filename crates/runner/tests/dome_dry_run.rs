@@ -34,6 +34,7 @@ fn check(plan: &str, name: &str) {
 
 #[test]
 fn a_led_dome_dry_run_predicts_the_run() {
+    btfrig_sim_backend::install();
     let plan = "name = \"dry\"\ntexture_size = 8\n[rig]\nconfig = \"builtin:bonn-dome-sim\"\nmaterial = \"leather\"\n\
                 [dome]\ncameras = [4]\nrotations = [1, 5]\n";
     assert!(is_dome_plan(plan));
@@ -42,6 +43,7 @@ fn a_led_dome_dry_run_predicts_the_run() {
 
 #[test]
 fn a_camera_array_dry_run_predicts_the_run() {
+    btfrig_sim_backend::install();
     let plan =
         "name = \"dry\"\ntexture_size = 8\n[rig]\nconfig = \"builtin:bonn-camera-array-sim\"\nmaterial = \"leather\"\n\
                 [dome]\ncameras = [0, 31]\n";
@@ -50,6 +52,7 @@ fn a_camera_array_dry_run_predicts_the_run() {
 
 #[test]
 fn a_gonio_plan_is_no_dome_plan() {
+    btfrig_sim_backend::install();
     let text =
         std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../rig-configs/plans/demo.toml")).unwrap();
     assert!(!is_dome_plan(&text));
@@ -60,6 +63,7 @@ fn a_gonio_plan_is_no_dome_plan() {
 /// (as in a gonio plan), and a missing one is named with its resolved path.
 #[test]
 fn a_dome_plan_material_file_resolves_against_the_plan() {
+    btfrig_sim_backend::install();
     let dir = std::env::temp_dir().join(format!("btfrig-dome-material-{}", std::process::id()));
     std::fs::create_dir_all(dir.join("plans")).unwrap();
     std::fs::copy(

@@ -39,6 +39,7 @@ fn dome_with_turntable_offset(offset_deg: f64) -> String {
 
 #[test]
 fn a_turntable_positioning_error_is_measured_by_registration_not_taken_from_the_nominal_pose() {
+    btfrig_sim_backend::install();
     let dir = tmp("offset");
     let s = go(&dir, &dome_with_turntable_offset(1.0), "cameras = [4]\nrotations = [1]\nreference_leds = 0\n")
         .unwrap_or_else(|e| panic!("{e}"));
@@ -56,6 +57,7 @@ fn a_turntable_positioning_error_is_measured_by_registration_not_taken_from_the_
 
 #[test]
 fn a_camera_array_run_registers_every_camera() {
+    btfrig_sim_backend::install();
     let dir = tmp("array");
     let s = go(&dir, CAMERA_ARRAY, "cameras = [0, 31]\nexposure_s = 0.01\nreference_leds = 0\n")
         .unwrap_or_else(|e| panic!("{e}"));
@@ -85,6 +87,7 @@ fn dark_flat_copy(dir: &Path, name: &str, flat_error: impl Fn(usize, usize) -> f
 
 #[test]
 fn the_dark_flat_file_is_used_and_a_wrong_one_worsens_the_textures() {
+    btfrig_sim_backend::install();
     let dir = tmp("dark-flat");
     let view = "cameras = [4]\nrotations = [1]\nreference_leds = 0\n";
     let with = |reference: &str| {
@@ -128,6 +131,7 @@ fn the_dark_flat_file_is_used_and_a_wrong_one_worsens_the_textures() {
 
 #[test]
 fn a_missing_dark_flat_directory_is_named_before_anything_is_written() {
+    btfrig_sim_backend::install();
     let dir = tmp("missing");
     let rig = DOME.replace("dark_flat = \"builtin:bonn-dome-sim-dark-flat\"", "dark_flat = \"no-such-dark-flat\"");
     let e = go(&dir, &rig, "cameras = [4]\nrotations = [1]\n").err().expect("a missing dark/flat calibration").to_string();

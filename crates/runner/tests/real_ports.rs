@@ -37,6 +37,7 @@ fn link(port: &std::path::Path, baud: i64) -> toml::Table {
 
 #[test]
 fn probe_opens_the_ports_a_rig_config_names() {
+    btfrig_sim_backend::install();
     let dir = std::env::temp_dir().join(format!("btfrig-real-ports-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     // The controllers: emulated firmware of a simulated rig, on ptys at known paths.
@@ -101,6 +102,7 @@ fn probe_opens_the_ports_a_rig_config_names() {
 
 #[test]
 fn bad_link_options_are_named() {
+    btfrig_sim_backend::install();
     let port = std::path::Path::new("/dev/ttyUSB0");
     let cases: [(toml::Table, &str); 4] = [
         (link(port, 12_345), "devices.robot.link.baud = 12345 is not a supported rate: allowed 1200,"),
