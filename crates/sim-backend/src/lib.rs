@@ -312,3 +312,32 @@ impl RigBackend for SimBackend {
             .map_err(|e| e.to_string())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use btfrig_core::plan::BUILTIN_RIGS;
+
+    /// The dome rigs' `[dome] nominal_signal_e_per_s` (the planner's brightness when a rig
+    /// names no LED calibration) is the simulated scene's own: a datasheet figure that
+    /// disagrees with the simulated lights would plan the wrong mode or exposure.
+    #[test]
+    fn the_dome_rigs_nominal_signal_is_the_scenes() {
+        let material = load_material(None).unwrap();
+        let mut checked = 0;
+        for (name, text) in BUILTIN_RIGS {
+            let rig = RigConfig::from_toml(text, name).unwrap();
+            let Some(dome) = rig.dome.as_ref() else { continue };
+            let scene = DomeScene::new(&rig, &material).unwrap();
+            let truth = scene.nominal_irradiance();
+            let nominal = dome.nominal_signal_e_per_s.unwrap_or_else(|| {
+                panic!("{name} sets no [dome] nominal_signal_e_per_s; the scene's is {truth:.4} e-/s")
+            });
+            let err = (nominal / truth - 1.0).abs();
+            eprintln!("{name}: nominal {nominal} e-/s, scene {truth:.6} e-/s ({:.3} %)", 100.0 * err);
+            assert!(err < 0.01, "{name}: [dome] nominal_signal_e_per_s = {nominal}, the scene's is {truth:.6}");
+            checked += 1;
+        }
+        assert_eq!(checked, 3, "bonn-dome-sim, bonn-dome-serial and bonn-camera-array-sim");
+    }
+}
