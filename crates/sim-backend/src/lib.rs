@@ -340,4 +340,40 @@ mod tests {
         }
         assert_eq!(checked, 3, "bonn-dome-sim, bonn-dome-serial and bonn-camera-array-sim");
     }
+
+    #[test]
+    fn embedded_fault_files_are_the_names_plans_may_use_and_all_parse() {
+        let mut ours: Vec<&str> = FAULT_FILES.iter().map(|(n, _)| *n).collect();
+        let mut core: Vec<&str> = btfrig_core::plan::BUILTIN_FAULT_SCENARIOS.to_vec();
+        ours.sort_unstable();
+        core.sort_unstable();
+        assert_eq!(ours, core);
+        for (name, _) in FAULT_FILES {
+            fault_scenario(name, Path::new("/nonexistent"), "--faults").unwrap();
+        }
+    }
+
+    /// A missing or bad scenario file is an error naming the setting, the file and (for a bad
+    /// one) the field, and listing the embedded names for a missing one.
+    #[test]
+    fn a_missing_or_bad_fault_file_is_named() {
+        let e = fault_scenario("nosuch", Path::new("/nonexistent"), "--faults").unwrap_err().to_string();
+        assert!(
+            e.contains("--faults \"nosuch\"") && e.contains("robot-fault") && e.contains("/nonexistent/nosuch"),
+            "{e}"
+        );
+        let dir = std::env::temp_dir().join(format!("btfrig-sim-backend-faults-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("typo.toml"), "description = \"x\"\n[[stuck_led]]\nindex = 3\nstate = \"on\"\n")
+            .unwrap();
+        let e = fault_scenario("typo.toml", &dir, "run.fault_scenario").unwrap_err().to_string();
+        assert!(
+            e.contains("run.fault_scenario \"typo.toml\"") && e.contains("typo.toml") && e.contains("stuck_led"),
+            "{e}"
+        );
+        std::fs::write(dir.join("range.toml"), "[[stuck_leds]]\nindex = 3\nstate = \"sideways\"\n").unwrap();
+        let e = fault_scenario("range.toml", &dir, "run.fault_scenario").unwrap_err().to_string();
+        assert!(e.contains("run.fault_scenario \"range.toml\"") && e.contains("sideways"), "{e}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }
