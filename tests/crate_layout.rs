@@ -1,11 +1,9 @@
 //! The simulator stays out of the processing crates (issue 25, docs/ARCHITECTURE.md): no
 //! library crate of the workspace depends, directly or through other crates, on `btfrig-sim`
 //! or `btfrig-render` in its normal (non-dev) dependencies, except the simulator's own crates.
-//! Read from `cargo metadata`, so a dependency cannot creep back unnoticed.
-//!
-//! `STILL_DEPENDING` lists the crates that still do while the redesign is under way, each with
-//! why; the test fails when one of them no longer does (take it off the list) as well as when
-//! any other crate starts to.
+//! Read from `cargo metadata`, so a dependency cannot creep back unnoticed. The runner and the
+//! daemon reach the simulator only through the backend registry, which `btfrig-sim-backend`
+//! fills (`btfrig_runner::backend`).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::process::Command;
@@ -15,12 +13,6 @@ const SIMULATOR_CRATES: &[&str] = &["btfrig-sim", "btfrig-render", "btfrig-sim-b
 
 /// What the simulator is.
 const SIMULATOR: &[&str] = &["btfrig-sim", "btfrig-render"];
-
-/// Crates that still depend on the simulator, and why (to be emptied).
-const STILL_DEPENDING: &[(&str, &str)] = &[
-    ("btfrig-runner", "the dome run builds its simulated rig itself; plan checks load materials and fault scenarios"),
-    ("btfrig-daemon", "through btfrig-runner; its /calibrations colour job runs on the simulated rig"),
-];
 
 /// Each workspace package with a library target, and its normal dependencies inside the workspace.
 fn workspace_libraries() -> BTreeMap<String, BTreeSet<String>> {
@@ -86,15 +78,12 @@ fn no_library_outside_the_simulator_depends_on_it() {
             offenders.insert(name.clone(), reached);
         }
     }
-    let listed: BTreeSet<&str> = STILL_DEPENDING.iter().map(|(n, _)| *n).collect();
-    let new: Vec<String> = offenders
-        .iter()
-        .filter(|(n, _)| !listed.contains(n.as_str()))
-        .map(|(n, d)| format!("{n} -> {}", d.join(", ")))
-        .collect();
-    assert!(new.is_empty(), "library crates that now depend on the simulator: {new:?}");
-    let freed: Vec<&str> = listed.iter().copied().filter(|n| !offenders.contains_key(*n)).collect();
-    assert!(freed.is_empty(), "no longer depend on the simulator, take them off STILL_DEPENDING: {freed:?}");
+    let found: Vec<String> = offenders.iter().map(|(n, d)| format!("{n} -> {}", d.join(", "))).collect();
+    assert!(
+        found.is_empty(),
+        "library crates depend on the simulator in [dependencies]: {found:?}; allowed: only {SIMULATOR_CRATES:?} \
+         (and the CLI binary). Open devices and truth through btfrig_runner::backend, or make it a dev-dependency"
+    );
 }
 
 #[test]

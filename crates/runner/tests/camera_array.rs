@@ -69,32 +69,60 @@ fn a_camera_array_run_multiplexes_all_151_flashes_and_beats_single_flash_frames(
     let _ = std::fs::remove_dir_all(&out);
 }
 
-/// The shipped array with each flash `factor` times brighter, written to `dir`; its path.
+/// The shipped array with each flash `factor` times brighter, written to `dir` with its flash
+/// calibration (the shipped one with `reference_rate` times `factor`: a flash's signal is
+/// linear in its energy, and a lab that turns its flashes up calibrates them again, or the
+/// planner and the pipeline take them for the dim ones); the rig file's path.
 fn brighter_array(dir: &Path, factor: f64) -> PathBuf {
     std::fs::create_dir_all(dir).unwrap();
     let shipped = std::fs::read_to_string(
         Path::new(env!("CARGO_MANIFEST_DIR")).join("../../rig-configs/bonn-camera-array-sim.toml"),
     )
     .unwrap();
-    let bright = shipped.replace("energy_at_1m_j_m2 = 1.2e-4", &format!("energy_at_1m_j_m2 = {:e}", 1.2e-4 * factor));
-    assert_ne!(bright, shipped);
+    let cfg = btfrig_core::config::RigConfig::from_toml(&shipped, "bonn-camera-array-sim").unwrap();
+    let mut flashes = btfrig_calibrate::leds::processing_leds(&cfg, None).unwrap().unwrap();
+    flashes.reference_rate *= factor;
+    std::fs::write(dir.join("bright-flashes.toml"), flashes.to_toml()).unwrap();
+    let nominal = cfg.dome.as_ref().unwrap().nominal_signal_e_per_s.unwrap();
+    let bright = shipped
+        .replace("energy_at_1m_j_m2 = 1.2e-4", &format!("energy_at_1m_j_m2 = {:e}", 1.2e-4 * factor))
+        .replace(
+            "led_calibration = \"builtin:bonn-camera-array-sim-flashes\"",
+            "led_calibration = \"bright-flashes.toml\"",
+        )
+        .replace(
+            &format!("nominal_signal_e_per_s = {nominal}"),
+            &format!("nominal_signal_e_per_s = {}", nominal * factor),
+        );
+    assert_eq!(bright.matches("bright-flashes.toml").count(), 1);
+    assert!(bright.contains(&format!("nominal_signal_e_per_s = {}", nominal * factor)));
     let rig = dir.join("bright-array.toml");
     std::fs::write(&rig, bright).unwrap();
     rig
 }
 
 #[test]
-#[ignore = "issue 25: since the dome pipeline stopped dividing multiplexed images by the LED power twice (merge of h25-d), the measured gain of bright flashes disagrees with the noise model; open, see the stop-31 note"]
+#[ignore = "issue 25, open: the noise model (btfrig_planner::dome -> btfrig_mux SceneLight) gives every lit flash the on-axis rate, but a flash at polar angle θ lights the sample with cos θ of it (mean 0.59 over this array), so the forced S-matrix's photon noise is over-predicted: measured 0.976 against predicted 0.834 (17 %, the test allows 15 %); with the mean cos θ the model would predict about 0.92. Fixing it moves every dome prediction (the dim array's 1.71 measured 1.56), so it is the planner's change, not this test's"]
 fn bright_flashes_are_captured_one_at_a_time_which_is_the_better_mode() {
     btfrig_sim_backend::install();
-    // Flashes 4x brighter and a white sample estimate: about 360 e- per flash against 12 e-
-    // read noise, photon-noise dominated (σ_p²/κ² about 2.5), and 76 flashes still fit the
-    // well (a brighter flash would make the forced S-matrix saturation-limited instead).
+    // Flashes 4x brighter and a white sample: about 360 e- per flash against 12 e- read
+    // noise, photon-noise dominated (σ_p²/κ² about 2.5), and 76 flashes still fit the well (a
+    // brighter flash would make the forced S-matrix saturation-limited instead). The sample
+    // is white as the plan's estimate says (on the dark leather the forced S-matrix measured
+    // 1.00 against the 0.83 predicted for a white sample; on white 0.976).
     let dir = tmp("bright");
     let rig = brighter_array(&dir, 4.0);
+    let white = dir.join("white.toml");
+    std::fs::write(
+        &white,
+        "name = \"white\"\ntexels = 64\nseed = 1\nbasis = [\"flat:0.95\"]\n[albedo]\n\
+         pattern = { kind = \"noise\", scale_m = 0.005, octaves = 1, gain = 0.5, salt = 1 }\nstops = [[1.0], [1.0]]\n",
+    )
+    .unwrap();
     let with_rig = |extra: &str| {
         plan(&format!("sample_brightness = 1.0\n{extra}"))
             .replace("builtin:bonn-camera-array-sim", &rig.display().to_string())
+            .replace("material = \"leather\"", &format!("material = \"{}\"", white.display()))
     };
     let s = go(with_rig(""), &dir.join("auto"));
     assert_eq!(s.mode, "single-light");
@@ -111,7 +139,6 @@ fn bright_flashes_are_captured_one_at_a_time_which_is_the_better_mode() {
 }
 
 #[test]
-#[ignore = "issue 25: since the dome pipeline stopped dividing multiplexed images by the LED power twice (merge of h25-d), the measured gain of bright flashes disagrees with the noise model; open, see the stop-31 note"]
 fn a_saturating_pattern_fires_the_flashes_at_reduced_power() {
     btfrig_sim_backend::install();
     // Flashes 300x brighter: 76 of them would overfill the well, and a shorter exposure would

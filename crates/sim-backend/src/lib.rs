@@ -312,3 +312,68 @@ impl RigBackend for SimBackend {
             .map_err(|e| e.to_string())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use btfrig_core::plan::BUILTIN_RIGS;
+
+    /// The dome rigs' `[dome] nominal_signal_e_per_s` (the planner's brightness when a rig
+    /// names no LED calibration) is the simulated scene's own: a datasheet figure that
+    /// disagrees with the simulated lights would plan the wrong mode or exposure.
+    #[test]
+    fn the_dome_rigs_nominal_signal_is_the_scenes() {
+        let material = load_material(None).unwrap();
+        let mut checked = 0;
+        for (name, text) in BUILTIN_RIGS {
+            let rig = RigConfig::from_toml(text, name).unwrap();
+            let Some(dome) = rig.dome.as_ref() else { continue };
+            let scene = DomeScene::new(&rig, &material).unwrap();
+            let truth = scene.nominal_irradiance();
+            let nominal = dome.nominal_signal_e_per_s.unwrap_or_else(|| {
+                panic!("{name} sets no [dome] nominal_signal_e_per_s; the scene's is {truth:.4} e-/s")
+            });
+            let err = (nominal / truth - 1.0).abs();
+            eprintln!("{name}: nominal {nominal} e-/s, scene {truth:.6} e-/s ({:.3} %)", 100.0 * err);
+            assert!(err < 0.01, "{name}: [dome] nominal_signal_e_per_s = {nominal}, the scene's is {truth:.6}");
+            checked += 1;
+        }
+        assert_eq!(checked, 3, "bonn-dome-sim, bonn-dome-serial and bonn-camera-array-sim");
+    }
+
+    #[test]
+    fn embedded_fault_files_are_the_names_plans_may_use_and_all_parse() {
+        let mut ours: Vec<&str> = FAULT_FILES.iter().map(|(n, _)| *n).collect();
+        let mut core: Vec<&str> = btfrig_core::plan::BUILTIN_FAULT_SCENARIOS.to_vec();
+        ours.sort_unstable();
+        core.sort_unstable();
+        assert_eq!(ours, core);
+        for (name, _) in FAULT_FILES {
+            fault_scenario(name, Path::new("/nonexistent"), "--faults").unwrap();
+        }
+    }
+
+    /// A missing or bad scenario file is an error naming the setting, the file and (for a bad
+    /// one) the field, and listing the embedded names for a missing one.
+    #[test]
+    fn a_missing_or_bad_fault_file_is_named() {
+        let e = fault_scenario("nosuch", Path::new("/nonexistent"), "--faults").unwrap_err().to_string();
+        assert!(
+            e.contains("--faults \"nosuch\"") && e.contains("robot-fault") && e.contains("/nonexistent/nosuch"),
+            "{e}"
+        );
+        let dir = std::env::temp_dir().join(format!("btfrig-sim-backend-faults-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("typo.toml"), "description = \"x\"\n[[stuck_led]]\nindex = 3\nstate = \"on\"\n")
+            .unwrap();
+        let e = fault_scenario("typo.toml", &dir, "run.fault_scenario").unwrap_err().to_string();
+        assert!(
+            e.contains("run.fault_scenario \"typo.toml\"") && e.contains("typo.toml") && e.contains("stuck_led"),
+            "{e}"
+        );
+        std::fs::write(dir.join("range.toml"), "[[stuck_leds]]\nindex = 3\nstate = \"sideways\"\n").unwrap();
+        let e = fault_scenario("range.toml", &dir, "run.fault_scenario").unwrap_err().to_string();
+        assert!(e.contains("run.fault_scenario \"range.toml\"") && e.contains("sideways"), "{e}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
