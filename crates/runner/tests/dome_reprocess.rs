@@ -27,11 +27,16 @@ const PLAN: &str = "name = \"dome-reprocess\"\ntexture_size = 16\n[rig]\nconfig 
                     reference_leds = 2\n[outputs]\nraw_frames = true\n";
 
 fn go(out: &Path) -> DomeRunSummary {
+    go_with(out, None)
+}
+
+/// [`go`] with the fault scenario replaced (not part of the plan hash: a resume may change it).
+fn go_with(out: &Path, faults: Option<String>) -> DomeRunSummary {
     let req = DomeRunRequest {
         plan_text: PLAN.into(),
         plan_path: PathBuf::from("<test>"),
         out: out.to_path_buf(),
-        faults: None,
+        faults,
         preview: false,
     };
     run(&req, &mut |line| eprintln!("{line}")).unwrap_or_else(|e| panic!("{e}"))
@@ -186,9 +191,15 @@ fn a_crash_between_a_groups_frames_and_its_textures_takes_the_group_again() {
     crash_after_frames(&source, 15);
     let r = btfrig_store::verify(&source);
     assert!(!r.is_ok(), "textures of view 15 are no longer journaled: {r}");
-    let again = go(&source);
+    // The rig changed meanwhile (LED 40 now stuck on), so the frames captured again differ
+    // from those of the first session: a group kept with the first session's frames and the
+    // second's textures would not reprocess into its textures.
+    let faults = dir.join("stuck.toml");
+    std::fs::write(&faults, "description = \"LED 40 stuck on\"\n[[stuck_leds]]\nindex = 40\nstate = \"on\"\n").unwrap();
+    let again = go_with(&source, Some(faults.display().to_string()));
     // View 14 was whole and is kept; view 15 is captured and processed again, frames first.
     assert_eq!(again.textures, 198, "{:?}", again.warnings);
+    assert!(again.faults.contains(&"camera 4 rotation 1: LED 40 stuck".to_string()), "{:?}", again.warnings);
     let r = btfrig_store::verify(&source);
     assert!(r.is_ok(), "{r}");
     // The kept frames are the ones the textures were made from.
