@@ -287,7 +287,8 @@ fn process(
     dataset: &Dataset,
 ) -> Result<crate::dome::DomeRunSummary, RunError> {
     let mut total = crate::dome::DomeRunSummary::default();
-    let by_view: BTreeMap<(usize, u32), RawView> = schedule.views.iter().map(|r| ((r.camera, r.rotation), *r)).collect();
+    let by_view: BTreeMap<(usize, u32), RawView> =
+        schedule.views.iter().map(|r| ((r.camera, r.rotation), *r)).collect();
     let mut index = 0;
     for &k in &v.rotations {
         let cams: Vec<(usize, RawView)> = v

@@ -471,7 +471,10 @@ fn r25_a_crash_between_a_groups_frames_and_its_textures_takes_the_group_again() 
     let said: Vec<&str> = resume.retaken.iter().map(|(_, w)| w.as_str()).collect();
     assert_eq!(
         said,
-        ["view 1's group: its textures are incomplete (1 of 2 journaled)", "view 2's group: its raw frames are not journaled"],
+        [
+            "view 1's group: its textures are incomplete (1 of 2 journaled)",
+            "view 2's group: its raw frames are not journaled"
+        ],
         "{resume}"
     );
     assert!(resume.removed_orphans.is_empty(), "the retaken files are not orphans: {resume}");
