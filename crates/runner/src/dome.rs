@@ -41,8 +41,8 @@ use btfrig_pipeline::dome::{DomeProcessing, GroupCode, GroupPose, GroupStack, Le
 use btfrig_pipeline::{PoseSource, TexelErrorTotals};
 use btfrig_planner::dome::{plan_dome, DomeMode, DomeShot};
 use btfrig_store::{
-    Dataset, DirectionDeg, FileRecord, Manifest, RigInfo, RunReport, Samplings, StepId, StepTiming, StoreError, TextureFormat,
-    TextureRegion, TextureSpec,
+    Dataset, DirectionDeg, FileRecord, Manifest, RigInfo, RunReport, Samplings, StepId, StepTiming, StoreError,
+    TextureFormat, TextureRegion, TextureSpec,
 };
 use serde_json::json;
 use tokio::sync::mpsc;
@@ -687,7 +687,11 @@ async fn listen(
 /// The code a view group's patterns were captured with, its demultiplexers given the lights'
 /// calibrated power (`processing.leds`) at the power the patterns fire them at
 /// (`pattern_scale`): a run's and a reprocessing's.
-pub(crate) fn group_code(mode: DomeMode, processing: &DomeProcessing, pattern_scale: f64) -> Result<GroupCode, RunError> {
+pub(crate) fn group_code(
+    mode: DomeMode,
+    processing: &DomeProcessing,
+    pattern_scale: f64,
+) -> Result<GroupCode, RunError> {
     let fired: Vec<f64> = processing.leds.power.iter().map(|p| p * pattern_scale).collect();
     Ok(match mode {
         DomeMode::Single => GroupCode::Single,
