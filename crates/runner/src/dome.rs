@@ -14,6 +14,12 @@
 //! (`DomeTruthProbe::noise_free_dn`, photosites imaging the sample); the gain is the ratio of
 //! their SNRs. Reference frames are only measured, not stored.
 //!
+//! Raw frames (`[outputs] raw_frames = true`): every pattern frame of every view group, all
+//! cameras, is written as it arrives and journaled in one `frames` record before the group's
+//! textures (`Consumer`; `docs/dataset-format.md`, "Raw frames of view groups"), with the
+//! schedule in the manifest's `raw_groups`, so `btfrig reprocess` can demultiplex them again
+//! (`crate::dome_reprocess`).
+//!
 //! Steering ([`run_controlled`]): a [`RunControl`] pauses, resumes, aborts or interrupts the
 //! engine between steps (`btfrig_engine::dome::run_dome`), and the run reports
 //! [`RunEvent`]s: `Started`, `Progress` with an ETA, warnings, pauses (also on a device fault),
