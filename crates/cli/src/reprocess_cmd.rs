@@ -1,5 +1,5 @@
 //! `btfrig reprocess DATASET --out NEW [--calibration DIR]`: argument handling and display;
-//! the work is `btfrig_runner::reprocess`.
+//! the work is `btfrig_runner::reprocess` (a dome dataset's: `btfrig_runner::dome_reprocess`).
 
 use std::path::PathBuf;
 
@@ -8,15 +8,17 @@ use clap::Args;
 /// `btfrig reprocess`.
 #[derive(Debug, Args)]
 pub struct ReprocessArgs {
-    /// A gonioreflectometer dataset whose plan kept its raw frames (`[outputs] raw_frames =
-    /// true`); read only.
+    /// A dataset whose plan kept its raw frames (`[outputs] raw_frames = true`): a
+    /// gonioreflectometer's per-step frames, or a dome's or camera array's pattern frames per
+    /// view group, demultiplexed again; read only.
     pub dataset: PathBuf,
     /// The new dataset directory (created; refused if it exists and is not empty).
     #[arg(long)]
     pub out: PathBuf,
     /// Calibration files that replace the ones the dataset's rig config names, by file name:
     /// `builtin:NAME` or `some/dir/NAME.toml` is looked up as `DIR/NAME.toml` for `[camera]
-    /// calibration`, `[camera] color_calibration` and `[lamp] calibration`; a dark/flat
+    /// calibration`, `[camera] color_calibration`, `[lamp] calibration` and `[dome]
+    /// led_calibration`; a dark/flat
     /// calibration as `DIR/dark-flat/`. Names the directory lacks keep the dataset's own.
     /// Without it: the dataset's own calibrations.
     #[arg(long, value_name = "DIR")]

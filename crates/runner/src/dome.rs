@@ -14,6 +14,12 @@
 //! (`DomeTruthProbe::noise_free_dn`, photosites imaging the sample); the gain is the ratio of
 //! their SNRs. Reference frames are only measured, not stored.
 //!
+//! Raw frames (`[outputs] raw_frames = true`): every pattern frame of every view group, all
+//! cameras, is written as it arrives and journaled in one `frames` record before the group's
+//! textures (`Consumer`; `docs/dataset-format.md`, "Raw frames of view groups"), with the
+//! schedule in the manifest's `raw_groups`, so `btfrig reprocess` can demultiplex them again
+//! (`crate::dome_reprocess`).
+//!
 //! Steering ([`run_controlled`]): a [`RunControl`] pauses, resumes, aborts or interrupts the
 //! engine between steps (`btfrig_engine::dome::run_dome`), and the run reports
 //! [`RunEvent`]s: `Started`, `Progress` with an ETA, warnings, pauses (also on a device fault),
@@ -39,10 +45,10 @@ use btfrig_hw::truth::DomeTruthProbe;
 use btfrig_hw::MoveOptions;
 use btfrig_pipeline::dome::{DomeProcessing, GroupCode, GroupPose, GroupStack, LedLight};
 use btfrig_pipeline::{PoseSource, TexelErrorTotals};
-use btfrig_planner::dome::{plan_dome, DomeMode, DomeSchedule, DomeShot};
+use btfrig_planner::dome::{plan_dome, DomeMode, DomeShot};
 use btfrig_store::{
-    Dataset, DirectionDeg, Manifest, RigInfo, RunReport, Samplings, StepId, StepTiming, StoreError, TextureFormat,
-    TextureRegion, TextureSpec,
+    Dataset, DirectionDeg, FileRecord, Manifest, RigInfo, RunReport, Samplings, StepId, StepTiming, StoreError,
+    TextureFormat, TextureRegion, TextureSpec,
 };
 use serde_json::json;
 use tokio::sync::mpsc;
@@ -364,6 +370,10 @@ pub fn run_controlled(
         false,
         rig.rig.seed,
     );
+    let mut manifest = manifest;
+    if v.plan.outputs.raw_frames {
+        manifest.raw_groups = Some(crate::dome_reprocess::RawSchedule::of(&schedule, &views, view_id).to_json());
+    }
     let hash = manifest.plan.hash.clone();
     let (dataset, resumed, repaired) = match Dataset::create(&req.out, manifest) {
         Ok(d) => (d, false, None),
@@ -397,17 +407,7 @@ pub fn run_controlled(
         })
         .collect();
 
-    // The lights' calibrated power at the power the patterns fire them at.
-    let fired: Vec<f64> = processing.leds.power.iter().map(|p| p * schedule.pattern_scale).collect();
-    let code = match schedule.mode {
-        DomeMode::Single => GroupCode::Single,
-        DomeMode::Multiplexed { order } => {
-            GroupCode::multiplexed(order, &fired).map_err(|e| input("demultiplexer", e))?
-        }
-        DomeMode::Grouped { order, groups } => {
-            GroupCode::grouped(order, groups, &fired).map_err(|e| input("demultiplexer", e))?
-        }
-    };
+    let code = group_code(schedule.mode, &processing, schedule.pattern_scale)?;
     if matches!(code, GroupCode::Single) {
         on_line(&format!("demultiplexing skipped: single-light capture ({})", schedule.reason));
     }
@@ -439,7 +439,7 @@ pub fn run_controlled(
     // The consumer's latest `TexturesCommitted` (cumulative, so the newest says all: a full
     // queue of one keeps the latest).
     let (commit_tx, mut commit_rx) = tokio::sync::watch::channel::<Option<RunEvent>>(None);
-    let mut state = Consumer::new(&v, &schedule, &processing, &code, &dataset, view_id);
+    let mut state = Consumer::new(&v, schedule.leds, &processing, &code, &dataset, view_id);
     state.commits = Some(Committing {
         tx: commit_tx,
         textures: textures_before,
@@ -690,13 +690,33 @@ async fn listen(
     }
 }
 
+/// The code a view group's patterns were captured with, its demultiplexers given the lights'
+/// calibrated power (`processing.leds`) at the power the patterns fire them at
+/// (`pattern_scale`): a run's and a reprocessing's.
+pub(crate) fn group_code(
+    mode: DomeMode,
+    processing: &DomeProcessing,
+    pattern_scale: f64,
+) -> Result<GroupCode, RunError> {
+    let fired: Vec<f64> = processing.leds.power.iter().map(|p| p * pattern_scale).collect();
+    Ok(match mode {
+        DomeMode::Single => GroupCode::Single,
+        DomeMode::Multiplexed { order } => {
+            GroupCode::multiplexed(order, &fired).map_err(|e| input("demultiplexer", e))?
+        }
+        DomeMode::Grouped { order, groups } => {
+            GroupCode::grouped(order, groups, &fired).map_err(|e| input("demultiplexer", e))?
+        }
+    })
+}
+
 /// The dome pipeline's processing model from the rig config and the calibration files it
 /// names, never the simulator: the model every rig shares (`crate::model::rig_model`: the lens
 /// from `[camera] calibration`, the colour model from `[camera] color_calibration`, dark/flat
 /// from `[camera] dark_flat`), and LED powers and colours from `[dome] led_calibration` (else
 /// equal lights, relative units). Returns it, the report's `calibration` record, and one line
 /// per missing calibration (the report's warnings say what the textures are then).
-fn dome_processing(
+pub(crate) fn dome_processing(
     rig: &btfrig_core::config::RigConfig,
     rig_path: Option<&Path>,
     size: usize,
@@ -753,10 +773,13 @@ fn dome_processing(
     Ok((processing, record, notes))
 }
 
-/// The pipeline side of a dome run: collects frames per view group, demultiplexes, stores.
-struct Consumer<'a, F: Fn(usize, u32) -> u32> {
+/// The pipeline side of a dome run (and of a reprocessing, `crate::dome_reprocess`): collects
+/// frames per view group, keeps them when the dataset does (`raw_groups`), demultiplexes,
+/// stores.
+pub(crate) struct Consumer<'a, F: Fn(usize, u32) -> u32> {
     v: &'a ValidatedDomePlan,
-    schedule: &'a DomeSchedule,
+    /// Lights.
+    leds: usize,
     processing: &'a DomeProcessing,
     code: &'a GroupCode,
     dataset: &'a Dataset,
@@ -775,6 +798,9 @@ struct Consumer<'a, F: Fn(usize, u32) -> u32> {
     texel_err: TexelErrorTotals,
     nominal_texel_err: TexelErrorTotals,
     commits: Option<Committing>,
+    /// Per camera slot, the raw frames of its group written so far (when the dataset keeps
+    /// them), journaled with the group's textures.
+    frames: HashMap<usize, Vec<FileRecord>>,
 }
 
 /// What the consumer reports after each view group it commits.
@@ -790,10 +816,9 @@ struct Committing {
 }
 
 impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
-    #[allow(clippy::too_many_arguments)]
-    fn new(
+    pub(crate) fn new(
         v: &'a ValidatedDomePlan,
-        schedule: &'a DomeSchedule,
+        leds: usize,
         processing: &'a DomeProcessing,
         code: &'a GroupCode,
         dataset: &'a Dataset,
@@ -801,7 +826,7 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
     ) -> Self {
         Consumer {
             v,
-            schedule,
+            leds,
             processing,
             code,
             dataset,
@@ -816,11 +841,12 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
             texel_err: TexelErrorTotals::default(),
             nominal_texel_err: TexelErrorTotals::default(),
             commits: None,
+            frames: HashMap::new(),
         }
     }
 
-    fn take(&mut self, cap: DomeCapture) -> Result<(), RunError> {
-        let leds = self.schedule.leds;
+    pub(crate) fn take(&mut self, cap: DomeCapture) -> Result<(), RunError> {
+        let leds = self.leds;
         let frames_per_group = self.code.frames(leds);
         let step = cap.step;
         match step.shot {
@@ -848,11 +874,20 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
                     });
                     self.processing.add(stack, p, frame).map_err(|e| input("dome pipeline", e))?;
                     self.out.group_bytes = self.out.group_bytes.max(stack.bytes());
+                    // A group journaled by an earlier session is complete, textures and all
+                    // (resuming retakes any other: `Dataset::open_for_resume`).
+                    let view = (self.view_id)(c, step.rotation);
+                    if self.dataset.manifest().raw_groups.is_some() && self.dataset.frames_record(view).is_none() {
+                        let file =
+                            self.dataset.write_group_frame(view, p, frame).map_err(|e| input("dataset", e))?;
+                        self.frames.entry(slot).or_default().push(file);
+                    }
                 }
                 if p + 1 == frames_per_group {
                     for slot in 0..cap.frames.len() {
                         let stack = self.stacks.remove(&slot).expect("a stack per camera");
-                        self.finish_group(stack, slot == 0, cap.attempts)?;
+                        let frames = self.frames.remove(&slot);
+                        self.finish_group(stack, frames, slot == 0, cap.attempts)?;
                     }
                 }
             }
@@ -860,9 +895,13 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
         Ok(())
     }
 
+    /// Registers, demultiplexes and stores a complete group; `frames`, its raw frames written
+    /// this session, are journaled first, then its textures one by one: a crash in between
+    /// leaves frames without all their textures, which resuming takes again as a whole.
     fn finish_group(
         &mut self,
         stack: GroupStack,
+        frames: Option<Vec<FileRecord>>,
         first_camera: bool,
         attempts: u32,
     ) -> Result<(), RunError> {
@@ -902,7 +941,7 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
         let result = self.processing.demultiplex(stack, self.code).map_err(|e| input("demultiplexing", e))?;
         if let Some(report) = &result.report {
             for f in &report.faults {
-                if f.source >= self.schedule.leds {
+                if f.source >= self.leds {
                     continue;
                 }
                 let light = if self.processing.dome.is_flash() { "flash" } else { "LED" };
@@ -922,7 +961,7 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
         // stored, but left out of the texture error, which speaks for the healthy LEDs.
         let faulty: Vec<usize> =
             result.report.as_ref().map_or(Vec::new(), |r| r.faults.iter().map(|f| f.source).collect());
-        let leds = self.schedule.leds;
+        let leds = self.leds;
         let size = self.v.plan.texture_size;
         let texture = |j: usize| self.processing.texture(result.mosaic(j), &pose.pose, j, exp, gain);
         // Denoising projects the whole group's textures at once; otherwise they stream one by
@@ -947,6 +986,9 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
             denoised = Some(texes);
         }
         let textures_started = Instant::now();
+        if let Some(files) = frames {
+            self.dataset.commit_frames((self.view_id)(c, k), files).map_err(|e| input("dataset", e))?;
+        }
         let want_preview = self.commits.as_ref().is_some_and(|c| c.preview);
         // The preview: the group's brightest texture (mean over texels and channels) of a
         // light not reported faulty.
@@ -974,7 +1016,7 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
                 started_unix_s: 0.0,
                 wall_s: t0.elapsed().as_secs_f64(),
                 hardware_s: None,
-                stage_s: [("demultiplex".to_string(), demux_s / self.schedule.leds as f64)].into_iter().collect(),
+                stage_s: [("demultiplex".to_string(), demux_s / self.leds as f64)].into_iter().collect(),
             };
             self.dataset.commit_step(id, vec![file], attempts, timing).map_err(|e| input("dataset", e))?;
             self.out.textures += 1;
@@ -1020,7 +1062,7 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
     fn measure(&mut self, c: usize) -> Result<(), RunError> {
         let Some((mosaics, cols, exp, gain, pose, true_rad)) = self.first_group.as_ref() else { return Ok(()) };
         let Some(probe) = self.truth.as_ref() else { return Ok(()) };
-        let (leds, rad) = (self.schedule.leds, *true_rad);
+        let (leds, rad) = (self.leds, *true_rad);
         let stuck_on = probe.stuck_on();
         // The measured signals are flat-fielded when the model has a flat: the noise-free
         // references are divided by the same flat, so the SNRs compare noise, not vignetting.
@@ -1063,7 +1105,7 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
         Ok(())
     }
 
-    fn finish(mut self) -> DomeRunSummary {
+    pub(crate) fn finish(mut self) -> DomeRunSummary {
         self.out.texture_rel_rmse = pooled(&self.rmse);
         let (b, t) = self.brightness;
         self.out.texture_brightness_err = (t > 0.0).then(|| b / t - 1.0);

@@ -15,6 +15,7 @@ pub mod backend;
 pub mod check;
 pub mod dome;
 pub mod dome_dry_run;
+pub mod dome_reprocess;
 pub mod dry_run;
 pub mod emulated;
 mod hdr;

@@ -1,6 +1,8 @@
-//! `btfrig reprocess`: runs the gonio pipeline again on the raw frames a dataset kept
+//! `btfrig reprocess`: runs the pipeline again on the raw frames a dataset kept
 //! (`[outputs] raw_frames = true`), into a new dataset, without the rig and without the
-//! simulator, e.g. after a better calibration (`docs/pipeline.md`, "Reprocessing").
+//! simulator, e.g. after a better calibration (`docs/pipeline.md`, "Reprocessing"). A dome or
+//! camera-array dataset is demultiplexed again from its view groups' pattern frames
+//! (`crate::dome_reprocess`); this module does a gonioreflectometer's.
 //!
 //! The processing model is loaded as a run loads it ([`crate::model::gonio_model`]), from the
 //! rig config recorded in the dataset's manifest and the calibration files it names; a
@@ -66,7 +68,7 @@ pub struct ReprocessSummary {
     pub wall_s: f64,
 }
 
-fn input(what: impl Into<String>, message: impl Into<String>) -> RunError {
+pub(crate) fn input(what: impl Into<String>, message: impl Into<String>) -> RunError {
     RunError::Input { what: what.into(), message: message.into() }
 }
 
@@ -80,12 +82,15 @@ pub fn calibration_file_name(reference: &str) -> String {
     }
 }
 
-/// The source dataset, read only: manifest, committed steps in commit order.
-struct Source {
-    manifest: Manifest,
+/// The source dataset, read only: manifest, committed steps in commit order, view groups'
+/// raw frames.
+pub(crate) struct Source {
+    pub(crate) manifest: Manifest,
     /// Its content hash ([`btfrig_store::manifest_hash`]).
-    manifest_hash: String,
-    steps: Vec<StepRecord>,
+    pub(crate) manifest_hash: String,
+    pub(crate) steps: Vec<StepRecord>,
+    /// The journaled raw frames of view groups (a dome's), by view.
+    pub(crate) frames: BTreeMap<u32, btfrig_store::FramesRecord>,
 }
 
 fn read_source(dir: &Path) -> Result<Source, RunError> {
@@ -100,10 +105,70 @@ fn read_source(dir: &Path) -> Result<Source, RunError> {
     let journal = read(JOURNAL_FILE)?;
     let replay = btfrig_store::journal::replay(&dir.join(JOURNAL_FILE).display().to_string(), &journal)
         .map_err(|e| input(&what, e.to_string()))?;
+    let frames = replay.frames;
     let mut steps: Vec<StepRecord> = replay.done.into_values().collect();
     // The order the run committed them in.
     steps.sort_by(|a, b| a.timing.started_unix_s.total_cmp(&b.timing.started_unix_s).then(a.step.cmp(&b.step)));
-    Ok(Source { manifest, manifest_hash: btfrig_store::manifest_hash(&bytes), steps })
+    Ok(Source { manifest, manifest_hash: btfrig_store::manifest_hash(&bytes), steps, frames })
+}
+
+/// The bytes of the journaled file `f` of the dataset `dir`, checked against its journaled
+/// size and content hash.
+pub(crate) fn read_journaled(dir: &Path, f: &btfrig_store::FileRecord) -> Result<Vec<u8>, RunError> {
+    let path = dir.join(&f.path);
+    let bytes = std::fs::read(&path).map_err(|e| {
+        input(format!("raw frame {}", path.display()), format!("cannot read it ({e}): it is missing or unreadable"))
+    })?;
+    let hash = btfrig_store::content_hash(&bytes);
+    if bytes.len() as u64 != f.size || hash != f.hash {
+        return Err(input(
+            format!("raw frame {}", path.display()),
+            format!(
+                "it is damaged: {} bytes, {hash}; the journal recorded {} bytes, {} (btfrig dataset verify lists every damaged file)",
+                bytes.len(),
+                f.size,
+                f.hash
+            ),
+        ));
+    }
+    Ok(bytes)
+}
+
+/// Points `reference` (a calibration reference of the rig config, `field` naming it) at the
+/// file of the same name in `dir` ([`calibration_file_name`]) when `dir` holds one, by its
+/// absolute path (the model's loaders then read, check and name it as any calibration file),
+/// and records it in `used`.
+pub(crate) fn replace_reference(
+    dir: Option<&Path>,
+    field: &str,
+    reference: &mut Option<String>,
+    used: &mut Vec<(String, String)>,
+) -> Option<PathBuf> {
+    let (dir, r) = (dir?, reference.as_deref()?);
+    let path = dir.join(calibration_file_name(r));
+    path.is_file().then(|| {
+        used.push((field.to_string(), path.display().to_string()));
+        *reference = Some(path.display().to_string());
+        path
+    })
+}
+
+/// Refuses a relative calibration path that no file of the calibration directory replaced:
+/// it has no base to resolve against (the manifest keeps the rig config's text, not where it
+/// was).
+pub(crate) fn refuse_relative(references: &[(&str, &Option<String>)]) -> Result<(), RunError> {
+    for (field, reference) in references {
+        if let Some(r) = reference.as_deref().filter(|r| !r.starts_with("builtin:") && !Path::new(r).is_absolute()) {
+            return Err(input(
+                format!("the dataset's rig config: {field} = {r:?}"),
+                format!(
+                    "a relative calibration file cannot be found from a dataset: give --calibration DIR with {} in it",
+                    calibration_file_name(r)
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// The raw frames of `record` (base exposure first), each checked against its journaled size
@@ -125,42 +190,23 @@ fn read_raw_frames(dir: &Path, record: &StepRecord) -> Result<Vec<btfrig_core::f
     raw.iter()
         .map(|f| {
             let path = dir.join(&f.path);
-            let bytes = std::fs::read(&path).map_err(|e| {
-                input(format!("raw frame {}", path.display()), format!("cannot read it ({e}): it is missing or unreadable"))
-            })?;
-            let hash = btfrig_store::content_hash(&bytes);
-            if bytes.len() as u64 != f.size || hash != f.hash {
-                return Err(input(
-                    format!("raw frame {}", path.display()),
-                    format!(
-                        "it is damaged: {} bytes, {hash}; the journal recorded {} bytes, {} (btfrig dataset verify lists every damaged file)",
-                        bytes.len(),
-                        f.size,
-                        f.hash
-                    ),
-                ));
-            }
+            let bytes = read_journaled(dir, f)?;
             btfrig_imageio::decode_raw_exr(&path, &bytes)
                 .map_err(|e| input(format!("raw frame {}", path.display()), format!("cannot decode it: {e}")))
         })
         .collect()
 }
 
-/// The plan of the source, validated against the rig config recorded in its manifest.
-fn plan_of(manifest: &Manifest, dir: &Path) -> Result<(RigConfig, Plan, ValidatedPlan), RunError> {
+/// The rig config recorded in the source's manifest.
+pub(crate) fn rig_of(manifest: &Manifest, dir: &Path) -> Result<RigConfig, RunError> {
+    let origin = format!("{}/{MANIFEST_FILE}: rig.config_toml", dir.display());
+    RigConfig::from_toml(&manifest.rig.config_toml, &origin).map_err(|e| input(origin, e.to_string()))
+}
+
+/// The plan of the source (a gonio dataset), validated against the rig config `rig`
+/// recorded in its manifest.
+fn plan_of(manifest: &Manifest, dir: &Path, rig: RigConfig) -> Result<(RigConfig, Plan, ValidatedPlan), RunError> {
     let origin = format!("{}/{MANIFEST_FILE}", dir.display());
-    let rig = RigConfig::from_toml(&manifest.rig.config_toml, &format!("{origin}: rig.config_toml"))
-        .map_err(|e| input(format!("{origin}: rig.config_toml"), e.to_string()))?;
-    if rig.rig.kind != RigKind::Gonioreflectometer {
-        return Err(input(
-            format!("dataset {}", dir.display()),
-            format!(
-                "it is of the {} rig {:?}: reprocessing is supported for gonioreflectometer datasets only; dome and camera-array reprocessing is not supported yet",
-                rig.rig.kind.as_str(),
-                rig.rig.name
-            ),
-        ));
-    }
     let plan = Plan::from_toml(&manifest.plan.text, &format!("{origin}: plan.text"))?;
     let mut ctx = PlanContext::with_builtin_names();
     ctx.rig = Some(rig.clone());
@@ -209,20 +255,9 @@ fn calibrations(rig: &RigConfig, manifest: &Manifest, dir: Option<&Path>) -> Res
     let mut used = Vec::new();
     let recorded = recorded_light(manifest)?;
     let mut light = recorded.clone();
-    // A reference the directory holds is replaced by the file's absolute path: the model's
-    // loaders then read, check and name it as they read any calibration file.
-    let mut replace = |field: &str, reference: &mut Option<String>| -> Option<PathBuf> {
-        let (dir, r) = (dir?, reference.as_deref()?);
-        let path = dir.join(calibration_file_name(r));
-        path.is_file().then(|| {
-            used.push((field.to_string(), path.display().to_string()));
-            *reference = Some(path.display().to_string());
-            path
-        })
-    };
-    replace("[camera] calibration", &mut rig.camera.calibration);
-    replace("[camera] color_calibration", &mut rig.camera.color_calibration);
-    if let Some(path) = replace("[lamp] calibration", &mut rig.lamp.calibration) {
+    replace_reference(dir, "[camera] calibration", &mut rig.camera.calibration, &mut used);
+    replace_reference(dir, "[camera] color_calibration", &mut rig.camera.color_calibration, &mut used);
+    if let Some(path) = replace_reference(dir, "[lamp] calibration", &mut rig.lamp.calibration, &mut used) {
         if let Some(run_light) = &recorded {
             // The run had its own light calibration: the new file takes its place, drift
             // correction as the run had it.
@@ -237,23 +272,11 @@ fn calibrations(rig: &RigConfig, manifest: &Manifest, dir: Option<&Path>) -> Res
             light = Some(c);
         }
     }
-    // A path reference the directory does not replace has no base to resolve against (the
-    // manifest keeps the rig config's text, not where it was).
-    for (field, reference) in [
+    refuse_relative(&[
         ("[camera] calibration", &rig.camera.calibration),
         ("[camera] color_calibration", &rig.camera.color_calibration),
         ("[lamp] calibration", &rig.lamp.calibration),
-    ] {
-        if let Some(r) = reference.as_deref().filter(|r| !r.starts_with("builtin:") && !Path::new(r).is_absolute()) {
-            return Err(input(
-                format!("the dataset's rig config: {field} = {r:?}"),
-                format!(
-                    "a relative calibration file cannot be found from a dataset: give --calibration DIR with {} in it",
-                    calibration_file_name(r)
-                ),
-            ));
-        }
-    }
+    ])?;
     let recorded_dark_flat =
         manifest.calibration.as_ref().and_then(|c| c["dark_flat"]["source"].as_str().map(str::to_string));
     let dark_flat_dir = match dir.map(|d| d.join(DARK_FLAT_DIR)).filter(|d| d.is_dir()) {
@@ -303,6 +326,31 @@ pub(crate) fn process_settings(v: &ValidatedPlan) -> ProcessSettings {
     }
 }
 
+/// The request's calibration directory, absolute: the files' paths go into the rig config,
+/// which has no base directory here.
+pub(crate) fn calibration_dir(req: &ReprocessRequest) -> Result<Option<PathBuf>, RunError> {
+    if let Some(d) = req.calibration.as_deref().filter(|d| !d.is_dir()) {
+        return Err(input(format!("--calibration {}", d.display()), "not a directory"));
+    }
+    req.calibration
+        .as_deref()
+        .map(|d| d.canonicalize().map_err(|source| RunError::Read { path: d.into(), source }))
+        .transpose()
+}
+
+/// Refuses an `out` that holds anything: reprocessing writes a new dataset.
+pub(crate) fn check_out_empty(out: &Path) -> Result<(), RunError> {
+    if let Ok(mut entries) = std::fs::read_dir(out) {
+        if entries.next().is_some() {
+            return Err(input(
+                format!("--out {}", out.display()),
+                "the directory is not empty: reprocessing writes a new dataset and overwrites nothing; name a new or empty directory",
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Reprocesses `req.dataset` into `req.out`; see the module documentation. Nothing is written
 /// until every input checked out: the source's raw frames (present, as journaled), the plan,
 /// the calibration files, an empty `out`.
@@ -310,7 +358,11 @@ pub fn reprocess(req: &ReprocessRequest) -> Result<ReprocessSummary, RunError> {
     let wall = Instant::now();
     let src_dir = req.dataset.as_path();
     let src = read_source(src_dir)?;
-    let (rig, _plan, v) = plan_of(&src.manifest, src_dir)?;
+    let rig = rig_of(&src.manifest, src_dir)?;
+    if rig.rig.kind != RigKind::Gonioreflectometer {
+        return crate::dome_reprocess::reprocess(req, src, rig);
+    }
+    let (rig, _plan, v) = plan_of(&src.manifest, src_dir, rig)?;
     if !src.manifest.raw_frames {
         return Err(input(
             format!("dataset {}", src_dir.display()),
@@ -320,14 +372,7 @@ pub fn reprocess(req: &ReprocessRequest) -> Result<ReprocessSummary, RunError> {
     if src.steps.is_empty() {
         return Err(input(format!("dataset {}", src_dir.display()), "it has no committed step to reprocess"));
     }
-    if let Some(d) = req.calibration.as_deref().filter(|d| !d.is_dir()) {
-        return Err(input(format!("--calibration {}", d.display()), "not a directory"));
-    }
-    // Absolute: the files' paths go into the rig config, which has no base directory here.
-    let cal_dir = match req.calibration.as_deref() {
-        Some(d) => Some(d.canonicalize().map_err(|source| RunError::Read { path: d.into(), source })?),
-        None => None,
-    };
+    let cal_dir = calibration_dir(req)?;
     let cal = calibrations(&rig, &src.manifest, cal_dir.as_deref())?;
     let model = crate::model::gonio_model(&cal.rig, None, cal.light.clone(), cal.dark_flat.clone())?;
     let processing = ProcessingInfo::of(&model);
@@ -349,14 +394,7 @@ pub fn reprocess(req: &ReprocessRequest) -> Result<ReprocessSummary, RunError> {
     for r in &src.steps {
         read_raw_frames(src_dir, r)?;
     }
-    if let Ok(mut entries) = std::fs::read_dir(&req.out) {
-        if entries.next().is_some() {
-            return Err(input(
-                format!("--out {}", req.out.display()),
-                "the directory is not empty: reprocessing writes a new dataset and overwrites nothing; name a new or empty directory",
-            ));
-        }
-    }
+    check_out_empty(&req.out)?;
 
     let mut manifest = src.manifest.clone();
     let now =

@@ -205,7 +205,8 @@ fn refuses_what_it_cannot_reprocess_naming_the_cause() {
     assert!(e.contains(&raw.display().to_string()) && e.contains("damaged"), "{e}");
     assert!(!new.exists(), "{e}");
 
-    // A dome dataset: not supported yet, said so.
+    // A dome dataset without kept pattern frames (its manifest has no raw_groups): names the
+    // setting to turn on.
     let dome = dir.join("dome");
     copy_dir(&source, &dome);
     let mut m = manifest_of(&dome);
@@ -213,7 +214,7 @@ fn refuses_what_it_cannot_reprocess_naming_the_cause() {
     m["rig"]["config_toml"] = serde_json::Value::String(dome_rig.to_string());
     std::fs::write(dome.join("manifest.json"), serde_json::to_vec_pretty(&m).unwrap()).unwrap();
     let e = refusal(&request(&dome, &new, None));
-    assert!(e.contains("dome") && e.contains("not supported yet"), "{e}");
+    assert!(e.contains("led_dome run") && e.contains("outputs.raw_frames = true"), "{e}");
 
     // A dataset without raw frames: names the setting to turn on.
     let plain = scratch("refusals-plain");

@@ -447,3 +447,44 @@ fn r25_view_group_raw_frames_are_journaled_verified_and_retaken_when_damaged() {
     let e = ds.write_group_frame(0, 0, &raw_frame(s));
     assert!(matches!(&e, Err(StoreError::BadInput { reason, .. }) if reason.contains("raw_groups")), "{e:?}");
 }
+
+#[test]
+fn r25_a_crash_between_a_groups_frames_and_its_textures_takes_the_group_again() {
+    let tmp = TempDir::new("groups-crash");
+    let dir = tmp.path().join("ds");
+    let ds = Dataset::create(&dir, group_manifest()).unwrap();
+    commit_view(&ds, 0);
+    // View 1: frames journaled, then the crash after the first of its textures.
+    let files: Vec<_> = (0..3).map(|p| ds.write_group_frame(1, p, &raw_frame(step(p as u32, 1))).unwrap()).collect();
+    ds.commit_frames(1, files).unwrap();
+    let s = step(0, 1);
+    let t = ds.write_texture(s, &texels(s), W, H).unwrap();
+    ds.commit_step(s, vec![t], 1, timing()).unwrap();
+    // View 2: a texture journaled without its group's frames (not what a run writes; resume
+    // treats it the same).
+    let s = step(0, 2);
+    let t = ds.write_texture(s, &texels(s), W, H).unwrap();
+    ds.commit_step(s, vec![t], 1, timing()).unwrap();
+    drop(ds);
+    let (ds, resume) = Dataset::open_for_resume(&dir, &plan_hash(PLAN)).unwrap();
+    assert_eq!(resume.remaining, BTreeSet::from([step(0, 1), step(1, 1), step(0, 2)]), "{resume}");
+    let said: Vec<&str> = resume.retaken.iter().map(|(_, w)| w.as_str()).collect();
+    assert_eq!(
+        said,
+        [
+            "view 1's group: its textures are incomplete (1 of 2 journaled)",
+            "view 2's group: its raw frames are not journaled"
+        ],
+        "{resume}"
+    );
+    assert!(resume.removed_orphans.is_empty(), "the retaken files are not orphans: {resume}");
+    assert!(ds.frames_record(1).is_none() && ds.frames_record(0).is_some());
+    assert!(!dir.join("raw/v001_p000.exr").exists() && !dir.join("textures/l000_v001.exr").exists());
+    // View 0 was whole: kept. The retaken groups are captured again, and the dataset is sound.
+    assert!(dir.join("raw/v000_p002.exr").exists());
+    commit_view(&ds, 1);
+    commit_view(&ds, 2);
+    drop(ds);
+    let r = verify(&dir);
+    assert!(r.is_ok(), "{r}");
+}

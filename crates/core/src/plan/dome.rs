@@ -26,6 +26,26 @@ pub struct DomePlan {
     /// Fault scenario of the simulated rig (default `"none"`).
     #[serde(default = "DomePlan::default_faults")]
     pub fault_scenario: String,
+    /// What the run keeps besides the textures.
+    #[serde(default, skip_serializing_if = "DomeOutputs::is_default")]
+    pub outputs: DomeOutputs,
+}
+
+/// The `[outputs]` table of a dome plan. Textures are always written; the gonio plan's other
+/// outputs are not dome outputs, and naming one is a parse error that lists the keys allowed.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DomeOutputs {
+    /// Keep every pattern frame of every view group (all cameras), lossless, so the dataset
+    /// can be demultiplexed again later (`btfrig reprocess`); default false.
+    #[serde(default)]
+    pub raw_frames: bool,
+}
+
+impl DomeOutputs {
+    fn is_default(&self) -> bool {
+        *self == DomeOutputs::default()
+    }
 }
 
 /// How each view group is captured.
@@ -309,6 +329,18 @@ mod tests {
         assert!(e.contains("dome.rotations[1] = 1"), "{e}");
         assert!(e.contains("dome.exposure_s = 0"), "{e}");
         assert!(DomePlan::from_toml("[dome]\ncamera = [0]\n", "p").unwrap_err().to_string().contains("camera"));
+    }
+
+    #[test]
+    fn outputs_keep_raw_frames_on_request_and_name_the_allowed_keys() {
+        let v = DomePlan::from_toml("", "p").unwrap().validate(&rig()).unwrap();
+        assert!(!v.plan.outputs.raw_frames);
+        let v = DomePlan::from_toml("[outputs]\nraw_frames = true\n", "p").unwrap().validate(&rig()).unwrap();
+        assert!(v.plan.outputs.raw_frames);
+        let e = DomePlan::from_toml("[outputs]\ncompressed_model = \"fmf\"\n", "p").unwrap_err().to_string();
+        assert!(e.contains("unknown field `compressed_model`, expected `raw_frames`"), "{e}");
+        let e = DomePlan::from_toml("[outputs]\nraw_frames = \"yes\"\n", "p").unwrap_err().to_string();
+        assert!(e.contains("raw_frames") && e.contains("expected a boolean"), "{e}");
     }
 
     #[test]

@@ -45,7 +45,10 @@ pub struct ResumeReport {
     pub journal_recreated: bool,
     /// Done steps whose files were found damaged (missing, another size, another content
     /// hash): journaled as retaken, their files deleted, to be captured again. One entry per
-    /// damaged file: `textures/l000_v003.exr: missing`.
+    /// damaged file: `textures/l000_v003.exr: missing`. With raw frames per view group, also
+    /// one entry per view group taken again because a crash left its frames without all its
+    /// textures or the reverse (`view 3's group: its textures are incomplete (2 of 5
+    /// journaled)`, step `l000_v003`).
     pub retaken: Vec<(StepId, String)>,
     /// Journaled files checked (size and content hash) before the journal was trusted.
     pub files_checked: usize,
@@ -249,6 +252,39 @@ impl<S: Storage> Dataset<S> {
             report.retaken.extend(found.into_iter().map(|what| (StepId { light: 0, view }, what)));
         }
         let expected = manifest.samplings.expected_steps();
+        // A view group counts only with its raw frames and all its textures journaled (a run
+        // commits the frames, then the textures one by one): after a crash in between, the
+        // group is taken again as a whole, frames and textures, so the kept frames are always
+        // the ones the textures were made from.
+        if manifest.raw_groups.is_some() {
+            let st = journal.state();
+            let mut views: BTreeSet<u32> = st.frames.keys().copied().collect();
+            views.extend(st.done.keys().map(|s| s.view));
+            let mut partial = Vec::new();
+            for view in views {
+                let of_view = expected.iter().filter(|s| s.view == view && !st.skipped.contains_key(s));
+                let (all, done) = of_view.fold((0, 0), |(a, d), s| (a + 1, d + usize::from(st.done.contains_key(s))));
+                let why = match st.frames.contains_key(&view) {
+                    true if done < all => format!("its textures are incomplete ({done} of {all} journaled)"),
+                    false if done > 0 => "its raw frames are not journaled".to_string(),
+                    _ => continue,
+                };
+                partial.push((view, why));
+            }
+            for (view, why) in partial {
+                let what = format!("view {view}'s group: {why}");
+                if let Some(rec) = journal.state().frames.get(&view) {
+                    retaken_files.extend(rec.files.iter().map(|f| f.path.clone()));
+                    journal.append(&storage, Record::RetakeFrames { view, reason: why.clone() })?;
+                }
+                let steps: Vec<StepId> = journal.state().done.keys().filter(|s| s.view == view).copied().collect();
+                for step in steps {
+                    retaken_files.extend(journal.state().done[&step].files.iter().map(|f| f.path.clone()));
+                    journal.append(&storage, Record::Retake { step, reason: what.clone() })?;
+                }
+                report.retaken.push((StepId { light: 0, view }, what));
+            }
+        }
         for dir in [
             manifest.textures.then_some(TEXTURES_DIR),
             (manifest.raw_frames || manifest.raw_groups.is_some()).then_some(RAW_DIR),
