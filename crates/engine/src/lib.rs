@@ -38,7 +38,7 @@
 //!         exposure_s: 0.01,
 //!     })
 //!     .collect();
-//! let (tx, mut rx) = tokio::sync::mpsc::channel(2);
+//! let (tx, mut rx) = tokio::sync::mpsc::channel::<btfrig_engine::CapturedFrame>(2);
 //! let run = Engine::spawn(devices, steps, HashSet::new(), EngineSettings::default(), tx);
 //! let consumer = tokio::spawn(async move {
 //!     let mut keys = Vec::new();
