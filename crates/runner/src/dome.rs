@@ -2,8 +2,8 @@
 //! flash index, view = camera) as one library call: plan -> schedule (with the multiplexing
 //! choice, planned for the lights' brightness from the LED calibration or the rig config's
 //! nominal) -> the devices the rig's backend opens (`crate::backend`) -> engine
-//! (`btfrig_engine::Engine::spawn` on `RigDevices::Dome`, the gonio's engine) -> pipeline (`btfrig_pipeline::dome`: collect, demultiplex, fault
-//! detection, rectify, radiometry) -> dataset store, plus, where the backend offers a truth
+//! (`btfrig_engine::Engine::spawn` on `RigDevices::Dome`, the gonio's engine) -> pipeline
+//! (`btfrig_pipeline::dome`: collect, demultiplex, fault detection, rectify, radiometry) -> dataset store, plus, where the backend offers a truth
 //! probe (a simulated rig), the figures measured against its ground truth
 //! (`docs/pipeline.md`, "LED dome").
 //!
@@ -456,7 +456,12 @@ pub fn run_controlled(
     });
     let outcome: Result<(EngineOutcome, Stop), RunError> = rt.block_on(async {
         let opened = backend
-            .open_dome(DomeOpenRequest { rig: &rig, plan: &v, plan_file: &req.plan_path, fault_scenario: &fault_name })
+            .open_dome(DomeOpenRequest {
+                rig: &rig,
+                plan: &v,
+                plan_file: &req.plan_path,
+                fault_scenario: &fault_name,
+            })
             .await?;
         let OpenedDome { mut devices, truth, links: _links } = opened;
         // The truth behind the frames, for the report's error figures only (a real rig has none).
@@ -718,8 +723,10 @@ fn dome_processing(
                 .to_string(),
         );
     }
-    let model =
-        model.with_source("light", dome.led_calibration.clone().unwrap_or_else(|| "none: relative units".to_string()));
+    let model = model.with_source(
+        "light",
+        dome.led_calibration.clone().unwrap_or_else(|| "none: relative units".to_string()),
+    );
     let record = json!({
         "camera": rig.camera.calibration,
         "leds": dome.led_calibration,
@@ -734,8 +741,15 @@ fn dome_processing(
     });
     let notes = model.notes.clone();
     let leds = leds.map(|f| LedLight { power: f.powers(), colour: f.colours(), nominal_irradiance: f.reference_rate });
-    let processing = DomeProcessing::new(model, dome, rig.sensor.cfa.bayer(), leds, size, Filter::Footprint { max: 4 })
-        .map_err(|e| input("dome processing model", e))?;
+    let processing = DomeProcessing::new(
+        model,
+        dome,
+        rig.sensor.cfa.bayer(),
+        leds,
+        size,
+        Filter::Footprint { max: 4 },
+    )
+    .map_err(|e| input("dome processing model", e))?;
     Ok((processing, record, notes))
 }
 
@@ -846,7 +860,12 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
         Ok(())
     }
 
-    fn finish_group(&mut self, stack: GroupStack, first_camera: bool, attempts: u32) -> Result<(), RunError> {
+    fn finish_group(
+        &mut self,
+        stack: GroupStack,
+        first_camera: bool,
+        attempts: u32,
+    ) -> Result<(), RunError> {
         if !stack.is_complete() {
             return Err(input(
                 "dome pipeline",
@@ -1024,12 +1043,16 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
             let truth_ref = fielded(probe.noise_free_dn(c, rad, &single, *ref_exp, *gain));
             let demuxed = &mosaics[j * cols..(j + 1) * cols];
             g.push(snr(demuxed, &truth_mux) / snr(sig, &truth_ref));
-            let tex =
-                self.processing.texture(sig, &pose.pose, *j, *ref_exp, *gain).map_err(|e| input("dome pipeline", e))?;
+            let tex = self
+                .processing
+                .texture(sig, &pose.pose, *j, *ref_exp, *gain)
+                .map_err(|e| input("dome pipeline", e))?;
             let truth = probe.texture(c, rad, *j, self.v.plan.texture_size);
             ref_err.push(sq_err(&tex, &truth));
-            let tex =
-                self.processing.texture(demuxed, &pose.pose, *j, *exp, *gain).map_err(|e| input("dome pipeline", e))?;
+            let tex = self
+                .processing
+                .texture(demuxed, &pose.pose, *j, *exp, *gain)
+                .map_err(|e| input("dome pipeline", e))?;
             mux_err.push(sq_err(&tex, &truth));
         }
         if !g.is_empty() {
