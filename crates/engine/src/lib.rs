@@ -1,14 +1,17 @@
 //! The run engine: executes a schedule of captures on a rig's devices.
 //!
-//! Brief overview: [`Engine::spawn`] starts ONE tokio task that alone owns the [`Devices`];
-//! everything else talks to it through the returned [`RunHandle`] (commands in, [`Event`]s and
-//! a [`RunState`] out, captured frames through a bounded channel). Each step moves robot and
-//! rail at the same time, sets the exposure if it changes, triggers and reads the frame; the
-//! read-out of step `i` overlaps the move to step `i + 1`. Errors whose kind is retryable are
-//! retried with exponential backoff up to a limit (a `Disconnected` device is reconnected
-//! first); anything else, or an exhausted retry budget, PAUSES the run with a message naming
-//! the step and the device error, and `resume` retries that step. No rendering, no file I/O.
-//! Design, policies and measured figures: `docs/engine.md`.
+//! Brief overview: [`Engine::spawn`] starts ONE tokio task that alone owns the rig's devices
+//! ([`RigDevices`]: a gonioreflectometer's, or a dome's or camera array's); everything else
+//! talks to it through the returned [`RunHandle`] (commands in, [`Event`]s and a [`RunState`]
+//! out, captured frames through a bounded channel). The steps say what each capture does
+//! ([`StepKind`]). A gonio step moves robot and rail at the same time, sets the exposure if it
+//! changes, triggers and reads the frame; the read-out of step `i` overlaps the move to step
+//! `i + 1`. A dome step turns the table, sets an LED pattern and triggers every camera at once
+//! ([`dome`]). For every rig alike: errors whose kind is retryable are retried with
+//! exponential backoff up to a limit (a `Disconnected` device is reconnected first); anything
+//! else, or an exhausted retry budget, PAUSES the run with a message naming the step and the
+//! device error, and `resume` retries that step. No rendering, no file I/O. Design, policies
+//! and measured figures: `docs/engine.md`.
 //!
 //! ```
 //! # #[tokio::main(flavor = "current_thread", start_paused = true)]
@@ -16,7 +19,7 @@
 //! use std::collections::HashSet;
 //! use std::sync::Arc;
 //! use btfrig_core::{config::RigConfig, kinematics::JointState};
-//! use btfrig_engine::{Devices, Engine, EngineSettings, EngineStep, RunOutcome, StepKey};
+//! use btfrig_engine::{Engine, EngineSettings, EngineStep, GonioDevices, RunOutcome, StepKey, StepKind};
 //! use btfrig_hw::TokioClock;
 //! use btfrig_sim::{capture::prepare, FaultScenario, FlatFrameSource, SimRig};
 //!
@@ -25,15 +28,17 @@
 //! let source = Arc::new(FlatFrameSource::new(8, 6, 1000.0));
 //! let mut rig = SimRig::from_rig_config(&cfg, &FaultScenario::none(), clock.clone(), source).unwrap();
 //! prepare(&mut rig).await.unwrap(); // home, lamp warm-up
-//! let devices = Devices { robot: rig.robot, rail: rig.rail, camera: rig.camera, clock };
+//! let devices = GonioDevices { robot: rig.robot, rail: rig.rail, camera: rig.camera, clock };
 //! let steps: Vec<EngineStep> = (0..3)
 //!     .map(|i| EngineStep {
 //!         key: StepKey { light: i, view: 0 },
-//!         joints: JointState { rail: 0.5 + 0.1 * i as f64, robot: [0.0, 0.2, 0.0], turntable: 0.0 },
+//!         kind: StepKind::Gonio {
+//!             joints: JointState { rail: 0.5 + 0.1 * i as f64, robot: [0.0, 0.2, 0.0], turntable: 0.0 },
+//!         },
 //!         exposure_s: 0.01,
 //!     })
 //!     .collect();
-//! let (tx, mut rx) = tokio::sync::mpsc::channel(2);
+//! let (tx, mut rx) = tokio::sync::mpsc::channel::<btfrig_engine::CapturedFrame>(2);
 //! let run = Engine::spawn(devices, steps, HashSet::new(), EngineSettings::default(), tx);
 //! let consumer = tokio::spawn(async move {
 //!     let mut keys = Vec::new();
@@ -55,11 +60,16 @@ use std::fmt;
 use btfrig_core::frame::RawFrame;
 use btfrig_core::kinematics::JointState;
 use btfrig_hw::{Camera, ErrorKind, Rail, Robot, SharedClock};
+use btfrig_planner::dome::{DomeSchedule, DomeShot};
 use btfrig_planner::Schedule;
 use tokio::sync::{broadcast, mpsc, watch};
 
+mod calls;
 pub mod dome;
+mod gonio;
 mod run;
+
+use dome::{DomeCapture, DomeDevices};
 
 /// Identifies a capture: its light and view indices (as `btfrig_store::StepId`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -107,19 +117,21 @@ impl StepKind {
     }
 }
 
-/// One step of a run: where the devices go and how long the camera exposes.
+/// One step of a run: what the devices do (by the kind of rig) and how long the cameras
+/// expose. Steps whose key is in the run's `done` set are skipped.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct EngineStep {
     /// Which capture this is.
     pub key: StepKey,
-    /// Commanded joint state (robot and rail; the turntable is not driven yet).
-    pub joints: JointState,
+    /// What the step does: a gonio pose (robot and rail; the turntable is not driven on a
+    /// gonio yet) or a dome's (rotation, shot).
+    pub kind: StepKind,
     /// Exposure time, seconds.
     pub exposure_s: f64,
 }
 
 impl EngineStep {
-    /// The captures of a planned schedule, in its execution order.
+    /// The captures of a planned gonio schedule, in its execution order.
     pub fn from_schedule(schedule: &Schedule) -> Vec<EngineStep> {
         schedule
             .order
@@ -128,18 +140,49 @@ impl EngineStep {
                 let c = &schedule.captures[i];
                 EngineStep {
                     key: StepKey { light: c.light_index as u32, view: c.view_index as u32 },
-                    joints: c.joints,
+                    kind: StepKind::Gonio { joints: c.joints },
                     exposure_s: c.exposure_s,
                 }
             })
             .collect()
     }
+
+    /// The steps of a dome schedule, in its order: key `light` = position in the schedule,
+    /// `view` = rotation; pattern frames at the schedule's `exposure_s`, single-LED reference
+    /// frames at its `single_exposure_s`.
+    pub fn from_dome_schedule(schedule: &DomeSchedule) -> Vec<EngineStep> {
+        schedule
+            .steps
+            .iter()
+            .enumerate()
+            .map(|(i, st)| EngineStep {
+                key: StepKey { light: i as u32, view: st.rotation },
+                kind: StepKind::Dome { rotation: st.rotation, turntable_rad: st.turntable_rad, shot: st.shot },
+                exposure_s: match st.shot {
+                    DomeShot::Pattern(_) => schedule.exposure_s,
+                    DomeShot::Reference(_) => schedule.single_exposure_s,
+                },
+            })
+            .collect()
+    }
+
+    /// The commanded joint state of a gonio step (`None` for a dome step).
+    pub fn joints(&self) -> Option<JointState> {
+        match self.kind {
+            StepKind::Gonio { joints } => Some(joints),
+            StepKind::Dome { .. } => None,
+        }
+    }
+
+    /// The step as people name it ([`StepKind::label`]).
+    pub fn label(&self) -> String {
+        self.kind.label(self.key)
+    }
 }
 
-/// The devices a run drives. The engine's task owns them for the whole run and gives them
-/// back through [`RunHandle::join_with_devices`]. They must be homed (and the lamp warmed
-/// up) beforehand, e.g. with `btfrig_sim::capture::prepare`.
-pub struct Devices {
+/// A gonioreflectometer's devices. They must be homed (and the lamp warmed up) beforehand,
+/// e.g. with `btfrig_sim::capture::prepare`.
+pub struct GonioDevices {
     /// The robot that orients the sample.
     pub robot: Box<dyn Robot>,
     /// The camera rail.
@@ -148,6 +191,61 @@ pub struct Devices {
     pub camera: Box<dyn Camera>,
     /// The rig's clock: backoff waits, guards and time stamps use it.
     pub clock: SharedClock,
+}
+
+/// The devices a run drives, by the kind of rig. The engine's task owns them for the whole
+/// run and gives them back through [`RunHandle::join_with_devices`].
+pub enum RigDevices {
+    /// A gonioreflectometer: every step is a [`StepKind::Gonio`], frames are
+    /// [`CapturedFrame`]s.
+    Gonio(GonioDevices),
+    /// An LED dome or a camera array: every step is a [`StepKind::Dome`], frames are
+    /// [`DomeCapture`]s (one frame per camera). The turntable must be homed beforehand.
+    Dome {
+        /// Turntable, LED array (flash triggers) and cameras.
+        devices: DomeDevices,
+        /// The LED intensities of each pattern: `DomeShot::Pattern(p)` fires `patterns[p]`
+        /// (as a real dome's controller holds a pattern table); `Reference(j)` fires LED `j`.
+        patterns: Vec<Vec<f64>>,
+    },
+}
+
+impl From<GonioDevices> for RigDevices {
+    fn from(d: GonioDevices) -> Self {
+        RigDevices::Gonio(d)
+    }
+}
+
+impl RigDevices {
+    /// The rig's clock.
+    pub fn clock(&self) -> &SharedClock {
+        match self {
+            RigDevices::Gonio(d) => &d.clock,
+            RigDevices::Dome { devices, .. } => &devices.clock,
+        }
+    }
+}
+
+/// Where a run's frames go, by the kind of rig (bounded: the engine waits for a slow
+/// consumer). Built from the channel's sender with `.into()`.
+#[derive(Debug)]
+pub enum FrameSender {
+    /// A gonio run's frames.
+    Gonio(mpsc::Sender<CapturedFrame>),
+    /// A dome run's steps, one frame per camera each.
+    Dome(mpsc::Sender<DomeCapture>),
+}
+
+impl From<mpsc::Sender<CapturedFrame>> for FrameSender {
+    fn from(tx: mpsc::Sender<CapturedFrame>) -> Self {
+        FrameSender::Gonio(tx)
+    }
+}
+
+impl From<mpsc::Sender<DomeCapture>> for FrameSender {
+    fn from(tx: mpsc::Sender<DomeCapture>) -> Self {
+        FrameSender::Dome(tx)
+    }
 }
 
 /// Timeouts, retry policy and overlap.
@@ -169,7 +267,7 @@ pub struct EngineSettings {
     /// Upper bound of one backoff wait, seconds.
     pub max_backoff_s: f64,
     /// Move to the next pose while the previous frame transfers (`false`: strictly
-    /// sequential steps, for comparison).
+    /// sequential steps, for comparison). Gonio steps only: a dome step is sequential.
     pub overlap: bool,
     /// Number of recent measured step times the ETA averages.
     pub eta_window: usize,
@@ -466,35 +564,108 @@ pub(crate) fn event_queue_len(s: &EngineSettings) -> usize {
 pub struct Engine;
 
 impl Engine {
-    /// Spawns the task that executes `schedule` on `devices`, skipping the steps whose keys
-    /// are in `done`, one exposure per step ([`SingleExposure`]). Frames go into `frames`
-    /// (bounded: the engine waits for a slow consumer). Must be called inside a tokio runtime.
+    /// Spawns the task that executes `steps` on `devices` (a rig of any kind), skipping the
+    /// steps whose keys are in `done`, one exposure per step ([`SingleExposure`]). Frames go
+    /// into `frames` (bounded: the engine waits for a slow consumer). Must be called inside a
+    /// tokio runtime.
+    ///
+    /// # Panics
+    ///
+    /// When the steps or the frame channel do not fit the rig: a step of another kind than
+    /// the devices ([`StepKind`]), a dome pattern index beyond `patterns`, or a gonio channel
+    /// for a dome's devices (or the reverse). The message names the step and what is allowed.
     pub fn spawn(
-        devices: Devices,
-        schedule: Vec<EngineStep>,
+        devices: impl Into<RigDevices>,
+        steps: Vec<EngineStep>,
         done: HashSet<StepKey>,
         settings: EngineSettings,
-        frames: mpsc::Sender<CapturedFrame>,
+        frames: impl Into<FrameSender>,
     ) -> RunHandle {
-        Self::spawn_with_exposure(devices, schedule, done, settings, frames, Box::new(SingleExposure))
+        Self::spawn_rig(devices.into(), steps, done, settings, frames.into(), Box::new(SingleExposure))
     }
 
-    /// [`Engine::spawn`] with the exposures of each step chosen by `exposure`.
+    /// [`Engine::spawn`] on a gonioreflectometer, with the exposures of each step chosen by
+    /// `exposure` (HDR brackets; a dome step takes its own `exposure_s`).
     pub fn spawn_with_exposure(
-        devices: Devices,
-        schedule: Vec<EngineStep>,
+        devices: GonioDevices,
+        steps: Vec<EngineStep>,
         done: HashSet<StepKey>,
         settings: EngineSettings,
         frames: mpsc::Sender<CapturedFrame>,
         exposure: Box<dyn ExposureControl>,
     ) -> RunHandle {
+        Self::spawn_rig(RigDevices::Gonio(devices), steps, done, settings, FrameSender::Gonio(frames), exposure)
+    }
+
+    fn spawn_rig(
+        devices: RigDevices,
+        steps: Vec<EngineStep>,
+        done: HashSet<StepKey>,
+        settings: EngineSettings,
+        frames: FrameSender,
+        exposure: Box<dyn ExposureControl>,
+    ) -> RunHandle {
+        let clock = devices.clock().clone();
+        let rig = match wire(devices, frames, exposure, &steps) {
+            Ok(rig) => rig,
+            Err(e) => panic!("Engine::spawn: {e}"),
+        };
         let (cmd_tx, cmd_rx) = mpsc::channel(COMMAND_CAPACITY);
         let (ev_tx, ev_rx) = broadcast::channel(event_queue_len(&settings));
         let (state_tx, state_rx) = watch::channel(RunState::Running);
-        let runner =
-            run::Runner::new(devices, schedule, done, settings, frames, ev_tx.clone(), state_tx, cmd_rx, exposure);
-        let task = tokio::spawn(runner.run());
+        let core = run::Core::new(steps, done, settings, clock, ev_tx.clone(), state_tx, cmd_rx);
+        let task = tokio::spawn(run::run(core, rig));
         RunHandle { cmd: cmd_tx, events: ev_tx, first_events: Some(ev_rx), state: state_rx, task }
+    }
+}
+
+/// The rig's side of a run from its devices, frame channel and steps; an error names the
+/// step or channel that does not fit the devices.
+fn wire(
+    devices: RigDevices,
+    frames: FrameSender,
+    exposure: Box<dyn ExposureControl>,
+    steps: &[EngineStep],
+) -> Result<run::Rig, String> {
+    match (devices, frames) {
+        (RigDevices::Gonio(dev), FrameSender::Gonio(frames)) => {
+            let joints = steps
+                .iter()
+                .enumerate()
+                .map(|(i, st)| {
+                    st.joints().ok_or_else(|| {
+                        format!("step {i} ({}) is a dome step; a gonio rig takes StepKind::Gonio steps", st.label())
+                    })
+                })
+                .collect::<Result<_, _>>()?;
+            Ok(run::Rig::Gonio(gonio::Gonio { dev, frames, exposure, joints }))
+        }
+        (RigDevices::Dome { devices, patterns }, FrameSender::Dome(frames)) => {
+            let steps = steps
+                .iter()
+                .enumerate()
+                .map(|(i, st)| match st.kind {
+                    StepKind::Dome { rotation, turntable_rad, shot } => match shot {
+                        DomeShot::Pattern(p) if p >= patterns.len() => Err(format!(
+                            "step {i} fires pattern {p}, but the dome was given {} patterns (0..{})",
+                            patterns.len(),
+                            patterns.len()
+                        )),
+                        _ => Ok(btfrig_planner::dome::DomeStep { rotation, turntable_rad, shot }),
+                    },
+                    StepKind::Gonio { .. } => {
+                        Err(format!("step {i} ({}) is a gonio step; a dome takes StepKind::Dome steps", st.label()))
+                    }
+                })
+                .collect::<Result<_, _>>()?;
+            Ok(run::Rig::Dome(dome::Dome { dev: devices, patterns, frames, steps, table_at: None }))
+        }
+        (RigDevices::Gonio(_), FrameSender::Dome(_)) => {
+            Err("a gonio rig delivers CapturedFrame: pass an mpsc::Sender<CapturedFrame>".into())
+        }
+        (RigDevices::Dome { .. }, FrameSender::Gonio(_)) => {
+            Err("a dome delivers DomeCapture (one frame per camera): pass an mpsc::Sender<DomeCapture>".into())
+        }
     }
 }
 
@@ -504,7 +675,7 @@ pub struct RunHandle {
     events: broadcast::Sender<Event>,
     first_events: Option<broadcast::Receiver<Event>>,
     state: watch::Receiver<RunState>,
-    task: tokio::task::JoinHandle<(RunOutcome, Devices)>,
+    task: tokio::task::JoinHandle<(RunOutcome, RigDevices)>,
 }
 
 impl RunHandle {
@@ -549,7 +720,7 @@ impl RunHandle {
 
     /// Waits for the run to end and takes the devices back. Dropping the last handle of a
     /// paused run aborts it.
-    pub async fn join_with_devices(self) -> (RunOutcome, Devices) {
+    pub async fn join_with_devices(self) -> (RunOutcome, RigDevices) {
         let RunHandle { cmd, task, .. } = self;
         // Keep the command channel open while waiting: closing it means abort when paused.
         let out = task.await;

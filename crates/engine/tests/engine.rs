@@ -10,8 +10,8 @@ use btfrig_core::frame::RawFrame;
 use btfrig_core::kinematics::Gonio;
 use btfrig_core::sampling::Sampling;
 use btfrig_engine::{
-    CapturedFrame, Command, CommandError, Devices, Engine, EngineSettings, EngineStep, Event, ExposureControl,
-    PauseReason, RunHandle, RunOutcome, RunState, RunSummary, StepKey,
+    CapturedFrame, Command, CommandError, Engine, EngineSettings, EngineStep, Event, ExposureControl, GonioDevices,
+    PauseReason, RigDevices, RunHandle, RunOutcome, RunState, RunSummary, StepKey, StepKind,
 };
 use btfrig_hw::CaptureSettings;
 use btfrig_hw::{AxisLimits, Device, DeviceError, DeviceInfo, ErrorKind, MoveOptions, Rail, TokioClock};
@@ -68,7 +68,7 @@ fn pose_of(f: &RawFrame) -> [f64; 3] {
 }
 
 /// A homed rig with a warm lamp; the clock is read after preparation by the caller.
-async fn rig(cfg: &RigConfig, faults: &FaultScenario) -> (Devices, SimWorld) {
+async fn rig(cfg: &RigConfig, faults: &FaultScenario) -> (GonioDevices, SimWorld) {
     let clock = TokioClock::shared();
     let mut rig = SimRig::from_rig_config(
         cfg,
@@ -79,7 +79,7 @@ async fn rig(cfg: &RigConfig, faults: &FaultScenario) -> (Devices, SimWorld) {
     .unwrap();
     prepare(&mut rig).await.unwrap();
     let SimRig { world, robot, rail, camera, .. } = rig;
-    (Devices { robot, rail, camera, clock }, world)
+    (GonioDevices { robot, rail, camera, clock }, world)
 }
 
 /// Collects every delivered frame until the engine drops its sender.
@@ -114,7 +114,7 @@ fn check_delivered(frames: &[CapturedFrame], steps: &[EngineStep]) -> HashSet<St
         assert!(keys.insert(f.key), "{} delivered twice", f.key);
         let s = &steps[f.index];
         assert_eq!(f.key, s.key);
-        assert_eq!(f.joints, s.joints);
+        assert_eq!(Some(f.joints), s.joints());
         assert_eq!(f.frame.meta.exposure_s, EXPOSURE_S);
         assert!(f.attempts >= 1);
         let t = &f.times;
@@ -124,7 +124,8 @@ fn check_delivered(frames: &[CapturedFrame], steps: &[EngineStep]) -> HashSet<St
         // the simulated positioning error, well under a degree).
         let m = &f.frame.meta;
         assert!(t.trigger_start_s <= m.timestamp_s && m.timestamp_s <= t.trigger_end_s, "{t:?} {}", m.timestamp_s);
-        let want = [s.joints.rail.to_degrees(), s.joints.robot[0].to_degrees(), s.joints.robot[1].to_degrees()];
+        let j = s.joints().unwrap();
+        let want = [j.rail.to_degrees(), j.robot[0].to_degrees(), j.robot[1].to_degrees()];
         for (got, want) in pose_of(&f.frame).iter().zip(want) {
             assert!((got - want).abs() < 0.8, "step {}: true pose {:?}, commanded {want}", f.index, pose_of(&f.frame));
         }
@@ -385,7 +386,8 @@ async fn non_retryable_error_pauses_and_resume_after_the_fix_completes() {
 async fn out_of_range_move_pauses_naming_the_rail_and_is_not_retried() {
     let cfg = cfg();
     let mut steps = EngineStep::from_schedule(&forty(&cfg))[..3].to_vec();
-    steps[1].joints.rail = 200f64.to_radians(); // the sim rail ends at 180 deg
+    let StepKind::Gonio { joints } = &mut steps[1].kind else { unreachable!() };
+    joints.rail = 200f64.to_radians(); // the sim rail ends at 180 deg
     let (devices, _world) = rig(&cfg, &FaultScenario::none()).await;
     let (tx, frames) = consumer(4);
     let mut h = Engine::spawn(devices, steps.clone(), HashSet::new(), EngineSettings::default(), tx);
@@ -458,6 +460,7 @@ async fn abort_stops_after_the_current_step_and_resume_with_done_skips_them() {
     next_matching(&mut ev, |e| matches!(e, Event::StepDone { index: 11, .. })).await;
     h.abort().unwrap();
     let (outcome, devices) = h.join_with_devices().await;
+    let RigDevices::Gonio(devices) = devices else { panic!("gonio devices back") };
     let RunOutcome::Aborted { done, summary } = outcome else { panic!("{outcome:?}") };
     let first = frames.await.unwrap();
     assert_eq!(done, check_delivered(&first, &steps));
@@ -503,7 +506,7 @@ async fn slow_consumer_backpressure_delays_the_run_without_losing_frames() {
     let cfg = cfg();
     let steps = EngineStep::from_schedule(&forty(&cfg))[..10].to_vec();
     let (devices, _world) = rig(&cfg, &FaultScenario::none()).await;
-    let (tx, mut rx) = mpsc::channel(1);
+    let (tx, mut rx) = mpsc::channel::<CapturedFrame>(1);
     let consumer = tokio::spawn(async move {
         let mut n = 0;
         while let Some(_f) = rx.recv().await {
@@ -641,7 +644,8 @@ async fn brackets_are_taken_at_the_step_pose_and_cost_only_their_own_time() {
             // Every exposure at this step's pose (return trips included), in time order, the
             // last one the recorded trigger.
             for fr in &all {
-                let want = [s.joints.rail.to_degrees(), s.joints.robot[0].to_degrees(), s.joints.robot[1].to_degrees()];
+                let j = s.joints().unwrap();
+                let want = [j.rail.to_degrees(), j.robot[0].to_degrees(), j.robot[1].to_degrees()];
                 for (got, want) in pose_of(fr).iter().zip(want) {
                     assert!((got - want).abs() < 0.8, "step {}: exposure at {:?}", f.index, pose_of(fr));
                 }

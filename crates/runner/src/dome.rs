@@ -2,8 +2,8 @@
 //! flash index, view = camera) as one library call: plan -> schedule (with the multiplexing
 //! choice, planned for the lights' brightness from the LED calibration or the rig config's
 //! nominal) -> the devices the rig's backend opens (`crate::backend`) -> engine
-//! (`btfrig_engine::dome`) -> pipeline (`btfrig_pipeline::dome`: collect, demultiplex, fault
-//! detection, rectify, radiometry) -> dataset store, plus, where the backend offers a truth
+//! (`btfrig_engine::Engine::spawn` on `RigDevices::Dome`, the gonio's engine) -> pipeline
+//! (`btfrig_pipeline::dome`: collect, demultiplex, fault detection, rectify, radiometry) -> dataset store, plus, where the backend offers a truth
 //! probe (a simulated rig), the figures measured against its ground truth
 //! (`docs/pipeline.md`, "LED dome").
 //!
@@ -21,7 +21,7 @@
 //! (`crate::dome_reprocess`).
 //!
 //! Steering ([`run_controlled`]): a [`RunControl`] pauses, resumes, aborts or interrupts the
-//! engine between steps (`btfrig_engine::dome::run_dome`), and the run reports
+//! engine between steps through its `RunHandle`, as a gonio session does, and the run reports
 //! [`RunEvent`]s: `Started`, `Progress` with an ETA, warnings, pauses (also on a device fault),
 //! resumes and `Stopping`. A dome's step is one frame
 //! per camera (a pattern at a rotation), so `Progress` counts steps, not textures; textures are
@@ -39,8 +39,11 @@ use std::time::Instant;
 
 use btfrig_calib::rectify::Filter;
 use btfrig_core::plan::dome::{DomePlan, ValidatedDomePlan};
-use btfrig_engine::dome::{run_dome as drive, DomeCapture, DomeSettings};
-use btfrig_engine::{Command as EngineCommand, Event, PauseReason, RunOutcome as EngineOutcome, StepKind};
+use btfrig_engine::dome::DomeCapture;
+use btfrig_engine::{
+    CommandError, Engine, EngineSettings, EngineStep, Event, PauseReason, RigDevices, RunHandle,
+    RunOutcome as EngineOutcome, StepKey, StepKind,
+};
 use btfrig_hw::truth::DomeTruthProbe;
 use btfrig_hw::MoveOptions;
 use btfrig_pipeline::dome::{DomeProcessing, GroupCode, GroupPose, GroupStack, LedLight};
@@ -413,7 +416,10 @@ pub fn run_controlled(
     }
 
     let commands = control.take().ok_or_else(|| RunError::Rig("this RunControl already drives a run".into()))?;
-    let done_before = schedule.steps.iter().filter(|st| done.contains(&st.rotation)).count();
+    let steps = EngineStep::from_dome_schedule(&schedule);
+    // The engine skips the steps of the rotations done (a step's key names its rotation).
+    let done: HashSet<StepKey> = steps.iter().map(|st| st.key).filter(|k| done.contains(&k.view)).collect();
+    let done_before = done.len();
     let planned_s = crate::dome_dry_run::schedule_rig_time_s(&rig, &dome, &schedule);
     on_event(&RunEvent::Started {
         dataset: req.out.clone(),
@@ -463,28 +469,25 @@ pub fn run_controlled(
         if let Some(t) = devices.turntable.as_mut() {
             t.home(MoveOptions::default()).await.map_err(|e| RunError::Rig(e.to_string()))?;
         }
-        let (tx, mut rx) = mpsc::channel::<DomeCapture>(4);
-        let steps = schedule.steps.clone();
-        let patterns = schedule.patterns.clone();
-        let (exp, ref_exp) = (schedule.exposure_s, schedule.single_exposure_s);
+        let (tx, rx) = mpsc::channel::<DomeCapture>(4);
+        let devices = RigDevices::Dome { devices, patterns: schedule.patterns.clone() };
         // The engine pauses on a fault; a session that stops on faults ends there (`listen`),
         // with the report's status "paused", as a gonio run does.
-        let settings = DomeSettings { pause_on_fault: true, ..DomeSettings::default() };
-        let (engine_commands, steering) = mpsc::channel(btfrig_engine::COMMAND_CAPACITY);
-        let (events_tx, events) = tokio::sync::broadcast::channel(settings.event_capacity);
-        let engine = async move {
-            drive(&mut devices, &steps, &patterns, exp, ref_exp, &done, settings, Some(steering), events_tx, tx).await
-        };
+        let mut handle = Engine::spawn(devices, steps, done, EngineSettings::default(), tx);
+        let events = handle.events();
         let consume = async {
+            // Owned here: a consumer that fails drops its receiver, and the engine stops.
+            let mut rx = rx;
             while let Some(cap) = rx.recv().await {
                 state.take(cap)?;
             }
             Ok::<(), RunError>(())
         };
-        let listen = listen(commands, engine_commands, events, &mut commit_rx, stop_on_fault, on_event);
-        let (e, c, stop) = tokio::join!(engine, consume, listen);
+        let listen = listen(commands, &handle, events, &mut commit_rx, stop_on_fault, on_event);
+        let (c, stop) = tokio::join!(consume, listen);
+        let engine = handle.join().await;
         c?;
-        Ok((e.map_err(|e| RunError::Rig(e.to_string()))?, stop))
+        Ok((engine, stop))
     });
     // The view groups committed after the engine's last event (the last one always is).
     if commit_rx.has_changed().unwrap_or(true) {
@@ -594,7 +597,7 @@ struct Stop {
 /// engine pauses on it) ends the session as paused, resumable by running the plan again.
 async fn listen(
     mut control: mpsc::Receiver<Command>,
-    engine: mpsc::Sender<EngineCommand>,
+    engine: &RunHandle,
     mut events: tokio::sync::broadcast::Receiver<Event>,
     commits: &mut tokio::sync::watch::Receiver<Option<RunEvent>>,
     stop_on_fault: bool,
@@ -605,12 +608,9 @@ async fn listen(
     let mut commits_open = true;
     // A command the engine's queue refused (full) is a warning; after the engine ended there
     // is nothing to steer.
-    let send = |command: EngineCommand, on_event: &mut dyn FnMut(&RunEvent)| {
-        if let Err(mpsc::error::TrySendError::Full(c)) = engine.try_send(command) {
-            on_event(&RunEvent::Warning(format!(
-                "engine: {c:?} refused: the run already holds {} unread commands",
-                btfrig_engine::COMMAND_CAPACITY
-            )));
+    let send = |r: Result<(), CommandError>, on_event: &mut dyn FnMut(&RunEvent)| {
+        if let Err(e @ CommandError::Full { .. }) = r {
+            on_event(&RunEvent::Warning(format!("engine: {e}")));
         }
     };
     loop {
@@ -645,7 +645,7 @@ async fn listen(
                                 "device": device, "kind": kind.to_string(), "message": message,
                             }));
                             // The engine is paused on the failed step: end it there.
-                            send(EngineCommand::Abort, on_event);
+                            send(engine.abort(), on_event);
                         }
                     }
                 }
@@ -665,13 +665,13 @@ async fn listen(
                 Err(_) => commits_open = false,
             },
             c = control.recv(), if control_open => {
-                let command = match c {
+                let sent = match c {
                     None => {
                         control_open = false;
                         continue;
                     }
-                    Some(Command::Pause) => EngineCommand::Pause,
-                    Some(Command::Resume) => EngineCommand::Resume,
+                    Some(Command::Pause) => engine.pause(),
+                    Some(Command::Resume) => engine.resume(),
                     Some(c @ (Command::Abort | Command::Interrupt(_))) => {
                         let end = match c {
                             Command::Interrupt(signal) => RunOutcome::Interrupted(signal),
@@ -681,10 +681,10 @@ async fn listen(
                             on_event(&RunEvent::Stopping { reason: end.reason().unwrap_or_default() });
                             stop.outcome = Some(end);
                         }
-                        EngineCommand::Abort
+                        engine.abort()
                     }
                 };
-                send(command, on_event);
+                send(sent, on_event);
             }
         }
     }

@@ -5,7 +5,7 @@
 //! candidate mode is also planned as if the plan forced it, so each has its own frames, rig
 //! time and memory.
 //!
-//! The rig-time estimate follows what the dome engine does (`btfrig_engine::dome`): home the
+//! The rig-time estimate follows what a dome step does (`btfrig_engine::dome`): home the
 //! turntable, then per step turn the table when the rotation changes (trapezoidal profile
 //! plus settle), set the pattern (`timing.leds.switch_s`), set the exposure on every camera
 //! when it changes (`timing.camera.command_s`), trigger (latency, exposure, read-out), and

@@ -19,7 +19,7 @@ use btfrig_calib::hdr::{NoiseModel, NominalCalibration};
 use btfrig_calib::Region;
 use btfrig_core::camera::CameraModel;
 use btfrig_core::frame::RawFrame;
-use btfrig_core::kinematics::Gonio;
+use btfrig_core::kinematics::{Gonio, JointState};
 use btfrig_core::plan::{HdrMode, HdrSettings};
 use btfrig_engine::{EngineStep, ExposureControl, StepKey};
 use btfrig_store::Dataset;
@@ -119,7 +119,12 @@ impl HdrControl {
 }
 
 /// The footprint and meterings of `step`, made on first use (the oldest kept step dropped).
-fn entry<'a>(steps: &'a mut VecDeque<InFlight>, rig: &HdrRig, step: &EngineStep) -> &'a mut InFlight {
+fn entry<'a>(
+    steps: &'a mut VecDeque<InFlight>,
+    rig: &HdrRig,
+    step: &EngineStep,
+    joints: &JointState,
+) -> &'a mut InFlight {
     let key = step.key;
     let i = match steps.iter().position(|s| s.key == key) {
         Some(i) => i,
@@ -127,7 +132,7 @@ fn entry<'a>(steps: &'a mut VecDeque<InFlight>, rig: &HdrRig, step: &EngineStep)
             if steps.len() >= STEPS_KEPT {
                 steps.pop_front();
             }
-            let pose = rig.gonio.scene_pose(&step.joints);
+            let pose = rig.gonio.scene_pose(joints);
             steps.push_back(InFlight {
                 key,
                 footprint: sample_footprint(&rig.camera, &pose, rig.region),
@@ -153,8 +158,10 @@ impl ExposureControl for HdrControl {
     }
 
     fn next(&mut self, step: &EngineStep, frames: &[RawFrame]) -> Option<f64> {
+        // Brackets are a gonio's (`Engine::spawn_with_exposure` takes gonio devices).
+        let joints = step.joints()?;
         let rig = &self.rig;
-        let InFlight { footprint: fp, taken, .. } = entry(&mut self.steps, rig, step);
+        let InFlight { footprint: fp, taken, .. } = entry(&mut self.steps, rig, step, &joints);
         for f in &frames[taken.len().min(frames.len())..] {
             // A frame that cannot be metered (size or metadata) ends the bracket: the pipeline
             // reports the frame's own problem.

@@ -34,7 +34,7 @@ use std::time::Instant;
 use btfrig_core::kinematics::Gonio;
 use btfrig_core::plan::ValidatedPlan;
 use btfrig_engine::{
-    Devices, Engine, EngineSettings, EngineStep, Event, PauseReason, RunOutcome as EngineOutcome, StepKey,
+    Engine, EngineSettings, EngineStep, Event, GonioDevices, PauseReason, RunOutcome as EngineOutcome, StepKey,
 };
 use btfrig_pipeline::{ProcessSettings, Processor};
 use btfrig_planner::{plan as plan_schedule, PairSelection, PlanRequest};
@@ -1293,7 +1293,7 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
         lamp.wait_ready(warm_up + 60.0).await
     };
     prepare.await.map_err(|e| RunError::Rig(format!("preparing the simulated rig: {e}")))?;
-    let devices = Devices { robot, rail, camera: rig_camera, clock };
+    let devices = GonioDevices { robot, rail, camera: rig_camera, clock };
     let _lamp = lamp; // stays on for the whole run
     let exposure_control: Box<dyn btfrig_engine::ExposureControl> = match &hdr {
         Some(h) => {
