@@ -47,8 +47,7 @@ pub fn tone_map_preview(texels: &[[f32; 3]], width: usize, height: usize, min_si
     // One lookup per 12-bit input level: the sRGB curve is the costly part otherwise.
     let lut: Vec<u8> = (0..4096)
         .map(|i| {
-            let l = f64::from(i) / 4095.0;
-            let v = if l <= 0.003_130_8 { 12.92 * l } else { 1.055 * l.powf(1.0 / 2.4) - 0.055 };
+            let v = btfrig_color::space::srgb_encode(f64::from(i) / 4095.0);
             (v * 255.0).round() as u8
         })
         .collect();
