@@ -11,6 +11,10 @@ use std::process::Command;
 /// The simulator's own crates: they may depend on it.
 const SIMULATOR_CRATES: &[&str] = &["btfrig-sim", "btfrig-render", "btfrig-sim-backend", "btfrig-sim-calibration"];
 
+/// Benchmark harnesses: they measure against the simulator's truth, so they may depend on it;
+/// only the CLI may depend on them (`only_the_cli_uses_the_harnesses`).
+const HARNESSES: &[&str] = &["btfrig-bench"];
+
 /// What the simulator is.
 const SIMULATOR: &[&str] = &["btfrig-sim", "btfrig-render"];
 
@@ -69,7 +73,7 @@ fn no_library_outside_the_simulator_depends_on_it() {
     assert!(graph.contains_key("btfrig-pipeline") && graph.contains_key("btfrig-sim"), "{graph:?}");
     let mut offenders = BTreeMap::new();
     for name in graph.keys() {
-        if SIMULATOR_CRATES.contains(&name.as_str()) || name == "btfrig-cli" {
+        if SIMULATOR_CRATES.contains(&name.as_str()) || HARNESSES.contains(&name.as_str()) || name == "btfrig-cli" {
             continue;
         }
         let reached: Vec<String> =
@@ -105,4 +109,16 @@ fn the_processing_crates_never_depend_on_the_simulator() {
             closure(&graph, name).into_iter().filter(|d| SIMULATOR.contains(&d.as_str())).collect();
         assert!(reached.is_empty(), "{name} depends on {reached:?}");
     }
+}
+
+#[test]
+fn only_the_cli_uses_the_harnesses() {
+    let graph = workspace_libraries();
+    assert!(graph.contains_key("btfrig-bench"), "{graph:?}");
+    let users: Vec<&String> = graph
+        .keys()
+        .filter(|n| n.as_str() != "btfrig-cli" && !HARNESSES.contains(&n.as_str()))
+        .filter(|n| closure(&graph, n).iter().any(|d| HARNESSES.contains(&d.as_str())))
+        .collect();
+    assert!(users.is_empty(), "only btfrig-cli may depend on {HARNESSES:?}; these do too: {users:?}");
 }

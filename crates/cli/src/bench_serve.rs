@@ -6,12 +6,12 @@
 //! from when it was due, so a stalled server cannot hide its stall by slowing the sender
 //! (coordinated omission). Requests use keep-alive HTTP/1.1 connections, one per sender thread.
 
-use std::io::{BufRead, BufReader, Read, Write};
-use std::net::TcpStream;
+use std::io::{BufRead, BufReader, Read};
 use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use anyhow::{bail, Context};
+use btfrig_bench::serve::{cpu_s, run_once, send_open_loop, LoadStats, AUTH, TOKEN};
 
 /// `btfrig bench serve`.
 #[derive(Debug, clap::Args)]
@@ -53,9 +53,6 @@ pub struct ServeLoadArgs {
     #[arg(long, default_value_t = 1)]
     pub connections: usize,
 }
-
-const AUTH: &str = "[[token]]\nname = \"bench\"\ntoken = \"bench-operator-token\"\nrole = \"operator\"\n";
-const TOKEN: &str = "bench-operator-token";
 
 /// Runs the benchmark.
 pub fn bench(a: &BenchServeArgs) -> anyhow::Result<()> {
@@ -210,89 +207,6 @@ pub fn bench(a: &BenchServeArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// User + system CPU seconds of process `pid` so far (Linux `/proc/PID/stat`).
-fn cpu_s(pid: &str) -> Option<f64> {
-    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
-    // Fields after the command name (which may hold spaces) : state is field 3, utime 14, stime 15.
-    let rest = &stat[stat.rfind(')')? + 2..];
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let ticks = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
-    Some(ticks / 100.0) // USER_HZ is 100 on Linux
-}
-
-/// Starts the plan, waits for it to finish, returns the runner's wall time of the session.
-fn run_once(port: u16, plan: &str, dataset: &str) -> anyhow::Result<f64> {
-    let body = serde_json::json!({ "plan_text": plan, "dataset": dataset }).to_string();
-    let mut c = Conn::open(port, TOKEN)?;
-    let (status, text) = c.call("POST", "/api/v1/runs", Some(&body))?;
-    if status != 201 {
-        bail!("starting the run: {status} {text}");
-    }
-    let id = serde_json::from_str::<serde_json::Value>(&text)?["id"].as_str().unwrap_or_default().to_string();
-    loop {
-        std::thread::sleep(Duration::from_millis(250));
-        let (_, text) = c.call("GET", &format!("/api/v1/runs/{id}"), None)?;
-        let v: serde_json::Value = serde_json::from_str(&text)?;
-        match v["state"].as_str() {
-            Some("finished") => return v["summary"]["wall_s"].as_f64().context("summary.wall_s"),
-            Some("failed" | "aborted" | "interrupted") => bail!("the run ended {}: {}", v["state"], v["message"]),
-            _ => {}
-        }
-    }
-}
-
-/// One keep-alive HTTP/1.1 connection.
-struct Conn {
-    r: BufReader<TcpStream>,
-    w: TcpStream,
-    token: String,
-}
-
-impl Conn {
-    fn open(port: u16, token: &str) -> anyhow::Result<Conn> {
-        let s = TcpStream::connect(("127.0.0.1", port))?;
-        s.set_nodelay(true)?;
-        s.set_read_timeout(Some(Duration::from_secs(30)))?;
-        Ok(Conn { r: BufReader::new(s.try_clone()?), w: s, token: token.to_string() })
-    }
-
-    fn call(&mut self, method: &str, path: &str, body: Option<&str>) -> anyhow::Result<(u16, String)> {
-        let mut req =
-            format!("{method} {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nAuthorization: Bearer {}\r\n", self.token);
-        match body {
-            Some(b) => {
-                req.push_str(&format!("Content-Type: application/json\r\nContent-Length: {}\r\n\r\n{b}", b.len()))
-            }
-            None => req.push_str("\r\n"),
-        }
-        self.w.write_all(req.as_bytes())?;
-        let mut line = String::new();
-        self.r.read_line(&mut line)?;
-        let status: u16 = line
-            .split_whitespace()
-            .nth(1)
-            .and_then(|s| s.parse().ok())
-            .with_context(|| format!("status line {line:?}"))?;
-        let mut len = 0usize;
-        loop {
-            line.clear();
-            self.r.read_line(&mut line)?;
-            let l = line.trim_end();
-            if l.is_empty() {
-                break;
-            }
-            if let Some((k, v)) = l.split_once(':') {
-                if k.eq_ignore_ascii_case("content-length") {
-                    len = v.trim().parse().unwrap_or(0);
-                }
-            }
-        }
-        let mut buf = vec![0; len];
-        self.r.read_exact(&mut buf)?;
-        Ok((status, String::from_utf8_lossy(&buf).into_owned()))
-    }
-}
-
 /// The load process: sends until stdin closes, then prints its statistics as JSON.
 pub fn load(a: &ServeLoadArgs) -> anyhow::Result<()> {
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
@@ -302,47 +216,8 @@ pub fn load(a: &ServeLoadArgs) -> anyhow::Result<()> {
         let _ = std::io::stdin().read_to_end(&mut sink);
         s.store(true, std::sync::atomic::Ordering::Relaxed);
     });
-    let start = Instant::now();
-    let per_thread = a.rate / a.connections as f64;
-    let threads: Vec<_> = (0..a.connections)
-        .map(|k| {
-            let (stop, path, port, rate, token) = (stop.clone(), a.path.clone(), a.port, a.rate, a.token.clone());
-            std::thread::spawn(move || -> (Vec<f64>, u64) {
-                let mut lat = Vec::new();
-                let mut errors = 0;
-                let Ok(mut c) = Conn::open(port, &token) else { return (lat, 1) };
-                // Thread k starts k / rate late, so the threads' requests interleave evenly.
-                let offset = k as f64 / rate;
-                let mut i = 0u64;
-                while !stop.load(std::sync::atomic::Ordering::Relaxed) {
-                    let due = start + Duration::from_secs_f64(offset + i as f64 / per_thread);
-                    if let Some(wait) = due.checked_duration_since(Instant::now()) {
-                        std::thread::sleep(wait);
-                    }
-                    match c.call("GET", &path, None) {
-                        Ok((200 | 404, _)) => lat.push(due.elapsed().as_secs_f64() * 1e3),
-                        _ => {
-                            errors += 1;
-                            if let Ok(n) = Conn::open(port, &token) {
-                                c = n;
-                            }
-                        }
-                    }
-                    i += 1;
-                }
-                (lat, errors)
-            })
-        })
-        .collect();
-    let mut lat = Vec::new();
-    let mut errors = 0;
-    for t in threads {
-        let (l, e) = t.join().map_err(|_| anyhow::anyhow!("a sender thread panicked"))?;
-        lat.extend(l);
-        errors += e;
-    }
-    let secs = start.elapsed().as_secs_f64();
-    lat.sort_by(|a, b| a.total_cmp(b));
+    let LoadStats { latencies_ms: lat, errors, seconds: secs } =
+        send_open_loop(a.port, &a.token, &a.path, a.rate, a.connections, &stop)?;
     let pct = |p: f64| if lat.is_empty() { f64::NAN } else { lat[((lat.len() - 1) as f64 * p).round() as usize] };
     println!(
         "{}",

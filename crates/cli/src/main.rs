@@ -5,7 +5,6 @@ mod bench_cmd;
 mod bench_color;
 mod bench_compress;
 mod bench_demux;
-mod bench_registration;
 mod bench_serve;
 mod calibrate_cmd;
 mod calibrate_color_cmd;

@@ -356,22 +356,16 @@ pub fn encode_srgb8_png(name: &Path, width: usize, height: usize, rgb: &[u8]) ->
     Ok(out.into_inner())
 }
 
-/// The sRGB transfer function (IEC 61966-2-1) of a linear value, clipped to `[0, 1]` first;
-/// NaN maps to 0.
-pub fn srgb_encode(linear: f32) -> f32 {
-    let v = if linear.is_nan() { 0.0 } else { linear.clamp(0.0, 1.0) };
-    if v <= 0.003_130_8 {
-        12.92 * v
-    } else {
-        1.055 * v.powf(1.0 / 2.4) - 0.055
-    }
-}
-
 /// A linear RGB image (`width x height`, row-major, e.g. a rectified texture in linear sRGB)
 /// as 8-bit sRGB (`RGBRGB...`): `scale` multiplies the linear values first (1 maps linear 1.0
 /// to 255), values beyond 1 clip. No tone mapping, so previews of one dataset compare.
 pub fn linear_to_srgb8(data: &[[f32; 3]], scale: f32) -> Vec<u8> {
-    data.iter().flat_map(|p| p.map(|c| (srgb_encode(c * scale) * 255.0 + 0.5) as u8)).collect()
+    // The transfer function does not clip: NaN to 0, the rest to [0, 1] first.
+    let enc = |c: f32| {
+        let v = if c.is_nan() { 0.0 } else { f64::from(c).clamp(0.0, 1.0) };
+        (btfrig_color::space::srgb_encode(v) * 255.0 + 0.5) as u8
+    };
+    data.iter().flat_map(|p| p.map(|c| enc(c * scale))).collect()
 }
 
 /// Decodes an 8-bit RGB PNG held in memory (`(width, height, RGBRGB...)`); `name` only
@@ -424,17 +418,11 @@ mod tests {
 
     #[test]
     fn srgb_encoding_matches_the_standard_and_clips() {
-        // Published sRGB anchors: linear 0.18 (mid grey) -> 0.4613; 0.0031308 is the knee
-        // where both branches give 0.040450; 1 -> 1.
-        assert!((srgb_encode(0.18) - 0.461_356).abs() < 1e-5);
-        assert!((srgb_encode(0.003_130_8) - 0.040_450).abs() < 1e-6);
-        assert!((srgb_encode(1.0) - 1.0).abs() < 1e-6);
-        assert_eq!(srgb_encode(-0.5), 0.0);
-        assert_eq!(srgb_encode(7.0), srgb_encode(1.0));
-        assert_eq!(srgb_encode(f32::NAN), 0.0);
+        // Published sRGB anchors: linear 0.18 (mid grey) -> 0.4613 (118 of 255), 1 -> 255;
+        // below 0, beyond 1 and NaN clip (the curve itself is btfrig_color::space's, tested there).
         assert_eq!(
-            linear_to_srgb8(&[[0.0, 0.18, 1.0], [2.0, -1.0, f32::INFINITY]], 1.0),
-            vec![0, 118, 255, 255, 0, 255]
+            linear_to_srgb8(&[[0.0, 0.18, 1.0], [2.0, -1.0, f32::INFINITY], [-0.5, 7.0, f32::NAN]], 1.0),
+            vec![0, 118, 255, 255, 0, 255, 0, 255, 0]
         );
         // Monotonic over the 8-bit range.
         let codes: Vec<u8> = (0..=1000).map(|i| linear_to_srgb8(&[[i as f32 / 1000.0; 3]], 1.0)[0]).collect();

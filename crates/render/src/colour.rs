@@ -16,7 +16,7 @@
 //! Both are linear in ρ. The camera's sensitivities are not a linear transform of the CIE
 //! observer's, so no 3x3 matrix maps one to the other exactly:
 //! [`ColourSystem::fit_camera_to_output`] finds the least-squares matrix over a set of
-//! reflectances (the 24 ColorChecker patches) and reports the residuals (`docs/colour.md`).
+//! reflectances (the 24 ColorChecker patches) and reports the residuals (`docs/color.md`).
 //!
 //! The colour-space conversions (sRGB, XYZ, L*a*b*, Bradford) are `btfrig_color::space`'s;
 //! this module holds what only the simulator has: the lamp and the camera's spectra.

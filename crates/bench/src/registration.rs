@@ -3,19 +3,17 @@
 //! several ways, rectify with every filter, and measure each result against the simulator's
 //! truth (texel position error of the pose, texture error against the ground truth).
 //!
-//! It lives in the CLI crate because it needs the simulator (`btfrig-render`) together with
-//! the detector, the estimators and the filters, and the library crates must not know about
-//! the simulator (`docs/ARCHITECTURE.md`); the CLI is the one crate that already sees them
-//! all. `bench_cmd.rs` does the printing and drives the OpenCV peer; its images and results
-//! pass through [`Bench::evaluate_homography`].
+//! The CLI's `bench_cmd.rs` does the printing; the OpenCV peer ([`crate::opencv`]) passes its
+//! images and results through [`Bench::evaluate_homography`]. [`Agg`] totals the results of
+//! one (setting, filter) for the tables.
 
 use std::time::Instant;
 
 use anyhow::Context;
 use btfrig_calib::{rectify, to_radiance_factor, vignetting_map, Filter, LinearImage, Radiometry, Region};
-use btfrig_core::homography::{decompose, dlt};
 use btfrig_core::camera::CameraModel;
 use btfrig_core::config::RigConfig;
+use btfrig_core::homography::{decompose, dlt};
 use btfrig_core::kinematics::JointState;
 use btfrig_core::pose::ScenePose;
 use btfrig_core::Direction;
@@ -584,6 +582,59 @@ impl Bench {
             }],
             error: None,
         })
+    }
+}
+
+/// Totals of one (setting, filter) over the frames of one rig.
+#[derive(Default)]
+pub struct Agg {
+    pub detect_s: Vec<f64>,
+    pub register_s: Vec<f64>,
+    pub rectify_s: Vec<f64>,
+    pub texel_mean: Vec<f64>,
+    pub texel_max: f64,
+    pub corner_sq: f64,
+    pub corner_n: usize,
+    pub point: (f64, f64),
+    pub area: (f64, f64),
+    pub clean: (f64, f64),
+    pub failed: usize,
+}
+
+pub fn mean(v: &[f64]) -> f64 {
+    if v.is_empty() {
+        f64::NAN
+    } else {
+        v.iter().sum::<f64>() / v.len() as f64
+    }
+}
+
+impl Agg {
+    pub fn add(&mut self, s: &SettingResult, f: Option<&FilterResult>) {
+        if s.error.is_some() {
+            self.failed += 1;
+            return;
+        }
+        self.detect_s.push(s.detect_s);
+        self.register_s.push(s.register_s);
+        self.texel_mean.push(s.texel.0);
+        self.texel_max = self.texel_max.max(s.texel.1);
+        if let Some(c) = s.corner_rms_px {
+            self.corner_sq += c * c;
+            self.corner_n += 1;
+        }
+        if let Some(f) = f {
+            self.rectify_s.push(f.rectify_s);
+            self.point = (self.point.0 + f.point.0, self.point.1 + f.point.1);
+            self.area = (self.area.0 + f.area.0, self.area.1 + f.area.1);
+            self.clean = (self.clean.0 + f.clean_area.0, self.clean.1 + f.clean_area.1);
+        }
+    }
+    pub fn total_ms(&self) -> f64 {
+        1e3 * (mean(&self.detect_s) + mean(&self.register_s) + mean(&self.rectify_s))
+    }
+    pub fn rel(p: (f64, f64)) -> f64 {
+        (p.0 / p.1).sqrt()
     }
 }
 
