@@ -3,7 +3,7 @@
 //! or `btfrig-render` in its normal (non-dev) dependencies, except the simulator's own crates.
 //! Read from `cargo metadata`, so a dependency cannot creep back unnoticed. The runner and the
 //! daemon reach the simulator only through the backend registry, which `btfrig-sim-backend`
-//! fills (`btfrig_runner::backend`).
+//! fills (`btfrig_measurement::backend`).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::process::Command;
@@ -70,7 +70,7 @@ fn closure(graph: &BTreeMap<String, BTreeSet<String>>, name: &str) -> BTreeSet<S
 #[test]
 fn no_library_outside_the_simulator_depends_on_it() {
     let graph = workspace_libraries();
-    assert!(graph.contains_key("btfrig-pipeline") && graph.contains_key("btfrig-sim"), "{graph:?}");
+    assert!(graph.contains_key("btfrig-process") && graph.contains_key("btfrig-sim"), "{graph:?}");
     let mut offenders = BTreeMap::new();
     for name in graph.keys() {
         if SIMULATOR_CRATES.contains(&name.as_str()) || HARNESSES.contains(&name.as_str()) || name == "btfrig-cli" {
@@ -86,7 +86,7 @@ fn no_library_outside_the_simulator_depends_on_it() {
     assert!(
         found.is_empty(),
         "library crates depend on the simulator in [dependencies]: {found:?}; allowed: only {SIMULATOR_CRATES:?} \
-         (and the CLI binary). Open devices and truth through btfrig_runner::backend, or make it a dev-dependency"
+         (and the CLI binary). Open devices and truth through btfrig_measurement::backend, or make it a dev-dependency"
     );
 }
 
@@ -94,12 +94,12 @@ fn no_library_outside_the_simulator_depends_on_it() {
 fn the_processing_crates_never_depend_on_the_simulator() {
     let graph = workspace_libraries();
     for name in [
-        "btfrig-pipeline",
-        "btfrig-calib",
+        "btfrig-process",
+        "btfrig-imaging",
         "btfrig-imageio",
-        "btfrig-register",
+        "btfrig-registration",
         "btfrig-markers",
-        "btfrig-engine",
+        "btfrig-acquire",
         "btfrig-store",
         "btfrig-compress",
         "btfrig-color",

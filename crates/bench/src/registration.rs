@@ -10,7 +10,7 @@
 use std::time::Instant;
 
 use anyhow::Context;
-use btfrig_calib::{rectify, to_radiance_factor, vignetting_map, Filter, LinearImage, Radiometry, Region};
+use btfrig_imaging::{rectify, to_radiance_factor, vignetting_map, Filter, LinearImage, Radiometry, Region};
 use btfrig_core::camera::CameraModel;
 use btfrig_core::config::RigConfig;
 use btfrig_core::homography::{decompose, dlt};
@@ -19,7 +19,7 @@ use btfrig_core::pose::ScenePose;
 use btfrig_core::Direction;
 use btfrig_imageio::demosaic::demosaic_bilinear;
 use btfrig_markers::{detect, Detection, Dictionary, GrayImage};
-use btfrig_register::{
+use btfrig_registration::{
     back_project, register, sample_to_camera, texel_position_error, PlateRegistrar, RegisterOptions,
 };
 use btfrig_render::material::MaterialSpec;
@@ -554,7 +554,7 @@ impl Bench {
         let s2c = decompose(&hn).context("peer homography does not decompose into a pose")?;
         let pose = self.pose_from_camera(&self.scene.pose(&frame.commanded), s2c);
         let vig = vignetting_map(cam, &pose, self.region, self.size)?;
-        let wrap = |data| btfrig_calib::Texture {
+        let wrap = |data| btfrig_imaging::Texture {
             width: self.size,
             height: self.size,
             region: self.region,

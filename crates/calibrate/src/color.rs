@@ -16,7 +16,7 @@
 use std::path::Path;
 use std::time::Instant;
 
-use btfrig_calib::{rectify, to_radiance_factor, vignetting_map, Filter, LinearImage, Radiometry, Region};
+use btfrig_imaging::{rectify, to_radiance_factor, vignetting_map, Filter, LinearImage, Radiometry, Region};
 use btfrig_color::chart::{ChartLayout, CHART_NAMES};
 use btfrig_color::{
     evaluate, select_model, ColorError, ColorModel, DeltaEStats, FitOptions, ModelKind, PatchStatus, ScreenOptions,
@@ -30,7 +30,7 @@ use btfrig_core::pose::ScenePose;
 use btfrig_core::Direction;
 use btfrig_imageio::demosaic::demosaic_bilinear;
 use btfrig_markers::GrayImage;
-use btfrig_register::PlateRegistrar;
+use btfrig_registration::PlateRegistrar;
 use nalgebra::{Point3, Vector3};
 use serde::{Deserialize, Serialize};
 

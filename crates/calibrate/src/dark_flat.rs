@@ -1,5 +1,5 @@
 //! Radiometric calibration of the camera: dark frames and master flats captured per the plan
-//! (`rig-configs/plans/calibration-radiometric.toml`), fitted with `btfrig_calib::dark_flat`,
+//! (`rig-configs/plans/calibration-radiometric.toml`), fitted with `btfrig_imaging::dark_flat`,
 //! written as float OpenEXR maps with a TOML header. Format and figures: `docs/dark-flat.md`.
 //!
 //! [`calibrate`] runs the plan on frames a [`DarkFlatCamera`] takes. On the simulated rig
@@ -10,7 +10,7 @@
 
 use std::path::Path;
 
-use btfrig_calib::dark_flat::{DarkFlat, DarkFlatError, DarkModel, FlatField, FrameAverage};
+use btfrig_imaging::dark_flat::{DarkFlat, DarkFlatError, DarkModel, FlatField, FrameAverage};
 use btfrig_core::config::RigConfig;
 use btfrig_core::frame::RawFrame;
 use serde::{Deserialize, Serialize};

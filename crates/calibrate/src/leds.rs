@@ -3,7 +3,7 @@
 //!
 //! The procedure: a white reference tile of known albedo (spectrally flat, Lambertian) lies on
 //! the turntable in place of the sample; one camera photographs it lit by one light at a time
-//! ([`LedShot`]). Per frame, `btfrig_calib::light::lambertian_signal` reduces the tile's pixels
+//! ([`LedShot`]). Per frame, `btfrig_imaging::light::lambertian_signal` reduces the tile's pixels
 //! to `W_c`: the camera-RGB signal rate (e-/s per photosite at gain 1; e- per flash for a
 //! flash) of a white Lambertian reflector lit along its normal by that light from the nominal
 //! light distance, dividing out the tile's albedo, each point's incidence and distance, the
@@ -21,8 +21,8 @@
 
 use std::path::{Path, PathBuf};
 
-use btfrig_calib::light::{lambertian_signal, square_points};
-use btfrig_calib::{LinearImage, Radiometry};
+use btfrig_imaging::light::{lambertian_signal, square_points};
+use btfrig_imaging::{LinearImage, Radiometry};
 use btfrig_core::camera::CameraModel;
 use btfrig_core::config::RigConfig;
 use btfrig_core::frame::RawFrame;

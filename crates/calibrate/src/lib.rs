@@ -10,7 +10,7 @@
 //! Everything here is a function of frames, the rig config and the plan: whoever took the
 //! frames. The simulated rig's side (rendering the frames, comparing with the simulator's
 //! truth) is `btfrig-sim-calibration`; this crate does not depend on the simulator. The
-//! numerics are in `btfrig-camcal` (which knows nothing of rigs, renderers or files); this
+//! numerics are in `btfrig-intrinsics` (which knows nothing of rigs, renderers or files); this
 //! crate is the procedure around them, and does I/O in one place only: [`processing_camera`]
 //! reads the calibration file a rig config names.
 #![warn(missing_docs)]
@@ -36,7 +36,7 @@ use nalgebra::Point2;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use btfrig_camcal::{
+use btfrig_intrinsics::{
     calibrate, CalibError, Calibration, CalibrationFile, Correspondence, Options, View, MIN_POINTS_PER_VIEW,
 };
 
@@ -490,7 +490,7 @@ pub fn calibrate_captures(
             }
         }
         detect_s += t.elapsed().as_secs_f64();
-        let need = btfrig_camcal::MIN_VIEWS.max(4);
+        let need = btfrig_intrinsics::MIN_VIEWS.max(4);
         if views.len() < need {
             let skipped = captures
                 .iter()

@@ -3,7 +3,7 @@
 //! A calibration plan ([`LightPlan`], `rig-configs/plans/calibration-light.toml`, format in
 //! `docs/light.md`) puts a white reference tile of known reflectance (spectrally flat,
 //! Lambertian, e.g. a sintered-PTFE tile) on the holder in place of the sample and photographs
-//! it at a few (light, view) pairs. Per capture, `btfrig_calib::light::lambertian_signal` reduces
+//! it at a few (light, view) pairs. Per capture, `btfrig_imaging::light::lambertian_signal` reduces
 //! the tile's pixels to `W_c`: the camera-RGB signal rate (e-/s per photosite at gain 1) of a
 //! white Lambertian reflector lit along its normal from the nominal lamp distance, dividing
 //! out the tile's albedo, the lamp's incidence and distance at every point, the vignetting and
@@ -19,8 +19,8 @@
 
 use std::collections::BTreeMap;
 
-use btfrig_calib::light::{lambertian_signal, plate_patch_points, rate_radiometry, square_points, PatchOptions};
-use btfrig_calib::{LinearImage, Radiometry};
+use btfrig_imaging::light::{lambertian_signal, plate_patch_points, rate_radiometry, square_points, PatchOptions};
+use btfrig_imaging::{LinearImage, Radiometry};
 use btfrig_core::config::RigConfig;
 use btfrig_core::frame::RawFrame;
 use btfrig_core::kinematics::{Gonio, JointState};
@@ -199,7 +199,7 @@ pub enum LightCalibError {
         /// Camera direction (theta, phi), degrees.
         view_deg: [f64; 2],
         /// The measurement's error.
-        source: btfrig_calib::light::LightError,
+        source: btfrig_imaging::light::LightError,
     },
 }
 

@@ -2,7 +2,7 @@
 //! parsing. No rendering here (see `rig_calibration.rs`).
 
 use btfrig_calibrate::{processing_camera, CalibrationPlan, RigCalibError};
-use btfrig_camcal::CalibrationFile;
+use btfrig_intrinsics::CalibrationFile;
 use btfrig_core::config::RigConfig;
 
 fn rig() -> RigConfig {

@@ -291,7 +291,7 @@ pub fn bench(a: &BenchCompressArgs) -> anyhow::Result<()> {
         println!(
             "{}",
             serde_json::json!({"rows": rows, "measured": measured_err, "verdicts": verdicts, "sparse": sparse_out,
-                "peak_rss_mib": btfrig_runner::peak_rss_mib()})
+                "peak_rss_mib": btfrig_measurement::peak_rss_mib()})
         );
     } else {
         println!();
@@ -305,7 +305,7 @@ pub fn bench(a: &BenchCompressArgs) -> anyhow::Result<()> {
         }
         println!(
             "process peak RSS {} (the whole benchmark: the in-memory truths, every model and its evaluation)",
-            btfrig_runner::peak_rss_mib().map_or("n/a (no /proc/self/status)".into(), |m| format!("{m:.0} MiB"))
+            btfrig_measurement::peak_rss_mib().map_or("n/a (no /proc/self/status)".into(), |m| format!("{m:.0} MiB"))
         );
     }
     Ok(())

@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use anyhow::{bail, Context};
 use btfrig_calibrate::CalibrationPlan;
-use btfrig_camcal::{distortion_difference, mapping_difference_up_to_rotation, CalibrationFile};
+use btfrig_intrinsics::{distortion_difference, mapping_difference_up_to_rotation, CalibrationFile};
 use btfrig_sim_calibration::calibrate_simulated;
 
 use crate::args::CalibrateGeometryArgs;

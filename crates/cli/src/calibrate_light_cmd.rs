@@ -10,7 +10,7 @@ use std::time::Instant;
 use anyhow::{bail, Context};
 use btfrig_calibrate::light::{LightCalibrationFile, LightPlan, LAMP};
 use btfrig_core::config::RigConfig;
-use btfrig_pipeline::light::{LampReference, LightCorrection};
+use btfrig_process::light::{LampReference, LightCorrection};
 use btfrig_sim_calibration::light::{calibrate_light_simulated, SimLightCalibration};
 
 /// `btfrig calibrate light`.

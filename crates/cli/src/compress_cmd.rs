@@ -123,7 +123,7 @@ pub struct CompressArgs {
     pub json: bool,
 }
 
-pub use btfrig_runner::sinks::{default_model_path, path_label};
+pub use btfrig_measurement::sinks::{default_model_path, path_label};
 
 /// Peak resident memory of this process (Linux `VmHWM`), bytes.
 pub fn peak_rss_bytes() -> Option<u64> {

@@ -5,7 +5,7 @@ use std::path::Path;
 use std::process::ExitCode;
 
 use anyhow::Context;
-use btfrig_runner::RunRequest;
+use btfrig_measurement::RunRequest;
 
 use crate::args::DemoArgs;
 
@@ -42,7 +42,7 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<ExitCode> {
     // The default model (FMF) is built while the demo captures (docs/compression.md).
     let req = req.with_compressed_model(Some(btfrig_core::plan::CompressedModel::Fmf));
     let s = crate::run_cmd::execute(&req)?;
-    if let Some(btfrig_runner::sinks::CompressionOutcome::Failed(e)) = &s.compression {
+    if let Some(btfrig_measurement::sinks::CompressionOutcome::Failed(e)) = &s.compression {
         anyhow::bail!("the demo's compressed model was not built: {e}");
     }
     if a.json {
@@ -84,7 +84,7 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<ExitCode> {
         if let Some((lo, hi)) = s.lamp.as_ref().and_then(|l| l.factor_range()) {
             println!("  lamp factor       {lo:.4} .. {hi:.4}: lamp output against the light calibration, measured on the plate per frame and divided out");
         }
-        if let Some(btfrig_runner::sinks::CompressionOutcome::Built { figures, .. }) = &s.compression {
+        if let Some(btfrig_measurement::sinks::CompressionOutcome::Built { figures, .. }) = &s.compression {
             crate::compress_cmd::print_streaming(figures);
         }
         println!("  retries           {}, warnings {}", s.retries, s.warnings.len());
@@ -137,7 +137,7 @@ fn run_dome(a: &DemoArgs, demo: DomeDemo) -> anyhow::Result<ExitCode> {
     let cwd = std::env::current_dir().context("the working directory")?;
     let text = with_overrides(demo.plan, a.rig.as_deref(), a.material.as_deref(), &cwd)?;
     let out = crate::captures_cmd::prepare_output(a.out.clone(), &format!("btfrig-{}", demo.name))?;
-    let req = btfrig_runner::dome::DomeRunRequest {
+    let req = btfrig_measurement::dome::DomeRunRequest {
         plan_text: text,
         plan_path: cwd.join(format!("<embedded rig-configs/plans/{}.toml>", demo.name)),
         out,
@@ -145,7 +145,7 @@ fn run_dome(a: &DemoArgs, demo: DomeDemo) -> anyhow::Result<ExitCode> {
         preview: false,
     };
     let json = a.json;
-    let s = btfrig_runner::dome::run(&req, &mut |line| {
+    let s = btfrig_measurement::dome::run(&req, &mut |line| {
         if !json {
             println!("{line}");
         }

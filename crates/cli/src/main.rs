@@ -36,7 +36,7 @@ use clap::Parser;
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
 fn main() -> std::process::ExitCode {
-    // The device backends every run of this binary opens rigs with (`btfrig_runner::backend`).
+    // The device backends every run of this binary opens rigs with (`btfrig_measurement::backend`).
     btfrig_sim_backend::install();
     let cli = Cli::parse();
     let done = |r: anyhow::Result<()>| r.map(|()| std::process::ExitCode::SUCCESS);

@@ -2,8 +2,8 @@
 
 use std::path::Path;
 
-use btfrig_runner::dome_dry_run::{self, is_dome_plan};
-use btfrig_runner::plan::load;
+use btfrig_measurement::dome_dry_run::{self, is_dome_plan};
+use btfrig_measurement::plan::load;
 
 fn read(file: &Path) -> anyhow::Result<String> {
     std::fs::read_to_string(file).map_err(|e| anyhow::anyhow!("cannot read {}: {e}", file.display()))
@@ -43,7 +43,7 @@ pub fn show(file: &Path) -> anyhow::Result<()> {
         dome_dry_run::dry_run(&text, file)?.lines(file).iter().for_each(|l| println!("{l}"));
         return Ok(());
     }
-    let d = btfrig_runner::dry_run::dry_run(&text, file)?;
+    let d = btfrig_measurement::dry_run::dry_run(&text, file)?;
     println!("plan {:?} from {} (hash {:016x})", d.name, file.display(), d.plan_hash);
     println!(
         "rig {}, exposure {:.4} s per capture, {} bytes transferred per frame",

@@ -1,5 +1,5 @@
 //! `btfrig reprocess DATASET --out NEW [--calibration DIR]`: argument handling and display;
-//! the work is `btfrig_runner::reprocess` (a dome dataset's: `btfrig_runner::dome_reprocess`).
+//! the work is `btfrig_measurement::reprocess` (a dome dataset's: `btfrig_measurement::dome_reprocess`).
 
 use std::path::PathBuf;
 
@@ -27,12 +27,12 @@ pub struct ReprocessArgs {
 
 /// Runs `btfrig reprocess`.
 pub fn run(a: &ReprocessArgs) -> anyhow::Result<()> {
-    let req = btfrig_runner::reprocess::ReprocessRequest {
+    let req = btfrig_measurement::reprocess::ReprocessRequest {
         dataset: a.dataset.clone(),
         out: a.out.clone(),
         calibration: a.calibration.clone(),
     };
-    let s = btfrig_runner::reprocess::reprocess(&req)?;
+    let s = btfrig_measurement::reprocess::reprocess(&req)?;
     let stages: Vec<String> = s.stage_s.iter().map(|(k, v)| format!("{k} {v:.2} s")).collect();
     println!(
         "{}: {} steps reprocessed from {} ({} registered, {} nominal fallbacks, {} nominal by plan); wall {:.1} s; stages: {}",

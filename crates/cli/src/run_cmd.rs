@@ -1,5 +1,5 @@
 //! `btfrig run --plan FILE --out DIR`: a measurement plan on the simulated gonioreflectometer,
-//! into a dataset, resumable. Display and wiring only; the work is in `btfrig-runner`.
+//! into a dataset, resumable. Display and wiring only; the work is in `btfrig-measurement`.
 //!
 //! Exit codes (also in docs/engine.md): 0 the plan is complete (or was already); 1 an error
 //! (bad plan, another dataset in `--out`, I/O); 2 bad command-line usage; 3 the run paused on
@@ -10,7 +10,7 @@
 use std::io::Write;
 use std::process::ExitCode;
 
-use btfrig_runner::{RunControl, RunEvent, RunOutcome, RunRequest, RunSummary, Signal};
+use btfrig_measurement::{RunControl, RunEvent, RunOutcome, RunRequest, RunSummary, Signal};
 
 use crate::args::RunArgs;
 
@@ -24,7 +24,7 @@ const INJECTED_HINT: &str =
 pub fn run(a: &RunArgs) -> anyhow::Result<ExitCode> {
     let text =
         std::fs::read_to_string(&a.plan).map_err(|e| anyhow::anyhow!("cannot read {}: {e}", a.plan.display()))?;
-    if btfrig_runner::dome_dry_run::is_dome_plan(&text) {
+    if btfrig_measurement::dome_dry_run::is_dome_plan(&text) {
         return run_dome(a, text);
     }
     let req = RunRequest::from_file(&a.plan, &a.out)?
@@ -66,7 +66,7 @@ fn run_dome(a: &RunArgs, plan_text: String) -> anyhow::Result<ExitCode> {
             a.plan.display()
         );
     }
-    let req = btfrig_runner::dome::DomeRunRequest {
+    let req = btfrig_measurement::dome::DomeRunRequest {
         plan_text,
         plan_path: a.plan.clone(),
         out: a.out.clone(),
@@ -76,7 +76,7 @@ fn run_dome(a: &RunArgs, plan_text: String) -> anyhow::Result<ExitCode> {
     let control = RunControl::new();
     watch_signals(control.clone());
     let mut progress = Progress { dome: true, ..Progress::default() };
-    let result = btfrig_runner::dome::run_controlled(&req, &control, true, &mut |line| println!("{line}"), &mut |e| {
+    let result = btfrig_measurement::dome::run_controlled(&req, &control, true, &mut |line| println!("{line}"), &mut |e| {
         progress.show(e)
     });
     progress.end_line();
@@ -111,12 +111,12 @@ fn run_dome(a: &RunArgs, plan_text: String) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::from(signal.exit_code()))
 }
 
-/// What the runner did with the run's compressed model (`btfrig_runner::sinks`): the model
+/// What the runner did with the run's compressed model (`btfrig_measurement::sinks`): the model
 /// belongs to the run's outcome, so a rerun of a finished run builds it when the journal
 /// does not name it intact (a kill while it was being written). A model that could not be
 /// built is an error, after the run's summary.
-pub fn print_compression(c: &btfrig_runner::sinks::CompressionOutcome, nothing_to_do: bool) -> anyhow::Result<()> {
-    use btfrig_runner::sinks::CompressionOutcome;
+pub fn print_compression(c: &btfrig_measurement::sinks::CompressionOutcome, nothing_to_do: bool) -> anyhow::Result<()> {
+    use btfrig_measurement::sinks::CompressionOutcome;
     match c {
         CompressionOutcome::BuiltEarlier { model } => {
             println!("  compression       {} (built and journaled earlier)", model.display())
@@ -153,7 +153,7 @@ pub fn compress_flag(
         if model == CompressedModel::PcmfShared {
             // The plan's own key is checked by validation; the flag overrides it, so check here,
             // before anything is captured. A plan that does not validate is refused by the run.
-            if let Ok((_, v)) = btfrig_runner::plan::load_text(plan_text, plan_path) {
+            if let Ok((_, v)) = btfrig_measurement::plan::load_text(plan_text, plan_path) {
                 if let Some(why) = v.shared_basis_problem() {
                     let allowed = btfrig_core::plan::SHARED_BASIS_ALLOWED
                         .replace("{k}", &CompressedModel::SHARED_BASIS_TERMS.to_string());
@@ -172,9 +172,9 @@ pub fn execute(req: &RunRequest) -> anyhow::Result<RunSummary> {
     let control = RunControl::new();
     watch_signals(control.clone());
     let mut progress = Progress::default();
-    let summary = match btfrig_runner::run(req, &control, &mut |e| progress.show(e)) {
+    let summary = match btfrig_measurement::run(req, &control, &mut |e| progress.show(e)) {
         // Stopped while planning: no dataset exists, nothing to resume; the signal's code.
-        Err(e @ btfrig_runner::RunError::Interrupted(signal)) => {
+        Err(e @ btfrig_measurement::RunError::Interrupted(signal)) => {
             progress.end_line();
             eprintln!("btfrig: {e}");
             std::process::exit(i32::from(signal.exit_code()));
@@ -226,10 +226,10 @@ pub fn finish(s: &RunSummary, command: &str) -> ExitCode {
 }
 
 /// Reads a dark/flat calibration directory for a run.
-pub fn load_dark_flat(dir: &std::path::Path) -> anyhow::Result<btfrig_runner::DarkFlatInput> {
+pub fn load_dark_flat(dir: &std::path::Path) -> anyhow::Result<btfrig_measurement::DarkFlatInput> {
     let (_, calibration) = btfrig_calibrate::dark_flat::read_calibration(dir)
         .map_err(|e| anyhow::anyhow!("--dark-flat {}: {e}", dir.display()))?;
-    Ok(btfrig_runner::DarkFlatInput {
+    Ok(btfrig_measurement::DarkFlatInput {
         source: dir.display().to_string(),
         calibration: std::sync::Arc::new(calibration),
     })
@@ -269,7 +269,7 @@ pub fn print_summary(s: &RunSummary) {
 
 /// The HDR figures, e.g. `HDR: captures by exposures 1: 52, 2: 6, 3: 2; brackets took 81 s of
 /// rig time, 1290 s less than always bracketing; 0 photosites saturated in every exposure`.
-pub fn hdr_line(h: &btfrig_runner::HdrFigures) -> String {
+pub fn hdr_line(h: &btfrig_measurement::HdrFigures) -> String {
     let counts: Vec<String> = h.exposures_per_capture.iter().map(|(k, n)| format!("{k}: {n}")).collect();
     format!(
         "HDR: captures by exposures {}; brackets took {:.0} s of rig time, {:.0} s less than always bracketing; {} photosites on the sample saturated in every exposure ({} captures)",
@@ -484,7 +484,7 @@ impl Progress {
 
 /// The figures of a dome run (`btfrig demo --rig dome|camera-array`, `btfrig run` on a dome
 /// plan), one per line.
-pub fn print_dome_summary(s: &btfrig_runner::dome::DomeRunSummary) {
+pub fn print_dome_summary(s: &btfrig_measurement::dome::DomeRunSummary) {
     let lights = if s.light == "flash" { "flashes" } else { "LEDs" };
     let f = |v: Option<f64>| v.map(|r| format!("{r:.3}")).unwrap_or_else(|| "n/a".into());
     println!(

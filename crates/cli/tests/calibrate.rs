@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 use std::process::Command;
 
-use btfrig_camcal::CalibrationFile;
+use btfrig_intrinsics::CalibrationFile;
 
 fn tmp(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("btfrig-calibrate-test-{}-{name}", std::process::id()));

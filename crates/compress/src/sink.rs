@@ -1,7 +1,7 @@
 //! The pipeline sink: a model built while the rig is still measuring.
 //!
 //! [`StreamingCompressor::accept`] is called with every committed texture (the pipeline's
-//! `btfrig_pipeline::TextureSink` hook); it hands the texture to a worker thread over a
+//! `btfrig_process::TextureSink` hook); it hands the texture to a worker thread over a
 //! bounded channel (back-pressure policy *Block*, as the dataset's), which feeds pass 1 of a
 //! [`Builder`]. The time `accept` spends waiting for room in the channel is measured: zero
 //! means the pipeline never waited on compression. [`StreamingCompressor::finish`] completes

@@ -242,11 +242,11 @@ pub enum PlanKind {
     Dome,
 }
 
-impl From<btfrig_runner::check::PlanKind> for PlanKind {
-    fn from(k: btfrig_runner::check::PlanKind) -> PlanKind {
+impl From<btfrig_measurement::check::PlanKind> for PlanKind {
+    fn from(k: btfrig_measurement::check::PlanKind) -> PlanKind {
         match k {
-            btfrig_runner::check::PlanKind::Gonio => PlanKind::Gonioreflectometer,
-            btfrig_runner::check::PlanKind::Dome => PlanKind::Dome,
+            btfrig_measurement::check::PlanKind::Gonio => PlanKind::Gonioreflectometer,
+            btfrig_measurement::check::PlanKind::Dome => PlanKind::Dome,
         }
     }
 }
@@ -350,7 +350,7 @@ pub struct DomeCandidate {
 impl DomeDryRun {
     /// The API's view of the runner's dome dry run.
     pub fn from_runner(
-        d: &btfrig_runner::dome_dry_run::DomeDryRun,
+        d: &btfrig_measurement::dome_dry_run::DomeDryRun,
         rig: &btfrig_core::config::RigConfig,
     ) -> DomeDryRun {
         let s = &d.schedule;
@@ -717,15 +717,15 @@ pub async fn start_run(
     let (_guard, record) = s.metrics.plan_jobs.start();
     let checked = tokio::task::spawn_blocking(move || {
         let _record = record;
-        btfrig_runner::check::check_for_rig(&text, &path, &st.rig)
+        btfrig_measurement::check::check_for_rig(&text, &path, &st.rig)
     })
     .await
     .map_err(|e| Problem::internal(format!("plan validation crashed: {e}")))?
     .map_err(|e| Problem::unprocessable(e.to_string()))?;
     let (kind, name) = (checked.kind(), checked.name().to_string());
     match checked {
-        btfrig_runner::check::CheckedPlan::Gonio { validated, .. } => check_gonio_start(&validated)?,
-        btfrig_runner::check::CheckedPlan::Dome { plan, rig } => check_dome_start(&plan, &plan_path, &rig)?,
+        btfrig_measurement::check::CheckedPlan::Gonio { validated, .. } => check_gonio_start(&validated)?,
+        btfrig_measurement::check::CheckedPlan::Dome { plan, rig } => check_dome_start(&plan, &plan_path, &rig)?,
     }
     let plan_name = given_name.unwrap_or(name);
     let dataset = match b.dataset {
@@ -757,16 +757,16 @@ fn check_gonio_start(v: &btfrig_core::plan::ValidatedPlan) -> Result<(), Problem
 
 /// What a valid dome plan still needs before the daemon starts it, checked here so the start
 /// is refused (422) rather than the run failing: its material, and a rig the runner can drive
-/// (simulated or emulated devices; `btfrig_runner::dome`).
+/// (simulated or emulated devices; `btfrig_measurement::dome`).
 fn check_dome_start(
     plan: &btfrig_core::plan::dome::ValidatedDomePlan,
     plan_path: &std::path::Path,
     rig: &btfrig_core::config::RigConfig,
 ) -> Result<(), Problem> {
-    let material = btfrig_runner::plan::dome_material_name(plan.plan.rig.material.as_deref(), plan_path);
-    btfrig_runner::backend::installed()
+    let material = btfrig_measurement::plan::dome_material_name(plan.plan.rig.material.as_deref(), plan_path);
+    btfrig_measurement::backend::installed()
         .for_rig(rig)
-        .and_then(|b| b.check_scene(&btfrig_runner::backend::SceneOptions { material: material.as_deref(), faults: None }))
+        .and_then(|b| b.check_scene(&btfrig_measurement::backend::SceneOptions { material: material.as_deref(), faults: None }))
         .map_err(|e| Problem::unprocessable(format!("rig.material: {e}")))?;
     if rig.devices.simulated().is_none() {
         return Err(Problem::unprocessable(format!(

@@ -129,7 +129,7 @@ fn color(s: &AppState, id: &str, seed: u64) -> Result<(serde_json::Value, String
     let camera = btfrig_calibrate::processing_camera(&s.rig, s.rig_path.as_deref()).map_err(|e| e.to_string())?;
     let plan = ColorPlan::default_plan();
     // The chart is photographed by the rig's device backend (the simulated one renders it).
-    let backend = btfrig_runner::backend::installed().for_rig(&s.rig).map_err(|e| e.to_string())?;
+    let backend = btfrig_measurement::backend::installed().for_rig(&s.rig).map_err(|e| e.to_string())?;
     let r = backend.calibrate_color(&s.rig, &camera, &plan, seed)?;
     let chosen = r.chosen();
     let held = chosen.held_out.as_ref().map_err(|e| e.to_string())?;

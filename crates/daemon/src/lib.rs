@@ -5,9 +5,9 @@
 //! [`AppState`], binds the listen address and answers [`router`]'s routes until SIGTERM or
 //! SIGINT, which interrupts the run under way (frames in flight committed, journal flushed,
 //! dataset resumable) before the daemon exits. Handlers ([`api`]) are thin: runs go through
-//! [`btfrig_runner::run`] (gonio plans) and [`btfrig_runner::dome::run_controlled`] (dome
-//! plans), plan checks through [`btfrig_runner::check`] and the dry runs
-//! ([`btfrig_runner::dry_run`], [`btfrig_runner::dome_dry_run`] for dome plans), exactly as the
+//! [`btfrig_measurement::run`] (gonio plans) and [`btfrig_measurement::dome::run_controlled`] (dome
+//! plans), plan checks through [`btfrig_measurement::check`] and the dry runs
+//! ([`btfrig_measurement::dry_run`], [`btfrig_measurement::dome_dry_run`] for dome plans), exactly as the
 //! CLI does. Tokens and roles: [`auth`]; errors: [`problem`]; `/metrics`: [`metrics`].
 //! The HTTP API is documented in `docs/http-api.md` and by `/api/v1/openapi.json`.
 
@@ -158,7 +158,7 @@ impl AppState {
         };
         // Options that pass the config's own ranges but would fail when a run builds the
         // devices (a NaN jitter, an inverted exposure range) stop the daemon here, not a run.
-        btfrig_runner::plan::check_rig_options(&rig, &rig_source).map_err(|e| bad(e.to_string()))?;
+        btfrig_measurement::plan::check_rig_options(&rig, &rig_source).map_err(|e| bad(e.to_string()))?;
         std::fs::create_dir_all(&cfg.data)
             .map_err(|e| bad(format!("--data {}: cannot create it: {e}", cfg.data.display())))?;
         let (auth, generated) = match &cfg.auth {
@@ -273,7 +273,7 @@ impl AppState {
     /// parser stopped but never quotes the file (a viewer must not read host files through
     /// error messages).
     fn confine_plan_files(&self, text: &str, anchor: &Path) -> Result<(), Problem> {
-        for f in btfrig_runner::check::named_files(text, anchor) {
+        for f in btfrig_measurement::check::named_files(text, anchor) {
             let allowed = || {
                 let mut places = vec!["embedded names".to_string()];
                 if let Some(r) = &self.rig_path {
@@ -317,9 +317,9 @@ impl AppState {
         Ok(())
     }
 
-    /// Validates the plan a body names against this rig ([`btfrig_runner::check`]) and, with
-    /// `dry`, dry-runs it: a gonio plan through [`btfrig_runner::dry_run`], a dome plan
-    /// through [`btfrig_runner::dome_dry_run`] (as `btfrig plan show` does).
+    /// Validates the plan a body names against this rig ([`btfrig_measurement::check`]) and, with
+    /// `dry`, dry-runs it: a gonio plan through [`btfrig_measurement::dry_run`], a dome plan
+    /// through [`btfrig_measurement::dome_dry_run`] (as `btfrig plan show` does).
     async fn check_plan(self: &Arc<Self>, b: PlanBody, dry: bool) -> PlanCheck {
         let invalid = |kind: Option<PlanKind>, errors: Vec<String>| PlanCheck {
             valid: false,
@@ -337,18 +337,18 @@ impl AppState {
             Ok(p) => p,
             Err(e) => return invalid(None, vec![e.detail]),
         };
-        let kind = btfrig_runner::check::PlanKind::of_toml(&text);
+        let kind = btfrig_measurement::check::PlanKind::of_toml(&text);
         let state = self.clone();
         // Cancelled when this future is dropped (the client went away), at the time limit,
         // or at shutdown; the work checks the flag (crate::plan_jobs).
         let (guard, record) = self.metrics.plan_jobs.start();
         let job = tokio::task::spawn_blocking(move || -> Result<PlanCheck, Vec<String>> {
             let cancel = record.cancel();
-            let errors = |e: btfrig_runner::RunError| match e {
-                btfrig_runner::RunError::Plan(p) => p.errors.iter().map(|e| e.to_string()).collect(),
+            let errors = |e: btfrig_measurement::RunError| match e {
+                btfrig_measurement::RunError::Plan(p) => p.errors.iter().map(|e| e.to_string()).collect(),
                 e => vec![e.to_string()],
             };
-            let checked = btfrig_runner::check::check_for_rig(&text, &path, &state.rig).map_err(errors)?;
+            let checked = btfrig_measurement::check::check_for_rig(&text, &path, &state.rig).map_err(errors)?;
             let mut c = PlanCheck {
                 valid: true,
                 kind: kind.map(Into::into),
@@ -365,8 +365,8 @@ impl AppState {
                 return Ok(c);
             }
             match checked.kind() {
-                btfrig_runner::check::PlanKind::Gonio => {
-                    let d = btfrig_runner::dry_run::dry_run_cancellable(&text, &path, cancel).map_err(errors)?;
+                btfrig_measurement::check::PlanKind::Gonio => {
+                    let d = btfrig_measurement::dry_run::dry_run_cancellable(&text, &path, cancel).map_err(errors)?;
                     let mut shown = d.schedule.to_string();
                     if let Some(h) = &d.hdr {
                         shown.push('\n');
@@ -378,8 +378,8 @@ impl AppState {
                     c.disk_bytes = Some(d.schedule.disk_bytes());
                     c.text = Some(shown);
                 }
-                btfrig_runner::check::PlanKind::Dome => {
-                    let d = btfrig_runner::dome_dry_run::dry_run(&text, &path).map_err(errors)?;
+                btfrig_measurement::check::PlanKind::Dome => {
+                    let d = btfrig_measurement::dome_dry_run::dry_run(&text, &path).map_err(errors)?;
                     // The text names the plan as given, not the daemon's paths.
                     let shown_as = PathBuf::from(given.as_deref().unwrap_or("plan_text"));
                     c.estimate_s = Some(d.rig_time_s);
@@ -552,10 +552,10 @@ fn lexically_normal(p: &Path) -> PathBuf {
 /// Loads a file a plan sent over the API names (already confined) as what its key says (a
 /// material or fault scenario through the device backend of `rig`, which builds them);
 /// when it does not load, the error names the key, the file and the parser's position only.
-fn check_named_file(rig: &RigConfig, f: &btfrig_runner::check::NamedFile, real: &Path) -> Result<(), Problem> {
+fn check_named_file(rig: &RigConfig, f: &btfrig_measurement::check::NamedFile, real: &Path) -> Result<(), Problem> {
     let real_name = real.display().to_string();
-    let scene = |options: btfrig_runner::backend::SceneOptions<'_>| {
-        btfrig_runner::backend::installed()
+    let scene = |options: btfrig_measurement::backend::SceneOptions<'_>| {
+        btfrig_measurement::backend::installed()
             .for_rig(rig)
             .and_then(|b| b.check_scene(&options))
             .map_err(|e| e.to_string())
@@ -569,11 +569,11 @@ fn check_named_file(rig: &RigConfig, f: &btfrig_runner::check::NamedFile, real: 
         ),
         "rig.material" => (
             "a material",
-            scene(btfrig_runner::backend::SceneOptions { material: Some(&real_name), faults: None }),
+            scene(btfrig_measurement::backend::SceneOptions { material: Some(&real_name), faults: None }),
         ),
         _ => (
             "a fault scenario",
-            scene(btfrig_runner::backend::SceneOptions {
+            scene(btfrig_measurement::backend::SceneOptions {
                 material: None,
                 faults: Some((&real_name, Path::new("/"), f.field)),
             }),
@@ -689,9 +689,9 @@ fn load_plans(dir: Option<&Path>, data: &Path, rig: &RigConfig) -> Result<Vec<Na
     for (name, text, path) in sources {
         // Plans for other rigs (or another kind of rig), or that do not validate, are not
         // offered (logged).
-        match btfrig_runner::check::check_for_rig(&text, &path, rig) {
+        match btfrig_measurement::check::check_for_rig(&text, &path, rig) {
             Ok(c) => plans.push(NamedPlan { name, captures: c.captures(), description: c.description(), text, path }),
-            Err(e @ btfrig_runner::RunError::WrongRig { .. }) => tracing::info!("plan {name}: not offered: {e}"),
+            Err(e @ btfrig_measurement::RunError::WrongRig { .. }) => tracing::info!("plan {name}: not offered: {e}"),
             Err(e) => tracing::warn!("plan {name}: not offered: {e}"),
         }
     }
@@ -787,7 +787,7 @@ pub async fn serve(cfg: ServeConfig) -> Result<(), ServeError> {
 }
 
 /// Waits for SIGTERM or SIGINT and says which came.
-async fn shutdown_signal() -> btfrig_runner::Signal {
+async fn shutdown_signal() -> btfrig_measurement::Signal {
     #[cfg(unix)]
     {
         use tokio::signal::unix::{signal, SignalKind};
@@ -796,13 +796,13 @@ async fn shutdown_signal() -> btfrig_runner::Signal {
             Err(_) => return std::future::pending().await,
         };
         tokio::select! {
-            _ = term.recv() => btfrig_runner::Signal::Term,
-            _ = tokio::signal::ctrl_c() => btfrig_runner::Signal::Int,
+            _ = term.recv() => btfrig_measurement::Signal::Term,
+            _ = tokio::signal::ctrl_c() => btfrig_measurement::Signal::Int,
         }
     }
     #[cfg(not(unix))]
     {
         let _ = tokio::signal::ctrl_c().await;
-        btfrig_runner::Signal::Int
+        btfrig_measurement::Signal::Int
     }
 }

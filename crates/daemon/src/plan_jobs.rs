@@ -10,7 +10,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use btfrig_runner::Cancel;
+use btfrig_measurement::Cancel;
 
 /// Longest a plan check or dry run may take before it is cancelled (docs/http-api.md).
 pub const PLAN_JOB_TIME_LIMIT: Duration = Duration::from_secs(30);

@@ -1,6 +1,6 @@
 //! The one run the rig can hold at a time, and the runs before it.
 //!
-//! A run is [`btfrig_runner::run`] (a gonio plan) or [`btfrig_runner::dome::run_controlled`]
+//! A run is [`btfrig_measurement::run`] (a gonio plan) or [`btfrig_measurement::dome::run_controlled`]
 //! (a dome plan) — the same calls `btfrig run` makes — on a plain thread of its own
 //! (rendering and processing are CPU-heavy; the async threads only answer requests). Its
 //! events update a [`RunStatus`] that handlers read, and are broadcast to the event streams.
@@ -15,8 +15,8 @@ use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
-use btfrig_runner::check::PlanKind;
-use btfrig_runner::{RunControl, RunEvent, RunOutcome, RunRequest};
+use btfrig_measurement::check::PlanKind;
+use btfrig_measurement::{RunControl, RunEvent, RunOutcome, RunRequest};
 use serde::Serialize;
 use tokio::sync::broadcast;
 use utoipa::ToSchema;
@@ -245,7 +245,7 @@ impl Run {
         }
     }
 
-    fn end(&self, result: Result<btfrig_runner::RunSummary, btfrig_runner::RunError>) {
+    fn end(&self, result: Result<btfrig_measurement::RunSummary, btfrig_measurement::RunError>) {
         let s = self.update(|s| match result {
             Ok(summary) => {
                 s.state = match &summary.outcome {
@@ -265,7 +265,7 @@ impl Run {
                 }
                 // Every capture is in, but the model the plan asks for is not: the run did not
                 // give what it was asked for. The same plan into the same dataset builds it.
-                if let Some(btfrig_runner::sinks::CompressionOutcome::Failed(e)) = &summary.compression {
+                if let Some(btfrig_measurement::sinks::CompressionOutcome::Failed(e)) = &summary.compression {
                     s.state = RunState::Failed;
                     s.message = Some(format!(
                         "the compressed model (outputs.compressed_model) was not built: {e}; the dataset is complete: \
@@ -275,7 +275,7 @@ impl Run {
                 s.summary = Some(summary.to_json());
             }
             // Stopped by the daemon's shutdown while planning: nothing was written.
-            Err(e @ btfrig_runner::RunError::Interrupted(_)) => {
+            Err(e @ btfrig_measurement::RunError::Interrupted(_)) => {
                 s.state = RunState::Interrupted;
                 s.message = Some(e.to_string());
             }
@@ -289,7 +289,7 @@ impl Run {
 
     /// [`Run::end`] of a dome run: its steps stay as its last progress said (all of them when
     /// it finished), its textures as its last commit said.
-    fn end_dome(&self, result: Result<btfrig_runner::dome::DomeRunSummary, btfrig_runner::RunError>) {
+    fn end_dome(&self, result: Result<btfrig_measurement::dome::DomeRunSummary, btfrig_measurement::RunError>) {
         let s = self.update(|s| match result {
             Ok(summary) => {
                 s.state = match &summary.stopped {
@@ -461,12 +461,12 @@ impl Runs {
                     PlanKind::Gonio => {
                         let mut request = RunRequest::from_text(plan_text, &plan_path, &dataset_dir);
                         request.stop_on_fault = false;
-                        let result = btfrig_runner::run(&request, &control, on_event);
+                        let result = btfrig_measurement::run(&request, &control, on_event);
                         metrics.session_ended();
                         worker.end(result);
                     }
                     PlanKind::Dome => {
-                        let request = btfrig_runner::dome::DomeRunRequest {
+                        let request = btfrig_measurement::dome::DomeRunRequest {
                             plan_text,
                             plan_path,
                             out: dataset_dir,
@@ -475,7 +475,7 @@ impl Runs {
                         };
                         let id = worker.id.clone();
                         let on_line = &mut |l: &str| tracing::info!("run {id}: {l}");
-                        let result = btfrig_runner::dome::run_controlled(&request, &control, false, on_line, on_event);
+                        let result = btfrig_measurement::dome::run_controlled(&request, &control, false, on_line, on_event);
                         metrics.session_ended();
                         worker.end_dome(result);
                     }
@@ -489,11 +489,11 @@ impl Runs {
 
     /// Interrupts the current run (shutdown on `signal`) and waits until it has committed and
     /// reported.
-    pub fn interrupt_and_wait(&self, signal: btfrig_runner::Signal) {
+    pub fn interrupt_and_wait(&self, signal: btfrig_measurement::Signal) {
         let Some(run) = self.current() else { return };
         // Shutdown must reach the run: while its bounded command queue is full (a client
         // flooding it), wait for the session to take a command, then send again.
-        while run.control.interrupt(signal) == Err(btfrig_runner::ControlError::Full) {
+        while run.control.interrupt(signal) == Err(btfrig_measurement::ControlError::Full) {
             std::thread::sleep(std::time::Duration::from_millis(20));
         }
         // Stopping waits for the frames in flight; a paused engine takes the interrupt too.
@@ -537,7 +537,7 @@ impl Run {
             Control::Resume => self.control.resume(),
             Control::Abort => self.control.abort(),
         };
-        // The run's command queue is bounded (`btfrig_runner::CONTROL_CAPACITY`): a full one
+        // The run's command queue is bounded (`btfrig_measurement::CONTROL_CAPACITY`): a full one
         // refuses rather than grows.
         sent.map_err(|e| Problem::conflict(format!("run {}: {:?} not sent: {e}", s.id, c)))?;
         Ok(s)

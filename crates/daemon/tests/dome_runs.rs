@@ -1,5 +1,5 @@
 //! Dome runs through the HTTP API: a dome plan started on the LED dome daemon runs through
-//! `btfrig_runner::dome::run_controlled`; its status counts steps (a pattern at a rotation, a
+//! `btfrig_measurement::dome::run_controlled`; its status counts steps (a pattern at a rotation, a
 //! frame per camera) with the committed textures beside them, it pauses (no step while paused),
 //! resumes and aborts through the same endpoints as a gonio run (and is interrupted as on
 //! SIGTERM), its events stream progress and the end, the preview shows the latest view group's
@@ -174,7 +174,7 @@ fn a_dome_run_starts_pauses_resumes_and_completes_into_a_dataset_that_verifies()
     assert_eq!(r.status, 201, "{}", r.text());
     let id = r.json()["id"].as_str().unwrap().to_string();
     wait_for(&d, &id, "a step", |s| n(&s["done"]) >= 1);
-    d.state.runs.interrupt_and_wait(btfrig_runner::Signal::Term);
+    d.state.runs.interrupt_and_wait(btfrig_measurement::Signal::Term);
     let end = d.get(&format!("/api/v1/runs/{id}"));
     assert_eq!(end["state"], "interrupted", "{end}");
     assert!(n(&end["done"]) < STEPS, "{end}");

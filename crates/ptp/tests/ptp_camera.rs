@@ -7,7 +7,7 @@ use std::sync::Arc;
 use btfrig_core::config::RigConfig;
 use btfrig_core::kinematics::Gonio;
 use btfrig_core::sampling::Sampling;
-use btfrig_engine::{Engine, EngineSettings, EngineStep, GonioDevices, RunOutcome};
+use btfrig_acquire::{Engine, EngineSettings, EngineStep, GonioDevices, RunOutcome};
 use btfrig_hw::{Camera, Device, ErrorKind, SharedClock, TokioClock};
 use btfrig_planner::{plan, PairSelection, PlanRequest};
 use btfrig_ptp::camera::{PtpCamera, PtpCameraConfig};
@@ -104,7 +104,7 @@ async fn engine_retries_a_capture_whose_object_added_never_came() {
     let SimRig { robot, rail, camera, .. } = rig;
     let (cam, responder) = ptp(camera, clock.clone()).await;
     let devices = GonioDevices { robot, rail, camera: Box::new(cam), clock: clock.clone() };
-    let (tx, mut rx) = tokio::sync::mpsc::channel::<btfrig_engine::CapturedFrame>(64);
+    let (tx, mut rx) = tokio::sync::mpsc::channel::<btfrig_acquire::CapturedFrame>(64);
     let collect = tokio::spawn(async move {
         let mut out = Vec::new();
         while let Some(f) = rx.recv().await {

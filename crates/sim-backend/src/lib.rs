@@ -1,10 +1,10 @@
-//! The simulated rig as a device backend of the runner (`btfrig_runner::backend`).
+//! The simulated rig as a device backend of the runner (`btfrig_measurement::backend`).
 //!
 //! For a rig config whose devices are all `kind = "sim"`, or simulated devices behind emulated
 //! firmware (`kind = "serial"` / `"ptp"` with `[devices.ROLE.link] emulated = true`), it builds
 //! the scene (the plan's material on the holder), the rendered frame source (with the fault
 //! scenario's hidden markers), the simulated devices on virtual time, puts emulated firmware
-//! in front where asked (`btfrig_runner::emulated`), and hands the run the devices and the
+//! in front where asked (`btfrig_measurement::emulated`), and hands the run the devices and the
 //! scene's truth probe (`btfrig_sim::truth::SceneTruth`; a dome's: [`DomeSceneTruth`]), which
 //! only the report's error figures read. It checks the simulator's options of rigs and plans
 //! (device options, materials, fault scenarios) for the runner, which knows no simulator
@@ -20,17 +20,17 @@ use btfrig_calibrate::color::{ColorCalibration, ColorPlan};
 use btfrig_core::camera::CameraModel;
 use btfrig_core::config::RigConfig;
 use btfrig_core::pose::ScenePose;
-use btfrig_engine::dome::DomeDevices;
+use btfrig_acquire::dome::DomeDevices;
 use btfrig_hw::truth::DomeTruthProbe;
 use btfrig_hw::{ScaledClock, SharedClock, TokioClock};
 use btfrig_render::dome_scene::DomeScene;
 use btfrig_render::material::{MaterialSpec, BUILTIN_MATERIALS};
 use btfrig_render::renderer::RenderOptions;
 use btfrig_render::rig_scene::RigScene;
-use btfrig_runner::backend::{
+use btfrig_measurement::backend::{
     BackendRegistry, DomeOpenRequest, GonioOpenRequest, OpenedDome, OpenedGonio, RigBackend, SceneOptions,
 };
-use btfrig_runner::{emulated, plan, RunError};
+use btfrig_measurement::{emulated, plan, RunError};
 use btfrig_sim::dome::{DomeFrameSource, DomeRig};
 use btfrig_sim::truth::SceneTruth;
 use btfrig_sim::{FaultScenario, RenderedFrameSource, SimRig};
@@ -47,9 +47,9 @@ pub fn registry() -> BackendRegistry {
     BackendRegistry::new().with(Arc::new(SimBackend))
 }
 
-/// Installs [`registry`] as the process's device backends (`btfrig_runner::backend::install`).
+/// Installs [`registry`] as the process's device backends (`btfrig_measurement::backend::install`).
 pub fn install() {
-    btfrig_runner::backend::install(registry());
+    btfrig_measurement::backend::install(registry());
 }
 
 /// The rig clock of a simulated session: tokio's paused time, slowed a thousandfold. Paused
@@ -136,7 +136,7 @@ fn stand_ins(rig: &RigConfig, clock: SharedClock) -> Result<emulated::SimDevices
 
 /// `btfrig hw probe`: every device of `rig` asked for its identity and health through its
 /// real backend, emulated ones in front of the simulator's devices
-/// (`btfrig_runner::emulated::probe`). Builds its own runtime: call from a plain thread.
+/// (`btfrig_measurement::emulated::probe`). Builds its own runtime: call from a plain thread.
 pub fn probe(rig: &RigConfig) -> Result<Vec<emulated::Probed>, String> {
     emulated::probe(rig, &stand_ins)
 }

@@ -2,7 +2,7 @@
 //! calibration plan on the default simulated rig and prints the errors against the truth, for
 //! the plan as given and with k3 held at 0, with one and two detection passes (tuning plans).
 use btfrig_calibrate::{calibrate_captures, CalibrationPlan, RigCalibration};
-use btfrig_camcal::{distortion_difference, mapping_difference_up_to_rotation};
+use btfrig_intrinsics::{distortion_difference, mapping_difference_up_to_rotation};
 use btfrig_core::camera::CameraModel;
 use btfrig_core::config::RigConfig;
 use btfrig_sim_calibration::capture_simulated;
@@ -81,9 +81,9 @@ fn main() {
                 rand_distr::Distribution::sample(&rand_distr::Normal::new(0.0, sd).unwrap(), &mut rng),
                 rand_distr::Distribution::sample(&rand_distr::Normal::new(0.0, sd).unwrap(), &mut rng),
             );
-            pts.push(btfrig_camcal::Correspondence { pixel: p + noise, ..*c });
+            pts.push(btfrig_intrinsics::Correspondence { pixel: p + noise, ..*c });
         }
-        synth.push(btfrig_camcal::View { points: pts });
+        synth.push(btfrig_intrinsics::View { points: pts });
     }
     eprintln!(
         "detected - true: mean ({:+.4}, {:+.4}) px, rms {:.4} px over {n} corners",
@@ -102,20 +102,20 @@ fn main() {
             b.2
         );
     }
-    let unweighted: Vec<btfrig_camcal::View> = r
+    let unweighted: Vec<btfrig_intrinsics::View> = r
         .views
         .iter()
-        .map(|v| btfrig_camcal::View {
-            points: v.points.iter().map(|c| btfrig_camcal::Correspondence { sigma_px: None, ..*c }).collect(),
+        .map(|v| btfrig_intrinsics::View {
+            points: v.points.iter().map(|c| btfrig_intrinsics::Correspondence { sigma_px: None, ..*c }).collect(),
         })
         .collect();
-    let mut o = btfrig_camcal::Options::new(truth.width, truth.height);
+    let mut o = btfrig_intrinsics::Options::new(truth.width, truth.height);
     o.estimate_k3 = plan.estimate_k3;
     let mut ru = r.clone();
-    ru.calibration = btfrig_camcal::calibrate(&unweighted, &o).unwrap();
+    ru.calibration = btfrig_intrinsics::calibrate(&unweighted, &o).unwrap();
     show("detected corners, equal weights", &ru, &truth);
     o.estimate_k3 = plan.estimate_k3;
-    let c = btfrig_camcal::calibrate(&synth, &o).unwrap();
+    let c = btfrig_intrinsics::calibrate(&synth, &o).unwrap();
     let mut rs = r.clone();
     rs.calibration = c;
     show("true corners + stated noise", &rs, &truth);

@@ -4,7 +4,7 @@
 //! [`compare_with_truth`] measures a calibration against the simulated sensor's true dark
 //! signal and relative gain.
 
-use btfrig_calib::dark_flat::DarkFlat;
+use btfrig_imaging::dark_flat::DarkFlat;
 use btfrig_calibrate::dark_flat::{
     calibrate, DarkFlatCalError, DarkFlatCamera, DarkFlatResult, DarkFlatShot, RadiometricPlan,
 };

@@ -2,13 +2,13 @@
 //! calibrations are the simulator's own constants (true lens, sensor constants, nominal
 //! irradiance, manufacturer-style colour matrix). For tests and benchmarks that measure the
 //! pipeline itself against the ground truth, without calibration error; runs load their models
-//! from calibration files (`btfrig_runner::model`).
+//! from calibration files (`btfrig_measurement::model`).
 
 use btfrig_color::{ColorModel, ModelKind};
 use btfrig_core::config::RigConfig;
-use btfrig_pipeline::color::ColorCorrection;
-use btfrig_pipeline::light::{LampReference, LightCorrection};
-use btfrig_pipeline::{ProcessingModel, SensorConstants};
+use btfrig_process::color::ColorCorrection;
+use btfrig_process::light::{LampReference, LightCorrection};
+use btfrig_process::{ProcessingModel, SensorConstants};
 use btfrig_render::rig_scene::RigScene;
 
 /// The model a perfect calibration of `scene` would give: its true lens, sensor constants,

@@ -9,14 +9,14 @@ use btfrig_sim::truth::SceneTruth;
 use btfrig_sim::RenderedFrameSource;
 use std::sync::Arc;
 
-use btfrig_calib::{Filter, Region};
+use btfrig_imaging::{Filter, Region};
 use btfrig_calibrate::color::ColorPlan;
 use btfrig_calibrate::processing_camera;
 use btfrig_color::{delta_e_2000, space::linear_srgb_to_lab};
 use btfrig_core::config::RigConfig;
 use btfrig_core::Direction;
-use btfrig_pipeline::color::ColorCorrection;
-use btfrig_pipeline::{ProcessSettings, Processor};
+use btfrig_process::color::ColorCorrection;
+use btfrig_process::{ProcessSettings, Processor};
 use btfrig_render::material::MaterialSpec;
 use btfrig_render::renderer::RenderOptions;
 use btfrig_render::rig_scene::RigScene;
@@ -108,7 +108,7 @@ fn colour_calibration_cuts_a_materials_colour_error() {
             (
                 mean_de00(&out.texels, &gt),
                 block_de00(&out.texels, &gt, 128, 8),
-                btfrig_calib::rel_rmse(&out.texels, &gt).unwrap(),
+                btfrig_imaging::rel_rmse(&out.texels, &gt).unwrap(),
             )
         };
         let (tde_cal, de_cal, rmse_cal) = run(Some(calibrated.clone()));

@@ -5,7 +5,7 @@
 use std::time::Instant;
 
 use btfrig_calibrate::CalibrationPlan;
-use btfrig_camcal::{distortion_difference, mapping_difference_up_to_rotation};
+use btfrig_intrinsics::{distortion_difference, mapping_difference_up_to_rotation};
 use btfrig_core::config::RigConfig;
 use btfrig_sim_calibration::calibrate_simulated;
 

@@ -61,7 +61,7 @@ async fn every_rig_config_builds_a_sim_rig() {
             [Some(&d.robot), Some(&d.rail), d.turntable.as_ref(), Some(&d.lamp), d.led_array.as_ref(), Some(&d.camera)];
         if kinds.iter().flatten().any(|e| e.kind != "sim") {
             // Real backends against emulated firmware: the runner builds those rigs
-            // (crates/runner/tests/serial_rig.rs, dome.rs); the simulator alone refuses them.
+            // (crates/measurement/tests/serial_rig.rs, dome.rs); the simulator alone refuses them.
             let name = path.file_name().unwrap().to_string_lossy();
             assert!(
                 ["bonn-gonio-serial.toml", "bonn-dome-serial.toml"].contains(&name.as_ref()),

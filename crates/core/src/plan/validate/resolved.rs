@@ -44,7 +44,7 @@ impl OutputFormat {
     }
 }
 
-/// How a frame is resampled onto the texture grid (the filters of `btfrig_calib::Filter`).
+/// How a frame is resampled onto the texture grid (the filters of `btfrig_imaging::Filter`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ResampleFilter {
     /// One bilinear lookup per texel centre.

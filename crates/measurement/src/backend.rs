@@ -1,0 +1,228 @@
+//! Device backends, chosen by the rig config's device kinds through a registry.
+//!
+//! A run does not build devices itself: it asks the [`BackendRegistry`] for the backend that
+//! opens the rig's devices (each `[devices.ROLE] kind`), and gets them as device traits, with
+//! the clock they run on and, from a simulated backend only, a truth probe for the report's
+//! error figures. The simulated and emulated-serial backends live in `btfrig-sim-backend`;
+//! the `btfrig` binary installs them ([`install`]); a library user may install others or pass
+//! a registry with the request.
+//!
+//! A backend also checks what only it understands, before a run creates anything: the rig's
+//! device options ([`RigBackend::check_rig`]) and a plan's scene options, the material and
+//! fault scenario a simulated rig builds ([`RigBackend::check_scene`]); and it may offer the
+//! colour-chart capture of a colour calibration ([`RigBackend::calibrate_color`]). The runner
+//! itself knows no simulator type.
+
+use std::path::Path;
+use std::sync::{Arc, OnceLock};
+
+use btfrig_calibrate::color::{ColorCalibration, ColorPlan};
+use btfrig_core::camera::CameraModel;
+use btfrig_core::config::RigConfig;
+use btfrig_core::plan::dome::ValidatedDomePlan;
+use btfrig_core::plan::{Plan, ValidatedPlan};
+use btfrig_acquire::dome::DomeDevices;
+use btfrig_hw::truth::{DomeTruthProbe, TruthProbe};
+use btfrig_hw::{Camera, Lamp, Rail, Robot, SharedClock};
+
+use crate::emulated::{LinkFault, LinkUse};
+use crate::RunError;
+
+/// What a run asks a backend for: a gonioreflectometer's devices.
+pub struct GonioOpenRequest<'a> {
+    /// The rig config.
+    pub rig: &'a RigConfig,
+    /// The plan (simulated backends: `[rig] material`, `[run] fault_scenario`).
+    pub plan: &'a Plan,
+    /// The plan, validated.
+    pub validated: &'a ValidatedPlan,
+    /// The plan file (its directory resolves relative names).
+    pub plan_file: &'a Path,
+    /// A fault scenario instead of the plan's (`--faults`, relative to the working directory).
+    pub fault_override: Option<&'a str>,
+    /// The engine's read-out timeout, seconds.
+    pub read_timeout_s: f64,
+    /// Faults to inject into emulated firmware links (tests).
+    pub link_faults: &'a [LinkFault],
+}
+
+/// How the links to a rig's devices went, for the report.
+pub trait LinkReport: Send {
+    /// Per link: what it cost.
+    fn link_use(&self) -> Vec<LinkUse>;
+    /// Undecodable lines each serial backend skipped, by role.
+    fn skipped_lines(&self) -> Vec<(&'static str, u64)>;
+    /// Wall seconds the camera link spent coding, if the camera is behind one.
+    fn camera_coding_wall_s(&self) -> Option<f64>;
+    /// Links in use (0: every device in-process).
+    fn count(&self) -> usize;
+}
+
+/// A gonioreflectometer's devices as a backend opened them (not yet homed).
+pub struct OpenedGonio {
+    /// The robot holding the sample.
+    pub robot: Box<dyn Robot>,
+    /// The camera's rail.
+    pub rail: Box<dyn Rail>,
+    /// The lamp.
+    pub lamp: Box<dyn Lamp>,
+    /// The camera.
+    pub camera: Box<dyn Camera>,
+    /// The clock the devices run on.
+    pub clock: SharedClock,
+    /// The truth behind the frames: simulated backends only.
+    pub truth: Option<Arc<dyn TruthProbe>>,
+    /// The links to the devices (keeps any firmware emulators alive: drop it after them).
+    pub links: Box<dyn LinkReport>,
+}
+
+/// What a run asks a backend for: a dome's devices (an LED dome's, or a camera array's,
+/// whose flash triggers are its LED array).
+pub struct DomeOpenRequest<'a> {
+    /// The rig config.
+    pub rig: &'a RigConfig,
+    /// The dome plan, validated (its cameras are the ones opened, in its order).
+    pub plan: &'a ValidatedDomePlan,
+    /// The plan file (its directory resolves relative names).
+    pub plan_file: &'a Path,
+    /// The fault scenario: the plan's or an override (`--faults`); it resolves from the
+    /// plan's directory.
+    pub fault_scenario: &'a str,
+}
+
+/// A dome's devices as a backend opened them (the turntable not yet homed).
+pub struct OpenedDome {
+    /// The turntable, LED array, one camera per plan camera, and their clock.
+    pub devices: DomeDevices,
+    /// The truth behind the frames: simulated backends only.
+    pub truth: Option<Arc<dyn DomeTruthProbe>>,
+    /// Keeps any firmware emulators alive: drop it after the devices.
+    pub links: Box<dyn Send>,
+}
+
+/// A plan's scene options: what a simulated rig builds its scene and its faults from. A real
+/// rig has neither, and its backend refuses them.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct SceneOptions<'a> {
+    /// `[rig] material`: an embedded name, or a material file's path as resolved against the
+    /// plan's directory; `None`: the backend's default.
+    pub material: Option<&'a str>,
+    /// A fault scenario: an embedded name or a file, the directory it resolves from, and the
+    /// setting that names it (`run.fault_scenario`, `fault_scenario`, `--faults`) for errors.
+    pub faults: Option<(&'a str, &'a Path, &'a str)>,
+}
+
+/// A device backend.
+#[async_trait::async_trait]
+pub trait RigBackend: Send + Sync {
+    /// Its name, for messages.
+    fn name(&self) -> &'static str;
+
+    /// The device kinds (`[devices.ROLE] kind`) it opens.
+    fn kinds(&self) -> &'static [&'static str];
+
+    /// Opens a gonioreflectometer's devices.
+    async fn open_gonio(&self, req: GonioOpenRequest<'_>) -> Result<OpenedGonio, RunError>;
+
+    /// Opens a dome's devices. Call inside the tokio runtime the devices run on.
+    async fn open_dome(&self, req: DomeOpenRequest<'_>) -> Result<OpenedDome, RunError> {
+        let _ = req;
+        Err(RunError::Rig(format!("the device backend {} does not open LED domes or camera arrays", self.name())))
+    }
+
+    /// Checks the rig config's device options as opening the devices would, without opening
+    /// them (the message says what is wrong; the caller names the rig config).
+    fn check_rig(&self, rig: &RigConfig) -> Result<(), String> {
+        let _ = rig;
+        Ok(())
+    }
+
+    /// Loads a plan's scene options as opening would, so that a plan is refused before a
+    /// dataset exists. A backend of real devices has no scene: it refuses any.
+    fn check_scene(&self, options: &SceneOptions<'_>) -> Result<(), RunError> {
+        let (what, value) = match (options.material, options.faults) {
+            (Some(m), _) => ("rig.material".to_string(), m),
+            (None, Some((f, _, field))) => (field.to_string(), f),
+            (None, None) => return Ok(()),
+        };
+        Err(RunError::Input {
+            what: format!("{what} {value:?}"),
+            message: format!(
+                "the rig's devices are opened by {}, which has no simulated scene: materials and fault scenarios \
+                 are options of simulated rigs (kind = \"sim\")",
+                self.name()
+            ),
+        })
+    }
+
+    /// Photographs the colour chart of `plan` on the rig through `camera` (the processing
+    /// model's lens) and fits the colour calibration (`btfrig calibrate color`).
+    fn calibrate_color(
+        &self,
+        rig: &RigConfig,
+        camera: &CameraModel,
+        plan: &ColorPlan,
+        seed: u64,
+    ) -> Result<ColorCalibration, String> {
+        let _ = (rig, camera, plan, seed);
+        Err(format!(
+            "the device backend {} cannot photograph a colour chart: calibrate on the rig with `btfrig calibrate color` \
+             and name the file in [camera] color_calibration",
+            self.name()
+        ))
+    }
+}
+
+/// The backends a run may use.
+#[derive(Clone, Default)]
+pub struct BackendRegistry {
+    backends: Vec<Arc<dyn RigBackend>>,
+}
+
+impl BackendRegistry {
+    /// No backends.
+    pub fn new() -> Self {
+        BackendRegistry::default()
+    }
+
+    /// The same registry with `backend` added.
+    pub fn with(mut self, backend: Arc<dyn RigBackend>) -> Self {
+        self.backends.push(backend);
+        self
+    }
+
+    /// The backend that opens every device of `rig`: the first whose kinds cover all of the
+    /// rig's device kinds. None: an error naming each kind and what is registered.
+    pub fn for_rig(&self, rig: &RigConfig) -> Result<Arc<dyn RigBackend>, RunError> {
+        let kinds: Vec<(&str, &str)> =
+            rig.devices.entries().into_iter().map(|(role, e)| (role, e.kind.as_str())).collect();
+        if let Some(b) = self.backends.iter().find(|b| kinds.iter().all(|(_, k)| b.kinds().contains(k))) {
+            return Ok(b.clone());
+        }
+        let have: Vec<String> =
+            self.backends.iter().map(|b| format!("{} ({})", b.name(), b.kinds().join(", "))).collect();
+        let asked: Vec<String> = kinds.iter().map(|(r, k)| format!("devices.{r}.kind = {k:?}")).collect();
+        Err(RunError::Rig(format!(
+            "no device backend of this build opens {}: registered backends: {}",
+            asked.join(", "),
+            if have.is_empty() {
+                "none (a library user installs them: btfrig_measurement::backend::install)".into()
+            } else {
+                have.join("; ")
+            }
+        )))
+    }
+}
+
+static INSTALLED: OnceLock<BackendRegistry> = OnceLock::new();
+
+/// Installs the process's registry (the `btfrig` binary installs the simulated and emulated
+/// backends at start); later calls keep the first.
+pub fn install(registry: BackendRegistry) {
+    let _ = INSTALLED.set(registry);
+}
+
+/// The process's registry (empty if none was installed).
+pub fn installed() -> BackendRegistry {
+    INSTALLED.get().cloned().unwrap_or_default()
+}

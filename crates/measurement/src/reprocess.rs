@@ -1,0 +1,527 @@
+//! `btfrig reprocess`: runs the pipeline again on the raw frames a dataset kept
+//! (`[outputs] raw_frames = true`), into a new dataset, without the rig and without the
+//! simulator, e.g. after a better calibration (`docs/pipeline.md`, "Reprocessing"). A dome or
+//! camera-array dataset is demultiplexed again from its view groups' pattern frames
+//! (`crate::dome_reprocess`); this module does a gonioreflectometer's.
+//!
+//! The processing model is loaded as a run loads it ([`crate::model::gonio_model`]), from the
+//! rig config recorded in the dataset's manifest and the calibration files it names; a
+//! calibration directory given with the request replaces each named file by the file of the
+//! same name in it (see [`calibration_file_name`]). Every raw frame of every committed step
+//! (with its HDR bracket) goes through the same [`Processor`] and [`btfrig_process::run`] as
+//! in a run, with the commanded joints the run used (the plan's directions through the rig's
+//! inverse kinematics, as the planner expands them); there is no truth probe, so the report
+//! has no truth figures.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use btfrig_core::config::{RigConfig, RigKind};
+use btfrig_core::kinematics::Gonio;
+use btfrig_core::plan::{Plan, PlanContext, ResampleFilter, ValidatedPlan};
+use btfrig_acquire::{CapturedFrame, StepKey, StepTimes};
+use btfrig_process::light::{LampReference, LightCorrection};
+use btfrig_process::{ProcessSettings, Processor};
+use btfrig_store::journal::StepRecord;
+use btfrig_store::{Dataset, Manifest, RunReport, JOURNAL_FILE, MANIFEST_FILE};
+use serde_json::json;
+use tokio::sync::mpsc;
+
+use crate::{ProcessingInfo, RunError};
+
+/// The subdirectory of a calibration directory that holds a dark/flat calibration
+/// (`btfrig calibrate radiometric --out DIR/dark-flat`).
+pub const DARK_FLAT_DIR: &str = "dark-flat";
+
+/// What to reprocess.
+#[derive(Debug, Clone)]
+pub struct ReprocessRequest {
+    /// The dataset whose raw frames are processed (read only).
+    pub dataset: PathBuf,
+    /// The new dataset (created; must not exist or be empty).
+    pub out: PathBuf,
+    /// Calibration files replacing the ones the rig config names, by file name
+    /// ([`calibration_file_name`]); `None`: the dataset's own calibrations.
+    pub calibration: Option<PathBuf>,
+}
+
+/// What a reprocessing did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReprocessSummary {
+    /// The new dataset.
+    pub out: PathBuf,
+    /// Steps processed (every committed step of the source).
+    pub steps: u64,
+    /// Seconds per pipeline stage, summed over steps.
+    pub stage_s: BTreeMap<String, f64>,
+    /// Textures rectified with a registered pose.
+    pub registered: u64,
+    /// Textures rectified with the nominal pose because registration failed.
+    pub fallbacks: u64,
+    /// Textures rectified with the nominal pose because the plan says so.
+    pub nominal_by_plan: u64,
+    /// What frames were processed with (part, source) and what the output lacks.
+    pub processing: ProcessingInfo,
+    /// Wall time, seconds.
+    pub wall_s: f64,
+}
+
+pub(crate) fn input(what: impl Into<String>, message: impl Into<String>) -> RunError {
+    RunError::Input { what: what.into(), message: message.into() }
+}
+
+/// The file a calibration reference of a rig config is looked up as in a calibration
+/// directory: `builtin:NAME` is `NAME.toml`, a path is its file name
+/// (`calib/lamp-2026.toml` is `lamp-2026.toml`).
+pub fn calibration_file_name(reference: &str) -> String {
+    match reference.strip_prefix("builtin:") {
+        Some(name) => format!("{name}.toml"),
+        None => Path::new(reference).file_name().map_or_else(|| reference.to_string(), |n| n.to_string_lossy().into()),
+    }
+}
+
+/// The source dataset, read only: manifest, committed steps in commit order, view groups'
+/// raw frames.
+pub(crate) struct Source {
+    pub(crate) manifest: Manifest,
+    /// Its content hash ([`btfrig_store::manifest_hash`]).
+    pub(crate) manifest_hash: String,
+    pub(crate) steps: Vec<StepRecord>,
+    /// The journaled raw frames of view groups (a dome's), by view.
+    pub(crate) frames: BTreeMap<u32, btfrig_store::FramesRecord>,
+}
+
+fn read_source(dir: &Path) -> Result<Source, RunError> {
+    let what = format!("dataset {}", dir.display());
+    let read = |name: &str| {
+        let path = dir.join(name);
+        std::fs::read(&path).map_err(|source| RunError::Read { path, source })
+    };
+    let bytes = read(MANIFEST_FILE)?;
+    let manifest: Manifest = serde_json::from_slice(&bytes)
+        .map_err(|e| input(&what, format!("{MANIFEST_FILE} is not a dataset manifest: {e}")))?;
+    let journal = read(JOURNAL_FILE)?;
+    let replay = btfrig_store::journal::replay(&dir.join(JOURNAL_FILE).display().to_string(), &journal)
+        .map_err(|e| input(&what, e.to_string()))?;
+    let frames = replay.frames;
+    let mut steps: Vec<StepRecord> = replay.done.into_values().collect();
+    // The order the run committed them in.
+    steps.sort_by(|a, b| a.timing.started_unix_s.total_cmp(&b.timing.started_unix_s).then(a.step.cmp(&b.step)));
+    Ok(Source { manifest, manifest_hash: btfrig_store::manifest_hash(&bytes), steps, frames })
+}
+
+/// The bytes of the journaled file `f` of the dataset `dir`, checked against its journaled
+/// size and content hash.
+pub(crate) fn read_journaled(dir: &Path, f: &btfrig_store::FileRecord) -> Result<Vec<u8>, RunError> {
+    let path = dir.join(&f.path);
+    let bytes = std::fs::read(&path).map_err(|e| {
+        input(format!("raw frame {}", path.display()), format!("cannot read it ({e}): it is missing or unreadable"))
+    })?;
+    let hash = btfrig_store::content_hash(&bytes);
+    if bytes.len() as u64 != f.size || hash != f.hash {
+        return Err(input(
+            format!("raw frame {}", path.display()),
+            format!(
+                "it is damaged: {} bytes, {hash}; the journal recorded {} bytes, {} (btfrig dataset verify lists every damaged file)",
+                bytes.len(),
+                f.size,
+                f.hash
+            ),
+        ));
+    }
+    Ok(bytes)
+}
+
+/// Points `reference` (a calibration reference of the rig config, `field` naming it) at the
+/// file of the same name in `dir` ([`calibration_file_name`]) when `dir` holds one, by its
+/// absolute path (the model's loaders then read, check and name it as any calibration file),
+/// and records it in `used`.
+pub(crate) fn replace_reference(
+    dir: Option<&Path>,
+    field: &str,
+    reference: &mut Option<String>,
+    used: &mut Vec<(String, String)>,
+) -> Option<PathBuf> {
+    let (dir, r) = (dir?, reference.as_deref()?);
+    let path = dir.join(calibration_file_name(r));
+    path.is_file().then(|| {
+        used.push((field.to_string(), path.display().to_string()));
+        *reference = Some(path.display().to_string());
+        path
+    })
+}
+
+/// Refuses a relative calibration path that no file of the calibration directory replaced:
+/// it has no base to resolve against (the manifest keeps the rig config's text, not where it
+/// was).
+pub(crate) fn refuse_relative(references: &[(&str, &Option<String>)]) -> Result<(), RunError> {
+    for (field, reference) in references {
+        if let Some(r) = reference.as_deref().filter(|r| !r.starts_with("builtin:") && !Path::new(r).is_absolute()) {
+            return Err(input(
+                format!("the dataset's rig config: {field} = {r:?}"),
+                format!(
+                    "a relative calibration file cannot be found from a dataset: give --calibration DIR with {} in it",
+                    calibration_file_name(r)
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// The raw frames of `record` (base exposure first), each checked against its journaled size
+/// and content hash.
+fn read_raw_frames(dir: &Path, record: &StepRecord) -> Result<Vec<btfrig_core::frame::RawFrame>, RunError> {
+    let stem = record.step.stem();
+    let mut raw: Vec<&btfrig_store::FileRecord> =
+        record.files.iter().filter(|f| f.path.starts_with(&format!("{}/{stem}", btfrig_store::RAW_DIR))).collect();
+    // raw/<stem>.exr, then raw/<stem>_e1.exr, _e2, ... (the order of the bracket).
+    raw.sort_by_key(|f| {
+        f.path.rsplit_once("_e").and_then(|(_, k)| k.trim_end_matches(".exr").parse::<usize>().ok()).unwrap_or(0)
+    });
+    if raw.is_empty() {
+        return Err(input(
+            format!("dataset {}, step {}", dir.display(), record.step),
+            "the journal names no raw frame of this step",
+        ));
+    }
+    raw.iter()
+        .map(|f| {
+            let path = dir.join(&f.path);
+            let bytes = read_journaled(dir, f)?;
+            btfrig_imageio::decode_raw_exr(&path, &bytes)
+                .map_err(|e| input(format!("raw frame {}", path.display()), format!("cannot decode it: {e}")))
+        })
+        .collect()
+}
+
+/// The rig config recorded in the source's manifest.
+pub(crate) fn rig_of(manifest: &Manifest, dir: &Path) -> Result<RigConfig, RunError> {
+    let origin = format!("{}/{MANIFEST_FILE}: rig.config_toml", dir.display());
+    RigConfig::from_toml(&manifest.rig.config_toml, &origin).map_err(|e| input(origin, e.to_string()))
+}
+
+/// The plan of the source (a gonio dataset), validated against the rig config `rig`
+/// recorded in its manifest.
+fn plan_of(manifest: &Manifest, dir: &Path, rig: RigConfig) -> Result<(RigConfig, Plan, ValidatedPlan), RunError> {
+    let origin = format!("{}/{MANIFEST_FILE}", dir.display());
+    let plan = Plan::from_toml(&manifest.plan.text, &format!("{origin}: plan.text"))?;
+    let mut ctx = PlanContext::with_builtin_names();
+    ctx.rig = Some(rig.clone());
+    let v = plan.validate(&ctx).map_err(|mut e| {
+        e.origin = format!("{origin}: plan.text");
+        e
+    })?;
+    Ok((rig, plan, v))
+}
+
+/// The light calibration the source run processed with, as recorded in its manifest
+/// (`calibration.light`), if it had its own.
+fn recorded_light(manifest: &Manifest) -> Result<Option<LightCorrection>, RunError> {
+    let Some(l) = manifest.calibration.as_ref().map(|c| &c["light"]).filter(|l| !l.is_null()) else {
+        return Ok(None);
+    };
+    let bad = |field: &str| input("manifest calibration.light", format!("{field} is missing or not a number"));
+    let triple = |field: &str| -> Result<[f64; 3], RunError> {
+        let a = l[field].as_array().filter(|a| a.len() == 3).ok_or_else(|| bad(field))?;
+        let mut out = [0.0; 3];
+        for (o, v) in out.iter_mut().zip(a) {
+            *o = v.as_f64().ok_or_else(|| bad(field))?;
+        }
+        Ok(out)
+    };
+    let mut c = LightCorrection::new(LampReference {
+        light: l["light"].as_str().unwrap_or(crate::model::LAMP).to_string(),
+        white_rate: triple("white_rate_e_per_s")?,
+        plate_albedo: triple("plate_albedo")?,
+    });
+    c.correct_drift = l["drift_corrected"].as_bool().unwrap_or(true);
+    Ok(Some(c))
+}
+
+/// The calibrations: the rig config with its references pointed at the files of `dir` where
+/// it holds them, the light and dark/flat calibrations, and the files used (part, file).
+struct Calibrations {
+    rig: RigConfig,
+    light: Option<LightCorrection>,
+    dark_flat: Option<Arc<btfrig_process::dark_flat::DarkFlat>>,
+    used: Vec<(String, String)>,
+}
+
+fn calibrations(rig: &RigConfig, manifest: &Manifest, dir: Option<&Path>) -> Result<Calibrations, RunError> {
+    let mut rig = rig.clone();
+    let mut used = Vec::new();
+    let recorded = recorded_light(manifest)?;
+    let mut light = recorded.clone();
+    replace_reference(dir, "[camera] calibration", &mut rig.camera.calibration, &mut used);
+    replace_reference(dir, "[camera] color_calibration", &mut rig.camera.color_calibration, &mut used);
+    if let Some(path) = replace_reference(dir, "[lamp] calibration", &mut rig.lamp.calibration, &mut used) {
+        if let Some(run_light) = &recorded {
+            // The run had its own light calibration: the new file takes its place, drift
+            // correction as the run had it.
+            let text =
+                std::fs::read_to_string(&path).map_err(|source| RunError::Read { path: path.clone(), source })?;
+            let origin = path.display().to_string();
+            let what = format!("[lamp] calibration {origin}");
+            let file = btfrig_calibrate::light::LightCalibrationFile::from_toml(&text, &origin)
+                .map_err(|e| input(&what, e.to_string()))?;
+            let mut c = crate::model::lamp_correction(&file).map_err(|e| input(&what, e))?;
+            c.correct_drift = run_light.correct_drift;
+            light = Some(c);
+        }
+    }
+    refuse_relative(&[
+        ("[camera] calibration", &rig.camera.calibration),
+        ("[camera] color_calibration", &rig.camera.color_calibration),
+        ("[lamp] calibration", &rig.lamp.calibration),
+    ])?;
+    let recorded_dark_flat =
+        manifest.calibration.as_ref().and_then(|c| c["dark_flat"]["source"].as_str().map(str::to_string));
+    let dark_flat_dir = match dir.map(|d| d.join(DARK_FLAT_DIR)).filter(|d| d.is_dir()) {
+        Some(d) => Some(d),
+        None => recorded_dark_flat.as_deref().map(PathBuf::from),
+    };
+    let dark_flat = match dark_flat_dir {
+        None => None,
+        Some(d) => {
+            let (_, cal) = btfrig_calibrate::dark_flat::read_calibration(&d).map_err(|e| {
+                input(
+                    format!("dark/flat calibration {}", d.display()),
+                    format!("{e} (the dataset was processed with it; put a copy in --calibration DIR/{DARK_FLAT_DIR})"),
+                )
+            })?;
+            let (w, h) = (rig.camera.width_px, rig.camera.height_px);
+            if (cal.dark.width, cal.dark.height) != (w, h) {
+                return Err(input(
+                    format!("dark/flat calibration {}", d.display()),
+                    format!("it is of a {}x{} sensor, the rig's camera is {w}x{h}", cal.dark.width, cal.dark.height),
+                ));
+            }
+            used.push(("dark_flat".to_string(), d.display().to_string()));
+            Some(Arc::new(cal))
+        }
+    };
+    Ok(Calibrations { rig, light, dark_flat, used })
+}
+
+/// The pipeline's settings of a validated plan (a run's and a reprocessing's).
+pub(crate) fn process_settings(v: &ValidatedPlan) -> ProcessSettings {
+    ProcessSettings {
+        size: v.texture.size,
+        region: btfrig_imaging::Region {
+            x_min: v.texture.region.x_min_m,
+            x_max: v.texture.region.x_max_m,
+            y_min: v.texture.region.y_min_m,
+            y_max: v.texture.region.y_max_m,
+        },
+        filter: match v.texture.filter {
+            ResampleFilter::Bilinear => btfrig_imaging::Filter::Bilinear,
+            ResampleFilter::Supersample { n } => btfrig_imaging::Filter::Supersample { n },
+            ResampleFilter::Footprint { max } => btfrig_imaging::Filter::Footprint { max },
+            ResampleFilter::Ewa => btfrig_imaging::Filter::Ewa,
+        },
+        registration: v.registration,
+    }
+}
+
+/// The request's calibration directory, absolute: the files' paths go into the rig config,
+/// which has no base directory here.
+pub(crate) fn calibration_dir(req: &ReprocessRequest) -> Result<Option<PathBuf>, RunError> {
+    if let Some(d) = req.calibration.as_deref().filter(|d| !d.is_dir()) {
+        return Err(input(format!("--calibration {}", d.display()), "not a directory"));
+    }
+    req.calibration
+        .as_deref()
+        .map(|d| d.canonicalize().map_err(|source| RunError::Read { path: d.into(), source }))
+        .transpose()
+}
+
+/// Refuses an `out` that holds anything: reprocessing writes a new dataset.
+pub(crate) fn check_out_empty(out: &Path) -> Result<(), RunError> {
+    if let Ok(mut entries) = std::fs::read_dir(out) {
+        if entries.next().is_some() {
+            return Err(input(
+                format!("--out {}", out.display()),
+                "the directory is not empty: reprocessing writes a new dataset and overwrites nothing; name a new or empty directory",
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Reprocesses `req.dataset` into `req.out`; see the module documentation. Nothing is written
+/// until every input checked out: the source's raw frames (present, as journaled), the plan,
+/// the calibration files, an empty `out`.
+pub fn reprocess(req: &ReprocessRequest) -> Result<ReprocessSummary, RunError> {
+    let wall = Instant::now();
+    let src_dir = req.dataset.as_path();
+    let src = read_source(src_dir)?;
+    let rig = rig_of(&src.manifest, src_dir)?;
+    if rig.rig.kind != RigKind::Gonioreflectometer {
+        return crate::dome_reprocess::reprocess(req, src, rig);
+    }
+    let (rig, _plan, v) = plan_of(&src.manifest, src_dir, rig)?;
+    if !src.manifest.raw_frames {
+        return Err(input(
+            format!("dataset {}", src_dir.display()),
+            "it has no raw frames (its manifest says raw_frames = false): only a run with `[outputs] raw_frames = true` in its plan can be reprocessed",
+        ));
+    }
+    if src.steps.is_empty() {
+        return Err(input(format!("dataset {}", src_dir.display()), "it has no committed step to reprocess"));
+    }
+    let cal_dir = calibration_dir(req)?;
+    let cal = calibrations(&rig, &src.manifest, cal_dir.as_deref())?;
+    let model = crate::model::gonio_model(&cal.rig, None, cal.light.clone(), cal.dark_flat.clone())?;
+    let processing = ProcessingInfo::of(&model);
+    // The commanded joints of each step: the planner's expansion (inverse kinematics of the
+    // step's light and view directions) is all a run commands for a step.
+    let gonio = Gonio::new(rig.geometry.clone()).map_err(|e| RunError::Rig(e.to_string()))?;
+    let mut joints = BTreeMap::new();
+    for r in &src.steps {
+        let (l, vw) = (r.step.light as usize, r.step.view as usize);
+        if l >= v.light.len() || vw >= v.view.len() {
+            return Err(input(format!("dataset {}", src_dir.display()), format!("step {} is not in its plan", r.step)));
+        }
+        let j = gonio.ik(v.light.get(l), v.view.get(vw)).map_err(|e| {
+            input(format!("dataset {}", src_dir.display()), format!("step {}: the rig cannot reach it: {e}", r.step))
+        })?;
+        joints.insert(r.step, j);
+    }
+    // Every raw frame is checked before the new dataset exists.
+    for r in &src.steps {
+        read_raw_frames(src_dir, r)?;
+    }
+    check_out_empty(&req.out)?;
+
+    let mut manifest = src.manifest.clone();
+    let now =
+        std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs_f64()).unwrap_or(0.0);
+    manifest.created_unix_s = now;
+    manifest.created_utc = btfrig_store::rfc3339_utc(now as i64);
+    manifest.timing = None;
+    manifest.raw_frames = false;
+    manifest.textures = true;
+    let mut record = src.manifest.calibration.clone().unwrap_or_else(|| json!({}));
+    if let Some(o) = record.as_object_mut() {
+        o.insert(
+            "light".into(),
+            json!(cal.light.as_ref().map(|l| json!({
+                "light": l.reference.light,
+                "white_rate_e_per_s": l.reference.white_rate,
+                "plate_albedo": l.reference.plate_albedo,
+                "drift_corrected": l.correct_drift,
+            }))),
+        );
+    }
+    let reprocessed_from = json!({
+        "dataset": src_dir.display().to_string(),
+        "manifest_hash": src.manifest_hash,
+        "calibration_dir": req.calibration.as_ref().map(|d| d.display().to_string()),
+        "calibration_files": cal.used.iter().map(|(k, f)| json!({"part": k, "file": f})).collect::<Vec<_>>(),
+        "sources": processing.to_json()["sources"].clone(),
+    });
+    if let Some(o) = record.as_object_mut() {
+        o.insert("reprocessed_from".into(), reprocessed_from.clone());
+    }
+    manifest.calibration = Some(record);
+    let dataset =
+        Dataset::create(&req.out, manifest).map_err(|source| RunError::Dataset { dir: req.out.clone(), source })?;
+    let dataset = Arc::new(dataset);
+
+    let hdr = match &v.exposure {
+        btfrig_core::plan::ExposurePolicy::Auto { hdr, .. } if hdr.is_on() => Some(hdr.clone()),
+        _ => None,
+    };
+    let processor = Arc::new(
+        Processor::new(model, process_settings(&v))
+            .map_err(|e| RunError::Rig(e.to_string()))?
+            .with_outputs(btfrig_process::Outputs {
+                textures: true,
+                raw_frames: false,
+                texture_previews: dataset.manifest().texture_previews,
+                preview: None,
+            })
+            .with_hdr_recording(
+                hdr.as_ref().map(|h| btfrig_process::HdrRecording { always_stops: crate::hdr::always_stops(h) }),
+            ),
+    );
+    let rt = tokio::runtime::Builder::new_current_thread().enable_time().build().map_err(RunError::Runtime)?;
+    let (tx, rx) = mpsc::channel(crate::FRAME_CHANNEL);
+    let steps = src.steps.clone();
+    let dir = src_dir.to_path_buf();
+    let totals = rt.block_on(async move {
+        // Frames are read on a blocking thread and handed over in commit order, at most
+        // FRAME_CHANNEL ahead of the pipeline.
+        let reader = tokio::task::spawn_blocking(move || {
+            for (index, r) in steps.iter().enumerate() {
+                let mut frames = read_raw_frames(&dir, r)?;
+                let frame = frames.remove(0);
+                let captured = CapturedFrame {
+                    index,
+                    key: StepKey { light: r.step.light, view: r.step.view },
+                    frame,
+                    bracket: frames,
+                    attempts: r.attempts,
+                    joints: joints[&r.step],
+                    times: StepTimes { bracket_s: r.hdr.as_ref().map_or(0.0, |h| h.bracket_s), ..StepTimes::default() },
+                };
+                if tx.blocking_send(captured).is_err() {
+                    break; // the pipeline stopped at an error, which it returns
+                }
+            }
+            Ok::<(), RunError>(())
+        });
+        let totals = btfrig_process::run(dataset.clone(), processor, rx, |_| {}).await;
+        let read = reader.await.map_err(|e| RunError::Rig(format!("reading the raw frames: {e}")))?;
+        read?;
+        Ok::<_, RunError>((totals?, dataset))
+    });
+    let (totals, dataset) = match totals {
+        Ok(t) => t,
+        Err(e) => {
+            // Nothing usable was made: leave no half dataset behind.
+            let _ = std::fs::remove_dir_all(&req.out);
+            return Err(e);
+        }
+    };
+    let mut dataset =
+        Arc::try_unwrap(dataset).map_err(|_| RunError::Rig("dataset still shared after reprocessing".into()))?;
+    let summary = ReprocessSummary {
+        out: req.out.clone(),
+        steps: totals.committed,
+        stage_s: totals.stage_s.clone(),
+        registered: totals.registered,
+        fallbacks: totals.fallbacks,
+        nominal_by_plan: totals.nominal_by_plan,
+        processing,
+        wall_s: wall.elapsed().as_secs_f64(),
+    };
+    let mut extra = BTreeMap::new();
+    extra.insert("status".to_string(), json!("finished"));
+    extra.insert("reprocessed_from".to_string(), reprocessed_from);
+    extra.insert("processing".to_string(), summary.processing.to_json());
+    extra.insert(
+        "registration".to_string(),
+        json!({"registered": totals.registered, "fallbacks": totals.fallbacks, "nominal_by_plan": totals.nominal_by_plan}),
+    );
+    let warnings: Vec<String> = totals
+        .fallback_steps
+        .iter()
+        .map(|(step, reason)| format!("step {step}: registration failed, rectified with the nominal pose: {reason}"))
+        .collect();
+    let report = RunReport {
+        captures: totals.committed,
+        wall_s: summary.wall_s,
+        hardware_s: None,
+        stage_s: totals.stage_s,
+        skipped: BTreeMap::new(),
+        retries: 0,
+        warnings,
+        extra,
+    };
+    dataset.finish(&report).map_err(RunError::Report)?;
+    Ok(summary)
+}
