@@ -31,7 +31,7 @@
 // The files, one job each:
 // - settings:  what to make of each frame and what to write (ProcessSettings, Outputs, ...)
 // - processor: the Processor (model, settings, registrar), its builders and accessors
-// - process:   the per-frame stages: demosaic or HDR merge, register, rectify, radiometry, truth
+// - stages:    the per-frame stages: demosaic or HDR merge, register, rectify, radiometry, truth
 // - preview:   the live preview: tone mapping, rate gate, making one on a processing thread
 // - sink:      TextureSink, which receives every committed texture
 // - run:       the run loop: bounded parallel processing, commits in arrival order
@@ -48,7 +48,7 @@ mod error;
 pub mod light;
 pub mod model;
 mod preview;
-mod process;
+mod stages;
 mod processor;
 mod run;
 mod settings;
@@ -60,7 +60,7 @@ pub use btfrig_store::{PoseSource, StepRegistration};
 pub use error::PipelineError;
 pub use model::{ModelSource, ProcessingModel, SensorConstants};
 pub use preview::{tone_map_preview, Preview};
-pub use process::{PoseErrors, Processed};
+pub use stages::{PoseErrors, Processed};
 pub use processor::Processor;
 pub use run::{run, MAX_IN_FLIGHT, STAGES};
 pub use settings::{HdrRecording, Outputs, PreviewSettings, ProcessSettings};
