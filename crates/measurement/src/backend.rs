@@ -16,12 +16,12 @@
 use std::path::Path;
 use std::sync::{Arc, OnceLock};
 
+use btfrig_acquire::dome::DomeDevices;
 use btfrig_calibrate::color::{ColorCalibration, ColorPlan};
 use btfrig_core::camera::CameraModel;
 use btfrig_core::config::RigConfig;
 use btfrig_core::plan::dome::ValidatedDomePlan;
 use btfrig_core::plan::{Plan, ValidatedPlan};
-use btfrig_acquire::dome::DomeDevices;
 use btfrig_hw::truth::{DomeTruthProbe, TruthProbe};
 use btfrig_hw::{Camera, Lamp, Rail, Robot, SharedClock};
 

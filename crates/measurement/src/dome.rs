@@ -37,18 +37,18 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
-use btfrig_imaging::rectify::Filter;
-use btfrig_core::plan::dome::{DomePlan, ValidatedDomePlan};
 use btfrig_acquire::dome::DomeCapture;
 use btfrig_acquire::{
     CommandError, Engine, EngineSettings, EngineStep, Event, PauseReason, RigDevices, RunHandle,
     RunOutcome as EngineOutcome, StepKey, StepKind,
 };
+use btfrig_core::plan::dome::{DomePlan, ValidatedDomePlan};
 use btfrig_hw::truth::DomeTruthProbe;
 use btfrig_hw::MoveOptions;
+use btfrig_imaging::rectify::Filter;
+use btfrig_planner::dome::{plan_dome, DomeMode, DomeShot};
 use btfrig_process::dome::{DomeProcessing, GroupCode, GroupPose, GroupStack, LedLight};
 use btfrig_process::{PoseSource, TexelErrorTotals};
-use btfrig_planner::dome::{plan_dome, DomeMode, DomeShot};
 use btfrig_store::{
     Dataset, DirectionDeg, FileRecord, Manifest, RigInfo, RunReport, Samplings, StepId, StepTiming, StoreError,
     TextureFormat, TextureRegion, TextureSpec,
@@ -57,7 +57,8 @@ use serde_json::json;
 use tokio::sync::mpsc;
 
 use crate::backend::{DomeOpenRequest, OpenedDome};
-use crate::{Command, RunControl, RunError, RunEvent, RunOutcome};
+use crate::control::Command;
+use crate::{RunControl, RunError, RunEvent, RunOutcome};
 
 /// A dome run: the plan text (a dome plan, `docs/plan-format.md`), where its relative names
 /// resolve, and the dataset directory.
@@ -456,12 +457,7 @@ pub fn run_controlled(
     });
     let outcome: Result<(EngineOutcome, Stop), RunError> = rt.block_on(async {
         let opened = backend
-            .open_dome(DomeOpenRequest {
-                rig: &rig,
-                plan: &v,
-                plan_file: &req.plan_path,
-                fault_scenario: &fault_name,
-            })
+            .open_dome(DomeOpenRequest { rig: &rig, plan: &v, plan_file: &req.plan_path, fault_scenario: &fault_name })
             .await?;
         let OpenedDome { mut devices, truth, links: _links } = opened;
         // The truth behind the frames, for the report's error figures only (a real rig has none).
@@ -743,10 +739,8 @@ pub(crate) fn dome_processing(
                 .to_string(),
         );
     }
-    let model = model.with_source(
-        "light",
-        dome.led_calibration.clone().unwrap_or_else(|| "none: relative units".to_string()),
-    );
+    let model =
+        model.with_source("light", dome.led_calibration.clone().unwrap_or_else(|| "none: relative units".to_string()));
     let record = json!({
         "camera": rig.camera.calibration,
         "leds": dome.led_calibration,
@@ -761,15 +755,8 @@ pub(crate) fn dome_processing(
     });
     let notes = model.notes.clone();
     let leds = leds.map(|f| LedLight { power: f.powers(), colour: f.colours(), nominal_irradiance: f.reference_rate });
-    let processing = DomeProcessing::new(
-        model,
-        dome,
-        rig.sensor.cfa.bayer(),
-        leds,
-        size,
-        Filter::Footprint { max: 4 },
-    )
-    .map_err(|e| input("dome processing model", e))?;
+    let processing = DomeProcessing::new(model, dome, rig.sensor.cfa.bayer(), leds, size, Filter::Footprint { max: 4 })
+        .map_err(|e| input("dome processing model", e))?;
     Ok((processing, record, notes))
 }
 
@@ -878,8 +865,7 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
                     // (resuming retakes any other: `Dataset::open_for_resume`).
                     let view = (self.view_id)(c, step.rotation);
                     if self.dataset.manifest().raw_groups.is_some() && self.dataset.frames_record(view).is_none() {
-                        let file =
-                            self.dataset.write_group_frame(view, p, frame).map_err(|e| input("dataset", e))?;
+                        let file = self.dataset.write_group_frame(view, p, frame).map_err(|e| input("dataset", e))?;
                         self.frames.entry(slot).or_default().push(file);
                     }
                 }
@@ -1085,16 +1071,12 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
             let truth_ref = fielded(probe.noise_free_dn(c, rad, &single, *ref_exp, *gain));
             let demuxed = &mosaics[j * cols..(j + 1) * cols];
             g.push(snr(demuxed, &truth_mux) / snr(sig, &truth_ref));
-            let tex = self
-                .processing
-                .texture(sig, &pose.pose, *j, *ref_exp, *gain)
-                .map_err(|e| input("dome pipeline", e))?;
+            let tex =
+                self.processing.texture(sig, &pose.pose, *j, *ref_exp, *gain).map_err(|e| input("dome pipeline", e))?;
             let truth = probe.texture(c, rad, *j, self.v.plan.texture_size);
             ref_err.push(sq_err(&tex, &truth));
-            let tex = self
-                .processing
-                .texture(demuxed, &pose.pose, *j, *exp, *gain)
-                .map_err(|e| input("dome pipeline", e))?;
+            let tex =
+                self.processing.texture(demuxed, &pose.pose, *j, *exp, *gain).map_err(|e| input("dome pipeline", e))?;
             mux_err.push(sq_err(&tex, &truth));
         }
         if !g.is_empty() {

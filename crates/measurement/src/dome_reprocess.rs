@@ -19,9 +19,9 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::time::Instant;
 
+use btfrig_acquire::dome::DomeCapture;
 use btfrig_core::config::RigConfig;
 use btfrig_core::plan::dome::{DomePlan, ValidatedDomePlan};
-use btfrig_acquire::dome::DomeCapture;
 use btfrig_planner::dome::{DomeMode, DomeSchedule, DomeShot, DomeStep};
 use btfrig_store::{Dataset, RunReport};
 use serde::{Deserialize, Serialize};

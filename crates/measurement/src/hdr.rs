@@ -14,14 +14,14 @@
 
 use std::collections::{BTreeMap, HashMap, VecDeque};
 
-use btfrig_imaging::exposure::{meter, sample_footprint, BracketMode, Footprint, HdrPolicy, MeterLevels, Metering};
-use btfrig_imaging::hdr::{NoiseModel, NominalCalibration};
-use btfrig_imaging::Region;
+use btfrig_acquire::{EngineStep, ExposureControl, StepKey};
 use btfrig_core::camera::CameraModel;
 use btfrig_core::frame::RawFrame;
 use btfrig_core::kinematics::{Gonio, JointState};
 use btfrig_core::plan::{HdrMode, HdrSettings};
-use btfrig_acquire::{EngineStep, ExposureControl, StepKey};
+use btfrig_imaging::exposure::{meter, sample_footprint, BracketMode, Footprint, HdrPolicy, MeterLevels, Metering};
+use btfrig_imaging::hdr::{NoiseModel, NominalCalibration};
+use btfrig_imaging::Region;
 use btfrig_store::Dataset;
 use serde_json::json;
 

@@ -53,7 +53,8 @@ pub fn load_text_with(text: &str, file: &Path, backends: &BackendRegistry) -> Re
     check_rig_with(&validated.rig, &plan.rig.config, backends)?;
     if matches!(validated.material, Some(MaterialRef::File(_))) {
         let backend = backends.for_rig(&validated.rig)?;
-        backend.check_scene(&SceneOptions { material: material_name(&plan, &validated, file).as_deref(), faults: None })?;
+        backend
+            .check_scene(&SceneOptions { material: material_name(&plan, &validated, file).as_deref(), faults: None })?;
     }
     Ok((plan, validated))
 }

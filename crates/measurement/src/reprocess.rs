@@ -18,10 +18,10 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
+use btfrig_acquire::{CapturedFrame, StepKey, StepTimes};
 use btfrig_core::config::{RigConfig, RigKind};
 use btfrig_core::kinematics::Gonio;
 use btfrig_core::plan::{Plan, PlanContext, ResampleFilter, ValidatedPlan};
-use btfrig_acquire::{CapturedFrame, StepKey, StepTimes};
 use btfrig_process::light::{LampReference, LightCorrection};
 use btfrig_process::{ProcessSettings, Processor};
 use btfrig_store::journal::StepRecord;
@@ -449,7 +449,7 @@ pub fn reprocess(req: &ReprocessRequest) -> Result<ReprocessSummary, RunError> {
             ),
     );
     let rt = tokio::runtime::Builder::new_current_thread().enable_time().build().map_err(RunError::Runtime)?;
-    let (tx, rx) = mpsc::channel(crate::FRAME_CHANNEL);
+    let (tx, rx) = mpsc::channel(crate::runtime::FRAME_CHANNEL);
     let steps = src.steps.clone();
     let dir = src_dir.to_path_buf();
     let totals = rt.block_on(async move {
