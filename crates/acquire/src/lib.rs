@@ -54,6 +54,13 @@
 //! ```
 #![warn(missing_docs)]
 
+// The files, one job each:
+// - lib:   the vocabulary every rig shares (steps, devices, frames, events, commands, settings) and Engine::spawn
+// - run:   the one task that owns the devices: commands, pauses, skipped steps, retries, progress, summary
+// - gonio: a gonioreflectometer step: robot and rail, exposures, read-out overlapped with the next move
+// - dome:  a dome or camera-array step: turntable, LED pattern, every camera triggered at once
+// - calls: device calls with the engine's timeouts, guards and retry policy
+
 use std::collections::HashSet;
 use std::fmt;
 

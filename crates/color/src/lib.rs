@@ -23,6 +23,15 @@
 //! ```
 #![warn(missing_docs)]
 
+// The files, one job each:
+// - space:   colour spaces (XYZ, L*a*b*, linear sRGB, Bradford)
+// - delta_e: colour differences (CIEDE2000, CIE76)
+// - kind:    the colour-correction model families and their terms
+// - model:   colour-correction models, fitted by equilibrated least squares
+// - eval:    patch screening, statistics, cross-validated model selection
+// - chart:   colour chart layouts and their published references
+// - error:   ColorError
+
 pub mod chart;
 pub mod delta_e;
 pub mod error;

@@ -36,6 +36,19 @@
 // Index loops over several arrays at once read closer to the formulas than zipped iterators.
 #![allow(clippy::needless_range_loop)]
 
+// The files, one job each:
+// - model:   linear BTF models (FMF, PVMF, PCMF), their layout and evaluation at any direction pair
+// - build:   streaming construction of a model from textures in any order (Builder, RowSource)
+// - rsvd:    streaming randomized SVD; linalg: the dense factorizations under it
+// - cluster, refine, shared: PCMF's clustering, local-PCA reassignment, the shared angular basis
+// - color:   the colour model of the stored channels (RGB, YUV, log-Y)
+// - file:    our model file (.btfm); ubo: the Bonn .btf containers
+// - dataset: a dataset directory read as a BTF
+// - sink:    the streaming sink a run feeds while it measures
+// - sparse:  denoising and sparse acquisition with a model's basis
+// - eval:    a model measured against a reference BTF
+// - error:   CompressError
+
 pub mod build;
 pub mod cluster;
 pub mod color;

@@ -12,6 +12,16 @@
 //! once.
 #![warn(missing_docs)]
 
+// The files, one job each:
+// - direction:  directions on the hemisphere, the one angle convention
+// - sampling:   samplings of the hemisphere (sampling/: their triangulation for interpolation)
+// - kinematics: the gonioreflectometer's kinematics; pose: scene poses; profile: move-time profile
+// - camera:     the camera model; homography: the one plane homography
+// - frame:      raw sensor frames and their metadata
+// - config/:    the rig config, one file per section
+// - plan/:      measurement plans and their validation (plan/validate/)
+// - error:      ConfigError
+
 pub mod camera;
 pub mod config;
 pub mod direction;

@@ -13,6 +13,15 @@
 
 #![warn(missing_docs)]
 
+// The files, one job each:
+// - lib:          ServeConfig, AppState, serve and the router
+// - api:          the HTTP handlers under /api/v1
+// - runs:         the one run the rig can hold, and the runs before it
+// - calibrations: calibrations started through the API
+// - plan_jobs:    plan checks and dry runs in flight
+// - auth:         tokens and roles; problem: errors as problem+json
+// - metrics:      Prometheus /metrics; server: the HTTP server and its limits
+
 pub mod api;
 pub mod auth;
 pub mod calibrations;

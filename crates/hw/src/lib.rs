@@ -6,8 +6,9 @@
 //! [`Device`] with identity and health. Every failure is a [`DeviceError`] whose
 //! [`ErrorKind`] tells the engine whether a retry can help. Devices never sleep on their own:
 //! they wait on a shared [`Clock`], which is tokio time (virtual in tests) or a sped-up wall
-//! clock. Backends: the simulator in `btfrig-sim`; serial/USB drivers will live here under
-//! `src/<device>/<model>/`. See `docs/devices.md`.
+//! clock. Backends: the simulator (`btfrig-sim`), serial controllers (`btfrig-serial`) and the
+//! PTP camera (`btfrig-ptp`); a run gets them through `btfrig_measurement::backend`. See
+//! `docs/devices.md`.
 //!
 //! ```
 //! use btfrig_hw::{ErrorKind, DeviceError};
@@ -16,6 +17,15 @@
 //! assert_eq!(e.to_string(), "camera: timeout: no frame within 20 s");
 //! ```
 #![warn(missing_docs)]
+
+// The files, one job each:
+// - motion: Robot, Rail, Turntable
+// - light:  Lamp, LedArray
+// - camera: Camera (settings, trigger, read-out)
+// - device: what every device has in common (identity, health, reconnect)
+// - error:  DeviceError and ErrorKind, which decide retries
+// - clock:  the clock devices and the engine wait on
+// - truth:  the truth probes a simulated backend offers, for a report's error figures only
 
 pub mod camera;
 pub mod clock;

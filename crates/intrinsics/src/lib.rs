@@ -10,6 +10,13 @@
 //! Method, file format and measured accuracy: `docs/camera-calibration.md`.
 #![warn(missing_docs)]
 
+// The files, one job each:
+// - lib:    the calibration (views, options, result, uncertainties)
+// - zhang:  Zhang's closed form
+// - refine: Levenberg-Marquardt refinement over intrinsics, distortion and poses
+// - metric: comparing two camera models over the image
+// - file:   the calibration file (calibration/*.toml) as text
+
 pub mod file;
 pub mod metric;
 mod refine;

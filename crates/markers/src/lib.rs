@@ -23,6 +23,10 @@
 //! top-right, bottom-right, bottom-left of the marker image as OpenCV draws it).
 #![warn(missing_docs)]
 
+// The files, one job each:
+// - dictionary: the marker dictionaries' bits
+// - detect/:    the detector, one file per step (its mod.rs lists them)
+
 pub mod detect;
 pub mod dictionary;
 

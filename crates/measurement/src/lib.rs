@@ -2,8 +2,8 @@
 //! `btfrig` CLI (`btfrig run`, `btfrig demo`) uses, and that the HTTP daemon wraps.
 //!
 //! [`run`] loads and validates the plan, creates the dataset or resumes the same plan's,
-//! plans the schedule, builds the simulated rig on a virtual-time tokio runtime, spawns the
-//! engine, runs the processing pipeline and writes `report.json`. The caller watches
+//! plans the schedule, opens the rig's devices through the backend registry ([`backend`]) on a
+//! virtual-time tokio runtime, spawns the engine, runs the processing pipeline and writes `report.json`. The caller watches
 //! [`RunEvent`]s through a callback and steers the run from any thread with a
 //! [`RunControl`]. However a session ends (finished, paused by a fault, interrupted,
 //! aborted), the frames already captured are processed and committed first and the report

@@ -41,6 +41,16 @@
 #![warn(missing_docs)]
 #![allow(non_snake_case)]
 
+// The files, one job each:
+// - smatrix: S-matrix constructions
+// - tile:    pattern-major stacks and their pixel tiles
+// - demux:   the Demuxer (fast, FFT, dense); kernel, lanes: what its kernels share
+// - vwht, rader, vfft: the Walsh-Hadamard and Rader-FFT kernels on pixel vectors
+// - lsq:     least squares with calibrated intensities, dead/stuck LEDs, the Demultiplexer
+// - denoise: denoising by projection onto a linear basis
+// - noise:   noise theory and the mode chooser
+// - error:   MuxError
+
 pub mod demux;
 pub mod denoise;
 pub mod error;

@@ -28,6 +28,14 @@ use btfrig_core::config::timing::TimingConfig;
 use btfrig_core::kinematics::Gonio;
 use btfrig_core::sampling::Sampling;
 
+// The files, one job each:
+// - lib:     PlanRequest, Schedule and plan
+// - expand:  (light, view) pairs to captures with joint states, or skips
+// - order:   the capture order that minimises hardware time
+// - timing:  the timing model of a schedule and its lower bound
+// - summary: the dry-run summary
+// - dome:    a dome's or camera array's schedule and multiplexing choice
+
 pub mod dome;
 pub mod expand;
 pub mod order;

@@ -12,7 +12,7 @@
 //! nominal pose, recorded and counted as a fallback, or stop ([`PipelineError::Registration`]).
 //!
 //! On the simulated rig the texture is also compared with the ground truth of the TRUE state
-//! at exposure (recorded by [`TruthLog`]), accumulated into an overall relative RMSE, and the
+//! at exposure (from the truth probe, [`Processor::with_truth`], read for error figures only), accumulated into an overall relative RMSE, and the
 //! texel position error of the pose used and of the nominal pose is measured against the true
 //! pose; optionally ([`Processor::with_nominal_comparison`]) the texture is rectified a second
 //! time with the nominal pose to measure what registration gained.

@@ -28,6 +28,12 @@
 //! ```
 #![warn(missing_docs)]
 
+// The files, one job each:
+// - grbl, robot, lamp, led: one controller's codec each
+// - ptp:      PTP containers and the raw-frame object (ptp/)
+// - line:     line framing of the text protocols; checksum: the framed protocols' checksums
+// - error:    DecodeError, EncodeError
+
 pub mod checksum;
 pub mod error;
 pub mod grbl;

@@ -22,6 +22,12 @@
 //! measured sample-to-camera transform (all rectification depends on).
 #![warn(missing_docs)]
 
+// The files, one job each:
+// - lib:    pose estimation from marker corners (RANSAC, checks, Registration)
+// - frame:  one frame: detect the plate's markers, pair them, register (PlateRegistrar)
+// - refine: Levenberg-Marquardt refinement of the plane pose
+// - metric: the texel position error
+
 pub mod frame;
 pub mod metric;
 pub mod refine;

@@ -44,6 +44,15 @@
 //! ```
 #![warn(missing_docs)]
 
+// The files, one job each:
+// - scene, plate, markers, material, heightfield, brdf: what is in front of the camera
+// - renderer, radiance: ray tracing one frame to camera-RGB signal rates
+// - ground_truth: the true texture on the sample plane
+// - spectral, colour: spectra and the colour system
+// - sensor:       the raw sensor model (docs/sensor-model.md)
+// - chart, flat_field: the colour chart and the flat-field source of the calibrations
+// - rig_scene, dome_scene: a gonio's and a dome's physics assembled from a rig config
+
 pub mod brdf;
 pub mod chart;
 pub mod colour;

@@ -14,6 +14,12 @@
 //! real tty; tests unplug it, inject garbage or raise alarms.
 #![warn(missing_docs)]
 
+// The files, one job each:
+// - transport: byte transports and the link to a controller
+// - grbl, robot, lamp, led: the device backends over their controllers
+// - firmware:  firmware emulators (firmware/: one per controller)
+// - pty:       pseudo-terminals for the emulators
+
 pub mod firmware;
 pub mod grbl;
 pub mod lamp;

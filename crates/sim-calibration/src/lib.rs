@@ -6,6 +6,10 @@
 //! calibration is from it. Processing crates never depend on it.
 #![warn(missing_docs)]
 
+// The files, one job each:
+// - color, dark_flat, light, leds: each calibration's frames made on the simulated rig
+// - perfect: the processing model of a perfect calibration
+
 pub mod color;
 pub mod dark_flat;
 pub mod light;

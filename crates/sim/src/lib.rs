@@ -30,6 +30,15 @@
 //! ```
 #![warn(missing_docs)]
 
+// The files, one job each:
+// - rig:       SimRig from the config's [devices] (the factory list by kind); options: device options
+// - devices/:  the simulated devices; world: the true state they share
+// - frame_source, rendered: where the camera's pixels come from
+// - capture:   one capture's device sequence
+// - dome:      a simulated dome or camera array
+// - faults:    fault scenarios and injection
+// - truth:     the gonio's truth probe
+
 pub mod capture;
 pub mod devices;
 pub mod dome;

@@ -32,6 +32,13 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
+// The files, one job each:
+// - dataset/:  the dataset directory (mod: create, write, commit, resume; layout, files, info, verify)
+// - journal:   the append-only journal
+// - manifest:  what a dataset measures
+// - storage:   the file-system layer (FsStorage, MemStorage)
+// - hash:      content hashes; error: StoreError
+
 mod dataset;
 mod error;
 mod hash;
