@@ -1,5 +1,14 @@
 //! The `btfrig` binary: argument handling and display only; the work is in the library crates.
 
+// The files, one job each (one command, or one family, per `*_cmd.rs`):
+// - args: the command line as clap parses it; rig, material: --rig and --material made valid settings
+// - demo_cmd, run_cmd, serve_cmd, reprocess_cmd: runs through btfrig-measurement and btfrig-daemon
+// - plan_cmd, dataset_cmd, compress_cmd (compress, sparse, dataset export): plans, datasets, models
+// - calibrate_cmd (geometry), calibrate_{color,radiometric,light,leds}_cmd: the calibrations
+// - hw_cmd: btfrig hw probe; kinematics_cmd: btfrig kinematics check
+// - sim_cmd, captures_cmd, session: btfrig sim ... on a simulated gonio session
+// - bench_cmd, bench_{color,compress,demux,serve}: btfrig bench ... (harnesses in btfrig-bench)
+
 mod args;
 mod bench_cmd;
 mod bench_color;
