@@ -1,8 +1,7 @@
 //! Colour correction of textures with a measured colour calibration (`docs/color.md`).
 //!
-//! Without one, [`crate::Processor::radiometry`] converts white-balanced camera RGB with the
-//! matrix the rig model fits on the simulator's own spectra. With one
-//! ([`crate::Processor::with_color_correction`]), the radiometry uses the calibration's white
+//! Without one, [`crate::Processor::radiometry`] gives white-balanced camera RGB (the model's
+//! notes say so). With one ([`crate::ProcessingModel::with_color`]), the radiometry uses the calibration's white
 //! balance and no matrix, and the calibrated model maps the resulting camera RGB radiance
 //! factor to linear sRGB radiance factor, texel by texel.
 

@@ -1,7 +1,7 @@
 //! Dark and flat-field correction in the pipeline (measured in `btfrig_calibrate::dark_flat`,
 //! numerics in [`btfrig_imaging::dark_flat`]; procedure and figures in `docs/dark-flat.md`).
 //!
-//! With a calibration ([`crate::Processor::with_dark_flat`]), every photosite is corrected
+//! With a calibration ([`crate::ProcessingModel::with_dark_flat`]), every photosite is corrected
 //! BEFORE demosaicing: `value = (DN - dark_dn(x, y, t, g)) / flat(x, y)`, hot photosites
 //! replaced by their same-colour neighbours, then normalised like
 //! `btfrig_imageio::demosaic::demosaic_bilinear` (divided by `white - black`). The radiometric

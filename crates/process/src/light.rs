@@ -1,6 +1,6 @@
 //! Light calibration and lamp drift in the pipeline.
 //!
-//! With a [`LightCorrection`] ([`crate::Processor::with_light`]) the radiometric conversion
+//! With a [`LightCorrection`] ([`crate::ProcessingModel::with_light`]) the radiometric conversion
 //! takes the lamp's power and colour from the light calibration instead of the simulator's
 //! model: `W_c`, the camera-RGB signal rate of a white Lambertian reflector lit along its
 //! normal from the nominal lamp distance, becomes `nominal_irradiance = W_g` and
