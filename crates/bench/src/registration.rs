@@ -17,7 +17,7 @@ use btfrig_core::homography::{decompose, dlt};
 use btfrig_core::kinematics::JointState;
 use btfrig_core::pose::ScenePose;
 use btfrig_core::Direction;
-use btfrig_imageio::demosaic::demosaic_bilinear;
+use btfrig_imaging::demosaic::demosaic_bilinear;
 use btfrig_markers::{detect, Detection, Dictionary, GrayImage};
 use btfrig_registration::{
     back_project, register, sample_to_camera, texel_position_error, PlateRegistrar, RegisterOptions,

@@ -28,7 +28,7 @@ use btfrig_core::frame::RawFrame;
 use btfrig_core::kinematics::{Gonio, JointState};
 use btfrig_core::pose::ScenePose;
 use btfrig_core::Direction;
-use btfrig_imageio::demosaic::demosaic_bilinear;
+use btfrig_imaging::demosaic::demosaic_bilinear;
 use btfrig_markers::GrayImage;
 use btfrig_registration::PlateRegistrar;
 use nalgebra::{Point3, Vector3};

@@ -26,7 +26,7 @@ use btfrig_imaging::{LinearImage, Radiometry};
 use btfrig_core::camera::CameraModel;
 use btfrig_core::config::RigConfig;
 use btfrig_core::frame::RawFrame;
-use btfrig_imageio::demosaic::demosaic_bilinear_values;
+use btfrig_imaging::demosaic::demosaic_bilinear_values;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 

@@ -25,7 +25,7 @@ use btfrig_core::config::RigConfig;
 use btfrig_core::frame::RawFrame;
 use btfrig_core::kinematics::{Gonio, JointState};
 use btfrig_core::Direction;
-use btfrig_imageio::demosaic::demosaic_bilinear;
+use btfrig_imaging::demosaic::demosaic_bilinear;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 

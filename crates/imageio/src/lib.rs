@@ -21,9 +21,7 @@
 
 // The files, one job each:
 // - lib:      raw frames and linear RGB images as OpenEXR and PNG
-// - demosaic: bilinear demosaicing of a raw frame to linear camera RGB
 
-pub mod demosaic;
 
 use std::path::{Path, PathBuf};
 

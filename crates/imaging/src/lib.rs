@@ -1,5 +1,5 @@
-//! Calibration and rectification: from a demosaiced camera frame to a texture on the sample
-//! plane, in the units of the renderer's ground truth.
+//! Raw frame to texture numerics: demosaic, dark/flat, HDR merge, rectification and
+//! radiometry, from a camera frame to a texture on the sample plane in the units of the renderer's ground truth.
 //!
 //! It rectifies with a given pose (the registered one, from `btfrig-registration`, or the
 //! nominal one) and camera model ([`rectify`]), converts the result radiometrically to a
@@ -14,6 +14,7 @@
 #![warn(missing_docs)]
 
 // The files, one job each:
+// - demosaic:   a raw (Bayer or mono) frame to linear camera RGB, bilinear
 // - rectify:    rectification onto the sample plane and its filters
 // - radiometry: conversion to radiance factor, the vignetting map
 // - dark_flat:  the dark model, master flats, per-photosite correction
@@ -23,6 +24,7 @@
 // - metric:     texture error against a reference
 
 pub mod dark_flat;
+pub mod demosaic;
 pub mod exposure;
 pub mod hdr;
 pub mod light;

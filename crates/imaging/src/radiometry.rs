@@ -21,7 +21,7 @@ use crate::rectify::{check_geometry, sample_to_camera, RectifyError, Region, Tex
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Radiometry {
     /// DN above black per unit of image value: `white_level - black_level` for an image
-    /// normalised like `btfrig_imageio::demosaic::demosaic_bilinear`, 1 for raw DN above black.
+    /// normalised like `btfrig_imaging::demosaic::demosaic_bilinear`, 1 for raw DN above black.
     pub dn_range: f64,
     /// Exposure time of the frame, seconds.
     pub exposure_s: f64,

@@ -3,7 +3,7 @@ use btfrig_core::config::RigConfig;
 use btfrig_core::plan::BUILTIN_RIGS;
 use btfrig_core::Direction;
 use btfrig_markers::{detect, DetectParams, Dictionary, GrayImage};
-use btfrig_render::demosaic::demosaic_bilinear;
+use btfrig_imaging::demosaic::demosaic_bilinear;
 use btfrig_render::material::MaterialSpec;
 use btfrig_render::renderer::RenderOptions;
 use btfrig_render::rig_scene::RigScene;

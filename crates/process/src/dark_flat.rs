@@ -4,7 +4,7 @@
 //! With a calibration ([`crate::ProcessingModel::with_dark_flat`]), every photosite is corrected
 //! BEFORE demosaicing: `value = (DN - dark_dn(x, y, t, g)) / flat(x, y)`, hot photosites
 //! replaced by their same-colour neighbours, then normalised like
-//! `btfrig_imageio::demosaic::demosaic_bilinear` (divided by `white - black`). The radiometric
+//! `btfrig_imaging::demosaic::demosaic_bilinear` (divided by `white - black`). The radiometric
 //! conversion then subtracts no dark current and divides by no lens vignetting: the flat
 //! holds vignetting x PRNU, the dark model bias, column offsets and per-photosite dark current.
 //!
@@ -14,7 +14,7 @@
 use btfrig_imaging::dark_flat::DarkFlatError;
 pub use btfrig_imaging::dark_flat::{photosite_rates, DarkFlat, DarkModel, FlatField};
 use btfrig_core::frame::RawFrame;
-use btfrig_imageio::demosaic::{demosaic_bilinear_values, CameraRgbImage};
+use btfrig_imaging::demosaic::{demosaic_bilinear_values, CameraRgbImage};
 
 /// The frame corrected with `cal` and demosaiced, normalised so that `white - black` DN
 /// above dark is 1 (what the radiometric conversion expects of the plain demosaic).

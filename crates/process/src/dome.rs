@@ -383,7 +383,7 @@ impl DomeProcessing {
             sum.iter_mut().zip(frame).for_each(|(s, v)| *s += v);
         }
         let (w, h) = (stack.width, stack.height);
-        let rgb = btfrig_imageio::demosaic::demosaic_bilinear_values(w, h, self.bayer, &sum);
+        let rgb = btfrig_imaging::demosaic::demosaic_bilinear_values(w, h, self.bayer, &sum);
         let green: Vec<f32> = rgb.data.iter().map(|p| p[1]).collect();
         let found = GrayImage::new(w, h, &green)
             .map_err(|e| e.to_string())
@@ -472,7 +472,7 @@ impl DomeProcessing {
     ) -> Result<Vec<[f32; 3]>, DomeError> {
         let camera = &self.model.camera;
         let (w, h) = (camera.width, camera.height);
-        let rgb = btfrig_imageio::demosaic::demosaic_bilinear_values(w, h, self.bayer, mosaic);
+        let rgb = btfrig_imaging::demosaic::demosaic_bilinear_values(w, h, self.bayer, mosaic);
         let img = LinearImage { width: w, height: h, data: rgb.data };
         let pose = ScenePose { lamp_position: self.dome.led_position(led), ..*pose };
         let region = self.region();

@@ -8,7 +8,7 @@ use btfrig_core::frame::RawFrame;
 use btfrig_core::kinematics::JointState;
 use btfrig_core::pose::ScenePose;
 use btfrig_hw::truth::{ExposureTruth, SampleRegion};
-use btfrig_imageio::demosaic::demosaic_bilinear;
+use btfrig_imaging::demosaic::demosaic_bilinear;
 use btfrig_markers::GrayImage;
 use btfrig_registration::{texel_position_error_with_cameras, PlateRegistrar};
 use btfrig_store::{PoseSource, StepId, StepRegistration};
@@ -238,7 +238,7 @@ impl Processor {
         &self,
         step: StepId,
         frames: &[&RawFrame],
-    ) -> Result<(btfrig_imageio::demosaic::CameraRgbImage, u64), PipelineError> {
+    ) -> Result<(btfrig_imaging::demosaic::CameraRgbImage, u64), PipelineError> {
         use btfrig_imaging::hdr::{merge_bracket, MergeOptions, NoiseModel, NominalCalibration};
         let base = frames[0];
         let sensor = &self.model.sensor;
@@ -265,7 +265,7 @@ impl Processor {
         let range = (f64::from(base.meta.white_level) - f64::from(base.meta.black_level)).max(1.0);
         let scale = base.meta.exposure_s * sensor.dn_per_electron(base.meta.gain.max(1.0)) / range;
         let values: Vec<f32> = merged.rate.iter().map(|&r| (f64::from(r) * scale) as f32).collect();
-        let dm = btfrig_imageio::demosaic::demosaic_bilinear_values(base.width, base.height, base.meta.bayer, &values);
+        let dm = btfrig_imaging::demosaic::demosaic_bilinear_values(base.width, base.height, base.meta.bayer, &values);
         Ok((dm, merged.saturated_everywhere() as u64))
     }
 

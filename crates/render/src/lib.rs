@@ -16,7 +16,7 @@
 //! observer, lamps, camera sensitivities, ColorChecker); [`colour::ColourSystem`] turns a
 //! reflectance spectrum into camera RGB and into the ground-truth output colour (linear sRGB,
 //! D65, adapted); [`sensor::SensorModel`] turns a [`radiance::RadianceImage`] of
-//! photo-electron rates into a noisy [`btfrig_core::frame::RawFrame`]; [`demosaic`] makes
+//! photo-electron rates into a noisy [`btfrig_core::frame::RawFrame`]; `btfrig_imaging::demosaic` makes
 //! previews from raw frames; [`scene::Scene::build_target`] renders the geometric
 //! calibration board (its layout, `btfrig_core::config::target::TargetBoard`, is shared with
 //! the calibration procedure) that replaces the plate for calibration captures;
@@ -57,7 +57,6 @@ pub mod brdf;
 pub mod chart;
 pub mod colour;
 /// Demosaicing lives in `btfrig-imageio` (processing needs it without the simulator).
-pub use btfrig_imageio::demosaic;
 pub mod dome_scene;
 pub mod flat_field;
 pub mod ground_truth;

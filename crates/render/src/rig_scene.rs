@@ -19,7 +19,7 @@ use rayon::prelude::*;
 
 use crate::chart::ColorChart;
 use crate::colour::ColourSystem;
-use crate::demosaic::{demosaic_bilinear, preview_srgb8};
+use btfrig_imaging::demosaic::{demosaic_bilinear, preview_srgb8};
 use crate::ground_truth::GroundTruth;
 use crate::material::{MaterialError, MaterialSpec};
 use crate::radiance::RadianceImage;

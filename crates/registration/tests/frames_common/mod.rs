@@ -16,7 +16,7 @@ use btfrig_core::Direction;
 use btfrig_markers::GrayImage;
 use btfrig_registration::frame::{FrameError, FrameRegistration, PlateRegistrar};
 use btfrig_registration::{texel_position_error, RegisterOptions};
-use btfrig_render::demosaic::demosaic_bilinear;
+use btfrig_imaging::demosaic::demosaic_bilinear;
 use btfrig_render::material::MaterialSpec;
 use btfrig_render::renderer::RenderOptions;
 use btfrig_render::rig_scene::RigScene;
