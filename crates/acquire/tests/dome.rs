@@ -4,13 +4,13 @@
 use std::collections::HashSet;
 use std::sync::Arc;
 
-use btfrig_core::config::RigConfig;
-use btfrig_core::frame::RawFrame;
 use btfrig_acquire::dome::{DomeCapture, DomeDevices};
 use btfrig_acquire::{
     Engine, EngineSettings, EngineStep, Event, GonioDevices, PauseReason, RigDevices, RunOutcome, RunState, RunSummary,
     StepKey, StepKind,
 };
+use btfrig_core::config::RigConfig;
+use btfrig_core::frame::RawFrame;
 use btfrig_hw::{Camera, CaptureSettings, ErrorKind, MoveOptions, TokioClock, Turntable};
 use btfrig_planner::dome::DomeShot;
 use btfrig_sim::faults::derive_seed;

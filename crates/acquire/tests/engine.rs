@@ -5,14 +5,14 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
 use async_trait::async_trait;
-use btfrig_core::config::RigConfig;
-use btfrig_core::frame::RawFrame;
-use btfrig_core::kinematics::Gonio;
-use btfrig_core::sampling::Sampling;
 use btfrig_acquire::{
     CapturedFrame, Command, CommandError, Engine, EngineSettings, EngineStep, Event, ExposureControl, GonioDevices,
     PauseReason, RigDevices, RunHandle, RunOutcome, RunState, RunSummary, StepKey, StepKind,
 };
+use btfrig_core::config::RigConfig;
+use btfrig_core::frame::RawFrame;
+use btfrig_core::kinematics::Gonio;
+use btfrig_core::sampling::Sampling;
 use btfrig_hw::CaptureSettings;
 use btfrig_hw::{AxisLimits, Device, DeviceError, DeviceInfo, ErrorKind, MoveOptions, Rail, TokioClock};
 use btfrig_planner::{plan, PairSelection, PlanRequest, Schedule};

@@ -10,7 +10,6 @@
 use std::time::Instant;
 
 use anyhow::Context;
-use btfrig_imaging::{rectify, to_radiance_factor, vignetting_map, Filter, LinearImage, Radiometry, Region};
 use btfrig_core::camera::CameraModel;
 use btfrig_core::config::RigConfig;
 use btfrig_core::homography::{decompose, dlt};
@@ -18,6 +17,7 @@ use btfrig_core::kinematics::JointState;
 use btfrig_core::pose::ScenePose;
 use btfrig_core::Direction;
 use btfrig_imaging::demosaic::demosaic_bilinear;
+use btfrig_imaging::{rectify, to_radiance_factor, vignetting_map, Filter, LinearImage, Radiometry, Region};
 use btfrig_markers::{detect, Detection, Dictionary, GrayImage};
 use btfrig_registration::{
     back_project, register, sample_to_camera, texel_position_error, PlateRegistrar, RegisterOptions,

@@ -16,7 +16,6 @@
 use std::path::Path;
 use std::time::Instant;
 
-use btfrig_imaging::{rectify, to_radiance_factor, vignetting_map, Filter, LinearImage, Radiometry, Region};
 use btfrig_color::chart::{ChartLayout, CHART_NAMES};
 use btfrig_color::{
     evaluate, select_model, ColorError, ColorModel, DeltaEStats, FitOptions, ModelKind, PatchStatus, ScreenOptions,
@@ -29,6 +28,7 @@ use btfrig_core::kinematics::{Gonio, JointState};
 use btfrig_core::pose::ScenePose;
 use btfrig_core::Direction;
 use btfrig_imaging::demosaic::demosaic_bilinear;
+use btfrig_imaging::{rectify, to_radiance_factor, vignetting_map, Filter, LinearImage, Radiometry, Region};
 use btfrig_markers::GrayImage;
 use btfrig_registration::PlateRegistrar;
 use nalgebra::{Point3, Vector3};

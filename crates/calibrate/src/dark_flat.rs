@@ -10,9 +10,9 @@
 
 use std::path::Path;
 
-use btfrig_imaging::dark_flat::{DarkFlat, DarkFlatError, DarkModel, FlatField, FrameAverage};
 use btfrig_core::config::RigConfig;
 use btfrig_core::frame::RawFrame;
+use btfrig_imaging::dark_flat::{DarkFlat, DarkFlatError, DarkModel, FlatField, FrameAverage};
 use serde::{Deserialize, Serialize};
 
 /// Version of the radiometric plan format.
@@ -483,7 +483,10 @@ pub fn processing_dark_flat(
     let (header, cal, origin) = if let Some(name) = reference.strip_prefix("builtin:") {
         let (_, files) = BUILTIN_DARK_FLATS.iter().find(|(n, _)| *n == name).ok_or_else(|| {
             let known: Vec<&str> = BUILTIN_DARK_FLATS.iter().map(|(n, _)| *n).collect();
-            file_err(Path::new(&key), format!("no built-in dark/flat calibration {name:?} (built in: {})", known.join(", ")))
+            file_err(
+                Path::new(&key),
+                format!("no built-in dark/flat calibration {name:?} (built in: {})", known.join(", ")),
+            )
         })?;
         let dir = Path::new("<embedded calibration>").join(name);
         let (header, cal) = read_calibration_with(&dir, |p| {

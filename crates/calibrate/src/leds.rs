@@ -21,12 +21,12 @@
 
 use std::path::{Path, PathBuf};
 
-use btfrig_imaging::light::{lambertian_signal, square_points};
-use btfrig_imaging::{LinearImage, Radiometry};
 use btfrig_core::camera::CameraModel;
 use btfrig_core::config::RigConfig;
 use btfrig_core::frame::RawFrame;
 use btfrig_imaging::demosaic::demosaic_bilinear_values;
+use btfrig_imaging::light::{lambertian_signal, square_points};
+use btfrig_imaging::{LinearImage, Radiometry};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 

@@ -19,13 +19,13 @@
 
 use std::collections::BTreeMap;
 
-use btfrig_imaging::light::{lambertian_signal, plate_patch_points, rate_radiometry, square_points, PatchOptions};
-use btfrig_imaging::{LinearImage, Radiometry};
 use btfrig_core::config::RigConfig;
 use btfrig_core::frame::RawFrame;
 use btfrig_core::kinematics::{Gonio, JointState};
 use btfrig_core::Direction;
 use btfrig_imaging::demosaic::demosaic_bilinear;
+use btfrig_imaging::light::{lambertian_signal, plate_patch_points, rate_radiometry, square_points, PatchOptions};
+use btfrig_imaging::{LinearImage, Radiometry};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 

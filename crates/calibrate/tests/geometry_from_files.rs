@@ -5,9 +5,9 @@
 //! lens the renderer imaged with (the rig config's own `[camera]` fields).
 
 use btfrig_calibrate::{calibrate_captures, plan_captures, BoardCaptures, CalibrationPlan, RigCalibError, Ring};
-use btfrig_intrinsics::mapping_difference_up_to_rotation;
 use btfrig_core::config::RigConfig;
 use btfrig_imageio::{read_raw_exr, write_raw_exr};
+use btfrig_intrinsics::mapping_difference_up_to_rotation;
 use btfrig_render::renderer::RenderOptions;
 use btfrig_render::rig_scene::RigScene;
 

@@ -2,8 +2,8 @@
 //! parsing. No rendering here (see `rig_calibration.rs`).
 
 use btfrig_calibrate::{processing_camera, CalibrationPlan, RigCalibError};
-use btfrig_intrinsics::CalibrationFile;
 use btfrig_core::config::RigConfig;
+use btfrig_intrinsics::CalibrationFile;
 
 fn rig() -> RigConfig {
     RigConfig::from_toml(include_str!("../../../rig-configs/bonn-gonio-sim.toml"), "bonn-gonio-sim.toml").unwrap()

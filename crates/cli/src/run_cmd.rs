@@ -76,9 +76,10 @@ fn run_dome(a: &RunArgs, plan_text: String) -> anyhow::Result<ExitCode> {
     let control = RunControl::new();
     watch_signals(control.clone());
     let mut progress = Progress { dome: true, ..Progress::default() };
-    let result = btfrig_measurement::dome::run_controlled(&req, &control, true, &mut |line| println!("{line}"), &mut |e| {
-        progress.show(e)
-    });
+    let result =
+        btfrig_measurement::dome::run_controlled(&req, &control, true, &mut |line| println!("{line}"), &mut |e| {
+            progress.show(e)
+        });
     progress.end_line();
     let s = result?;
     println!("btfrig run: dome plan {} into {}", a.plan.display(), a.out.display());

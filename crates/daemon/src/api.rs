@@ -766,7 +766,9 @@ fn check_dome_start(
     let material = btfrig_measurement::plan::dome_material_name(plan.plan.rig.material.as_deref(), plan_path);
     btfrig_measurement::backend::installed()
         .for_rig(rig)
-        .and_then(|b| b.check_scene(&btfrig_measurement::backend::SceneOptions { material: material.as_deref(), faults: None }))
+        .and_then(|b| {
+            b.check_scene(&btfrig_measurement::backend::SceneOptions { material: material.as_deref(), faults: None })
+        })
         .map_err(|e| Problem::unprocessable(format!("rig.material: {e}")))?;
     if rig.devices.simulated().is_none() {
         return Err(Problem::unprocessable(format!(

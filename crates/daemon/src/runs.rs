@@ -475,7 +475,8 @@ impl Runs {
                         };
                         let id = worker.id.clone();
                         let on_line = &mut |l: &str| tracing::info!("run {id}: {l}");
-                        let result = btfrig_measurement::dome::run_controlled(&request, &control, false, on_line, on_event);
+                        let result =
+                            btfrig_measurement::dome::run_controlled(&request, &control, false, on_line, on_event);
                         metrics.session_ended();
                         worker.end_dome(result);
                     }

@@ -22,7 +22,6 @@
 // The files, one job each:
 // - lib:      raw frames and linear RGB images as OpenEXR and PNG
 
-
 use std::path::{Path, PathBuf};
 
 use btfrig_core::frame::{FrameMeta, RawFrame};

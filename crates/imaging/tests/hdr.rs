@@ -3,9 +3,9 @@
 
 mod common;
 
+use btfrig_core::frame::RawFrame;
 use btfrig_imaging::exposure::{meter, sample_footprint, BracketMode, Footprint, HdrPolicy, MeterLevels, Metering};
 use btfrig_imaging::hdr::{merge_bracket, MergeOptions, MergedFrame, NoiseModel, NominalCalibration};
-use btfrig_core::frame::RawFrame;
 use btfrig_render::radiance::RadianceImage;
 use btfrig_render::renderer::RenderOptions;
 use btfrig_render::sensor::SensorModel;

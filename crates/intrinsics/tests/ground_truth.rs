@@ -6,11 +6,11 @@ use std::time::Instant;
 
 mod support;
 
+use btfrig_core::camera::CameraModel;
 use btfrig_intrinsics::{
     calibrate, distortion_difference, mapping_difference, mapping_difference_up_to_rotation, CalibError, Calibration,
     CalibrationFile, Options, View,
 };
-use btfrig_core::camera::CameraModel;
 use nalgebra::Point2;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

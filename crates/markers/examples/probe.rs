@@ -2,8 +2,8 @@
 use btfrig_core::config::RigConfig;
 use btfrig_core::plan::BUILTIN_RIGS;
 use btfrig_core::Direction;
-use btfrig_markers::{detect, DetectParams, Dictionary, GrayImage};
 use btfrig_imaging::demosaic::demosaic_bilinear;
+use btfrig_markers::{detect, DetectParams, Dictionary, GrayImage};
 use btfrig_render::material::MaterialSpec;
 use btfrig_render::renderer::RenderOptions;
 use btfrig_render::rig_scene::RigScene;

@@ -91,10 +91,8 @@ fn the_dark_flat_file_is_used_and_a_wrong_one_worsens_the_textures() {
     let dir = tmp("dark-flat");
     let view = "cameras = [4]\nrotations = [1]\nreference_leds = 0\n";
     let with = |reference: &str| {
-        let rig = DOME.replace(
-            "dark_flat = \"builtin:bonn-dome-sim-dark-flat\"",
-            &format!("dark_flat = \"{reference}\""),
-        );
+        let rig =
+            DOME.replace("dark_flat = \"builtin:bonn-dome-sim-dark-flat\"", &format!("dark_flat = \"{reference}\""));
         assert_ne!(rig, DOME);
         go(&dir, &rig, view).unwrap_or_else(|e| panic!("{e}"))
     };
@@ -134,7 +132,8 @@ fn a_missing_dark_flat_directory_is_named_before_anything_is_written() {
     btfrig_sim_backend::install();
     let dir = tmp("missing");
     let rig = DOME.replace("dark_flat = \"builtin:bonn-dome-sim-dark-flat\"", "dark_flat = \"no-such-dark-flat\"");
-    let e = go(&dir, &rig, "cameras = [4]\nrotations = [1]\n").err().expect("a missing dark/flat calibration").to_string();
+    let e =
+        go(&dir, &rig, "cameras = [4]\nrotations = [1]\n").err().expect("a missing dark/flat calibration").to_string();
     assert!(e.contains("[camera] dark_flat = \"no-such-dark-flat\""), "{e}");
     assert!(e.contains(&dir.join("no-such-dark-flat").join("dark-flat.toml").display().to_string()), "{e}");
     assert!(!dir.join("out").exists());

@@ -8,8 +8,8 @@ use std::path::{Path, PathBuf};
 use btfrig_calibrate::light::{LightPlan, LAMP};
 use btfrig_core::config::RigConfig;
 use btfrig_core::plan::BUILTIN_RIGS;
-use btfrig_process::light::{LampReference, LampTotals, LightCorrection};
 use btfrig_measurement::{run, RunControl, RunOutcome, RunRequest};
+use btfrig_process::light::{LampReference, LampTotals, LightCorrection};
 use btfrig_sim_calibration::light::calibrate_light_simulated;
 
 fn scratch(name: &str) -> PathBuf {

@@ -11,9 +11,9 @@
 //! The canonical linear intermediate for the HDR merge is [`photosite_rates`]
 //! (`(DN - dark_dn) · e_per_dn / g / t / flat`, e-/s per photosite).
 
+use btfrig_core::frame::RawFrame;
 use btfrig_imaging::dark_flat::DarkFlatError;
 pub use btfrig_imaging::dark_flat::{photosite_rates, DarkFlat, DarkModel, FlatField};
-use btfrig_core::frame::RawFrame;
 use btfrig_imaging::demosaic::{demosaic_bilinear_values, CameraRgbImage};
 
 /// The frame corrected with `cal` and demosaiced, normalised so that `white - black` DN

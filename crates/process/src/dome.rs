@@ -28,11 +28,11 @@
 //! group's chunk of the stack is demultiplexed on its own (through one chunk-sized buffer,
 //! reused) and written back in place: row `j` of the stack becomes LED `j`'s mosaic.
 
-use btfrig_imaging::radiometry::{to_radiance_factor, vignetting_map, Radiometry};
-use btfrig_imaging::rectify::{rectify, Filter, LinearImage, Region};
 use btfrig_core::config::dome::DomeConfig;
 use btfrig_core::frame::{BayerPattern, RawFrame};
 use btfrig_core::pose::ScenePose;
+use btfrig_imaging::radiometry::{to_radiance_factor, vignetting_map, Radiometry};
+use btfrig_imaging::rectify::{rectify, Filter, LinearImage, Region};
 use btfrig_markers::GrayImage;
 use btfrig_mux::{Demultiplexer, DemultiplexerParams, DemuxParams, DemuxReport, SMatrix};
 use btfrig_registration::{PlateRegistrar, RegisterOptions};

@@ -19,11 +19,11 @@
 //! too). The texture is divided by it (through the white balance: camera RGB, before the colour
 //! matrix).
 
-use btfrig_imaging::light::{lambertian_signal, plate_patch_points, rate_radiometry, LightError, PatchOptions};
-use btfrig_imaging::{LinearImage, Radiometry};
 use btfrig_core::camera::CameraModel;
 use btfrig_core::config::plate::PlateConfig;
 use btfrig_core::pose::ScenePose;
+use btfrig_imaging::light::{lambertian_signal, plate_patch_points, rate_radiometry, LightError, PatchOptions};
+use btfrig_imaging::{LinearImage, Radiometry};
 use nalgebra::Point2;
 
 /// What the light calibration says about one light.

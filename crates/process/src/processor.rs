@@ -2,11 +2,11 @@
 
 use std::sync::{Arc, Mutex};
 
-use btfrig_imaging::Radiometry;
 use btfrig_core::camera::CameraModel;
 use btfrig_core::frame::RawFrame;
 use btfrig_core::kinematics::JointState;
 use btfrig_hw::truth::{SampleRegion, TruthProbe};
+use btfrig_imaging::Radiometry;
 use btfrig_registration::{PlateRegistrar, RegisterOptions};
 use tokio::sync::watch;
 

@@ -3,12 +3,12 @@
 use std::collections::BTreeMap;
 use std::time::Instant;
 
-use btfrig_imaging::{rectify, to_radiance_factor, vignetting_map, LinearImage};
 use btfrig_core::frame::RawFrame;
 use btfrig_core::kinematics::JointState;
 use btfrig_core::pose::ScenePose;
 use btfrig_hw::truth::{ExposureTruth, SampleRegion};
 use btfrig_imaging::demosaic::demosaic_bilinear;
+use btfrig_imaging::{rectify, to_radiance_factor, vignetting_map, LinearImage};
 use btfrig_markers::GrayImage;
 use btfrig_registration::{texel_position_error_with_cameras, PlateRegistrar};
 use btfrig_store::{PoseSource, StepId, StepRegistration};

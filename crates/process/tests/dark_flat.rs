@@ -5,11 +5,11 @@ mod common;
 
 use std::sync::Arc;
 
-use btfrig_imaging::dark_flat::{DarkFlat, DarkModel, FlatField};
-use btfrig_imaging::{Filter, Region};
 use btfrig_calibrate::dark_flat::RadiometricPlan;
 use btfrig_core::config::RigConfig;
 use btfrig_core::Direction;
+use btfrig_imaging::dark_flat::{DarkFlat, DarkModel, FlatField};
+use btfrig_imaging::{Filter, Region};
 use btfrig_process::dark_flat::{demosaic_corrected, photosite_rates};
 use btfrig_process::{ProcessSettings, Processor, RegistrationMethod, RegistrationPolicy};
 use btfrig_render::material::MaterialSpec;

@@ -6,10 +6,10 @@ mod common;
 
 use std::sync::Arc;
 
-use btfrig_imaging::{Filter, Region};
 use btfrig_core::config::RigConfig;
 use btfrig_core::plan::BUILTIN_RIGS;
 use btfrig_core::Direction;
+use btfrig_imaging::{Filter, Region};
 use btfrig_process::light::{LampReference, LightCorrection};
 use btfrig_process::ProcessSettings;
 use btfrig_render::material::MaterialSpec;

@@ -7,11 +7,11 @@ use std::collections::BTreeSet;
 use std::sync::Arc;
 use std::time::Instant;
 
-use btfrig_imaging::{Filter, Region};
+use btfrig_acquire::{CapturedFrame, StepKey, StepTimes};
 use btfrig_core::config::RigConfig;
 use btfrig_core::plan::BUILTIN_RIGS;
 use btfrig_core::Direction;
-use btfrig_acquire::{CapturedFrame, StepKey, StepTimes};
+use btfrig_imaging::{Filter, Region};
 use btfrig_process::{tone_map_preview, Outputs, PipelineError, PreviewSettings, ProcessSettings, Processor, Totals};
 use btfrig_render::material::MaterialSpec;
 use btfrig_render::renderer::RenderOptions;

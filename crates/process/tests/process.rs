@@ -4,10 +4,10 @@ mod common;
 
 use std::sync::Arc;
 
-use btfrig_imaging::{Filter, Region};
 use btfrig_core::config::RigConfig;
 use btfrig_core::plan::BUILTIN_RIGS;
 use btfrig_core::Direction;
+use btfrig_imaging::{Filter, Region};
 use btfrig_process::{ProcessSettings, Processor};
 use btfrig_render::material::MaterialSpec;
 use btfrig_render::renderer::RenderOptions;

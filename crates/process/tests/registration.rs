@@ -5,12 +5,12 @@ mod common;
 
 use std::sync::Arc;
 
-use btfrig_imaging::{Filter, Region};
 use btfrig_core::config::RigConfig;
 use btfrig_core::frame::RawFrame;
 use btfrig_core::kinematics::JointState;
 use btfrig_core::plan::BUILTIN_RIGS;
 use btfrig_core::Direction;
+use btfrig_imaging::{Filter, Region};
 use btfrig_process::{
     OnRegistrationFailure, PipelineError, PoseSource, ProcessSettings, Processor, RegistrationMethod,
     RegistrationPolicy,

@@ -4,10 +4,10 @@
 use std::collections::HashSet;
 use std::sync::Arc;
 
+use btfrig_acquire::{Engine, EngineSettings, EngineStep, GonioDevices, RunOutcome};
 use btfrig_core::config::RigConfig;
 use btfrig_core::kinematics::Gonio;
 use btfrig_core::sampling::Sampling;
-use btfrig_acquire::{Engine, EngineSettings, EngineStep, GonioDevices, RunOutcome};
 use btfrig_hw::{Camera, Device, ErrorKind, SharedClock, TokioClock};
 use btfrig_planner::{plan, PairSelection, PlanRequest};
 use btfrig_ptp::camera::{PtpCamera, PtpCameraConfig};

@@ -34,10 +34,10 @@ pub mod refine;
 
 use std::collections::BTreeMap;
 
-use btfrig_imaging::Region;
 use btfrig_core::camera::CameraModel;
 use btfrig_core::homography;
 use btfrig_core::pose::ScenePose;
+use btfrig_imaging::Region;
 use nalgebra::{Isometry3, Point2, Vector3};
 use rand::seq::SliceRandom;
 use rand::SeedableRng;

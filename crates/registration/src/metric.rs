@@ -1,9 +1,9 @@
 //! Texel position error: how far (in texels) the surface point a rectification samples for
 //! each texel lies from the texel's own centre, given the true pose.
 
-use btfrig_imaging::Region;
 use btfrig_core::camera::CameraModel;
 use btfrig_core::pose::ScenePose;
+use btfrig_imaging::Region;
 use nalgebra::{Isometry3, Point2, Point3};
 
 /// Sample-to-camera transform of a scene pose (the only part rectification depends on).

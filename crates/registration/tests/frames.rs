@@ -2,14 +2,14 @@
 //! position error of the measured pose at 256 texels over the sample, and the nominal pose's
 //! error for comparison.
 
-use btfrig_imaging::Region;
 use btfrig_core::config::RigConfig;
 use btfrig_core::kinematics::JointState;
 use btfrig_core::plan::BUILTIN_RIGS;
 use btfrig_core::Direction;
+use btfrig_imaging::demosaic::demosaic_bilinear;
+use btfrig_imaging::Region;
 use btfrig_markers::GrayImage;
 use btfrig_registration::{texel_position_error, PlateRegistrar, RegisterOptions};
-use btfrig_imaging::demosaic::demosaic_bilinear;
 use btfrig_render::material::MaterialSpec;
 use btfrig_render::renderer::RenderOptions;
 use btfrig_render::rig_scene::RigScene;

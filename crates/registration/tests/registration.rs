@@ -7,7 +7,9 @@ mod common;
 use std::time::Instant;
 
 use btfrig_core::Direction;
-use btfrig_registration::{register, texel_position_error, Correspondence, RegisterError, RegisterOptions, Registration};
+use btfrig_registration::{
+    register, texel_position_error, Correspondence, RegisterError, RegisterOptions, Registration,
+};
 use common::{joints_for, observe, rig, true_joints, Rig, SIZE};
 use rand::seq::SliceRandom;
 use rand::SeedableRng;

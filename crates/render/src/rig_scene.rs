@@ -19,7 +19,6 @@ use rayon::prelude::*;
 
 use crate::chart::ColorChart;
 use crate::colour::ColourSystem;
-use btfrig_imaging::demosaic::{demosaic_bilinear, preview_srgb8};
 use crate::ground_truth::GroundTruth;
 use crate::material::{MaterialError, MaterialSpec};
 use crate::radiance::RadianceImage;
@@ -28,6 +27,7 @@ use crate::scene::{Scene, SceneError};
 use crate::sensor::{electrons_per_second_scale, SensorError, SensorModel};
 use crate::spectral::{self, Spectrum};
 use btfrig_core::config::target::TargetBoard;
+use btfrig_imaging::demosaic::{demosaic_bilinear, preview_srgb8};
 
 /// Why a rig scene could not be built.
 #[derive(Debug, thiserror::Error)]

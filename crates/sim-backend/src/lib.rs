@@ -16,21 +16,21 @@
 use std::path::Path;
 use std::sync::Arc;
 
+use btfrig_acquire::dome::DomeDevices;
 use btfrig_calibrate::color::{ColorCalibration, ColorPlan};
 use btfrig_core::camera::CameraModel;
 use btfrig_core::config::RigConfig;
 use btfrig_core::pose::ScenePose;
-use btfrig_acquire::dome::DomeDevices;
 use btfrig_hw::truth::DomeTruthProbe;
 use btfrig_hw::{ScaledClock, SharedClock, TokioClock};
-use btfrig_render::dome_scene::DomeScene;
-use btfrig_render::material::{MaterialSpec, BUILTIN_MATERIALS};
-use btfrig_render::renderer::RenderOptions;
-use btfrig_render::rig_scene::RigScene;
 use btfrig_measurement::backend::{
     BackendRegistry, DomeOpenRequest, GonioOpenRequest, OpenedDome, OpenedGonio, RigBackend, SceneOptions,
 };
 use btfrig_measurement::{emulated, plan, RunError};
+use btfrig_render::dome_scene::DomeScene;
+use btfrig_render::material::{MaterialSpec, BUILTIN_MATERIALS};
+use btfrig_render::renderer::RenderOptions;
+use btfrig_render::rig_scene::RigScene;
 use btfrig_sim::dome::{DomeFrameSource, DomeRig};
 use btfrig_sim::truth::SceneTruth;
 use btfrig_sim::{FaultScenario, RenderedFrameSource, SimRig};
@@ -179,8 +179,12 @@ impl DomeTruthProbe for DomeSceneTruth {
         match self.sources.iter().find(|s| s.camera() == camera) {
             Some(s) => s.noise_free_dn(turntable_rad, lights, exposure_s, gain),
             // A camera the run did not open: rendered afresh.
-            None => DomeFrameSource::new(self.scene.clone(), camera, RenderOptions::default())
-                .noise_free_dn(turntable_rad, lights, exposure_s, gain),
+            None => DomeFrameSource::new(self.scene.clone(), camera, RenderOptions::default()).noise_free_dn(
+                turntable_rad,
+                lights,
+                exposure_s,
+                gain,
+            ),
         }
     }
 
@@ -262,7 +266,8 @@ impl RigBackend for SimBackend {
         let rig = req.rig;
         let base = req.plan_file.parent().unwrap_or(Path::new("."));
         let faults = fault_scenario(req.fault_scenario, base, "fault_scenario")?;
-        let material = load_material(plan::dome_material_name(req.plan.plan.rig.material.as_deref(), req.plan_file).as_deref())?;
+        let material =
+            load_material(plan::dome_material_name(req.plan.plan.rig.material.as_deref(), req.plan_file).as_deref())?;
         let scene = Arc::new(
             DomeScene::new(rig, &material)
                 .map_err(|e| RunError::Input { what: "dome scene".into(), message: e.to_string() })?,
@@ -271,10 +276,19 @@ impl RigBackend for SimBackend {
         // their firmware, driven by the real backends (docs/serial.md).
         let sim_cfg = simulated(rig, "domes")?;
         let clock = TokioClock::shared();
-        let dome =
-            DomeRig::build(&sim_cfg, &faults, clock.clone(), scene.clone(), &req.plan.cameras, RenderOptions::default())
-                .map_err(|e| RunError::Rig(e.to_string()))?;
-        let camera = rig.camera.to_model().map_err(|e| RunError::Input { what: "rig.config [camera]".into(), message: e.to_string() })?;
+        let dome = DomeRig::build(
+            &sim_cfg,
+            &faults,
+            clock.clone(),
+            scene.clone(),
+            &req.plan.cameras,
+            RenderOptions::default(),
+        )
+        .map_err(|e| RunError::Rig(e.to_string()))?;
+        let camera = rig
+            .camera
+            .to_model()
+            .map_err(|e| RunError::Input { what: "rig.config [camera]".into(), message: e.to_string() })?;
         let truth = Arc::new(DomeSceneTruth::new(scene, dome.sources.clone(), &faults, camera));
         let (turntable, leds, firmware) =
             emulated::connect_dome(&rig.devices, dome.turntable, dome.led_array, clock.clone())

@@ -2,9 +2,9 @@
 //! calibration plan on the default simulated rig and prints the errors against the truth, for
 //! the plan as given and with k3 held at 0, with one and two detection passes (tuning plans).
 use btfrig_calibrate::{calibrate_captures, CalibrationPlan, RigCalibration};
-use btfrig_intrinsics::{distortion_difference, mapping_difference_up_to_rotation};
 use btfrig_core::camera::CameraModel;
 use btfrig_core::config::RigConfig;
+use btfrig_intrinsics::{distortion_difference, mapping_difference_up_to_rotation};
 use btfrig_sim_calibration::capture_simulated;
 use rand::SeedableRng;
 

@@ -4,12 +4,12 @@
 //! [`compare_with_truth`] measures a calibration against the simulated sensor's true dark
 //! signal and relative gain.
 
-use btfrig_imaging::dark_flat::DarkFlat;
 use btfrig_calibrate::dark_flat::{
     calibrate, DarkFlatCalError, DarkFlatCamera, DarkFlatResult, DarkFlatShot, RadiometricPlan,
 };
 use btfrig_core::config::RigConfig;
 use btfrig_core::frame::RawFrame;
+use btfrig_imaging::dark_flat::DarkFlat;
 use btfrig_render::flat_field::{flat_field_radiance, white_flat_level};
 use btfrig_render::radiance::RadianceImage;
 use btfrig_render::rig_scene::CachedCamera;

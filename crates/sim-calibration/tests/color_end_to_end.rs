@@ -9,12 +9,12 @@ use btfrig_sim::truth::SceneTruth;
 use btfrig_sim::RenderedFrameSource;
 use std::sync::Arc;
 
-use btfrig_imaging::{Filter, Region};
 use btfrig_calibrate::color::ColorPlan;
 use btfrig_calibrate::processing_camera;
 use btfrig_color::{delta_e_2000, space::linear_srgb_to_lab};
 use btfrig_core::config::RigConfig;
 use btfrig_core::Direction;
+use btfrig_imaging::{Filter, Region};
 use btfrig_process::color::ColorCorrection;
 use btfrig_process::{ProcessSettings, Processor};
 use btfrig_render::material::MaterialSpec;

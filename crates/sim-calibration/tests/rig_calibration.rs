@@ -5,8 +5,8 @@
 use std::time::Instant;
 
 use btfrig_calibrate::CalibrationPlan;
-use btfrig_intrinsics::{distortion_difference, mapping_difference_up_to_rotation};
 use btfrig_core::config::RigConfig;
+use btfrig_intrinsics::{distortion_difference, mapping_difference_up_to_rotation};
 use btfrig_sim_calibration::calibrate_simulated;
 
 #[test]

@@ -2,15 +2,15 @@
 //! rectification, radiometric conversion and ground truth.
 #![allow(dead_code)]
 
-use btfrig_imaging::{
-    compare, rectify, to_radiance_factor, vignetting_map, Filter, LinearImage, Radiometry, Region, Texture,
-    TextureError,
-};
 use btfrig_core::config::RigConfig;
 use btfrig_core::kinematics::JointState;
 use btfrig_core::plan::BUILTIN_RIGS;
 use btfrig_core::Direction;
 use btfrig_imaging::demosaic::demosaic_bilinear;
+use btfrig_imaging::{
+    compare, rectify, to_radiance_factor, vignetting_map, Filter, LinearImage, Radiometry, Region, Texture,
+    TextureError,
+};
 use btfrig_render::material::MaterialSpec;
 use btfrig_render::renderer::RenderOptions;
 use btfrig_render::rig_scene::RigScene;

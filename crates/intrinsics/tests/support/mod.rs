@@ -2,9 +2,9 @@
 //! `calibrate_sim` example).
 #![allow(dead_code)]
 
-use btfrig_intrinsics::{Correspondence, View};
 use btfrig_core::camera::CameraModel;
 use btfrig_core::config::RigConfig;
+use btfrig_intrinsics::{Correspondence, View};
 use nalgebra::{Point2, Point3, Rotation3, Unit, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

@@ -2,13 +2,13 @@
 //! marker corners projected through the true pose with pixel noise. No detector involved.
 #![allow(dead_code)]
 
-use btfrig_imaging::Region;
 use btfrig_core::camera::CameraModel;
 use btfrig_core::config::RigConfig;
 use btfrig_core::kinematics::{Gonio, JointState};
 use btfrig_core::pose::ScenePose;
 use btfrig_core::sampling::Sampling;
 use btfrig_core::Direction;
+use btfrig_imaging::Region;
 use btfrig_registration::Correspondence;
 use btfrig_render::plate::{MarkerPlacement, PlateLayout};
 use btfrig_sim::options::{SimAxisOptions, SimRobotOptions};

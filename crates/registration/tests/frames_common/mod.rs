@@ -6,17 +6,17 @@
 //! against the true one.
 #![allow(dead_code)]
 
-use btfrig_imaging::Region;
 use btfrig_core::camera::CameraModel;
 use btfrig_core::config::RigConfig;
 use btfrig_core::kinematics::JointState;
 use btfrig_core::pose::ScenePose;
 use btfrig_core::sampling::Sampling;
 use btfrig_core::Direction;
+use btfrig_imaging::demosaic::demosaic_bilinear;
+use btfrig_imaging::Region;
 use btfrig_markers::GrayImage;
 use btfrig_registration::frame::{FrameError, FrameRegistration, PlateRegistrar};
 use btfrig_registration::{texel_position_error, RegisterOptions};
-use btfrig_imaging::demosaic::demosaic_bilinear;
 use btfrig_render::material::MaterialSpec;
 use btfrig_render::renderer::RenderOptions;
 use btfrig_render::rig_scene::RigScene;
