@@ -210,16 +210,7 @@ pub(crate) fn reprocess(req: &ReprocessRequest, src: Source, rig: RigConfig) -> 
     }
     check_out_empty(&req.out)?;
 
-    let mut manifest = src.manifest.clone();
-    let now =
-        std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs_f64()).unwrap_or(0.0);
-    manifest.created_unix_s = now;
-    manifest.created_utc = btfrig_store::rfc3339_utc(now as i64);
-    manifest.timing = None;
-    // The new dataset holds textures; its frames are the source's.
-    manifest.raw_frames = false;
-    manifest.raw_groups = None;
-    manifest.textures = true;
+    let mut manifest = crate::reprocess::reprocessed_manifest(&src.manifest);
     let info = ProcessingInfo::of(&processing.model);
     let reprocessed_from = json!({
         "dataset": src_dir.display().to_string(),

@@ -396,14 +396,7 @@ pub fn reprocess(req: &ReprocessRequest) -> Result<ReprocessSummary, RunError> {
     }
     check_out_empty(&req.out)?;
 
-    let mut manifest = src.manifest.clone();
-    let now =
-        std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs_f64()).unwrap_or(0.0);
-    manifest.created_unix_s = now;
-    manifest.created_utc = btfrig_store::rfc3339_utc(now as i64);
-    manifest.timing = None;
-    manifest.raw_frames = false;
-    manifest.textures = true;
+    let mut manifest = reprocessed_manifest(&src.manifest);
     let mut record = src.manifest.calibration.clone().unwrap_or_else(|| json!({}));
     if let Some(o) = record.as_object_mut() {
         o.insert(
@@ -524,4 +517,19 @@ pub fn reprocess(req: &ReprocessRequest) -> Result<ReprocessSummary, RunError> {
     };
     dataset.finish(&report).map_err(RunError::Report)?;
     Ok(summary)
+}
+
+/// The manifest of a dataset reprocessed from `source`'s: created now, no rig timing, textures
+/// only (its frames stay the source's).
+pub(crate) fn reprocessed_manifest(source: &btfrig_store::Manifest) -> btfrig_store::Manifest {
+    let mut manifest = source.clone();
+    let now =
+        std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs_f64()).unwrap_or(0.0);
+    manifest.created_unix_s = now;
+    manifest.created_utc = btfrig_store::rfc3339_utc(now as i64);
+    manifest.timing = None;
+    manifest.raw_frames = false;
+    manifest.raw_groups = None;
+    manifest.textures = true;
+    manifest
 }
