@@ -119,6 +119,16 @@ pub struct DomeRunSummary {
     /// averages out of it, so it shows a calibration's scale error (LED powers, flat) that the
     /// RMSE of dim LEDs' noisy textures hides.
     pub texture_brightness_err: Option<f64>,
+    /// `texture_rel_rmse` over the interior texels: the outermost ring of texels left out. At
+    /// a dome camera's resolution (2.5 pixels per texel in the demo) the pixels that make an
+    /// edge texel straddle the sample's edge and mix in the plate (a brighter, neutral grey):
+    /// the full figures carry that, the interior ones show the pipeline on the sample alone.
+    pub texture_rel_rmse_interior: Option<f64>,
+    /// `texture_brightness_err` over the interior texels (see `texture_rel_rmse_interior`).
+    pub texture_brightness_err_interior: Option<f64>,
+    /// The same per channel (linear sRGB R, G, B): a colour calibration's balance error shows
+    /// here (grey's channels apart), where the sum over channels hides it.
+    pub texture_channel_err_interior: Option<[f64; 3]>,
     /// The same for the single-light reference textures (first view group).
     pub reference_texture_rel_rmse: Option<f64>,
     /// The same for the demultiplexed textures of the reference LEDs (same LEDs, same view).
@@ -186,6 +196,9 @@ impl DomeRunSummary {
             "exposure_time_s": self.exposure_time_s,
             "texture_rel_rmse": self.texture_rel_rmse,
             "texture_brightness_err": self.texture_brightness_err,
+            "texture_rel_rmse_interior": self.texture_rel_rmse_interior,
+            "texture_brightness_err_interior": self.texture_brightness_err_interior,
+            "texture_channel_err_interior": self.texture_channel_err_interior,
             "reference_texture_rel_rmse": self.reference_texture_rel_rmse,
             "reference_mux_texture_rel_rmse": self.reference_mux_texture_rel_rmse,
             "registered": self.registered,
@@ -224,6 +237,20 @@ fn sq_err(a: &[[f32; 3]], truth: &[[f32; 3]]) -> (f64, f64) {
         }
     }
     (num, den)
+}
+
+/// The texels of a `size x size` texture without its outermost ring.
+fn interior(t: &[[f32; 3]], size: usize) -> Vec<[f32; 3]> {
+    t.chunks(size.max(1))
+        .take(size.saturating_sub(1))
+        .skip(1)
+        .flat_map(|row| row.iter().take(size.saturating_sub(1)).skip(1).copied())
+        .collect()
+}
+
+/// Sum over texels and channels.
+fn sum_texels(t: &[[f32; 3]]) -> f64 {
+    t.iter().map(|p| f64::from(p[0]) + f64::from(p[1]) + f64::from(p[2])).sum()
 }
 
 fn pooled(v: &[(f64, f64)]) -> Option<f64> {
@@ -782,6 +809,10 @@ pub(crate) struct Consumer<'a, F: Fn(usize, u32) -> u32> {
     rmse: Vec<(f64, f64)>,
     /// Sums of the stored textures and of their truths (brightness error).
     brightness: (f64, f64),
+    /// `rmse` and `brightness` over the interior texels.
+    rmse_interior: Vec<(f64, f64)>,
+    /// Per channel, the sums of the interior texels of the textures and of their truths.
+    brightness_interior: [(f64, f64); 3],
     texel_err: TexelErrorTotals,
     nominal_texel_err: TexelErrorTotals,
     commits: Option<Committing>,
@@ -825,6 +856,8 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
             out: DomeRunSummary::default(),
             rmse: Vec::new(),
             brightness: (0.0, 0.0),
+            rmse_interior: Vec::new(),
+            brightness_interior: [(0.0, 0.0); 3],
             texel_err: TexelErrorTotals::default(),
             nominal_texel_err: TexelErrorTotals::default(),
             commits: None,
@@ -993,9 +1026,16 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
             if let Some(truth) = self.truth.as_ref().filter(|_| !faulty.contains(&j)) {
                 let gt = truth.texture(c, true_rad, j, size);
                 self.rmse.push(sq_err(&tex, &gt));
-                let sum = |t: &[[f32; 3]]| t.iter().map(|p| f64::from(p[0] + p[1] + p[2])).sum::<f64>();
-                self.brightness.0 += sum(&tex);
-                self.brightness.1 += sum(&gt);
+                self.brightness.0 += sum_texels(&tex);
+                self.brightness.1 += sum_texels(&gt);
+                let (tex_in, gt_in) = (interior(&tex, size), interior(&gt, size));
+                self.rmse_interior.push(sq_err(&tex_in, &gt_in));
+                for (a, t) in tex_in.iter().zip(&gt_in) {
+                    for (c, sums) in self.brightness_interior.iter_mut().enumerate() {
+                        sums.0 += f64::from(a[c]);
+                        sums.1 += f64::from(t[c]);
+                    }
+                }
             }
             let file = self.dataset.write_texture(id, &tex, size, size).map_err(|e| input("dataset", e))?;
             let timing = StepTiming {
@@ -1091,10 +1131,29 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
         self.out.texture_rel_rmse = pooled(&self.rmse);
         let (b, t) = self.brightness;
         self.out.texture_brightness_err = (t > 0.0).then(|| b / t - 1.0);
+        self.out.texture_rel_rmse_interior = pooled(&self.rmse_interior);
+        let [r, g, b] = self.brightness_interior;
+        let (sum, truth) = (r.0 + g.0 + b.0, r.1 + g.1 + b.1);
+        self.out.texture_brightness_err_interior = (truth > 0.0).then(|| sum / truth - 1.0);
+        self.out.texture_channel_err_interior =
+            [r, g, b].iter().all(|c| c.1 > 0.0).then(|| [r, g, b].map(|(s, t)| s / t - 1.0));
         self.out.registration_mean_texel_err = self.texel_err.mean();
         self.out.registration_max_texel_err = self.texel_err.max();
         self.out.nominal_mean_texel_err = self.nominal_texel_err.mean();
         self.out.nominal_max_texel_err = self.nominal_texel_err.max();
         self.out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn interior_drops_the_outermost_ring() {
+        let t: Vec<[f32; 3]> = (0..16).map(|i| [i as f32; 3]).collect();
+        let inner: Vec<f32> = interior(&t, 4).iter().map(|p| p[0]).collect();
+        assert_eq!(inner, vec![5.0, 6.0, 9.0, 10.0]);
+        assert!(interior(&t[..4], 2).is_empty());
     }
 }

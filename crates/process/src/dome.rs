@@ -95,8 +95,11 @@ pub struct DomeProcessing {
     pub bayer: Option<BayerPattern>,
     /// The per-LED light calibration.
     pub leds: LedLight,
-    /// White balance applied before each LED's colour (1 with an LED calibration, which
-    /// white-balances per LED; the colour calibration's without one).
+    /// White balance applied before dividing by each LED's colour: with an LED calibration
+    /// and a colour model, the colour model's white balance times the LEDs' mean colour (so
+    /// each light is balanced as the colour model expects, its tint taken out); 1 with an LED
+    /// calibration only (each light balanced to a flat white); the colour model's without
+    /// an LED calibration.
     pub white_balance: [f64; 3],
     /// Texture side, texels.
     pub size: usize,
@@ -343,11 +346,22 @@ impl DomeProcessing {
         }
         let mut registrar = PlateRegistrar::new(camera.clone(), &model.plate, RegisterOptions::default())?;
         registrar.detect = btfrig_markers::DetectParams { camera: Some(camera), ..registrar.detect.clone() };
-        // The LED calibration white-balances each light; without one, the colour file's white
-        // balance does it for all.
         let white_balance = match (&leds, &model.color) {
+            // The colour model was fitted to camera RGB balanced with the chart's white under
+            // the calibration light, which is not a flat white (the gonio's chart white and
+            // white tile differ by 2.5 % in blue): keep that balance, and take out of each
+            // light only its tint relative to the lights' mean colour, the light the colour
+            // calibration stands for (docs/color.md). Balancing each light to a flat white
+            // instead fed the model inputs it was not fitted to: grey came out 2 % too red
+            // and 4 % too blue-poor, saturated browns 4-7 % too bright.
+            (Some(l), Some(c)) => {
+                let n = l.colour.len().max(1) as f64;
+                std::array::from_fn(|k| c.white_balance[k] * l.colour.iter().map(|v| v[k]).sum::<f64>() / n)
+            }
+            // Without a colour model, each light is balanced to a flat white.
+            (Some(_), None) => [1.0; 3],
             (None, Some(c)) => c.white_balance,
-            _ => [1.0; 3],
+            (None, None) => [1.0; 3],
         };
         let n = dome.led_count();
         let leds = leds.unwrap_or(LedLight { power: vec![1.0; n], colour: vec![[1.0; 3]; n], nominal_irradiance: 1.0 });
