@@ -5,15 +5,14 @@
 
 use std::collections::{HashMap, HashSet, VecDeque};
 
+use btfrig_core::capture::StepKey;
 use btfrig_hw::{DeviceError, SharedClock};
 use tokio::sync::{broadcast, mpsc, watch};
 
 use crate::calls::OpLog;
 use crate::dome::Dome;
 use crate::gonio::{Gonio, Pending};
-use crate::{
-    Command, EngineSettings, EngineStep, Event, PauseReason, RigDevices, RunOutcome, RunState, RunSummary, StepKey,
-};
+use crate::{Command, EngineSettings, EngineStep, Event, PauseReason, RigDevices, RunOutcome, RunState, RunSummary};
 
 /// A step that could not be done.
 pub(crate) struct Failure {

@@ -40,8 +40,9 @@ use std::time::Instant;
 use btfrig_acquire::dome::DomeCapture;
 use btfrig_acquire::{
     CommandError, Engine, EngineSettings, EngineStep, Event, PauseReason, RigDevices, RunHandle,
-    RunOutcome as EngineOutcome, StepKey, StepKind,
+    RunOutcome as EngineOutcome, StepKind,
 };
+use btfrig_core::capture::StepKey;
 use btfrig_core::plan::dome::{DomePlan, ValidatedDomePlan};
 use btfrig_hw::truth::DomeTruthProbe;
 use btfrig_hw::MoveOptions;

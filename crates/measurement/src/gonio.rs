@@ -6,8 +6,9 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use btfrig_acquire::{
-    Engine, EngineSettings, EngineStep, Event, GonioDevices, PauseReason, RunOutcome as EngineOutcome, StepKey,
+    Engine, EngineSettings, EngineStep, Event, GonioDevices, PauseReason, RunOutcome as EngineOutcome,
 };
+use btfrig_core::capture::StepKey;
 use btfrig_core::kinematics::Gonio;
 use btfrig_core::plan::ValidatedPlan;
 use btfrig_planner::{plan as plan_schedule, PairSelection, PlanRequest};

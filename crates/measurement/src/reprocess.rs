@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
-use btfrig_acquire::{CapturedFrame, StepKey, StepTimes};
+use btfrig_core::capture::{CapturedFrame, StepKey, StepTimes};
 use btfrig_core::config::{RigConfig, RigKind};
 use btfrig_core::kinematics::Gonio;
 use btfrig_core::plan::{Plan, PlanContext, ResampleFilter, ValidatedPlan};
