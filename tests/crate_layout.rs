@@ -130,10 +130,11 @@ fn only_the_cli_uses_the_harnesses() {
 #[test]
 fn dependencies_point_one_way() {
     let graph = workspace_libraries();
-    for (crate_, forbidden) in [("btfrig-process", &["btfrig-acquire"][..])] {
+    for (crate_, forbidden) in
+        [("btfrig-process", &["btfrig-acquire"][..]), ("btfrig-measurement", &["btfrig-serial", "btfrig-ptp"][..])]
+    {
         assert!(graph.contains_key(crate_), "{crate_} is not a workspace library: {graph:?}");
-        let reached: Vec<&str> =
-            forbidden.iter().copied().filter(|f| closure(&graph, crate_).contains(*f)).collect();
+        let reached: Vec<&str> = forbidden.iter().copied().filter(|f| closure(&graph, crate_).contains(*f)).collect();
         assert!(reached.is_empty(), "{crate_} depends on {reached:?}; it must not depend on any of {forbidden:?}");
     }
 }
