@@ -8,7 +8,7 @@ use btfrig_hw::{DeviceError, MoveOptions, Rail, Robot, SharedClock};
 use tokio::sync::mpsc;
 
 use crate::calls::{read_once, reconnect_if, retrying, set_exposure, trigger, OpLog};
-use crate::run::{Core, Failure, Stop};
+use crate::session::{Core, Failure, Stop};
 use crate::{EngineSettings, EngineStep, ExposureControl, GonioDevices, MAX_EXPOSURES_PER_STEP};
 
 async fn move_robot(

@@ -55,11 +55,12 @@
 #![warn(missing_docs)]
 
 // The files, one job each:
-// - lib:   the vocabulary every rig shares (steps, devices, frames, events, commands, settings) and Engine::spawn
-// - run:   the one task that owns the devices: commands, pauses, skipped steps, retries, progress, summary
-// - gonio: a gonioreflectometer step: robot and rail, exposures, read-out overlapped with the next move
-// - dome:  a dome or camera-array step: turntable, LED pattern, every camera triggered at once
-// - calls: device calls with the engine's timeouts, guards and retry policy
+// - lib:     the vocabulary every rig shares (steps, devices, events, commands, settings) and Engine::spawn
+// - run:     the one task that owns the devices: the loop over the steps, stopping, pausing
+// - session: the run's state but the devices: commands, pauses, skipped steps, retries, progress, summary
+// - gonio:   a gonioreflectometer step: robot and rail, exposures, read-out overlapped with the next move
+// - dome:    a dome or camera-array step: turntable, LED pattern, every camera triggered at once
+// - calls:   device calls with the engine's timeouts, guards and retry policy
 
 use std::collections::HashSet;
 use std::fmt;
@@ -76,6 +77,7 @@ mod calls;
 pub mod dome;
 mod gonio;
 mod run;
+mod session;
 
 use dome::{DomeCapture, DomeDevices};
 
@@ -568,7 +570,7 @@ impl Engine {
         let (cmd_tx, cmd_rx) = mpsc::channel(COMMAND_CAPACITY);
         let (ev_tx, ev_rx) = broadcast::channel(event_queue_len(&settings));
         let (state_tx, state_rx) = watch::channel(RunState::Running);
-        let core = run::Core::new(steps, done, settings, clock, ev_tx.clone(), state_tx, cmd_rx);
+        let core = session::Core::new(steps, done, settings, clock, ev_tx.clone(), state_tx, cmd_rx);
         let task = tokio::spawn(run::run(core, rig));
         RunHandle { cmd: cmd_tx, events: ev_tx, first_events: Some(ev_rx), state: state_rx, task }
     }

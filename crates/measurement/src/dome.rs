@@ -377,7 +377,7 @@ pub fn run_controlled(
     );
     let mut manifest = manifest;
     if v.plan.outputs.raw_frames {
-        manifest.raw_groups = Some(crate::dome_reprocess::RawSchedule::of(&schedule, &views, view_id).to_json());
+        manifest.raw_groups = Some(crate::raw_schedule::RawSchedule::of(&schedule, &views, view_id).to_json());
     }
     let hash = manifest.plan.hash.clone();
     let (dataset, resumed, repaired) = match Dataset::create(&req.out, manifest) {

@@ -20,6 +20,7 @@
 // - runtime:  the virtual-time runtime, the frame channel's depth
 // - gonio:    a gonioreflectometer run ([`run`]): dataset, schedule, engine, pipeline, report
 // - dome:     an LED dome's or camera array's run; dome_reprocess, reprocess: runs again from kept frames
+// - raw_schedule: how a dome run captured its view groups (manifest `raw_groups`), for reprocessing
 // - backend:  the device backends by rig kind (the registry, what a backend opens and reports)
 // - model:    the processing model from the rig config and calibration files
 // - sinks:    the sinks the plan's outputs ask for (the streaming compression model)
@@ -42,6 +43,7 @@ pub mod model;
 pub mod plan;
 pub mod report;
 pub mod reprocess;
+pub mod raw_schedule;
 mod request;
 mod runtime;
 pub mod sinks;
