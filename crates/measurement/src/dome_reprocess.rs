@@ -7,7 +7,7 @@
 //! the rig config recorded in the manifest and the calibration files it names
 //! (`crate::dome::dome_processing`, on `crate::model::rig_model`), a calibration directory
 //! replacing each named file by the file of the same name in it
-//! (`crate::reprocess::calibration_file_name`; a dark/flat calibration as `DIR/dark-flat/`);
+//! (`crate::reprocess_io::calibration_file_name`; a dark/flat calibration as `DIR/dark-flat/`);
 //! the demultiplexers from the code the run captured with (`crate::raw_schedule::RawSchedule`, recorded in the
 //! manifest's `raw_groups`) and the LED powers of the (new) LED calibration
 //! (`crate::dome::group_code`); and the frames go through the run's own consumer
@@ -26,11 +26,11 @@ use btfrig_planner::dome::{DomeShot, DomeStep};
 use btfrig_store::{Dataset, RunReport};
 use serde_json::json;
 
-use crate::reprocess::{
+use crate::raw_schedule::{RawSchedule, RawView};
+use crate::reprocess_io::{
     calibration_dir, check_out_empty, input, read_journaled, refuse_relative, replace_reference, ReprocessRequest,
     ReprocessSummary, Source, DARK_FLAT_DIR,
 };
-use crate::raw_schedule::{RawSchedule, RawView};
 use crate::{ProcessingInfo, RunError};
 
 /// Reprocesses the dome or camera-array dataset `src` (its rig config `rig`) into `req.out`;
@@ -112,7 +112,7 @@ pub(crate) fn reprocess(req: &ReprocessRequest, src: Source, rig: RigConfig) -> 
     }
     check_out_empty(&req.out)?;
 
-    let mut manifest = crate::reprocess::reprocessed_manifest(&src.manifest);
+    let mut manifest = crate::reprocess_io::reprocessed_manifest(&src.manifest);
     let info = ProcessingInfo::of(&processing.model);
     let reprocessed_from = json!({
         "dataset": src_dir.display().to_string(),

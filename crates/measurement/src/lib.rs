@@ -20,6 +20,7 @@
 // - runtime:  the virtual-time runtime, the frame channel's depth
 // - gonio:    a gonioreflectometer run ([`run`]): dataset, schedule, engine, pipeline, report
 // - dome:     an LED dome's or camera array's run; dome_reprocess, reprocess: runs again from kept frames
+// - reprocess_io: what both reprocesses share (request, summary, source dataset, calibration directory)
 // - raw_schedule: how a dome run captured its view groups (manifest `raw_groups`), for reprocessing
 // - backend:  the device backends by rig kind (the registry, what a backend opens and reports)
 // - model:    the processing model from the rig config and calibration files
@@ -43,6 +44,7 @@ pub mod model;
 pub mod plan;
 pub mod report;
 pub mod reprocess;
+mod reprocess_io;
 pub mod raw_schedule;
 mod request;
 mod runtime;
