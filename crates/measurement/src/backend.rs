@@ -5,8 +5,8 @@
 //! the clock they run on and, from a simulated backend only, a truth probe for the report's
 //! error figures. The simulated backend lives in `btfrig-sim-backend`, the emulated-firmware
 //! backend (serial and PTP backends in front of simulated devices) in
-//! `btfrig-emulated-backend`; the `btfrig` binary installs both ([`install`]); a library user may install others or pass
-//! a registry with the request.
+//! `btfrig-emulated-backend`; the `btfrig` binary installs both ([`install`]); a library
+//! user may install others or pass a registry with the request.
 //!
 //! A backend also checks what only it understands, before a run creates anything: the rig's
 //! device options ([`RigBackend::check_rig`]) and a plan's scene options, the material and
