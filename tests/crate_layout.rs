@@ -122,3 +122,19 @@ fn only_the_cli_uses_the_harnesses() {
         .collect();
     assert!(users.is_empty(), "only btfrig-cli may depend on {HARNESSES:?}; these do too: {users:?}");
 }
+
+/// Dependencies point one way (issue 25): the stage pipeline reads captures (plain data in
+/// `btfrig_core::capture`), never the device-owning engine that produces them; the run of a
+/// measurement opens devices through the backend registry, so device transports (serial
+/// ports, PTP cameras) stay in the backends.
+#[test]
+fn dependencies_point_one_way() {
+    let graph = workspace_libraries();
+    for (crate_, forbidden) in
+        [("btfrig-process", &["btfrig-acquire"][..]), ("btfrig-measurement", &["btfrig-serial", "btfrig-ptp"][..])]
+    {
+        assert!(graph.contains_key(crate_), "{crate_} is not a workspace library: {graph:?}");
+        let reached: Vec<&str> = forbidden.iter().copied().filter(|f| closure(&graph, crate_).contains(*f)).collect();
+        assert!(reached.is_empty(), "{crate_} depends on {reached:?}; it must not depend on any of {forbidden:?}");
+    }
+}

@@ -1,7 +1,7 @@
 //! A dome step: an LED dome's turntable, LED array and the cameras of the arc (`docs/engine.md`,
 //! "LED dome"); a camera array is the same without the turntable, its flash triggers driven as
 //! the LED array. The run around the steps (commands, pauses, retries counted per step,
-//! progress and ETA) is the one every rig shares (`crate::run`).
+//! progress and ETA) is the one every rig shares (`crate::session`).
 //!
 //! A step is (rotation, pattern): turn the table when the rotation changes, set the LED
 //! pattern, set the exposure where it differs, trigger every camera at once (they expose
@@ -24,7 +24,7 @@ use btfrig_planner::dome::{DomeShot, DomeStep};
 use tokio::sync::mpsc;
 
 use crate::calls::{read_once, reconnect_if, retrying, set_exposure, trigger, OpLog, COMMAND_TIMEOUT_S};
-use crate::run::{Core, Stop};
+use crate::session::{Core, Stop};
 use crate::EngineSettings;
 
 /// The devices of a dome run.

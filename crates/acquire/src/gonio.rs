@@ -1,16 +1,15 @@
 //! A gonioreflectometer step: robot and rail to the pose, exposures, read-outs overlapped with
 //! the next move, brackets and recaptures (`docs/engine.md`, "A step, and the overlap").
 
+use btfrig_core::capture::{CapturedFrame, StepTimes};
 use btfrig_core::frame::RawFrame;
 use btfrig_core::kinematics::JointState;
 use btfrig_hw::{DeviceError, MoveOptions, Rail, Robot, SharedClock};
 use tokio::sync::mpsc;
 
 use crate::calls::{read_once, reconnect_if, retrying, set_exposure, trigger, OpLog};
-use crate::run::{Core, Failure, Stop};
-use crate::{
-    CapturedFrame, EngineSettings, EngineStep, ExposureControl, GonioDevices, StepTimes, MAX_EXPOSURES_PER_STEP,
-};
+use crate::session::{Core, Failure, Stop};
+use crate::{EngineSettings, EngineStep, ExposureControl, GonioDevices, MAX_EXPOSURES_PER_STEP};
 
 async fn move_robot(
     s: &EngineSettings,

@@ -18,8 +18,8 @@
 //! # async fn main() {
 //! use std::collections::HashSet;
 //! use std::sync::Arc;
-//! use btfrig_core::{config::RigConfig, kinematics::JointState};
-//! use btfrig_acquire::{Engine, EngineSettings, EngineStep, GonioDevices, RunOutcome, StepKey, StepKind};
+//! use btfrig_core::{capture::StepKey, config::RigConfig, kinematics::JointState};
+//! use btfrig_acquire::{Engine, EngineSettings, EngineStep, GonioDevices, RunOutcome, StepKind};
 //! use btfrig_hw::TokioClock;
 //! use btfrig_sim::{capture::prepare, FaultScenario, FlatFrameSource, SimRig};
 //!
@@ -38,7 +38,7 @@
 //!         exposure_s: 0.01,
 //!     })
 //!     .collect();
-//! let (tx, mut rx) = tokio::sync::mpsc::channel::<btfrig_acquire::CapturedFrame>(2);
+//! let (tx, mut rx) = tokio::sync::mpsc::channel::<btfrig_core::capture::CapturedFrame>(2);
 //! let run = Engine::spawn(devices, steps, HashSet::new(), EngineSettings::default(), tx);
 //! let consumer = tokio::spawn(async move {
 //!     let mut keys = Vec::new();
@@ -55,15 +55,17 @@
 #![warn(missing_docs)]
 
 // The files, one job each:
-// - lib:   the vocabulary every rig shares (steps, devices, frames, events, commands, settings) and Engine::spawn
-// - run:   the one task that owns the devices: commands, pauses, skipped steps, retries, progress, summary
-// - gonio: a gonioreflectometer step: robot and rail, exposures, read-out overlapped with the next move
-// - dome:  a dome or camera-array step: turntable, LED pattern, every camera triggered at once
-// - calls: device calls with the engine's timeouts, guards and retry policy
+// - lib:     the vocabulary every rig shares (steps, devices, events, commands, settings) and Engine::spawn
+// - run:     the one task that owns the devices: the loop over the steps, stopping, pausing
+// - session: the run's state but the devices: commands, pauses, skipped steps, retries, progress, summary
+// - gonio:   a gonioreflectometer step: robot and rail, exposures, read-out overlapped with the next move
+// - dome:    a dome or camera-array step: turntable, LED pattern, every camera triggered at once
+// - calls:   device calls with the engine's timeouts, guards and retry policy
 
 use std::collections::HashSet;
 use std::fmt;
 
+use btfrig_core::capture::{CapturedFrame, StepKey};
 use btfrig_core::frame::RawFrame;
 use btfrig_core::kinematics::JointState;
 use btfrig_hw::{Camera, ErrorKind, Rail, Robot, SharedClock};
@@ -75,23 +77,9 @@ mod calls;
 pub mod dome;
 mod gonio;
 mod run;
+mod session;
 
 use dome::{DomeCapture, DomeDevices};
-
-/// Identifies a capture: its light and view indices (as `btfrig_store::StepId`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub struct StepKey {
-    /// Index into the light sampling.
-    pub light: u32,
-    /// Index into the view sampling.
-    pub view: u32,
-}
-
-impl fmt::Display for StepKey {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "light {}, view {}", self.light, self.view)
-    }
-}
 
 /// What a step does, by the kind of rig: the one vocabulary events and pause reasons use for
 /// every rig.
@@ -315,7 +303,8 @@ impl EngineSettings {
 ///
 /// An inspected step still overlaps its last read-out with the move to the next pose: the
 /// frames are inspected when they arrive, and if more exposures are needed the devices go back
-/// to the step's pose for them (a return trip, counted in [`StepTimes::bracket_s`]), so a step
+/// to the step's pose for them (a return trip, counted in
+/// [`StepTimes::bracket_s`](btfrig_core::capture::StepTimes::bracket_s)), so a step
 /// that one exposure holds costs no more than without inspection. Calls run on the engine's
 /// task: keep them cheap (metering a footprint, not processing a frame).
 ///
@@ -351,45 +340,6 @@ impl ExposureControl for SingleExposure {
     fn planned(&mut self, step: &EngineStep) -> Vec<f64> {
         vec![step.exposure_s]
     }
-}
-
-/// When the parts of one step happened, seconds on the rig clock.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct StepTimes {
-    /// Move to this step's pose started (last attempt).
-    pub move_start_s: f64,
-    /// Both devices settled.
-    pub move_end_s: f64,
-    /// Trigger sent (last attempt).
-    pub trigger_start_s: f64,
-    /// Exposure and sensor read-out done.
-    pub trigger_end_s: f64,
-    /// Frame on the host.
-    pub transfer_end_s: f64,
-    /// Rig time the step's exposures beyond the first took: their triggers and read-outs, and
-    /// the return trips to the step's pose for exposures asked for after inspection, seconds
-    /// (0 for one exposure).
-    pub bracket_s: f64,
-}
-
-/// A frame the engine delivers, exactly once per step.
-#[derive(Debug, Clone)]
-pub struct CapturedFrame {
-    /// Position of the step in the schedule given to [`Engine::spawn`].
-    pub index: usize,
-    /// Which capture.
-    pub key: StepKey,
-    /// The raw frame with its metadata: the step's first (base) exposure.
-    pub frame: RawFrame,
-    /// The step's further exposures, in the order taken (empty for one exposure): an HDR
-    /// bracket of the same pose, see [`ExposureControl`].
-    pub bracket: Vec<RawFrame>,
-    /// 1 + retries spent on this step (any operation).
-    pub attempts: u32,
-    /// The joint state the devices were commanded to.
-    pub joints: JointState,
-    /// Hardware time stamps.
-    pub times: StepTimes,
 }
 
 /// Why a run is paused.
@@ -620,7 +570,7 @@ impl Engine {
         let (cmd_tx, cmd_rx) = mpsc::channel(COMMAND_CAPACITY);
         let (ev_tx, ev_rx) = broadcast::channel(event_queue_len(&settings));
         let (state_tx, state_rx) = watch::channel(RunState::Running);
-        let core = run::Core::new(steps, done, settings, clock, ev_tx.clone(), state_tx, cmd_rx);
+        let core = session::Core::new(steps, done, settings, clock, ev_tx.clone(), state_tx, cmd_rx);
         let task = tokio::spawn(run::run(core, rig));
         RunHandle { cmd: cmd_tx, events: ev_tx, first_events: Some(ev_rx), state: state_rx, task }
     }

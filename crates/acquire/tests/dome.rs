@@ -7,8 +7,9 @@ use std::sync::Arc;
 use btfrig_acquire::dome::{DomeCapture, DomeDevices};
 use btfrig_acquire::{
     Engine, EngineSettings, EngineStep, Event, GonioDevices, PauseReason, RigDevices, RunOutcome, RunState, RunSummary,
-    StepKey, StepKind,
+    StepKind,
 };
+use btfrig_core::capture::{CapturedFrame, StepKey};
 use btfrig_core::config::RigConfig;
 use btfrig_core::frame::RawFrame;
 use btfrig_hw::{Camera, CaptureSettings, ErrorKind, MoveOptions, TokioClock, Turntable};
@@ -197,7 +198,7 @@ impl AsDome for DomeCapture {
     }
 }
 
-impl AsDome for btfrig_acquire::CapturedFrame {
+impl AsDome for CapturedFrame {
     fn check(caps: &[Self], _: &[EngineStep], _: usize) {
         assert!(caps.windows(2).all(|w| w[0].index < w[1].index));
     }
@@ -235,7 +236,7 @@ async fn run_gonio(faults: &str, settings: &EngineSettings) -> (RunSummary, Vec<
     });
     let mut h = Engine::spawn(devices, steps.clone(), HashSet::new(), settings.clone(), tx);
     let ev = h.events();
-    watch_and_join::<btfrig_acquire::CapturedFrame>(h, ev, caps, &steps, 1).await
+    watch_and_join::<CapturedFrame>(h, ev, caps, &steps, 1).await
 }
 
 /// What the engine did about each failure: the part of a warning after the error.

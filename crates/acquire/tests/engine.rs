@@ -6,9 +6,10 @@ use std::sync::Arc;
 
 use async_trait::async_trait;
 use btfrig_acquire::{
-    CapturedFrame, Command, CommandError, Engine, EngineSettings, EngineStep, Event, ExposureControl, GonioDevices,
-    PauseReason, RigDevices, RunHandle, RunOutcome, RunState, RunSummary, StepKey, StepKind,
+    Command, CommandError, Engine, EngineSettings, EngineStep, Event, ExposureControl, GonioDevices,
+    PauseReason, RigDevices, RunHandle, RunOutcome, RunState, RunSummary, StepKind,
 };
+use btfrig_core::capture::{CapturedFrame, StepKey};
 use btfrig_core::config::RigConfig;
 use btfrig_core::frame::RawFrame;
 use btfrig_core::kinematics::Gonio;

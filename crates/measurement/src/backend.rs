@@ -3,9 +3,10 @@
 //! A run does not build devices itself: it asks the [`BackendRegistry`] for the backend that
 //! opens the rig's devices (each `[devices.ROLE] kind`), and gets them as device traits, with
 //! the clock they run on and, from a simulated backend only, a truth probe for the report's
-//! error figures. The simulated and emulated-serial backends live in `btfrig-sim-backend`;
-//! the `btfrig` binary installs them ([`install`]); a library user may install others or pass
-//! a registry with the request.
+//! error figures. The simulated backend lives in `btfrig-sim-backend`, the emulated-firmware
+//! backend (serial and PTP backends in front of simulated devices) in
+//! `btfrig-emulated-backend`; the `btfrig` binary installs both ([`install`]); a library
+//! user may install others or pass a registry with the request.
 //!
 //! A backend also checks what only it understands, before a run creates anything: the rig's
 //! device options ([`RigBackend::check_rig`]) and a plan's scene options, the material and
@@ -25,7 +26,6 @@ use btfrig_core::plan::{Plan, ValidatedPlan};
 use btfrig_hw::truth::{DomeTruthProbe, TruthProbe};
 use btfrig_hw::{Camera, Lamp, Rail, Robot, SharedClock};
 
-use crate::emulated::{LinkFault, LinkUse};
 use crate::RunError;
 
 /// What a run asks a backend for: a gonioreflectometer's devices.
@@ -42,8 +42,6 @@ pub struct GonioOpenRequest<'a> {
     pub fault_override: Option<&'a str>,
     /// The engine's read-out timeout, seconds.
     pub read_timeout_s: f64,
-    /// Faults to inject into emulated firmware links (tests).
-    pub link_faults: &'a [LinkFault],
 }
 
 /// How the links to a rig's devices went, for the report.
@@ -56,6 +54,66 @@ pub trait LinkReport: Send {
     fn camera_coding_wall_s(&self) -> Option<f64>;
     /// Links in use (0: every device in-process).
     fn count(&self) -> usize;
+}
+
+/// Links of a rig whose devices are all in-process: none to report.
+pub struct InProcess;
+
+impl LinkReport for InProcess {
+    fn link_use(&self) -> Vec<LinkUse> {
+        Vec::new()
+    }
+
+    fn skipped_lines(&self) -> Vec<(&'static str, u64)> {
+        Vec::new()
+    }
+
+    fn camera_coding_wall_s(&self) -> Option<f64> {
+        None
+    }
+
+    fn count(&self) -> usize {
+        0
+    }
+}
+
+/// What talking to one emulated device cost this session (the run report's `links`): the
+/// time the serial and PTP paths add over calling the simulated device in-process.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LinkUse {
+    /// Role (`robot`, `rail`, ..., `camera`).
+    pub role: &'static str,
+    /// What the backend talks to (pty path at a nominal baud rate, or the PTP responder).
+    pub target: String,
+    /// Exchanges (serial) or transactions (PTP).
+    pub exchanges: u64,
+    /// Bytes sent to the device.
+    pub bytes_out: u64,
+    /// Bytes received from it.
+    pub bytes_in: u64,
+    /// Wall seconds spent on this link: serial exchanges as the caller waited for them, PTP
+    /// coding on the host (see `LinkTotals::exchange_wall_s`, `PtpTotals::codec_wall_s`).
+    /// Links overlap each other and the camera's work, so these do not add up to what the
+    /// run lost: that is the report's `link_added_wall_s`.
+    pub wall_s: f64,
+    /// Rig seconds the same bytes would take on a real line at the nominal baud rate
+    /// (serial only; a pty has no baud rate, so the emulated run's rig time does not have it).
+    pub wire_s: Option<f64>,
+}
+
+impl LinkUse {
+    /// As a JSON object (the report's `links` entries).
+    pub fn to_json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "role": self.role,
+            "target": self.target,
+            "exchanges": self.exchanges,
+            "bytes_out": self.bytes_out,
+            "bytes_in": self.bytes_in,
+            "wall_s": self.wall_s,
+            "wire_s": self.wire_s,
+        })
+    }
 }
 
 /// A gonioreflectometer's devices as a backend opened them (not yet homed).

@@ -40,8 +40,9 @@ use std::time::Instant;
 use btfrig_acquire::dome::DomeCapture;
 use btfrig_acquire::{
     CommandError, Engine, EngineSettings, EngineStep, Event, PauseReason, RigDevices, RunHandle,
-    RunOutcome as EngineOutcome, StepKey, StepKind,
+    RunOutcome as EngineOutcome, StepKind,
 };
+use btfrig_core::capture::StepKey;
 use btfrig_core::plan::dome::{DomePlan, ValidatedDomePlan};
 use btfrig_hw::truth::DomeTruthProbe;
 use btfrig_hw::MoveOptions;
@@ -403,7 +404,7 @@ pub fn run_controlled(
     );
     let mut manifest = manifest;
     if v.plan.outputs.raw_frames {
-        manifest.raw_groups = Some(crate::dome_reprocess::RawSchedule::of(&schedule, &views, view_id).to_json());
+        manifest.raw_groups = Some(crate::raw_schedule::RawSchedule::of(&schedule, &views, view_id).to_json());
     }
     let hash = manifest.plan.hash.clone();
     let (dataset, resumed, repaired) = match Dataset::create(&req.out, manifest) {

@@ -7,8 +7,8 @@
 //! the rig config recorded in the manifest and the calibration files it names
 //! (`crate::dome::dome_processing`, on `crate::model::rig_model`), a calibration directory
 //! replacing each named file by the file of the same name in it
-//! (`crate::reprocess::calibration_file_name`; a dark/flat calibration as `DIR/dark-flat/`);
-//! the demultiplexers from the code the run captured with ([`RawSchedule`], recorded in the
+//! (`crate::reprocess_io::calibration_file_name`; a dark/flat calibration as `DIR/dark-flat/`);
+//! the demultiplexers from the code the run captured with (`crate::raw_schedule::RawSchedule`, recorded in the
 //! manifest's `raw_groups`) and the LED powers of the (new) LED calibration
 //! (`crate::dome::group_code`); and the frames go through the run's own consumer
 //! (`crate::dome::Consumer`: the same `DomeProcessing` register, demultiplex, denoise and
@@ -22,114 +22,16 @@ use std::time::Instant;
 use btfrig_acquire::dome::DomeCapture;
 use btfrig_core::config::RigConfig;
 use btfrig_core::plan::dome::{DomePlan, ValidatedDomePlan};
-use btfrig_planner::dome::{DomeMode, DomeSchedule, DomeShot, DomeStep};
+use btfrig_planner::dome::{DomeShot, DomeStep};
 use btfrig_store::{Dataset, RunReport};
-use serde::{Deserialize, Serialize};
 use serde_json::json;
 
-use crate::reprocess::{
+use crate::raw_schedule::{RawSchedule, RawView};
+use crate::reprocess_io::{
     calibration_dir, check_out_empty, input, read_journaled, refuse_relative, replace_reference, ReprocessRequest,
     ReprocessSummary, Source, DARK_FLAT_DIR,
 };
 use crate::{ProcessingInfo, RunError};
-
-/// What re-demultiplexing a dome dataset's kept frames needs beyond the frames, the rig config
-/// and the calibration files: how the run captured each view group. Recorded in the manifest's
-/// `raw_groups` (`docs/dataset-format.md`, "Raw frames of view groups").
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct RawSchedule {
-    /// The code of every view group.
-    pub mode: RawMode,
-    /// Lights (LEDs or flashes).
-    pub leds: usize,
-    /// Pattern frames per view group (`raw/v<view>_p000.exr` up to this minus one).
-    pub frames_per_group: usize,
-    /// Power every lit light of a pattern fired at (the planner's `pattern_scale`): the
-    /// demultiplexers' intensities are the calibrated powers times this.
-    pub pattern_scale: f64,
-    /// Exposure of every pattern frame, s (also in each frame's metadata).
-    pub pattern_exposure_s: f64,
-    /// The plan's views in capture order.
-    pub views: Vec<RawView>,
-}
-
-/// The code of a view group, as recorded.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
-pub enum RawMode {
-    /// One light per frame: frame `j` is light `j`.
-    Single,
-    /// One S-matrix of `order` over all lights.
-    Multiplexed {
-        /// The S-matrix order.
-        order: usize,
-    },
-    /// `groups` consecutive groups of `order` lights, each under its own S-matrix.
-    Grouped {
-        /// Every group's S-matrix order.
-        order: usize,
-        /// Number of groups.
-        groups: usize,
-    },
-}
-
-impl From<DomeMode> for RawMode {
-    fn from(m: DomeMode) -> Self {
-        match m {
-            DomeMode::Single => RawMode::Single,
-            DomeMode::Multiplexed { order } => RawMode::Multiplexed { order },
-            DomeMode::Grouped { order, groups } => RawMode::Grouped { order, groups },
-        }
-    }
-}
-
-impl From<RawMode> for DomeMode {
-    fn from(m: RawMode) -> Self {
-        match m {
-            RawMode::Single => DomeMode::Single,
-            RawMode::Multiplexed { order } => DomeMode::Multiplexed { order },
-            RawMode::Grouped { order, groups } => DomeMode::Grouped { order, groups },
-        }
-    }
-}
-
-/// One view of the plan.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct RawView {
-    /// Its index in the dataset.
-    pub view: u32,
-    /// Camera index.
-    pub camera: usize,
-    /// Rotation index.
-    pub rotation: u32,
-    /// Commanded turntable angle, radians.
-    pub turntable_rad: f64,
-}
-
-impl RawSchedule {
-    /// Of a run's schedule and views (camera, rotation) with their dataset view indices.
-    pub(crate) fn of(schedule: &DomeSchedule, views: &[(usize, u32)], view_id: impl Fn(usize, u32) -> u32) -> Self {
-        let turntable = |k: u32| schedule.steps.iter().find(|s| s.rotation == k).map_or(0.0, |s| s.turntable_rad);
-        RawSchedule {
-            mode: schedule.mode.into(),
-            leds: schedule.leds,
-            frames_per_group: schedule.patterns.len(),
-            pattern_scale: schedule.pattern_scale,
-            pattern_exposure_s: schedule.exposure_s,
-            views: views
-                .iter()
-                .map(|&(c, k)| RawView { view: view_id(c, k), camera: c, rotation: k, turntable_rad: turntable(k) })
-                .collect(),
-        }
-    }
-
-    /// As the manifest records it.
-    pub(crate) fn to_json(&self) -> serde_json::Value {
-        serde_json::to_value(self).expect("a raw schedule serialises")
-    }
-}
 
 /// Reprocesses the dome or camera-array dataset `src` (its rig config `rig`) into `req.out`;
 /// see the module documentation. Nothing is written until every input checked out: the
@@ -210,7 +112,7 @@ pub(crate) fn reprocess(req: &ReprocessRequest, src: Source, rig: RigConfig) -> 
     }
     check_out_empty(&req.out)?;
 
-    let mut manifest = crate::reprocess::reprocessed_manifest(&src.manifest);
+    let mut manifest = crate::reprocess_io::reprocessed_manifest(&src.manifest);
     let info = ProcessingInfo::of(&processing.model);
     let reprocessed_from = json!({
         "dataset": src_dir.display().to_string(),

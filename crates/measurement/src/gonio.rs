@@ -6,8 +6,9 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use btfrig_acquire::{
-    Engine, EngineSettings, EngineStep, Event, GonioDevices, PauseReason, RunOutcome as EngineOutcome, StepKey,
+    Engine, EngineSettings, EngineStep, Event, GonioDevices, PauseReason, RunOutcome as EngineOutcome,
 };
+use btfrig_core::capture::StepKey;
 use btfrig_core::kinematics::Gonio;
 use btfrig_core::plan::ValidatedPlan;
 use btfrig_planner::{plan as plan_schedule, PairSelection, PlanRequest};
@@ -21,7 +22,7 @@ use crate::hdr::journal_hdr;
 use crate::report::Session;
 use crate::runtime::{virtual_time_runtime, FRAME_CHANNEL};
 use crate::summary::peak_rss_mib;
-use crate::{backend, emulated, hdr, light, model, plan, report, reprocess, sinks};
+use crate::{backend, hdr, light, model, plan, report, reprocess, sinks};
 use crate::{
     DarkFlatInput, Fault, ProcessingInfo, RunControl, RunError, RunEvent, RunOutcome, RunRequest, RunSummary, Signal,
 };
@@ -221,7 +222,6 @@ fn run_capture(
         compare_nominal: req.compare_nominal,
         sink,
         hdr: hdr.map(|settings| SessionHdr { settings, reference_s: exposure_s, light_cos }),
-        link_faults: &req.link_faults,
         on_event,
     }));
     if !dataset.completed().is_empty() {
@@ -465,7 +465,7 @@ fn report_of(s: &RunSummary, previous: &[Session], this: &Session, sessions: Vec
     put("events_dropped", json!(s.events_dropped));
     if !s.links.is_empty() {
         put("link_added_wall_s", json!(s.link_added_wall_s));
-        put("links", s.links.iter().map(emulated::LinkUse::to_json).collect());
+        put("links", s.links.iter().map(backend::LinkUse::to_json).collect());
     }
     put("engine_retries", json!(previous.iter().chain([this]).map(|s| s.retries).sum::<u64>()));
     put("sessions", serde_json::Value::Array(sessions));
@@ -502,7 +502,6 @@ struct SessionInput<'a> {
     compare_nominal: bool,
     sink: Option<Arc<dyn btfrig_process::TextureSink>>,
     hdr: Option<SessionHdr>,
-    link_faults: &'a [emulated::LinkFault],
     on_event: &'a mut dyn FnMut(&RunEvent),
 }
 
@@ -520,7 +519,7 @@ struct SessionResult {
     engine_retries: u64,
     warnings: Vec<String>,
     totals: Result<btfrig_process::Totals, btfrig_process::PipelineError>,
-    links: Vec<emulated::LinkUse>,
+    links: Vec<backend::LinkUse>,
     motion_wait_wall_s: f64,
     link_added_wall_s: Option<f64>,
     /// Engine events the session's listener lost (it fell behind the event queue).
@@ -562,7 +561,6 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
         compare_nominal,
         sink,
         hdr,
-        link_faults,
         on_event,
     } = input;
     // The devices, from the backend the rig's device kinds select (`backend`): the run never
@@ -577,7 +575,6 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
                 plan_file,
                 fault_override,
                 read_timeout_s: settings.read_timeout_s,
-                link_faults,
             })
             .await?;
     // Home, ignite and warm up (as btfrig_sim::capture::prepare), through the backends.

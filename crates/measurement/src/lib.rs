@@ -20,7 +20,9 @@
 // - runtime:  the virtual-time runtime, the frame channel's depth
 // - gonio:    a gonioreflectometer run ([`run`]): dataset, schedule, engine, pipeline, report
 // - dome:     an LED dome's or camera array's run; dome_reprocess, reprocess: runs again from kept frames
-// - backend:  the device backends by rig kind; emulated: firmware emulators in front of devices
+// - reprocess_io: what both reprocesses share (request, summary, source dataset, calibration directory)
+// - raw_schedule: how a dome run captured its view groups (manifest `raw_groups`), for reprocessing
+// - backend:  the device backends by rig kind (the registry, what a backend opens and reports)
 // - model:    the processing model from the rig config and calibration files
 // - sinks:    the sinks the plan's outputs ask for (the streaming compression model)
 // - plan, check, dry_run, dome_dry_run: loading a plan, checking it against the rig, dry runs
@@ -33,7 +35,6 @@ pub mod dome;
 pub mod dome_dry_run;
 pub mod dome_reprocess;
 pub mod dry_run;
-pub mod emulated;
 mod error;
 mod events;
 mod gonio;
@@ -43,6 +44,8 @@ pub mod model;
 pub mod plan;
 pub mod report;
 pub mod reprocess;
+mod reprocess_io;
+pub mod raw_schedule;
 mod request;
 mod runtime;
 pub mod sinks;

@@ -3,8 +3,8 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+use crate::backend;
 use crate::RunError;
-use crate::{backend, emulated};
 
 /// What to run.
 #[derive(Debug, Clone)]
@@ -42,12 +42,6 @@ pub struct RunRequest {
     /// `outputs.compressed_model` (`btfrig run --compress`, `btfrig demo`); `None`: the
     /// plan's. The runner builds its sink ([`sinks::CompressionSink`]).
     pub compressed_model: Option<btfrig_core::plan::CompressedModel>,
-    /// Faults injected into the emulated firmware of an emulated rig right after its backends
-    /// connect, before the rig is prepared (fault tests, `crates/measurement/tests/serial_faults.rs`;
-    /// see [`emulated::LinkFault`]). Like [`RunRequest::faults`] it is not part of the plan,
-    /// so the same request without them resumes a dataset they paused. Empty by default;
-    /// a fault for a device that is not emulated is an error.
-    pub link_faults: Vec<emulated::LinkFault>,
     /// The device backends to open the rig with; `None`: the process's
     /// ([`backend::installed`]).
     pub backends: Option<BackendsHandle>,
@@ -91,7 +85,6 @@ impl RunRequest {
             light: None,
             dark_flat: None,
             compressed_model: None,
-            link_faults: Vec::new(),
             backends: None,
         }
     }
@@ -129,12 +122,6 @@ impl RunRequest {
     /// With these device backends (see [`RunRequest::backends`]).
     pub fn with_backends(mut self, backends: backend::BackendRegistry) -> RunRequest {
         self.backends = Some(BackendsHandle(backends));
-        self
-    }
-
-    /// With faults for the emulated firmware (see [`RunRequest::link_faults`]).
-    pub fn with_link_faults(mut self, faults: Vec<emulated::LinkFault>) -> RunRequest {
-        self.link_faults = faults;
         self
     }
 }

@@ -7,7 +7,7 @@ use serde_json::json;
 
 use crate::hdr::HdrFigures;
 use crate::RunOutcome;
-use crate::{emulated, light, sinks};
+use crate::{backend, light, sinks};
 
 /// The figures of a run over all its sessions (as in `report.json`).
 #[derive(Debug, Clone, PartialEq)]
@@ -78,7 +78,7 @@ pub struct RunSummary {
     pub hdr: Option<HdrFigures>,
     /// This session's cost of each emulated device's link (serial and PTP backends against
     /// emulated firmware); empty on a rig of in-process simulated devices.
-    pub links: Vec<emulated::LinkUse>,
+    pub links: Vec<backend::LinkUse>,
     /// What frames were processed with: each part of the processing model and where it came
     /// from (`camera`, `sensor`, `color`, `light`, `dark_flat`), and what the output lacks
     /// because a calibration is absent (`docs/pipeline.md`, "The processing model").

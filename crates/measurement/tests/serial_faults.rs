@@ -1,14 +1,15 @@
 //! Run-level fault tests on the emulated serial rig (rig-configs/bonn-gonio-serial.toml):
 //! the tiny plan through `btfrig_measurement::run`, with faults injected into the emulated
-//! firmware (`RunRequest::link_faults`, docs/serial.md). Each fault ends in a retried step
-//! or a paused, resumable run naming the device; nothing captured is lost, and the textures
-//! equal those of a fault-free run on the same rig.
+//! firmware (`btfrig_emulated_backend::EmulatedBackend::with_link_faults`, docs/serial.md).
+//! Each fault ends in a retried step or a paused, resumable run naming the device; nothing
+//! captured is lost, and the textures equal those of a fault-free run on the same rig.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
+use std::sync::{Arc, OnceLock};
 
-use btfrig_measurement::emulated::LinkFault;
+use btfrig_emulated_backend::{EmulatedBackend, LinkFault};
+use btfrig_measurement::backend::BackendRegistry;
 use btfrig_measurement::{run, RunControl, RunOutcome, RunRequest, RunSummary};
 use btfrig_serial::firmware::{grbl, robot};
 
@@ -25,6 +26,12 @@ fn request(dir: &Path) -> RunRequest {
         .replace("FAULTS", "none")
         .replace("builtin:bonn-gonio-sim", "builtin:bonn-gonio-serial");
     RunRequest::from_text(plan, &dir.join("plan.toml"), &dir.join("dataset"))
+}
+
+/// The emulated rig's backends, injecting `faults` into its firmware.
+fn faulty(faults: Vec<LinkFault>) -> BackendRegistry {
+    let backend = EmulatedBackend::new(Arc::new(btfrig_sim_backend::SimBackend)).with_link_faults(faults);
+    BackendRegistry::new().with(Arc::new(backend))
 }
 
 /// Every texture file's content hash, by file name.
@@ -64,7 +71,7 @@ fn reference() -> &'static BTreeMap<String, String> {
 fn finished_with(name: &str, faults: Vec<LinkFault>) -> RunSummary {
     let reference = reference();
     let dir = scratch(name);
-    let s = run(&request(&dir).with_link_faults(faults), &RunControl::new(), &mut |_| {}).unwrap();
+    let s = run(&request(&dir).with_backends(faulty(faults)), &RunControl::new(), &mut |_| {}).unwrap();
     assert_eq!(s.outcome, RunOutcome::Finished, "{s:?}");
     let ds = dir.join("dataset");
     assert_eq!(s.captures, 12, "{s:?}");
@@ -129,7 +136,7 @@ fn paused_then_resumed(name: &str, fault: LinkFault, device: &str, says: &str) {
     let ds = dir.join("dataset");
     let req = request(&dir);
     assert!(req.stop_on_fault);
-    let s = run(&req.clone().with_link_faults(vec![fault]), &RunControl::new(), &mut |_| {}).unwrap();
+    let s = run(&req.clone().with_backends(faulty(vec![fault])), &RunControl::new(), &mut |_| {}).unwrap();
     let RunOutcome::Paused { reason, fault: Some(f) } = &s.outcome else { panic!("{s:?}") };
     println!("{name}: paused after {} captures: {reason}", s.captures);
     assert_eq!(f.device, device, "{f:?}");

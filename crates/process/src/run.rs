@@ -4,7 +4,7 @@ use std::collections::{BTreeMap, VecDeque};
 use std::sync::Arc;
 use std::time::Instant;
 
-use btfrig_acquire::CapturedFrame;
+use btfrig_core::capture::CapturedFrame;
 use btfrig_core::frame::RawFrame;
 use btfrig_store::{Dataset, PoseSource, StepExtra, StepHdr, StepId, StepRegistration, StepTiming, StoreError};
 use tokio::sync::mpsc;

@@ -7,7 +7,7 @@ use std::collections::BTreeSet;
 use std::sync::Arc;
 use std::time::Instant;
 
-use btfrig_acquire::{CapturedFrame, StepKey, StepTimes};
+use btfrig_core::capture::{CapturedFrame, StepKey, StepTimes};
 use btfrig_core::config::RigConfig;
 use btfrig_core::plan::BUILTIN_RIGS;
 use btfrig_core::Direction;

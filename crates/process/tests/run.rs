@@ -4,7 +4,7 @@ mod common;
 
 use std::sync::Arc;
 
-use btfrig_acquire::{CapturedFrame, StepKey, StepTimes};
+use btfrig_core::capture::{CapturedFrame, StepKey, StepTimes};
 use btfrig_core::config::RigConfig;
 use btfrig_core::plan::BUILTIN_RIGS;
 use btfrig_core::Direction;

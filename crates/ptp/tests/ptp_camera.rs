@@ -104,7 +104,7 @@ async fn engine_retries_a_capture_whose_object_added_never_came() {
     let SimRig { robot, rail, camera, .. } = rig;
     let (cam, responder) = ptp(camera, clock.clone()).await;
     let devices = GonioDevices { robot, rail, camera: Box::new(cam), clock: clock.clone() };
-    let (tx, mut rx) = tokio::sync::mpsc::channel::<btfrig_acquire::CapturedFrame>(64);
+    let (tx, mut rx) = tokio::sync::mpsc::channel::<btfrig_core::capture::CapturedFrame>(64);
     let collect = tokio::spawn(async move {
         let mut out = Vec::new();
         while let Some(f) = rx.recv().await {

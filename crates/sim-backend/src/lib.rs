@@ -1,16 +1,17 @@
 //! The simulated rig as a device backend of the runner (`btfrig_measurement::backend`).
 //!
-//! For a rig config whose devices are all `kind = "sim"`, or simulated devices behind emulated
-//! firmware (`kind = "serial"` / `"ptp"` with `[devices.ROLE.link] emulated = true`), it builds
-//! the scene (the plan's material on the holder), the rendered frame source (with the fault
-//! scenario's hidden markers), the simulated devices on virtual time, puts emulated firmware
-//! in front where asked (`btfrig_measurement::emulated`), and hands the run the devices and the
+//! For a rig config whose devices are all `kind = "sim"` it builds the scene (the plan's
+//! material on the holder), the rendered frame source (with the fault scenario's hidden
+//! markers), the simulated devices on virtual time, and hands the run the devices and the
 //! scene's truth probe (`btfrig_sim::truth::SceneTruth`; a dome's: [`DomeSceneTruth`]), which
 //! only the report's error figures read. It checks the simulator's options of rigs and plans
 //! (device options, materials, fault scenarios) for the runner, which knows no simulator
 //! type, photographs the simulated colour chart of a colour calibration
 //! (`btfrig_sim_calibration`), and opens the stand-ins `btfrig hw probe` puts behind emulated
-//! firmware ([`probe`]). [`install`] registers it as the process's backend.
+//! firmware ([`probe`]). Rigs of emulated firmware (`kind = "serial"` / `"ptp"` with
+//! `[devices.ROLE.link] emulated = true`) are opened by `btfrig_emulated_backend`, in front of
+//! this backend's devices; [`registry`] holds both and [`install`] registers them as the
+//! process's backends.
 #![warn(missing_docs)]
 
 use std::path::Path;
@@ -21,12 +22,13 @@ use btfrig_calibrate::color::{ColorCalibration, ColorPlan};
 use btfrig_core::camera::CameraModel;
 use btfrig_core::config::RigConfig;
 use btfrig_core::pose::ScenePose;
+use btfrig_emulated_backend::{EmulatedBackend, Probed, SimDevices};
 use btfrig_hw::truth::DomeTruthProbe;
 use btfrig_hw::{ScaledClock, SharedClock, TokioClock};
 use btfrig_measurement::backend::{
-    BackendRegistry, DomeOpenRequest, GonioOpenRequest, OpenedDome, OpenedGonio, RigBackend, SceneOptions,
+    BackendRegistry, DomeOpenRequest, GonioOpenRequest, InProcess, OpenedDome, OpenedGonio, RigBackend, SceneOptions,
 };
-use btfrig_measurement::{emulated, plan, RunError};
+use btfrig_measurement::{plan, RunError};
 use btfrig_render::dome_scene::DomeScene;
 use btfrig_render::material::{MaterialSpec, BUILTIN_MATERIALS};
 use btfrig_render::renderer::RenderOptions;
@@ -35,16 +37,17 @@ use btfrig_sim::dome::{DomeFrameSource, DomeRig};
 use btfrig_sim::truth::SceneTruth;
 use btfrig_sim::{FaultScenario, RenderedFrameSource, SimRig};
 
-/// The simulated and emulated-firmware rigs.
+/// The simulated rigs.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct SimBackend;
 
 /// The device kinds [`SimBackend`] opens.
-pub const KINDS: &[&str] = &["sim", "serial", "ptp"];
+pub const KINDS: &[&str] = &["sim"];
 
-/// A registry with [`SimBackend`].
+/// A registry with [`SimBackend`] for simulated rigs and, for rigs of emulated firmware, an
+/// [`EmulatedBackend`] in front of it (a rig of simulated devices only is the first's).
 pub fn registry() -> BackendRegistry {
-    BackendRegistry::new().with(Arc::new(SimBackend))
+    BackendRegistry::new().with(Arc::new(SimBackend)).with(Arc::new(EmulatedBackend::new(Arc::new(SimBackend))))
 }
 
 /// Installs [`registry`] as the process's device backends (`btfrig_measurement::backend::install`).
@@ -127,18 +130,18 @@ fn faults(req: &GonioOpenRequest<'_>) -> Result<FaultScenario, RunError> {
 
 /// The simulated devices of `rig` (every device simulated), rendering nothing: the stand-ins
 /// `btfrig hw probe` asks through emulated firmware ([`probe`]).
-fn stand_ins(rig: &RigConfig, clock: SharedClock) -> Result<emulated::SimDevices, String> {
+fn stand_ins(rig: &RigConfig, clock: SharedClock) -> Result<SimDevices, String> {
     let source = Arc::new(btfrig_sim::FlatFrameSource::new(8, 6, 100.0));
     let sim = SimRig::from_rig_config(rig, &FaultScenario::none(), clock, source).map_err(|e| e.to_string())?;
     let SimRig { robot, rail, turntable, lamp, led_array, camera, .. } = sim;
-    Ok(emulated::SimDevices { robot, rail, turntable, lamp, led_array, camera })
+    Ok(SimDevices { robot, rail, turntable, lamp, led_array, camera })
 }
 
 /// `btfrig hw probe`: every device of `rig` asked for its identity and health through its
 /// real backend, emulated ones in front of the simulator's devices
-/// (`btfrig_measurement::emulated::probe`). Builds its own runtime: call from a plain thread.
-pub fn probe(rig: &RigConfig) -> Result<Vec<emulated::Probed>, String> {
-    emulated::probe(rig, &stand_ins)
+/// (`btfrig_emulated_backend::probe`). Builds its own runtime: call from a plain thread.
+pub fn probe(rig: &RigConfig) -> Result<Vec<Probed>, String> {
+    btfrig_emulated_backend::probe(rig, &stand_ins)
 }
 
 /// The truth behind a simulated dome's frames: the scene's ground truth and the cameras'
@@ -206,16 +209,6 @@ impl DomeTruthProbe for DomeSceneTruth {
     }
 }
 
-/// The rig config with its emulated devices as the simulated ones behind the firmware; a
-/// real device is refused (`what`: the rig, for the message).
-fn simulated(rig: &RigConfig, what: &str) -> Result<RigConfig, RunError> {
-    let mut sim_cfg = rig.clone();
-    sim_cfg.devices = rig.devices.simulated().ok_or_else(|| {
-        RunError::Rig(format!("a device is real hardware: the simulated backend opens simulated and emulated {what}"))
-    })?;
-    Ok(sim_cfg)
-}
-
 #[async_trait::async_trait]
 impl RigBackend for SimBackend {
     fn name(&self) -> &'static str {
@@ -246,20 +239,11 @@ impl RigBackend for SimBackend {
         }
         // The truth of every frame the camera renders, for the report's error figures only.
         let truth = Arc::new(SceneTruth::new(scene, source));
-        // An emulated device is the simulator's behind emulated firmware and its real backend.
-        emulated::check(&rig.devices).map_err(RunError::Rig)?;
-        let sim_cfg = simulated(rig, "devices")?;
-        let sim = SimRig::from_rig_config(&sim_cfg, &faults, sim_clock(), truth.clone())
+        let sim = SimRig::from_rig_config(rig, &faults, sim_clock(), truth.clone())
             .map_err(|e| RunError::Rig(e.to_string()))?;
         let clock = sim.world.clock().clone();
-        let SimRig { robot, rail, turntable, lamp, led_array, camera, .. } = sim;
-        let parts = emulated::SimDevices { robot, rail, turntable, lamp, led_array, camera };
-        let emulated::Connected { robot, rail, lamp, camera, firmware, .. } =
-            emulated::connect(&rig.devices, parts, clock.clone(), req.read_timeout_s).await.map_err(RunError::Rig)?;
-        for f in req.link_faults {
-            firmware.inject(f).map_err(RunError::Rig)?;
-        }
-        Ok(OpenedGonio { robot, rail, lamp, camera, clock, truth: Some(truth), links: Box::new(firmware) })
+        let SimRig { robot, rail, lamp, camera, .. } = sim;
+        Ok(OpenedGonio { robot, rail, lamp, camera, clock, truth: Some(truth), links: Box::new(InProcess) })
     }
 
     async fn open_dome(&self, req: DomeOpenRequest<'_>) -> Result<OpenedDome, RunError> {
@@ -272,32 +256,19 @@ impl RigBackend for SimBackend {
             DomeScene::new(rig, &material)
                 .map_err(|e| RunError::Input { what: "dome scene".into(), message: e.to_string() })?,
         );
-        // Emulated devices (serial turntable and LED controller) are the simulator's behind
-        // their firmware, driven by the real backends (docs/serial.md).
-        let sim_cfg = simulated(rig, "domes")?;
         let clock = TokioClock::shared();
-        let dome = DomeRig::build(
-            &sim_cfg,
-            &faults,
-            clock.clone(),
-            scene.clone(),
-            &req.plan.cameras,
-            RenderOptions::default(),
-        )
-        .map_err(|e| RunError::Rig(e.to_string()))?;
+        let dome =
+            DomeRig::build(rig, &faults, clock.clone(), scene.clone(), &req.plan.cameras, RenderOptions::default())
+                .map_err(|e| RunError::Rig(e.to_string()))?;
         let camera = rig
             .camera
             .to_model()
             .map_err(|e| RunError::Input { what: "rig.config [camera]".into(), message: e.to_string() })?;
         let truth = Arc::new(DomeSceneTruth::new(scene, dome.sources.clone(), &faults, camera));
-        let (turntable, leds, firmware) =
-            emulated::connect_dome(&rig.devices, dome.turntable, dome.led_array, clock.clone())
-                .await
-                .map_err(RunError::Rig)?;
         Ok(OpenedDome {
-            devices: DomeDevices { turntable, leds, cameras: dome.cameras, clock },
+            devices: DomeDevices { turntable: dome.turntable, leds: dome.led_array, cameras: dome.cameras, clock },
             truth: Some(truth),
-            links: Box::new(firmware),
+            links: Box::new(()),
         })
     }
 

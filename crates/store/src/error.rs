@@ -2,6 +2,7 @@
 
 use std::io;
 
+use crate::storage::Storage;
 use crate::StepId;
 
 /// A failure of the dataset store.
@@ -132,4 +133,15 @@ pub enum StoreError {
     /// Encoding an image failed.
     #[error(transparent)]
     Image(#[from] btfrig_imageio::ImageIoError),
+}
+
+/// Maps a [`Storage`] error of `op` on `path` to [`StoreError::Io`] naming both (the
+/// storage's own display of the path).
+pub(crate) fn io_err<S: Storage + ?Sized>(
+    s: &S,
+    op: &'static str,
+    path: &str,
+) -> impl FnOnce(std::io::Error) -> StoreError {
+    let path = s.display(path);
+    move |source| StoreError::Io { op, path, source }
 }

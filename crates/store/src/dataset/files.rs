@@ -1,22 +1,13 @@
 //! Durable file I/O under a [`Storage`]: atomic writes, reading the manifest back, and
 //! checking a journaled file against its record.
 
-use crate::error::StoreError;
+use crate::error::{io_err, StoreError};
 use crate::hash::content_hash;
 use crate::manifest::Manifest;
 use crate::storage::{parent, Storage};
 use crate::FileRecord;
 
 use super::layout::MANIFEST_FILE;
-
-pub(super) fn io_err<S: Storage + ?Sized>(
-    s: &S,
-    op: &'static str,
-    path: &str,
-) -> impl FnOnce(std::io::Error) -> StoreError {
-    let path = s.display(path);
-    move |source| StoreError::Io { op, path, source }
-}
 
 /// Temporary name of `path` while it is written: `.name.tmp` in the same directory, so the
 /// rename is atomic and a partial file never has a final name.

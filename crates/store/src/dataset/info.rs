@@ -7,8 +7,9 @@ use crate::journal::{self, Journal, ModelRecord, Record, TornTail};
 use crate::manifest::{manifest_hash, Manifest, TextureFormat};
 use crate::storage::{FsStorage, Storage};
 
-use super::files::{io_err, read_manifest};
+use super::files::read_manifest;
 use super::layout::{list_names, JOURNAL_FILE, MANIFEST_FILE, REPORT_FILE};
+use crate::error::io_err;
 
 /// Summary of a dataset for `btfrig dataset info`.
 #[derive(Debug, Clone)]

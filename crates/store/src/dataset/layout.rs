@@ -1,8 +1,7 @@
 //! Where things live in a dataset directory: file and directory names, the paths of a
 //! step's files, and which files a done step must have written.
 
-use super::files::io_err;
-use crate::error::StoreError;
+use crate::error::{io_err, StoreError};
 use crate::manifest::Manifest;
 use crate::storage::Storage;
 use crate::StepId;

@@ -8,7 +8,7 @@ use std::sync::{Mutex, MutexGuard};
 use btfrig_core::frame::RawFrame;
 use btfrig_imageio::ExrPrecision;
 
-use crate::error::StoreError;
+use crate::error::{io_err, StoreError};
 use crate::journal::{FramesRecord, Journal, Record, StepRecord, TornTail};
 use crate::manifest::{manifest_fixed_part, manifest_hash, Manifest, TextureFormat, TimingSummary};
 use crate::storage::{parent, FsStorage, Storage};
@@ -19,7 +19,7 @@ mod info;
 mod layout;
 mod verify;
 
-use files::{file_damage, io_err, read_manifest, tmp_name, write_atomic};
+use files::{file_damage, read_manifest, tmp_name, write_atomic};
 pub use info::{info, info_in, journal_model, journaled_models, DatasetInfo};
 use layout::{
     data_files, group_frame_path, list_names, raw_exposure_path, raw_path, required_files, texture_path,

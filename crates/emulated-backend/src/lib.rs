@@ -1,0 +1,165 @@
+//! Emulated-firmware rigs as a device backend of the runner (`btfrig_measurement::backend`).
+//!
+//! A rig config whose devices are `kind = "serial"` / `"ptp"` with `[devices.ROLE.link]
+//! emulated = true` (docs/serial.md) is opened by [`EmulatedBackend`]: it asks another backend
+//! (the simulated one, `btfrig_sim_backend`, which composes the two in its registry) for the
+//! simulated devices of the same rig, serves each emulated device's firmware on a
+//! pseudo-terminal (the camera: an in-process PTP responder) and connects the real serial and
+//! PTP backends to it, as to hardware. The run gets the real backends' devices, the inner
+//! backend's truth probe and what each link cost. [`probe`] is `btfrig hw probe`. This crate
+//! knows no simulator type: the simulated devices come from the inner backend, or (probe)
+//! from the caller.
+#![warn(missing_docs)]
+
+// The files, one job each:
+// - lib:      EmulatedBackend, the registry entry (open, check, link faults)
+// - firmware: firmware emulators in front of devices, link options, link faults and costs
+// - probe:    `btfrig hw probe` through the real backends, emulated and real ports
+
+use std::sync::Arc;
+
+use btfrig_acquire::dome::DomeDevices;
+use btfrig_calibrate::color::{ColorCalibration, ColorPlan};
+use btfrig_core::camera::CameraModel;
+use btfrig_core::config::RigConfig;
+use btfrig_measurement::backend::{
+    DomeOpenRequest, GonioOpenRequest, LinkReport, LinkUse, OpenedDome, OpenedGonio, RigBackend, SceneOptions,
+};
+use btfrig_measurement::RunError;
+
+pub mod firmware;
+pub mod probe;
+
+pub use firmware::{
+    check, check_probe, connect, connect_dome, link_options, Connected, Firmware, LinkFault, SimDevices,
+};
+pub use probe::{probe, OpenSimulated, Probed};
+
+/// The device kinds [`EmulatedBackend`] opens: emulated serial controllers and PTP cameras,
+/// and simulated devices beside them.
+pub const KINDS: &[&str] = &["sim", "serial", "ptp"];
+
+/// Emulated firmware in front of the simulated devices another backend opens.
+pub struct EmulatedBackend {
+    inner: Arc<dyn RigBackend>,
+    link_faults: Vec<LinkFault>,
+}
+
+impl EmulatedBackend {
+    /// Emulated firmware in front of the devices `inner` opens for the rig with every
+    /// emulated device simulated ([`btfrig_core::config::devices::DevicesConfig::simulated`]).
+    pub fn new(inner: Arc<dyn RigBackend>) -> Self {
+        EmulatedBackend { inner, link_faults: Vec::new() }
+    }
+
+    /// The same backend injecting `faults` into the firmware of every gonioreflectometer it
+    /// opens, right after its backends connect, before the rig is prepared (fault tests,
+    /// `crates/measurement/tests/serial_faults.rs`). A fault for a device that is not
+    /// emulated is an error.
+    pub fn with_link_faults(mut self, faults: Vec<LinkFault>) -> Self {
+        self.link_faults = faults;
+        self
+    }
+}
+
+/// The rig config with its emulated devices as the simulated ones behind the firmware; a
+/// real device is refused (`what`: the rig, for the message).
+fn simulated(rig: &RigConfig, what: &str) -> Result<RigConfig, RunError> {
+    let mut sim_cfg = rig.clone();
+    sim_cfg.devices = rig.devices.simulated().ok_or_else(|| {
+        RunError::Rig(format!(
+            "a device is real hardware: the emulated-firmware backend opens simulated and emulated {what}"
+        ))
+    })?;
+    Ok(sim_cfg)
+}
+
+/// The firmware's links, with the inner backend's (kept alive until the firmware stops).
+struct Links {
+    firmware: Firmware,
+    _inner: Box<dyn LinkReport>,
+}
+
+impl LinkReport for Links {
+    fn link_use(&self) -> Vec<LinkUse> {
+        self.firmware.link_use()
+    }
+
+    fn skipped_lines(&self) -> Vec<(&'static str, u64)> {
+        self.firmware.skipped_lines()
+    }
+
+    fn camera_coding_wall_s(&self) -> Option<f64> {
+        self.firmware.camera_coding_wall_s()
+    }
+
+    fn count(&self) -> usize {
+        self.firmware.count()
+    }
+}
+
+#[async_trait::async_trait]
+impl RigBackend for EmulatedBackend {
+    fn name(&self) -> &'static str {
+        "emulated-firmware rig (btfrig-emulated-backend)"
+    }
+
+    fn kinds(&self) -> &'static [&'static str] {
+        KINDS
+    }
+
+    async fn open_gonio(&self, req: GonioOpenRequest<'_>) -> Result<OpenedGonio, RunError> {
+        let rig = req.rig;
+        let read_timeout_s = req.read_timeout_s;
+        check(&rig.devices).map_err(RunError::Rig)?;
+        let sim_cfg = simulated(rig, "devices")?;
+        let OpenedGonio { robot, rail, lamp, camera, clock, truth, links } =
+            self.inner.open_gonio(GonioOpenRequest { rig: &sim_cfg, ..req }).await?;
+        let parts = SimDevices { robot, rail, turntable: None, lamp, led_array: None, camera };
+        let Connected { robot, rail, lamp, camera, firmware, .. } =
+            connect(&rig.devices, parts, clock.clone(), read_timeout_s).await.map_err(RunError::Rig)?;
+        for f in &self.link_faults {
+            firmware.inject(f).map_err(RunError::Rig)?;
+        }
+        Ok(OpenedGonio { robot, rail, lamp, camera, clock, truth, links: Box::new(Links { firmware, _inner: links }) })
+    }
+
+    async fn open_dome(&self, req: DomeOpenRequest<'_>) -> Result<OpenedDome, RunError> {
+        let rig = req.rig;
+        check(&rig.devices).map_err(RunError::Rig)?;
+        // The turntable and LED controller behind their firmware; the cameras stay the inner
+        // backend's.
+        let sim_cfg = simulated(rig, "domes")?;
+        let OpenedDome { devices, truth, links } =
+            self.inner.open_dome(DomeOpenRequest { rig: &sim_cfg, ..req }).await?;
+        let DomeDevices { turntable, leds, cameras, clock } = devices;
+        let (turntable, leds, firmware) =
+            connect_dome(&rig.devices, turntable, leds, clock.clone()).await.map_err(RunError::Rig)?;
+        Ok(OpenedDome {
+            devices: DomeDevices { turntable, leds, cameras, clock },
+            truth,
+            // Dropped in order: the firmware first, then what the inner backend keeps.
+            links: Box::new((firmware, links)),
+        })
+    }
+
+    // The inner backend checks and calibrates with the rig as given: it knows emulated
+    // entries stand for its simulated devices (`DevicesConfig::simulated`).
+    fn check_rig(&self, rig: &RigConfig) -> Result<(), String> {
+        self.inner.check_rig(rig)
+    }
+
+    fn check_scene(&self, options: &SceneOptions<'_>) -> Result<(), RunError> {
+        self.inner.check_scene(options)
+    }
+
+    fn calibrate_color(
+        &self,
+        rig: &RigConfig,
+        camera: &CameraModel,
+        plan: &ColorPlan,
+        seed: u64,
+    ) -> Result<ColorCalibration, String> {
+        self.inner.calibrate_color(rig, camera, plan, seed)
+    }
+}
