@@ -472,6 +472,7 @@ impl Runs {
                             out: dataset_dir,
                             faults: None,
                             preview: true,
+                            compressed_model: None,
                         };
                         let id = worker.id.clone();
                         let on_line = &mut |l: &str| tracing::info!("run {id}: {l}");

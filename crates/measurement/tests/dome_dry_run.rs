@@ -17,6 +17,7 @@ fn check(plan: &str, name: &str) {
         out: out.clone(),
         faults: None,
         preview: false,
+        compressed_model: None,
     };
     let s = run(&req, &mut |line| eprintln!("{line}")).unwrap_or_else(|e| panic!("{e}"));
     for l in d.lines(&file) {
