@@ -56,7 +56,7 @@ fn offline(dir: &Path, m: CompressedModel) -> (Model, f64) {
 
 /// The streamed model against the offline one of the same dataset: the same layout (lights,
 /// view ids, every capture's directions in the sample frame, measured captures) and, from
-/// the same data in another order, relative RMSEs within 2 % of each other; the figures'
+/// the same data, the same relative RMSE; the figures'
 /// RMSE is the file's against the textures.
 fn agrees_with_offline(figures: &serde_json::Value, dir: &Path, m: CompressedModel) -> (f64, f64) {
     let path = PathBuf::from(figures["compression_model"].as_str().unwrap());
@@ -75,8 +75,9 @@ fn agrees_with_offline(figures: &serde_json::Value, dir: &Path, m: CompressedMod
     let mut src = DatasetSource::open(dir).unwrap();
     let rel_file = eval::error_against(&streamed, &mut src).unwrap().rel_rmse();
     assert!((rel - rel_file).abs() < 1e-9, "figures {rel}, the file {rel_file}");
+    // Measured: identical (a capture's rows of the sketches do not depend on the order).
     assert!(
-        rel.is_finite() && rel > 0.0 && (rel / rel_offline - 1.0).abs() < 0.02,
+        rel.is_finite() && rel > 0.0 && (rel / rel_offline - 1.0).abs() < 1e-6,
         "streamed {rel}, offline {rel_offline}"
     );
     (rel, rel_offline)
