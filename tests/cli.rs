@@ -644,6 +644,15 @@ fn demo_rig_dome_runs_a_multiplexed_dome_measurement_end_to_end() {
     assert!(p > 1.5 && m > 1.3 && (m / p - 1.0).abs() < 0.15, "predicted {p}, measured {m}");
     let saved = v["time_saved_fraction"].as_f64().unwrap();
     assert!(saved > 0.3 && saved < 1.0, "{saved}");
+    // The default model (FMF) is built while the demo captures, as the gonio demo's.
+    assert_eq!(
+        (v["compression_status"].as_str(), v["compression_method"].as_str()),
+        (Some("built"), Some("fmf")),
+        "{v}"
+    );
+    assert_eq!((v["compression_streamed"].as_u64(), v["compression_from_disk"].as_u64()), (Some(792), Some(0)), "{v}");
+    assert!(v["compression_rel_rmse"].as_f64().is_some_and(|e| e > 0.0 && e < 1.0), "{v}");
+    assert!(std::path::Path::new(v["compression_model"].as_str().unwrap()).is_file(), "{v}");
     ok(btfrig().args(["dataset", "verify"]).arg(&out));
     // Gonio-only commands refuse the dome by name.
     let e = fails(btfrig().args(["kinematics", "check", "--rig", "dome"]));
@@ -809,6 +818,15 @@ fn demo_rig_camera_array_multiplexes_all_151_flashes_end_to_end() {
     assert!(p > 1.5 && m > 1.3 && (m / p - 1.0).abs() < 0.15, "predicted {p}, measured {m}");
     let saved = v["time_saved_fraction"].as_f64().unwrap();
     assert!(saved > 0.3 && saved < 1.0, "{saved}");
+    // The default model (FMF) is built while the demo captures, as the gonio demo's.
+    assert_eq!(
+        (v["compression_status"].as_str(), v["compression_method"].as_str()),
+        (Some("built"), Some("fmf")),
+        "{v}"
+    );
+    assert_eq!((v["compression_streamed"].as_u64(), v["compression_from_disk"].as_u64()), (Some(792), Some(0)), "{v}");
+    assert!(v["compression_rel_rmse"].as_f64().is_some_and(|e| e > 0.0 && e < 1.0), "{v}");
+    assert!(std::path::Path::new(v["compression_model"].as_str().unwrap()).is_file(), "{v}");
     ok(btfrig().args(["dataset", "verify"]).arg(&out));
     // The human summary names the flashes, and gonio-only commands refuse the array by name.
     let text = ok(btfrig().args(["demo", "--rig", "camera-array", "--out"]).arg(dir.join("run2")));
