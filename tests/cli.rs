@@ -644,6 +644,15 @@ fn demo_rig_dome_runs_a_multiplexed_dome_measurement_end_to_end() {
     assert!(p > 1.5 && m > 1.3 && (m / p - 1.0).abs() < 0.15, "predicted {p}, measured {m}");
     let saved = v["time_saved_fraction"].as_f64().unwrap();
     assert!(saved > 0.3 && saved < 1.0, "{saved}");
+    // The default model (FMF) is built while the demo captures, as the gonio demo's.
+    assert_eq!(
+        (v["compression_status"].as_str(), v["compression_method"].as_str()),
+        (Some("built"), Some("fmf")),
+        "{v}"
+    );
+    assert_eq!((v["compression_streamed"].as_u64(), v["compression_from_disk"].as_u64()), (Some(792), Some(0)), "{v}");
+    assert!(v["compression_rel_rmse"].as_f64().is_some_and(|e| e > 0.0 && e < 1.0), "{v}");
+    assert!(std::path::Path::new(v["compression_model"].as_str().unwrap()).is_file(), "{v}");
     ok(btfrig().args(["dataset", "verify"]).arg(&out));
     // Gonio-only commands refuse the dome by name.
     let e = fails(btfrig().args(["kinematics", "check", "--rig", "dome"]));
@@ -675,8 +684,8 @@ fn dome_plans_are_checked_shown_and_run() {
         assert!(show.contains(want), "{want:?} missing from:\n{show}");
     }
     let e =
-        fails(btfrig().args(["run", "--plan"]).arg(&plan).arg("--out").arg(dir.join("x")).args(["--compress", "fmf"]));
-    assert!(e.contains("--compress") && e.contains("dome plan") && e.contains("--faults"), "{e}");
+        fails(btfrig().args(["run", "--plan"]).arg(&plan).arg("--out").arg(dir.join("x")).args(["--dark-flat", "d"]));
+    assert!(e.contains("--dark-flat") && e.contains("dome plan") && e.contains("--faults, --compress"), "{e}");
     let out = dir.join("run");
     let run = ok(btfrig().args(["run", "--plan"]).arg(&plan).arg("--out").arg(&out));
     assert!(run.contains("198 (198 LEDs x 1 views), 203 frames per camera") && run.contains("s-matrix 199"), "{run}");
@@ -809,6 +818,15 @@ fn demo_rig_camera_array_multiplexes_all_151_flashes_end_to_end() {
     assert!(p > 1.5 && m > 1.3 && (m / p - 1.0).abs() < 0.15, "predicted {p}, measured {m}");
     let saved = v["time_saved_fraction"].as_f64().unwrap();
     assert!(saved > 0.3 && saved < 1.0, "{saved}");
+    // The default model (FMF) is built while the demo captures, as the gonio demo's.
+    assert_eq!(
+        (v["compression_status"].as_str(), v["compression_method"].as_str()),
+        (Some("built"), Some("fmf")),
+        "{v}"
+    );
+    assert_eq!((v["compression_streamed"].as_u64(), v["compression_from_disk"].as_u64()), (Some(792), Some(0)), "{v}");
+    assert!(v["compression_rel_rmse"].as_f64().is_some_and(|e| e > 0.0 && e < 1.0), "{v}");
+    assert!(std::path::Path::new(v["compression_model"].as_str().unwrap()).is_file(), "{v}");
     ok(btfrig().args(["dataset", "verify"]).arg(&out));
     // The human summary names the flashes, and gonio-only commands refuse the array by name.
     let text = ok(btfrig().args(["demo", "--rig", "camera-array", "--out"]).arg(dir.join("run2")));

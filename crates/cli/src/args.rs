@@ -222,7 +222,7 @@ pub struct RunArgs {
     /// Build a linear model of the BTF while the run captures (fmf, pvmf, pcmf or pcmf-shared
     /// with the `btfrig compress` defaults; fmf: YUV 16/8/8 terms; pcmf-shared: PCMF 32 x 8
     /// in a shared basis of 32 terms) and write it next to the dataset
-    /// (docs/compression.md). Overrides the plan's `outputs.compressed_model`.
+    /// (docs/compression.md). Overrides the plan's `outputs.compressed_model`; for gonio and dome plans.
     #[arg(long, value_name = "METHOD")]
     pub compress: Option<String>,
 }

@@ -143,6 +143,9 @@ fn run_dome(a: &DemoArgs, demo: DomeDemo) -> anyhow::Result<ExitCode> {
         out,
         faults: None,
         preview: false,
+        // The default model (FMF) is built while the demo captures, as the gonio demo's
+        // (docs/compression.md).
+        compressed_model: Some(btfrig_core::plan::CompressedModel::Fmf),
     };
     let json = a.json;
     let s = btfrig_measurement::dome::run(&req, &mut |line| {
@@ -150,11 +153,17 @@ fn run_dome(a: &DemoArgs, demo: DomeDemo) -> anyhow::Result<ExitCode> {
             println!("{line}");
         }
     })?;
+    if let Some(btfrig_measurement::sinks::CompressionOutcome::Failed(e)) = &s.compression {
+        anyhow::bail!("the demo's compressed model was not built: {e}");
+    }
     if json {
         println!("{}", s.to_json());
         return Ok(ExitCode::SUCCESS);
     }
     println!("btfrig demo: plan {:?} on the simulated {}", demo.name, demo.rig);
     crate::run_cmd::print_dome_summary(&s);
+    if let Some(btfrig_measurement::sinks::CompressionOutcome::Built { figures, .. }) = &s.compression {
+        crate::compress_cmd::print_streaming(figures);
+    }
     Ok(ExitCode::SUCCESS)
 }

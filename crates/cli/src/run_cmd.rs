@@ -57,21 +57,22 @@ fn run_dome(a: &RunArgs, plan_text: String) -> anyhow::Result<ExitCode> {
     let gonio_only = [
         ("--light", a.light.is_some(), "the lamp's light calibration"),
         ("--dark-flat", a.dark_flat.is_some(), "the gonio pipeline's dark/flat correction"),
-        ("--compress", a.compress.is_some(), "building a model while the gonio pipeline streams textures"),
     ];
     for (flag, given, what) in gonio_only {
         anyhow::ensure!(
             !given,
-            "{flag}: {what} is for gonioreflectometer plans; {} is a dome plan (allowed with a dome plan: --faults)",
+            "{flag}: {what} is for gonioreflectometer plans; {} is a dome plan (allowed with a dome plan: --faults, --compress)",
             a.plan.display()
         );
     }
+    let compressed_model = compress_flag(a.compress.as_deref(), &plan_text, &a.plan)?;
     let req = btfrig_measurement::dome::DomeRunRequest {
         plan_text,
         plan_path: a.plan.clone(),
         out: a.out.clone(),
         faults: a.faults.clone(),
         preview: false,
+        compressed_model,
     };
     let control = RunControl::new();
     watch_signals(control.clone());
@@ -84,6 +85,9 @@ fn run_dome(a: &RunArgs, plan_text: String) -> anyhow::Result<ExitCode> {
     let s = result?;
     println!("btfrig run: dome plan {} into {}", a.plan.display(), a.out.display());
     print_dome_summary(&s);
+    if let Some(c) = &s.compression {
+        print_compression(c, false)?;
+    }
     let (textures, total) = progress.textures.unwrap_or((s.textures, 0));
     let command = format!("btfrig run --plan {} --out {}", a.plan.display(), a.out.display());
     match &s.stopped {

@@ -305,6 +305,14 @@ impl Run {
                     s.fraction = fraction(s.done, s.total);
                     s.eta_s = Some(0.0);
                 }
+                // As a gonio run's (`Run::end`): a model asked for and not built fails the run.
+                if let Some(btfrig_measurement::sinks::CompressionOutcome::Failed(e)) = &summary.compression {
+                    s.state = RunState::Failed;
+                    s.message = Some(format!(
+                        "the compressed model (outputs.compressed_model) was not built: {e}; the dataset is complete: \
+                         start the same plan into the same dataset to build it"
+                    ));
+                }
                 s.summary = Some(summary.to_json());
             }
             Err(e) => {
@@ -472,6 +480,7 @@ impl Runs {
                             out: dataset_dir,
                             faults: None,
                             preview: true,
+                            compressed_model: None,
                         };
                         let id = worker.id.clone();
                         let on_line = &mut |l: &str| tracing::info!("run {id}: {l}");

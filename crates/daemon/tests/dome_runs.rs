@@ -186,3 +186,36 @@ fn a_dome_run_starts_pauses_resumes_and_completes_into_a_dataset_that_verifies()
     );
     eprintln!("dome runs through the API: {:.1} s", t0.elapsed().as_secs_f64());
 }
+
+/// Issue 25 item 5: a dome plan's `outputs.compressed_model` is built by the daemon's run as
+/// by `btfrig run` (the runner builds the sink, not the CLI): written next to the dataset,
+/// journaled in it, named with its figures in the run's status; the dataset still verifies.
+#[test]
+fn a_dome_plan_with_a_compressed_model_gets_its_model_through_the_daemon() {
+    let d = Daemon::start("dome_runs_compressed_model", Some("rig-configs/bonn-dome-sim.toml"));
+    let plan = format!("{PLAN}[outputs]\ncompressed_model = \"fmf\"\n");
+    let r = d.post("/api/v1/runs", Some(&json!({ "plan_text": plan, "dataset": "dome-model" })));
+    assert_eq!(r.status, 201, "the daemon must accept a dome plan's compressed_model: {}", r.text());
+    let end = wait_for(&d, "r1", "end", is_over);
+    assert_eq!(end["state"], "finished", "{end}");
+    let sum = &end["summary"];
+    let model = d.data.join("dome-model.fmf.btfm");
+    assert_eq!(sum["compression_status"], "built", "{end}");
+    assert_eq!(sum["compression_model"].as_str(), Some(model.to_str().unwrap()), "{end}");
+    assert_eq!(
+        (sum["compression_streamed"].as_u64(), sum["compression_from_disk"].as_u64()),
+        (Some(TEXTURES), Some(0))
+    );
+    assert!(sum["compression_rel_rmse"].as_f64().is_some_and(|e| e > 0.0 && e < 1.0), "{end}");
+    let models = btfrig_store::journaled_models(&d.data.join("dome-model")).unwrap();
+    assert_eq!(
+        models.iter().map(|m| (m.method.as_str(), m.file.as_str())).collect::<Vec<_>>(),
+        [("fmf", "dome-model.fmf.btfm")]
+    );
+    assert_eq!(models[0].hash, btfrig_store::content_hash(&std::fs::read(&model).unwrap()));
+    let layout = btfrig_compress::file::read(&model).unwrap().layout;
+    // Camera 4 at rotation 1 of 11 cameras: view id 15, under every LED.
+    assert_eq!((layout.n_light(), layout.captures.as_ref().map(|c| c.view_ids.clone())), (198, Some(vec![15])));
+    let v = btfrig_store::verify(&d.data.join("dome-model"));
+    assert!(v.is_ok(), "{v:?}");
+}

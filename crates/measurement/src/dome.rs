@@ -78,6 +78,10 @@ pub struct DomeRunRequest {
     /// (8-bit sRGB, not data, not journaled) shows that group's brightest texture (the daemon
     /// sets it; `btfrig run` does not).
     pub preview: bool,
+    /// The compressed model to build while the run captures, instead of the plan's
+    /// `outputs.compressed_model` (`btfrig run --compress`, `btfrig demo`); `None`: the plan's.
+    /// The run builds its sink ([`crate::sinks::CompressionSink`]) as a gonio run does.
+    pub compressed_model: Option<btfrig_core::plan::CompressedModel>,
 }
 
 /// What a dome run did and measured.
@@ -173,12 +177,15 @@ pub struct DomeRunSummary {
     /// [`RunControl`], or paused on a failed step when the session stops on faults); `None`
     /// when it captured every step.
     pub stopped: Option<RunOutcome>,
+    /// What became of the compressed model the request or the plan asks for (`None`: none
+    /// asked for); built after the dataset's report, as a gonio run's.
+    pub compression: Option<crate::sinks::CompressionOutcome>,
 }
 
 impl DomeRunSummary {
     /// The summary as JSON (what `btfrig demo --rig dome --json` prints).
     pub fn to_json(&self) -> serde_json::Value {
-        json!({
+        let mut v = json!({
             "status": self.stopped.as_ref().map_or("finished", RunOutcome::status),
             "reason": self.stopped.as_ref().and_then(RunOutcome::reason),
             "dataset": self.dataset.display().to_string(),
@@ -218,7 +225,16 @@ impl DomeRunSummary {
             "denoise_s": self.denoise_s,
             "events_dropped": self.events_dropped,
             "wall_s": self.wall_s,
-        })
+        });
+        if let (Some(c), Some(o)) = (&self.compression, v.as_object_mut()) {
+            // As a gonio run's summary: the model's `peak_rss_mib` is the whole process's,
+            // read after the model was written; the capture's stays as `run_peak_rss_mib`.
+            o.insert("run_peak_rss_mib".into(), json!(self.peak_rss_mib));
+            if let Some(fields) = c.to_json().as_object() {
+                o.extend(fields.clone());
+            }
+        }
+        v
     }
 }
 
@@ -345,6 +361,14 @@ pub fn run_controlled(
         faults: Some((&fault_name, base, "fault_scenario")),
     })?;
     let dome = rig.require_dome("a dome run").map_err(|e| input("rig.config", e))?.clone();
+    // The plan's own `outputs.compressed_model` was checked by its validation; an override
+    // is checked here, before anything is captured.
+    if req.compressed_model == Some(btfrig_core::plan::CompressedModel::PcmfShared) {
+        let textures = dome.led_count() * v.cameras.len() * v.rotations.len();
+        if let Some(e) = btfrig_core::plan::dome::shared_basis_problem(textures) {
+            return Err(input("compressed model", e));
+        }
+    }
     let rig_path = (!v.plan.rig.config.starts_with("builtin:")).then(|| base.join(&v.plan.rig.config));
     let brightness = crate::dome_dry_run::planning_brightness(&rig, rig_path.as_deref())?;
     let schedule = plan_dome(&rig, &v, brightness.e_per_s).map_err(|e| input("dome planning", e))?;
@@ -407,6 +431,13 @@ pub fn run_controlled(
         manifest.raw_groups = Some(crate::raw_schedule::RawSchedule::of(&schedule, &views, view_id).to_json());
     }
     let hash = manifest.plan.hash.clone();
+    // The model's compressor before the dataset, so every committed texture reaches it; it
+    // reads the manifest at the first texture.
+    let compression = req
+        .compressed_model
+        .or(v.compressed_model)
+        .map(|m| crate::sinks::CompressionSink::new(m, &req.out))
+        .transpose()?;
     let (dataset, resumed, repaired) = match Dataset::create(&req.out, manifest) {
         Ok(d) => (d, false, None),
         Err(StoreError::AlreadyExists { .. }) => {
@@ -475,6 +506,7 @@ pub fn run_controlled(
     // queue of one keeps the latest).
     let (commit_tx, mut commit_rx) = tokio::sync::watch::channel::<Option<RunEvent>>(None);
     let mut state = Consumer::new(&v, schedule.leds, &processing, &code, &dataset, view_id);
+    state.sink = compression.as_ref().map(|c| c.texture_sink());
     state.commits = Some(Committing {
         tx: commit_tx,
         textures: textures_before,
@@ -591,6 +623,10 @@ pub fn run_controlled(
     };
     let mut dataset = dataset;
     dataset.finish(&report).map_err(RunError::Report)?;
+    drop(dataset);
+    // As after a gonio run: a finished session builds, writes, measures and journals the
+    // model (or finds it journaled intact); one that stopped leaves it to its resume.
+    s.compression = compression.map(|c| c.finish(s.stopped.as_ref().unwrap_or(&RunOutcome::Finished)));
     Ok(s)
 }
 
@@ -800,6 +836,8 @@ pub(crate) struct Consumer<'a, F: Fn(usize, u32) -> u32> {
     dataset: &'a Dataset,
     /// The truth behind the frames, consulted only for the report's error figures.
     truth: Option<Arc<dyn DomeTruthProbe>>,
+    /// The streaming compression model's sink: every texture committed, as it is stored.
+    sink: Option<Arc<dyn btfrig_process::TextureSink>>,
     view_id: F,
     stacks: HashMap<usize, GroupStack>,
     references: Vec<(usize, f64, Vec<f32>)>,
@@ -850,6 +888,7 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
             code,
             dataset,
             truth: None,
+            sink: None,
             view_id,
             stacks: HashMap::new(),
             references: Vec::new(),
@@ -1046,6 +1085,9 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
                 stage_s: [("demultiplex".to_string(), demux_s / self.leds as f64)].into_iter().collect(),
             };
             self.dataset.commit_step(id, vec![file], attempts, timing).map_err(|e| input("dataset", e))?;
+            if let Some(sink) = &self.sink {
+                sink.accept(id, &tex);
+            }
             self.out.textures += 1;
             written += 1;
             if want_preview && !faulty.contains(&j) {

@@ -112,6 +112,10 @@ pub struct DomeDryRun {
     pub home_s: f64,
     /// Bytes of the stored textures (32-bit float RGB EXR).
     pub texture_bytes: u64,
+    /// With `[outputs] raw_frames = true`: the pattern frames kept (every view group's, all
+    /// cameras) and their bytes (32-bit float DN per photosite, RLE: noisy frames do not
+    /// shrink); `None` without.
+    pub raw_frames: Option<(usize, u64)>,
     /// Bytes one view group's stack holds (frames x photosites x 4, per camera).
     pub group_bytes: u64,
     /// Every mode the noise model evaluated (`schedule.choice.candidates`, in that order),
@@ -189,6 +193,17 @@ pub(crate) fn schedule_rig_time_s(rig: &RigConfig, dome: &DomeConfig, schedule: 
     rig_time(rig, dome, schedule).total_s()
 }
 
+/// Bytes of one kept raw frame (`btfrig_imageio::encode_raw_exr`): 4 per photosite, 8 per
+/// scan line of offset table, and the header with the frame's metadata.
+fn raw_frame_bytes(rig: &RigConfig) -> u64 {
+    let (w, h) = (rig.camera.width_px as u64, rig.camera.height_px as u64);
+    w * h * 4 + 8 * h + RAW_HEADER_BYTES
+}
+
+/// The EXR header of a kept raw frame with its metadata JSON, about 1 kB (the estimate is
+/// 0.7 % above the files of `tests/dome_dry_run.rs`'s camera array: RLE shrinks them a little).
+const RAW_HEADER_BYTES: u64 = 1000;
+
 /// Bytes one view group's stack holds: its frames x photosites x 4, for every camera.
 fn group_bytes(rig: &RigConfig, cameras: usize, schedule: &DomeSchedule) -> u64 {
     let per_group = if schedule.mode.is_multiplexed() { schedule.patterns.len() } else { schedule.leds };
@@ -262,6 +277,10 @@ pub fn dry_run(text: &str, file: &Path) -> Result<DomeDryRun, RunError> {
         home_s,
         // 3 x 32-bit floats per texel plus the EXR header and offset table.
         texture_bytes: textures as u64 * (size * size * 12 + 400 + 8 * size),
+        raw_frames: v.plan.outputs.raw_frames.then(|| {
+            let kept = schedule.patterns.len() * views;
+            (kept, kept as u64 * raw_frame_bytes(&rig))
+        }),
         group_bytes: group_bytes(&rig, v.cameras.len(), &schedule),
         candidates,
         schedule,
@@ -346,8 +365,12 @@ impl DomeDryRun {
              commands {:.1} s (after homing the turntable, {:.1} s)",
             self.rig_time_s, self.exposure_s, self.transfer_s, self.turntable_s, self.commands_s, self.home_s
         ));
+        let raw = match self.raw_frames {
+            Some((n, bytes)) => format!(" + {:.1} MB of {n} raw pattern frames kept (raw_frames)", bytes as f64 / 1e6),
+            None => String::new(),
+        };
         out.push(format!(
-            "disk {:.1} MB of textures; memory {:.1} MB per view group stack",
+            "disk {:.1} MB of textures{raw}; memory {:.1} MB per view group stack",
             self.texture_bytes as f64 / 1e6,
             self.group_bytes as f64 / 1e6
         ));

@@ -1,7 +1,7 @@
 //! The sinks a run feeds besides the dataset, built by the runner from the plan's outputs,
 //! so that every caller (`btfrig run`, `btfrig demo`, `btfrig serve`) gets the same ones:
 //! today the streaming compression model of `outputs.compressed_model`
-//! (`docs/compression.md`).
+//! (`docs/compression.md`), for gonio plans and dome and camera-array plans alike.
 //!
 //! [`CompressionSink::start`] makes a `btfrig_compress::sink::StreamingCompressor` before the
 //! run; the pipeline hands it every committed texture. After the run,
@@ -156,14 +156,23 @@ type Failure = String;
 impl CompressionSink {
     /// The compressor of the model `req` asks for ([`requested_model`]), or `None`.
     pub fn start(req: &RunRequest) -> Result<Option<CompressionSink>, crate::RunError> {
-        let Some(m) = requested_model(req) else { return Ok(None) };
+        requested_model(req).map(|m| CompressionSink::new(m, &req.out)).transpose()
+    }
+
+    /// The compressor of model `m` for the dataset `dir` (a gonio run's, [`start`], and a
+    /// dome or camera-array run's, `crate::dome`: the compressor reads the dataset's
+    /// manifest when the first texture arrives, and lays a dome's captures out by their
+    /// per-capture directions, `btfrig_compress::dataset::dome_layout`).
+    ///
+    /// [`start`]: CompressionSink::start
+    pub fn new(m: CompressedModel, dir: &Path) -> Result<CompressionSink, crate::RunError> {
         let params = stream_params(m);
         let compressor =
-            StreamingCompressor::new(&req.out, params.clone(), SINK_CAPACITY).map_err(|e| crate::RunError::Input {
+            StreamingCompressor::new(dir, params.clone(), SINK_CAPACITY).map_err(|e| crate::RunError::Input {
                 what: format!("outputs.compressed_model = {:?}", m.name()),
                 message: e.to_string(),
             })?;
-        Ok(Some(CompressionSink { compressor: Arc::new(compressor), dir: req.out.clone(), params }))
+        Ok(CompressionSink { compressor: Arc::new(compressor), dir: dir.to_path_buf(), params })
     }
 
     /// The sink the pipeline hands every committed texture to.

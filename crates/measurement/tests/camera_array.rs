@@ -28,6 +28,7 @@ fn go(text: String, out: &Path) -> DomeRunSummary {
         out: out.to_path_buf(),
         faults: None,
         preview: false,
+        compressed_model: None,
     };
     run(&req, &mut |line| eprintln!("{line}")).unwrap_or_else(|e| panic!("{e}"))
 }

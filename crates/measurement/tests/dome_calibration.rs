@@ -39,6 +39,7 @@ fn go(dir: &Path, rig: &str) -> Result<DomeRunSummary, btfrig_measurement::RunEr
         out: dir.join("data"),
         faults: None,
         preview: false,
+        compressed_model: None,
     };
     run(&req, &mut |line| eprintln!("{line}"))
 }

@@ -29,6 +29,7 @@ fn request(dir: &Path, faults: Option<&str>) -> DomeRunRequest {
         out: dir.join("data"),
         faults: faults.map(String::from),
         preview: false,
+        compressed_model: None,
     }
 }
 

@@ -19,6 +19,7 @@ fn go(extra: &str, name: &str) -> DomeRunSummary {
         out: out.clone(),
         faults: None,
         preview: false,
+        compressed_model: None,
     };
     let s = run(&req, &mut |line| eprintln!("{line}")).unwrap_or_else(|e| panic!("{e}"));
     let report = btfrig_store::verify(&out);

@@ -17,6 +17,7 @@ fn check(plan: &str, name: &str) {
         out: out.clone(),
         faults: None,
         preview: false,
+        compressed_model: None,
     };
     let s = run(&req, &mut |line| eprintln!("{line}")).unwrap_or_else(|e| panic!("{e}"));
     for l in d.lines(&file) {
@@ -29,6 +30,19 @@ fn check(plan: &str, name: &str) {
     // A lower bound (the serial round trips are left out), within 5 % of the run (measured: 1 %).
     assert!(d.rig_time_s <= s.hardware_s * (1.0 + 1e-9), "estimate {} above the run's {}", d.rig_time_s, s.hardware_s);
     assert!(d.rig_time_s >= 0.95 * s.hardware_s, "estimate {} far below the run's {}", d.rig_time_s, s.hardware_s);
+    // The raw pattern frames a plan keeps: counted, and their disk use within 2 % of the files'.
+    let raw: Vec<u64> = std::fs::read_dir(out.join(btfrig_store::RAW_DIR))
+        .map(|d| d.map(|e| e.unwrap().metadata().unwrap().len()).collect())
+        .unwrap_or_default();
+    match d.raw_frames {
+        Some((n, bytes)) => {
+            let on_disk: u64 = raw.iter().sum();
+            eprintln!("raw frames: {n} estimated {bytes} bytes, {} written {on_disk} bytes", raw.len());
+            assert_eq!(n, raw.len());
+            assert!((bytes as f64 / on_disk as f64 - 1.0).abs() < 0.02, "estimated {bytes}, on disk {on_disk}");
+        }
+        None => assert!(raw.is_empty(), "{} raw frames kept without raw_frames", raw.len()),
+    }
     let _ = std::fs::remove_dir_all(&out);
 }
 
@@ -46,7 +60,7 @@ fn a_camera_array_dry_run_predicts_the_run() {
     btfrig_sim_backend::install();
     let plan =
         "name = \"dry\"\ntexture_size = 8\n[rig]\nconfig = \"builtin:bonn-camera-array-sim\"\nmaterial = \"leather\"\n\
-                [dome]\ncameras = [0, 31]\n";
+                [dome]\ncameras = [0, 31]\n[outputs]\nraw_frames = true\n";
     check(plan, "array");
 }
 

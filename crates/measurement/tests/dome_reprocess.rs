@@ -38,6 +38,7 @@ fn go_with(out: &Path, faults: Option<String>) -> DomeRunSummary {
         out: out.to_path_buf(),
         faults,
         preview: false,
+        compressed_model: None,
     };
     run(&req, &mut |line| eprintln!("{line}")).unwrap_or_else(|e| panic!("{e}"))
 }

@@ -33,18 +33,27 @@ pub struct DomePlan {
 
 /// The `[outputs]` table of a dome plan. Textures are always written; the gonio plan's other
 /// outputs are not dome outputs, and naming one is a parse error that lists the keys allowed.
-#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DomeOutputs {
     /// Keep every pattern frame of every view group (all cameras), lossless, so the dataset
     /// can be demultiplexed again later (`btfrig reprocess`); default false.
     #[serde(default)]
     pub raw_frames: bool,
+    /// A compressed BTF model the run builds while it captures, over the per-capture (light,
+    /// view) directions in the sample frame (docs/compression.md): the gonio plan's values,
+    /// `false` (default) or `"none"`, `"fmf"`, `"pvmf"`, `"pcmf"`, `"pcmf-shared"`, `true`
+    /// (= `"fmf"`); written next to the dataset as `<DIR>.<method>.btfm`.
+    #[serde(default, skip_serializing_if = "DomeOutputs::no_model")]
+    pub compressed_model: super::CompressedModelSpec,
 }
 
 impl DomeOutputs {
     fn is_default(&self) -> bool {
         *self == DomeOutputs::default()
+    }
+    fn no_model(m: &super::CompressedModelSpec) -> bool {
+        *m == super::CompressedModelSpec::default()
     }
 }
 
@@ -150,6 +159,8 @@ pub struct ValidatedDomePlan {
     pub cameras: Vec<usize>,
     /// Rotation indices, in capture order.
     pub rotations: Vec<u32>,
+    /// The compressed model the run builds while it captures (`outputs.compressed_model`).
+    pub compressed_model: Option<super::CompressedModel>,
 }
 
 impl DomePlan {
@@ -270,6 +281,17 @@ impl DomePlan {
         if !(8..=1024).contains(&self.texture_size) {
             e.push(ConfigError::out_of_range("texture_size", self.texture_size, "8..=1024"));
         }
+        let compressed_model = self.outputs.compressed_model.model().unwrap_or_else(|m| {
+            e.push(ConfigError::Unknown {
+                field: "outputs.compressed_model".into(),
+                value: m.into(),
+                allowed: "\"fmf\", \"pvmf\", \"pcmf\", \"pcmf-shared\", \"none\", false, or true (= \"fmf\")".into(),
+            });
+            None
+        });
+        if compressed_model == Some(super::CompressedModel::PcmfShared) {
+            e.extend(shared_basis_problem(textures));
+        }
         if !super::BUILTIN_FAULT_SCENARIOS.contains(&self.fault_scenario.as_str()) {
             e.push(ConfigError::Unknown {
                 field: "fault_scenario".into(),
@@ -278,8 +300,22 @@ impl DomePlan {
             });
         }
         ConfigError::from_list(e)?;
-        Ok(ValidatedDomePlan { plan: self, cameras, rotations })
+        Ok(ValidatedDomePlan { plan: self, cameras, rotations, compressed_model })
     }
+}
+
+/// `outputs.compressed_model = "pcmf-shared"` (or a run's override of it) on a dome plan of
+/// fewer textures than the shared basis has terms: refused before the run, as a gonio plan's.
+/// (A texture has at least 8 x 8 texels, more than the basis's terms.)
+pub fn shared_basis_problem(textures: usize) -> Option<ConfigError> {
+    let k = super::CompressedModel::SHARED_BASIS_TERMS;
+    (textures < k).then(|| {
+        ConfigError::out_of_range(
+            "outputs.compressed_model",
+            format!("\"pcmf-shared\" (its shared basis has {k} terms and the plan captures {textures} textures)"),
+            &super::SHARED_BASIS_ALLOWED.replace("{k}", &k.to_string()),
+        )
+    })
 }
 
 /// `group_order` only refines a forced multiplexed capture (under `"auto"` the noise model
@@ -337,10 +373,39 @@ mod tests {
         assert!(!v.plan.outputs.raw_frames);
         let v = DomePlan::from_toml("[outputs]\nraw_frames = true\n", "p").unwrap().validate(&rig()).unwrap();
         assert!(v.plan.outputs.raw_frames);
-        let e = DomePlan::from_toml("[outputs]\ncompressed_model = \"fmf\"\n", "p").unwrap_err().to_string();
-        assert!(e.contains("unknown field `compressed_model`, expected `raw_frames`"), "{e}");
+        let e = DomePlan::from_toml("[outputs]\ntextures = false\n", "p").unwrap_err().to_string();
+        assert!(e.contains("unknown field `textures`, expected `raw_frames` or `compressed_model`"), "{e}");
         let e = DomePlan::from_toml("[outputs]\nraw_frames = \"yes\"\n", "p").unwrap_err().to_string();
         assert!(e.contains("raw_frames") && e.contains("expected a boolean"), "{e}");
+    }
+
+    #[test]
+    fn a_compressed_model_takes_the_gonio_values_and_pcmf_shared_needs_32_textures() {
+        let check = |outputs: &str, dome: &str| {
+            DomePlan::from_toml(&format!("[outputs]\n{outputs}[dome]\n{dome}"), "p").unwrap().validate(&rig())
+        };
+        use super::super::CompressedModel as M;
+        for (value, model) in [
+            ("false", None),
+            ("\"none\"", None),
+            ("true", Some(M::Fmf)),
+            ("\"fmf\"", Some(M::Fmf)),
+            ("\"pvmf\"", Some(M::Pvmf)),
+            ("\"pcmf\"", Some(M::Pcmf)),
+            ("\"pcmf-shared\"", Some(M::PcmfShared)),
+        ] {
+            let v = check(&format!("compressed_model = {value}\n"), "").unwrap();
+            assert_eq!(v.compressed_model, model, "{value}");
+        }
+        assert_eq!(DomePlan::from_toml("", "p").unwrap().validate(&rig()).unwrap().compressed_model, None);
+        let e = check("compressed_model = \"zip\"\n", "").unwrap_err().to_string();
+        assert!(e.contains("outputs.compressed_model = \"zip\" is unknown: allowed \"fmf\", \"pvmf\""), "{e}");
+        let e = DomePlan::from_toml("[outputs]\ncompressed_model = 3\n", "p").unwrap_err().to_string();
+        assert!(e.contains("compressed_model") && e.contains("\"pcmf-shared\""), "{e}");
+        // One view of the dome is 198 textures, more than the basis's 32 terms.
+        assert!(check("compressed_model = \"pcmf-shared\"\n", "cameras = [4]\nrotations = [1]\n").is_ok());
+        assert!(shared_basis_problem(31).unwrap().to_string().contains("the plan captures 31 textures"));
+        assert!(shared_basis_problem(32).is_none());
     }
 
     #[test]
