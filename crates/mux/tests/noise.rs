@@ -94,7 +94,7 @@ fn read_noise_dominated_gain_is_within_10_percent_of_theory_for_7_31_255() {
         // And the full prediction (shot noise included) is tighter still.
         let ns = SensorNoise { read_noise_e: 10.0, dn_per_e: 1.0, full_well_e: 40000.0, dark_current_e_per_s: 0.0 };
         let scene = SceneLight {
-            sources: n,
+            irradiance: vec![1.0; n],
             led_e_per_s: 0.05,
             brightness: 1.0,
             brightness_max: 1.6,
@@ -113,7 +113,7 @@ fn photon_noise_dominated_prediction_matches_and_the_chooser_picks_single_light(
     let ns = SensorNoise { read_noise_e: 3.0, dn_per_e: 0.4, full_well_e: 40000.0, dark_current_e_per_s: 0.0 };
     for (n, pixels) in [(31usize, 3000usize), (63, 1500)] {
         let scene = SceneLight {
-            sources: n,
+            irradiance: vec![1.0; n],
             led_e_per_s: 1000.0,
             brightness: 1.0,
             brightness_max: 1.1,
@@ -133,7 +133,7 @@ fn photon_noise_dominated_prediction_matches_and_the_chooser_picks_single_light(
     }
     // In the read-noise regime the same sensor multiplexes with the full S-matrix.
     let dim = SceneLight {
-        sources: 198,
+        irradiance: vec![1.0; 198],
         led_e_per_s: 0.3,
         brightness: 1.0,
         brightness_max: 1.5,
@@ -194,7 +194,7 @@ fn saturation_limited_scene_chooses_smaller_groups_and_the_simulation_agrees() {
     let ns = SensorNoise { read_noise_e: 20.0, dn_per_e: 1.0, full_well_e: 20000.0, dark_current_e_per_s: 0.0 };
     let n = 63;
     let scene = SceneLight {
-        sources: n,
+        irradiance: vec![1.0; n],
         led_e_per_s: 40.0,
         brightness: 1.0,
         brightness_max: 40.0,
@@ -228,7 +228,7 @@ fn saturation_limited_scene_chooses_smaller_groups_and_the_simulation_agrees() {
 fn bad_noise_inputs_are_named() {
     let ns = SensorNoise { read_noise_e: -1.0, dn_per_e: 1.0, full_well_e: 1e4, dark_current_e_per_s: 0.0 };
     let scene = SceneLight {
-        sources: 10,
+        irradiance: vec![1.0; 10],
         led_e_per_s: 1.0,
         brightness: 1.0,
         brightness_max: 1.0,
@@ -238,7 +238,7 @@ fn bad_noise_inputs_are_named() {
     let e = predict(&ns, &scene, Mode::Single).unwrap_err();
     assert!(matches!(e, MuxError::OutOfRange { what: "read_noise_e", .. }), "{e}");
     let ns = SensorNoise { read_noise_e: 1.0, ..ns };
-    let e = predict(&ns, &SceneLight { brightness_max: 0.5, ..scene }, Mode::Single).unwrap_err();
+    let e = predict(&ns, &SceneLight { brightness_max: 0.5, ..scene.clone() }, Mode::Single).unwrap_err();
     assert!(e.to_string().contains("brightness_max = 0.5"), "{e}");
     let e = predict(&ns, &scene, Mode::SMatrix { order: 7 }).unwrap_err();
     assert!(e.to_string().contains("s-matrix order"), "{e}");

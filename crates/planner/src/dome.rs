@@ -28,6 +28,7 @@
 //! by averaging `G²` frames per flash (a longer exposure collects no more of a flash), so it
 //! saves `1 - 1/G²`.
 
+use btfrig_core::config::dome::DomeConfig;
 use btfrig_core::config::RigConfig;
 use btfrig_core::plan::dome::{MultiplexPolicy, ValidatedDomePlan};
 use btfrig_mux::{available_orders, choose, predict, Choice, ChooseParams, Mode, SMatrix, SceneLight, SensorNoise};
@@ -166,9 +167,26 @@ pub fn exposure_for_snr(sensor: &SensorNoise, rate: f64, snr: f64) -> f64 {
     (b + (b * b + 4.0 * a * c).sqrt()) / (2.0 * a)
 }
 
+/// Per light, the irradiance it gives the sample centre relative to a light facing the
+/// sample at the nominal light distance `d` (the LED calibration's reference, which divides
+/// this factor out: `btfrig_imaging::light`): `cos θ · (d/r)²` for the light at polar angle
+/// `θ` and distance `r` in the nominal rig geometry (the turntable turns about the normal, so
+/// it is the same at every rotation).
+pub fn light_irradiance(dome: &DomeConfig) -> Vec<f64> {
+    let d = dome.light_distance_m();
+    (0..dome.led_count())
+        .map(|j| {
+            let l = dome.led_position(j).coords;
+            let r2 = l.norm_squared();
+            l.z / r2.sqrt() * d * d / r2
+        })
+        .collect()
+}
+
 /// Plans a dome measurement. `led_e_per_s` is the electrons per second one LED of nominal
-/// power puts into a photosite imaging a white sample facing it (from the renderer's scale on
-/// a simulated rig, from the LED calibration on a real one).
+/// power puts into a photosite imaging a white sample facing it at the nominal light distance
+/// (the LED calibration's `reference_rate`); each light's own signal is this times its
+/// [`light_irradiance`].
 ///
 /// On a camera array `led_e_per_s` is electrons per flash (module docs).
 pub fn plan_dome(rig: &RigConfig, v: &ValidatedDomePlan, led_e_per_s: f64) -> Result<DomeSchedule, DomePlanError> {
@@ -186,7 +204,7 @@ pub fn plan_dome(rig: &RigConfig, v: &ValidatedDomePlan, led_e_per_s: f64) -> Re
         dark_current_e_per_s: s.dark_current_e_per_s,
     };
     let scene = SceneLight {
-        sources: leds,
+        irradiance: light_irradiance(dome),
         led_e_per_s,
         brightness: d.sample_brightness,
         brightness_max: d.brightness_max,
@@ -249,14 +267,16 @@ pub fn plan_dome(rig: &RigConfig, v: &ValidatedDomePlan, led_e_per_s: f64) -> Re
             }
         }
     }
-    let gain = pred.snr / single.snr;
+    let gain = pred.gain;
     let time_saved_fraction = match mode {
         DomeMode::Single => 0.0,
         // Single flashes average G² frames each to reach the multiplexed SNR.
         _ if flash => (1.0 - 1.0 / (gain * gain)).max(0.0),
         _ => {
-            // Single light needs this exposure per LED to reach the multiplexed SNR.
-            let t = exposure_for_snr(&sensor, led_e_per_s * d.sample_brightness, pred.snr);
+            // Single light needs this exposure per LED of the mean irradiance to reach the
+            // multiplexed SNR.
+            let mean_g = scene.irradiance.iter().sum::<f64>() / leds as f64;
+            let t = exposure_for_snr(&sensor, led_e_per_s * d.sample_brightness * mean_g, pred.snr);
             let mux_time = pred.frames as f64 * pred.exposure_s;
             (1.0 - mux_time / (leds as f64 * t)).max(0.0)
         }
