@@ -15,6 +15,13 @@
 //! `C*` lit sources over all LEDs would, but are not constructed: `docs/multiplexing.md`).
 //! `multiplex = "on"` with `group_order = m` forces groups of order `m`.
 //!
+//! The noise model gets each light's own signal: the calibrated rate of a light facing the
+//! sample at the nominal distance (the LED calibration divides the incidence out) times the
+//! light's irradiance factor `cos θ · (d/r)²` from the rig config's nominal geometry
+//! ([`light_irradiance`]; mean 0.54 over the Bonn dome's LEDs, 0.59 over the camera array's
+//! flashes). Without it every lit light counts as facing the sample, and the photon noise of a
+//! multiplexed frame is over-predicted by about the inverse of that mean.
+//!
 //! All cameras of the arc expose together, so a step is (rotation, pattern): turn the table
 //! when the rotation changes, set the pattern, trigger every camera, read every camera.
 //!
@@ -411,6 +418,32 @@ mod tests {
         assert_eq!(b.mode, DomeMode::Single);
         assert!(b.reason.starts_with("multiplexing skipped"), "{}", b.reason);
         assert_eq!((b.patterns.len(), b.time_saved_fraction), (151, 0.0));
+    }
+
+    #[test]
+    fn a_light_at_60_degrees_gives_half_the_irradiance_of_one_at_the_zenith() {
+        use btfrig_core::config::dome::LedRing;
+        let mut dome = rig().dome.unwrap();
+        dome.led_rings = vec![
+            LedRing { theta_deg: 0.0, count: 1, phi_offset_deg: 0.0 },
+            LedRing { theta_deg: 60.0, count: 4, phi_offset_deg: 10.0 },
+        ];
+        let g = light_irradiance(&dome);
+        assert_eq!(g.len(), 5);
+        assert!((g[0] - 1.0).abs() < 1e-12 && g[1..].iter().all(|x| (x - 0.5).abs() < 1e-12), "{g:?}");
+        // The shipped dome: the mean cos θ of its rings (all LEDs at the nominal distance).
+        let dome = rig().dome.unwrap();
+        let mean = light_irradiance(&dome).iter().sum::<f64>() / 198.0;
+        assert!((mean - 0.5391).abs() < 1e-3, "{mean}");
+        // The camera array's flashes sit 4 cm off their cameras: cos θ and (d/r)² of each.
+        let array = array().dome.unwrap();
+        let g = light_irradiance(&array);
+        let mean = g.iter().sum::<f64>() / g.len() as f64;
+        assert!((mean - 0.589).abs() < 0.01, "{mean}");
+        for (j, x) in g.iter().enumerate() {
+            let cos = array.led_directions()[j].theta.cos();
+            assert!((x / cos - 1.0).abs() < 0.02, "flash {j}: {x} vs cos θ {cos}");
+        }
     }
 
     #[test]
