@@ -107,11 +107,11 @@ fn brighter_array(dir: &Path, factor: f64) -> PathBuf {
 #[test]
 fn bright_flashes_are_captured_one_at_a_time_which_is_the_better_mode() {
     btfrig_sim_backend::install();
-    // Flashes 4x brighter and a white sample: about 360 e- per flash against 12 e- read
-    // noise, photon-noise dominated (σ_p²/κ² about 2.5), and 76 flashes still fit the well (a
+    // Flashes 4x brighter and a white sample: about 360 e- per flash facing the sample, 220 e-
+    // at the flashes' mean cos θ, against 12 e- read noise: photon-noise dominated (σ_p²/κ²
+    // about 1.6), and 76 flashes still fit the well (a
     // brighter flash would make the forced S-matrix saturation-limited instead). The sample
-    // is white as the plan's estimate says (on the dark leather the forced S-matrix measured
-    // 1.00 against the 0.83 predicted for a white sample; on white 0.976).
+    // is white as the plan's estimate says.
     let dir = tmp("bright");
     let rig = brighter_array(&dir, 4.0);
     let white = dir.join("white.toml");
@@ -136,7 +136,10 @@ fn bright_flashes_are_captured_one_at_a_time_which_is_the_better_mode() {
     let forced = go(with_rig("multiplex = \"on\"\n"), &dir.join("on"));
     let (p, m) = (forced.multiplex_gain_predicted, forced.multiplex_gain_measured.unwrap());
     eprintln!("forced s-matrix 151, photon-noise dominated: predicted {p}, measured {m}");
-    assert!(p < 1.0 && m < 1.0 && (m / p - 1.0).abs() < 0.15, "predicted {p}, measured {m}");
+    // Measured 0.944 against 0.893 (the model with each flash's cos θ is within 6 % in every
+    // dome and camera-array case, docs/multiplexing.md); every flash taken as facing the
+    // sample predicts 0.834, 13 % off, which this bound catches.
+    assert!(p < 1.0 && m < 1.0 && (m / p - 1.0).abs() < 0.10, "predicted {p}, measured {m}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

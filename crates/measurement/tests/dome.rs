@@ -112,11 +112,12 @@ fn a_photon_noise_dominated_dome_is_captured_single_light_which_is_the_better_mo
     assert_eq!((s.textures, s.frames), (198, 198));
     assert!(s.multiplex_gain_measured.is_none());
     // Forcing the S-matrix: predicted a loss (its exposure cut to 84 % by saturation), measured
-    // as predicted.
+    // 0.815 against 0.780; every LED taken as facing the sample predicts 0.645 (and cuts the
+    // exposure more: measured 0.720), 12 % off, which this bound catches.
     let forced = go(plan(&format!("{bright}multiplex = \"on\"\n")), &tmp("photon-on"), None);
     let (p, m) = (forced.multiplex_gain_predicted, forced.multiplex_gain_measured.unwrap());
     eprintln!("forced s-matrix: predicted {p}, measured {m}");
-    assert!(p < 1.0 && m < 1.0 && (m / p - 1.0).abs() < 0.15, "predicted {p}, measured {m}");
+    assert!(p < 1.0 && m < 1.0 && (m / p - 1.0).abs() < 0.10, "predicted {p}, measured {m}");
     // The chooser's best multiplexed code here is groups of 3 (2 LEDs per frame): forced, it
     // loses too, so single light is the better mode against the grouped codes as well.
     let groups = go(plan(&format!("{bright}multiplex = \"on\"\ngroup_order = 3\n")), &tmp("photon-groups"), None);
