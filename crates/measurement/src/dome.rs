@@ -1058,7 +1058,8 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
             t
         };
         let sample =
-            btfrig_imaging::exposure::sample_footprint(probe.camera(), &probe.pose(c, rad), self.processing.region()).mask;
+            btfrig_imaging::exposure::sample_footprint(probe.camera(), &probe.pose(c, rad), self.processing.region())
+                .mask;
         let (mut g, mut ref_err, mut mux_err) = (Vec::new(), Vec::new(), Vec::new());
         for (j, ref_exp, sig) in &self.references {
             let mut single = vec![0.0; leds];

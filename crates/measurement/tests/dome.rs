@@ -103,7 +103,8 @@ fn a_photon_noise_dominated_dome_is_captured_single_light_which_is_the_better_mo
          pattern = { kind = \"noise\", scale_m = 0.005, octaves = 1, gain = 0.5, salt = 1 }\nstops = [[1.0], [1.0]]\n",
     )
     .unwrap();
-    let plan = |extra: &str| plan(extra).replace("material = \"leather\"", &format!("material = \"{}\"", white.display()));
+    let plan =
+        |extra: &str| plan(extra).replace("material = \"leather\"", &format!("material = \"{}\"", white.display()));
     let bright = "exposure_s = 0.3\nsample_brightness = 1.0\n";
     let out = tmp("photon");
     let s = go(plan(bright), &out, None);

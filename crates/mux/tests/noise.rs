@@ -309,7 +309,8 @@ fn sources_at_many_angles_the_prediction_with_their_irradiance_matches_the_simul
     // Mean over sources of the per-source gain (as the dome run measures it).
     let measured = (0..n)
         .map(|j| {
-            common::rms_rows(&single, &truth, pixels, j..j + 1) / common::rms_rows(out.images(), &truth, pixels, j..j + 1)
+            common::rms_rows(&single, &truth, pixels, j..j + 1)
+                / common::rms_rows(out.images(), &truth, pixels, j..j + 1)
         })
         .sum::<f64>()
         / n as f64;
@@ -323,7 +324,10 @@ fn sources_at_many_angles_the_prediction_with_their_irradiance_matches_the_simul
     };
     let p = predict(&ns, &scene(g.clone()), Mode::SMatrix { order: n }).unwrap();
     let on_axis = predict(&ns, &scene(vec![1.0; n]), Mode::SMatrix { order: n }).unwrap();
-    eprintln!("63 sources at many angles: measured gain {measured:.3}, predicted {:.3}, on-axis model {:.3}", p.gain, on_axis.gain);
+    eprintln!(
+        "63 sources at many angles: measured gain {measured:.3}, predicted {:.3}, on-axis model {:.3}",
+        p.gain, on_axis.gain
+    );
     assert!((measured / p.gain - 1.0).abs() < 0.05, "measured {measured:.3}, predicted {:.3}", p.gain);
     // Every source taken as facing the sample over-predicts the photon noise: off by far more
     // (the closed forms differ by 19 %).
