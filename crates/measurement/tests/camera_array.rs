@@ -107,8 +107,8 @@ fn brighter_array(dir: &Path, factor: f64) -> PathBuf {
 #[test]
 fn bright_flashes_are_captured_one_at_a_time_which_is_the_better_mode() {
     btfrig_sim_backend::install();
-    // Flashes 4x brighter and a white sample: about 360 e- per flash facing the sample, 220 e-
-    // at the flashes' mean cos θ, against 12 e- read noise: photon-noise dominated (σ_p²/κ²
+    // Flashes 4x brighter and a white sample: about 360 e- per flash facing the sample, 225 e-
+    // at the flashes' mean cos θ (0.63), against 12 e- read noise: photon-noise dominated (σ_p²/κ²
     // about 1.6), and 76 flashes still fit the well (a
     // brighter flash would make the forced S-matrix saturation-limited instead). The sample
     // is white as the plan's estimate says.

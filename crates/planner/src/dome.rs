@@ -18,7 +18,7 @@
 //! The noise model gets each light's own signal: the calibrated rate of a light facing the
 //! sample at the nominal distance (the LED calibration divides the incidence out) times the
 //! light's irradiance factor `cos θ · (d/r)²` from the rig config's nominal geometry
-//! ([`light_irradiance`]; mean 0.54 over the Bonn dome's LEDs, 0.59 over the camera array's
+//! ([`light_irradiance`]; mean 0.54 over the Bonn dome's LEDs, 0.63 over the camera array's
 //! flashes). Without it every lit light counts as facing the sample, and the photon noise of a
 //! multiplexed frame is over-predicted by about the inverse of that mean.
 //!
@@ -439,10 +439,12 @@ mod tests {
         let array = array().dome.unwrap();
         let g = light_irradiance(&array);
         let mean = g.iter().sum::<f64>() / g.len() as f64;
-        assert!((mean - 0.589).abs() < 0.01, "{mean}");
+        // 0.628 at the flashes, 0.589 at the cameras: each flash sits 4 cm nearer the zenith.
+        assert!((mean - 0.628).abs() < 1e-3, "{mean}");
         for (j, x) in g.iter().enumerate() {
             let cos = array.led_directions()[j].theta.cos();
-            assert!((x / cos - 1.0).abs() < 0.02, "flash {j}: {x} vs cos θ {cos}");
+            let r = array.led_position(j).coords.norm();
+            assert!((x / cos - (0.7 / r).powi(2)).abs() < 1e-9 && r > 0.7, "flash {j}: {x} vs cos θ {cos} at {r} m");
         }
     }
 
@@ -477,8 +479,9 @@ mod tests {
 
     #[test]
     fn highlights_that_saturate_the_full_s_matrix_choose_a_grouped_code() {
-        // 1800 e-/s at white, albedo 0.3 (27 e- per LED per frame), but highlights 8x white: 100
-        // lit LEDs at the highlight would overfill the well at half the exposure, 30 do not.
+        // 1800 e-/s at white, albedo 0.3 (27 e- per LED per frame facing it), but highlights 8x
+        // white: the 100 most strongly lit LEDs (Σ cos θ = 78) at the highlight would overfill
+        // the well at 64 % of the exposure, 30 do not.
         let v = plan("brightness_max = 8.0\n");
         let s = plan_dome(&rig(), &v, 1800.0).unwrap();
         let DomeMode::Grouped { order, groups } = s.mode else { panic!("{:?}: {}", s.mode, s.reason) };
@@ -491,7 +494,7 @@ mod tests {
         assert!(s.predicted_gain > 1.5 && s.predicted_gain > 1.2 * full, "{} vs s-matrix {full}", s.predicted_gain);
         assert!(
             s.choice.candidates.iter().find(|p| p.mode == Mode::SMatrix { order: 199 }).unwrap().saturation_factor
-                < 0.6
+                < 0.7
         );
         assert!(s.time_saved_fraction > 0.3, "{}", s.time_saved_fraction);
         // Without the highlights the full S-matrix is the better code.
