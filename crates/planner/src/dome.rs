@@ -497,8 +497,14 @@ mod tests {
                 < 0.7
         );
         assert!(s.time_saved_fraction > 0.3, "{}", s.time_saved_fraction);
-        // Without the highlights the full S-matrix is the better code.
-        assert_eq!(plan_dome(&rig(), &plan(""), 1800.0).unwrap().mode, DomeMode::Multiplexed { order: 199 });
+        // Without the highlights no code is cut by saturation, and the full S-matrix is as good
+        // as the best within 2 % (with each LED's cos θ, two groups of 103, the upper rings
+        // apart from the lower ones, keep the strongly lit LEDs' photon noise out of the weakly
+        // lit ones' images and gain about 1 % more).
+        let plain = plan_dome(&rig(), &plan(""), 1800.0).unwrap();
+        let full = plain.choice.candidates.iter().find(|p| p.mode == Mode::SMatrix { order: 199 }).unwrap();
+        assert!(plain.choice.best.saturation_factor > 0.999 && full.saturation_factor > 0.999, "{}", plain.reason);
+        assert!(full.gain > 0.98 * plain.predicted_gain, "{} vs s-matrix {}", plain.predicted_gain, full.gain);
     }
 
     #[test]
