@@ -275,17 +275,15 @@ fn pooled(v: &[(f64, f64)]) -> Option<f64> {
     (d > 0.0).then(|| (n / d).sqrt())
 }
 
-/// SNR of `measured` against `truth` over photosites whose truth exceeds a fifth of its
-/// maximum (the sample under the LED): mean signal over RMS error.
-fn snr(measured: &[f32], truth: &[f32]) -> f64 {
-    let max = truth.iter().cloned().fold(0.0f32, f32::max);
+/// SNR of `measured` against `truth` over the photosites in `sample` (those imaging the
+/// sample: the noise model's gain is the sample's, and a brightness threshold would pick the
+/// marker plate's white around a dark sample): mean signal over RMS error.
+fn snr(measured: &[f32], truth: &[f32], sample: &[bool]) -> f64 {
     let (mut s, mut e, mut n) = (0.0f64, 0.0f64, 0usize);
-    for (m, t) in measured.iter().zip(truth) {
-        if *t > 0.2 * max {
-            s += f64::from(*t);
-            e += f64::from(m - t).powi(2);
-            n += 1;
-        }
+    for ((m, t), _) in measured.iter().zip(truth).zip(sample).filter(|(_, &k)| k) {
+        s += f64::from(*t);
+        e += f64::from(m - t).powi(2);
+        n += 1;
     }
     if n == 0 {
         return f64::NAN;
@@ -1142,6 +1140,9 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
             }
             t
         };
+        let sample =
+            btfrig_imaging::exposure::sample_footprint(probe.camera(), &probe.pose(c, rad), self.processing.region())
+                .mask;
         let (mut g, mut ref_err, mut mux_err) = (Vec::new(), Vec::new(), Vec::new());
         for (j, ref_exp, sig) in &self.references {
             let mut single = vec![0.0; leds];
@@ -1153,7 +1154,7 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
             }
             let truth_ref = fielded(probe.noise_free_dn(c, rad, &single, *ref_exp, *gain));
             let demuxed = &mosaics[j * cols..(j + 1) * cols];
-            g.push(snr(demuxed, &truth_mux) / snr(sig, &truth_ref));
+            g.push(snr(demuxed, &truth_mux, &sample) / snr(sig, &truth_ref, &sample));
             let tex =
                 self.processing.texture(sig, &pose.pose, *j, *ref_exp, *gain).map_err(|e| input("dome pipeline", e))?;
             let truth = probe.texture(c, rad, *j, self.v.plan.texture_size);

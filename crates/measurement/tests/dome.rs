@@ -13,9 +13,12 @@ fn tmp(name: &str) -> PathBuf {
 
 /// One camera, one rotation: 199 pattern frames plus (by default) 4 single-LED reference frames.
 fn plan(extra: &str) -> String {
+    // The leather's mean brightness on the sample's photosites relative to white, measured
+    // (docs/multiplexing.md): what the noise model's prediction is for.
+    let brightness = if extra.contains("sample_brightness") { "" } else { "sample_brightness = 0.1\n" };
     format!(
         "name = \"dome-test\"\ntexture_size = 16\n[rig]\nconfig = \"builtin:bonn-dome-sim\"\nmaterial = \"leather\"\n\
-         [dome]\ncameras = [4]\nrotations = [1]\n{extra}"
+         [dome]\ncameras = [4]\nrotations = [1]\n{brightness}{extra}"
     )
 }
 
@@ -90,22 +93,33 @@ fn a_stuck_led_is_detected_reported_and_solved_around() {
 #[test]
 fn a_photon_noise_dominated_dome_is_captured_single_light_which_is_the_better_mode() {
     btfrig_sim_backend::install();
-    // A bright sample estimate and long exposures: about 300 e- per LED per frame.
-    let bright = "exposure_s = 0.18\nsample_brightness = 1.0\n";
+    // A white sample, as the estimate says, and long exposures: about 520 e- per frame from an
+    // LED facing the sample, 280 e- at the LEDs' mean cos θ.
+    let dir = tmp("photon-white");
+    std::fs::create_dir_all(&dir).unwrap();
+    let white = dir.join("white.toml");
+    std::fs::write(
+        &white,
+        "name = \"white\"\ntexels = 64\nseed = 1\nbasis = [\"flat:0.95\"]\n[albedo]\n\
+         pattern = { kind = \"noise\", scale_m = 0.005, octaves = 1, gain = 0.5, salt = 1 }\nstops = [[1.0], [1.0]]\n",
+    )
+    .unwrap();
+    let plan =
+        |extra: &str| plan(extra).replace("material = \"leather\"", &format!("material = \"{}\"", white.display()));
+    let bright = "exposure_s = 0.3\nsample_brightness = 1.0\n";
     let out = tmp("photon");
     let s = go(plan(bright), &out, None);
     assert_eq!(s.mode, "single-light");
     assert!(s.multiplex_reason.starts_with("multiplexing skipped"), "{}", s.multiplex_reason);
     assert_eq!((s.textures, s.frames), (198, 198));
     assert!(s.multiplex_gain_measured.is_none());
-    // Forcing the S-matrix: predicted a loss. Since the demultiplexed images are no longer
-    // divided by the LED powers twice (issue 25) it measures 1.07 against the predicted 0.85
-    // (before: below 1, the double division's bias lowering it), so the measurement is held
-    // to within 30 % of the prediction, not below 1.
+    // Forcing the S-matrix: predicted a loss (its exposure cut to 84 % by saturation), measured
+    // 0.815 against 0.780; every LED taken as facing the sample predicts 0.645 (and cuts the
+    // exposure more: measured 0.720), 12 % off, which this bound catches.
     let forced = go(plan(&format!("{bright}multiplex = \"on\"\n")), &tmp("photon-on"), None);
     let (p, m) = (forced.multiplex_gain_predicted, forced.multiplex_gain_measured.unwrap());
     eprintln!("forced s-matrix: predicted {p}, measured {m}");
-    assert!(p < 1.0 && (m / p - 1.0).abs() < 0.3, "predicted {p}, measured {m}");
+    assert!(p < 1.0 && m < 1.0 && (m / p - 1.0).abs() < 0.10, "predicted {p}, measured {m}");
     // The chooser's best multiplexed code here is groups of 3 (2 LEDs per frame): forced, it
     // loses too, so single light is the better mode against the grouped codes as well.
     let groups = go(plan(&format!("{bright}multiplex = \"on\"\ngroup_order = 3\n")), &tmp("photon-groups"), None);
@@ -120,17 +134,17 @@ fn a_photon_noise_dominated_dome_is_captured_single_light_which_is_the_better_mo
 #[test]
 fn highlights_that_would_saturate_the_full_s_matrix_are_captured_with_a_grouped_code_which_gains() {
     btfrig_sim_backend::install();
-    // The leather's albedo estimate as in the demo (0.3, 43 e- per LED per frame at 0.08 s)
-    // but highlights estimated at 16x white: 100 lit LEDs at the highlight would overfill the
-    // well, so the full S-matrix has to cut its exposure to 16 %; groups of 31 light 16 LEDs
-    // per frame and keep the whole exposure.
+    // The leather's brightness (0.1, 15 e- per frame from an LED facing it at 0.08 s) but
+    // highlights estimated at 16x white: 100 lit LEDs at the highlight would overfill the
+    // well, so the full S-matrix has to cut its exposure to 20 %; groups of 35 light 18 LEDs
+    // per frame and keep 94 % of it.
     let shiny = "exposure_s = 0.08\nbrightness_max = 16.0\n";
     let out = tmp("grouped");
     let s = go(plan(shiny), &out, None);
     eprintln!("{}", s.to_json());
-    assert_eq!(s.mode, "groups 7 x 31");
-    assert!(s.multiplex_reason.starts_with("multiplexing with groups 7 x 31"), "{}", s.multiplex_reason);
-    assert_eq!((s.textures, s.frames, s.leds, s.views), (198, 7 * 31 + 4, 198, 1));
+    assert_eq!(s.mode, "groups 6 x 35");
+    assert!(s.multiplex_reason.starts_with("multiplexing with groups 6 x 35"), "{}", s.multiplex_reason);
+    assert_eq!((s.textures, s.frames, s.leds, s.views), (198, 6 * 35 + 4, 198, 1));
     assert!(s.faults.is_empty(), "{:?}", s.faults);
     assert!(btfrig_store::verify(&out).is_ok());
     // The full S-matrix in the same regime, forced: the planner's alternative.
@@ -138,7 +152,7 @@ fn highlights_that_would_saturate_the_full_s_matrix_are_captured_with_a_grouped_
     assert_eq!(full.mode, "s-matrix 199");
     let (p, m) = (s.multiplex_gain_predicted, s.multiplex_gain_measured.unwrap());
     let (pf, mf) = (full.multiplex_gain_predicted, full.multiplex_gain_measured.unwrap());
-    eprintln!("groups 7 x 31: predicted {p}, measured {m}; forced s-matrix 199: predicted {pf}, measured {mf}");
+    eprintln!("groups 6 x 35: predicted {p}, measured {m}; forced s-matrix 199: predicted {pf}, measured {mf}");
     // Predicted: the grouped code beats single light (gain 1) and the full S-matrix.
     assert!(p > 1.2 && p > 2.0 * pf, "grouped {p}, s-matrix {pf}");
     // Measured against noise-free renders: as predicted, and better than the full S-matrix.

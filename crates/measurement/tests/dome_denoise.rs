@@ -9,7 +9,7 @@ use btfrig_measurement::dome::{run, DomeRunRequest, DomeRunSummary};
 fn go(extra: &str, name: &str) -> DomeRunSummary {
     let plan = format!(
         "name = \"denoise\"\ntexture_size = 16\n[rig]\nconfig = \"builtin:bonn-dome-sim\"\nmaterial = \"leather\"\n\
-         [dome]\ncameras = [4]\nrotations = [1]\nreference_leds = 0\n{extra}"
+         [dome]\ncameras = [4]\nrotations = [1]\nreference_leds = 0\nsample_brightness = 0.1\n{extra}"
     );
     let out = std::env::temp_dir().join(format!("btfrig-dome-denoise-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);

@@ -16,12 +16,20 @@
 //! ```
 //!
 //! [`predict`] evaluates these for a concrete sensor (read noise, conversion gain, full well,
-//! dark current) and scene (single-source signal rate at a pixel = LED power × sample
-//! brightness) at **equal total capture time**: every mode spends the time single-light
+//! dark current) and scene (source `j`'s signal rate at a pixel = LED power × its irradiance
+//! factor `g_j` × sample brightness, `g_j = cos θ_j · (d/r_j)²` for a light at polar angle `θ_j`
+//! and distance `r_j` from the sample, `d` the distance its power is calibrated at) at **equal
+//! total capture time**: every mode spends the time single-light
 //! capture of all sources would, split over its own frames, each exposure capped by the
 //! full well. The modes are single light, one S-matrix over all sources (padded to an
 //! available order), and S-matrices within groups of `m` sources (fewer lit per frame, the
-//! practical codes with `C < (n+1)/2`). [`choose`] takes the best and says why, e.g.
+//! practical codes with `C < (n+1)/2`). Sources differ in `g_j` (a dome's zenith LED lights
+//! the sample about twice as strongly as one at 60°), so the prediction is made per source:
+//! source `j`'s demultiplexed noise comes from the frames of its own code, whose mean photon
+//! variance is `C/m · Σ g_i` over that code's `m` sources (not `C` times the on-axis level),
+//! its single-light noise from its own signal, and the gain is the mean of the per-source
+//! gains (what a measurement over reference sources spread over the dome averages).
+//! [`choose`] takes the best and says why, e.g.
 //! `"multiplexing skipped: photon-noise dominated (σ_p²/κ² = 12.3), best predicted gain 0.93"`.
 
 use crate::error::MuxError;
@@ -86,15 +94,20 @@ impl SensorNoise {
 }
 
 /// What one pixel receives.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct SceneLight {
-    /// Sources (LEDs) to capture.
-    pub sources: usize,
-    /// Electrons per second one LED puts into a pixel of a white (albedo 1) sample.
+    /// Per source (LED), in capture order, the irradiance it gives the sample relative to a
+    /// light of the same power facing the sample at the calibration distance: `cos θ · (d/r)²`
+    /// (module docs). Its length is the number of sources.
+    pub irradiance: Vec<f64>,
+    /// Electrons per second one LED facing the sample at the calibration distance puts into a
+    /// pixel of a white (albedo 1) Lambertian sample.
     pub led_e_per_s: f64,
-    /// Typical sample brightness relative to white (sets the SNR that is compared).
+    /// Typical sample brightness relative to a white Lambertian sample lit by the same source
+    /// (sets the SNR that is compared).
     pub brightness: f64,
-    /// Brightest single-LED brightness in the region (sets saturation), `>= brightness`.
+    /// Brightest single-LED brightness in the region, on the same scale (sets saturation),
+    /// `>= brightness`.
     pub brightness_max: f64,
     /// Exposure single-light capture would use per frame, s (the time budget is
     /// `sources × exposure_s`).
@@ -196,7 +209,11 @@ fn validate(sensor: &SensorNoise, scene: &SceneLight) -> Result<(), MuxError> {
     check("dn_per_e", sensor.dn_per_e, sensor.dn_per_e > 0.0, "> 0")?;
     check("full_well_e", sensor.full_well_e, sensor.full_well_e > 0.0, "> 0")?;
     check("dark_current_e_per_s", sensor.dark_current_e_per_s, sensor.dark_current_e_per_s >= 0.0, ">= 0")?;
-    check("sources", scene.sources as f64, scene.sources >= 1, ">= 1")?;
+    check("sources", scene.irradiance.len() as f64, !scene.irradiance.is_empty(), ">= 1")?;
+    for &g in &scene.irradiance {
+        // A light at or below the sample's horizon does not light it.
+        check("irradiance", g, g > 0.0, "> 0 for every source (a light above the sample's horizon)")?;
+    }
     check("led_e_per_s", scene.led_e_per_s, scene.led_e_per_s > 0.0, "> 0")?;
     check("brightness", scene.brightness, scene.brightness > 0.0, "> 0")?;
     check("brightness_max", scene.brightness_max, scene.brightness_max >= scene.brightness, ">= brightness")?;
@@ -209,11 +226,12 @@ fn validate(sensor: &SensorNoise, scene: &SceneLight) -> Result<(), MuxError> {
 /// single light at the same total time.
 pub fn predict(sensor: &SensorNoise, scene: &SceneLight, mode: Mode) -> Result<Prediction, MuxError> {
     validate(sensor, scene)?;
-    let n = scene.sources;
+    let g = &scene.irradiance;
+    let n = g.len();
     let budget = n as f64 * scene.exposure_s;
-    // (frames, mean physical lit per frame, most lit in a frame, design MSE factor tr[(WᵀW)⁻¹]/n).
-    let (frames, lit, lit_max, factor) = match mode {
-        Mode::Single => (n, 1.0, 1.0, 1.0),
+    // (frames, sources per code, lit per frame of a code, design MSE factor tr[(WᵀW)⁻¹]/n).
+    let (frames, code, half, factor) = match mode {
+        Mode::Single => (n, 1, 1.0, 1.0),
         Mode::SMatrix { order } => {
             if order < n {
                 return Err(MuxError::OutOfRange {
@@ -223,7 +241,7 @@ pub fn predict(sensor: &SensorNoise, scene: &SceneLight, mode: Mode) -> Result<P
                 });
             }
             let half = order.div_ceil(2) as f64;
-            (order, half * n as f64 / order as f64, half.min(n as f64), design_factor(order, half))
+            (order, order, half, design_factor(order, half))
         }
         Mode::Grouped { order, groups } => {
             if order * groups < n || order < 1 {
@@ -234,46 +252,72 @@ pub fn predict(sensor: &SensorNoise, scene: &SceneLight, mode: Mode) -> Result<P
                 });
             }
             let half = order.div_ceil(2) as f64;
-            (order * groups, half * n as f64 / (order * groups) as f64, half.min(n as f64), design_factor(order, half))
+            (order * groups, order, half, design_factor(order, half))
         }
     };
-    let rate = scene.led_e_per_s * scene.brightness;
-    let peak = scene.led_e_per_s * scene.brightness_max;
+    let lit = half * n as f64 / frames as f64;
     let t_share = budget / frames as f64;
-    // Saturation: the fullest frame, lit_max · peak · t + dark · t <= well_fraction · full
-    // well (conservative: the brightest source's level for every lit source).
-    let t_sat = scene.well_fraction * sensor.full_well_e / (lit_max * peak + sensor.dark_current_e_per_s);
+    // Saturation: the fullest frame lights at most `half` sources of one code, each at most at
+    // the brightest level: bounded by the `half` largest irradiances of a code.
+    let fullest = g.chunks(code).map(|c| top_sum(c, half as usize)).fold(0.0, f64::max);
+    let t_sat = saturation_exposure(sensor, scene, fullest);
     let t = t_share.min(t_sat);
     let kappa2 = sensor.kappa2(t);
-    let q = rate * t;
-    let mse = (kappa2 + lit * q) * factor;
-    let snr = q / mse.sqrt();
-    let single = single_snr(sensor, scene);
+    let q = scene.led_e_per_s * scene.brightness * t;
+    let (t_single, k_single) = single_exposure(sensor, scene);
+    let q_single = scene.led_e_per_s * scene.brightness * t_single;
+    let (mut snr_sum, mut gain_sum) = (0.0, 0.0);
+    for c in g.chunks(code) {
+        // A code's frames light each of its sources in `half` of its `code` frames.
+        let photons = half / code as f64 * c.iter().sum::<f64>() * q;
+        let mse = (kappa2 + photons) * factor;
+        for &gj in c {
+            let snr = gj * q / mse.sqrt();
+            let single = gj * q_single / (k_single + gj * q_single).sqrt();
+            snr_sum += snr;
+            gain_sum += snr / single;
+        }
+    }
+    let mean_g = g.iter().sum::<f64>() / n as f64;
     Ok(Prediction {
         mode,
         frames,
         lit,
         exposure_s: t,
         saturation_factor: t / t_share,
-        rho: q / kappa2,
-        snr,
-        gain: snr / single,
+        rho: mean_g * q / kappa2,
+        snr: snr_sum / n as f64,
+        gain: gain_sum / n as f64,
     })
 }
 
-fn single_snr(sensor: &SensorNoise, scene: &SceneLight) -> f64 {
-    let peak = scene.led_e_per_s * scene.brightness_max;
-    let t_sat = scene.well_fraction * sensor.full_well_e / (peak + sensor.dark_current_e_per_s);
-    let t = scene.exposure_s.min(t_sat);
-    let q = scene.led_e_per_s * scene.brightness * t;
-    q / (sensor.kappa2(t) + q).sqrt()
+/// The sum of the `k` largest of `g`.
+fn top_sum(g: &[f64], k: usize) -> f64 {
+    let mut v = g.to_vec();
+    v.sort_by(|a, b| b.total_cmp(a));
+    v.iter().take(k).sum()
+}
+
+/// The longest exposure whose frame, lit with irradiance `fullest` (summed over its sources)
+/// at the brightest level, fills no more than `well_fraction` of the well.
+fn saturation_exposure(sensor: &SensorNoise, scene: &SceneLight, fullest: f64) -> f64 {
+    let peak = scene.led_e_per_s * scene.brightness_max * fullest;
+    scene.well_fraction * sensor.full_well_e / (peak + sensor.dark_current_e_per_s)
+}
+
+/// Single-light capture's exposure (capped by its brightest source) and signal-independent
+/// variance.
+fn single_exposure(sensor: &SensorNoise, scene: &SceneLight) -> (f64, f64) {
+    let brightest = scene.irradiance.iter().copied().fold(0.0, f64::max);
+    let t = scene.exposure_s.min(saturation_exposure(sensor, scene, brightest));
+    (t, sensor.kappa2(t))
 }
 
 /// Evaluates single light, the full S-matrix and every grouped S-matrix, and picks the best
 /// (single light unless a multiplexed mode beats it by `params.min_gain`).
 pub fn choose(sensor: &SensorNoise, scene: &SceneLight, params: &ChooseParams) -> Result<Choice, MuxError> {
     validate(sensor, scene)?;
-    let n = scene.sources;
+    let n = scene.irradiance.len();
     let mut candidates = vec![predict(sensor, scene, Mode::Single)?];
     if n >= 2 {
         if let Ok(p) = SMatrix::for_sources(n) {
