@@ -120,6 +120,7 @@ fn grey_stays_grey_through_the_led_and_colour_calibrations() {
         out: dir.join("data"),
         faults: None,
         preview: false,
+        compressed_model: None,
     };
     let s = run(&req, &mut |line| eprintln!("{line}")).unwrap();
     let e = s.texture_channel_err_interior.unwrap();
