@@ -138,7 +138,7 @@ pub fn detect(image: &GrayImage, dict: &Dictionary, params: &DetectParams) -> Re
 /// photosite of a frame without mosaic), the rest runs on the green channel interpolated as
 /// a bilinear demosaic does (the mean of the 3 x 3 neighbourhood's green sites), values
 /// `(dn - black) / (white - black)`. Same results as [`detect`] on the green channel of
-/// `btfrig_render`'s bilinear demosaic with `green_sites` set by the pattern; it does not
+/// `btfrig_imaging::demosaic`'s bilinear demosaic with `green_sites` set by the pattern; it does not
 /// rely on recognising the demosaic. `params.green_sites` is ignored.
 pub fn detect_raw(
     raw: &btfrig_core::frame::RawFrame,
