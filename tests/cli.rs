@@ -668,7 +668,7 @@ fn dome_plans_are_checked_shown_and_run() {
     std::fs::write(
         &plan,
         "name = \"cli-dome\"\ntexture_size = 8\n[rig]\nconfig = \"builtin:bonn-dome-sim\"\nmaterial = \"leather\"\n\
-         [dome]\ncameras = [4]\nrotations = [1]\n",
+         [dome]\ncameras = [4]\nrotations = [1]\nsample_brightness = 0.1\n",
     )
     .unwrap();
     let check = ok(btfrig().args(["plan", "check"]).arg(&plan));
@@ -707,7 +707,7 @@ fn two_view_group_dome_plan(dir: &Path) -> std::path::PathBuf {
     std::fs::write(
         &plan,
         "name = \"cli-dome\"\ntexture_size = 8\n[rig]\nconfig = \"builtin:bonn-dome-sim\"\n\
-         material = \"leather\"\n[dome]\ncameras = [4]\nrotations = [1, 5]\n",
+         material = \"leather\"\n[dome]\ncameras = [4]\nrotations = [1, 5]\nsample_brightness = 0.1\n",
     )
     .unwrap();
     plan
@@ -824,7 +824,7 @@ fn demo_rig_camera_array_multiplexes_all_151_flashes_end_to_end() {
         (Some("built"), Some("fmf")),
         "{v}"
     );
-    assert_eq!((v["compression_streamed"].as_u64(), v["compression_from_disk"].as_u64()), (Some(792), Some(0)), "{v}");
+    assert_eq!((v["compression_streamed"].as_u64(), v["compression_from_disk"].as_u64()), (Some(453), Some(0)), "{v}");
     assert!(v["compression_rel_rmse"].as_f64().is_some_and(|e| e > 0.0 && e < 1.0), "{v}");
     assert!(std::path::Path::new(v["compression_model"].as_str().unwrap()).is_file(), "{v}");
     ok(btfrig().args(["dataset", "verify"]).arg(&out));

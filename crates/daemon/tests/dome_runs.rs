@@ -19,7 +19,7 @@ use support::Daemon;
 
 const PLAN: &str = "name = \"api-dome\"\ntexture_size = 8\nfault_scenario = \"none\"\n[rig]\n\
                     config = \"builtin:bonn-dome-sim\"\nmaterial = \"leather\"\n[dome]\ncameras = [4]\n\
-                    rotations = [1]\n";
+                    rotations = [1]\nsample_brightness = 0.1\n";
 const STEPS: u64 = 203;
 const TEXTURES: u64 = 198;
 
