@@ -19,7 +19,7 @@ fn tmp(name: &str) -> PathBuf {
 /// One camera, two rotations: 2 x 199 pattern frames plus 4 single-LED reference frames in
 /// the first view group, so 402 steps.
 const PLAN: &str = "name = \"dome-control\"\ntexture_size = 8\n[rig]\nconfig = \"builtin:bonn-dome-sim\"\n\
-                    material = \"leather\"\n[dome]\ncameras = [4]\nrotations = [1, 5]\n";
+                    material = \"leather\"\n[dome]\ncameras = [4]\nrotations = [1, 5]\nsample_brightness = 0.1\n";
 const STEPS: usize = 402;
 
 fn request(dir: &Path, faults: Option<&str>) -> DomeRunRequest {
