@@ -174,18 +174,8 @@ fn check_kinds(devices: &DevicesConfig, allow_real: bool) -> Result<(), String> 
 /// The devices of a rig, some through emulated firmware, and what keeps that firmware
 /// running (drop it after the devices).
 pub struct Connected {
-    /// The robot.
-    pub robot: Box<dyn Robot>,
-    /// The rail.
-    pub rail: Box<dyn Rail>,
-    /// The turntable, if any.
-    pub turntable: Option<Box<dyn Turntable>>,
-    /// The lamp.
-    pub lamp: Box<dyn Lamp>,
-    /// The LED array, if any.
-    pub led_array: Option<Box<dyn LedArray>>,
-    /// The camera.
-    pub camera: Box<dyn Camera>,
+    /// The devices, those configured as emulated behind their firmware.
+    pub devices: Devices,
     /// The firmware emulators and their pty directory.
     pub firmware: Firmware,
 }
@@ -329,8 +319,10 @@ impl Drop for Firmware {
     }
 }
 
-/// The simulated devices, as built from [`DevicesConfig::simulated`].
-pub struct SimDevices {
+/// A rig's devices (turntable and LED array where it has them): as another backend opened
+/// them (the simulated ones of [`DevicesConfig::simulated`]), or with some behind emulated
+/// firmware ([`Connected`]).
+pub struct Devices {
     /// The robot.
     pub robot: Box<dyn Robot>,
     /// The rail.
@@ -368,7 +360,7 @@ fn serial(path: &std::path::Path, baud: u32) -> Arc<SerialConnector> {
 /// (the emulated camera gives up on a read-out after it too).
 pub async fn connect(
     devices: &DevicesConfig,
-    sim: SimDevices,
+    sim: Devices,
     clock: SharedClock,
     read_timeout_s: f64,
 ) -> Result<Connected, String> {
@@ -434,7 +426,7 @@ pub async fn connect(
     } else {
         sim.camera
     };
-    Ok(Connected { robot, rail, turntable, lamp, led_array, camera, firmware: fw })
+    Ok(Connected { devices: Devices { robot, rail, turntable, lamp, led_array, camera }, firmware: fw })
 }
 
 fn firmware_io(what: &str, e: std::io::Error) -> String {

@@ -30,9 +30,7 @@ use btfrig_measurement::RunError;
 pub mod firmware;
 pub mod probe;
 
-pub use firmware::{
-    check, check_probe, connect, connect_dome, link_options, Connected, Firmware, LinkFault, SimDevices,
-};
+pub use firmware::{check, check_probe, connect, connect_dome, link_options, Connected, Devices, Firmware, LinkFault};
 pub use probe::{probe, OpenSimulated, Probed};
 
 /// The device kinds [`EmulatedBackend`] opens: emulated serial controllers and PTP cameras,
@@ -115,8 +113,8 @@ impl RigBackend for EmulatedBackend {
         let sim_cfg = simulated(rig, "devices")?;
         let OpenedGonio { robot, rail, lamp, camera, clock, truth, links } =
             self.inner.open_gonio(GonioOpenRequest { rig: &sim_cfg, ..req }).await?;
-        let parts = SimDevices { robot, rail, turntable: None, lamp, led_array: None, camera };
-        let Connected { robot, rail, lamp, camera, firmware, .. } =
+        let parts = Devices { robot, rail, turntable: None, lamp, led_array: None, camera };
+        let Connected { devices: Devices { robot, rail, lamp, camera, .. }, firmware } =
             connect(&rig.devices, parts, clock.clone(), read_timeout_s).await.map_err(RunError::Rig)?;
         for f in &self.link_faults {
             firmware.inject(f).map_err(RunError::Rig)?;

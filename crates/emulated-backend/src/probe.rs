@@ -15,7 +15,7 @@ use btfrig_serial::robot::{SerialRobot, SerialRobotConfig};
 use btfrig_serial::transport::SerialConnector;
 
 use crate::firmware::{
-    check_probe, connect, is_real_serial, link_options, SimDevices, GRBL_BAUD, LAMP_BAUD, LED_BAUD, ROBOT_BAUD,
+    check_probe, connect, is_real_serial, link_options, Devices, GRBL_BAUD, LAMP_BAUD, LED_BAUD, ROBOT_BAUD,
 };
 
 /// One device as `btfrig hw probe` reports it.
@@ -36,7 +36,7 @@ pub struct Probed {
 /// Opens the simulated devices of a rig config whose devices are all simulated, on a clock:
 /// what [`probe`] puts behind emulated firmware (the simulated backend provides it,
 /// `btfrig_sim_backend::probe`).
-pub type OpenSimulated<'a> = &'a dyn Fn(&RigConfig, SharedClock) -> Result<SimDevices, String>;
+pub type OpenSimulated<'a> = &'a dyn Fn(&RigConfig, SharedClock) -> Result<Devices, String>;
 
 /// Asks every device of `rig` for its identity and health through its real backend:
 /// emulated devices behind their firmware on a pty (started here) in front of the simulated
@@ -69,14 +69,13 @@ pub fn probe(rig: &RigConfig, open: OpenSimulated<'_>) -> Result<Vec<Probed>, St
     let rt = btfrig_measurement::virtual_time_runtime().map_err(|e| e.to_string())?;
     rt.block_on(async {
         let clock: SharedClock = Arc::new(btfrig_hw::ScaledClock::new(1e-3).map_err(|e| e.to_string())?);
-        let SimDevices { robot, rail, turntable, lamp, led_array, camera } = open(&sim_cfg, clock.clone())?;
+        let Devices { robot, rail, turntable, lamp, led_array, camera } = open(&sim_cfg, clock.clone())?;
         let limits = ConfiguredLimits {
             robot: robot.joint_limits(),
             rail: rail.limits(),
             turntable: turntable.as_ref().map(|t| t.limits()),
         };
-        let mut c =
-            connect(&devices, SimDevices { robot, rail, turntable, lamp, led_array, camera }, clock, 30.0).await?;
+        let mut c = connect(&devices, Devices { robot, rail, turntable, lamp, led_array, camera }, clock, 30.0).await?;
         let dir = c.firmware.dir().map(|d| d.display().to_string());
         let entry = |role: &str| rig.devices.entries().into_iter().find(|(r, _)| *r == role).map(|(_, e)| e.clone());
         let mut out = Vec::new();
@@ -96,22 +95,22 @@ pub fn probe(rig: &RigConfig, open: OpenSimulated<'_>) -> Result<Vec<Probed>, St
             };
             out.push(Probed { role, kind: e.map(|e| e.kind).unwrap_or_default(), link, info, health });
         };
-        let h = c.robot.health().await;
-        add("robot", c.robot.info().clone(), h);
-        let h = c.rail.health().await;
-        add("rail", c.rail.info().clone(), h);
-        if let Some(t) = c.turntable.as_mut() {
+        let h = c.devices.robot.health().await;
+        add("robot", c.devices.robot.info().clone(), h);
+        let h = c.devices.rail.health().await;
+        add("rail", c.devices.rail.info().clone(), h);
+        if let Some(t) = c.devices.turntable.as_mut() {
             let h = t.health().await;
             add("turntable", t.info().clone(), h);
         }
-        let h = c.lamp.health().await;
-        add("lamp", c.lamp.info().clone(), h);
-        if let Some(l) = c.led_array.as_mut() {
+        let h = c.devices.lamp.health().await;
+        add("lamp", c.devices.lamp.info().clone(), h);
+        if let Some(l) = c.devices.led_array.as_mut() {
             let h = l.health().await;
             add("led_array", l.info().clone(), h);
         }
-        let h = c.camera.health().await;
-        add("camera", c.camera.info().clone(), h);
+        let h = c.devices.camera.health().await;
+        add("camera", c.devices.camera.info().clone(), h);
         // The real controllers replace their stand-ins, in the same order.
         for p in out.iter_mut().filter(|p| real.contains(&p.role)) {
             let e = entry(p.role).ok_or_else(|| format!("devices.{}: missing", p.role))?;

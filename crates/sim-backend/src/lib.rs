@@ -22,7 +22,7 @@ use btfrig_calibrate::color::{ColorCalibration, ColorPlan};
 use btfrig_core::camera::CameraModel;
 use btfrig_core::config::RigConfig;
 use btfrig_core::pose::ScenePose;
-use btfrig_emulated_backend::{EmulatedBackend, Probed, SimDevices};
+use btfrig_emulated_backend::{Devices, EmulatedBackend, Probed};
 use btfrig_hw::truth::DomeTruthProbe;
 use btfrig_hw::{ScaledClock, SharedClock, TokioClock};
 use btfrig_measurement::backend::{
@@ -130,11 +130,11 @@ fn faults(req: &GonioOpenRequest<'_>) -> Result<FaultScenario, RunError> {
 
 /// The simulated devices of `rig` (every device simulated), rendering nothing: the stand-ins
 /// `btfrig hw probe` asks through emulated firmware ([`probe`]).
-fn stand_ins(rig: &RigConfig, clock: SharedClock) -> Result<SimDevices, String> {
+fn stand_ins(rig: &RigConfig, clock: SharedClock) -> Result<Devices, String> {
     let source = Arc::new(btfrig_sim::FlatFrameSource::new(8, 6, 100.0));
     let sim = SimRig::from_rig_config(rig, &FaultScenario::none(), clock, source).map_err(|e| e.to_string())?;
     let SimRig { robot, rail, turntable, lamp, led_array, camera, .. } = sim;
-    Ok(SimDevices { robot, rail, turntable, lamp, led_array, camera })
+    Ok(Devices { robot, rail, turntable, lamp, led_array, camera })
 }
 
 /// `btfrig hw probe`: every device of `rig` asked for its identity and health through its
