@@ -358,10 +358,10 @@ impl DomeProcessing {
                 let n = l.colour.len().max(1) as f64;
                 std::array::from_fn(|k| c.white_balance[k] * l.colour.iter().map(|v| v[k]).sum::<f64>() / n)
             }
-            // Without a colour model, each light is balanced to a flat white.
-            (Some(_), None) => [1.0; 3],
             (None, Some(c)) => c.white_balance,
-            (None, None) => [1.0; 3],
+            // Without a colour model, each light is balanced to a flat white (with an LED
+            // calibration; without one, camera RGB as it comes).
+            (_, None) => [1.0; 3],
         };
         let n = dome.led_count();
         let leds = leds.unwrap_or(LedLight { power: vec![1.0; n], colour: vec![[1.0; 3]; n], nominal_irradiance: 1.0 });
