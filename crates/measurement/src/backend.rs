@@ -42,6 +42,19 @@ pub struct GonioOpenRequest<'a> {
     pub fault_override: Option<&'a str>,
     /// The engine's read-out timeout, seconds.
     pub read_timeout_s: f64,
+    /// The time the devices run on.
+    pub time: RigTime,
+}
+
+/// The time a rig's devices run on: a simulated rig's virtual time, or the wall clock of a
+/// rig with real devices (simulated devices of a mixed rig then wait in real time too).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum RigTime {
+    /// tokio's (paused, in a simulated run) time: a 14-hour plan runs in seconds.
+    #[default]
+    Virtual,
+    /// The wall clock.
+    Wall,
 }
 
 /// How the links to a rig's devices went, for the report.
@@ -146,6 +159,8 @@ pub struct DomeOpenRequest<'a> {
     /// The fault scenario: the plan's or an override (`--faults`); it resolves from the
     /// plan's directory.
     pub fault_scenario: &'a str,
+    /// The time the devices run on.
+    pub time: RigTime,
 }
 
 /// A dome's devices as a backend opened them (the turntable not yet homed).
@@ -156,6 +171,62 @@ pub struct OpenedDome {
     pub truth: Option<Arc<dyn DomeTruthProbe>>,
     /// Keeps any firmware emulators alive: drop it after the devices.
     pub links: Box<dyn Send>,
+}
+
+/// What a calibration puts in the sample's place. On a real rig the operator mounts it when
+/// the procedure asks; a simulated backend puts it into its scene.
+#[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
+pub enum MountedTarget {
+    /// The geometric calibration board.
+    Board(btfrig_core::config::target::TargetBoard),
+    /// A colour chart (the procedure's plan names its patches and reference values).
+    ColorChart,
+    /// A white reference tile of this diffuse albedo.
+    WhiteTile {
+        /// Diffuse albedo of the tile.
+        albedo: f64,
+    },
+    /// A uniform diffuse field filling the view (a diffuser or integrating sphere in front
+    /// of the lens, lit by the rig's light): flat fields, the photon-transfer series.
+    UniformField,
+    /// The lens capped: dark frames.
+    Capped,
+}
+
+impl MountedTarget {
+    /// Its name, for messages and prompts.
+    pub fn name(&self) -> &'static str {
+        match self {
+            MountedTarget::Board(_) => "calibration board",
+            MountedTarget::ColorChart => "colour chart",
+            MountedTarget::WhiteTile { .. } => "white reference tile",
+            MountedTarget::UniformField => "uniform field (diffuser)",
+            MountedTarget::Capped => "lens cap",
+        }
+    }
+}
+
+/// What a calibration procedure asks a backend for: the rig's devices with a target mounted.
+pub struct CalibrationOpenRequest<'a> {
+    /// The rig config.
+    pub rig: &'a RigConfig,
+    /// What is mounted in the sample's place.
+    pub target: &'a MountedTarget,
+    /// Dome and camera array: the cameras (arc positions) to open; gonioreflectometer: unused.
+    pub cameras: &'a [usize],
+    /// Seed of a simulated rig's noise.
+    pub seed: u64,
+    /// The time the devices run on.
+    pub time: RigTime,
+}
+
+/// A rig's devices as a backend opened them for a calibration.
+pub enum OpenedRig {
+    /// A gonioreflectometer's.
+    Gonio(OpenedGonio),
+    /// A dome's or camera array's.
+    Dome(OpenedDome),
 }
 
 /// A plan's scene options: what a simulated rig builds its scene and its faults from. A real
@@ -186,6 +257,15 @@ pub trait RigBackend: Send + Sync {
     async fn open_dome(&self, req: DomeOpenRequest<'_>) -> Result<OpenedDome, RunError> {
         let _ = req;
         Err(RunError::Rig(format!("the device backend {} does not open LED domes or camera arrays", self.name())))
+    }
+
+    /// Opens the rig's devices for a calibration procedure, with `req.target` mounted.
+    async fn open_calibration(&self, req: CalibrationOpenRequest<'_>) -> Result<OpenedRig, RunError> {
+        Err(RunError::Rig(format!(
+            "the device backend {} does not open rigs for calibration (target: {})",
+            self.name(),
+            req.target.name()
+        )))
     }
 
     /// Checks the rig config's device options as opening the devices would, without opening

@@ -515,7 +515,13 @@ pub fn run_controlled(
     });
     let outcome: Result<(EngineOutcome, Stop), RunError> = rt.block_on(async {
         let opened = backend
-            .open_dome(DomeOpenRequest { rig: &rig, plan: &v, plan_file: &req.plan_path, fault_scenario: &fault_name })
+            .open_dome(DomeOpenRequest {
+                rig: &rig,
+                plan: &v,
+                plan_file: &req.plan_path,
+                fault_scenario: &fault_name,
+                time: crate::backend::RigTime::Virtual,
+            })
             .await?;
         let OpenedDome { mut devices, truth, links: _links } = opened;
         // The truth behind the frames, for the report's error figures only (a real rig has none).

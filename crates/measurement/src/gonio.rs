@@ -575,6 +575,7 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
                 plan_file,
                 fault_override,
                 read_timeout_s: settings.read_timeout_s,
+                time: backend::RigTime::Virtual,
             })
             .await?;
     // Home, ignite and warm up (as btfrig_sim::capture::prepare), through the backends.

@@ -14,6 +14,8 @@
 //! process's backends.
 #![warn(missing_docs)]
 
+mod calibration_targets;
+
 use std::path::Path;
 use std::sync::Arc;
 
@@ -26,7 +28,8 @@ use btfrig_emulated_backend::{Devices, EmulatedBackend, Probed};
 use btfrig_hw::truth::DomeTruthProbe;
 use btfrig_hw::{ScaledClock, SharedClock, TokioClock};
 use btfrig_measurement::backend::{
-    BackendRegistry, DomeOpenRequest, GonioOpenRequest, InProcess, OpenedDome, OpenedGonio, RigBackend, SceneOptions,
+    BackendRegistry, CalibrationOpenRequest, DomeOpenRequest, GonioOpenRequest, InProcess, OpenedDome, OpenedGonio,
+    OpenedRig, RigBackend, SceneOptions,
 };
 use btfrig_measurement::{plan, RunError};
 use btfrig_render::dome_scene::DomeScene;
@@ -270,6 +273,10 @@ impl RigBackend for SimBackend {
             truth: Some(truth),
             links: Box::new(()),
         })
+    }
+
+    async fn open_calibration(&self, req: CalibrationOpenRequest<'_>) -> Result<OpenedRig, RunError> {
+        calibration_targets::open(req).await
     }
 
     fn check_rig(&self, rig: &RigConfig) -> Result<(), String> {
