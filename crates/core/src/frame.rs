@@ -52,6 +52,10 @@ pub struct FrameMeta {
     pub bayer: Option<BayerPattern>,
     /// Capture time on the rig's clock, seconds since the rig started.
     pub timestamp_s: f64,
+    /// Sensor temperature in degrees Celsius, where the camera reports it (dark current
+    /// doubles every few kelvin, so calibrations and reports want it).
+    #[serde(default)]
+    pub temperature_c: Option<f64>,
 }
 
 /// A raw frame: one `u16` per photosite, row-major, `width * height` values.

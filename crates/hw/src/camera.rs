@@ -160,6 +160,7 @@ mod tests {
                 bit_depth: 12,
                 bayer: None,
                 timestamp_s: 0.0,
+                temperature_c: None,
             },
         }
     }

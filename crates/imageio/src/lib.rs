@@ -451,6 +451,7 @@ mod tests {
                 bit_depth: 14,
                 bayer: Some(BayerPattern::Grbg),
                 timestamp_s: 1234.5,
+                temperature_c: None,
             },
         }
     }

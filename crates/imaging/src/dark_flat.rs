@@ -563,6 +563,7 @@ mod tests {
                 bit_depth: 12,
                 bayer: Some(BayerPattern::Rggb),
                 timestamp_s: 0.0,
+                temperature_c: None,
             },
         }
     }

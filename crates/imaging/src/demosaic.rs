@@ -148,6 +148,7 @@ mod tests {
                 bit_depth: 12,
                 bayer,
                 timestamp_s: 0.0,
+                temperature_c: None,
             },
         }
     }

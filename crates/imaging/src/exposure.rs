@@ -430,6 +430,7 @@ mod tests {
                 bit_depth: 14,
                 bayer: None,
                 timestamp_s: 0.0,
+                temperature_c: None,
             },
         }
     }

@@ -403,6 +403,7 @@ mod tests {
                 bit_depth: 14,
                 bayer: Some(BayerPattern::Rggb),
                 timestamp_s: 0.0,
+                temperature_c: None,
             },
         }
     }

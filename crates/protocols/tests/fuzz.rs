@@ -350,7 +350,7 @@ proptest! {
         let data: Vec<u16> = (0..w * h).map(|i| ((seed.wrapping_mul(i as u64 + 1) >> 7) as u16) & max).collect();
         let frame = RawFrame { width: w, height: h, data, meta: FrameMeta {
             sequence: seq, exposure_s: exposure, gain: 1.5, f_number: None, black_level: 0, white_level: max,
-            bit_depth: depth, bayer: None, timestamp_s: 3.25 } };
+            bit_depth: depth, bayer: None, timestamp_s: 3.25, temperature_c: None } };
         let bytes = ptp::raw::encode(&frame).unwrap();
         prop_assert_eq!(ptp::raw::decode(&bytes).unwrap(), frame);
     }

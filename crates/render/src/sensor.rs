@@ -291,6 +291,7 @@ impl SensorModel {
                 bit_depth: self.bit_depth,
                 bayer: self.bayer,
                 timestamp_s: 0.0,
+                temperature_c: None,
             },
         })
     }

@@ -7,6 +7,12 @@
 use btfrig_measurement::backend::{CalibrationOpenRequest, MountedTarget, OpenedRig};
 use btfrig_measurement::RunError;
 
+mod geometric;
+mod radiometric;
+
+use geometric::open_geometric;
+use radiometric::open_radiometric;
+
 /// Opens the simulated rig of `req` with its target mounted.
 pub(crate) async fn open(req: CalibrationOpenRequest<'_>) -> Result<OpenedRig, RunError> {
     match req.target {
@@ -16,14 +22,4 @@ pub(crate) async fn open(req: CalibrationOpenRequest<'_>) -> Result<OpenedRig, R
         }
         other => Err(RunError::Rig(format!("the simulated rig cannot mount a {}", other.name()))),
     }
-}
-
-/// Board and colour chart.
-async fn open_geometric(req: CalibrationOpenRequest<'_>) -> Result<OpenedRig, RunError> {
-    Err(RunError::Rig(format!("the simulated rig cannot mount a {} yet", req.target.name())))
-}
-
-/// White tile, uniform field, lens cap.
-async fn open_radiometric(req: CalibrationOpenRequest<'_>) -> Result<OpenedRig, RunError> {
-    Err(RunError::Rig(format!("the simulated rig cannot mount a {} yet", req.target.name())))
 }

@@ -96,6 +96,7 @@ impl FrameSource for FlatFrameSource {
                 bit_depth: f.bit_depth,
                 bayer: f.bayer,
                 timestamp_s: truth.time_s,
+                temperature_c: None,
             },
         }
     }

@@ -116,6 +116,7 @@ pub fn decode(bytes: &[u8]) -> Result<RawFrame, DecodeError> {
         bit_depth,
         bayer,
         timestamp_s: f(54),
+        temperature_c: None,
     };
     let sent = u64_at(bytes, 62);
     let data: Vec<u16> = bytes[HEADER..].chunks_exact(2).map(|c| u16::from_le_bytes([c[0], c[1]])).collect();
@@ -143,6 +144,7 @@ mod tests {
                 bit_depth: 12,
                 bayer: Some(BayerPattern::Rggb),
                 timestamp_s: 12.5,
+                temperature_c: None,
             },
         }
     }

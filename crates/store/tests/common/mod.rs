@@ -71,6 +71,7 @@ pub fn raw_frame(step: StepId) -> RawFrame {
             bit_depth: 12,
             bayer: None,
             timestamp_s: 1.5,
+            temperature_c: None,
         },
     }
 }
