@@ -61,8 +61,10 @@ pub enum Command {
 #[derive(Debug, Subcommand)]
 pub enum HwCommand {
     /// List serial ports and USB devices (PTP cameras marked); with `--rig`, connect each
-    /// device of that rig through its backend and print its identity and health (emulated
-    /// devices: behind their firmware on pseudo-terminals, docs/serial.md).
+    /// device of that rig through its backend and print its identity, health and homing
+    /// state without moving it (emulated devices: behind their firmware on pseudo-terminals,
+    /// real serial controllers on their ports; docs/serial.md). Exit status 1 when any
+    /// device fails, naming it.
     Probe {
         /// Rig config file, or an embedded rig by name (`gonio-serial`).
         #[arg(long)]
@@ -225,6 +227,11 @@ pub struct RunArgs {
     /// (docs/compression.md). Overrides the plan's `outputs.compressed_model`; for gonio and dome plans.
     #[arg(long, value_name = "METHOD")]
     pub compress: Option<String>,
+    /// Run the devices on the wall clock even on a simulated rig (whose devices then wait in
+    /// real time); a rig with real devices always does. The plan's `[run] clock = "wall"`
+    /// does the same (docs/timing.md).
+    #[arg(long)]
+    pub wall_clock: bool,
 }
 
 /// `btfrig sim ...`.

@@ -1,9 +1,11 @@
 //! `btfrig hw probe`: what is attached (serial ports, USB devices) and, for a rig config,
-//! each device's identity through its real backend.
+//! each device's identity, health and homing state through its real backend, moving nothing.
+//! Exit status 1 when a device of the rig fails, naming it.
 
 use std::path::Path;
+use std::process::ExitCode;
 
-pub fn probe(rig: Option<&Path>) -> anyhow::Result<()> {
+pub fn probe(rig: Option<&Path>) -> anyhow::Result<ExitCode> {
     match serialport::available_ports() {
         Ok(ports) if ports.is_empty() => println!("serial ports: none"),
         Ok(ports) => {
@@ -46,16 +48,32 @@ pub fn probe(rig: Option<&Path>) -> anyhow::Result<()> {
         }
         Err(e) => println!("USB devices: cannot list: {e}"),
     }
-    let Some(path) = rig else { return Ok(()) };
+    let Some(path) = rig else { return Ok(ExitCode::SUCCESS) };
     let cfg = crate::rig::load(Some(path))?;
     println!("rig {} ({}):", cfg.rig.name, path.display());
     let devices = btfrig_sim_backend::probe(&cfg).map_err(anyhow::Error::msg)?;
-    for d in devices {
-        let link = d.link.map_or(String::new(), |l| format!(" on {l}"));
+    let mut failed = Vec::new();
+    for d in &devices {
+        let link = d.link.as_ref().map_or(String::new(), |l| format!(" on {l}"));
+        let homed = match d.homed {
+            Some(true) => ", homed",
+            Some(false) => ", not homed",
+            None => "",
+        };
         println!(
-            "  {:<9} kind {:<6} backend {:<12} model {:?} serial {:?} firmware {:?}{link}: {}",
+            "  {:<9} kind {:<6} backend {:<12} model {:?} serial {:?} firmware {:?}{link}: {}{homed}",
             d.role, d.kind, d.info.backend, d.info.model, d.info.serial, d.info.firmware, d.health
         );
+        if let Some(f) = &d.failure {
+            failed.push(format!("devices.{}{link}: {f}", d.role));
+        }
     }
-    Ok(())
+    if failed.is_empty() {
+        return Ok(ExitCode::SUCCESS);
+    }
+    eprintln!("btfrig: hw probe: {} device(s) of rig {} failed:", failed.len(), cfg.rig.name);
+    for f in &failed {
+        eprintln!("  {f}");
+    }
+    Ok(ExitCode::FAILURE)
 }

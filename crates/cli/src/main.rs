@@ -68,7 +68,7 @@ fn main() -> std::process::ExitCode {
         Command::Sparse(args::SparseCommand::Select(a)) => done(compress_cmd::select(&a)),
         Command::Sparse(args::SparseCommand::Reconstruct(a)) => done(compress_cmd::reconstruct(&a)),
         Command::Serve(a) => done(serve_cmd::serve(&a)),
-        Command::Hw(args::HwCommand::Probe { rig }) => done(hw_cmd::probe(rig.as_deref())),
+        Command::Hw(args::HwCommand::Probe { rig }) => hw_cmd::probe(rig.as_deref()),
         Command::Calibrate(CalibrateCommand::Geometry(a)) => done(calibrate_cmd::geometry(&a)),
         Command::Calibrate(CalibrateCommand::Color(a)) => done(calibrate_color_cmd::color(&a)),
         Command::Calibrate(CalibrateCommand::Radiometric(a)) => done(calibrate_radiometric_cmd::run(&a)),

@@ -29,6 +29,7 @@ pub fn run(a: &RunArgs) -> anyhow::Result<ExitCode> {
     }
     let req = RunRequest::from_file(&a.plan, &a.out)?
         .with_faults(a.faults.clone())
+        .with_wall_clock(a.wall_clock)
         .with_light(a.light.as_deref().map(crate::calibrate_light_cmd::load).transpose()?)
         .with_dark_flat(a.dark_flat.as_deref().map(load_dark_flat).transpose()?);
     let model = compress_flag(a.compress.as_deref(), &req.plan_text, &a.plan)?;

@@ -756,8 +756,8 @@ fn check_gonio_start(v: &btfrig_core::plan::ValidatedPlan) -> Result<(), Problem
 }
 
 /// What a valid dome plan still needs before the daemon starts it, checked here so the start
-/// is refused (422) rather than the run failing: its material, and a rig the runner can drive
-/// (simulated or emulated devices; `btfrig_measurement::dome`).
+/// is refused (422) rather than the run failing: its material (a rig with real devices is
+/// checked device by device by the run's preflight, `btfrig_measurement::preflight`).
 fn check_dome_start(
     plan: &btfrig_core::plan::dome::ValidatedDomePlan,
     plan_path: &std::path::Path,
@@ -770,14 +770,6 @@ fn check_dome_start(
             b.check_scene(&btfrig_measurement::backend::SceneOptions { material: material.as_deref(), faults: None })
         })
         .map_err(|e| Problem::unprocessable(format!("rig.material: {e}")))?;
-    if rig.devices.simulated().is_none() {
-        return Err(Problem::unprocessable(format!(
-            "rig {:?} ({}): a device is real hardware; the daemon runs dome plans on simulated or emulated \
-             devices only (kind = \"sim\", or link.emulated = true; docs/rig-config.md)",
-            rig.rig.name,
-            rig.rig.kind.as_str()
-        )));
-    }
     Ok(())
 }
 

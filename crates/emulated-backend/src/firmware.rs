@@ -121,17 +121,16 @@ pub fn link_options(role: &str, entry: &DeviceEntry) -> Result<LinkOptions, Stri
     Ok(o)
 }
 
-/// Checks every emulated device's kind and link options; the kinds are `"serial"` for
-/// robot, rail, turntable, lamp and LED array, `"ptp"` for the camera. Real devices are
-/// refused: runs drive simulated and emulated rigs ([`check_probe`] accepts real ports).
+/// Checks every emulated and real device's kind and link options; the kinds are `"serial"`
+/// for robot, rail, turntable, lamp and LED array, `"ptp"` for the camera (emulated only so
+/// far). A real serial controller names its port (`link.port`).
 pub fn check(devices: &DevicesConfig) -> Result<(), String> {
-    check_kinds(devices, false)
+    check_kinds(devices)
 }
 
-/// As [`check`], but real serial devices are allowed too, with a `link.port` each (what
-/// `btfrig hw probe --rig` talks to).
+/// What `btfrig hw probe --rig` accepts: the same as [`check`].
 pub fn check_probe(devices: &DevicesConfig) -> Result<(), String> {
-    check_kinds(devices, true)
+    check_kinds(devices)
 }
 
 /// Whether `entry` is a real serial controller (not simulated, not emulated).
@@ -139,7 +138,7 @@ pub(crate) fn is_real_serial(role: &str, e: &DeviceEntry) -> bool {
     e.kind == "serial" && role != "camera" && !e.is_emulated()
 }
 
-fn check_kinds(devices: &DevicesConfig, allow_real: bool) -> Result<(), String> {
+fn check_kinds(devices: &DevicesConfig) -> Result<(), String> {
     for (role, e) in devices.entries() {
         if e.kind == "sim" {
             continue;
@@ -156,14 +155,9 @@ fn check_kinds(devices: &DevicesConfig, allow_real: bool) -> Result<(), String> 
                         .into(),
                 );
             }
-            let Some(port) = &o.port else {
+            if o.port.is_none() {
                 return Err(format!(
                     "devices.{role}.link.port is missing: a real {want} controller names its port (e.g. \"/dev/serial/by-id/...\"), or set emulated = true"
-                ));
-            };
-            if !allow_real {
-                return Err(format!(
-                    "devices.{role}: real hardware on {port}: plans run on simulated and emulated rigs only so far (the pipeline needs the simulator's scene); `btfrig hw probe --rig FILE` talks to it"
                 ));
             }
         }
@@ -270,7 +264,12 @@ impl Firmware {
                 let t = m.stats.totals();
                 LinkUse {
                     role: m.role,
-                    target: format!("{} at {} baud (nominal)", m.target, m.baud),
+                    // A real controller's target names its port at its own baud rate.
+                    target: if m.target.ends_with(" baud") {
+                        m.target.clone()
+                    } else {
+                        format!("{} at {} baud (nominal)", m.target, m.baud)
+                    },
                     exchanges: t.exchanges,
                     bytes_out: t.bytes_out,
                     bytes_in: t.bytes_in,
@@ -367,6 +366,7 @@ pub async fn connect(
     check(devices)?;
     let mut fw = Firmware::for_devices(devices)?;
     let dir = fw.dir.clone().unwrap_or_default();
+    let sim = connect_real(&mut fw, devices, sim, &clock).await?;
 
     let robot: Box<dyn Robot> = if devices.robot.is_emulated() {
         let o = link_options("robot", &devices.robot)?;
@@ -427,6 +427,39 @@ pub async fn connect(
         sim.camera
     };
     Ok(Connected { devices: Devices { robot, rail, turntable, lamp, led_array, camera }, firmware: fw })
+}
+
+/// Replaces the simulated stand-in of each real serial controller in `devices`
+/// ([`crate::real::with_stand_ins`]) with the controller's backend on its port, configured
+/// with the stand-in's limits.
+async fn connect_real(
+    fw: &mut Firmware,
+    devices: &DevicesConfig,
+    mut sim: Devices,
+    clock: &SharedClock,
+) -> Result<Devices, String> {
+    use crate::real::{open_real, ConfiguredLimits, RealDevice};
+    let limits = ConfiguredLimits {
+        robot: Some(sim.robot.joint_limits()),
+        rail: Some(sim.rail.limits()),
+        turntable: sim.turntable.as_ref().map(|t| t.limits()),
+    };
+    for role in crate::real::real_roles(devices) {
+        let entry = devices.entries().into_iter().find(|(r, _)| *r == role).map(|(_, e)| e.clone());
+        let entry = entry.ok_or_else(|| format!("devices.{role}: missing"))?;
+        let opened = open_real(role, &entry, &limits, clock.clone()).await?;
+        fw.serial_links.push(SerialMeter { role, target: opened.target.clone(), baud: opened.baud, stats: opened.stats });
+        let wrong = || format!("devices.{role}: the backend opened does not fit the role");
+        match (role, opened.device) {
+            ("robot", RealDevice::Robot(r)) => sim.robot = Box::new(r),
+            ("rail", RealDevice::Axis(a)) => sim.rail = Box::new(a),
+            ("turntable", RealDevice::Axis(a)) => sim.turntable = Some(Box::new(a)),
+            ("lamp", RealDevice::Lamp(l)) => sim.lamp = Box::new(l),
+            ("led_array", RealDevice::Leds(l)) => sim.led_array = Some(Box::new(l)),
+            _ => return Err(wrong()),
+        }
+    }
+    Ok(sim)
 }
 
 fn firmware_io(what: &str, e: std::io::Error) -> String {
@@ -529,9 +562,36 @@ pub async fn connect_dome(
 ) -> Result<(Option<Box<dyn Turntable>>, Box<dyn LedArray>, Firmware), String> {
     check(devices)?;
     let mut fw = Firmware::for_devices(devices)?;
+    let (turntable, leds) = connect_real_dome(&mut fw, devices, turntable, leds, &clock).await?;
     let turntable = turntable.map(|t| emulate_turntable(&mut fw, devices, t, &clock)).transpose()?;
     let leds = emulate_leds(&mut fw, devices, leds, &clock).await?;
     Ok((turntable, leds, fw))
+}
+
+/// A dome's turntable and LED array with each real controller's stand-in replaced by its
+/// backend on its port.
+async fn connect_real_dome(
+    fw: &mut Firmware,
+    devices: &DevicesConfig,
+    mut turntable: Option<Box<dyn Turntable>>,
+    mut leds: Box<dyn LedArray>,
+    clock: &SharedClock,
+) -> Result<(Option<Box<dyn Turntable>>, Box<dyn LedArray>), String> {
+    use crate::real::{open_real, ConfiguredLimits, RealDevice};
+    let limits =
+        ConfiguredLimits { robot: None, rail: None, turntable: turntable.as_ref().map(|t| t.limits()) };
+    for role in crate::real::real_roles(devices).into_iter().filter(|r| *r == "turntable" || *r == "led_array") {
+        let entry = devices.entries().into_iter().find(|(r, _)| *r == role).map(|(_, e)| e.clone());
+        let entry = entry.ok_or_else(|| format!("devices.{role}: missing"))?;
+        let opened = open_real(role, &entry, &limits, clock.clone()).await?;
+        fw.serial_links.push(SerialMeter { role, target: opened.target.clone(), baud: opened.baud, stats: opened.stats });
+        match opened.device {
+            RealDevice::Axis(a) => turntable = Some(Box::new(a)),
+            RealDevice::Leds(l) => leds = Box::new(l),
+            _ => return Err(format!("devices.{role}: the backend opened does not fit the role")),
+        }
+    }
+    Ok((turntable, leds))
 }
 
 impl LinkReport for Firmware {

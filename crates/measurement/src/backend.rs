@@ -57,6 +57,47 @@ pub enum RigTime {
     Wall,
 }
 
+impl RigTime {
+    /// The time `rig` needs: the wall clock when any device is real hardware (neither
+    /// simulated nor emulated), virtual time otherwise.
+    pub fn for_rig(rig: &RigConfig) -> RigTime {
+        if rig.devices.simulated().is_some() {
+            RigTime::Virtual
+        } else {
+            RigTime::Wall
+        }
+    }
+
+    /// The time a run of `rig` uses: the wall clock when the rig needs it or the run asks for
+    /// it (`[run] clock = "wall"`, `btfrig run --wall-clock`).
+    pub fn for_run(rig: &RigConfig, wall_clock: bool) -> RigTime {
+        if wall_clock {
+            RigTime::Wall
+        } else {
+            RigTime::for_rig(rig)
+        }
+    }
+
+    /// Its name in reports: `"virtual"` or `"wall"`.
+    pub fn name(self) -> &'static str {
+        match self {
+            RigTime::Virtual => "virtual",
+            RigTime::Wall => "wall",
+        }
+    }
+
+    /// A current-thread runtime for devices on this time: paused (virtual) time, or tokio's
+    /// own timer on the wall clock.
+    pub fn runtime(self) -> Result<tokio::runtime::Runtime, RunError> {
+        match self {
+            RigTime::Virtual => crate::runtime::virtual_time_runtime(),
+            RigTime::Wall => {
+                tokio::runtime::Builder::new_current_thread().enable_time().build().map_err(RunError::Runtime)
+            }
+        }
+    }
+}
+
 /// How the links to a rig's devices went, for the report.
 pub trait LinkReport: Send {
     /// Per link: what it cost.
@@ -266,6 +307,19 @@ pub trait RigBackend: Send + Sync {
             self.name(),
             req.target.name()
         )))
+    }
+
+    /// Asks each device of `roles` in `rig` (all present: [`crate::preflight::check_devices`]
+    /// checked) for its identity, health and homing state, without moving it, before a run or
+    /// calibration creates anything. Default: every device is in-process and needs no
+    /// questions. A backend of real devices asks them on its own runtime (wall clock).
+    fn preflight(&self, rig: &RigConfig, roles: &[crate::preflight::Role]) -> Vec<crate::preflight::DeviceCheck> {
+        rig.devices
+            .entries()
+            .into_iter()
+            .filter(|(r, _)| roles.iter().any(|x| x.name() == *r))
+            .map(|(r, e)| crate::preflight::DeviceCheck::unasked(r, &e.kind, "in-process: opened with the run"))
+            .collect()
     }
 
     /// Checks the rig config's device options as opening the devices would, without opening

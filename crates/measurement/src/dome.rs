@@ -358,6 +358,11 @@ pub fn run_controlled(
         material: material.as_deref(),
         faults: Some((&fault_name, base, "fault_scenario")),
     })?;
+    // Every device asked before anything is created (`crate::preflight`); a rig with real
+    // devices runs on the wall clock.
+    let time = crate::backend::RigTime::for_rig(&rig);
+    crate::preflight::check_devices(&rig, &crate::preflight::run_roles(&rig), &crate::backend::installed())?
+        .into_result()?;
     let dome = rig.require_dome("a dome run").map_err(|e| input("rig.config", e))?.clone();
     // The plan's own `outputs.compressed_model` was checked by its validation; an override
     // is checked here, before anything is captured.
@@ -499,7 +504,7 @@ pub fn run_controlled(
         stage_s: BTreeMap::new(),
     });
 
-    let rt = crate::virtual_time_runtime()?;
+    let rt = time.runtime()?;
     // The consumer's latest `TexturesCommitted` (cumulative, so the newest says all: a full
     // queue of one keeps the latest).
     let (commit_tx, mut commit_rx) = tokio::sync::watch::channel::<Option<RunEvent>>(None);
@@ -520,7 +525,7 @@ pub fn run_controlled(
                 plan: &v,
                 plan_file: &req.plan_path,
                 fault_scenario: &fault_name,
-                time: crate::backend::RigTime::Virtual,
+                time,
             })
             .await?;
         let OpenedDome { mut devices, truth, links: _links } = opened;

@@ -63,6 +63,18 @@ pub enum RunError {
     /// The planner cannot schedule the plan.
     #[error("planning: {0}")]
     Planner(#[from] btfrig_planner::PlanError),
+    /// Devices failed their preflight check: nothing was created.
+    #[error(
+        "rig {rig:?}: {} device(s) failed the preflight check, nothing was created:\n  {}",
+        failures.len(),
+        failures.join("\n  ")
+    )]
+    Preflight {
+        /// The rig config's name.
+        rig: String,
+        /// Per failed device: `devices.ROLE on PORT: what failed`.
+        failures: Vec<String>,
+    },
     /// The rig could not be built or prepared.
     #[error("rig: {0}")]
     Rig(String),

@@ -20,7 +20,7 @@ use tokio::sync::mpsc;
 use crate::control::Command;
 use crate::hdr::journal_hdr;
 use crate::report::Session;
-use crate::runtime::{virtual_time_runtime, FRAME_CHANNEL};
+use crate::runtime::FRAME_CHANNEL;
 use crate::summary::peak_rss_mib;
 use crate::{backend, hdr, light, model, plan, report, reprocess, sinks};
 use crate::{
@@ -68,6 +68,11 @@ fn run_capture(
     };
     let material = plan::material_name(&plan, &v, file);
     backends.for_rig(&v.rig)?.check_scene(&backend::SceneOptions { material: material.as_deref(), faults })?;
+    // Every device asked who it is, how it feels and whether it is homed before anything is
+    // created: an unplugged port is refused here, naming the device and the port.
+    let time = backend::RigTime::for_run(&v.rig, req.wall_clock || plan.run.clock == btfrig_core::plan::RunClock::Wall);
+    let preflight = crate::preflight::check_devices(&v.rig, &crate::preflight::run_roles(&v.rig), &backends)?
+        .into_result()?;
     let exposure_s = plan::exposure_s(&plan, &v, file, req.light.as_ref())?;
     let hdr = match &v.exposure {
         btfrig_core::plan::ExposurePolicy::Auto { hdr, .. } if hdr.is_on() => Some(hdr.clone()),
@@ -195,8 +200,9 @@ fn run_capture(
         .collect();
     let commands = control.take().ok_or_else(|| RunError::Rig("this RunControl already drives a run".into()))?;
     let dataset = Arc::new(dataset);
-    let rt = virtual_time_runtime()?;
+    let rt = time.runtime()?;
     let session = rt.block_on(session(SessionInput {
+        time,
         rig: &v.rig,
         backends: &backends,
         plan: &plan,
@@ -238,6 +244,7 @@ fn run_capture(
         motion_wait_wall_s,
         link_added_wall_s,
         events_dropped,
+        identities,
     } = session?;
     let totals = totals?;
     let mut warnings = warnings;
@@ -278,6 +285,9 @@ fn run_capture(
     summary.motion_wait_wall_s = motion_wait_wall_s;
     summary.link_added_wall_s = link_added_wall_s;
     summary.events_dropped = events_dropped;
+    summary.rig_time = Some(time);
+    summary.devices = identities;
+    summary.preflight = preflight.devices;
     let mut sessions: Vec<serde_json::Value> = previous.iter().map(Session::to_json).collect();
     sessions.push(this.to_json());
     dataset.finish(&report_of(&summary, &previous, &this, sessions)).map_err(RunError::Report)?;
@@ -412,6 +422,9 @@ fn summarise(
         link_added_wall_s: None,
         events_dropped: 0,
         compression: None,
+        rig_time: None,
+        devices: Vec::new(),
+        preflight: Vec::new(),
     }
 }
 
@@ -463,6 +476,15 @@ fn report_of(s: &RunSummary, previous: &[Session], this: &Session, sessions: Vec
     put("peak_rss_mib", json!(s.peak_rss_mib));
     put("motion_wait_wall_s", json!(s.motion_wait_wall_s));
     put("events_dropped", json!(s.events_dropped));
+    if let Some(t) = s.rig_time {
+        put("rig_time", json!(t.name()));
+    }
+    if !s.devices.is_empty() {
+        put("devices", crate::preflight::identities_json(&s.devices));
+    }
+    if !s.preflight.is_empty() {
+        put("preflight", s.preflight.iter().map(crate::preflight::DeviceCheck::to_json).collect());
+    }
     if !s.links.is_empty() {
         put("link_added_wall_s", json!(s.link_added_wall_s));
         put("links", s.links.iter().map(backend::LinkUse::to_json).collect());
@@ -482,6 +504,8 @@ fn report_of(s: &RunSummary, previous: &[Session], this: &Session, sessions: Vec
 }
 
 struct SessionInput<'a> {
+    /// The time the devices run on (the runtime's).
+    time: backend::RigTime,
     rig: &'a btfrig_core::config::RigConfig,
     /// Where the devices come from.
     backends: &'a backend::BackendRegistry,
@@ -524,6 +548,8 @@ struct SessionResult {
     link_added_wall_s: Option<f64>,
     /// Engine events the session's listener lost (it fell behind the event queue).
     events_dropped: u64,
+    /// The opened devices' identities by role.
+    identities: Vec<(&'static str, btfrig_hw::DeviceInfo)>,
 }
 
 fn fault_of(r: &PauseReason) -> Option<Fault> {
@@ -543,6 +569,7 @@ fn fault_of(r: &PauseReason) -> Option<Fault> {
 /// One engine run with its pipeline, on the current (virtual-time) runtime.
 async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
     let SessionInput {
+        time,
         rig,
         backends,
         plan,
@@ -575,9 +602,15 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
                 plan_file,
                 fault_override,
                 read_timeout_s: settings.read_timeout_s,
-                time: backend::RigTime::Virtual,
+                time,
             })
             .await?;
+    let identities = vec![
+        ("robot", robot.info().clone()),
+        ("rail", rail.info().clone()),
+        ("lamp", lamp.info().clone()),
+        ("camera", rig_camera.info().clone()),
+    ];
     // Home, ignite and warm up (as btfrig_sim::capture::prepare), through the backends.
     let prepare = async {
         let opts = btfrig_hw::MoveOptions::default();
@@ -588,7 +621,7 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
         let warm_up = lamp.capabilities().warm_up_s;
         lamp.wait_ready(warm_up + 60.0).await
     };
-    prepare.await.map_err(|e| RunError::Rig(format!("preparing the simulated rig: {e}")))?;
+    prepare.await.map_err(|e| RunError::Rig(format!("preparing the rig: {e}")))?;
     let devices = GonioDevices { robot, rail, camera: rig_camera, clock };
     let _lamp = lamp; // stays on for the whole run
     let exposure_control: Box<dyn btfrig_acquire::ExposureControl> = match &hdr {
@@ -793,5 +826,6 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
         link_added_wall_s: (firmware.count() > 0)
             .then(|| summary.motion_wait_wall_s + firmware.camera_coding_wall_s().unwrap_or(0.0)),
         events_dropped,
+        identities,
     })
 }

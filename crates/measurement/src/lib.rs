@@ -2,8 +2,9 @@
 //! `btfrig` CLI (`btfrig run`, `btfrig demo`) uses, and that the HTTP daemon wraps.
 //!
 //! [`run`] loads and validates the plan, creates the dataset or resumes the same plan's,
-//! plans the schedule, opens the rig's devices through the backend registry ([`backend`]) on a
-//! virtual-time tokio runtime, spawns the engine, runs the processing pipeline and writes `report.json`. The caller watches
+//! plans the schedule, checks the rig's devices ([`preflight`]), opens them through the backend
+//! registry ([`backend`]) on a virtual-time tokio runtime (the wall clock for a rig with real
+//! devices, or when asked: [`backend::RigTime`]), spawns the engine, runs the processing pipeline and writes `report.json`. The caller watches
 //! [`RunEvent`]s through a callback and steers the run from any thread with a
 //! [`RunControl`]. However a session ends (finished, paused by a fault, interrupted,
 //! aborted), the frames already captured are processed and committed first and the report
@@ -22,7 +23,8 @@
 // - dome:     an LED dome's or camera array's run; dome_reprocess, reprocess: runs again from kept frames
 // - reprocess_io: what both reprocesses share (request, summary, source dataset, calibration directory)
 // - raw_schedule: how a dome run captured its view groups (manifest `raw_groups`), for reprocessing
-// - backend:  the device backends by rig kind (the registry, what a backend opens and reports)
+// - backend:  the device backends by rig kind (the registry, what a backend opens and reports), RigTime
+// - preflight: every device asked who it is, how it feels and whether it is homed, before anything is created
 // - model:    the processing model from the rig config and calibration files
 // - sinks:    the sinks the plan's outputs ask for (the streaming compression model)
 // - plan, check, dry_run, dome_dry_run: loading a plan, checking it against the rig, dry runs
@@ -42,6 +44,7 @@ mod hdr;
 mod light;
 pub mod model;
 pub mod plan;
+pub mod preflight;
 pub mod report;
 pub mod reprocess;
 mod reprocess_io;

@@ -45,6 +45,9 @@ pub struct RunRequest {
     /// The device backends to open the rig with; `None`: the process's
     /// ([`backend::installed`]).
     pub backends: Option<BackendsHandle>,
+    /// Run on the wall clock even when the rig needs no more than virtual time (`btfrig run
+    /// --wall-clock`; the plan's `[run] clock = "wall"` does the same; `backend::RigTime::for_run`).
+    pub wall_clock: bool,
 }
 
 /// A [`backend::BackendRegistry`] in a [`RunRequest`].
@@ -86,7 +89,14 @@ impl RunRequest {
             dark_flat: None,
             compressed_model: None,
             backends: None,
+            wall_clock: false,
         }
+    }
+
+    /// On the wall clock or not (see [`RunRequest::wall_clock`]).
+    pub fn with_wall_clock(mut self, on: bool) -> RunRequest {
+        self.wall_clock = on;
+        self
     }
 
     /// With a compressed model instead of the plan's (see [`RunRequest::compressed_model`]).

@@ -96,6 +96,12 @@ pub struct RunSummary {
     /// What became of the compressed model the run was asked for (`outputs.compressed_model`
     /// or [`RunRequest::compressed_model`]); `None` when none was.
     pub compression: Option<sinks::CompressionOutcome>,
+    /// The time this session's devices ran on; `None` when no session opened them.
+    pub rig_time: Option<backend::RigTime>,
+    /// This session's devices' identities by role, as they reported them when opened.
+    pub devices: Vec<(&'static str, btfrig_hw::DeviceInfo)>,
+    /// The preflight check of this session's devices (`crate::preflight`).
+    pub preflight: Vec<crate::preflight::DeviceCheck>,
 }
 
 /// The process's peak resident set size in MiB, from `/proc/self/status` (Linux).

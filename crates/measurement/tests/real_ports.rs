@@ -83,17 +83,22 @@ fn probe_opens_the_ports_a_rig_config_names() {
     assert!(!get("robot").info.model.is_empty() && get("robot").info.serial.is_some(), "{:?}", get("robot"));
     assert_eq!(get("camera").kind, "sim");
 
-    // A run refuses real hardware, naming the port; nothing is created.
-    let e = emulated::check(&rig.devices).unwrap_err();
-    assert!(e.contains(&robot_port.display().to_string()) && e.contains("hw probe"), "{e}");
+    // Homing state: the emulated robot and rail start unhomed; probing moved nothing.
+    assert_eq!(get("robot").homed, Some(false), "{:?}", get("robot"));
+    assert!(probed.iter().all(|p| p.failure.is_none()), "{probed:?}");
+    // A run accepts real controllers now (on the wall clock, after preflight).
+    emulated::check(&rig.devices).unwrap();
 
-    // A port with nothing behind it is that device's health error; the others still answer.
+    // A port with nothing behind it fails that device, naming the port; the others still answer.
     let rig =
         rig_with_links(&[("robot", link(&dir.join("unplugged"), 115_200)), ("lamp", link(&lamp_port, 9600))]).unwrap();
     let probed = btfrig_sim_backend::probe(&rig).unwrap();
     let robot = probed.iter().find(|p| p.role == "robot").unwrap();
-    assert!(robot.health.starts_with("error:") && robot.health.contains("unplugged"), "{robot:?}");
-    assert_eq!(probed.iter().find(|p| p.role == "lamp").unwrap().health, "Ok");
+    let failure = robot.failure.as_deref().unwrap_or_default();
+    assert!(failure.contains("unplugged") && failure.contains("No such file"), "{robot:?}");
+    assert_eq!(robot.link.as_deref(), Some(format!("{} at 115200 baud", dir.join("unplugged").display()).as_str()));
+    let lamp = probed.iter().find(|p| p.role == "lamp").unwrap();
+    assert!(lamp.failure.is_none() && lamp.health == "Ok", "{lamp:?}");
 
     drop(firmware);
     drop(rt);

@@ -29,7 +29,7 @@ use btfrig_hw::truth::DomeTruthProbe;
 use btfrig_hw::{ScaledClock, SharedClock, TokioClock};
 use btfrig_measurement::backend::{
     BackendRegistry, CalibrationOpenRequest, DomeOpenRequest, GonioOpenRequest, InProcess, OpenedDome, OpenedGonio,
-    OpenedRig, RigBackend, SceneOptions,
+    OpenedRig, RigBackend, RigTime, SceneOptions,
 };
 use btfrig_measurement::{plan, RunError};
 use btfrig_render::dome_scene::DomeScene;
@@ -64,6 +64,16 @@ pub fn install() {
 /// motion-optimised order gains over the naive one there. Slowed, the rounding is 1 us per wait.
 fn sim_clock() -> SharedClock {
     Arc::new(ScaledClock::new(1e-3).expect("a positive, finite speed"))
+}
+
+/// The clock of simulated devices on `time`: [`sim_clock`] on virtual time; tokio's own
+/// timer on the wall clock, where the devices then wait in real time (a rig with real
+/// devices, `[run] clock = "wall"`).
+fn clock_for(time: RigTime) -> SharedClock {
+    match time {
+        RigTime::Virtual => sim_clock(),
+        RigTime::Wall => TokioClock::shared(),
+    }
 }
 
 /// The material used when a plan names none: deep relief, so that shadowing and masking show.
@@ -242,7 +252,7 @@ impl RigBackend for SimBackend {
         }
         // The truth of every frame the camera renders, for the report's error figures only.
         let truth = Arc::new(SceneTruth::new(scene, source));
-        let sim = SimRig::from_rig_config(rig, &faults, sim_clock(), truth.clone())
+        let sim = SimRig::from_rig_config(rig, &faults, clock_for(req.time), truth.clone())
             .map_err(|e| RunError::Rig(e.to_string()))?;
         let clock = sim.world.clock().clone();
         let SimRig { robot, rail, lamp, camera, .. } = sim;

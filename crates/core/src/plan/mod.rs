@@ -611,6 +611,30 @@ pub struct RunSpec {
     /// Time limit of one capture beyond its exposure time, seconds (`(0, 3600]`, default 60).
     #[serde(default = "RunSpec::default_capture_timeout_s")]
     pub capture_timeout_s: f64,
+    /// The time the rig's devices run on (default `"rig"`: the wall clock when any device is
+    /// real, the simulator's virtual time otherwise; `"wall"`: the wall clock, also for a
+    /// simulated rig, whose devices then wait in real time).
+    #[serde(default, skip_serializing_if = "RunClock::is_rig")]
+    pub clock: RunClock,
+}
+
+/// `[run] clock`: the time a run's devices run on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RunClock {
+    /// As the rig needs: the wall clock when any device is real hardware, virtual time for a
+    /// rig of simulated and emulated devices only.
+    #[default]
+    Rig,
+    /// The wall clock, whatever the rig.
+    Wall,
+}
+
+impl RunClock {
+    /// Whether this is the default.
+    pub fn is_rig(&self) -> bool {
+        *self == RunClock::Rig
+    }
 }
 
 impl RunSpec {
@@ -636,6 +660,7 @@ impl Default for RunSpec {
             backoff_s: Self::default_backoff_s(),
             move_timeout_s: Self::default_move_timeout_s(),
             capture_timeout_s: Self::default_capture_timeout_s(),
+            clock: RunClock::Rig,
         }
     }
 }
