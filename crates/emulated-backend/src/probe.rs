@@ -131,7 +131,7 @@ pub fn probe(rig: &RigConfig, open: OpenSimulated<'_>) -> Result<Vec<Probed>, St
                 serial: None,
                 firmware: None,
             }),
-            health: c.health.unwrap_or_else(|| "not asked".into()),
+            health: c.health.unwrap_or_else(|| if c.failure.is_some() { "unreachable" } else { "not asked" }.into()),
             homed: c.homed,
             failure: c.failure,
         };
