@@ -1,5 +1,7 @@
-//! `btfrig run --plan FILE --out DIR`: a measurement plan on the simulated gonioreflectometer,
-//! into a dataset, resumable. Display and wiring only; the work is in `btfrig-measurement`.
+//! `btfrig run --plan FILE --out DIR`: a measurement plan on the rig its config names
+//! (simulated, emulated firmware, or real serial controllers, checked before anything is
+//! created), into a dataset, resumable. Display and wiring only; the work is in
+//! `btfrig-measurement`.
 //!
 //! Exit codes (also in docs/engine.md): 0 the plan is complete (or was already); 1 an error
 //! (bad plan, another dataset in `--out`, I/O); 2 bad command-line usage; 3 the run paused on

@@ -361,8 +361,9 @@ pub fn run_controlled(
     // Every device asked before anything is created (`crate::preflight`); a rig with real
     // devices runs on the wall clock.
     let time = crate::backend::RigTime::for_rig(&rig);
-    crate::preflight::check_devices(&rig, &crate::preflight::run_roles(&rig), &crate::backend::installed())?
-        .into_result()?;
+    let preflight =
+        crate::preflight::check_devices(&rig, &crate::preflight::run_roles(&rig), &crate::backend::installed())?
+            .into_result()?;
     let dome = rig.require_dome("a dome run").map_err(|e| input("rig.config", e))?.clone();
     // The plan's own `outputs.compressed_model` was checked by its validation; an override
     // is checked here, before anything is captured.
@@ -614,6 +615,11 @@ pub fn run_controlled(
         }),
     );
     extra.insert("calibration".into(), calibration);
+    extra.insert("rig_time".into(), json!(time.name()));
+    extra.insert(
+        "preflight".into(),
+        preflight.devices.iter().map(crate::preflight::DeviceCheck::to_json).collect::<serde_json::Value>(),
+    );
     extra.insert("planning_brightness".into(), json!({ "e_per_s": brightness.e_per_s, "source": brightness.source }));
     // Like the gonio report: every texture of the dataset, and this session's apart.
     extra.insert("captures_this_session".into(), json!(s.textures));
