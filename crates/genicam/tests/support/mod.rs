@@ -37,7 +37,8 @@ pub fn in_netns(name: &str) -> bool {
 
 /// Only loopback here, and it is up: nothing can be broadcast off the machine.
 pub fn assert_loopback_only() {
-    let links = std::fs::read_dir("/sys/class/net").unwrap().map(|e| e.unwrap().file_name().into_string().unwrap());
-    let links: Vec<String> = links.collect();
+    // /proc/self/net is the namespace's own view (/sys/class/net is the mount's, not ours).
+    let dev = std::fs::read_to_string("/proc/self/net/dev").unwrap();
+    let links: Vec<&str> = dev.lines().skip(2).filter_map(|l| l.split(':').next()).map(str::trim).collect();
     assert_eq!(links, ["lo"], "network interfaces in the test's namespace");
 }
