@@ -8,6 +8,14 @@
 #     g++              builds btf-extractor's C++ extension from its source package
 #     python3-venv     the Python venvs below (when python3 is Debian's)
 #     nodejs, npm      only if `node` / `npm` are missing (playwright-core below)
+#     libaravis-dev    the GenICam camera backend (crates/genicam, the `aravis` crate links
+#                      Debian's Aravis 0.8 through pkg-config; cargo feature btfrig-cli/genicam)
+#     libusb-1.0-0-dev aravis-0.8.pc names libusb-1.0 in Requires.private, and libaravis-dev
+#                      does not pull it in: without it pkg-config, hence the build, fails
+#     pkg-config       how aravis-sys's build script finds Aravis
+#     aravis-tools     arv-fake-gv-camera-0.8, the fake GigE Vision camera the GenICam tests
+#                      start on 127.0.0.1 (pulls GTK3, already here through chromium)
+#     aravis-tools-cli arv-tool-0.8, to look at a camera's features by hand (docs/genicam.md)
 #   Python venvs under $CARGO_TARGET_DIR (default target/)/pydeps, from tests/requirements/*.txt
 #   (exact versions with sha256 hashes, `pip install --require-hashes --no-deps`):
 #     schemathesis/    tests/schemathesis.rs (tests/api/schemathesis.sh; the version it pins)
@@ -33,9 +41,14 @@ declare -A APT_PIN=(
     [chromium]="156.0.8078.114-1~deb12u1"
     [g++]="4:12.2.0-3"
     [python3-venv]="3.11.2-1+b1"
+    [libaravis-dev]="0.8.26-1"
+    [aravis-tools]="0.8.26-1"
+    [aravis-tools-cli]="0.8.26-1"
+    [libusb-1.0-0-dev]="2:1.0.26-1"
+    [pkg-config]="1.8.1-1"
 )
 missing=()
-for pkg in chromium g++ python3-venv; do
+for pkg in chromium g++ python3-venv libaravis-dev aravis-tools aravis-tools-cli libusb-1.0-0-dev pkg-config; do
     dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" || missing+=("$pkg")
 done
 command -v node >/dev/null || missing+=(nodejs)
