@@ -29,6 +29,7 @@
 // - report, hdr, light: report.json, HDR and light-calibration records
 
 pub mod backend;
+pub mod captured_calibration;
 pub mod check;
 mod control;
 pub mod dome;
