@@ -78,21 +78,22 @@ fn the_lamp_from_a_white_tile_captured_matches_the_lamp() {
     let (w, p) = btfrig_sim_calibration::light::light_truth(&cfg).unwrap();
     eprintln!("| parameter | truth | estimate | sigma | z |\n|---|---|---|---|---|");
     for c in 0..3 {
-        // The white rate also carries the renderer's spatial sampling of the tile: held
-        // to 0.5 % (its stated sigma is the noise alone); the plate's albedo within 3 sigma.
+        // Both also carry the renderer's spatial sampling of tile and plate, which the stated
+        // sigma (the sensor noise alone) does not: held to 0.1 % and 0.05 %.
         within(&format!("lamp W_{c}, e-/s"), e.white_rate_e_per_s[c], e.white_rate_sigma[c], w[c], f64::INFINITY);
-        assert!((e.white_rate_e_per_s[c] / w[c] - 1.0).abs() < 0.005, "channel {c}: {e:?} vs {w:?}");
-        assert!(within(&format!("plate albedo {c}"), e.plate_albedo[c], e.plate_albedo_sigma[c], p[c], 3.0), "{e:?}");
+        within(&format!("plate albedo {c}"), e.plate_albedo[c], e.plate_albedo_sigma[c], p[c], f64::INFINITY);
+        assert!((e.white_rate_e_per_s[c] / w[c] - 1.0).abs() < 0.001, "channel {c}: {e:?} vs {w:?}");
+        assert!((e.plate_albedo[c] / p[c] - 1.0).abs() < 0.0005, "channel {c}: {e:?} vs {p:?}");
     }
 }
 
-fn led_check(name: &str, multiplexed: bool, repeats: usize) {
+fn led_check(name: &str, multiplexed: bool, repeats: usize, exposure_fraction: f64) {
     let cfg = rig(name);
     let camera = cfg.camera.to_model().unwrap();
     let opts = LedCaptureOptions {
         repeats,
         multiplexed,
-        exposure_fraction: 0.5,
+        exposure_fraction,
         fit: LedFitOptions { seed: Some(3), ..LedFitOptions::default() },
     };
     let cap = capture_leds(&session(&cfg, 3), &camera, &opts).unwrap();
@@ -117,17 +118,19 @@ fn led_check(name: &str, multiplexed: bool, repeats: usize) {
 
 #[test]
 fn led_powers_one_at_a_time_are_within_one_percent() {
-    led_check("bonn-dome-sim", false, 2);
+    led_check("bonn-dome-sim", false, 2, 0.5);
 }
 
 #[test]
 fn led_powers_by_demultiplexed_patterns_are_within_one_percent() {
-    led_check("bonn-dome-sim", true, 1);
+    // About 100 LEDs per pattern: the exposure is 1/120 of a single LED's and the shot noise
+    // of the other lights stays in each demultiplexed image, so it takes more frames.
+    led_check("bonn-dome-sim", true, 6, 0.8);
 }
 
 #[test]
 fn flash_energies_of_the_camera_array_are_within_one_percent() {
-    led_check("bonn-camera-array-sim", false, 64);
+    led_check("bonn-camera-array-sim", false, 64, 0.5);
 }
 
 #[test]

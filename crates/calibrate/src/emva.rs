@@ -104,8 +104,8 @@ pub struct ExposureStats {
     pub var_spread_dn2: [f64; 3],
     /// Photosites per channel.
     pub pixels: [usize; 3],
-    /// Fraction of the region's photosites that reached the white level in some frame.
-    pub saturated_fraction: f64,
+    /// Per channel, the fraction of its photosites that reached the white level in some frame.
+    pub saturated_fraction: [f64; 3],
 }
 
 /// The centre box of `fraction` of width and height: `(x0, y0, x1, y1)`, at least 2 x 2
@@ -129,7 +129,7 @@ impl ExposureStats {
         }
         let (x0, y0, x1, y1) = centre_box(avg.width, avg.height, fraction);
         let (mut s, mut v, mut v2, mut n) = ([0.0; 3], [0.0; 3], [0.0; 3], [0usize; 3]);
-        let mut sat = 0usize;
+        let mut sat = [0usize; 3];
         for y in y0..y1 {
             for x in x0..x1 {
                 let i = y * avg.width + x;
@@ -138,10 +138,11 @@ impl ExposureStats {
                 v[c] += avg.variance[i];
                 v2[c] += avg.variance[i] * avg.variance[i];
                 n[c] += 1;
-                sat += usize::from(avg.saturated[i]);
+                sat[c] += usize::from(avg.saturated[i]);
             }
         }
-        let per = |a: [f64; 3]| -> [f64; 3] { std::array::from_fn(|c| if n[c] > 0 { a[c] / n[c] as f64 } else { 0.0 }) };
+        let per =
+            |a: [f64; 3]| -> [f64; 3] { std::array::from_fn(|c| if n[c] > 0 { a[c] / n[c] as f64 } else { 0.0 }) };
         let (mean_dn, var_dn2, sq) = (per(s), per(v), per(v2));
         Ok(ExposureStats {
             exposure_s: avg.exposure_s,
@@ -150,7 +151,7 @@ impl ExposureStats {
             var_dn2,
             var_spread_dn2: std::array::from_fn(|c| (sq[c] - var_dn2[c] * var_dn2[c]).max(0.0).sqrt()),
             pixels: n,
-            saturated_fraction: sat as f64 / ((x1 - x0) * (y1 - y0)).max(1) as f64,
+            saturated_fraction: std::array::from_fn(|c| sat[c] as f64 / n[c].max(1) as f64),
         })
     }
 
@@ -192,12 +193,7 @@ fn fit_line(points: &[(f64, f64, f64)]) -> Line {
     let s2_pts = points.iter().map(|p| p.2 * p.2).sum::<f64>() / n;
     let s2 = s2_res.max(s2_pts);
     let sumx2: f64 = points.iter().map(|p| p.0 * p.0).sum();
-    Line {
-        intercept,
-        slope,
-        slope_sigma: (s2 / sxx).sqrt(),
-        intercept_sigma: (s2 * sumx2 / (n * sxx)).sqrt(),
-    }
+    Line { intercept, slope, slope_sigma: (s2 / sxx).sqrt(), intercept_sigma: (s2 * sumx2 / (n * sxx)).sqrt() }
 }
 
 /// What [`characterise`] measures from.
@@ -275,9 +271,11 @@ pub fn characterise(input: &EmvaInput<'_>) -> Result<EmvaResult, EmvaError> {
     let dark_var_line = fit_line(&dark_var);
 
     // The photon transfer curve, per channel, against the dark frames of the same exposure.
-    let sat = input.ptc.iter().filter(|(b, _)| b.saturated_fraction >= 0.999).min_by(|a, b| {
-        a.0.exposure_s.total_cmp(&b.0.exposure_s)
-    });
+    // Saturation: the first exposure at which a channel's every photosite clips (the
+    // brightest channel of the field first); the plateau is the same DN in every channel.
+    let full = |b: &ExposureStats| b.channels().filter(|&c| b.saturated_fraction[c] >= 0.999).collect::<Vec<_>>();
+    let sat =
+        input.ptc.iter().filter(|(b, _)| !full(b).is_empty()).min_by(|a, b| a.0.exposure_s.total_cmp(&b.0.exposure_s));
     let Some((sat_b, sat_d)) = sat else {
         return Err(EmvaError::TooFewPoints {
             what: "saturated photon-transfer points",
@@ -286,15 +284,14 @@ pub fn characterise(input: &EmvaInput<'_>) -> Result<EmvaResult, EmvaError> {
             hint: "the series must end beyond saturation: raise its longest exposure",
         });
     };
-    let sat_signal: [f64; 3] = std::array::from_fn(|c| sat_b.mean_dn[c] - sat_d.mean_dn[c]);
+    let sat_chans = full(sat_b);
+    let sat_signal =
+        sat_chans.iter().map(|&c| sat_b.mean_dn[c] - sat_d.mean_dn[c]).sum::<f64>() / sat_chans.len() as f64;
     let mut ptc = Vec::new();
     for (b, d) in input.ptc {
-        if b.saturated_fraction > 0.0 {
-            continue;
-        }
         for c in b.channels() {
             let x = b.mean_dn[c] - d.mean_dn[c];
-            if x <= 0.0 || x > PTC_MAX_FRACTION * sat_signal[c] {
+            if b.saturated_fraction[c] > 0.0 || x <= 0.0 || x > PTC_MAX_FRACTION * sat_signal {
                 continue;
             }
             let y = b.var_dn2[c] - d.var_dn2[c];
@@ -340,9 +337,9 @@ pub fn characterise(input: &EmvaInput<'_>) -> Result<EmvaResult, EmvaError> {
     let dark_current = dark_mean_line.slope / k;
     let dark_current_sigma = ((dark_mean_line.slope_sigma / k).powi(2) + (dark_current * rel_k).powi(2)).sqrt();
 
-    // Saturation capacity: the plateau above dark, pooled over channels.
+    // Saturation capacity: the plateau above dark.
     let chans: Vec<usize> = sat_b.channels().collect();
-    let sat_e = chans.iter().map(|&c| sat_signal[c]).sum::<f64>() / chans.len() as f64 / k;
+    let sat_e = sat_signal / k;
 
     // Linearity: per channel, signal against exposure in the range; the worst channel.
     let mut le = 0.0f64;
@@ -351,10 +348,10 @@ pub fn characterise(input: &EmvaInput<'_>) -> Result<EmvaResult, EmvaError> {
         let pts: Vec<(f64, f64, f64)> = input
             .ptc
             .iter()
-            .filter(|(b, _)| b.saturated_fraction == 0.0)
+            .filter(|(b, _)| b.saturated_fraction[c] == 0.0)
             .filter_map(|(b, d)| {
                 let x = b.mean_dn[c] - d.mean_dn[c];
-                let f = x / sat_signal[c];
+                let f = x / sat_signal;
                 let n = b.pixels[c] as f64 * b.frames as f64;
                 let sx = ((b.var_dn2[c] + d.var_dn2[c]) / n).sqrt();
                 (LINEARITY_RANGE.0..=LINEARITY_RANGE.1).contains(&f).then_some((b.exposure_s, x, sx))
@@ -451,7 +448,8 @@ fn prnu(lit: &FrameAverage, dark: &FrameAverage, hot: &[bool], radius: usize) ->
                     if dx == 0 && dy == 0 {
                         continue;
                     }
-                    let j = ((y as isize + dy * step as isize) as usize) * w + (x as isize + dx * step as isize) as usize;
+                    let j =
+                        ((y as isize + dy * step as isize) as usize) * w + (x as isize + dx * step as isize) as usize;
                     if !hot[j] {
                         s += signal[j];
                         k += 1;
@@ -612,12 +610,7 @@ impl SensorPlan {
             ">= 2 distinct values in (0, 3600] s",
         );
         check(d.frames >= 2, "dark.frames", d.frames.to_string(), ">= 2");
-        check(
-            d.hot_threshold_e_per_s > 0.0,
-            "dark.hot_threshold_e_per_s",
-            d.hot_threshold_e_per_s.to_string(),
-            "> 0",
-        );
+        check(d.hot_threshold_e_per_s > 0.0, "dark.hot_threshold_e_per_s", d.hot_threshold_e_per_s.to_string(), "> 0");
         let s = &self.spatial;
         check(s.frames >= 2, "spatial.frames", s.frames.to_string(), ">= 2");
         check((0.2..=0.8).contains(&s.level), "spatial.level", s.level.to_string(), "0.2..=0.8");

@@ -11,8 +11,8 @@ use std::time::Instant;
 use anyhow::Context;
 use btfrig_calibrate::light::{LightCalibrationFile, LightPlan, LAMP};
 use btfrig_core::config::RigConfig;
-use btfrig_process::light::{LampReference, LightCorrection};
 use btfrig_measurement::captured_calibration::{capture_light, CalibrationSession};
+use btfrig_process::light::{LampReference, LightCorrection};
 use btfrig_sim_calibration::light::{calibrate_light_simulated, light_truth, SimLightCalibration};
 
 /// `btfrig calibrate light`.

@@ -73,7 +73,8 @@ pub fn run(a: &CalibrateRadiometricArgs) -> anyhow::Result<()> {
         .with_context(|| format!("cannot write the calibration into {}", a.out.display()))?;
     // The header names the command that made it.
     let header_path = a.out.join(btfrig_calibrate::dark_flat::HEADER_FILE);
-    let text = std::fs::read_to_string(&header_path).with_context(|| format!("cannot read {}", header_path.display()))?;
+    let text =
+        std::fs::read_to_string(&header_path).with_context(|| format!("cannot read {}", header_path.display()))?;
     let plan_name = a.plan.as_ref().map_or("<embedded>".to_string(), |p| p.display().to_string());
     std::fs::write(
         &header_path,
@@ -97,7 +98,14 @@ pub fn run(a: &CalibrateRadiometricArgs) -> anyhow::Result<()> {
             s.bias_median_dn, s.bias_sigma_rms_dn, s.rate_median_e_per_s, s.rate_sigma_rms_e_per_s, s.defects
         );
         for f in &s.flats {
-            println!("flat f/{}: {} frames, gain {:.4}..{:.4}, stated sigma {:.4}% rms", f.f_number, f.frames, f.min, f.max, 100.0 * f.sigma_rms);
+            println!(
+                "flat f/{}: {} frames, gain {:.4}..{:.4}, stated sigma {:.4}% rms",
+                f.f_number,
+                f.frames,
+                f.min,
+                f.max,
+                100.0 * f.sigma_rms
+            );
         }
         println!("wrote {} ({elapsed:.1} s)", a.out.join(btfrig_calibrate::dark_flat::HEADER_FILE).display());
         return Ok(());

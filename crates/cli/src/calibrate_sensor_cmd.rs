@@ -45,7 +45,10 @@ pub fn sensor(a: &CalibrateSensorArgs) -> anyhow::Result<()> {
         Some(p) => {
             let text =
                 std::fs::read_to_string(p).with_context(|| format!("cannot read sensor plan {}", p.display()))?;
-            (SensorPlan::from_toml(&text, &p.display().to_string()).map_err(anyhow::Error::msg)?, p.display().to_string())
+            (
+                SensorPlan::from_toml(&text, &p.display().to_string()).map_err(anyhow::Error::msg)?,
+                p.display().to_string(),
+            )
         }
     };
     let seed = a.seed.unwrap_or(cfg.rig.seed);
@@ -70,12 +73,10 @@ pub fn sensor(a: &CalibrateSensorArgs) -> anyhow::Result<()> {
         result: cap.result.clone(),
     };
     let out = a.out.clone().unwrap_or_else(|| PathBuf::from(format!("{}-sensor.toml", cfg.rig.name)));
-    std::fs::write(&out, file.to_toml()).with_context(|| format!("cannot write sensor calibration {}", out.display()))?;
-    let truth = if crate::rig::all_simulated(&cfg) {
-        Some(emva_truth(&cfg, &plan).map_err(anyhow::Error::msg)?)
-    } else {
-        None
-    };
+    std::fs::write(&out, file.to_toml())
+        .with_context(|| format!("cannot write sensor calibration {}", out.display()))?;
+    let truth =
+        if crate::rig::all_simulated(&cfg) { Some(emva_truth(&cfg, &plan).map_err(anyhow::Error::msg)?) } else { None };
     let r = &cap.result;
     let rows = [
         ("system gain K, DN/e-", r.system_gain_dn_per_e, truth.as_ref().map(|t| t.system_gain_dn_per_e)),

@@ -129,7 +129,8 @@ fn describe(role: &str, e: &btfrig_core::config::devices::DeviceEntry) -> String
 
 /// A device error as a run error naming the device's role and port.
 fn dev_err(rig: &RigConfig, role: &str, e: impl std::fmt::Display) -> RunError {
-    let who = rig.devices.entries().into_iter().find(|(r, _)| *r == role).map_or(role.to_string(), |(r, e)| describe(r, e));
+    let who =
+        rig.devices.entries().into_iter().find(|(r, _)| *r == role).map_or(role.to_string(), |(r, e)| describe(r, e));
     RunError::Rig(format!("{who}: {e}"))
 }
 
@@ -392,7 +393,14 @@ pub fn capture_sensor(
         for &t in &ptc_t {
             let f = series(cfg, cam, t, g, p.frames).await?;
             count += f.len();
-            lit_stats.push(stats(&avg(&f, "photon-transfer frames")?)?);
+            let st = stats(&avg(&f, "photon-transfer frames")?)?;
+            progress(&format!(
+                "  {t:.5} s: mean {:.1} DN, temporal variance {:.1} DN² (green), saturated {:.1} % (green)",
+                st.mean_dn[1],
+                st.var_dn2[1],
+                100.0 * st.saturated_fraction[1]
+            ));
+            lit_stats.push(st);
         }
         let f = series(cfg, cam, t_spatial, g, plan.spatial.frames).await?;
         count += f.len();
@@ -485,16 +493,20 @@ pub fn capture_light(
     for (i, c) in plan.captures.iter().enumerate() {
         let light = Direction::from_degrees(c.light_theta_deg, c.light_phi_deg);
         let view = Direction::from_degrees(c.view_theta_deg, c.view_phi_deg);
-        let j = gonio
-            .ik(light, view)
-            .map_err(|e| RunError::Input { what: format!("light plan capture {i}"), message: format!("unreachable: {e:?}") })?;
+        let j = gonio.ik(light, view).map_err(|e| RunError::Input {
+            what: format!("light plan capture {i}"),
+            message: format!("unreachable: {e:?}"),
+        })?;
         joints.push(j);
     }
     let rt = session.runtime()?;
     let tile = rt.block_on(async {
         let target = MountedTarget::WhiteTile { albedo: plan.reference_albedo };
         let OpenedRig::Gonio(mut g) = session.open(&target, &[]).await? else {
-            return Err(RunError::Rig(format!("rig {}: the light calibration is a gonioreflectometer's", cfg.rig.name)));
+            return Err(RunError::Rig(format!(
+                "rig {}: the light calibration is a gonioreflectometer's",
+                cfg.rig.name
+            )));
         };
         let opts = MoveOptions::default();
         let (r, t) = tokio::join!(g.robot.home(opts), g.rail.home(opts));
@@ -505,7 +517,10 @@ pub fn capture_light(
         g.lamp.wait_ready(warm + 60.0).await.map_err(|e| dev_err(cfg, "lamp", e))?;
         // Meter on the tile with the lamp at the normal: the tile fills the centre of view.
         let normal = gonio
-            .ik(Direction::from_degrees(0.0, 0.0), Direction::from_degrees(plan.captures[0].view_theta_deg, plan.captures[0].view_phi_deg))
+            .ik(
+                Direction::from_degrees(0.0, 0.0),
+                Direction::from_degrees(plan.captures[0].view_theta_deg, plan.captures[0].view_phi_deg),
+            )
             .map_err(|e| RunError::Rig(format!("metering pose unreachable: {e:?}")))?;
         move_to(cfg, &mut *g.robot, &mut *g.rail, &normal).await?;
         let level = plan.exposure_fraction * plan.reference_albedo;
@@ -575,10 +590,9 @@ pub fn capture_leds(
 ) -> Result<LedCapture, RunError> {
     check_devices(session, "leds")?;
     let cfg = session.rig;
-    let dome = cfg
-        .dome
-        .as_ref()
-        .ok_or_else(|| RunError::Rig(format!("rig {}: LED calibration needs an LED dome or a camera array", cfg.rig.name)))?;
+    let dome = cfg.dome.as_ref().ok_or_else(|| {
+        RunError::Rig(format!("rig {}: LED calibration needs an LED dome or a camera array", cfg.rig.name))
+    })?;
     let n = dome.led_count();
     let flash = dome.is_flash();
     let cameras: Vec<usize> = if flash { (0..n).collect() } else { vec![0] };
@@ -629,8 +643,9 @@ pub fn capture_leds(
             if flash {
                 return Err(RunError::Input {
                     what: "--multiplexed".into(),
-                    message: "a camera array's flash j is seen by its own camera j only: calibrate its flashes one at a time"
-                        .into(),
+                    message:
+                        "a camera array's flash j is seen by its own camera j only: calibrate its flashes one at a time"
+                            .into(),
                 });
             }
             let padded = btfrig_mux::SMatrix::for_sources(n).map_err(|e| RunError::Rig(e.to_string()))?;
@@ -678,8 +693,8 @@ fn demultiplex(
     // A pattern frame's dark signal is in every pattern once; demultiplexing spreads it as
     // 2 / (n + 1) per light (the rows of S⁻¹ sum to that). Subtract it before and add one
     // dark signal after, so a light's image holds what a single-light frame would.
-    let dark_dn = (cfg.sensor.dark_current_e_per_s * first.meta.exposure_s * first.meta.gain / cfg.sensor.electrons_per_dn)
-        as f32;
+    let dark_dn = (cfg.sensor.dark_current_e_per_s * first.meta.exposure_s * first.meta.gain
+        / cfg.sensor.electrons_per_dn) as f32;
     let mut shots = Vec::new();
     for r in 0..repeats {
         let mut stack = vec![0.0f32; order * cols];

@@ -20,7 +20,9 @@ use btfrig_acquire::dome::DomeDevices;
 use btfrig_core::config::RigConfig;
 use btfrig_core::frame::RawFrame;
 use btfrig_hw::{CaptureSettings, SharedClock, TokioClock};
-use btfrig_measurement::backend::{CalibrationOpenRequest, InProcess, MountedTarget, OpenedDome, OpenedGonio, OpenedRig, RigTime};
+use btfrig_measurement::backend::{
+    CalibrationOpenRequest, InProcess, MountedTarget, OpenedDome, OpenedGonio, OpenedRig, RigTime,
+};
 use btfrig_measurement::RunError;
 use btfrig_render::colour::ColourSystem;
 use btfrig_render::dome_scene::DomeScene;
@@ -40,8 +42,11 @@ pub const FIELD_FILL_S: f64 = 0.1;
 
 /// White tile, uniform field, lens cap.
 pub(super) async fn open_radiometric(req: CalibrationOpenRequest<'_>) -> Result<OpenedRig, RunError> {
+    // The scene is the rig's own (its LEDs' powers and colours come from the rig seed); the
+    // devices' noise is seeded from the request, one stream per target, so dark frames and
+    // flats from two openings are independent.
+    let scene_cfg = req.rig;
     let mut cfg = req.rig.clone();
-    // One noise stream per target: dark frames and flats from two openings are independent.
     let salt = match req.target {
         MountedTarget::WhiteTile { .. } => 1,
         MountedTarget::UniformField => 2,
@@ -57,7 +62,7 @@ pub(super) async fn open_radiometric(req: CalibrationOpenRequest<'_>) -> Result<
     let faults = FaultScenario::none();
     match (&cfg.dome, req.target) {
         (None, MountedTarget::WhiteTile { albedo }) => {
-            let scene = Arc::new(RigScene::new(&cfg, &white_tile(*albedo)).map_err(|e| rig_err(&e))?);
+            let scene = Arc::new(RigScene::new(scene_cfg, &white_tile(*albedo)).map_err(|e| rig_err(&e))?);
             let source: Arc<dyn FrameSource> =
                 Arc::new(RenderedFrameSource::new(scene.clone(), RenderOptions::default()));
             let truth = Arc::new(SceneTruth::new(scene, source));
@@ -79,10 +84,18 @@ pub(super) async fn open_radiometric(req: CalibrationOpenRequest<'_>) -> Result<
             let sim = SimRig::from_rig_config(&cfg, &faults, clock, source).map_err(|e| rig_err(&e))?;
             let clock = sim.world.clock().clone();
             let SimRig { robot, rail, lamp, camera, .. } = sim;
-            Ok(OpenedRig::Gonio(OpenedGonio { robot, rail, lamp, camera, clock, truth: None, links: Box::new(InProcess) }))
+            Ok(OpenedRig::Gonio(OpenedGonio {
+                robot,
+                rail,
+                lamp,
+                camera,
+                clock,
+                truth: None,
+                links: Box::new(InProcess),
+            }))
         }
         (Some(_), MountedTarget::WhiteTile { albedo }) => {
-            let scene = Arc::new(DomeScene::new(&cfg, &white_tile(*albedo)).map_err(|e| rig_err(&e))?);
+            let scene = Arc::new(DomeScene::new(scene_cfg, &white_tile(*albedo)).map_err(|e| rig_err(&e))?);
             let dome = DomeRig::build(&cfg, &faults, clock.clone(), scene, req.cameras, RenderOptions::default())
                 .map_err(|e| rig_err(&e))?;
             Ok(OpenedRig::Dome(OpenedDome {
@@ -138,8 +151,7 @@ impl FieldSource {
         };
         let field = if lit {
             let colour = ColourSystem::from_config(&cfg.lamp, &cfg.sensor).map_err(|e| rig_err(&e))?;
-            let full_scale_e =
-                f64::from(sensor.white_level(1.0) - sensor.black_level_dn) / sensor.dn_per_electron(1.0);
+            let full_scale_e = f64::from(sensor.white_level(1.0) - sensor.black_level_dn) / sensor.dn_per_electron(1.0);
             let level = white_flat_level(colour.camera_white(), 1.0, full_scale_e, FIELD_FILL_S);
             Some(flat_field_radiance(&CachedCamera::new(model), level))
         } else {
@@ -156,8 +168,11 @@ impl FrameSource for FieldSource {
 
     fn render(&self, truth: &TrueState, settings: &CaptureSettings, seed: u64) -> RawFrame {
         // The light on the field: the lamp's output (gonio) or the LEDs' mean (dome).
-        let leds = if truth.leds.is_empty() { 0.0 } else { truth.leds.iter().sum::<f64>() / truth.leds.len() as f64 };
-        let light = (truth.lamp_intensity + leds) as f32;
+        let light = if truth.leds.is_empty() {
+            truth.lamp_intensity
+        } else {
+            truth.leds.iter().sum::<f64>() / truth.leds.len() as f64
+        } as f32;
         let image = match &self.field {
             Some(f) if light > 0.0 => {
                 let mut img = f.clone();
