@@ -19,11 +19,13 @@
 // - lib:       the geometric calibration procedure (plan, board detection, calibrate) and processing_camera
 // - color:     colour calibration from charts photographed in the sample region; processing_color
 // - dark_flat: dark frames and master flats (radiometric calibration); processing_dark_flat
+// - emva:      sensor characterisation after EMVA 1288 (gain, noise, dark current, DSNU, PRNU, ...)
 // - light:     each light's power and colour from a white reference tile; the light calibration file
 // - leds:      a dome's LED (or a camera array's flash) calibration; processing_leds
 
 pub mod color;
 pub mod dark_flat;
+pub mod emva;
 pub mod leds;
 pub mod light;
 

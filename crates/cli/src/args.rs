@@ -101,11 +101,11 @@ pub enum CalibrateCommand {
     /// calibration file (docs/camera-calibration.md).
     Geometry(CalibrateGeometryArgs),
     /// Light calibration: photograph a white reference tile on the holder at the plan's
-    /// captures (simulated rig), measure each light's power and colour and the plate's albedo
-    /// relative to the tile, write the light calibration file (docs/light.md).
+    /// captures (through the rig's devices), measure the lamp's power and colour and the plate's
+    /// albedo relative to the tile, write the light calibration file (docs/light.md).
     Light(crate::calibrate_light_cmd::CalibrateLightArgs),
     /// Dark and flat-field calibration: dark frames at several exposures and gains, master
-    /// flats per f-number (simulated rig); writes float EXR maps and a TOML header
+    /// flats per f-number on a uniform field (through the rig's devices); writes float EXR maps and a TOML header
     /// (docs/dark-flat.md).
     Radiometric(crate::calibrate_radiometric_cmd::CalibrateRadiometricArgs),
     /// Colour calibration: photograph colour charts in the sample region (simulated rig),
@@ -113,9 +113,12 @@ pub enum CalibrateCommand {
     /// write the calibration file (docs/color.md).
     Color(CalibrateColorArgs),
     /// LED calibration of a dome (flash calibration of a camera array): photograph a white
-    /// reference tile under one light at a time (simulated rig), measure each light's power
+    /// reference tile under one light at a time or multiplexed patterns (through the rig's devices), measure each light's power
     /// and colour, write the file a rig's `[dome] led_calibration` names (docs/rig-config.md).
     Leds(crate::calibrate_leds_cmd::CalibrateLedsArgs),
+    /// Characterise the camera's sensor after EMVA 1288 (gain, read noise, dark current,
+    /// DSNU, PRNU, saturation, linearity), captured through the devices.
+    Sensor(crate::calibrate_sensor_cmd::CalibrateSensorArgs),
 }
 
 /// `btfrig calibrate color`.

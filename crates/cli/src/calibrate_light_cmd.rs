@@ -1,17 +1,19 @@
-//! `btfrig calibrate light`: runs a light calibration plan on the (simulated) rig: a white
-//! reference tile on the holder gives each light's power and colour, the plate around it its
-//! albedo relative to the tile (the drift reference of every run); writes the light calibration
-//! file. The work is in `btfrig_calibrate::light` (docs/light.md), the simulated frames and the
-//! truth in `btfrig_sim_calibration::light`.
+//! `btfrig calibrate light`: runs a light calibration plan on the rig: a white reference tile
+//! on the holder gives the lamp's power and colour, the plate around it its albedo relative to
+//! the tile (the drift reference of every run); writes the light calibration file. The frames
+//! are captured through the devices (`btfrig_measurement::captured_calibration::capture_light`),
+//! measured by `btfrig_calibrate::light` (docs/light.md); on a simulated rig the truth comes
+//! from `btfrig_sim_calibration::light::light_truth`.
 
 use std::path::PathBuf;
 use std::time::Instant;
 
-use anyhow::{bail, Context};
+use anyhow::Context;
 use btfrig_calibrate::light::{LightCalibrationFile, LightPlan, LAMP};
 use btfrig_core::config::RigConfig;
+use btfrig_measurement::captured_calibration::{capture_light, CalibrationSession};
 use btfrig_process::light::{LampReference, LightCorrection};
-use btfrig_sim_calibration::light::{calibrate_light_simulated, SimLightCalibration};
+use btfrig_sim_calibration::light::{calibrate_light_simulated, light_truth, SimLightCalibration};
 
 /// `btfrig calibrate light`.
 #[derive(Debug, clap::Args)]
@@ -38,9 +40,6 @@ pub fn light(a: &CalibrateLightArgs) -> anyhow::Result<()> {
     let t0 = Instant::now();
     let cfg = crate::rig::load(a.rig.as_deref())?;
     let rig_name = a.rig.as_ref().map_or("<embedded bonn-gonio-sim>".to_string(), |p| p.display().to_string());
-    if cfg.devices.camera.kind != "sim" {
-        bail!("calibrate light drives only simulated rigs so far; the camera of {rig_name} is not kind = \"sim\"");
-    }
     let (plan, plan_name) = match &a.plan {
         None => (LightPlan::default_plan(), "<embedded rig-configs/plans/calibration-light.toml>".to_string()),
         Some(p) => {
@@ -50,13 +49,18 @@ pub fn light(a: &CalibrateLightArgs) -> anyhow::Result<()> {
         }
     };
     let seed = a.seed.unwrap_or(cfg.rig.seed);
-    let r = calibrate_light_simulated(&cfg, &plan, seed).context("light calibration failed")?;
-    let mut file = r.file.clone();
-    file.source = format!(
-        "btfrig calibrate light --rig {rig_name} --plan {plan_name} --seed {seed}: simulated rig {}, {} frames",
+    let source = format!(
+        "btfrig calibrate light --rig {rig_name} --plan {plan_name} --seed {seed}: rig {}, {} frames captured through \
+         the devices",
         cfg.rig.name,
         plan.captures.len() * plan.repeats as usize
     );
+    let session = CalibrationSession::installed(&cfg, seed);
+    let file = capture_light(&session, &plan, source).context("light calibration failed")?.file;
+    // The truth, for error figures: simulated rigs only (NaN otherwise).
+    let (true_white_rate, true_plate_albedo) =
+        if crate::rig::all_simulated(&cfg) { light_truth(&cfg)? } else { ([f64::NAN; 3], [f64::NAN; 3]) };
+    let r = Truth { true_white_rate, true_plate_albedo };
     let out = a.out.clone().unwrap_or_else(|| PathBuf::from(format!("{}-light.toml", cfg.rig.name)));
     std::fs::write(&out, file.to_toml())
         .with_context(|| format!("cannot write light calibration {}", out.display()))?;
@@ -74,6 +78,7 @@ pub fn light(a: &CalibrateLightArgs) -> anyhow::Result<()> {
             "white_balance": e.white_balance,
             "true_white_balance": twb,
             "plate_albedo": e.plate_albedo,
+            "plate_albedo_sigma": e.plate_albedo_sigma,
             "true_plate_albedo": r.true_plate_albedo,
             "plate_albedo_err_pct": (0..3).map(|c| rel(e.plate_albedo[c], r.true_plate_albedo[c])).collect::<Vec<_>>(),
             "wall_s": t0.elapsed().as_secs_f64(),
@@ -101,9 +106,16 @@ pub fn light(a: &CalibrateLightArgs) -> anyhow::Result<()> {
     row("plate albedo", e.plate_albedo);
     row("  truth", r.true_plate_albedo);
     row("  error %", std::array::from_fn(|c| rel(e.plate_albedo[c], r.true_plate_albedo[c])));
+    row("  sigma %", std::array::from_fn(|c| 100.0 * e.plate_albedo_sigma[c] / e.plate_albedo[c]));
     println!("time {:.1} s", t0.elapsed().as_secs_f64());
     println!("wrote {}", out.display());
     Ok(())
+}
+
+/// The simulator's truth next to a light calibration.
+struct Truth {
+    true_white_rate: [f64; 3],
+    true_plate_albedo: [f64; 3],
 }
 
 /// The light correction for a simulated run on `cfg`: the default light calibration plan run

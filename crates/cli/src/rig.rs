@@ -43,3 +43,9 @@ pub fn builtin(path: &Path) -> Option<&'static str> {
             || *n == format!("builtin:bonn-{name}-sim")
     })
 }
+
+/// Whether every device of `cfg` is simulated (`kind = "sim"`): only then may a command
+/// print error figures against the simulator's truth.
+pub fn all_simulated(cfg: &RigConfig) -> bool {
+    cfg.devices.entries().iter().all(|(_, e)| e.kind == "sim")
+}

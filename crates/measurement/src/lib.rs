@@ -31,6 +31,7 @@
 // - report, hdr, light: report.json, HDR and light-calibration records
 
 pub mod backend;
+pub mod captured_calibration;
 pub mod check;
 mod control;
 pub mod dome;
@@ -45,10 +46,10 @@ mod light;
 pub mod model;
 pub mod plan;
 pub mod preflight;
+pub mod raw_schedule;
 pub mod report;
 pub mod reprocess;
 mod reprocess_io;
-pub mod raw_schedule;
 mod request;
 mod runtime;
 pub mod sinks;

@@ -62,7 +62,7 @@ pub fn install() {
 /// timers fire on whole milliseconds, so at 1:1 every device wait would be rounded up to the
 /// next millisecond: about 6 s over the 6480 captures of the Bonn plan, more than the
 /// motion-optimised order gains over the naive one there. Slowed, the rounding is 1 us per wait.
-fn sim_clock() -> SharedClock {
+pub(crate) fn sim_clock() -> SharedClock {
     Arc::new(ScaledClock::new(1e-3).expect("a positive, finite speed"))
 }
 

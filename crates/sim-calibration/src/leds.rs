@@ -71,6 +71,23 @@ fn white_tile(albedo: f64) -> MaterialSpec {
     }
 }
 
+/// The simulator's truth of an LED calibration on dome `cfg`: per light its power relative to
+/// the mean and its colour (green = 1), and the reference rate. For error figures only.
+pub fn led_truth(cfg: &RigConfig) -> Result<(Vec<f64>, Vec<[f64; 3]>, f64), LedCalibError> {
+    let scene = DomeScene::new(cfg, &white_tile(1.0)).map_err(|e| LedCalibError::Rig(e.to_string()))?;
+    let n = scene.dome().led_count();
+    let white = scene.colour().camera_white();
+    let rate = |j: usize, c: usize| {
+        scene.nominal_irradiance() * scene.led_power()[j] * scene.led_colour()[j][c] * white[c] / white[1]
+    };
+    let reference = (0..n).map(|j| rate(j, 1)).sum::<f64>() / n as f64;
+    Ok((
+        (0..n).map(|j| rate(j, 1) / reference).collect(),
+        (0..n).map(|j| [rate(j, 0) / rate(j, 1), 1.0, rate(j, 2) / rate(j, 1)]).collect(),
+        reference,
+    ))
+}
+
 /// Runs the LED calibration on the simulated dome `cfg` (the rig file at `rig_path`, for its
 /// camera calibration): a dome's LEDs are photographed by camera 0, a camera array's flash `j`
 /// by its own camera `j`, the turntable at 0.

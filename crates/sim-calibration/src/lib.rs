@@ -9,11 +9,13 @@
 // The files, one job each:
 // - color, dark_flat, light, leds: each calibration's frames made on the simulated rig
 // - perfect: the processing model of a perfect calibration
+// - sensor: the true EMVA 1288 figures of the simulated sensor
 
 pub mod color;
 pub mod dark_flat;
 pub mod light;
 pub mod perfect;
+pub mod sensor;
 
 use std::time::Instant;
 

@@ -69,6 +69,17 @@ impl TileCamera for SimTileCamera {
     }
 }
 
+/// The simulator's truth of a light calibration on rig `cfg`: the lamp's true `W_c` (the
+/// model's nominal irradiance times the camera's white) and the plate's true albedo relative
+/// to a white reflector. For error figures only.
+pub fn light_truth(cfg: &RigConfig) -> Result<([f64; 3], [f64; 3]), LightCalibError> {
+    let scene = RigScene::new(cfg, &white_tile(1.0)).map_err(|e| LightCalibError::Rig(e.to_string()))?;
+    let nominal = scene.white_signal_dn(1.0, 1.0) / scene.sensor().dn_per_electron(1.0);
+    let white = scene.colour().camera_white();
+    let (plate_cam, _) = resolve_spectrum(scene.colour(), &cfg.plate.albedo).map_err(LightCalibError::Rig)?;
+    Ok((std::array::from_fn(|c| nominal * white[c]), std::array::from_fn(|c| plate_cam[c] / white[c])))
+}
+
 /// Runs `plan` on the simulated rig `cfg` (noise seeded from `seed` and the frame index) and
 /// puts the simulator's truth next to the result.
 pub fn calibrate_light_simulated(
