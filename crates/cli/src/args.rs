@@ -69,6 +69,10 @@ pub enum HwCommand {
         /// Rig config file, or an embedded rig by name (`gonio-serial`).
         #[arg(long)]
         rig: Option<std::path::PathBuf>,
+        /// A recorded-camera directory (docs/recorded-camera.md): its frame count, size,
+        /// format, exposure range, what its sidecar says and any problem found; repeatable.
+        #[arg(long, value_name = "DIR")]
+        recorded: Vec<std::path::PathBuf>,
     },
 }
 
@@ -211,6 +215,10 @@ pub struct RunArgs {
     /// The dataset directory (created; or a dataset of the same plan, resumed).
     #[arg(long)]
     pub out: std::path::PathBuf,
+    /// Rig config instead of the plan's `[rig] config`: a file, or an embedded rig by name;
+    /// e.g. a recorded rig, whose camera replays recorded frames (docs/recorded-camera.md).
+    #[arg(long, value_name = "FILE")]
+    pub rig: Option<std::path::PathBuf>,
     /// Fault scenario of the simulated rig instead of the plan's `run.fault_scenario`: an
     /// embedded name (none, flaky, lamp-drift, stuck-led, robot-fault) or a file. Does not
     /// change the plan hash, so a run paused on a fatal fault resumes with `--faults none`.
@@ -330,6 +338,19 @@ pub enum DatasetCommand {
     },
     /// Export the dataset's compressed model to a Bonn `.btf` container (docs/compression.md).
     Export(crate::compress_cmd::ExportArgs),
+    /// Write the raw frames a gonio dataset kept (`[outputs] raw_frames = true`) as a
+    /// recording: frame files, their sidecar recording.toml and a recorded rig config rig.toml,
+    /// which `btfrig run --rig RECDIR/rig.toml` replays (docs/recorded-camera.md).
+    ExportRecording {
+        /// The dataset directory.
+        dir: std::path::PathBuf,
+        /// The recording directory (created; must be new or empty).
+        #[arg(long)]
+        out: std::path::PathBuf,
+        /// Frame file format: png (16-bit), tiff (16-bit) or exr.
+        #[arg(long, default_value = "png")]
+        format: String,
+    },
     /// Check every file's size and hash, completeness, and orphans; exit 1 on any problem.
     Verify {
         /// The dataset directory.

@@ -1,4 +1,4 @@
-//! `btfrig dataset info DIR` and `btfrig dataset verify DIR`.
+//! `btfrig dataset info DIR`, `btfrig dataset verify DIR` and `btfrig dataset export-recording`.
 //!
 //! They write through [`out`], which returns write errors instead of panicking as `print!`
 //! does: `btfrig dataset verify DIR | head -1` then ends quietly (a closed pipe is
@@ -56,4 +56,24 @@ pub fn verify(dir: &Path) -> anyhow::Result<std::process::ExitCode> {
         report.problems.len()
     );
     Ok(std::process::ExitCode::SUCCESS)
+}
+
+/// `btfrig dataset export-recording DIR --out RECDIR`: the raw frames a gonio dataset kept, as
+/// a recording that `btfrig run --rig RECDIR/rig.toml` replays (docs/recorded-camera.md).
+pub fn export_recording(dir: &Path, recording: &Path, format: &str) -> anyhow::Result<()> {
+    let format = btfrig_recorded::format::ExportFormat::parse(format).map_err(|e| anyhow::anyhow!("--format: {e}"))?;
+    let s = btfrig_recorded::export::export_recording(dir, recording, format)?;
+    let mut text = format!(
+        "recording {}: {} frames of {} captures ({} files), sidecar {}\nreplay it: btfrig run --plan PLAN --rig {} --out DIR\n",
+        s.out.display(),
+        s.frames,
+        s.captures,
+        format.extension(),
+        s.out.join(btfrig_recorded::SIDECAR_FILE).display(),
+        s.rig_file.display()
+    );
+    for n in &s.notes {
+        text.push_str(&format!("note: {n}\n"));
+    }
+    out(&text)
 }

@@ -96,8 +96,9 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<ExitCode> {
     Ok(crate::run_cmd::finish(&s, "btfrig demo"))
 }
 
-/// The plan text with `rig.config` and `rig.material` replaced (files made absolute).
-fn with_overrides(text: &str, rig: Option<&Path>, material: Option<&str>, cwd: &Path) -> anyhow::Result<String> {
+/// The plan text with `rig.config` and `rig.material` replaced (files made absolute); also
+/// `btfrig run --rig`.
+pub(crate) fn with_overrides(text: &str, rig: Option<&Path>, material: Option<&str>, cwd: &Path) -> anyhow::Result<String> {
     if rig.is_none() && material.is_none() {
         return Ok(text.to_string());
     }

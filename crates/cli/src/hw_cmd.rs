@@ -1,11 +1,15 @@
 //! `btfrig hw probe`: what is attached (serial ports, USB devices) and, for a rig config,
-//! each device's identity, health and homing state through its real backend, moving nothing.
-//! Exit status 1 when a device of the rig fails, naming it.
+//! each device's identity, health and homing state through its real backend, moving nothing;
+//! recorded-camera directories (`--recorded DIR`, or a recorded rig's `[devices.camera]
+//! recording`). Exit status 1 when a device of the rig or a recording fails, naming it.
 
 use std::path::Path;
 use std::process::ExitCode;
 
-pub fn probe(rig: Option<&Path>) -> anyhow::Result<ExitCode> {
+pub fn probe(rig: Option<&Path>, recorded: &[std::path::PathBuf]) -> anyhow::Result<ExitCode> {
+    if !recorded.is_empty() || rig.is_some_and(is_recorded_rig) {
+        return probe_recorded(rig, recorded);
+    }
     match serialport::available_ports() {
         Ok(ports) if ports.is_empty() => println!("serial ports: none"),
         Ok(ports) => {
@@ -75,5 +79,37 @@ pub fn probe(rig: Option<&Path>) -> anyhow::Result<ExitCode> {
     for f in &failed {
         eprintln!("  {f}");
     }
+    Ok(ExitCode::FAILURE)
+}
+
+/// Whether `path` is a rig config of recorded devices.
+fn is_recorded_rig(path: &Path) -> bool {
+    crate::rig::load(Some(path)).is_ok_and(|cfg| {
+        cfg.devices.entries().iter().any(|(_, e)| e.kind == btfrig_recorded::KIND)
+    })
+}
+
+/// Each recording: what it holds, or every problem found in it; fails if any is unusable.
+fn probe_recorded(rig: Option<&Path>, recorded: &[std::path::PathBuf]) -> anyhow::Result<ExitCode> {
+    let mut dirs = recorded.to_vec();
+    if let Some(path) = rig {
+        let cfg = crate::rig::load(Some(path))?;
+        let options = btfrig_recorded::RecordedOptions::of(&cfg)
+            .map_err(|m| anyhow::anyhow!("rig config {}: {m}", path.display()))?;
+        println!("rig {} ({}): recorded devices, camera recording {:?}", cfg.rig.name, path.display(), options.recording);
+        dirs.push(options.dir(Some(path)));
+    }
+    let mut unusable = 0;
+    for dir in &dirs {
+        let (usable, lines) = btfrig_recorded::probe::describe(dir);
+        for l in lines {
+            println!("{l}");
+        }
+        unusable += usize::from(!usable);
+    }
+    if unusable == 0 {
+        return Ok(ExitCode::SUCCESS);
+    }
+    eprintln!("btfrig: hw probe: {unusable} of {} recording(s) are not usable (problems listed above)", dirs.len());
     Ok(ExitCode::FAILURE)
 }

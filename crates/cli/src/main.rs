@@ -63,13 +63,16 @@ fn main() -> std::process::ExitCode {
         Command::Plan(PlanCommand::Show { file }) => done(plan_cmd::show(&file)),
         Command::Dataset(DatasetCommand::Info { dir }) => done(dataset_cmd::info(&dir)),
         Command::Dataset(DatasetCommand::Verify { dir }) => dataset_cmd::verify(&dir),
+        Command::Dataset(DatasetCommand::ExportRecording { dir, out, format }) => {
+            done(dataset_cmd::export_recording(&dir, &out, &format))
+        }
         Command::Dataset(DatasetCommand::Export(a)) => done(compress_cmd::export(&a)),
         Command::Compress(a) => done(compress_cmd::compress(&a)),
         Command::Reprocess(a) => done(reprocess_cmd::run(&a)),
         Command::Sparse(args::SparseCommand::Select(a)) => done(compress_cmd::select(&a)),
         Command::Sparse(args::SparseCommand::Reconstruct(a)) => done(compress_cmd::reconstruct(&a)),
         Command::Serve(a) => done(serve_cmd::serve(&a)),
-        Command::Hw(args::HwCommand::Probe { rig }) => hw_cmd::probe(rig.as_deref()),
+        Command::Hw(args::HwCommand::Probe { rig, recorded }) => hw_cmd::probe(rig.as_deref(), &recorded),
         Command::Calibrate(CalibrateCommand::Geometry(a)) => done(calibrate_cmd::geometry(&a)),
         Command::Calibrate(CalibrateCommand::Color(a)) => done(calibrate_color_cmd::color(&a)),
         Command::Calibrate(CalibrateCommand::Radiometric(a)) => done(calibrate_radiometric_cmd::run(&a)),

@@ -26,10 +26,25 @@ const INJECTED_HINT: &str =
 pub fn run(a: &RunArgs) -> anyhow::Result<ExitCode> {
     let text =
         std::fs::read_to_string(&a.plan).map_err(|e| anyhow::anyhow!("cannot read {}: {e}", a.plan.display()))?;
+    // `--rig`: the plan's `[rig] config` replaced (a file made absolute), so the dataset
+    // records the rig it ran on and the same command resumes it.
+    let text = match &a.rig {
+        Some(rig) => {
+            anyhow::ensure!(
+                crate::rig::builtin(rig).is_some() || rig.is_file(),
+                "--rig {}: no such rig config file, nor an embedded rig of that name",
+                rig.display()
+            );
+            let cwd = std::env::current_dir().map_err(|e| anyhow::anyhow!("the working directory: {e}"))?;
+            crate::demo_cmd::with_overrides(&text, Some(rig), None, &cwd)
+                .map_err(|e| anyhow::anyhow!("{}: {e:#}", a.plan.display()))?
+        }
+        None => text,
+    };
     if btfrig_measurement::dome_dry_run::is_dome_plan(&text) {
         return run_dome(a, text);
     }
-    let req = RunRequest::from_file(&a.plan, &a.out)?
+    let req = RunRequest::from_text(text, &a.plan, &a.out)
         .with_faults(a.faults.clone())
         .with_wall_clock(a.wall_clock)
         .with_light(a.light.as_deref().map(crate::calibrate_light_cmd::load).transpose()?)
@@ -49,7 +64,13 @@ pub fn run(a: &RunArgs) -> anyhow::Result<ExitCode> {
     if nothing_to_do {
         return Ok(ExitCode::SUCCESS);
     }
-    Ok(finish(&summary, &format!("btfrig run --plan {} --out {}", a.plan.display(), a.out.display())))
+    Ok(finish(&summary, &command_line(a)))
+}
+
+/// The command that resumes the run of `a`.
+fn command_line(a: &RunArgs) -> String {
+    let rig = a.rig.as_ref().map_or(String::new(), |r| format!(" --rig {}", r.display()));
+    format!("btfrig run --plan {}{rig} --out {}", a.plan.display(), a.out.display())
 }
 
 /// `btfrig run` on a dome plan (LED dome or camera array, docs/plan-format.md): collected,
@@ -92,7 +113,7 @@ fn run_dome(a: &RunArgs, plan_text: String) -> anyhow::Result<ExitCode> {
         print_compression(c, false)?;
     }
     let (textures, total) = progress.textures.unwrap_or((s.textures, 0));
-    let command = format!("btfrig run --plan {} --out {}", a.plan.display(), a.out.display());
+    let command = command_line(a);
     match &s.stopped {
         None => return Ok(ExitCode::SUCCESS),
         Some(RunOutcome::Paused { reason, .. }) => {

@@ -212,6 +212,14 @@ pub fn decode_raw_exr(name: &Path, bytes: &[u8]) -> Result<RawFrame, ImageIoErro
     raw_from_layer(name, decode_flat_layer(name, bytes)?)
 }
 
+/// Reads the DN values of a single-channel raw OpenEXR file (channel [`RAW_CHANNEL`], as
+/// [`read_raw_exr`] reads them) without needing btfrig's metadata attribute: frames recorded
+/// by other software (`btfrig-recorded`), whose metadata is kept elsewhere. Width, height, DNs.
+pub fn read_raw_exr_dn(path: &Path) -> Result<(usize, usize, Vec<u16>), ImageIoError> {
+    let layer = read_flat_layer(path)?;
+    Ok((layer.size.0, layer.size.1, dn_samples(path, &layer)?))
+}
+
 fn raw_from_layer(path: &Path, layer: FlatLayer) -> Result<RawFrame, ImageIoError> {
     let (w, h) = (layer.size.0, layer.size.1);
     let meta = match layer.attributes.other.get(&Text::from(META_ATTRIBUTE)) {
@@ -219,7 +227,11 @@ fn raw_from_layer(path: &Path, layer: FlatLayer) -> Result<RawFrame, ImageIoErro
             .map_err(|e| content(path, format!("attribute {META_ATTRIBUTE}: {e}")))?,
         _ => return Err(content(path, format!("no text attribute {META_ATTRIBUTE}: not a btfrig raw frame"))),
     };
-    let samples = channel(path, &layer, RAW_CHANNEL)?;
+    Ok(RawFrame { width: w, height: h, data: dn_samples(path, &layer)?, meta })
+}
+
+fn dn_samples(path: &Path, layer: &FlatLayer) -> Result<Vec<u16>, ImageIoError> {
+    let samples = channel(path, layer, RAW_CHANNEL)?;
     let data = match samples {
         FlatSamples::U32(v) => v
             .iter()
@@ -238,7 +250,7 @@ fn raw_from_layer(path: &Path, layer: FlatLayer) -> Result<RawFrame, ImageIoErro
             })
             .collect::<Result<Vec<u16>, _>>()?,
     };
-    Ok(RawFrame { width: w, height: h, data, meta })
+    Ok(data)
 }
 
 /// Sample type of the channels of an RGB OpenEXR file.

@@ -282,6 +282,21 @@ pub struct SceneOptions<'a> {
     pub faults: Option<(&'a str, &'a Path, &'a str)>,
 }
 
+/// What a run asks a backend to check before it creates anything: that the devices it will
+/// open can take each of the plan's steps (a recorded rig: that its recording holds a frame for
+/// each).
+pub struct StepsCheck<'a> {
+    /// The rig config.
+    pub rig: &'a RigConfig,
+    /// The rig config's file, if it is one (relative paths in it resolve from its directory).
+    pub rig_file: Option<&'a Path>,
+    /// The steps to capture, in schedule order.
+    pub steps: &'a [btfrig_acquire::EngineStep],
+    /// Whether each step is taken at its `exposure_s` only (false: the HDR control chooses
+    /// brackets while the run goes).
+    pub exposures_fixed: bool,
+}
+
 /// A device backend.
 #[async_trait::async_trait]
 pub trait RigBackend: Send + Sync {
@@ -326,6 +341,13 @@ pub trait RigBackend: Send + Sync {
     /// them (the message says what is wrong; the caller names the rig config).
     fn check_rig(&self, rig: &RigConfig) -> Result<(), String> {
         let _ = rig;
+        Ok(())
+    }
+
+    /// Checks that the devices can take every step of a gonio plan, before the run creates
+    /// anything ([`StepsCheck`]). Default: any step.
+    fn check_steps(&self, req: &StepsCheck<'_>) -> Result<(), RunError> {
+        let _ = req;
         Ok(())
     }
 

@@ -106,6 +106,15 @@ fn run_capture(
         }
         r => r?,
     };
+    let steps = EngineStep::from_schedule(&schedule);
+    // The devices can take every step (a recorded rig: its recording has each), checked
+    // before anything is created.
+    backends.for_rig(&v.rig)?.check_steps(&backend::StepsCheck {
+        rig: &v.rig,
+        rig_file: plan.rig_config_path(file).as_deref(),
+        steps: &steps,
+        exposures_fixed: hdr.is_none(),
+    })?;
     // The dataset: new, or the same plan's to resume; anything else is refused by the store.
     let mut manifest = plan::manifest(&plan, &v, &req.plan_text, file, &list)?;
     let color_file = btfrig_calibrate::color::processing_color(&v.rig, plan.rig_config_path(file).as_deref())
@@ -143,7 +152,6 @@ fn run_capture(
         *skipped.entry(reason.clone()).or_insert(0) += 1;
     }
 
-    let steps = EngineStep::from_schedule(&schedule);
     let done: HashSet<StepKey> =
         dataset.completed().iter().chain(run_skips.keys()).map(|s| StepKey { light: s.light, view: s.view }).collect();
     let to_do = steps.iter().filter(|s| !done.contains(&s.key)).count();

@@ -352,3 +352,77 @@ pub fn reprocess(req: &ReprocessRequest) -> Result<ReprocessSummary, RunError> {
     dataset.finish(&report).map_err(RunError::Report)?;
     Ok(summary)
 }
+
+/// A committed step of a gonio dataset that kept its raw frames: what the run commanded for
+/// it and its frames (base exposure first), for `btfrig dataset export-recording`.
+#[derive(Debug, Clone)]
+pub struct KeptCapture {
+    /// Which step.
+    pub step: StepKey,
+    /// Its light direction in the sample frame.
+    pub light: btfrig_core::direction::Direction,
+    /// Its view direction in the sample frame.
+    pub view: btfrig_core::direction::Direction,
+    /// The joints the run commanded (the planner's inverse kinematics of the directions).
+    pub joints: btfrig_core::kinematics::JointState,
+}
+
+/// What a gonio dataset kept of its run: its rig config and each committed step in commit
+/// order; [`KeptCaptures::frames`] reads a step's raw frames (checked against the journal).
+pub struct KeptCaptures {
+    /// The dataset directory.
+    pub dir: PathBuf,
+    /// The rig config recorded in the manifest, as text.
+    pub rig_toml: String,
+    /// The same, parsed.
+    pub rig: RigConfig,
+    /// The committed steps, in commit order.
+    pub captures: Vec<KeptCapture>,
+    records: Vec<StepRecord>,
+}
+
+impl KeptCaptures {
+    /// Reads what the gonio dataset `dir` kept; refuses a dataset without raw frames.
+    pub fn open(dir: &Path) -> Result<KeptCaptures, RunError> {
+        let src = read_source(dir)?;
+        let rig = rig_of(&src.manifest, dir)?;
+        if rig.rig.kind != RigKind::Gonioreflectometer {
+            return Err(input(
+                format!("dataset {}", dir.display()),
+                "it is a dome or camera-array dataset: only a gonioreflectometer's frames export to a recording so far",
+            ));
+        }
+        if !src.manifest.raw_frames {
+            return Err(input(
+                format!("dataset {}", dir.display()),
+                "it has no raw frames (its manifest says raw_frames = false): only a run with `[outputs] raw_frames = true` in its plan keeps them",
+            ));
+        }
+        let (rig, _plan, v) = plan_of(&src.manifest, dir, rig)?;
+        let gonio = Gonio::new(rig.geometry.clone()).map_err(|e| RunError::Rig(e.to_string()))?;
+        let mut captures = Vec::with_capacity(src.steps.len());
+        for r in &src.steps {
+            let (l, vw) = (r.step.light as usize, r.step.view as usize);
+            if l >= v.light.len() || vw >= v.view.len() {
+                return Err(input(format!("dataset {}", dir.display()), format!("step {} is not in its plan", r.step)));
+            }
+            let (light, view) = (v.light.get(l), v.view.get(vw));
+            let joints = gonio.ik(light, view).map_err(|e| {
+                input(format!("dataset {}", dir.display()), format!("step {}: the rig cannot reach it: {e}", r.step))
+            })?;
+            captures.push(KeptCapture { step: StepKey { light: r.step.light, view: r.step.view }, light, view, joints });
+        }
+        Ok(KeptCaptures {
+            dir: dir.to_path_buf(),
+            rig_toml: src.manifest.rig.config_toml.clone(),
+            rig,
+            captures,
+            records: src.steps,
+        })
+    }
+
+    /// The raw frames of capture `index` (of [`KeptCaptures::captures`]), base exposure first.
+    pub fn frames(&self, index: usize) -> Result<Vec<btfrig_core::frame::RawFrame>, RunError> {
+        read_raw_frames(&self.dir, &self.records[index])
+    }
+}

@@ -48,9 +48,13 @@ pub struct SimBackend;
 pub const KINDS: &[&str] = &["sim"];
 
 /// A registry with [`SimBackend`] for simulated rigs and, for rigs of emulated firmware, an
-/// [`EmulatedBackend`] in front of it (a rig of simulated devices only is the first's).
+/// [`EmulatedBackend`] in front of it (a rig of simulated devices only is the first's), and
+/// [`btfrig_recorded::RecordedBackend`] for rigs of recorded frames (`kind = "recorded"`).
 pub fn registry() -> BackendRegistry {
-    BackendRegistry::new().with(Arc::new(SimBackend)).with(Arc::new(EmulatedBackend::new(Arc::new(SimBackend))))
+    BackendRegistry::new()
+        .with(Arc::new(SimBackend))
+        .with(Arc::new(EmulatedBackend::new(Arc::new(SimBackend))))
+        .with(Arc::new(btfrig_recorded::RecordedBackend))
 }
 
 /// Installs [`registry`] as the process's device backends (`btfrig_measurement::backend::install`).

@@ -62,7 +62,10 @@ pub(super) fn resolve_material(
     errors: &mut Vec<PlanError>,
 ) -> Option<MaterialRef> {
     let m = plan.rig.material.as_deref()?;
-    if rig.is_some_and(|r| !is_simulated(r)) {
+    // A recorded rig (docs/recorded-camera.md) replays frames of a plan that may name its
+    // simulated material: the frames show the sample, the name stays as the plan's record.
+    let recorded = rig.is_some_and(|r| r.devices.camera.kind == "recorded");
+    if rig.is_some_and(|r| !is_simulated(r)) && !recorded {
         errors.push(PlanError::invalid(
             "rig.material",
             format!("{m:?}"),
