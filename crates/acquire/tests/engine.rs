@@ -6,8 +6,8 @@ use std::sync::Arc;
 
 use async_trait::async_trait;
 use btfrig_acquire::{
-    Command, CommandError, Engine, EngineSettings, EngineStep, Event, ExposureControl, GonioDevices,
-    PauseReason, RigDevices, RunHandle, RunOutcome, RunState, RunSummary, StepKind,
+    Command, CommandError, Engine, EngineSettings, EngineStep, Event, ExposureControl, GonioDevices, PauseReason,
+    RigDevices, RunHandle, RunOutcome, RunState, RunSummary, StepKind,
 };
 use btfrig_core::capture::{CapturedFrame, StepKey};
 use btfrig_core::config::RigConfig;

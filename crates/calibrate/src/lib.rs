@@ -20,12 +20,14 @@
 // - color:     colour calibration from charts photographed in the sample region; processing_color
 // - dark_flat: dark frames and master flats (radiometric calibration); processing_dark_flat
 // - light:     each light's power and colour from a white reference tile; the light calibration file
+// - rig_geometry: joint zero offsets from registered marker poses; processing_joint_offsets
 // - leds:      a dome's LED (or a camera array's flash) calibration; processing_leds
 
 pub mod color;
 pub mod dark_flat;
 pub mod leds;
 pub mod light;
+pub mod rig_geometry;
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;

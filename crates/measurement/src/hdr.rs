@@ -15,8 +15,8 @@
 use std::collections::{BTreeMap, HashMap, VecDeque};
 
 use btfrig_acquire::{EngineStep, ExposureControl};
-use btfrig_core::capture::StepKey;
 use btfrig_core::camera::CameraModel;
+use btfrig_core::capture::StepKey;
 use btfrig_core::frame::RawFrame;
 use btfrig_core::kinematics::{Gonio, JointState};
 use btfrig_core::plan::{HdrMode, HdrSettings};

@@ -22,6 +22,8 @@
 // - dome:     an LED dome's or camera array's run; dome_reprocess, reprocess: runs again from kept frames
 // - reprocess_io: what both reprocesses share (request, summary, source dataset, calibration directory)
 // - raw_schedule: how a dome run captured its view groups (manifest `raw_groups`), for reprocessing
+// - calibration_rig: a gonio opened for a calibration (devices checked by role, homed, lamp lit)
+// - geometric_calibration, color_calibration, rig_geometry_calibration: those calibrations through the devices
 // - backend:  the device backends by rig kind (the registry, what a backend opens and reports)
 // - model:    the processing model from the rig config and calibration files
 // - sinks:    the sinks the plan's outputs ask for (the streaming compression model)
@@ -29,7 +31,9 @@
 // - report, hdr, light: report.json, HDR and light-calibration records
 
 pub mod backend;
+pub mod calibration_rig;
 pub mod check;
+pub mod color_calibration;
 mod control;
 pub mod dome;
 pub mod dome_dry_run;
@@ -37,16 +41,18 @@ pub mod dome_reprocess;
 pub mod dry_run;
 mod error;
 mod events;
+pub mod geometric_calibration;
 mod gonio;
 mod hdr;
 mod light;
 pub mod model;
 pub mod plan;
+pub mod raw_schedule;
 pub mod report;
 pub mod reprocess;
 mod reprocess_io;
-pub mod raw_schedule;
 mod request;
+pub mod rig_geometry_calibration;
 mod runtime;
 pub mod sinks;
 mod summary;

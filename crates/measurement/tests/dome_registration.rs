@@ -26,7 +26,14 @@ fn go(dir: &Path, rig: &str, dome: &str) -> Result<DomeRunSummary, btfrig_measur
     );
     let out = dir.join("out");
     let _ = std::fs::remove_dir_all(&out);
-    let req = DomeRunRequest { plan_text: plan, plan_path: dir.join("plan.toml"), out, faults: None, preview: false, compressed_model: None };
+    let req = DomeRunRequest {
+        plan_text: plan,
+        plan_path: dir.join("plan.toml"),
+        out,
+        faults: None,
+        preview: false,
+        compressed_model: None,
+    };
     run(&req, &mut |line| eprintln!("{line}"))
 }
 
