@@ -137,7 +137,8 @@ fn finish(
         n = b.markers_per_side,
     );
     let out = a.out.clone().unwrap_or_else(|| PathBuf::from(format!("{}-geometry.toml", cfg.rig.name)));
-    std::fs::write(&out, CalibrationFile::from_calibration(c, &source).to_toml())
+    // The header names the command that made the file.
+    std::fs::write(&out, format!("# Made by: {command}\n{}", CalibrationFile::from_calibration(c, &source).to_toml()))
         .with_context(|| format!("cannot write calibration file {}", out.display()))?;
     println!(
         "time: capture {:.1} s, detect {:.1} s, calibrate {:.2} s, total {:.1} s",

@@ -68,7 +68,11 @@ pub fn color(a: &CalibrateColorArgs) -> anyhow::Result<()> {
     .context("colour calibration failed")?;
     let out = a.out.clone().unwrap_or_else(|| PathBuf::from(format!("{}-color.toml", cfg.rig.name)));
     let file = r.file(&cfg.rig.name, &plan, seed);
-    std::fs::write(&out, file.to_toml()).with_context(|| format!("cannot write calibration file {}", out.display()))?;
+    let command = format!(
+        "btfrig calibrate color --rig {rig_name} --plan {plan_name} --seed {seed}{}",
+        a.reference.iter().map(|r| format!(" --reference {r}")).collect::<String>()
+    );
+    std::fs::write(&out, format!("# Made by: {command}\n{}", file.to_toml())).with_context(|| format!("cannot write calibration file {}", out.display()))?;
     let chosen = r.chosen();
     if a.json {
         let models: Vec<_> = r
