@@ -242,6 +242,8 @@ pub struct ColorCalibration {
     pub render_s: f64,
     /// Seconds registering, rectifying and averaging.
     pub measure_s: f64,
+    /// Per chart: where its reference colours came from ([`ChartReferences::provenance`]).
+    pub references: Vec<String>,
 }
 
 impl ColorCalibration {
@@ -276,6 +278,7 @@ impl ColorCalibration {
                     .filter(|p| !p.status.is_valid())
                     .map(|p| format!("{} {}: {}", p.chart, p.name, describe_status(&p.status)))
                     .collect(),
+                references: self.references.clone(),
             },
             statistics: ColorStatistics {
                 cv_mean: m.cv.as_ref().map_or(f64::NAN, |s| s.mean),
@@ -332,6 +335,10 @@ pub struct ColorSource {
     /// Patches excluded by screening, with the reason.
     #[serde(default)]
     pub excluded_patches: Vec<String>,
+    /// Per chart: where its reference colours came from (published or measured values, and
+    /// which).
+    #[serde(default)]
+    pub references: Vec<String>,
 }
 
 /// The chosen model's CIEDE2000 figures.
@@ -495,6 +502,92 @@ pub struct ChartReferences {
     /// nominal lamp distance, e-/s per photosite at gain 1 (the light calibration's green
     /// `white_rate_e_per_s`): the radiance factor's unit.
     pub white_rate_e_per_s: f64,
+    /// Per chart: where its reference colours came from (written into the calibration file).
+    pub provenance: Vec<String>,
+}
+
+/// Where a chart's reference colours come from: the chart maker's published values
+/// (`btfrig_color::chart`, from `shared/data/colorchecker*_lab_d50.csv`: X-Rite's 2016 CIE
+/// L*a*b* under ICC D50) or a file of the chart measured with a spectrophotometer.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ReferenceValues {
+    /// The published values of the chart's edition.
+    Published,
+    /// Measured values: the file's name and, per patch in chart order, CIE L*a*b* (D50).
+    Measured {
+        /// The file, for the calibration file's provenance.
+        origin: String,
+        /// One per patch.
+        lab_d50: Vec<[f64; 3]>,
+    },
+}
+
+impl ReferenceValues {
+    /// Reads a measured reference file for `chart`: CSV, `#` comment lines, a header line
+    /// naming the columns, of which `L`, `a` and `b` (CIE L*a*b*, D50 white) are used; one
+    /// row per patch in the chart's order (as `shared/data/colorcheckersg140_lab_d50.csv`).
+    pub fn measured_from_csv(text: &str, origin: &str, chart: &str) -> Result<ReferenceValues, RigCalibError> {
+        let err = |message: String| RigCalibError::Plan { origin: origin.into(), message };
+        let layout = ChartLayout::by_name(chart).map_err(|e| err(e.to_string()))?;
+        let mut lines = text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty() && !l.starts_with('#'));
+        let (_, header) = lines.next().ok_or_else(|| err("no header line (columns L, a, b needed)".into()))?;
+        let cols: Vec<&str> = header.split(',').map(str::trim).collect();
+        let col = |n: &str| {
+            cols.iter().position(|c| *c == n).ok_or_else(|| {
+                err(format!("header {header:?} has no column {n:?} (needed: L, a, b: CIE L*a*b* under D50)"))
+            })
+        };
+        let (cl, ca, cb) = (col("L")?, col("a")?, col("b")?);
+        let mut lab_d50 = Vec::new();
+        for (i, line) in lines {
+            let f: Vec<&str> = line.split(',').map(str::trim).collect();
+            let mut v = [0.0; 3];
+            for (k, c) in [cl, ca, cb].into_iter().enumerate() {
+                v[k] = f.get(c).and_then(|x| x.parse::<f64>().ok()).filter(|x| x.is_finite()).ok_or_else(|| {
+                    err(format!("line {}: column {} is not a number: {line:?}", i + 1, ["L", "a", "b"][k]))
+                })?;
+            }
+            if !(0.0..=100.0).contains(&v[0]) {
+                return Err(err(format!("line {}: L = {}: allowed 0..=100", i + 1, v[0])));
+            }
+            lab_d50.push(v);
+        }
+        if lab_d50.len() != layout.patches.len() {
+            return Err(err(format!(
+                "{} patch rows, chart {chart} has {} patches (one row per patch, in chart order)",
+                lab_d50.len(),
+                layout.patches.len()
+            )));
+        }
+        Ok(ReferenceValues::Measured { origin: origin.into(), lab_d50 })
+    }
+
+    /// The values' provenance, for the calibration file.
+    pub fn describe(&self, chart: &str) -> String {
+        match self {
+            ReferenceValues::Published => {
+                let edition = ChartLayout::by_name(chart).map(|l| l.edition).unwrap_or_default();
+                format!("{chart}: published CIE L*a*b* (D50) of {edition} (shared/data/*_lab_d50.csv)")
+            }
+            ReferenceValues::Measured { origin, .. } => format!("{chart}: measured CIE L*a*b* (D50) from {origin}"),
+        }
+    }
+
+    /// Per patch of `chart`: the reference colour as linear sRGB (D65) radiance factor,
+    /// Bradford-adapted from D50, the output space of the colour models.
+    pub fn linear_srgb(&self, chart: &str) -> Result<Vec<[f64; 3]>, RigCalibError> {
+        use btfrig_color::space::{bradford, d65_white, lab_to_xyz, mat3_apply, mat3_mul, xyz_to_srgb_matrix};
+        let labs: Vec<[f64; 3]> = match self {
+            ReferenceValues::Published => {
+                ChartLayout::by_name(chart).map_err(RigCalibError::Rig)?.patches.iter().map(|p| p.lab_d50).collect()
+            }
+            ReferenceValues::Measured { lab_d50, .. } => lab_d50.clone(),
+        };
+        // ICC D50, as the published data.
+        let d50 = [0.9642, 1.0, 0.8249];
+        let m = mat3_mul(&xyz_to_srgb_matrix(), &bradford(d50, d65_white()));
+        Ok(labs.iter().map(|lab| mat3_apply(&m, lab_to_xyz(*lab, d50))).collect())
+    }
 }
 
 /// Runs `plan` on a rig: `rig` photographs a metering shot of the first chart, then every
@@ -648,7 +741,16 @@ pub fn calibrate_color(
             .map_or_else(|| "no candidate".to_string(), |e| e.to_string());
         rig_err(format!("no colour model could be fitted on {} patches: {first}", fit.len()))
     })?;
-    Ok(ColorCalibration { patches, white_balance, models, chosen, exposure_s, render_s, measure_s })
+    Ok(ColorCalibration {
+        patches,
+        white_balance,
+        models,
+        chosen,
+        exposure_s,
+        render_s,
+        measure_s,
+        references: references.provenance.clone(),
+    })
 }
 
 /// CIEDE2000 of held-out patches, each compared at full illumination (model output and

@@ -21,6 +21,7 @@
 // - dark_flat: dark frames and master flats (radiometric calibration); processing_dark_flat
 // - emva:      sensor characterisation after EMVA 1288 (gain, noise, dark current, DSNU, PRNU, ...)
 // - light:     each light's power and colour from a white reference tile; the light calibration file
+// - rig_geometry: joint zero offsets from registered marker poses; processing_joint_offsets
 // - leds:      a dome's LED (or a camera array's flash) calibration; processing_leds
 
 pub mod color;
@@ -28,6 +29,7 @@ pub mod dark_flat;
 pub mod emva;
 pub mod leds;
 pub mod light;
+pub mod rig_geometry;
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;

@@ -100,10 +100,14 @@ pub struct ServeArgs {
 /// `btfrig calibrate ...`.
 #[derive(Debug, Subcommand)]
 pub enum CalibrateCommand {
-    /// Geometric camera calibration: photograph the calibration board at the plan's views
-    /// (simulated rig), detect its markers, estimate intrinsics and distortion, write the
-    /// calibration file (docs/camera-calibration.md).
+    /// Geometric camera calibration: the robot presents the calibration board at the plan's
+    /// views, the camera captures (any rig, through its devices), the board's markers give
+    /// intrinsics and distortion; writes the calibration file (docs/camera-calibration.md).
     Geometry(CalibrateGeometryArgs),
+    /// Rig geometry: the joints' zero offsets from the marker plate registered at a few dozen
+    /// poses (any rig, through its devices); prints the pose error before and after, writes
+    /// the file `[geometry] calibration` names (docs/kinematics.md).
+    RigGeometry(crate::calibrate_rig_geometry_cmd::CalibrateRigGeometryArgs),
     /// Light calibration: photograph a white reference tile on the holder at the plan's
     /// captures (through the rig's devices), measure the lamp's power and colour and the plate's
     /// albedo relative to the tile, write the light calibration file (docs/light.md).
@@ -112,8 +116,8 @@ pub enum CalibrateCommand {
     /// flats per f-number on a uniform field (through the rig's devices); writes float EXR maps and a TOML header
     /// (docs/dark-flat.md).
     Radiometric(crate::calibrate_radiometric_cmd::CalibrateRadiometricArgs),
-    /// Colour calibration: photograph colour charts in the sample region (simulated rig),
-    /// fit colour models, choose by cross-validated CIEDE2000, report held-out CIEDE2000 and
+    /// Colour calibration: photograph colour charts in the sample region (any rig, through
+    /// its devices), fit colour models against published or measured reference values, choose by cross-validated CIEDE2000, report held-out CIEDE2000 and
     /// write the calibration file (docs/color.md).
     Color(CalibrateColorArgs),
     /// LED calibration of a dome (flash calibration of a camera array): photograph a white
@@ -143,6 +147,11 @@ pub struct CalibrateColorArgs {
     /// Print one JSON object (per model figures, per patch errors) instead of tables.
     #[arg(long)]
     pub json: bool,
+    /// Measured reference values of a chart instead of its published ones: `CHART=FILE`, a
+    /// CSV with columns L, a, b (CIE L*a*b*, D50), one row per patch in chart order; repeat
+    /// per chart. Charts not named use the published values.
+    #[arg(long, value_name = "CHART=FILE")]
+    pub reference: Vec<String>,
 }
 
 /// `btfrig calibrate geometry`.

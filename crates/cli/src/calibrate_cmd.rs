@@ -1,34 +1,25 @@
-//! `btfrig calibrate geometry`: runs a geometric calibration plan on the (simulated) rig and
-//! writes the calibration file. The frames are rendered by `btfrig-sim-calibration`, the
-//! procedure is in `btfrig-calibrate`.
+//! `btfrig calibrate geometry`: runs a geometric calibration plan on the rig through its
+//! devices (`btfrig_measurement::geometric_calibration`: the robot presents the board, the
+//! camera captures) and writes the calibration file. A simulated rig's truth probe adds the
+//! error figures.
 
 use std::path::PathBuf;
 use std::time::Instant;
 
-use anyhow::{bail, Context};
+use anyhow::Context;
 use btfrig_calibrate::CalibrationPlan;
 use btfrig_intrinsics::{distortion_difference, mapping_difference_up_to_rotation, CalibrationFile};
-use btfrig_sim_calibration::calibrate_simulated;
+use btfrig_measurement::calibration_rig::rig_time;
+use btfrig_measurement::geometric_calibration::calibrate_geometry;
 
 use crate::args::CalibrateGeometryArgs;
 
-/// Runs the command; prints the estimates against the truth and writes the file.
+/// Runs the command; prints the estimates with their uncertainty (and, on a simulated rig,
+/// against the truth) and writes the file.
 pub fn geometry(a: &CalibrateGeometryArgs) -> anyhow::Result<()> {
     let t0 = Instant::now();
     let cfg = crate::rig::load(a.rig.as_deref())?;
     let rig_name = a.rig.as_ref().map_or("<embedded bonn-gonio-sim>".to_string(), |p| p.display().to_string());
-    let not_sim: Vec<&str> =
-        [("camera", &cfg.devices.camera), ("robot", &cfg.devices.robot), ("rail", &cfg.devices.rail)]
-            .iter()
-            .filter(|(_, d)| d.kind != "sim")
-            .map(|(n, _)| *n)
-            .collect();
-    if !not_sim.is_empty() {
-        bail!(
-            "calibrate geometry drives only simulated rigs so far; devices {} of {rig_name} are not kind = \"sim\"",
-            not_sim.join(", ")
-        );
-    }
     let (plan, plan_name) = match &a.plan {
         None => (CalibrationPlan::default_plan(), "<embedded rig-configs/plans/calibration-geometry.toml>".to_string()),
         Some(p) => {
@@ -50,11 +41,30 @@ pub fn geometry(a: &CalibrateGeometryArgs) -> anyhow::Result<()> {
         b.dictionary,
         n = b.markers_per_side,
     );
-    let sim =
-        calibrate_simulated(&cfg, &plan, seed, |line| println!("  {line}")).context("geometric calibration failed")?;
-    let r = &sim.result;
+    let command = format!("btfrig calibrate geometry --rig {rig_name} --plan {plan_name} --seed {seed}");
+    let time = rig_time(&cfg);
+    let cal = calibrate_geometry(&cfg, None, &plan, seed, time, |line| println!("  {line}"))
+        .context("geometric calibration failed")?;
+    let r = &cal.result;
     let c = &r.calibration;
-    let (e, t, u) = (&c.camera, &sim.truth, &c.uncertainty);
+    let (e, u) = (&c.camera, &c.uncertainty);
+    let Some(t) = cal.truth.as_ref() else {
+        println!("{:<6} {:>14} {:>12}", "param", "estimate", "sigma");
+        for (name, est, sd) in [
+            ("fx_px", e.fx, u.fx_px),
+            ("fy_px", e.fy, u.fy_px),
+            ("cx_px", e.cx, u.cx_px),
+            ("cy_px", e.cy, u.cy_px),
+            ("k1", e.distortion.k1, u.k1),
+            ("k2", e.distortion.k2, u.k2),
+            ("k3", e.distortion.k3, u.k3),
+            ("p1", e.distortion.p1, u.p1),
+            ("p2", e.distortion.p2, u.p2),
+        ] {
+            println!("{name:<6} {est:>14.6} {:>12}", format!("± {sd:.6}"));
+        }
+        return finish(a, &cfg, &plan, &command, &cal, t0);
+    };
     println!("{:<6} {:>14} {:>12} {:>14} {:>12}", "param", "estimate", "sigma", "truth", "error");
     let rows: [(&str, f64, f64, f64); 9] = [
         ("fx_px", e.fx, u.fx_px, t.fx),
@@ -81,6 +91,21 @@ pub fn geometry(a: &CalibrateGeometryArgs) -> anyhow::Result<()> {
         rot_rad,
         rot_px,
     );
+    finish(a, &cfg, &plan, &command, &cal, t0)
+}
+
+/// The figures every rig prints, and the file.
+fn finish(
+    a: &CalibrateGeometryArgs,
+    cfg: &btfrig_core::config::RigConfig,
+    plan: &CalibrationPlan,
+    command: &str,
+    cal: &btfrig_measurement::geometric_calibration::GeometricCalibration,
+    t0: Instant,
+) -> anyhow::Result<()> {
+    let r = &cal.result;
+    let c = &r.calibration;
+    let b = &plan.target;
     let skipped: Vec<String> = r
         .captures
         .iter()
@@ -99,21 +124,24 @@ pub fn geometry(a: &CalibrateGeometryArgs) -> anyhow::Result<()> {
         if skipped.is_empty() { String::new() } else { format!(" (skipped: {})", skipped.join("; ")) }
     );
     let source = format!(
-        "btfrig calibrate geometry --rig {rig_name} --plan {plan_name} --seed {seed}: simulated rig {}, board {n} x {n} \
-         markers {:.0} mm pitch {:.0} mm, {} of {} views, {} detection passes",
+        "{command}: rig {} through its devices ({}), board {n} x {n} markers {:.0} mm pitch {:.0} mm, {} of {} views \
+         at {:.4} s, {} detection passes",
         cfg.rig.name,
+        cal.devices,
         b.marker_size_m * 1e3,
         b.pitch_m * 1e3,
         r.views_used(),
         r.captures.len(),
+        cal.exposure_s,
         r.passes,
         n = b.markers_per_side,
     );
     let out = a.out.clone().unwrap_or_else(|| PathBuf::from(format!("{}-geometry.toml", cfg.rig.name)));
-    std::fs::write(&out, CalibrationFile::from_calibration(c, &source).to_toml())
+    // The header names the command that made the file.
+    std::fs::write(&out, format!("# Made by: {command}\n{}", CalibrationFile::from_calibration(c, &source).to_toml()))
         .with_context(|| format!("cannot write calibration file {}", out.display()))?;
     println!(
-        "time: render {:.1} s, detect {:.1} s, calibrate {:.2} s, total {:.1} s",
+        "time: capture {:.1} s, detect {:.1} s, calibrate {:.2} s, total {:.1} s",
         r.render_s,
         r.detect_s,
         r.calibrate_s,

@@ -1,15 +1,17 @@
-//! `btfrig calibrate color`: runs a colour calibration plan on the (simulated) rig, prints
-//! every model's held-out CIEDE2000 and fit time, writes the chosen model's calibration file.
-//! The work is in `btfrig_calibrate::color`, the simulated captures in
-//! `btfrig_sim_calibration::color`.
+//! `btfrig calibrate color`: runs a colour calibration plan on the rig through its devices
+//! (`btfrig_measurement::color_calibration`), prints every model's held-out CIEDE2000 and fit
+//! time, writes the chosen model's calibration file. The numerics are in
+//! `btfrig_calibrate::color`; the reference values are the charts' published ones or measured
+//! files (`--reference`), and the file says which.
 
 use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{bail, Context};
-use btfrig_calibrate::color::{describe_status, ColorPlan};
+use btfrig_calibrate::color::{describe_status, ColorPlan, ReferenceValues};
 use btfrig_calibrate::processing_camera;
-use btfrig_sim_calibration::color::calibrate_color_simulated;
+use btfrig_measurement::calibration_rig::rig_time;
+use btfrig_measurement::color_calibration::{calibrate_color_on_rig, chart_references};
 use serde_json::json;
 
 use crate::args::CalibrateColorArgs;
@@ -19,9 +21,6 @@ pub fn color(a: &CalibrateColorArgs) -> anyhow::Result<()> {
     let t0 = Instant::now();
     let cfg = crate::rig::load(a.rig.as_deref())?;
     let rig_name = a.rig.as_ref().map_or("<embedded bonn-gonio-sim>".to_string(), |p| p.display().to_string());
-    if cfg.devices.camera.kind != "sim" {
-        bail!("calibrate color drives only simulated rigs so far; the camera of {rig_name} is not kind = \"sim\"");
-    }
     let (plan, plan_name) = match &a.plan {
         None => (ColorPlan::default_plan(), "<embedded rig-configs/plans/calibration-color.toml>".to_string()),
         Some(p) => {
@@ -48,7 +47,20 @@ pub fn color(a: &CalibrateColorArgs) -> anyhow::Result<()> {
             plan.light_phi_deg
         );
     }
-    let r = calibrate_color_simulated(&cfg, &camera, &plan, seed, |line| {
+    let mut values = vec![ReferenceValues::Published; plan.charts.len()];
+    for r in &a.reference {
+        let Some((chart, file)) = r.split_once('=') else {
+            bail!("--reference {r:?}: allowed CHART=FILE (a chart of the plan and a CSV of its L, a, b values)");
+        };
+        let Some(i) = plan.charts.iter().position(|c| c.name == chart) else {
+            let names: Vec<&str> = plan.charts.iter().map(|c| c.name.as_str()).collect();
+            bail!("--reference {r:?}: the plan has no chart {chart:?} (its charts: {})", names.join(", "));
+        };
+        let text = std::fs::read_to_string(file).with_context(|| format!("--reference {r:?}: cannot read {file}"))?;
+        values[i] = ReferenceValues::measured_from_csv(&text, file, chart)?;
+    }
+    let references = chart_references(&cfg, a.rig.as_deref(), &plan, &values)?;
+    let r = calibrate_color_on_rig(&cfg, None, &camera, &plan, &references, seed, rig_time(&cfg), |line| {
         if !quiet {
             println!("  {line}")
         }
@@ -56,7 +68,11 @@ pub fn color(a: &CalibrateColorArgs) -> anyhow::Result<()> {
     .context("colour calibration failed")?;
     let out = a.out.clone().unwrap_or_else(|| PathBuf::from(format!("{}-color.toml", cfg.rig.name)));
     let file = r.file(&cfg.rig.name, &plan, seed);
-    std::fs::write(&out, file.to_toml()).with_context(|| format!("cannot write calibration file {}", out.display()))?;
+    let command = format!(
+        "btfrig calibrate color --rig {rig_name} --plan {plan_name} --seed {seed}{}",
+        a.reference.iter().map(|r| format!(" --reference {r}")).collect::<String>()
+    );
+    std::fs::write(&out, format!("# Made by: {command}\n{}", file.to_toml())).with_context(|| format!("cannot write calibration file {}", out.display()))?;
     let chosen = r.chosen();
     if a.json {
         let models: Vec<_> = r
@@ -99,11 +115,13 @@ pub fn color(a: &CalibrateColorArgs) -> anyhow::Result<()> {
             "models": models,
             "held_out_per_patch": per_patch,
             "excluded": excluded,
+            "references": r.references,
             "out": out.display().to_string(),
         });
         println!("{}", serde_json::to_string_pretty(&v)?);
         return Ok(());
     }
+    println!("reference values: {}", r.references.join("; "));
     let fit_n = r.patches.iter().filter(|p| p.fit && p.status.is_valid()).count();
     let held_n = r.patches.iter().filter(|p| !p.fit && p.status.is_valid()).count();
     println!("CIEDE2000 on {held_n} held-out patches (not fitted), cross-validated mean on {fit_n} fitting patches:");
@@ -148,7 +166,7 @@ pub fn color(a: &CalibrateColorArgs) -> anyhow::Result<()> {
         println!("worst held-out patches: {}", w.join(", "));
     }
     println!(
-        "white balance [{:.4}, {:.4}, {:.4}], exposure {:.4} s; time: render {:.1} s, measure {:.1} s, total {:.1} s",
+        "white balance [{:.4}, {:.4}, {:.4}], exposure {:.4} s; time: capture {:.1} s, measure {:.1} s, total {:.1} s",
         r.white_balance[0],
         r.white_balance[1],
         r.white_balance[2],

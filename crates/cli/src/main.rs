@@ -4,7 +4,7 @@
 // - args: the command line as clap parses it; rig, material: --rig and --material made valid settings
 // - demo_cmd, run_cmd, serve_cmd, reprocess_cmd: runs through btfrig-measurement and btfrig-daemon
 // - plan_cmd, dataset_cmd, compress_cmd (compress, sparse, dataset export): plans, datasets, models
-// - calibrate_cmd (geometry), calibrate_{color,radiometric,light,leds,sensor}_cmd: the calibrations
+// - calibrate_cmd (geometry), calibrate_{rig_geometry,color,radiometric,light,leds,sensor}_cmd: the calibrations
 // - hw_cmd: btfrig hw probe; kinematics_cmd: btfrig kinematics check
 // - sim_cmd, captures_cmd, session: btfrig sim ... on a simulated gonio session
 // - bench_cmd, bench_{color,compress,demux,serve}: btfrig bench ... (harnesses in btfrig-bench)
@@ -20,6 +20,7 @@ mod calibrate_color_cmd;
 mod calibrate_leds_cmd;
 mod calibrate_light_cmd;
 mod calibrate_radiometric_cmd;
+mod calibrate_rig_geometry_cmd;
 mod calibrate_sensor_cmd;
 mod captures_cmd;
 mod compress_cmd;
@@ -75,6 +76,7 @@ fn main() -> std::process::ExitCode {
         Command::Hw(args::HwCommand::Probe { rig, recorded }) => hw_cmd::probe(rig.as_deref(), &recorded),
         Command::Calibrate(CalibrateCommand::Geometry(a)) => done(calibrate_cmd::geometry(&a)),
         Command::Calibrate(CalibrateCommand::Color(a)) => done(calibrate_color_cmd::color(&a)),
+        Command::Calibrate(CalibrateCommand::RigGeometry(a)) => done(calibrate_rig_geometry_cmd::rig_geometry(&a)),
         Command::Calibrate(CalibrateCommand::Radiometric(a)) => done(calibrate_radiometric_cmd::run(&a)),
         Command::Calibrate(CalibrateCommand::Light(a)) => done(calibrate_light_cmd::light(&a)),
         Command::Calibrate(CalibrateCommand::Leds(a)) => done(calibrate_leds_cmd::leds(&a)),

@@ -226,6 +226,9 @@ impl fmt::Display for ReachabilityReport {
 #[derive(Debug, Clone)]
 pub struct Gonio {
     geometry: GonioGeometry,
+    /// Joint zero offsets added to every joint state before the pose is computed (a rig
+    /// geometry calibration; zero unless set with [`Gonio::with_joint_offsets`]).
+    offsets: JointState,
     joint_min: [f64; 3],
     joint_max: [f64; 3],
     shoulder: Point3<f64>,
@@ -305,7 +308,27 @@ impl Gonio {
         let joint_min = geometry.joint_min_deg.map(f64::to_radians);
         let joint_max = geometry.joint_max_deg.map(f64::to_radians);
         let s = geometry.robot_shoulder_m;
-        Ok(Gonio { geometry, joint_min, joint_max, shoulder: Point3::new(s[0], s[1], s[2]) })
+        Ok(Gonio {
+            geometry,
+            offsets: JointState::default(),
+            joint_min,
+            joint_max,
+            shoulder: Point3::new(s[0], s[1], s[2]),
+        })
+    }
+
+    /// The same kinematics with joint zero offsets (radians): where a joint commanded to `j`
+    /// truly stands is `j + offsets`, as a rig geometry calibration measured it. Only
+    /// [`Gonio::scene_pose`] honours them (the nominal pose processing starts from); inverse
+    /// and forward kinematics stay those of the commanded joints.
+    pub fn with_joint_offsets(mut self, offsets: JointState) -> Self {
+        self.offsets = offsets;
+        self
+    }
+
+    /// The joint zero offsets (zero unless calibrated).
+    pub fn joint_offsets(&self) -> &JointState {
+        &self.offsets
     }
 
     /// The geometry this was built from.
@@ -343,10 +366,17 @@ impl Gonio {
         (direction_of(&light), direction_of(&view))
     }
 
-    /// Where sample, camera and lamp are in the world for `j`: the pose the renderer draws.
+    /// Where sample, camera and lamp are in the world for `j` (plus the joint offsets, if
+    /// any): the pose the renderer draws.
     /// The camera (OpenCV frame) sits on the rail looking at the sample centre, image `x`
     /// along increasing rail angle, image `y` down.
     pub fn scene_pose(&self, j: &JointState) -> ScenePose {
+        let o = &self.offsets;
+        let j = &JointState {
+            rail: j.rail + o.rail,
+            robot: std::array::from_fn(|k| j.robot[k] + o.robot[k]),
+            turntable: j.turntable + o.turntable,
+        };
         let rot = self.sample_rotation(j);
         let c = self.camera_direction_world(j.rail);
         let z_cam = -c;

@@ -128,9 +128,21 @@ fn color(s: &AppState, id: &str, seed: u64) -> Result<(serde_json::Value, String
     use btfrig_calibrate::color::ColorPlan;
     let camera = btfrig_calibrate::processing_camera(&s.rig, s.rig_path.as_deref()).map_err(|e| e.to_string())?;
     let plan = ColorPlan::default_plan();
-    // The chart is photographed by the rig's device backend (the simulated one renders it).
-    let backend = btfrig_measurement::backend::installed().for_rig(&s.rig).map_err(|e| e.to_string())?;
-    let r = backend.calibrate_color(&s.rig, &camera, &plan, seed)?;
+    // The charts are photographed through the rig's devices, against their published values.
+    let references = btfrig_measurement::color_calibration::chart_references(&s.rig, s.rig_path.as_deref(), &plan, &[])
+        .map_err(|e| e.to_string())?;
+    let time = btfrig_measurement::calibration_rig::rig_time(&s.rig);
+    let r = btfrig_measurement::color_calibration::calibrate_color_on_rig(
+        &s.rig,
+        None,
+        &camera,
+        &plan,
+        &references,
+        seed,
+        time,
+        |_| {},
+    )
+    .map_err(|e| e.to_string())?;
     let chosen = r.chosen();
     let held = chosen.held_out.as_ref().map_err(|e| e.to_string())?;
     let rel = format!("calibrations/{id}-color.toml");

@@ -21,8 +21,6 @@
 use std::sync::Arc;
 
 use btfrig_acquire::dome::DomeDevices;
-use btfrig_calibrate::color::{ColorCalibration, ColorPlan};
-use btfrig_core::camera::CameraModel;
 use btfrig_core::config::RigConfig;
 use btfrig_measurement::backend::{
     CalibrationOpenRequest, DomeOpenRequest, GonioOpenRequest, LinkReport, LinkUse, OpenedDome, OpenedGonio,
@@ -206,15 +204,5 @@ impl RigBackend for EmulatedBackend {
 
     fn check_scene(&self, options: &SceneOptions<'_>) -> Result<(), RunError> {
         self.inner.check_scene(options)
-    }
-
-    fn calibrate_color(
-        &self,
-        rig: &RigConfig,
-        camera: &CameraModel,
-        plan: &ColorPlan,
-        seed: u64,
-    ) -> Result<ColorCalibration, String> {
-        self.inner.calibrate_color(rig, camera, plan, seed)
     }
 }

@@ -10,16 +10,14 @@
 //!
 //! A backend also checks what only it understands, before a run creates anything: the rig's
 //! device options ([`RigBackend::check_rig`]) and a plan's scene options, the material and
-//! fault scenario a simulated rig builds ([`RigBackend::check_scene`]); and it may offer the
-//! colour-chart capture of a colour calibration ([`RigBackend::calibrate_color`]). The runner
-//! itself knows no simulator type.
+//! fault scenario a simulated rig builds ([`RigBackend::check_scene`]); and it opens the rig
+//! with a calibration target mounted ([`RigBackend::open_calibration`]). The runner itself
+//! knows no simulator type.
 
 use std::path::Path;
 use std::sync::{Arc, OnceLock};
 
 use btfrig_acquire::dome::DomeDevices;
-use btfrig_calibrate::color::{ColorCalibration, ColorPlan};
-use btfrig_core::camera::CameraModel;
 use btfrig_core::config::RigConfig;
 use btfrig_core::plan::dome::ValidatedDomePlan;
 use btfrig_core::plan::{Plan, ValidatedPlan};
@@ -221,8 +219,14 @@ pub struct OpenedDome {
 pub enum MountedTarget {
     /// The geometric calibration board.
     Board(btfrig_core::config::target::TargetBoard),
-    /// A colour chart (the procedure's plan names its patches and reference values).
-    ColorChart,
+    /// A colour chart, by its built-in name (`btfrig_color::chart::CHART_NAMES`: the layout of
+    /// its patches).
+    ColorChart {
+        /// The chart's name.
+        chart: String,
+    },
+    /// The bare holder plate with its markers (any sample on it): rig geometry.
+    Plate,
     /// A white reference tile of this diffuse albedo.
     WhiteTile {
         /// Diffuse albedo of the tile.
@@ -240,7 +244,8 @@ impl MountedTarget {
     pub fn name(&self) -> &'static str {
         match self {
             MountedTarget::Board(_) => "calibration board",
-            MountedTarget::ColorChart => "colour chart",
+            MountedTarget::ColorChart { .. } => "colour chart",
+            MountedTarget::Plate => "marker plate",
             MountedTarget::WhiteTile { .. } => "white reference tile",
             MountedTarget::UniformField => "uniform field (diffuser)",
             MountedTarget::Capped => "lens cap",
@@ -367,23 +372,6 @@ pub trait RigBackend: Send + Sync {
                 self.name()
             ),
         })
-    }
-
-    /// Photographs the colour chart of `plan` on the rig through `camera` (the processing
-    /// model's lens) and fits the colour calibration (`btfrig calibrate color`).
-    fn calibrate_color(
-        &self,
-        rig: &RigConfig,
-        camera: &CameraModel,
-        plan: &ColorPlan,
-        seed: u64,
-    ) -> Result<ColorCalibration, String> {
-        let _ = (rig, camera, plan, seed);
-        Err(format!(
-            "the device backend {} cannot photograph a colour chart: calibrate on the rig with `btfrig calibrate color` \
-             and name the file in [camera] color_calibration",
-            self.name()
-        ))
     }
 }
 

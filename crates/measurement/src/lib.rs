@@ -23,6 +23,9 @@
 // - dome:     an LED dome's or camera array's run; dome_reprocess, reprocess: runs again from kept frames
 // - reprocess_io: what both reprocesses share (request, summary, source dataset, calibration directory)
 // - raw_schedule: how a dome run captured its view groups (manifest `raw_groups`), for reprocessing
+// - calibration_rig: a gonio opened for a calibration (devices checked by role, homed, lamp lit)
+// - geometric_calibration, color_calibration, rig_geometry_calibration: those calibrations through the devices
+// - captured_calibration: the radiometric calibrations through the devices (dark/flat, sensor, lamp, LEDs)
 // - backend:  the device backends by rig kind (the registry, what a backend opens and reports), RigTime
 // - preflight: every device asked who it is, how it feels and whether it is homed, before anything is created
 // - model:    the processing model from the rig config and calibration files
@@ -31,8 +34,10 @@
 // - report, hdr, light: report.json, HDR and light-calibration records
 
 pub mod backend;
+pub mod calibration_rig;
 pub mod captured_calibration;
 pub mod check;
+pub mod color_calibration;
 mod control;
 pub mod dome;
 pub mod dome_dry_run;
@@ -40,6 +45,7 @@ pub mod dome_reprocess;
 pub mod dry_run;
 mod error;
 mod events;
+pub mod geometric_calibration;
 mod gonio;
 mod hdr;
 mod light;
@@ -51,6 +57,7 @@ pub mod report;
 pub mod reprocess;
 mod reprocess_io;
 mod request;
+pub mod rig_geometry_calibration;
 mod runtime;
 pub mod sinks;
 mod summary;

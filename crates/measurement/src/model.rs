@@ -99,7 +99,17 @@ pub fn rig_model(
     rig_path: Option<&Path>,
     dark_flat: Option<Arc<DarkFlat>>,
 ) -> Result<ProcessingModel, RunError> {
-    let gonio = Gonio::new(rig.geometry.clone()).map_err(|e| rig_err("[geometry]", e))?;
+    let mut gonio = Gonio::new(rig.geometry.clone()).map_err(|e| rig_err("[geometry]", e))?;
+    // The nominal pose with the joints' measured zero offsets, when the config names them.
+    let geometry_source = match btfrig_calibrate::rig_geometry::processing_joint_offsets(rig, rig_path)
+        .map_err(|e| RunError::Rig(format!("the rig's geometry calibration: {e}")))?
+    {
+        Some((offsets, origin)) => {
+            gonio = gonio.with_joint_offsets(offsets);
+            origin
+        }
+        None => "rig config [geometry] (nominal joint zeros)".to_string(),
+    };
     let camera = btfrig_calibrate::processing_camera(rig, rig_path)
         .map_err(|e| RunError::Rig(format!("the rig's camera calibration: {e}")))?;
     let sensor = SensorConstants {
@@ -129,6 +139,7 @@ pub fn rig_model(
             "camera",
             rig.camera.calibration.clone().unwrap_or_else(|| "rig config [camera] (nominal lens)".into()),
         )
+        .with_source("geometry", geometry_source)
         .with_source("sensor", "rig config [sensor] (datasheet values)")
         .with_source(
             "color",

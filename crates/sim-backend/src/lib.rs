@@ -6,8 +6,7 @@
 //! scene's truth probe (`btfrig_sim::truth::SceneTruth`; a dome's: [`DomeSceneTruth`]), which
 //! only the report's error figures read. It checks the simulator's options of rigs and plans
 //! (device options, materials, fault scenarios) for the runner, which knows no simulator
-//! type, photographs the simulated colour chart of a colour calibration
-//! (`btfrig_sim_calibration`), and opens the stand-ins `btfrig hw probe` puts behind emulated
+//! type, mounts calibration targets in the sample's place (`calibration_targets`), and opens the stand-ins `btfrig hw probe` puts behind emulated
 //! firmware ([`probe`]). Rigs of emulated firmware (`kind = "serial"` / `"ptp"` with
 //! `[devices.ROLE.link] emulated = true`) are opened by `btfrig_emulated_backend`, in front of
 //! this backend's devices; [`registry`] holds both and [`install`] registers them as the
@@ -20,7 +19,6 @@ use std::path::Path;
 use std::sync::Arc;
 
 use btfrig_acquire::dome::DomeDevices;
-use btfrig_calibrate::color::{ColorCalibration, ColorPlan};
 use btfrig_core::camera::CameraModel;
 use btfrig_core::config::RigConfig;
 use btfrig_core::pose::ScenePose;
@@ -305,17 +303,6 @@ impl RigBackend for SimBackend {
             fault_scenario(name, base, field)?;
         }
         Ok(())
-    }
-
-    fn calibrate_color(
-        &self,
-        rig: &RigConfig,
-        camera: &CameraModel,
-        plan: &ColorPlan,
-        seed: u64,
-    ) -> Result<ColorCalibration, String> {
-        btfrig_sim_calibration::color::calibrate_color_simulated(rig, camera, plan, seed, |_| {})
-            .map_err(|e| e.to_string())
     }
 }
 

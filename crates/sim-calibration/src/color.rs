@@ -51,6 +51,11 @@ impl SimChartCamera {
         Ok(ChartReferences {
             patches,
             white_rate_e_per_s: s.white_signal_dn(1.0, 1.0) / s.sensor().dn_per_electron(1.0),
+            provenance: plan
+                .charts
+                .iter()
+                .map(|c| format!("{}: the simulator's patch spectra under its lamp", c.name))
+                .collect(),
         })
     }
 }

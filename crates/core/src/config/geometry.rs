@@ -43,6 +43,11 @@ pub struct GonioGeometry {
     pub arm_radius_m: f64,
     /// World position of the robot shoulder, where the forearm from the flange ends, metres.
     pub robot_shoulder_m: [f64; 3],
+    /// The rig geometry calibration (joint zero offsets, `btfrig calibrate rig-geometry`):
+    /// `builtin:NAME` or a file relative to the rig config. Processing adds its offsets to the
+    /// commanded joints for the nominal pose; the simulator never reads it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<String>,
 }
 
 impl Default for GonioGeometry {
@@ -69,6 +74,7 @@ impl GonioGeometry {
             arm_flange_length_m: 0.25,
             arm_radius_m: 0.05,
             robot_shoulder_m: [-0.6, -0.6, -0.8],
+            calibration: None,
         }
     }
 
