@@ -25,8 +25,8 @@ use btfrig_calibrate::color::{ColorCalibration, ColorPlan};
 use btfrig_core::camera::CameraModel;
 use btfrig_core::config::RigConfig;
 use btfrig_measurement::backend::{
-    CalibrationOpenRequest, DomeOpenRequest, GonioOpenRequest, LinkReport, LinkUse, OpenedDome, OpenedGonio,
-    OpenedRig, RigBackend, RigTime, SceneOptions,
+    CalibrationOpenRequest, DomeOpenRequest, GonioOpenRequest, LinkReport, LinkUse, OpenedDome, OpenedGonio, OpenedRig,
+    RigBackend, RigTime, SceneOptions,
 };
 use btfrig_measurement::preflight::{DeviceCheck, Role};
 use btfrig_measurement::RunError;

@@ -5,8 +5,8 @@
 use std::sync::Arc;
 
 use btfrig_core::config::RigConfig;
-use btfrig_hw::{ScaledClock, SharedClock};
 use btfrig_emulated_backend as emulated;
+use btfrig_hw::{ScaledClock, SharedClock};
 use btfrig_serial::firmware::grbl::{AxisDevice, GrblFirmware};
 use btfrig_serial::firmware::lamp::{LampFirmware, LampFirmwareConfig};
 use btfrig_serial::firmware::robot::RobotFirmware;
