@@ -7,7 +7,6 @@ use std::sync::{Arc, Mutex};
 
 use btfrig_core::config::RigConfig;
 use btfrig_emulated_backend::EmulatedBackend;
-use btfrig_hw::Device;
 use btfrig_measurement::backend::{
     CalibrationOpenRequest, GonioOpenRequest, InProcess, MountedTarget, OpenedGonio, OpenedRig, RigBackend, RigTime,
 };
