@@ -141,7 +141,11 @@ fn a_wall_clock_run_paused_resumed_killed_and_resumed_equals_a_virtual_time_run(
     let resumed = textures(&b);
     assert_eq!(resumed.keys().collect::<Vec<_>>(), reference.keys().collect::<Vec<_>>(), "captured steps differ");
     let differ: Vec<&Step> = reference.iter().filter(|(s, v)| resumed[*s] != **v).map(|(s, _)| s).collect();
-    assert!(differ.is_empty(), "{} of {N} textures differ between virtual and wall-clock runs: {differ:?}", differ.len());
+    assert!(
+        differ.is_empty(),
+        "{} of {N} textures differ between virtual and wall-clock runs: {differ:?}",
+        differ.len()
+    );
     let report = read_json(&b.join("report.json"));
     assert_eq!(report["rig_time"], "wall", "{report}");
     let devices = report["devices"].as_array().expect("the report lists the devices");
@@ -160,7 +164,9 @@ fn rig_with_robot_port(dir: &Path, port: &str) -> PathBuf {
     let text = std::fs::read_to_string(repo(RIG)).unwrap();
     let text = text.replace(
         "kind = \"serial\"\nlink = { emulated = true, poll_s = 0.005 }\njoint_min_deg",
-        &format!("kind = \"serial\"\nlink = {{ port = \"{port}\", baud = 115200, reply_timeout_ms = 500 }}\njoint_min_deg"),
+        &format!(
+            "kind = \"serial\"\nlink = {{ port = \"{port}\", baud = 115200, reply_timeout_ms = 500 }}\njoint_min_deg"
+        ),
     );
     assert!(text.contains(port), "the robot's link was not replaced");
     let rig = dir.join("rig.toml");

@@ -448,7 +448,12 @@ async fn connect_real(
         let entry = devices.entries().into_iter().find(|(r, _)| *r == role).map(|(_, e)| e.clone());
         let entry = entry.ok_or_else(|| format!("devices.{role}: missing"))?;
         let opened = open_real(role, &entry, &limits, clock.clone()).await?;
-        fw.serial_links.push(SerialMeter { role, target: opened.target.clone(), baud: opened.baud, stats: opened.stats });
+        fw.serial_links.push(SerialMeter {
+            role,
+            target: opened.target.clone(),
+            baud: opened.baud,
+            stats: opened.stats,
+        });
         let wrong = || format!("devices.{role}: the backend opened does not fit the role");
         match (role, opened.device) {
             ("robot", RealDevice::Robot(r)) => sim.robot = Box::new(r),
@@ -578,13 +583,17 @@ async fn connect_real_dome(
     clock: &SharedClock,
 ) -> Result<(Option<Box<dyn Turntable>>, Box<dyn LedArray>), String> {
     use crate::real::{open_real, ConfiguredLimits, RealDevice};
-    let limits =
-        ConfiguredLimits { robot: None, rail: None, turntable: turntable.as_ref().map(|t| t.limits()) };
+    let limits = ConfiguredLimits { robot: None, rail: None, turntable: turntable.as_ref().map(|t| t.limits()) };
     for role in crate::real::real_roles(devices).into_iter().filter(|r| *r == "turntable" || *r == "led_array") {
         let entry = devices.entries().into_iter().find(|(r, _)| *r == role).map(|(_, e)| e.clone());
         let entry = entry.ok_or_else(|| format!("devices.{role}: missing"))?;
         let opened = open_real(role, &entry, &limits, clock.clone()).await?;
-        fw.serial_links.push(SerialMeter { role, target: opened.target.clone(), baud: opened.baud, stats: opened.stats });
+        fw.serial_links.push(SerialMeter {
+            role,
+            target: opened.target.clone(),
+            baud: opened.baud,
+            stats: opened.stats,
+        });
         match opened.device {
             RealDevice::Axis(a) => turntable = Some(Box::new(a)),
             RealDevice::Leds(l) => leds = Box::new(l),

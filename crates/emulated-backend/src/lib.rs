@@ -23,8 +23,8 @@ use std::sync::Arc;
 use btfrig_acquire::dome::DomeDevices;
 use btfrig_core::config::RigConfig;
 use btfrig_measurement::backend::{
-    CalibrationOpenRequest, DomeOpenRequest, GonioOpenRequest, LinkReport, LinkUse, OpenedDome, OpenedGonio,
-    OpenedRig, RigBackend, RigTime, SceneOptions,
+    CalibrationOpenRequest, DomeOpenRequest, GonioOpenRequest, LinkReport, LinkUse, OpenedDome, OpenedGonio, OpenedRig,
+    RigBackend, RigTime, SceneOptions,
 };
 use btfrig_measurement::preflight::{DeviceCheck, Role};
 use btfrig_measurement::RunError;

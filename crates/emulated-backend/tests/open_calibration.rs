@@ -7,7 +7,6 @@ use std::sync::{Arc, Mutex};
 
 use btfrig_core::config::RigConfig;
 use btfrig_emulated_backend::EmulatedBackend;
-use btfrig_hw::Device;
 use btfrig_measurement::backend::{
     CalibrationOpenRequest, GonioOpenRequest, InProcess, MountedTarget, OpenedGonio, OpenedRig, RigBackend, RigTime,
 };
@@ -40,8 +39,13 @@ impl RigBackend for Inner {
     async fn open_calibration(&self, req: CalibrationOpenRequest<'_>) -> Result<OpenedRig, RunError> {
         self.asked.lock().unwrap().push((req.rig.clone(), req.target.clone()));
         let clock = btfrig_hw::TokioClock::shared();
-        let sim = SimRig::from_rig_config(req.rig, &FaultScenario::none(), clock.clone(), Arc::new(FlatFrameSource::new(8, 6, 100.0)))
-            .map_err(|e| RunError::Rig(e.to_string()))?;
+        let sim = SimRig::from_rig_config(
+            req.rig,
+            &FaultScenario::none(),
+            clock.clone(),
+            Arc::new(FlatFrameSource::new(8, 6, 100.0)),
+        )
+        .map_err(|e| RunError::Rig(e.to_string()))?;
         let SimRig { robot, rail, lamp, camera, .. } = sim;
         Ok(OpenedRig::Gonio(OpenedGonio { robot, rail, lamp, camera, clock, truth: None, links: Box::new(InProcess) }))
     }

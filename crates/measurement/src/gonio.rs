@@ -71,8 +71,8 @@ fn run_capture(
     // Every device asked who it is, how it feels and whether it is homed before anything is
     // created: an unplugged port is refused here, naming the device and the port.
     let time = backend::RigTime::for_run(&v.rig, req.wall_clock || plan.run.clock == btfrig_core::plan::RunClock::Wall);
-    let preflight = crate::preflight::check_devices(&v.rig, &crate::preflight::run_roles(&v.rig), &backends)?
-        .into_result()?;
+    let preflight =
+        crate::preflight::check_devices(&v.rig, &crate::preflight::run_roles(&v.rig), &backends)?.into_result()?;
     let exposure_s = plan::exposure_s(&plan, &v, file, req.light.as_ref())?;
     let hdr = match &v.exposure {
         btfrig_core::plan::ExposurePolicy::Auto { hdr, .. } if hdr.is_on() => Some(hdr.clone()),

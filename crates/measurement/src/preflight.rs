@@ -162,11 +162,8 @@ impl Preflight {
 /// where it asks real devices: call it from anywhere.
 pub fn check_devices(rig: &RigConfig, roles: &[Role], backends: &BackendRegistry) -> Result<Preflight, RunError> {
     let present: Vec<&str> = rig.devices.entries().into_iter().map(|(r, _)| r).collect();
-    let missing: Vec<String> = roles
-        .iter()
-        .filter(|r| !present.contains(&r.name()))
-        .map(|r| format!("[devices.{}]", r.name()))
-        .collect();
+    let missing: Vec<String> =
+        roles.iter().filter(|r| !present.contains(&r.name())).map(|r| format!("[devices.{}]", r.name())).collect();
     if !missing.is_empty() {
         return Err(RunError::Rig(format!(
             "rig {:?} has no {}: this needs {} (its devices: {})",

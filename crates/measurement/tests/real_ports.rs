@@ -142,3 +142,79 @@ fn bad_link_options_are_named() {
         assert!(e.starts_with(want), "{e}\nwanted: {want}");
     }
 }
+
+/// A mixed bench rig: robot, rail and lamp are "real" controllers on the ports the rig
+/// config names (firmware on ptys this test starts, in front of devices of its own on a
+/// clock 100x faster than the wall), the camera is simulated. `run` checks the controllers
+/// first, runs on the wall clock and records it, with each controller's identity.
+#[test]
+fn a_run_drives_real_controllers_on_the_wall_clock() {
+    btfrig_sim_backend::install();
+    let dir = std::env::temp_dir().join(format!("btfrig-real-run-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
+    let clock: SharedClock = Arc::new(ScaledClock::new(100.0).unwrap());
+    let mut sim_cfg = RigConfig::from_toml(SMALL, "small").unwrap();
+    // The lamp controller reports its warm-up and the run waits it out on the wall clock.
+    sim_cfg.timing.lamp.warm_up_s = 1.0;
+    let sim = SimRig::from_rig_config(
+        &sim_cfg,
+        &FaultScenario::none(),
+        clock.clone(),
+        Arc::new(FlatFrameSource::new(4, 4, 1.0)),
+    )
+    .unwrap();
+    let (robot_port, rail_port, lamp_port) = (dir.join("robot"), dir.join("rail"), dir.join("lamp"));
+    let firmware = {
+        let _rt = rt.enter();
+        (
+            RobotFirmware::spawn(sim.robot, &robot_port).unwrap(),
+            GrblFirmware::spawn_with_units(AxisDevice::Rail(sim.rail), &rail_port, AxisUnits::Radians).unwrap(),
+            LampFirmware::spawn(sim.lamp, LampFirmwareConfig::default(), clock, &lamp_port).unwrap(),
+        )
+    };
+    let mut rail_link = link(&rail_port, 115_200);
+    rail_link.insert("units".into(), "rad".into());
+    let rig =
+        rig_with_links(&[("robot", link(&robot_port, 115_200)), ("rail", rail_link), ("lamp", link(&lamp_port, 9600))])
+            .unwrap();
+    assert_eq!(btfrig_measurement::backend::RigTime::for_rig(&rig), btfrig_measurement::backend::RigTime::Wall);
+    let mut t: toml::Table = toml::from_str(SMALL).unwrap();
+    t["devices"] = toml::Value::try_from(&rig.devices).unwrap();
+    // The simulated camera's 12 MB transfer would take 5 s per frame on the wall clock.
+    t["timing"]["camera"]["frame_bytes"] = 38_400.into();
+    std::fs::write(dir.join("rig.toml"), toml::to_string(&t).unwrap()).unwrap();
+    let plan = include_str!("../../../tests/data/tiny-plan.toml")
+        .replace("SEED", "5")
+        .replace("FAULTS", "none")
+        .replace("builtin:bonn-gonio-sim", "rig.toml")
+        .replace("max_captures = 12", "max_captures = 2")
+        // The simulated camera sees the simulated world, where nothing the real controllers do
+        // happens (its stand-in lamp stays dark): no markers to register.
+        .replace("[exposure]", "[registration]\nmethod = \"nominal\"\n[exposure]")
+        // ... and a dark frame would drive an automatic exposure to its longest.
+        .replace("mode = \"auto\"", "mode = \"fixed\"\nexposure_s = 0.01");
+    assert!(plan.contains("max_captures = 2"), "{plan}");
+    let out = dir.join("dataset");
+    let req = btfrig_measurement::RunRequest::from_text(plan, &dir.join("plan.toml"), &out);
+    let s = btfrig_measurement::run(&req, &btfrig_measurement::RunControl::new(), &mut |_| {})
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(s.outcome, btfrig_measurement::RunOutcome::Finished, "{s:?}");
+    assert_eq!(s.captures, 2);
+    assert_eq!(s.rig_time, Some(btfrig_measurement::backend::RigTime::Wall));
+    // Preflight asked the real robot who it is and found it unhomed; the run homed it.
+    let pre = s.preflight.iter().find(|d| d.role == "robot").unwrap();
+    assert!(pre.failure.is_none() && pre.identity.as_ref().is_some_and(|i| i.serial.is_some()), "{pre:?}");
+    assert_eq!(pre.port.as_deref(), Some(format!("{} at 115200 baud", robot_port.display()).as_str()));
+    let robot = s.devices.iter().find(|(r, _)| *r == "robot").unwrap();
+    assert_eq!(robot.1.backend, "serial-robot");
+    assert_eq!(s.devices.iter().find(|(r, _)| *r == "camera").unwrap().1.backend, "sim");
+    // The links are the real ports at their own baud rates.
+    let lamp = s.links.iter().find(|l| l.role == "lamp").unwrap();
+    assert_eq!(lamp.target, format!("{} at 9600 baud", lamp_port.display()));
+    eprintln!("mixed rig: {:.2} s wall, {:.2} s rig time, links {:?}", s.wall_s, s.hardware_s, s.links);
+    drop(firmware);
+    drop(rt);
+    let _ = std::fs::remove_dir_all(&dir);
+}
