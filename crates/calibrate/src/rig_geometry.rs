@@ -201,10 +201,18 @@ fn relative_rotation(gonio: &Gonio, j: &JointState, d: &Vector3<f64>) -> Matrix3
     (p.camera_to_world.inverse() * p.sample_to_world).rotation.to_rotation_matrix().into_inner()
 }
 
-/// Rotation vector taking `measured` to `model` (camera frame), radians.
+/// Rotation vector taking `measured` to `model` (camera frame), radians. From the skew part
+/// and the trace with `atan2`: exact near the identity, where an `acos` of the trace is NaN
+/// as soon as rounding puts it above 3 (a fit converged on noise-free poses).
 fn residual(model: &Matrix3<f64>, measured: &Matrix3<f64>) -> Vector3<f64> {
-    let r = nalgebra::Rotation3::from_matrix_unchecked(model * measured.transpose());
-    r.scaled_axis()
+    let m = model * measured.transpose();
+    let v = Vector3::new(m[(2, 1)] - m[(1, 2)], m[(0, 2)] - m[(2, 0)], m[(1, 0)] - m[(0, 1)]) * 0.5;
+    let s = v.norm();
+    if s < 1e-300 {
+        return v;
+    }
+    let angle = s.atan2((m.trace() - 1.0) * 0.5);
+    v * (angle / s)
 }
 
 /// Fits the robot's zero offsets so that the nominal relative pose matches the registered one

@@ -72,7 +72,8 @@ pub fn color(a: &CalibrateColorArgs) -> anyhow::Result<()> {
         "btfrig calibrate color --rig {rig_name} --plan {plan_name} --seed {seed}{}",
         a.reference.iter().map(|r| format!(" --reference {r}")).collect::<String>()
     );
-    std::fs::write(&out, format!("# Made by: {command}\n{}", file.to_toml())).with_context(|| format!("cannot write calibration file {}", out.display()))?;
+    std::fs::write(&out, format!("# Made by: {command}\n{}", file.to_toml()))
+        .with_context(|| format!("cannot write calibration file {}", out.display()))?;
     let chosen = r.chosen();
     if a.json {
         let models: Vec<_> = r

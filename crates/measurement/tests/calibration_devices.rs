@@ -87,8 +87,8 @@ impl RigBackend for UnpluggedCamera {
 
 #[test]
 fn an_unplugged_camera_is_named_with_its_port_before_anything_is_captured() {
-    let mut rig = RigConfig::from_toml(include_str!("../../../rig-configs/bonn-gonio-sim.toml"), "bonn-gonio-sim")
-        .unwrap();
+    let mut rig =
+        RigConfig::from_toml(include_str!("../../../rig-configs/bonn-gonio-sim.toml"), "bonn-gonio-sim").unwrap();
     rig.devices.camera.options.insert("port".into(), toml::Value::String("/dev/ttyUSB3".into()));
     let asked = Arc::new(AtomicUsize::new(0));
     let registry = BackendRegistry::new().with(Arc::new(UnpluggedCamera { asked: asked.clone() }));
