@@ -166,7 +166,10 @@ const SHIPPED: &[(&str, &[&str])] = &[
 /// 1600 x 1200 sensor series): `--ignored`.
 const SHIPPED_SLOW: &[(&str, &[&str])] = &[
     ("calibration/bonn-camera-array-sim-flashes.toml", &["calibrate", "leds", "--rig", "bonn-camera-array-sim"]),
-    ("calibration/bonn-gonio-sim-12mp-light.toml", &["calibrate", "light", "--rig", "rig-configs/bonn-gonio-sim-12mp.toml"]),
+    (
+        "calibration/bonn-gonio-sim-12mp-light.toml",
+        &["calibrate", "light", "--rig", "rig-configs/bonn-gonio-sim-12mp.toml"],
+    ),
     ("calibration/bonn-gonio-sim-sensor.toml", &["calibrate", "sensor"]),
 ];
 
@@ -206,4 +209,50 @@ fn the_shipped_radiometric_calibrations_are_what_the_procedures_make() {
 #[ignore = "minutes: cargo test --release -p btfrig-cli --test calibrate_captured -- --ignored"]
 fn the_slow_shipped_radiometric_calibrations_are_what_the_procedures_make() {
     recompute(SHIPPED_SLOW, "shipped-radiometric-slow");
+}
+
+/// `btfrig calibrate sensor` writes a file that reads back, naming the command in its header.
+#[test]
+fn calibrate_sensor_writes_a_file_that_names_its_command_and_reads_back() {
+    let dir = scratch("calibrate-sensor");
+    let out = dir.join("sensor.toml");
+    let stdout = ok(btfrig()
+        .args(["calibrate", "sensor", "--json", "--rig", "bonn-dome-sim", "--seed", "9", "--out"])
+        .arg(&out));
+    let v: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+    let k = &v["result"]["system_gain_dn_per_e"];
+    let z = (k["value"].as_f64().unwrap() - v["truth"]["system_gain_dn_per_e"].as_f64().unwrap()).abs()
+        / k["sigma"].as_f64().unwrap();
+    assert!(z < 3.0, "{v}");
+    let text = std::fs::read_to_string(&out).unwrap();
+    assert!(
+        text.starts_with("# Sensor characterisation after EMVA 1288")
+            && text.contains("btfrig calibrate sensor --rig bonn-dome-sim"),
+        "{text}"
+    );
+    let f = btfrig_calibrate::emva::SensorCalibrationFile::from_toml(&text, "sensor.toml").unwrap();
+    assert_eq!(f.result.system_gain_dn_per_e.value, k["value"].as_f64().unwrap());
+}
+
+/// No calibration command refuses a rig of real devices for being real: each checks the
+/// devices it needs and, when one cannot be opened, names it with its role, kind and port.
+#[test]
+fn calibrations_on_a_rig_of_real_ports_name_the_devices_they_need() {
+    let dir = scratch("calibrate-real-ports");
+    let text = std::fs::read_to_string(repo("rig-configs/bonn-gonio-serial.toml")).unwrap();
+    let real = text.replace("link = { emulated = true, poll_s = 0.01 }", "port = \"/dev/ttyNOPE0\"");
+    assert_ne!(real, text);
+    let rig = dir.join("real.toml");
+    std::fs::write(&rig, real).unwrap();
+    for (args, needs) in [
+        (&["calibrate", "light"][..], "lamp (kind \"serial\", port /dev/ttyNOPE0)"),
+        (&["calibrate", "radiometric"][..], "lamp (kind \"serial\", port /dev/ttyNOPE0)"),
+        (&["calibrate", "sensor"][..], "lamp (kind \"serial\", port /dev/ttyNOPE0)"),
+    ] {
+        let o = btfrig().args(args).arg("--rig").arg(&rig).arg("--out").arg(dir.join("out")).output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{err}");
+        assert!(!err.contains("only simulated"), "{args:?}: {err}");
+        assert!(err.contains(needs), "{args:?} should name {needs}: {err}");
+    }
 }
