@@ -1,7 +1,15 @@
 //! The radiometric calibrations captured through the devices of the simulated rig
 //! (`btfrig_measurement::captured_calibration`) recover the simulator's configured truth
 //! within their stated uncertainty; the truth is read only here, for the comparison
-//! (`btfrig_sim_calibration::{sensor, light, leds, dark_flat}`).
+//! (`btfrig_sim_calibration::{sensor, light, leds, dark_flat}`). The shipped radiometric
+//! calibration files in `calibration/` are what these procedures make: recomputed by the
+//! commands their headers name, they are equal byte for byte.
+
+mod support;
+
+use std::path::Path;
+
+use support::{btfrig, ok, repo, scratch};
 
 use btfrig_calibrate::dark_flat::RadiometricPlan;
 use btfrig_calibrate::emva::SensorPlan;
@@ -141,4 +149,110 @@ fn a_device_no_backend_opens_is_named_with_its_role_and_port() {
     cfg.devices.lamp = btfrig_core::config::devices::DeviceEntry { kind: "acme-lamp".into(), options: t };
     let e = check_devices(&session(&cfg, 1), "light").unwrap_err().to_string();
     assert!(e.contains("devices.lamp.kind = \"acme-lamp\""), "{e}");
+}
+
+/// The shipped radiometric calibrations and the commands that made them (run from the
+/// repository's root; `--out` is added). Bit-exact: the simulated noise is seeded, every fit
+/// sums in a fixed order.
+const SHIPPED: &[(&str, &[&str])] = &[
+    ("calibration/bonn-dome-sim-dark-flat", &["calibrate", "radiometric", "--rig", "bonn-dome-sim"]),
+    ("calibration/bonn-camera-array-sim-dark-flat", &["calibrate", "radiometric", "--rig", "bonn-camera-array-sim"]),
+    ("calibration/bonn-dome-sim-leds.toml", &["calibrate", "leds", "--rig", "bonn-dome-sim"]),
+    ("calibration/bonn-gonio-sim-light.toml", &["calibrate", "light"]),
+    ("calibration/bonn-dome-sim-sensor.toml", &["calibrate", "sensor", "--rig", "bonn-dome-sim"]),
+];
+
+/// The slow ones (minutes: 151 flashes x 64 frames, a 12 MP light calibration, the
+/// 1600 x 1200 sensor series): `--ignored`.
+const SHIPPED_SLOW: &[(&str, &[&str])] = &[
+    ("calibration/bonn-camera-array-sim-flashes.toml", &["calibrate", "leds", "--rig", "bonn-camera-array-sim"]),
+    (
+        "calibration/bonn-gonio-sim-12mp-light.toml",
+        &["calibrate", "light", "--rig", "rig-configs/bonn-gonio-sim-12mp.toml"],
+    ),
+    ("calibration/bonn-gonio-sim-sensor.toml", &["calibrate", "sensor"]),
+];
+
+fn files_of(p: &Path) -> Vec<std::path::PathBuf> {
+    if p.is_dir() {
+        let mut v: Vec<_> = std::fs::read_dir(p).unwrap().map(|e| e.unwrap().path()).collect();
+        v.sort();
+        v
+    } else {
+        vec![p.to_path_buf()]
+    }
+}
+
+fn recompute(list: &[(&str, &[&str])], name: &str) {
+    let dir = scratch(name);
+    let mut differ = Vec::new();
+    for (shipped, args) in list {
+        let shipped = repo(shipped);
+        let out = dir.join(shipped.file_name().unwrap());
+        ok(btfrig().current_dir(repo("")).args(*args).arg("--out").arg(&out));
+        for f in files_of(&shipped) {
+            let mine = if shipped.is_dir() { out.join(f.file_name().unwrap()) } else { out.clone() };
+            if std::fs::read(&f).unwrap() != std::fs::read(&mine).unwrap_or_default() {
+                differ.push(format!("{} (recomputed: {})", f.display(), mine.display()));
+            }
+        }
+    }
+    assert!(differ.is_empty(), "shipped files differ from what their commands make: {differ:#?}");
+}
+
+#[test]
+fn the_shipped_radiometric_calibrations_are_what_the_procedures_make() {
+    recompute(SHIPPED, "shipped-radiometric");
+}
+
+#[test]
+#[ignore = "minutes: cargo test --release -p btfrig-cli --test calibrate_captured -- --ignored"]
+fn the_slow_shipped_radiometric_calibrations_are_what_the_procedures_make() {
+    recompute(SHIPPED_SLOW, "shipped-radiometric-slow");
+}
+
+/// `btfrig calibrate sensor` writes a file that reads back, naming the command in its header.
+#[test]
+fn calibrate_sensor_writes_a_file_that_names_its_command_and_reads_back() {
+    let dir = scratch("calibrate-sensor");
+    let out = dir.join("sensor.toml");
+    let stdout = ok(btfrig()
+        .args(["calibrate", "sensor", "--json", "--rig", "bonn-dome-sim", "--seed", "9", "--out"])
+        .arg(&out));
+    let v: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+    let k = &v["result"]["system_gain_dn_per_e"];
+    let z = (k["value"].as_f64().unwrap() - v["truth"]["system_gain_dn_per_e"].as_f64().unwrap()).abs()
+        / k["sigma"].as_f64().unwrap();
+    assert!(z < 3.0, "{v}");
+    let text = std::fs::read_to_string(&out).unwrap();
+    assert!(
+        text.starts_with("# Sensor characterisation after EMVA 1288")
+            && text.contains("btfrig calibrate sensor --rig bonn-dome-sim"),
+        "{text}"
+    );
+    let f = btfrig_calibrate::emva::SensorCalibrationFile::from_toml(&text, "sensor.toml").unwrap();
+    assert_eq!(f.result.system_gain_dn_per_e.value, k["value"].as_f64().unwrap());
+}
+
+/// No calibration command refuses a rig of real devices for being real: each checks the
+/// devices it needs and, when one cannot be opened, names it with its role, kind and port.
+#[test]
+fn calibrations_on_a_rig_of_real_ports_name_the_devices_they_need() {
+    let dir = scratch("calibrate-real-ports");
+    let text = std::fs::read_to_string(repo("rig-configs/bonn-gonio-serial.toml")).unwrap();
+    let real = text.replace("link = { emulated = true, poll_s = 0.01 }", "port = \"/dev/ttyNOPE0\"");
+    assert_ne!(real, text);
+    let rig = dir.join("real.toml");
+    std::fs::write(&rig, real).unwrap();
+    for (args, needs) in [
+        (&["calibrate", "light"][..], "lamp (kind \"serial\", port /dev/ttyNOPE0)"),
+        (&["calibrate", "radiometric"][..], "lamp (kind \"serial\", port /dev/ttyNOPE0)"),
+        (&["calibrate", "sensor"][..], "lamp (kind \"serial\", port /dev/ttyNOPE0)"),
+    ] {
+        let o = btfrig().args(args).arg("--rig").arg(&rig).arg("--out").arg(dir.join("out")).output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{err}");
+        assert!(!err.contains("only simulated"), "{args:?}: {err}");
+        assert!(err.contains(needs), "{args:?} should name {needs}: {err}");
+    }
 }

@@ -37,7 +37,7 @@ pub enum DarkFlatCalError {
         message: String,
     },
     /// The rig cannot take the plan's frames (config, a capture).
-    #[error("simulated rig: {0}")]
+    #[error("{0}")]
     Rig(String),
     /// The fit failed.
     #[error(transparent)]

@@ -66,7 +66,9 @@ impl<'a> CalibrationSession<'a> {
         b.build().map_err(RunError::Runtime)
     }
 
-    async fn open(&self, target: &MountedTarget, cameras: &[usize]) -> Result<OpenedRig, RunError> {
+    /// Opens the rig with `target` mounted; a failure names the devices `calibration` needs,
+    /// with their kinds and ports.
+    async fn open(&self, target: &MountedTarget, cameras: &[usize], calibration: &str) -> Result<OpenedRig, RunError> {
         let backend = self.registry.for_rig(self.rig)?;
         backend
             .open_calibration(CalibrationOpenRequest {
@@ -77,6 +79,21 @@ impl<'a> CalibrationSession<'a> {
                 time: self.time,
             })
             .await
+            .map_err(|e| {
+                let entries = self.rig.devices.entries();
+                let named: Vec<String> = needed_devices(self.rig, calibration)
+                    .iter()
+                    .filter_map(|(role, why)| {
+                        entries.iter().find(|(r, _)| r == role).map(|(r, d)| format!("{} ({why})", describe(r, d)))
+                    })
+                    .collect();
+                RunError::Rig(format!(
+                    "opening rig {} for calibrate {calibration} with a {} mounted: {e}; the devices it needs: {}",
+                    self.rig.rig.name,
+                    target.name(),
+                    named.join(", ")
+                ))
+            })
     }
 }
 
@@ -272,7 +289,7 @@ impl DeviceDarkFlat<'_, '_> {
         if self.current.as_ref().map(|c| c.0) != Some(shot.flat) {
             self.current = None; // the operator swaps cap and field
             let target = if shot.flat { MountedTarget::UniformField } else { MountedTarget::Capped };
-            let mut o = Opened { rig: self.rt.block_on(self.session.open(&target, &self.cameras))? };
+            let mut o = Opened { rig: self.rt.block_on(self.session.open(&target, &self.cameras, "radiometric"))? };
             self.rt.block_on(o.light(cfg, shot.flat))?;
             self.current = Some((shot.flat, o));
         }
@@ -375,7 +392,7 @@ pub fn capture_sensor(
     let mut count = 0usize;
     rt.block_on(async {
         // The lit half.
-        let mut lit = Opened { rig: session.open(&MountedTarget::UniformField, &[camera]).await? };
+        let mut lit = Opened { rig: session.open(&MountedTarget::UniformField, &[camera], "sensor").await? };
         lit.light(cfg, true).await?;
         let cam = lit.camera();
         let (lo, hi) = cam.capabilities().exposure_range_s;
@@ -410,7 +427,7 @@ pub fn capture_sensor(
         drop(lit);
 
         // The dark half.
-        let mut dark = Opened { rig: session.open(&MountedTarget::Capped, &[camera]).await? };
+        let mut dark = Opened { rig: session.open(&MountedTarget::Capped, &[camera], "sensor").await? };
         dark.light(cfg, false).await?;
         let cam = dark.camera();
         let mut ptc = Vec::new();
@@ -502,7 +519,7 @@ pub fn capture_light(
     let rt = session.runtime()?;
     let tile = rt.block_on(async {
         let target = MountedTarget::WhiteTile { albedo: plan.reference_albedo };
-        let OpenedRig::Gonio(mut g) = session.open(&target, &[]).await? else {
+        let OpenedRig::Gonio(mut g) = session.open(&target, &[], "light").await? else {
             return Err(RunError::Rig(format!(
                 "rig {}: the light calibration is a gonioreflectometer's",
                 cfg.rig.name
@@ -600,7 +617,7 @@ pub fn capture_leds(
     let rt = session.runtime()?;
     let (shots, exposure_s, frames) = rt.block_on(async {
         let target = MountedTarget::WhiteTile { albedo: opts.fit.reference_albedo };
-        let OpenedRig::Dome(mut d) = session.open(&target, &cameras).await? else {
+        let OpenedRig::Dome(mut d) = session.open(&target, &cameras, "leds").await? else {
             return Err(RunError::Rig(format!("rig {}: not opened as a dome", cfg.rig.name)));
         };
         let dev = &mut d.devices;

@@ -71,9 +71,12 @@ fn white_tile(albedo: f64) -> MaterialSpec {
     }
 }
 
+/// Per light its true power and colour, and the true reference rate.
+pub type LedTruth = (Vec<f64>, Vec<[f64; 3]>, f64);
+
 /// The simulator's truth of an LED calibration on dome `cfg`: per light its power relative to
 /// the mean and its colour (green = 1), and the reference rate. For error figures only.
-pub fn led_truth(cfg: &RigConfig) -> Result<(Vec<f64>, Vec<[f64; 3]>, f64), LedCalibError> {
+pub fn led_truth(cfg: &RigConfig) -> Result<LedTruth, LedCalibError> {
     let scene = DomeScene::new(cfg, &white_tile(1.0)).map_err(|e| LedCalibError::Rig(e.to_string()))?;
     let n = scene.dome().led_count();
     let white = scene.colour().camera_white();
