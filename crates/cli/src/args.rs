@@ -62,11 +62,20 @@ pub enum Command {
 pub enum HwCommand {
     /// List serial ports and USB devices (PTP cameras marked); with `--rig`, connect each
     /// device of that rig through its backend and print its identity and health (emulated
-    /// devices: behind their firmware on pseudo-terminals, docs/serial.md).
+    /// devices: behind their firmware on pseudo-terminals, docs/serial.md). GenICam cameras
+    /// (a build with the `genicam` feature): the rig's, those named by `--genicam`, and with
+    /// `--discover` every camera Aravis finds (docs/genicam.md).
     Probe {
         /// Rig config file, or an embedded rig by name (`gonio-serial`).
         #[arg(long)]
         rig: Option<std::path::PathBuf>,
+        /// A GenICam camera to open by IP address (repeatable); no broadcast.
+        #[arg(long, value_name = "ADDR")]
+        genicam: Vec<std::net::Ipv4Addr>,
+        /// Also list every GenICam camera by discovery, which BROADCASTS on every network
+        /// interface of this machine.
+        #[arg(long)]
+        discover: bool,
     },
 }
 
