@@ -221,7 +221,7 @@ impl<C> Metered<C> {
 /// simulated camera's, since GenICam carries neither.
 pub struct FedCamera {
     sim: Box<dyn Camera>,
-    genicam: GenicamDevice,
+    genicam: Metered<GenicamDevice>,
     feed: Arc<Feed>,
     fake: Arc<FedFakeCamera>,
     format: PixelFormat,
@@ -448,12 +448,15 @@ impl RigBackend for GenicamBackend {
         let (camera, label): (Box<dyn Camera>, String) = match &fake {
             Some(f) => {
                 let feed = f.feed();
-                let mut fed = FedCamera { sim: twin, genicam: device, feed, fake: f.clone(), format, pending: None };
+                // Only the GenICam calls are metered: the simulated frame's rendering is not the
+                // GenICam path's cost.
+                let genicam = Metered { camera: device, costs: costs.clone() };
+                let mut fed = FedCamera { sim: twin, genicam, feed, fake: f.clone(), format, pending: None };
                 // The simulated sensor starts where the GenICam camera was set.
                 fed.sim.set_exposure_s(fed.genicam.settings().exposure_s).await.map_err(|e| RunError::Rig(e.to_string()))?;
                 fed.sim.set_gain(fed.genicam.settings().gain).await.map_err(|e| RunError::Rig(e.to_string()))?;
                 (
-                    Box::new(Metered { camera: fed, costs: costs.clone() }),
+                    Box::new(fed),
                     format!("GenICam {target} ({} {}, serial {}): Aravis GigE fake camera fed by the simulator", info.vendor, info.model, info.serial),
                 )
             }
