@@ -20,9 +20,13 @@ use async_trait::async_trait;
 use btfrig_core::config::devices::DeviceEntry;
 use btfrig_core::config::RigConfig;
 use btfrig_core::frame::RawFrame;
-use btfrig_genicam::{DeviceOptions, FedFakeCamera, Feed, FeedFrame, GainUnit, GenicamCamera, GenicamDevice, OpenOptions, PixelFormat};
+use btfrig_genicam::{
+    DeviceOptions, FedFakeCamera, Feed, FeedFrame, GainUnit, GenicamCamera, GenicamDevice, OpenOptions, PixelFormat,
+};
 use btfrig_hw::{Camera, CameraCapabilities, CaptureSettings, Device, DeviceError, DeviceInfo, ErrorKind, Health};
-use btfrig_measurement::backend::{BackendRegistry, GonioOpenRequest, LinkReport, LinkUse, OpenedGonio, RigBackend, SceneOptions};
+use btfrig_measurement::backend::{
+    BackendRegistry, GonioOpenRequest, LinkReport, LinkUse, OpenedGonio, RigBackend, SceneOptions,
+};
 use btfrig_measurement::RunError;
 use serde::Deserialize;
 
@@ -82,10 +86,16 @@ impl CameraConfig {
             }
             match &cfg.serial {
                 Some(s) if !s.is_empty() && s.len() <= 15 && s.is_ascii() => {}
-                other => return Err(format!("devices.camera.link.serial = {other:?}: an emulated camera needs 1 to 15 ASCII characters")),
+                other => {
+                    return Err(format!(
+                        "devices.camera.link.serial = {other:?}: an emulated camera needs 1 to 15 ASCII characters"
+                    ))
+                }
             }
         } else if cfg.serial.is_some() {
-            return Err("devices.camera.link.serial: only with emulated = true (the fake camera's serial number)".into());
+            return Err(
+                "devices.camera.link.serial: only with emulated = true (the fake camera's serial number)".into()
+            );
         }
         Ok((cfg, DeviceEntry { kind: "sim".into(), options: sim }))
     }
@@ -128,7 +138,10 @@ impl CameraConfig {
 /// The rig with its GenICam camera replaced by the simulated twin, and the camera's keys.
 fn inner_rig(rig: &RigConfig) -> Result<(RigConfig, CameraConfig), String> {
     if rig.devices.camera.kind != "genicam" {
-        return Err(format!("devices.camera.kind = {:?}: the GenICam backend opens kind = \"genicam\"", rig.devices.camera.kind));
+        return Err(format!(
+            "devices.camera.kind = {:?}: the GenICam backend opens kind = \"genicam\"",
+            rig.devices.camera.kind
+        ));
     }
     let (cfg, sim) = CameraConfig::split(&rig.devices.camera)?;
     let mut inner = rig.clone();
@@ -277,7 +290,11 @@ impl Camera for FedCamera {
         self.sim.trigger(timeout_s).await?;
         let frame = self.sim.read_frame(timeout_s).await?;
         let bytes = self.format.pack(&frame.data).ok_or_else(|| {
-            DeviceError::new(self.genicam.name(), ErrorKind::Other, format!("a simulated sample exceeds {}", self.format.name()))
+            DeviceError::new(
+                self.genicam.name(),
+                ErrorKind::Other,
+                format!("a simulated sample exceeds {}", self.format.name()),
+            )
         })?;
         if let Some(t) = frame.meta.temperature_c {
             self.fake.set_temperature_c(t);
@@ -368,7 +385,10 @@ impl<C: Camera> Camera for Metered<C> {
 
 /// Runs a blocking GenICam call off the async threads.
 async fn blocking<R: Send + 'static>(f: impl FnOnce() -> Result<R, String> + Send + 'static) -> Result<R, RunError> {
-    tokio::task::spawn_blocking(f).await.map_err(|e| RunError::Rig(format!("devices.camera: {e}")))?.map_err(RunError::Rig)
+    tokio::task::spawn_blocking(f)
+        .await
+        .map_err(|e| RunError::Rig(format!("devices.camera: {e}")))?
+        .map_err(RunError::Rig)
 }
 
 #[async_trait]
@@ -394,7 +414,8 @@ impl RigBackend for GenicamBackend {
             (Some(serial), Target::Address(address)) if cfg.emulated => {
                 let (address, serial) = (*address, serial.clone());
                 let fake = blocking(move || {
-                    FedFakeCamera::start(address, &serial).map_err(|e| format!("devices.camera (emulated GenICam): {e}"))
+                    FedFakeCamera::start(address, &serial)
+                        .map_err(|e| format!("devices.camera (emulated GenICam): {e}"))
                 })
                 .await?;
                 Some(Arc::new(fake))
@@ -443,7 +464,8 @@ impl RigBackend for GenicamBackend {
             gain_unit,
             initial: (settings.exposure_s, settings.gain),
         };
-        let device = GenicamDevice::open(camera, options, clock.clone()).await.map_err(|e| RunError::Rig(e.to_string()))?;
+        let device =
+            GenicamDevice::open(camera, options, clock.clone()).await.map_err(|e| RunError::Rig(e.to_string()))?;
         let costs = Arc::new(Costs::default());
         let (camera, label): (Box<dyn Camera>, String) = match &fake {
             Some(f) => {
@@ -453,11 +475,17 @@ impl RigBackend for GenicamBackend {
                 let genicam = Metered { camera: device, costs: costs.clone() };
                 let mut fed = FedCamera { sim: twin, genicam, feed, fake: f.clone(), format, pending: None };
                 // The simulated sensor starts where the GenICam camera was set.
-                fed.sim.set_exposure_s(fed.genicam.settings().exposure_s).await.map_err(|e| RunError::Rig(e.to_string()))?;
+                fed.sim
+                    .set_exposure_s(fed.genicam.settings().exposure_s)
+                    .await
+                    .map_err(|e| RunError::Rig(e.to_string()))?;
                 fed.sim.set_gain(fed.genicam.settings().gain).await.map_err(|e| RunError::Rig(e.to_string()))?;
                 (
                     Box::new(fed),
-                    format!("GenICam {target} ({} {}, serial {}): Aravis GigE fake camera fed by the simulator", info.vendor, info.model, info.serial),
+                    format!(
+                        "GenICam {target} ({} {}, serial {}): Aravis GigE fake camera fed by the simulator",
+                        info.vendor, info.model, info.serial
+                    ),
                 )
             }
             None => {

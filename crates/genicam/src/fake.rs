@@ -82,7 +82,12 @@ impl Feed {
     ) {
         let frame = self.next.lock().unwrap_or_else(|e| e.into_inner()).take();
         match frame {
-            Some(f) if f.width == width && f.height == height && f.pixel_format == pixel_format && f.bytes.len() == bytes => {
+            Some(f)
+                if f.width == width
+                    && f.height == height
+                    && f.pixel_format == pixel_format
+                    && f.bytes.len() == bytes =>
+            {
                 write(&f.bytes);
                 self.fills.fetch_add(1, Ordering::Relaxed);
             }
@@ -94,7 +99,8 @@ impl Feed {
 /// Aravis's fake camera XML with btfrig's additions (see the module docs). Fails naming the
 /// anchor that was not found, should a later Aravis change its XML.
 pub fn fed_genicam_xml(stock: &str) -> Result<String, Error> {
-    let anchor = |what: &str| Error::Other(format!("Aravis's fake camera XML has no {what}: cannot add btfrig's features"));
+    let anchor =
+        |what: &str| Error::Other(format!("Aravis's fake camera XML has no {what}: cannot add btfrig's features"));
     let mut xml = stock.to_string();
 
     // Pixel formats: entries after the enumeration's display name.
