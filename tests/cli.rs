@@ -986,3 +986,64 @@ fn r24_nan_jitter_inverted_exposure_range_and_missing_material_are_refused_by_pl
         assert!(!out.exists(), "{name}: {} was left behind", out.display());
     }
 }
+
+/// Without the `genicam` feature a GenICam rig is refused before anything is created, and the
+/// message says how to build with it (docs/genicam.md).
+#[cfg(not(feature = "genicam"))]
+#[test]
+fn genicam_rig_without_the_feature_says_how_to_build_with_it() {
+    let dir = scratch("no-genicam");
+    let out = dir.join("run");
+    let e = fails(btfrig().args(["demo", "--rig", "gonio-genicam", "--json", "--out"]).arg(&out));
+    assert!(e.contains("built without GenICam") && e.contains("--features genicam"), "{e}");
+    assert!(!out.exists(), "nothing is created");
+    let e = fails(btfrig().args(["hw", "probe", "--genicam", "127.0.0.1"]));
+    assert!(e.contains("built without GenICam"), "{e}");
+}
+
+/// Every texture file's content hash, by name.
+#[cfg(feature = "genicam")]
+fn texture_hashes(dataset: &Path) -> std::collections::BTreeMap<String, String> {
+    std::fs::read_dir(dataset.join("textures"))
+        .unwrap()
+        .map(|e| {
+            let p = e.unwrap().path();
+            (p.file_name().unwrap().to_string_lossy().into_owned(), btfrig_store::content_hash(&std::fs::read(&p).unwrap()))
+        })
+        .collect()
+}
+
+/// `btfrig demo --rig gonio-genicam --json` (the demo with its camera behind a real GenICam
+/// stream, GigE Vision on loopback, in a network namespace with only `lo`) writes the same
+/// textures as the direct demo, and its report shows the GenICam path's cost.
+#[cfg(feature = "genicam")]
+#[test]
+fn genicam_demo_gives_the_direct_demo_textures() {
+    let dir = scratch("genicam-demo");
+    let (direct, genicam) = (dir.join("direct"), dir.join("genicam"));
+    let d: serde_json::Value =
+        serde_json::from_str(ok(btfrig().args(["demo", "--json", "--out"]).arg(&direct)).trim()).unwrap();
+    let o = Command::new("unshare")
+        .args(["--net", "--", "sh", "-c", "ip link set lo up && exec \"$0\" \"$@\""])
+        .arg(env!("CARGO_BIN_EXE_btfrig"))
+        .args(["demo", "--rig", "gonio-genicam", "--json", "--out"])
+        .arg(&genicam)
+        .output()
+        .expect("unshare (util-linux) runs; it needs root or CAP_SYS_ADMIN");
+    assert!(o.status.success(), "{}", text(&o));
+    let g: serde_json::Value = serde_json::from_str(String::from_utf8_lossy(&o.stdout).trim()).unwrap();
+    assert_eq!((d["captures"].as_u64(), g["captures"].as_u64()), (Some(60), Some(60)));
+    let (dt, gt) = (texture_hashes(&direct), texture_hashes(&genicam));
+    assert_eq!(dt.len(), 60);
+    assert_eq!(gt, dt, "texture hashes differ between the GenICam and the direct demo");
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(genicam.join("report.json")).unwrap()).unwrap();
+    let camera = report["links"].as_array().unwrap().iter().find(|l| l["role"] == "camera").expect("camera link");
+    println!(
+        "direct demo wall {:.1} s; GenICam demo wall {:.1} s; camera link {camera}",
+        d["wall_s"].as_f64().unwrap(),
+        g["wall_s"].as_f64().unwrap()
+    );
+    assert_eq!(camera["dropped_buffers"], 0, "{camera}");
+    assert!(camera["exchanges"].as_u64().unwrap() >= 60, "{camera}");
+}

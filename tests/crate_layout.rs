@@ -123,6 +123,23 @@ fn only_the_cli_uses_the_harnesses() {
     assert!(users.is_empty(), "only btfrig-cli may depend on {HARNESSES:?}; these do too: {users:?}");
 }
 
+/// Aravis (a C library from a Debian package) is linked only where GenICam cameras are
+/// asked for: `btfrig-genicam` wraps it, `btfrig-genicam-backend` puts it in the registry,
+/// and only the CLI (behind its `genicam` feature) installs that; the simulated rig's
+/// registry (`btfrig-sim-backend`) and every other library stay free of it.
+#[test]
+fn only_the_genicam_crates_link_aravis() {
+    let graph = workspace_libraries();
+    assert!(graph.contains_key("btfrig-genicam") && graph.contains_key("btfrig-genicam-backend"), "{graph:?}");
+    let allowed = ["btfrig-cli", "btfrig-genicam", "btfrig-genicam-backend"];
+    let users: Vec<&String> = graph
+        .keys()
+        .filter(|n| !allowed.contains(&n.as_str()))
+        .filter(|n| closure(&graph, n).contains("btfrig-genicam"))
+        .collect();
+    assert!(users.is_empty(), "only {allowed:?} may depend on btfrig-genicam; these do too: {users:?}");
+}
+
 /// Dependencies point one way (issue 25): the stage pipeline reads captures (plain data in
 /// `btfrig_core::capture`), never the device-owning engine that produces them; the run of a
 /// measurement opens devices through the backend registry, so device transports (serial

@@ -63,8 +63,10 @@ pub enum HwCommand {
     /// List serial ports and USB devices (PTP cameras marked); with `--rig`, connect each
     /// device of that rig through its backend and print its identity, health and homing
     /// state without moving it (emulated devices: behind their firmware on pseudo-terminals,
-    /// real serial controllers on their ports; docs/serial.md). Exit status 1 when any
-    /// device fails, naming it.
+    /// real serial controllers on their ports; docs/serial.md). GenICam cameras (a build with
+    /// the `genicam` feature): the rig's, those named by `--genicam`, and with `--discover`
+    /// every camera Aravis finds (docs/genicam.md). Exit status 1 when any device fails,
+    /// naming it.
     Probe {
         /// Rig config file, or an embedded rig by name (`gonio-serial`).
         #[arg(long)]
@@ -73,6 +75,13 @@ pub enum HwCommand {
         /// format, exposure range, what its sidecar says and any problem found; repeatable.
         #[arg(long, value_name = "DIR")]
         recorded: Vec<std::path::PathBuf>,
+        /// A GenICam camera to open by IP address (repeatable); no broadcast.
+        #[arg(long, value_name = "ADDR")]
+        genicam: Vec<std::net::Ipv4Addr>,
+        /// Also list every GenICam camera by discovery, which BROADCASTS on every network
+        /// interface of this machine.
+        #[arg(long)]
+        discover: bool,
     },
 }
 

@@ -1,12 +1,19 @@
-//! `btfrig hw probe`: what is attached (serial ports, USB devices) and, for a rig config,
-//! each device's identity, health and homing state through its real backend, moving nothing;
-//! recorded-camera directories (`--recorded DIR`, or a recorded rig's `[devices.camera]
-//! recording`). Exit status 1 when a device of the rig or a recording fails, naming it.
+//! `btfrig hw probe`: what is attached (serial ports, USB devices, GenICam cameras named or,
+//! on request, discovered) and, for a rig config, each device's identity, health and homing
+//! state through its real backend, moving nothing; recorded-camera directories (`--recorded
+//! DIR`, or a recorded rig's `[devices.camera] recording`). Exit status 1 when a device of
+//! the rig or a recording fails, naming it.
 
+use std::net::Ipv4Addr;
 use std::path::Path;
 use std::process::ExitCode;
 
-pub fn probe(rig: Option<&Path>, recorded: &[std::path::PathBuf]) -> anyhow::Result<ExitCode> {
+pub fn probe(
+    rig: Option<&Path>,
+    recorded: &[std::path::PathBuf],
+    genicam: &[Ipv4Addr],
+    discover: bool,
+) -> anyhow::Result<ExitCode> {
     if !recorded.is_empty() || rig.is_some_and(is_recorded_rig) {
         return probe_recorded(rig, recorded);
     }
@@ -52,12 +59,18 @@ pub fn probe(rig: Option<&Path>, recorded: &[std::path::PathBuf]) -> anyhow::Res
         }
         Err(e) => println!("USB devices: cannot list: {e}"),
     }
+    genicam_cameras(genicam, discover)?;
     let Some(path) = rig else { return Ok(ExitCode::SUCCESS) };
     let cfg = crate::rig::load(Some(path))?;
     println!("rig {} ({}):", cfg.rig.name, path.display());
+    let (cfg, camera) = rig_genicam_camera(&cfg)?;
     let devices = btfrig_sim_backend::probe(&cfg).map_err(anyhow::Error::msg)?;
     let mut failed = Vec::new();
     for d in &devices {
+        if d.role == "camera" && camera.is_some() {
+            // The simulated twin the probe opened in the GenICam camera's place.
+            continue;
+        }
         let link = d.link.as_ref().map_or(String::new(), |l| format!(" on {l}"));
         let homed = match d.homed {
             Some(true) => ", homed",
@@ -71,6 +84,9 @@ pub fn probe(rig: Option<&Path>, recorded: &[std::path::PathBuf]) -> anyhow::Res
         if let Some(f) = &d.failure {
             failed.push(format!("devices.{}{link}: {f}", d.role));
         }
+    }
+    if let Some(line) = camera {
+        println!("  camera    kind genicam {line}");
     }
     if failed.is_empty() {
         return Ok(ExitCode::SUCCESS);
@@ -112,4 +128,61 @@ fn probe_recorded(rig: Option<&Path>, recorded: &[std::path::PathBuf]) -> anyhow
     }
     eprintln!("btfrig: hw probe: {unusable} of {} recording(s) are not usable (problems listed above)", dirs.len());
     Ok(ExitCode::FAILURE)
+}
+
+#[cfg(feature = "genicam")]
+fn describe(c: &btfrig_genicam_backend::ProbedCamera) -> String {
+    match &c.info {
+        Ok(i) => format!(
+            "{}: id {:?} model {:?} {:?} serial {:?} pixel formats {} temperature {}",
+            c.target,
+            i.id,
+            i.vendor,
+            i.model,
+            i.serial,
+            i.pixel_formats.join(","),
+            c.temperature_c.map_or("not reported".to_string(), |t| format!("{t:.1} C"))
+        ),
+        Err(e) => format!("{}: cannot open: {e}", c.target),
+    }
+}
+
+/// GenICam cameras by address and, with `discover`, by discovery.
+#[cfg(feature = "genicam")]
+fn genicam_cameras(addresses: &[Ipv4Addr], discover: bool) -> anyhow::Result<()> {
+    if addresses.is_empty() && !discover {
+        println!("GenICam cameras: none asked for (--genicam ADDR, or --discover, which broadcasts)");
+        return Ok(());
+    }
+    let targets: Vec<_> = addresses.iter().map(|a| btfrig_genicam_backend::Target::Address(*a)).collect();
+    let found = btfrig_genicam_backend::probe_cameras(&targets, discover);
+    println!("GenICam cameras:");
+    for c in &found {
+        println!("  {}", describe(c));
+    }
+    Ok(())
+}
+
+#[cfg(not(feature = "genicam"))]
+fn genicam_cameras(addresses: &[Ipv4Addr], discover: bool) -> anyhow::Result<()> {
+    anyhow::ensure!(addresses.is_empty() && !discover, "{}", crate::backends::WITHOUT_GENICAM);
+    Ok(())
+}
+
+/// The rig with a GenICam camera replaced by its simulated twin for the other devices' probe,
+/// and the camera's probe line.
+#[cfg(feature = "genicam")]
+fn rig_genicam_camera(
+    cfg: &btfrig_core::config::RigConfig,
+) -> anyhow::Result<(btfrig_core::config::RigConfig, Option<String>)> {
+    let camera = btfrig_genicam_backend::probe_rig_camera(cfg).map_err(anyhow::Error::msg)?;
+    let rest = btfrig_genicam_backend::without_genicam_camera(cfg).map_err(anyhow::Error::msg)?;
+    Ok((rest, camera.as_ref().map(describe)))
+}
+
+#[cfg(not(feature = "genicam"))]
+fn rig_genicam_camera(
+    cfg: &btfrig_core::config::RigConfig,
+) -> anyhow::Result<(btfrig_core::config::RigConfig, Option<String>)> {
+    Ok((cfg.clone(), None))
 }

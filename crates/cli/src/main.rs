@@ -10,6 +10,7 @@
 // - bench_cmd, bench_{color,compress,demux,serve}: btfrig bench ... (harnesses in btfrig-bench)
 
 mod args;
+mod backends;
 mod bench_cmd;
 mod bench_color;
 mod bench_compress;
@@ -48,7 +49,7 @@ static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
 fn main() -> std::process::ExitCode {
     // The device backends every run of this binary opens rigs with (`btfrig_measurement::backend`).
-    btfrig_sim_backend::install();
+    backends::install();
     let cli = Cli::parse();
     let done = |r: anyhow::Result<()>| r.map(|()| std::process::ExitCode::SUCCESS);
     let result = match cli.command {
@@ -73,7 +74,9 @@ fn main() -> std::process::ExitCode {
         Command::Sparse(args::SparseCommand::Select(a)) => done(compress_cmd::select(&a)),
         Command::Sparse(args::SparseCommand::Reconstruct(a)) => done(compress_cmd::reconstruct(&a)),
         Command::Serve(a) => done(serve_cmd::serve(&a)),
-        Command::Hw(args::HwCommand::Probe { rig, recorded }) => hw_cmd::probe(rig.as_deref(), &recorded),
+        Command::Hw(args::HwCommand::Probe { rig, recorded, genicam, discover }) => {
+            hw_cmd::probe(rig.as_deref(), &recorded, &genicam, discover)
+        }
         Command::Calibrate(CalibrateCommand::Geometry(a)) => done(calibrate_cmd::geometry(&a)),
         Command::Calibrate(CalibrateCommand::Color(a)) => done(calibrate_color_cmd::color(&a)),
         Command::Calibrate(CalibrateCommand::RigGeometry(a)) => done(calibrate_rig_geometry_cmd::rig_geometry(&a)),

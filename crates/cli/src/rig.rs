@@ -9,7 +9,14 @@ use btfrig_core::plan::{BUILTIN_RIG, BUILTIN_RIGS};
 /// Loads the rig config at `path`, or the embedded default simulated gonioreflectometer
 /// (the same text plans name as `builtin:bonn-gonio-sim`), so the binary works from any
 /// directory.
+/// A GenICam rig in a build without GenICam fails here, saying how to build with it.
 pub fn load(path: Option<&Path>) -> anyhow::Result<RigConfig> {
+    let rig = load_any(path)?;
+    crate::backends::check_genicam(&rig)?;
+    Ok(rig)
+}
+
+fn load_any(path: Option<&Path>) -> anyhow::Result<RigConfig> {
     if let Some(name) = path.and_then(builtin) {
         let (_, text) = BUILTIN_RIGS.iter().find(|(n, _)| *n == name).expect("builtin() names an embedded rig");
         return Ok(RigConfig::from_toml(text, &format!("<embedded {name}>"))?);

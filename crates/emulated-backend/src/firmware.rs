@@ -275,6 +275,7 @@ impl Firmware {
                     bytes_in: t.bytes_in,
                     wall_s: t.exchange_wall_s,
                     wire_s: Some(t.wire_s(m.baud)),
+                    dropped_buffers: None,
                 }
             })
             .collect();
@@ -288,6 +289,7 @@ impl Firmware {
                 bytes_in: t.bytes_in,
                 wall_s: t.codec_wall_s,
                 wire_s: None,
+                dropped_buffers: None,
             });
         }
         out

@@ -468,7 +468,11 @@ impl Owner {
         let (hmin, hmax) = cam.height_bounds().map_err(|e| self.control_error("Height", e))?;
         for (what, v, lo, hi) in [("Width", format.width, wmin, wmax), ("Height", format.height, hmin, hmax)] {
             if (v as i64) < lo as i64 || v as i64 > hi as i64 {
-                return Err(Error::OutOfRange { what: what.into(), value: v.to_string(), allowed: format!("[{lo}, {hi}]") });
+                return Err(Error::OutOfRange {
+                    what: what.into(),
+                    value: v.to_string(),
+                    allowed: format!("[{lo}, {hi}]"),
+                });
             }
         }
         cam.set_region(0, 0, format.width as i32, format.height as i32).map_err(|e| self.control_error("region", e))?;
@@ -490,7 +494,11 @@ impl Owner {
         let cam = self.camera()?;
         let (lo, hi) = cam.exposure_time_bounds().map_err(|e| self.control_error("ExposureTime", e))?;
         if !(us >= lo && us <= hi) {
-            return Err(Error::OutOfRange { what: "ExposureTime (us)".into(), value: us.to_string(), allowed: format!("[{lo}, {hi}]") });
+            return Err(Error::OutOfRange {
+                what: "ExposureTime (us)".into(),
+                value: us.to_string(),
+                allowed: format!("[{lo}, {hi}]"),
+            });
         }
         cam.set_exposure_time(us).map_err(|e| self.control_error("ExposureTime", e))?;
         let got = cam.exposure_time().map_err(|e| self.control_error("ExposureTime", e))?;
@@ -502,7 +510,11 @@ impl Owner {
         let cam = self.camera()?;
         let (lo, hi) = cam.gain_bounds().map_err(|e| self.control_error("Gain", e))?;
         if !(gain >= lo && gain <= hi) {
-            return Err(Error::OutOfRange { what: "Gain".into(), value: gain.to_string(), allowed: format!("[{lo}, {hi}]") });
+            return Err(Error::OutOfRange {
+                what: "Gain".into(),
+                value: gain.to_string(),
+                allowed: format!("[{lo}, {hi}]"),
+            });
         }
         cam.set_gain(gain).map_err(|e| self.control_error("Gain", e))?;
         let got = cam.gain().map_err(|e| self.control_error("Gain", e))?;
@@ -527,7 +539,8 @@ impl Owner {
                 cam.set_trigger("Software").map_err(|e| self.control_error("TriggerSource Software", e))?
             }
             Trigger::Hardware { source } => {
-                let sources = cam.dup_available_trigger_sources().map_err(|e| self.control_error("TriggerSource", e))?;
+                let sources =
+                    cam.dup_available_trigger_sources().map_err(|e| self.control_error("TriggerSource", e))?;
                 if !sources.iter().any(|s| s.as_str() == source) {
                     let names: Vec<&str> = sources.iter().map(|s| s.as_str()).collect();
                     return Err(Error::Unsupported {
@@ -606,7 +619,10 @@ impl Owner {
         stream.push_buffer(buffer);
         let Some(pixel_format) = PixelFormat::from_code(code) else {
             self.stats.failures += 1;
-            return Err(Error::Incomplete { frame_id, status: format!("pixel format {code:#010x} is not one btfrig reads") });
+            return Err(Error::Incomplete {
+                frame_id,
+                status: format!("pixel format {code:#010x} is not one btfrig reads"),
+            });
         };
         if data.len() != pixel_format.image_bytes(width as usize, height as usize) {
             self.stats.failures += 1;

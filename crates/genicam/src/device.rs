@@ -102,8 +102,7 @@ impl GenicamDevice {
     pub async fn open(camera: GenicamCamera, options: DeviceOptions, clock: SharedClock) -> Result<Self, DeviceError> {
         let info = camera.info();
         let name = options.name.clone();
-        let format =
-            ImageFormat { width: options.width, height: options.height, pixel_format: options.pixel_format };
+        let format = ImageFormat { width: options.width, height: options.height, pixel_format: options.pixel_format };
         let cam = camera.clone();
         blocking(&name, move || {
             cam.set_image_format(format)?;
@@ -240,7 +239,12 @@ impl Camera for GenicamDevice {
     async fn set_exposure_s(&mut self, exposure_s: f64) -> Result<(), DeviceError> {
         let (lo, hi) = self.options.exposure_range_s;
         if !(exposure_s >= lo && exposure_s <= hi) {
-            return Err(DeviceError::out_of_range(&self.options.name, "exposure_s", exposure_s, format!("[{lo}, {hi}] s")));
+            return Err(DeviceError::out_of_range(
+                &self.options.name,
+                "exposure_s",
+                exposure_s,
+                format!("[{lo}, {hi}] s"),
+            ));
         }
         let us = exposure_s * 1e6;
         let cam = self.camera.clone();

@@ -82,7 +82,12 @@ impl Feed {
     ) {
         let frame = self.next.lock().unwrap_or_else(|e| e.into_inner()).take();
         match frame {
-            Some(f) if f.width == width && f.height == height && f.pixel_format == pixel_format && f.bytes.len() == bytes => {
+            Some(f)
+                if f.width == width
+                    && f.height == height
+                    && f.pixel_format == pixel_format
+                    && f.bytes.len() == bytes =>
+            {
                 write(&f.bytes);
                 self.fills.fetch_add(1, Ordering::Relaxed);
             }
@@ -94,7 +99,8 @@ impl Feed {
 /// Aravis's fake camera XML with btfrig's additions (see the module docs). Fails naming the
 /// anchor that was not found, should a later Aravis change its XML.
 pub fn fed_genicam_xml(stock: &str) -> Result<String, Error> {
-    let anchor = |what: &str| Error::Other(format!("Aravis's fake camera XML has no {what}: cannot add btfrig's features"));
+    let anchor =
+        |what: &str| Error::Other(format!("Aravis's fake camera XML has no {what}: cannot add btfrig's features"));
     let mut xml = stock.to_string();
 
     // Pixel formats: entries after the enumeration's display name.
@@ -133,16 +139,22 @@ pub fn fed_genicam_xml(stock: &str) -> Result<String, Error> {
     Ok(xml)
 }
 
-/// A GigE Vision fake camera served by this process, fed with our pixels.
+/// A GigE Vision fake camera served by this process, fed with our pixels. `Sync`: Aravis's
+/// objects (Send, not Sync) sit behind a mutex.
 pub struct FedFakeCamera {
-    // Field order is drop order: the hook is removed before the camera goes.
-    hook: FillHook,
-    gv: aravis::GvFakeCamera,
-    fake: aravis::FakeCamera,
+    served: Mutex<Served>,
     feed: Arc<Feed>,
     xml: PathBuf,
     address: Ipv4Addr,
     serial: String,
+}
+
+/// Aravis's side of a [`FedFakeCamera`].
+struct Served {
+    // Field order is drop order: the hook is removed before the camera goes.
+    _hook: FillHook,
+    gv: aravis::GvFakeCamera,
+    fake: aravis::FakeCamera,
 }
 
 impl FedFakeCamera {
@@ -174,7 +186,13 @@ impl FedFakeCamera {
         fake.set_trigger_frequency(1000.0);
         let feed = Arc::new(Feed::default());
         let hook = FillHook::install(fake.clone(), feed.clone());
-        let cam = FedFakeCamera { hook, gv, fake, feed, xml, address, serial: serial.to_string() };
+        let cam = FedFakeCamera {
+            served: Mutex::new(Served { _hook: hook, gv, fake }),
+            feed,
+            xml,
+            address,
+            serial: serial.to_string(),
+        };
         cam.set_temperature_c(25.0);
         Ok(cam)
     }
@@ -196,19 +214,19 @@ impl FedFakeCamera {
 
     /// Sets what `DeviceTemperature` reads.
     pub fn set_temperature_c(&self, celsius: f64) {
-        self.fake.write_register(TEMPERATURE_REGISTER, (celsius as f32).to_bits());
+        let served = self.served.lock().unwrap_or_else(|e| e.into_inner());
+        served.fake.write_register(TEMPERATURE_REGISTER, (celsius as f32).to_bits());
     }
 
     /// Whether it still listens.
     pub fn is_running(&self) -> bool {
-        self.gv.is_running()
+        self.served.lock().unwrap_or_else(|e| e.into_inner()).gv.is_running()
     }
 }
 
 impl Drop for FedFakeCamera {
     fn drop(&mut self) {
         let _ = std::fs::remove_file(&self.xml);
-        let _ = &self.hook;
     }
 }
 

@@ -95,11 +95,7 @@ impl FillHook {
         // both here and around each callback call, arvfakecamera.c), so no call can use `data`
         // after it is released.
         unsafe {
-            aravis_sys::arv_fake_camera_set_fill_pattern(
-                camera.to_glib_none().0,
-                Some(fill),
-                data as *mut c_void,
-            );
+            aravis_sys::arv_fake_camera_set_fill_pattern(camera.to_glib_none().0, Some(fill), data as *mut c_void);
         }
         FillHook { camera, feed: data }
     }

@@ -16,7 +16,8 @@ fn every_frame_has_the_configured_size_format_exposure_and_gain() {
     assert!(info.pixel_formats.iter().any(|f| f == "BayerRG8"), "{:?}", info.pixel_formats);
 
     // Formats the stock fake camera lists; each with its own size, exposure and gain.
-    let cases = [("Mono8", 320, 240, 2000.0, 3.0), ("BayerRG8", 512, 256, 1500.0, 0.0), ("Mono16", 64, 48, 10_000.0, 7.0)];
+    let cases =
+        [("Mono8", 320, 240, 2000.0, 3.0), ("BayerRG8", 512, 256, 1500.0, 0.0), ("Mono16", 64, 48, 10_000.0, 7.0)];
     for (name, width, height, exposure_us, gain) in cases {
         let pixel_format = PixelFormat::from_name(name).unwrap();
         cam.set_image_format(ImageFormat { width, height, pixel_format }).unwrap();
@@ -43,7 +44,11 @@ fn every_frame_has_the_configured_size_format_exposure_and_gain() {
 
     // What the camera does not offer is refused with what it does.
     let e = cam
-        .set_image_format(ImageFormat { width: 64, height: 48, pixel_format: PixelFormat::from_name("BayerRG12").unwrap() })
+        .set_image_format(ImageFormat {
+            width: 64,
+            height: 48,
+            pixel_format: PixelFormat::from_name("BayerRG12").unwrap(),
+        })
         .unwrap_err();
     assert!(e.to_string().contains("BayerRG12") && e.to_string().contains("Mono8"), "{e}");
     let e = cam.set_exposure_us(1e12).unwrap_err();

@@ -66,7 +66,9 @@ fn external_fake_camera_frames_kill_and_restart() {
     assert_eq!((info.model.as_str(), info.serial.as_str()), ("Fake", "GV01"));
 
     // The external camera keeps its registers between clients: everything is set each time.
-    for (name, w, h, exposure_us, gain) in [("Mono8", 512, 256, 2000.0, 3.0), ("Mono16", 128, 96, 500.0, 1.0), ("BayerRG8", 640, 480, 12_000.0, 0.0)] {
+    for (name, w, h, exposure_us, gain) in
+        [("Mono8", 512, 256, 2000.0, 3.0), ("Mono16", 128, 96, 500.0, 1.0), ("BayerRG8", 640, 480, 12_000.0, 0.0)]
+    {
         let pf = configure(&cam, name, w, h, exposure_us, gain);
         for _ in 0..4 {
             let f = cam.trigger_software(Duration::from_secs(5)).unwrap();
@@ -129,7 +131,12 @@ fn fed_pixels_arrive_bit_exact() {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(26);
     let feed = fed.feed();
     // Exposure in microseconds that is no whole number: the float register keeps it exactly.
-    for (name, w, h, exposure_us, gain) in [("BayerRG12", 320, 240, 1234.5678, 6.0), ("BayerRG16", 200, 100, 20_000.125, 0.0), ("Mono8", 64, 64, 100.0, 12.5), ("Mono12", 96, 80, 777.0, 3.0)] {
+    for (name, w, h, exposure_us, gain) in [
+        ("BayerRG12", 320, 240, 1234.5678, 6.0),
+        ("BayerRG16", 200, 100, 20_000.125, 0.0),
+        ("Mono8", 64, 64, 100.0, 12.5),
+        ("Mono12", 96, 80, 777.0, 3.0),
+    ] {
         let pf = configure(&cam, name, w, h, exposure_us, gain);
         let max: u16 = if pf.bits() >= 16 { u16::MAX } else { (1 << pf.bits()) - 1 };
         for _ in 0..3 {
@@ -138,7 +145,11 @@ fn fed_pixels_arrive_bit_exact() {
             feed.set_next(FeedFrame { width: w, height: h, pixel_format: pf.code(), bytes });
             let f = cam.trigger_software(Duration::from_secs(5)).unwrap();
             assert_eq!((f.width, f.height, f.pixel_format), (w, h, pf));
-            assert_eq!(pf.unpack(&f.data, w as usize, h as usize).unwrap(), samples, "{name}: pixels changed on the way");
+            assert_eq!(
+                pf.unpack(&f.data, w as usize, h as usize).unwrap(),
+                samples,
+                "{name}: pixels changed on the way"
+            );
             assert_eq!((f.exposure_us, f.gain), (exposure_us, gain));
             assert_eq!(f.temperature_c, Some(31.5));
         }

@@ -151,6 +151,9 @@ pub struct LinkUse {
     /// Rig seconds the same bytes would take on a real line at the nominal baud rate
     /// (serial only; a pty has no baud rate, so the emulated run's rig time does not have it).
     pub wire_s: Option<f64>,
+    /// Frames a streaming camera dropped or received incomplete (a GenICam camera's
+    /// buffers); `None` for links that do not stream.
+    pub dropped_buffers: Option<u64>,
 }
 
 impl LinkUse {
@@ -164,6 +167,7 @@ impl LinkUse {
             "bytes_in": self.bytes_in,
             "wall_s": self.wall_s,
             "wire_s": self.wire_s,
+            "dropped_buffers": self.dropped_buffers,
         })
     }
 }

@@ -61,10 +61,11 @@ async fn every_rig_config_builds_a_sim_rig() {
             [Some(&d.robot), Some(&d.rail), d.turntable.as_ref(), Some(&d.lamp), d.led_array.as_ref(), Some(&d.camera)];
         if kinds.iter().flatten().any(|e| e.kind != "sim") {
             // Real backends against emulated firmware: the runner builds those rigs
-            // (crates/measurement/tests/serial_rig.rs, dome.rs); the simulator alone refuses them.
+            // (crates/measurement/tests/serial_rig.rs, dome.rs; the GenICam one
+            // crates/genicam-backend/tests/demo.rs); the simulator alone refuses them.
             let name = path.file_name().unwrap().to_string_lossy();
             assert!(
-                ["bonn-gonio-serial.toml", "bonn-dome-serial.toml"].contains(&name.as_ref()),
+                ["bonn-gonio-serial.toml", "bonn-dome-serial.toml", "bonn-gonio-genicam.toml"].contains(&name.as_ref()),
                 "{name}: a rig config with non-sim devices that no test builds"
             );
             assert!(SimRig::from_rig_config(&cfg, &FaultScenario::none(), TokioClock::shared(), source()).is_err());

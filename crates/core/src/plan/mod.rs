@@ -51,6 +51,7 @@ pub const BUILTIN_RIG: &str = "builtin:bonn-gonio-sim";
 pub const BUILTIN_RIGS: &[(&str, &str)] = &[
     (BUILTIN_RIG, include_str!("../../../../rig-configs/bonn-gonio-sim.toml")),
     ("builtin:bonn-gonio-serial", include_str!("../../../../rig-configs/bonn-gonio-serial.toml")),
+    ("builtin:bonn-gonio-genicam", include_str!("../../../../rig-configs/bonn-gonio-genicam.toml")),
     ("builtin:bonn-dome-sim", include_str!("../../../../rig-configs/bonn-dome-sim.toml")),
     ("builtin:bonn-dome-serial", include_str!("../../../../rig-configs/bonn-dome-serial.toml")),
     ("builtin:bonn-camera-array-sim", include_str!("../../../../rig-configs/bonn-camera-array-sim.toml")),
