@@ -202,6 +202,12 @@ mod camera_raw {
 
     pub(super) fn read_dn(path: &Path) -> Result<(usize, usize, Vec<u16>), String> {
         let raw = decode(path)?;
+        if raw.cpp != 1 {
+            return Err(format!(
+                "it holds {} samples per pixel (a demosaiced or linear DNG): a raw frame is one sample per photosite",
+                raw.cpp
+            ));
+        }
         match raw.data {
             rawler::RawImageData::Integer(v) => Ok((raw.width, raw.height, v)),
             rawler::RawImageData::Float(_) => {

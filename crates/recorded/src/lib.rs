@@ -160,7 +160,8 @@ impl RecordedOptions {
     pub fn dir(&self, rig_file: Option<&Path>) -> PathBuf {
         let p = Path::new(&self.recording);
         match rig_file.and_then(Path::parent) {
-            Some(base) if p.is_relative() => base.join(p),
+            // Through components: `recording = "."` names the directory itself, not `dir/.`.
+            Some(base) if p.is_relative() => base.join(p).components().collect(),
             _ => p.to_path_buf(),
         }
     }
