@@ -29,7 +29,10 @@ pub const CAMERA_RAW_EXTENSIONS: &[&str] = &["dng", "cr2", "cr3", "nef", "arw", 
 /// What `file` may end in, for messages.
 pub fn allowed_extensions() -> String {
     let raw = if cfg!(feature = "raw") {
-        format!("{} (camera raw, through rawler)", CAMERA_RAW_EXTENSIONS.iter().map(|e| format!(".{e}")).collect::<Vec<_>>().join(", "))
+        format!(
+            "{} (camera raw, through rawler)",
+            CAMERA_RAW_EXTENSIONS.iter().map(|e| format!(".{e}")).collect::<Vec<_>>().join(", ")
+        )
     } else {
         format!(
             "and, in a build with the cargo feature `raw` of btfrig-recorded, {}",
