@@ -45,7 +45,12 @@ fn textures(dataset: &Path) -> BTreeMap<String, String> {
         .unwrap()
         .map(|e| e.unwrap().path())
         .filter(|p| p.extension().is_some_and(|x| x == "exr"))
-        .map(|p| (p.file_name().unwrap().to_string_lossy().into_owned(), btfrig_store::content_hash(&std::fs::read(&p).unwrap())))
+        .map(|p| {
+            (
+                p.file_name().unwrap().to_string_lossy().into_owned(),
+                btfrig_store::content_hash(&std::fs::read(&p).unwrap()),
+            )
+        })
         .collect()
 }
 
@@ -55,7 +60,12 @@ fn a_run_exported_and_replayed_through_the_cli_gives_the_same_textures() {
     let plan = plan(&dir);
     let (source, rec, replay) = (dir.join("source"), dir.join("rec"), dir.join("replay"));
     ok(btfrig().args(["run", "--plan"]).arg(&plan).arg("--out").arg(&source));
-    let out = ok(btfrig().args(["dataset", "export-recording"]).arg(&source).arg("--out").arg(&rec).args(["--format", "tiff"]));
+    let out = ok(btfrig()
+        .args(["dataset", "export-recording"])
+        .arg(&source)
+        .arg("--out")
+        .arg(&rec)
+        .args(["--format", "tiff"]));
     assert!(out.contains("4 frames of 4 captures") && out.contains("rig.toml"), "{out}");
 
     let probe = ok(btfrig().args(["hw", "probe", "--recorded"]).arg(&rec));
@@ -64,7 +74,13 @@ fn a_run_exported_and_replayed_through_the_cli_gives_the_same_textures() {
         "{probe}"
     );
 
-    let out = ok(btfrig().args(["run", "--plan"]).arg(&plan).arg("--rig").arg(rec.join("rig.toml")).arg("--out").arg(&replay));
+    let out = ok(btfrig()
+        .args(["run", "--plan"])
+        .arg(&plan)
+        .arg("--rig")
+        .arg(rec.join("rig.toml"))
+        .arg("--out")
+        .arg(&replay));
     assert!(out.contains("4"), "{out}");
     let original = textures(&source);
     assert_eq!(original.len(), 4);
@@ -78,7 +94,15 @@ fn a_run_exported_and_replayed_through_the_cli_gives_the_same_textures() {
         .unwrap();
     std::fs::remove_file(rec.join(&name)).unwrap();
     let again = dir.join("again");
-    let o = btfrig().args(["run", "--plan"]).arg(&plan).arg("--rig").arg(rec.join("rig.toml")).arg("--out").arg(&again).output().unwrap();
+    let o = btfrig()
+        .args(["run", "--plan"])
+        .arg(&plan)
+        .arg("--rig")
+        .arg(rec.join("rig.toml"))
+        .arg("--out")
+        .arg(&again)
+        .output()
+        .unwrap();
     assert!(!o.status.success(), "{}", text(&o));
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains(&name) && err.contains(".file") && err.contains("missing"), "{err}");

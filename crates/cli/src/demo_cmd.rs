@@ -98,7 +98,12 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<ExitCode> {
 
 /// The plan text with `rig.config` and `rig.material` replaced (files made absolute); also
 /// `btfrig run --rig`.
-pub(crate) fn with_overrides(text: &str, rig: Option<&Path>, material: Option<&str>, cwd: &Path) -> anyhow::Result<String> {
+pub(crate) fn with_overrides(
+    text: &str,
+    rig: Option<&Path>,
+    material: Option<&str>,
+    cwd: &Path,
+) -> anyhow::Result<String> {
     if rig.is_none() && material.is_none() {
         return Ok(text.to_string());
     }

@@ -100,9 +100,8 @@ pub fn probe(
 
 /// Whether `path` is a rig config of recorded devices.
 fn is_recorded_rig(path: &Path) -> bool {
-    crate::rig::load(Some(path)).is_ok_and(|cfg| {
-        cfg.devices.entries().iter().any(|(_, e)| e.kind == btfrig_recorded::KIND)
-    })
+    crate::rig::load(Some(path))
+        .is_ok_and(|cfg| cfg.devices.entries().iter().any(|(_, e)| e.kind == btfrig_recorded::KIND))
 }
 
 /// Each recording: what it holds, or every problem found in it; fails if any is unusable.
@@ -112,7 +111,12 @@ fn probe_recorded(rig: Option<&Path>, recorded: &[std::path::PathBuf]) -> anyhow
         let cfg = crate::rig::load(Some(path))?;
         let options = btfrig_recorded::RecordedOptions::of(&cfg)
             .map_err(|m| anyhow::anyhow!("rig config {}: {m}", path.display()))?;
-        println!("rig {} ({}): recorded devices, camera recording {:?}", cfg.rig.name, path.display(), options.recording);
+        println!(
+            "rig {} ({}): recorded devices, camera recording {:?}",
+            cfg.rig.name,
+            path.display(),
+            options.recording
+        );
         dirs.push(options.dir(Some(path)));
     }
     let mut unusable = 0;

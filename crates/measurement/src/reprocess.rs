@@ -410,7 +410,12 @@ impl KeptCaptures {
             let joints = gonio.ik(light, view).map_err(|e| {
                 input(format!("dataset {}", dir.display()), format!("step {}: the rig cannot reach it: {e}", r.step))
             })?;
-            captures.push(KeptCapture { step: StepKey { light: r.step.light, view: r.step.view }, light, view, joints });
+            captures.push(KeptCapture {
+                step: StepKey { light: r.step.light, view: r.step.view },
+                light,
+                view,
+                joints,
+            });
         }
         Ok(KeptCaptures {
             dir: dir.to_path_buf(),

@@ -85,7 +85,11 @@ impl RecordedDevices {
 
 fn wide_axis() -> AxisLimits {
     // Nothing moves: a stand-in accepts any recorded angle, instantly.
-    AxisLimits { min_rad: -4.0 * std::f64::consts::PI, max_rad: 4.0 * std::f64::consts::PI, max_speed_rad_per_s: f64::INFINITY }
+    AxisLimits {
+        min_rad: -4.0 * std::f64::consts::PI,
+        max_rad: 4.0 * std::f64::consts::PI,
+        max_speed_rad_per_s: f64::INFINITY,
+    }
 }
 
 struct StandInRobot {
@@ -323,20 +327,19 @@ impl Camera for RecordedCamera {
 
     async fn trigger(&mut self, _timeout_s: f64) -> Result<u64, DeviceError> {
         self.buffered = None;
-        let joints = {
-            let s = self.state.lock().expect("commanded pose lock");
-            match (s.robot, s.rail) {
-                (Some(robot), Some(rail)) => JointState { robot, rail, turntable: 0.0 },
-                _ => {
-                    return Err(DeviceError::new(
+        let joints =
+            {
+                let s = self.state.lock().expect("commanded pose lock");
+                match (s.robot, s.rail) {
+                    (Some(robot), Some(rail)) => JointState { robot, rail, turntable: 0.0 },
+                    _ => return Err(DeviceError::new(
                         &self.info.name,
                         ErrorKind::Other,
                         "triggered before the robot and the rail were moved to a recorded pose: a recorded frame is \
                          chosen by the commanded pose",
-                    ))
+                    )),
                 }
-            }
-        };
+            };
         let frame = self
             .recording
             .find(&joints, self.settings.exposure_s, self.settings.gain, self.tolerance_deg)

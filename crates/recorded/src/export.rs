@@ -68,7 +68,8 @@ pub fn export_recording(dataset: &Path, out: &Path, format: ExportFormat) -> Res
         if entries.next().is_some() {
             return Err(ExportError::Out {
                 dir: out.into(),
-                message: "the directory is not empty: an export overwrites nothing; name a new or empty directory".into(),
+                message: "the directory is not empty: an export overwrites nothing; name a new or empty directory"
+                    .into(),
             });
         }
     }
@@ -113,7 +114,8 @@ fn write_all(kept: &KeptCaptures, out: &Path, format: ExportFormat) -> Result<Ex
                 }
             }
             let path = out.join(&name);
-            format::write(&path, frame, format).map_err(|message| ExportError::Write { path: path.clone(), message })?;
+            format::write(&path, frame, format)
+                .map_err(|message| ExportError::Write { path: path.clone(), message })?;
             let (lt, lp) = c.light.to_degrees();
             let (vt, vp) = c.view.to_degrees();
             entries.push(FrameEntry {
@@ -134,12 +136,17 @@ fn write_all(kept: &KeptCaptures, out: &Path, format: ExportFormat) -> Result<Ex
         }
     }
     let Some(first) = first else {
-        return Err(ExportError::Inconsistent { dir: kept.dir.clone(), message: "it has no committed step to export".into() });
+        return Err(ExportError::Inconsistent {
+            dir: kept.dir.clone(),
+            message: "it has no committed step to export".into(),
+        });
     };
-    let camera_options = kept.rig.devices.entries().into_iter().find(|(r, _)| *r == "camera").map(|(_, e)| e.options.clone());
+    let camera_options =
+        kept.rig.devices.entries().into_iter().find(|(r, _)| *r == "camera").map(|(_, e)| e.options.clone());
     let range = |key: &str, values: &mut dyn Iterator<Item = f64>| -> [f64; 2] {
         let from_rig = camera_options.as_ref().and_then(|o| o.get(key)).and_then(|v| v.as_array()).and_then(|a| {
-            let f: Vec<f64> = a.iter().filter_map(|x| x.as_float().or_else(|| x.as_integer().map(|i| i as f64))).collect();
+            let f: Vec<f64> =
+                a.iter().filter_map(|x| x.as_float().or_else(|| x.as_integer().map(|i| i as f64))).collect();
             (f.len() == 2).then(|| [f[0], f[1]])
         });
         from_rig.unwrap_or_else(|| {
@@ -177,7 +184,8 @@ fn write_all(kept: &KeptCaptures, out: &Path, format: ExportFormat) -> Result<Ex
         .map_err(|e| ExportError::Write { path: sidecar_path.clone(), message: e.to_string() })?;
     let (rig_text, notes) = recorded_rig_toml(&kept.rig_toml, &kept.dir)?;
     let rig_file = out.join(RIG_FILE);
-    std::fs::write(&rig_file, rig_text).map_err(|e| ExportError::Write { path: rig_file.clone(), message: e.to_string() })?;
+    std::fs::write(&rig_file, rig_text)
+        .map_err(|e| ExportError::Write { path: rig_file.clone(), message: e.to_string() })?;
     Ok(ExportSummary { out: out.into(), captures: kept.captures.len(), frames: sidecar.frames.len(), rig_file, notes })
 }
 
@@ -186,7 +194,10 @@ fn write_all(kept: &KeptCaptures, out: &Path, format: ExportFormat) -> Result<Ex
 fn recorded_rig_toml(rig_toml: &str, dataset: &Path) -> Result<(String, Vec<String>), ExportError> {
     let bad = |m: String| ExportError::Inconsistent { dir: dataset.into(), message: m };
     let mut doc: toml::Table = toml::from_str(rig_toml).map_err(|e| bad(format!("manifest rig.config_toml: {e}")))?;
-    let devices = doc.get_mut("devices").and_then(|d| d.as_table_mut()).ok_or_else(|| bad("manifest rig.config_toml has no [devices]".into()))?;
+    let devices = doc
+        .get_mut("devices")
+        .and_then(|d| d.as_table_mut())
+        .ok_or_else(|| bad("manifest rig.config_toml has no [devices]".into()))?;
     for (role, entry) in devices.iter_mut() {
         let mut t = toml::Table::new();
         t.insert("kind".into(), toml::Value::String(KIND.into()));
@@ -196,7 +207,9 @@ fn recorded_rig_toml(rig_toml: &str, dataset: &Path) -> Result<(String, Vec<Stri
         *entry = toml::Value::Table(t);
     }
     let mut notes = Vec::new();
-    for (section, key) in [("camera", "calibration"), ("camera", "color_calibration"), ("camera", "dark_flat"), ("lamp", "calibration")] {
+    for (section, key) in
+        [("camera", "calibration"), ("camera", "color_calibration"), ("camera", "dark_flat"), ("lamp", "calibration")]
+    {
         if let Some(r) = doc.get(section).and_then(|s| s.get(key)).and_then(|v| v.as_str()) {
             if !r.starts_with("builtin:") && Path::new(r).is_relative() {
                 notes.push(format!(

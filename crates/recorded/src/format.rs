@@ -29,7 +29,10 @@ pub const CAMERA_RAW_EXTENSIONS: &[&str] = &["dng", "cr2", "cr3", "nef", "arw", 
 /// What `file` may end in, for messages.
 pub fn allowed_extensions() -> String {
     let raw = if cfg!(feature = "raw") {
-        format!("{} (camera raw, through rawler)", CAMERA_RAW_EXTENSIONS.iter().map(|e| format!(".{e}")).collect::<Vec<_>>().join(", "))
+        format!(
+            "{} (camera raw, through rawler)",
+            CAMERA_RAW_EXTENSIONS.iter().map(|e| format!(".{e}")).collect::<Vec<_>>().join(", ")
+        )
     } else {
         format!(
             "and, in a build with the cargo feature `raw` of btfrig-recorded, {}",
@@ -202,6 +205,12 @@ mod camera_raw {
 
     pub(super) fn read_dn(path: &Path) -> Result<(usize, usize, Vec<u16>), String> {
         let raw = decode(path)?;
+        if raw.cpp != 1 {
+            return Err(format!(
+                "it holds {} samples per pixel (a demosaiced or linear DNG): a raw frame is one sample per photosite",
+                raw.cpp
+            ));
+        }
         match raw.data {
             rawler::RawImageData::Integer(v) => Ok((raw.width, raw.height, v)),
             rawler::RawImageData::Float(_) => {

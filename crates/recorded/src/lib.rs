@@ -46,7 +46,7 @@ pub mod probe;
 pub mod recording;
 pub mod sidecar;
 
-pub use recording::{Recording, RecordedFrame, DEFAULT_POSE_TOLERANCE_DEG};
+pub use recording::{RecordedFrame, Recording, DEFAULT_POSE_TOLERANCE_DEG};
 pub use sidecar::{Sidecar, SIDECAR_FILE};
 
 /// The device kind of a recorded rig (`[devices.ROLE] kind = "recorded"`).
@@ -143,7 +143,8 @@ impl RecordedOptions {
             Some(v) => match v.as_float().or_else(|| v.as_integer().map(|i| i as f64)) {
                 Some(t) if t > 0.0 && t.is_finite() => t,
                 _ => {
-                    problems.push(format!("devices.camera.pose_tolerance_deg = {v}: allowed a positive number of degrees"));
+                    problems
+                        .push(format!("devices.camera.pose_tolerance_deg = {v}: allowed a positive number of degrees"));
                     DEFAULT_POSE_TOLERANCE_DEG
                 }
             },
@@ -160,7 +161,8 @@ impl RecordedOptions {
     pub fn dir(&self, rig_file: Option<&Path>) -> PathBuf {
         let p = Path::new(&self.recording);
         match rig_file.and_then(Path::parent) {
-            Some(base) if p.is_relative() => base.join(p),
+            // Through components: `recording = "."` names the directory itself, not `dir/.`.
+            Some(base) if p.is_relative() => base.join(p).components().collect(),
             _ => p.to_path_buf(),
         }
     }
@@ -168,10 +170,12 @@ impl RecordedOptions {
 
 /// Opens the recording of `rig` (the rig config at `rig_file`) with every pose resolved.
 pub fn open_for_rig(rig: &RigConfig, rig_file: Option<&Path>) -> Result<(Recording, RecordedOptions), RunError> {
-    let options = RecordedOptions::of(rig).map_err(|m| RunError::Input { what: "rig config [devices]".into(), message: m })?;
+    let options =
+        RecordedOptions::of(rig).map_err(|m| RunError::Input { what: "rig config [devices]".into(), message: m })?;
     let dir = options.dir(rig_file);
     let what = format!("devices.camera.recording {:?}", options.recording);
-    let mut recording = Recording::open(&dir).map_err(|e| RunError::Input { what: what.clone(), message: e.to_string() })?;
+    let mut recording =
+        Recording::open(&dir).map_err(|e| RunError::Input { what: what.clone(), message: e.to_string() })?;
     let gonio = Gonio::new(rig.geometry.clone()).map_err(|e| RunError::Rig(e.to_string()))?;
     recording
         .resolve_poses(&gonio, options.pose_tolerance_deg)
@@ -224,9 +228,11 @@ impl RigBackend for RecordedBackend {
                 recording.find(joints, s.exposure_s, gain, options.pose_tolerance_deg).map(|_| ())
             } else {
                 // HDR: the brackets are chosen while the run goes; the pose must be there.
-                let at_pose = recording.frames.iter().filter_map(|f| f.joints).any(|j| {
-                    recording::max_joint_diff_deg(&j, joints) <= options.pose_tolerance_deg
-                });
+                let at_pose = recording
+                    .frames
+                    .iter()
+                    .filter_map(|f| f.joints)
+                    .any(|j| recording::max_joint_diff_deg(&j, joints) <= options.pose_tolerance_deg);
                 if at_pose {
                     Ok(())
                 } else {
@@ -247,7 +253,11 @@ impl RigBackend for RecordedBackend {
                 "the plan asks for {} capture(s) the recording lacks; nothing was written:\n  {}{}",
                 missing.len(),
                 missing[..shown].join("\n  "),
-                if missing.len() > shown { format!("\n  ... and {} more", missing.len() - shown) } else { String::new() }
+                if missing.len() > shown {
+                    format!("\n  ... and {} more", missing.len() - shown)
+                } else {
+                    String::new()
+                }
             ),
         })
     }
@@ -258,7 +268,8 @@ impl RigBackend for RecordedBackend {
         match options.faults {
             Some((name, _, field)) if name != "none" => Err(RunError::Input {
                 what: format!("{field} {name:?}"),
-                message: "a recorded rig replays its frames and injects no faults: allowed \"none\" or no scenario".into(),
+                message: "a recorded rig replays its frames and injects no faults: allowed \"none\" or no scenario"
+                    .into(),
             }),
             _ => Ok(()),
         }

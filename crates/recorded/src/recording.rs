@@ -95,7 +95,10 @@ impl Recording {
             }
         };
         let camera_checks: [(bool, String); 6] = [
-            (cam.width > 0 && cam.height > 0, format!("camera.width x height = {}x{}: allowed at least 1x1", cam.width, cam.height)),
+            (
+                cam.width > 0 && cam.height > 0,
+                format!("camera.width x height = {}x{}: allowed at least 1x1", cam.width, cam.height),
+            ),
             ((1..=16).contains(&cam.bit_depth), format!("camera.bit_depth = {}: allowed 1..=16", cam.bit_depth)),
             (
                 cam.black_level < cam.white_level,
@@ -116,7 +119,8 @@ impl Recording {
         ];
         problems.extend(camera_checks.into_iter().filter(|(ok, _)| !ok).map(|(_, m)| sidecar_err(&sidecar_path, m)));
         if sidecar.frames.is_empty() {
-            problems.push(sidecar_err(&sidecar_path, "it has no [[frame]] entry: a recording needs at least one frame"));
+            problems
+                .push(sidecar_err(&sidecar_path, "it has no [[frame]] entry: a recording needs at least one frame"));
         }
 
         let mut frames = Vec::with_capacity(sidecar.frames.len());
@@ -139,7 +143,12 @@ impl Recording {
             let Some(format) = FrameFormat::from_name(Path::new(&entry.file)) else {
                 problems.push(frame_err(
                     &path,
-                    format!("unknown frame format ({} = {:?}): allowed {}", field("file"), entry.file, format::allowed_extensions()),
+                    format!(
+                        "unknown frame format ({} = {:?}): allowed {}",
+                        field("file"),
+                        entry.file,
+                        format::allowed_extensions()
+                    ),
                 ));
                 continue;
             };
@@ -207,11 +216,15 @@ impl Recording {
             let field = format!("{SIDECAR_FILE} frame[{}]", f.index);
             let from_dirs = match (f.entry.light, f.entry.view) {
                 (Some(l), Some(v)) => {
-                    let (l, v) = (Direction::from_degrees(l.theta_deg, l.phi_deg), Direction::from_degrees(v.theta_deg, v.phi_deg));
+                    let (l, v) = (
+                        Direction::from_degrees(l.theta_deg, l.phi_deg),
+                        Direction::from_degrees(v.theta_deg, v.phi_deg),
+                    );
                     match gonio.ik(l, v) {
                         Ok(j) => Some(j),
                         Err(e) => {
-                            problems.push(frame_err(&f.path, format!("{field}.light/view: the rig cannot reach it: {e}")));
+                            problems
+                                .push(frame_err(&f.path, format!("{field}.light/view: the rig cannot reach it: {e}")));
                             continue;
                         }
                     }
@@ -245,9 +258,7 @@ impl Recording {
                             format!(
                                 "{SIDECAR_FILE} frame[{}] has the pose, exposure and gain of frame[{}] ({}): which to \
                                  serve is ambiguous; remove one",
-                                fb.index,
-                                fa.index,
-                                fa.entry.file
+                                fb.index, fa.index, fa.entry.file
                             ),
                         ));
                     }
@@ -259,7 +270,13 @@ impl Recording {
 
     /// The frame taken at `joints` with `exposure_s` and `gain`; the error says what the
     /// recording has at that pose instead.
-    pub fn find(&self, joints: &JointState, exposure_s: f64, gain: f64, tolerance_deg: f64) -> Result<&RecordedFrame, String> {
+    pub fn find(
+        &self,
+        joints: &JointState,
+        exposure_s: f64,
+        gain: f64,
+        tolerance_deg: f64,
+    ) -> Result<&RecordedFrame, String> {
         let at_pose: Vec<&RecordedFrame> = self
             .frames
             .iter()
@@ -277,8 +294,10 @@ impl Recording {
                 joints_deg(joints)
             ));
         }
-        let have: Vec<String> =
-            at_pose.iter().map(|f| format!("{} ({} s, gain {})", f.entry.file, f.entry.exposure_s, f.entry.gain)).collect();
+        let have: Vec<String> = at_pose
+            .iter()
+            .map(|f| format!("{} ({} s, gain {})", f.entry.file, f.entry.exposure_s, f.entry.gain))
+            .collect();
         Err(format!(
             "the recording {} has no frame at robot/rail {} with exposure {exposure_s} s and gain {gain}: it has {}",
             self.dir.display(),
@@ -296,7 +315,10 @@ impl Recording {
         if (w, h) != (cam.width, cam.height) || data.len() != w * h {
             return Err(frame_err(
                 &f.path,
-                format!("wrong frame size: it is {w}x{h}, the sidecar's camera.width x camera.height is {}x{}", cam.width, cam.height),
+                format!(
+                    "wrong frame size: it is {w}x{h}, the sidecar's camera.width x camera.height is {}x{}",
+                    cam.width, cam.height
+                ),
             ));
         }
         let max = if cam.bit_depth >= 16 { u16::MAX } else { (1u16 << cam.bit_depth) - 1 };
@@ -342,7 +364,8 @@ fn pose_fields(e: &FrameEntry) -> Result<(), String> {
         (_, (true, false)) => Err("light without view: give both".into()),
         (_, (false, true)) => Err("view without light: give both".into()),
         ((false, false), (false, false)) => {
-            Err("no pose: give robot_deg and rail_deg (the commanded joints), or light and view (directions, degrees)".into())
+            Err("no pose: give robot_deg and rail_deg (the commanded joints), or light and view (directions, degrees)"
+                .into())
         }
         _ => Ok(()),
     }

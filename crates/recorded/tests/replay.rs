@@ -56,7 +56,8 @@ fn source() -> &'static Path {
         btfrig_sim_backend::install();
         let dir = scratch("source");
         let out = dir.join("dataset");
-        let req = RunRequest::from_text(plan(&repo("rig-configs/bonn-gonio-sim-small.toml")), &dir.join("plan.toml"), &out);
+        let req =
+            RunRequest::from_text(plan(&repo("rig-configs/bonn-gonio-sim-small.toml")), &dir.join("plan.toml"), &out);
         let s = run(&req, &RunControl::new(), &mut |_| {}).unwrap();
         assert_eq!(s.outcome, RunOutcome::Finished, "{s:?}");
         assert_eq!(s.captures, 6);
@@ -71,7 +72,10 @@ fn textures(dataset: &Path) -> BTreeMap<String, String> {
         .map(|e| e.unwrap().path())
         .filter(|p| p.extension().is_some_and(|x| x == "exr"))
         .map(|p| {
-            (p.file_name().unwrap().to_string_lossy().into_owned(), btfrig_store::content_hash(&std::fs::read(&p).unwrap()))
+            (
+                p.file_name().unwrap().to_string_lossy().into_owned(),
+                btfrig_store::content_hash(&std::fs::read(&p).unwrap()),
+            )
         })
         .collect()
 }
