@@ -235,7 +235,8 @@ fn calibrate_sensor_writes_a_file_that_names_its_command_and_reads_back() {
 }
 
 /// No calibration command refuses a rig of real devices for being real: each checks the
-/// devices it needs and, when one cannot be opened, names it with its role, kind and port.
+/// devices it needs (the run's preflight) and, when one cannot be reached, names it with its
+/// role and port, and writes nothing.
 #[test]
 fn calibrations_on_a_rig_of_real_ports_name_the_devices_they_need() {
     let dir = scratch("calibrate-real-ports");
@@ -245,14 +246,15 @@ fn calibrations_on_a_rig_of_real_ports_name_the_devices_they_need() {
     let rig = dir.join("real.toml");
     std::fs::write(&rig, real).unwrap();
     for (args, needs) in [
-        (&["calibrate", "light"][..], "lamp (kind \"serial\", port /dev/ttyNOPE0)"),
-        (&["calibrate", "radiometric"][..], "lamp (kind \"serial\", port /dev/ttyNOPE0)"),
-        (&["calibrate", "sensor"][..], "lamp (kind \"serial\", port /dev/ttyNOPE0)"),
+        (&["calibrate", "light"][..], "devices.lamp on /dev/ttyNOPE0"),
+        (&["calibrate", "radiometric"][..], "devices.lamp on /dev/ttyNOPE0"),
+        (&["calibrate", "sensor"][..], "devices.lamp on /dev/ttyNOPE0"),
     ] {
         let o = btfrig().args(args).arg("--rig").arg(&rig).arg("--out").arg(dir.join("out")).output().unwrap();
         let err = String::from_utf8_lossy(&o.stderr);
         assert!(!o.status.success(), "{err}");
         assert!(!err.contains("only simulated"), "{args:?}: {err}");
         assert!(err.contains(needs), "{args:?} should name {needs}: {err}");
+        assert!(!dir.join("out").exists(), "{args:?} wrote {}", dir.join("out").display());
     }
 }

@@ -9,7 +9,7 @@ use std::time::Instant;
 use anyhow::Context;
 use btfrig_calibrate::CalibrationPlan;
 use btfrig_intrinsics::{distortion_difference, mapping_difference_up_to_rotation, CalibrationFile};
-use btfrig_measurement::calibration_rig::rig_time;
+use btfrig_measurement::backend::RigTime;
 use btfrig_measurement::geometric_calibration::calibrate_geometry;
 
 use crate::args::CalibrateGeometryArgs;
@@ -42,7 +42,7 @@ pub fn geometry(a: &CalibrateGeometryArgs) -> anyhow::Result<()> {
         n = b.markers_per_side,
     );
     let command = format!("btfrig calibrate geometry --rig {rig_name} --plan {plan_name} --seed {seed}");
-    let time = rig_time(&cfg);
+    let time = RigTime::for_rig(&cfg);
     let cal = calibrate_geometry(&cfg, None, &plan, seed, time, |line| println!("  {line}"))
         .context("geometric calibration failed")?;
     let r = &cal.result;

@@ -10,7 +10,7 @@ use std::time::Instant;
 use anyhow::{bail, Context};
 use btfrig_calibrate::color::{describe_status, ColorPlan, ReferenceValues};
 use btfrig_calibrate::processing_camera;
-use btfrig_measurement::calibration_rig::rig_time;
+use btfrig_measurement::backend::RigTime;
 use btfrig_measurement::color_calibration::{calibrate_color_on_rig, chart_references};
 use serde_json::json;
 
@@ -60,7 +60,7 @@ pub fn color(a: &CalibrateColorArgs) -> anyhow::Result<()> {
         values[i] = ReferenceValues::measured_from_csv(&text, file, chart)?;
     }
     let references = chart_references(&cfg, a.rig.as_deref(), &plan, &values)?;
-    let r = calibrate_color_on_rig(&cfg, None, &camera, &plan, &references, seed, rig_time(&cfg), |line| {
+    let r = calibrate_color_on_rig(&cfg, None, &camera, &plan, &references, seed, RigTime::for_rig(&cfg), |line| {
         if !quiet {
             println!("  {line}")
         }

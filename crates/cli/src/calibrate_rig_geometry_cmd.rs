@@ -10,7 +10,7 @@ use std::time::Instant;
 use anyhow::Context;
 use btfrig_calibrate::processing_camera;
 use btfrig_calibrate::rig_geometry::{fixed_offsets, RigGeometryFile, RIG_GEOMETRY_FORMAT_VERSION};
-use btfrig_measurement::calibration_rig::rig_time;
+use btfrig_measurement::backend::RigTime;
 use btfrig_measurement::rig_geometry_calibration::calibrate_rig_geometry;
 
 /// `btfrig calibrate rig-geometry`.
@@ -43,7 +43,7 @@ pub fn rig_geometry(a: &CalibrateRigGeometryArgs) -> anyhow::Result<()> {
     let seed = a.seed.unwrap_or(cfg.rig.seed);
     let camera = processing_camera(&cfg, a.rig.as_deref()).context("processing camera")?;
     println!("calibrate rig-geometry: rig {} ({rig_name}), {} poses, seed {seed}", cfg.rig.name, a.poses);
-    let r = calibrate_rig_geometry(&cfg, None, &camera, a.poses, seed, rig_time(&cfg), |l| println!("  {l}"))
+    let r = calibrate_rig_geometry(&cfg, None, &camera, a.poses, seed, RigTime::for_rig(&cfg), |l| println!("  {l}"))
         .context("rig geometry calibration failed")?;
     let f = &r.fit;
     let truth = (!r.true_offsets.is_empty()).then(|| {

@@ -131,7 +131,7 @@ fn color(s: &AppState, id: &str, seed: u64) -> Result<(serde_json::Value, String
     // The charts are photographed through the rig's devices, against their published values.
     let references = btfrig_measurement::color_calibration::chart_references(&s.rig, s.rig_path.as_deref(), &plan, &[])
         .map_err(|e| e.to_string())?;
-    let time = btfrig_measurement::calibration_rig::rig_time(&s.rig);
+    let time = btfrig_measurement::backend::RigTime::for_rig(&s.rig);
     let r = btfrig_measurement::color_calibration::calibrate_color_on_rig(
         &s.rig,
         None,

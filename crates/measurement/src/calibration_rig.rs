@@ -14,30 +14,7 @@ use btfrig_hw::{Camera, Device, Health, Lamp, MoveOptions, Rail, Robot};
 use crate::backend::{self, BackendRegistry, CalibrationOpenRequest, MountedTarget, OpenedRig, RigTime};
 use crate::RunError;
 
-/// A device role a gonio calibration may need.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Role {
-    /// The robot holding the target.
-    Robot,
-    /// The camera's rail.
-    Rail,
-    /// The lamp.
-    Lamp,
-    /// The camera.
-    Camera,
-}
-
-impl Role {
-    /// The role's name in the rig config (`[devices.NAME]`).
-    pub fn name(self) -> &'static str {
-        match self {
-            Role::Robot => "robot",
-            Role::Rail => "rail",
-            Role::Lamp => "lamp",
-            Role::Camera => "camera",
-        }
-    }
-}
+pub use crate::preflight::Role;
 
 /// Where the rig config says a device is connected: its `port` (or its link's), else its
 /// kind (an in-process device has no port).
@@ -84,6 +61,7 @@ impl CalibrationRig {
         time: RigTime,
     ) -> Result<CalibrationRig, RunError> {
         let registry = backends.cloned().unwrap_or_else(backend::installed);
+        crate::preflight::check_devices(rig, needs, &registry)?.into_result()?;
         let backend = registry.for_rig(rig)?;
         let opened = backend.open_calibration(CalibrationOpenRequest { rig, target, cameras: &[], seed, time }).await?;
         let OpenedRig::Gonio(g) = opened else {
@@ -134,6 +112,7 @@ impl CalibrationRig {
                 Role::Rail => self.rail.as_mut(),
                 Role::Lamp => self.lamp.as_mut(),
                 Role::Camera => self.camera.as_mut(),
+                Role::Turntable | Role::LedArray => continue,
             };
             match dev.health().await {
                 Ok(Health::Ok) | Ok(Health::Warning(_)) => {}
@@ -153,6 +132,7 @@ impl CalibrationRig {
                 Role::Rail => self.rail.info(),
                 Role::Lamp => self.lamp.info(),
                 Role::Camera => self.camera.info(),
+                Role::Turntable | Role::LedArray => continue,
             };
             parts.push(format!("{} {} ({}, {loc})", role.name(), info.name, info.model));
         }
@@ -211,21 +191,5 @@ pub fn level_quantile(frame: &RawFrame, quantile: f64) -> f64 {
 /// Runs `f` on a runtime of `time`: paused virtual time for a simulated rig, the wall clock
 /// for real devices.
 pub fn block_on<T>(time: RigTime, f: impl std::future::Future<Output = T>) -> Result<T, RunError> {
-    let rt = match time {
-        RigTime::Virtual => crate::virtual_time_runtime()?,
-        RigTime::Wall => {
-            tokio::runtime::Builder::new_current_thread().enable_all().build().map_err(RunError::Runtime)?
-        }
-    };
-    Ok(rt.block_on(f))
-}
-
-/// The time a rig's devices run on: virtual when every device is simulated (directly or behind
-/// emulated firmware), else the wall clock.
-pub fn rig_time(rig: &RigConfig) -> RigTime {
-    if rig.devices.entries().iter().all(|(_, e)| e.simulated().is_some()) {
-        RigTime::Virtual
-    } else {
-        RigTime::Wall
-    }
+    Ok(time.runtime()?.block_on(f))
 }

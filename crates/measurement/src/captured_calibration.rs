@@ -26,6 +26,7 @@ use btfrig_hw::{Camera, LedPattern, MoveOptions};
 use btfrig_imaging::dark_flat::FrameAverage;
 
 use crate::backend::{self, BackendRegistry, CalibrationOpenRequest, MountedTarget, OpenedRig, RigTime};
+use crate::preflight::Role;
 use crate::RunError;
 
 /// Read-out timeout of every capture, seconds (longer than any calibration exposure).
@@ -46,24 +47,13 @@ pub struct CalibrationSession<'a> {
 
 impl<'a> CalibrationSession<'a> {
     /// A session on `rig` through the process's installed backends, on the time its devices
-    /// need: virtual for a rig of simulated devices only, else the wall clock.
+    /// need ([`RigTime::for_rig`]).
     pub fn installed(rig: &'a RigConfig, seed: u64) -> Self {
-        let all_sim = rig.devices.entries().iter().all(|(_, e)| e.kind == "sim");
-        CalibrationSession {
-            rig,
-            registry: backend::installed(),
-            seed,
-            time: if all_sim { RigTime::Virtual } else { RigTime::Wall },
-        }
+        CalibrationSession { rig, registry: backend::installed(), seed, time: RigTime::for_rig(rig) }
     }
 
     fn runtime(&self) -> Result<tokio::runtime::Runtime, RunError> {
-        let mut b = tokio::runtime::Builder::new_current_thread();
-        b.enable_time();
-        if self.time == RigTime::Virtual {
-            b.start_paused(true);
-        }
-        b.build().map_err(RunError::Runtime)
+        self.time.runtime()
     }
 
     /// Opens the rig with `target` mounted; a failure names the devices `calibration` needs,
@@ -113,10 +103,10 @@ pub fn needed_devices(rig: &RigConfig, calibration: &str) -> Vec<(&'static str, 
     }
 }
 
-/// Checks, before opening anything, that the rig has every device `calibration` needs and
-/// that a registered backend opens them and accepts their options. A missing or refused
-/// device is named with its role, kind and port. (The run's full preflight, which also asks
-/// each device for its identity and health, can take this place once it exists.)
+/// Checks, before opening anything, that the rig has every device `calibration` needs, that
+/// a registered backend opens them and accepts their options, and asks each what a run's
+/// preflight asks ([`crate::preflight`]: identity, health, homing of real devices). A missing,
+/// refused or failing device is named with its role, kind and port.
 pub fn check_devices(session: &CalibrationSession<'_>, calibration: &str) -> Result<(), RunError> {
     let rig = session.rig;
     let entries = rig.devices.entries();
@@ -133,7 +123,10 @@ pub fn check_devices(session: &CalibrationSession<'_>, calibration: &str) -> Res
     backend.check_rig(rig).map_err(|e| {
         let named: Vec<String> = entries.iter().map(|(r, e)| describe(r, e)).collect();
         RunError::Rig(format!("rig {}: {e} (devices: {})", rig.rig.name, named.join(", ")))
-    })
+    })?;
+    let roles: Vec<Role> = needed_devices(rig, calibration).iter().filter_map(|(r, _)| Role::from_name(r)).collect();
+    crate::preflight::check_devices(rig, &roles, &session.registry)?.into_result()?;
+    Ok(())
 }
 
 /// `role (kind "k", port P)` for messages.

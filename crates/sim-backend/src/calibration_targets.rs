@@ -4,8 +4,12 @@
 //! Two halves, one per kind of target: the geometric ones (board, colour chart, bare marker plate) and the
 //! radiometric ones (white tile, uniform field, lens cap).
 
-use btfrig_measurement::backend::{CalibrationOpenRequest, MountedTarget, OpenedRig};
+use std::sync::Arc;
+
+use btfrig_hw::truth::TruthProbe;
+use btfrig_measurement::backend::{CalibrationOpenRequest, InProcess, MountedTarget, OpenedGonio, OpenedRig};
 use btfrig_measurement::RunError;
+use btfrig_sim::SimRig;
 
 mod geometric;
 mod radiometric;
@@ -22,4 +26,11 @@ pub(crate) async fn open(req: CalibrationOpenRequest<'_>) -> Result<OpenedRig, R
         }
         other => Err(RunError::Rig(format!("the simulated rig cannot mount a {}", other.name()))),
     }
+}
+
+/// A simulated gonioreflectometer's devices as a calibration's opened rig.
+fn opened_gonio(sim: SimRig, truth: Option<Arc<dyn TruthProbe>>) -> OpenedRig {
+    let clock = sim.world.clock().clone();
+    let SimRig { robot, rail, lamp, camera, .. } = sim;
+    OpenedRig::Gonio(OpenedGonio { robot, rail, lamp, camera, clock, truth, links: Box::new(InProcess) })
 }

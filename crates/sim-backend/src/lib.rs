@@ -71,7 +71,7 @@ pub(crate) fn sim_clock() -> SharedClock {
 /// The clock of simulated devices on `time`: [`sim_clock`] on virtual time; tokio's own
 /// timer on the wall clock, where the devices then wait in real time (a rig with real
 /// devices, `[run] clock = "wall"`).
-fn clock_for(time: RigTime) -> SharedClock {
+pub(crate) fn clock_for(time: RigTime) -> SharedClock {
     match time {
         RigTime::Virtual => sim_clock(),
         RigTime::Wall => TokioClock::shared(),

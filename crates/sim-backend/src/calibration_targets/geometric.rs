@@ -1,11 +1,11 @@
 //! The geometric targets on the simulated rig: calibration board, colour chart, bare marker
-//! plate. The devices are a run's (robot, rail, lamp, camera on virtual time, the rig
+//! plate. The devices are a run's (robot, rail, lamp, camera on the request's clock, the rig
 //! config's positioning error); only the scene in the sample's place differs. The truth
 //! probe (true lens, true poses) is for the calibration commands' error figures only.
 
 use std::sync::Arc;
 
-use btfrig_measurement::backend::{CalibrationOpenRequest, InProcess, MountedTarget, OpenedGonio, OpenedRig};
+use btfrig_measurement::backend::{CalibrationOpenRequest, MountedTarget, OpenedRig};
 use btfrig_measurement::RunError;
 use btfrig_render::chart::ColorChart;
 use btfrig_render::renderer::RenderOptions;
@@ -49,17 +49,7 @@ pub(super) async fn open_geometric(req: CalibrationOpenRequest<'_>) -> Result<Op
     let scene = Arc::new(scene);
     let source = Arc::new(RenderedFrameSource::new(scene.clone(), options));
     let truth = Arc::new(SceneTruth::new(scene, source));
-    let sim = SimRig::from_rig_config(&rig, &FaultScenario::none(), crate::sim_clock(), truth.clone())
+    let sim = SimRig::from_rig_config(&rig, &FaultScenario::none(), crate::clock_for(req.time), truth.clone())
         .map_err(|e| RunError::Rig(e.to_string()))?;
-    let clock = sim.world.clock().clone();
-    let SimRig { robot, rail, lamp, camera, .. } = sim;
-    Ok(OpenedRig::Gonio(OpenedGonio {
-        robot,
-        rail,
-        lamp,
-        camera,
-        clock,
-        truth: Some(truth),
-        links: Box::new(InProcess),
-    }))
+    Ok(super::opened_gonio(sim, Some(truth)))
 }

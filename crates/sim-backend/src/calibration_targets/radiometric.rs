@@ -19,10 +19,8 @@ use std::sync::Arc;
 use btfrig_acquire::dome::DomeDevices;
 use btfrig_core::config::RigConfig;
 use btfrig_core::frame::RawFrame;
-use btfrig_hw::{CaptureSettings, SharedClock, TokioClock};
-use btfrig_measurement::backend::{
-    CalibrationOpenRequest, InProcess, MountedTarget, OpenedDome, OpenedGonio, OpenedRig, RigTime,
-};
+use btfrig_hw::CaptureSettings;
+use btfrig_measurement::backend::{CalibrationOpenRequest, MountedTarget, OpenedDome, OpenedRig};
 use btfrig_measurement::RunError;
 use btfrig_render::colour::ColourSystem;
 use btfrig_render::dome_scene::DomeScene;
@@ -54,10 +52,7 @@ pub(super) async fn open_radiometric(req: CalibrationOpenRequest<'_>) -> Result<
         other => return Err(RunError::Rig(format!("not a radiometric target: {}", other.name()))),
     };
     cfg.rig.seed = btfrig_sim::faults::derive_seed(req.seed, "calibration-target", salt);
-    let clock: SharedClock = match req.time {
-        RigTime::Virtual => crate::sim_clock(),
-        RigTime::Wall => TokioClock::shared(),
-    };
+    let clock = crate::clock_for(req.time);
     let rig_err = |e: &dyn std::fmt::Display| RunError::Rig(e.to_string());
     let faults = FaultScenario::none();
     match (&cfg.dome, req.target) {
@@ -67,32 +62,12 @@ pub(super) async fn open_radiometric(req: CalibrationOpenRequest<'_>) -> Result<
                 Arc::new(RenderedFrameSource::new(scene.clone(), RenderOptions::default()));
             let truth = Arc::new(SceneTruth::new(scene, source));
             let sim = SimRig::from_rig_config(&cfg, &faults, clock, truth.clone()).map_err(|e| rig_err(&e))?;
-            let clock = sim.world.clock().clone();
-            let SimRig { robot, rail, lamp, camera, .. } = sim;
-            Ok(OpenedRig::Gonio(OpenedGonio {
-                robot,
-                rail,
-                lamp,
-                camera,
-                clock,
-                truth: Some(truth),
-                links: Box::new(InProcess),
-            }))
+            Ok(super::opened_gonio(sim, Some(truth)))
         }
         (None, target) => {
             let source = Arc::new(FieldSource::new(&cfg, matches!(target, MountedTarget::UniformField))?);
             let sim = SimRig::from_rig_config(&cfg, &faults, clock, source).map_err(|e| rig_err(&e))?;
-            let clock = sim.world.clock().clone();
-            let SimRig { robot, rail, lamp, camera, .. } = sim;
-            Ok(OpenedRig::Gonio(OpenedGonio {
-                robot,
-                rail,
-                lamp,
-                camera,
-                clock,
-                truth: None,
-                links: Box::new(InProcess),
-            }))
+            Ok(super::opened_gonio(sim, None))
         }
         (Some(_), MountedTarget::WhiteTile { albedo }) => {
             let scene = Arc::new(DomeScene::new(scene_cfg, &white_tile(*albedo)).map_err(|e| rig_err(&e))?);
