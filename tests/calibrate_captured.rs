@@ -241,7 +241,8 @@ fn calibrate_sensor_writes_a_file_that_names_its_command_and_reads_back() {
 fn calibrations_on_a_rig_of_real_ports_name_the_devices_they_need() {
     let dir = scratch("calibrate-real-ports");
     let text = std::fs::read_to_string(repo("rig-configs/bonn-gonio-serial.toml")).unwrap();
-    let real = text.replace("link = { emulated = true, poll_s = 0.01 }", "port = \"/dev/ttyNOPE0\"");
+    // Robot and lamp on a port that does not exist; rail and camera stay emulated.
+    let real = text.replace("link = { emulated = true, poll_s = 0.01 }", "link = { port = \"/dev/ttyNOPE0\" }");
     assert_ne!(real, text);
     let rig = dir.join("real.toml");
     std::fs::write(&rig, real).unwrap();

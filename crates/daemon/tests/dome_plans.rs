@@ -217,7 +217,8 @@ fn a_gonio_daemon_refuses_dome_plans_naming_both_kinds() {
     assert_eq!(std::fs::read_dir(&d.data).unwrap().count(), 0, "refused starts create nothing");
     let r = d.check("dry-run", json!({ "plan": "demo" }));
     assert_eq!((r["valid"].as_bool(), r["kind"].as_str()), (Some(true), Some("gonioreflectometer")), "{r}");
-    assert!(f(&r["estimate_s"]) >= f(&r["lower_bound_s"]) && r["dome"].is_null(), "{r}");
+    // The optimised order may reach the lower bound; the two sums then differ by rounding only.
+    assert!(f(&r["estimate_s"]) >= f(&r["lower_bound_s"]) * (1.0 - 1e-12) && r["dome"].is_null(), "{r}");
 }
 
 /// The OpenAPI document describes the dome dry run field by field, and what a run's progress

@@ -126,13 +126,14 @@ fn bad_plans_name_every_field() {
     assert!(e.contains("x.toml"), "{e}");
 }
 
-/// The shipped calibration (`calibration/bonn-gonio-sim-color.toml`) is what its recorded
-/// inputs give: the default rig, the default plan and the file's seed, rerun, reproduce its
-/// white balance, coefficients, patch counts and every statistic; and the statistics, recomputed
-/// here from the held-out patches' CIEDE2000 (mean, median, p95 by Hyndman-Fan 7 as numpy's
-/// default, max), are the ones the file states.
+/// The calibration file states the statistics of its own fit: rendered charts (this crate's
+/// path, the benchmarks'), the default plan, the shipped file's seed; the statistics,
+/// recomputed here from the held-out patches' CIEDE2000 (mean, median, p95 by Hyndman-Fan 7
+/// as numpy's default, max), are the ones the file states. (The shipped file itself is made
+/// through the rig's devices, against the simulated chart's measured values:
+/// `crates/cli/tests/calibrate_devices.rs` recomputes it.)
 #[test]
-fn the_shipped_colour_calibration_is_reproduced_from_its_inputs() {
+fn the_colour_calibration_file_states_its_own_statistics() {
     let cfg = rig();
     let shipped = btfrig_calibrate::color::processing_color(&cfg, None).unwrap().expect("the default rig names one");
     assert_eq!((shipped.source.rig.as_str(), shipped.source.plan.as_str()), ("bonn-gonio-sim", "calibration-color"));
@@ -140,45 +141,14 @@ fn the_shipped_colour_calibration_is_reproduced_from_its_inputs() {
     let plan = ColorPlan::default_plan();
     assert_eq!(plan.name, shipped.source.plan);
     let cal = calibrate_color_simulated(&cfg, &cam, &plan, shipped.source.seed, |_| {}).unwrap();
-    let again = cal.file(&cfg.rig.name, &plan, shipped.source.seed);
-
-    // Relative agreement: the file stores f64 in full (TOML prints the shortest round-trip
-    // form), so only summation order in the renderer could move a digit.
+    let s = cal.file(&cfg.rig.name, &plan, shipped.source.seed);
     let close = |a: f64, b: f64, what: &str| {
-        assert!((a - b).abs() <= 1e-9 * a.abs().max(b.abs()).max(1e-3), "{what}: recomputed {a}, shipped {b}");
+        assert!((a - b).abs() <= 1e-9 * a.abs().max(b.abs()).max(1e-3), "{what}: recomputed {a}, stated {b}");
     };
-    assert_eq!(again.model, shipped.model);
-    assert_eq!(again.terms, shipped.terms);
-    assert_eq!(
-        (again.source.fit_patches, again.source.held_out_patches, &again.source.excluded_patches),
-        (shipped.source.fit_patches, shipped.source.held_out_patches, &shipped.source.excluded_patches)
-    );
-    for c in 0..3 {
-        close(again.white_balance[c], shipped.white_balance[c], &format!("white_balance[{c}]"));
-    }
-    assert_eq!(again.coefficients.len(), shipped.coefficients.len());
-    for (i, (a, s)) in again.coefficients.iter().zip(&shipped.coefficients).enumerate() {
-        for c in 0..3 {
-            close(a[c], s[c], &format!("coefficients[{i}][{c}]"));
-        }
-    }
-    let (a, s) = (&again.statistics, &shipped.statistics);
-    close(a.cv_mean, s.cv_mean, "statistics.cv_mean");
-    close(a.held_out_mean, s.held_out_mean, "statistics.held_out_mean");
-    close(a.held_out_median, s.held_out_median, "statistics.held_out_median");
-    close(a.held_out_p95, s.held_out_p95, "statistics.held_out_p95");
-    close(a.held_out_max, s.held_out_max, "statistics.held_out_max");
-    assert_eq!(again.candidates.len(), shipped.candidates.len());
-    for (a, s) in again.candidates.iter().zip(&shipped.candidates) {
-        assert_eq!((&a.model, &a.error), (&s.model, &s.error));
-        close(a.cv_mean, s.cv_mean, &format!("{} cv_mean", s.model));
-        close(a.held_out_mean, s.held_out_mean, &format!("{} held_out_mean", s.model));
-        close(a.held_out_max, s.held_out_max, &format!("{} held_out_max", s.model));
-    }
 
     // The file's statistics from the per-patch figures, computed here, not by btfrig-color.
     let mut de = cal.chosen().held_out.as_ref().unwrap().per_patch.clone();
-    assert_eq!(de.len(), shipped.source.held_out_patches);
+    assert_eq!(de.len(), s.source.held_out_patches);
     de.sort_by(f64::total_cmp);
     let n = de.len();
     let quantile = |p: f64| {
@@ -186,11 +156,12 @@ fn the_shipped_colour_calibration_is_reproduced_from_its_inputs() {
         let (lo, frac) = (h.floor() as usize, h - h.floor());
         de[lo] + frac * (de[(lo + 1).min(n - 1)] - de[lo])
     };
-    close(de.iter().sum::<f64>() / n as f64, s.held_out_mean, "mean of the held-out dE00");
-    close(quantile(0.5), s.held_out_median, "median of the held-out dE00");
-    close(quantile(0.95), s.held_out_p95, "p95 of the held-out dE00");
-    close(de[n - 1], s.held_out_max, "max of the held-out dE00");
+    let st = &s.statistics;
+    close(de.iter().sum::<f64>() / n as f64, st.held_out_mean, "mean of the held-out dE00");
+    close(quantile(0.5), st.held_out_median, "median of the held-out dE00");
+    close(quantile(0.95), st.held_out_p95, "p95 of the held-out dE00");
+    close(de[n - 1], st.held_out_max, "max of the held-out dE00");
     // The chosen model is the lowest cross-validated mean among the candidates.
-    let best = shipped.candidates.iter().filter(|c| c.error.is_empty()).min_by(|x, y| x.cv_mean.total_cmp(&y.cv_mean));
-    assert_eq!(best.map(|c| c.model.as_str()), Some(shipped.model.as_str()));
+    let best = s.candidates.iter().filter(|c| c.error.is_empty()).min_by(|x, y| x.cv_mean.total_cmp(&y.cv_mean));
+    assert_eq!(best.map(|c| c.model.as_str()), Some(s.model.as_str()));
 }
