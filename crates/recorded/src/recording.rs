@@ -105,7 +105,7 @@ impl Recording {
                 format!("camera.black_level = {} is not below white_level = {}", cam.black_level, cam.white_level),
             ),
             (
-                cam.bit_depth > 16 || cam.bit_depth == 16 || u32::from(cam.white_level) < (1u32 << cam.bit_depth),
+                cam.bit_depth >= 16 || u32::from(cam.white_level) < (1u32 << cam.bit_depth),
                 format!("camera.white_level = {} exceeds the {}-bit range", cam.white_level, cam.bit_depth),
             ),
             (
