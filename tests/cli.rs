@@ -1008,7 +1008,10 @@ fn texture_hashes(dataset: &Path) -> std::collections::BTreeMap<String, String> 
         .unwrap()
         .map(|e| {
             let p = e.unwrap().path();
-            (p.file_name().unwrap().to_string_lossy().into_owned(), btfrig_store::content_hash(&std::fs::read(&p).unwrap()))
+            (
+                p.file_name().unwrap().to_string_lossy().into_owned(),
+                btfrig_store::content_hash(&std::fs::read(&p).unwrap()),
+            )
         })
         .collect()
 }
