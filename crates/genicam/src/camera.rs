@@ -11,6 +11,7 @@ use std::sync::mpsc;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
+use aravis::glib::prelude::Cast;
 use aravis::prelude::*;
 use aravis::{BufferStatus, Camera, Stream};
 
@@ -71,12 +72,23 @@ pub struct OpenOptions {
     pub control_timeout: Duration,
     /// Stream buffers queued.
     pub buffers: usize,
+    /// How long opening waits for another client's control privilege (GigE Vision) to end:
+    /// a client that died holds it until the camera's heartbeat timeout (3 s by default in the
+    /// standard), so a restarted program must wait that out rather than fail.
+    pub privilege_wait: Duration,
 }
 
 impl OpenOptions {
-    /// Defaults for `target`: no discovery, 5 s control timeout, 4 buffers.
+    /// Defaults for `target`: no discovery, 5 s control timeout, 4 buffers, 5 s wait for the
+    /// control privilege.
     pub fn new(target: Target) -> Self {
-        OpenOptions { target, allow_discovery: false, control_timeout: Duration::from_secs(5), buffers: 4 }
+        OpenOptions {
+            target,
+            allow_discovery: false,
+            control_timeout: Duration::from_secs(5),
+            buffers: 4,
+            privilege_wait: Duration::from_secs(5),
+        }
     }
 }
 
@@ -188,6 +200,7 @@ pub struct GenicamCamera {
     info: Arc<Mutex<CameraInfo>>,
     target: Target,
     control_timeout: Duration,
+    privilege_wait: Duration,
 }
 
 impl std::fmt::Debug for GenicamCamera {
@@ -200,6 +213,7 @@ impl std::fmt::Debug for GenicamCamera {
 struct Owner {
     target: Target,
     buffers: usize,
+    privilege_wait: Duration,
     camera: Option<Camera>,
     stream: Option<Stream>,
     lost: Arc<AtomicBool>,
@@ -211,6 +225,7 @@ struct Owner {
     gain: Option<f64>,
     trigger: Trigger,
     frame_rate: Option<f64>,
+    /// The stream runs, or ran before the connection was lost (restarted on reconnect).
     streaming: bool,
     has_temperature: bool,
 }
@@ -233,12 +248,14 @@ impl GenicamCamera {
         let (jobs, rx) = mpsc::channel::<Job>();
         let target = options.target.clone();
         let buffers = options.buffers.max(1);
+        let privilege_wait = options.privilege_wait;
         std::thread::Builder::new()
             .name(format!("genicam {target}"))
             .spawn(move || {
                 let mut owner = Owner {
                     target,
                     buffers,
+                    privilege_wait,
                     camera: None,
                     stream: None,
                     lost: Arc::new(AtomicBool::new(false)),
@@ -276,8 +293,9 @@ impl GenicamCamera {
             info: Arc::new(Mutex::new(placeholder)),
             target: options.target,
             control_timeout: options.control_timeout,
+            privilege_wait,
         };
-        let info = cam.call(cam.control_timeout, |o| o.connect())?;
+        let info = cam.call(cam.control_timeout + privilege_wait, |o| o.connect())?;
         *cam.info.lock().unwrap_or_else(|e| e.into_inner()) = info;
         Ok(cam)
     }
@@ -378,7 +396,7 @@ impl GenicamCamera {
     /// trigger and frame rate, and restarting the stream if it ran. Fails with
     /// [`Error::Disconnected`] while the camera is away.
     pub fn reconnect(&self) -> Result<CameraInfo, Error> {
-        let info = self.call(self.control_timeout, |o| o.reconnect())?;
+        let info = self.call(self.control_timeout + self.privilege_wait, |o| o.reconnect())?;
         *self.info.lock().unwrap_or_else(|e| e.into_inner()) = info.clone();
         Ok(info)
     }
@@ -410,9 +428,37 @@ impl Owner {
         self.camera.as_ref().ok_or_else(|| self.disconnected("not connected (reconnect first)"))
     }
 
+    /// Takes a GigE Vision camera's control privilege, waiting up to `privilege_wait` while
+    /// another client holds it (one that died keeps it until its heartbeat times out).
+    /// Without it the camera can be read but not streamed from.
+    fn take_control(&self, camera: &Camera) -> Result<(), Error> {
+        let Some(gv) = camera.device().and_then(|d| d.downcast::<aravis::GvDevice>().ok()) else {
+            return Ok(());
+        };
+        let t0 = std::time::Instant::now();
+        loop {
+            if gv.is_controller() {
+                return Ok(());
+            }
+            match gv.take_control() {
+                Ok(()) => return Ok(()),
+                Err(_) if t0.elapsed() < self.privilege_wait => std::thread::sleep(Duration::from_millis(200)),
+                Err(e) => {
+                    return Err(self.disconnected(format!(
+                        "another client holds its control privilege (still after {:.1} s: {}); a client that \
+                         ended without closing releases it when the camera's heartbeat times out",
+                        t0.elapsed().as_secs_f64(),
+                        e.message()
+                    )))
+                }
+            }
+        }
+    }
+
     fn connect(&mut self) -> Result<CameraInfo, Error> {
         let camera = Camera::new(Some(&self.target.aravis_name()))
             .map_err(|e| self.disconnected(format!("cannot open it: {}", other(e))))?;
+        self.take_control(&camera)?;
         self.lost.store(false, Ordering::SeqCst);
         if let Some(device) = camera.device() {
             let lost = self.lost.clone();
@@ -558,6 +604,11 @@ impl Owner {
     fn start(&mut self) -> Result<(), Error> {
         self.stop();
         let cam = self.camera()?;
+        // A camera left acquiring by a client that died (killed, its heartbeat expired) still
+        // streams to that client's port: stopping it first makes it take the new stream
+        // channel (Aravis's fake camera re-reads it only on a fresh start; real cameras refuse
+        // to change it while acquiring).
+        cam.stop_acquisition().map_err(|e| self.control_error("AcquisitionStop", e))?;
         cam.set_acquisition_mode(aravis::AcquisitionMode::Continuous)
             .map_err(|e| self.control_error("AcquisitionMode", e))?;
         let stream = cam.create_stream().map_err(|e| self.control_error("stream", e))?;
@@ -581,12 +632,19 @@ impl Owner {
         self.streaming = false;
     }
 
+    /// Drops the connection, keeping what the stream should be doing: a reconnect that fails
+    /// and one that follows must still restart a stream that ran.
     fn close(&mut self) {
+        let streaming = self.streaming;
         self.stop();
+        self.streaming = streaming;
         self.camera = None;
     }
 
     fn trigger_and_wait(&mut self, timeout: Duration) -> Result<Frame, Error> {
+        // After a reconnect that failed the camera is closed: that is a disconnection (the
+        // run reconnects and retries), not a stream someone forgot to start.
+        self.camera()?;
         let stream = self.stream.as_ref().ok_or_else(|| Error::Other("the stream is not started".into()))?;
         while let Some(stale) = stream.try_pop_buffer() {
             stream.push_buffer(stale);
@@ -597,6 +655,7 @@ impl Owner {
     }
 
     fn pop(&mut self, timeout: Duration) -> Result<Frame, Error> {
+        self.camera()?;
         let stream = self.stream.as_ref().ok_or_else(|| Error::Other("the stream is not started".into()))?;
         let Some(buffer) = stream.timeout_pop_buffer(timeout.as_micros() as u64) else {
             self.stats.timeouts += 1;
