@@ -194,7 +194,10 @@ fn a_genicam_camera_over_gige_and_serial_firmware_on_the_wall_clock_survive_paus
     let faulted = d.wait_run(&id, "viewer-token", 180, "paused on the lost camera", |s| s["state"] == "paused");
     let lost_s = lost_at.elapsed().as_secs_f64();
     let message = faulted["message"].as_str().unwrap_or_default();
-    assert!(message.contains("camera"), "the pause does not name the camera: {faulted}");
+    assert!(
+        message.contains("camera") && message.contains("127.0.0.1"),
+        "the pause does not name the camera: {faulted}"
+    );
     let warnings = faulted["warnings"].to_string();
     assert!(warnings.contains("retry 1 of 1"), "no retry before the pause: {faulted}");
     let done_at_loss = faulted["done"].as_u64().unwrap() as usize;

@@ -227,6 +227,8 @@ struct Owner {
     frame_rate: Option<f64>,
     /// The stream runs, or ran before the connection was lost (restarted on reconnect).
     streaming: bool,
+    /// Why the last reconnect failed, while the camera stays unconnected.
+    reconnect_failure: Option<String>,
     has_temperature: bool,
 }
 
@@ -267,6 +269,7 @@ impl GenicamCamera {
                     trigger: Trigger::FreeRun,
                     frame_rate: None,
                     streaming: false,
+                    reconnect_failure: None,
                     has_temperature: false,
                 };
                 while let Ok(job) = rx.recv() {
@@ -425,7 +428,12 @@ impl Owner {
     }
 
     fn camera(&self) -> Result<&Camera, Error> {
-        self.camera.as_ref().ok_or_else(|| self.disconnected("not connected (reconnect first)"))
+        self.camera.as_ref().ok_or_else(|| {
+            self.disconnected(match &self.reconnect_failure {
+                Some(e) => format!("not connected: the last reconnect failed: {e}"),
+                None => "not connected".to_string(),
+            })
+        })
     }
 
     /// Takes a GigE Vision camera's control privilege, waiting up to `privilege_wait` while
@@ -721,7 +729,8 @@ impl Owner {
     fn reconnect(&mut self) -> Result<CameraInfo, Error> {
         let was_streaming = self.streaming;
         self.close();
-        let info = self.connect()?;
+        let info = self.connect().inspect_err(|e| self.reconnect_failure = Some(e.to_string()))?;
+        self.reconnect_failure = None;
         self.ids.reset();
         if let Some(f) = self.format {
             self.set_image_format(f)?;
