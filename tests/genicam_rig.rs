@@ -156,7 +156,10 @@ fn a_genicam_camera_over_gige_and_serial_firmware_on_the_wall_clock_survive_paus
     let r = d.post("/api/v1/runs", "operator-ada", &body);
     assert_eq!(r.status, 201, "{}", r.text());
     let id = r.json()["id"].as_str().unwrap().to_string();
-    d.wait_run(&id, "viewer-token", 120, "capturing", |s| s["done"].as_u64().unwrap_or(0) >= 2);
+    let s = d.wait_run(&id, "viewer-token", 120, "capturing", |s| {
+        s["done"].as_u64().unwrap_or(0) >= 2 || s["state"] == "failed"
+    });
+    assert_ne!(s["state"], "failed", "{s}");
     let p = d.post(&format!("/api/v1/runs/{id}/pause"), "operator-ada", "");
     assert_eq!(p.status, 200, "{}", p.text());
     let paused = d.wait_run(&id, "viewer-token", 60, "paused", |s| s["state"] == "paused");
@@ -184,9 +187,10 @@ fn a_genicam_camera_over_gige_and_serial_firmware_on_the_wall_clock_survive_paus
     let r = d.post("/api/v1/runs", "operator-ada", &body);
     assert_eq!(r.status, 201, "{}", r.text());
     let id = r.json()["id"].as_str().unwrap().to_string();
-    d.wait_run(&id, "viewer-token", 180, "capturing after the daemon's restart", |s| {
-        s["done"].as_u64().unwrap_or(0) as usize >= killed_at + 2
+    let s = d.wait_run(&id, "viewer-token", 180, "capturing after the daemon's restart", |s| {
+        s["done"].as_u64().unwrap_or(0) as usize >= killed_at + 2 || s["state"] == "failed"
     });
+    assert_ne!(s["state"], "failed", "{s}");
     kill(camera);
     let lost_at = Instant::now();
     // A retry, then a clear paused state naming the camera, within the retry budget: the
@@ -259,4 +263,81 @@ fn a_genicam_camera_over_gige_and_serial_firmware_on_the_wall_clock_survive_paus
          kill: {message}); {dropped} dropped buffer(s) in the last session; {:.1} s wall in all",
         t_all.elapsed().as_secs_f64()
     );
+}
+
+/// The small simulated rig with its camera seen through a fed fake camera over loopback GigE
+/// Vision (as `rig-configs/bonn-gonio-genicam.toml` does for the default rig).
+fn small_genicam_rig_text() -> String {
+    let text = std::fs::read_to_string(repo("rig-configs/bonn-gonio-sim-small.toml")).unwrap();
+    let from = "[devices.camera]\nkind = \"sim\"\n";
+    assert!(text.contains(from), "bonn-gonio-sim-small.toml no longer has {from:?}");
+    text.replace(
+        from,
+        "[devices.camera]\nkind = \"genicam\"\nlink = { emulated = true, address = \"127.0.0.1\", pixel_format = \"BayerRG16\", serial = \"BTFRIG-CAL\" }\n",
+    )
+}
+
+/// A calibration runs through a GenICam camera like through any other (issue 26: no
+/// calibration refuses a rig): dark and flat fields captured through the fed fake camera over
+/// loopback GigE Vision are bit for bit those captured from the simulated camera directly.
+#[test]
+fn a_calibration_through_a_genicam_camera_equals_the_direct_one() {
+    if !netns::in_netns("a_calibration_through_a_genicam_camera_equals_the_direct_one") {
+        return;
+    }
+    netns::assert_loopback_only();
+    let dir = scratch("genicam-calibration");
+    let rig = dir.join("small-genicam.toml");
+    std::fs::write(&rig, small_genicam_rig_text()).unwrap();
+    let (direct, genicam) = (dir.join("direct"), dir.join("genicam"));
+    ok(btfrig()
+        .args(["calibrate", "radiometric", "--rig"])
+        .arg(repo("rig-configs/bonn-gonio-sim-small.toml"))
+        .arg("--out")
+        .arg(&direct));
+    let out = ok(btfrig().args(["calibrate", "radiometric", "--rig"]).arg(&rig).arg("--out").arg(&genicam));
+    println!("{out}");
+    let files = |d: &Path| -> Vec<String> {
+        let mut v: Vec<String> = std::fs::read_dir(d)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .filter(|n| n.ends_with(".exr"))
+            .collect();
+        v.sort();
+        v
+    };
+    let maps = files(&direct);
+    assert!(maps.iter().any(|n| n == "dark.exr"), "{maps:?}");
+    assert_eq!(files(&genicam), maps);
+    for m in &maps {
+        assert!(std::fs::read(direct.join(m)).unwrap() == std::fs::read(genicam.join(m)).unwrap(), "{m} differs");
+    }
+}
+
+/// Before anything is created, a run asks the GenICam camera who it is: with no camera at the
+/// address, `btfrig run` fails naming the camera and its address, and writes nothing;
+/// `btfrig hw probe --rig` exits 1 naming it.
+#[test]
+fn a_run_with_no_camera_at_the_address_fails_before_anything_is_created() {
+    if !netns::in_netns("a_run_with_no_camera_at_the_address_fails_before_anything_is_created") {
+        return;
+    }
+    netns::assert_loopback_only();
+    let dir = scratch("genicam-no-camera");
+    let (rig_dir, plans) = (dir.join("rig"), dir.join("plans"));
+    for d in [&rig_dir, &plans] {
+        std::fs::create_dir_all(d).unwrap();
+    }
+    std::fs::write(rig_dir.join("rig.toml"), rig_text()).unwrap();
+    let plan_file = plans.join("plan.toml");
+    std::fs::write(&plan_file, plan()).unwrap();
+    let out = dir.join("out");
+    let o = btfrig().args(["run", "--plan"]).arg(&plan_file).arg("--out").arg(&out).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+    assert!(err.contains("devices.camera on GenICam 127.0.0.1") && err.contains("preflight"), "{}", text(&o));
+    assert!(!out.exists(), "{} was created", out.display());
+    let o = btfrig().args(["hw", "probe", "--rig"]).arg(rig_dir.join("rig.toml")).output().unwrap();
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("127.0.0.1"), "{}", text(&o));
 }

@@ -85,8 +85,9 @@ pub fn probe(
             failed.push(format!("devices.{}{link}: {f}", d.role));
         }
     }
-    if let Some(line) = camera {
+    if let Some((line, failure)) = camera {
         println!("  camera    kind genicam {line}");
+        failed.extend(failure);
     }
     if failed.is_empty() {
         return Ok(ExitCode::SUCCESS);
@@ -178,15 +179,23 @@ fn genicam_cameras(addresses: &[Ipv4Addr], discover: bool) -> anyhow::Result<()>
 #[cfg(feature = "genicam")]
 fn rig_genicam_camera(
     cfg: &btfrig_core::config::RigConfig,
-) -> anyhow::Result<(btfrig_core::config::RigConfig, Option<String>)> {
+) -> anyhow::Result<(btfrig_core::config::RigConfig, RigCamera)> {
     let camera = btfrig_genicam_backend::probe_rig_camera(cfg).map_err(anyhow::Error::msg)?;
     let rest = btfrig_genicam_backend::without_genicam_camera(cfg).map_err(anyhow::Error::msg)?;
-    Ok((rest, camera.as_ref().map(describe)))
+    Ok((
+        rest,
+        camera.as_ref().map(|c| {
+            (describe(c), c.info.as_ref().err().map(|e| format!("devices.camera on GenICam {}: {e}", c.target)))
+        }),
+    ))
 }
 
 #[cfg(not(feature = "genicam"))]
 fn rig_genicam_camera(
     cfg: &btfrig_core::config::RigConfig,
-) -> anyhow::Result<(btfrig_core::config::RigConfig, Option<String>)> {
+) -> anyhow::Result<(btfrig_core::config::RigConfig, RigCamera)> {
     Ok((cfg.clone(), None))
 }
+
+/// A rig's GenICam camera as `hw probe` saw it: its line, and why it failed.
+type RigCamera = Option<(String, Option<String>)>;

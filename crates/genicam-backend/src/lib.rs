@@ -25,8 +25,10 @@ use btfrig_genicam::{
 };
 use btfrig_hw::{Camera, CameraCapabilities, CaptureSettings, Device, DeviceError, DeviceInfo, ErrorKind, Health};
 use btfrig_measurement::backend::{
-    BackendRegistry, GonioOpenRequest, LinkReport, LinkUse, OpenedGonio, RigBackend, SceneOptions,
+    BackendRegistry, CalibrationOpenRequest, GonioOpenRequest, LinkReport, LinkUse, OpenedGonio, OpenedRig, RigBackend,
+    SceneOptions,
 };
+use btfrig_measurement::preflight::{DeviceCheck, Role};
 use btfrig_measurement::RunError;
 use serde::Deserialize;
 
@@ -403,108 +405,45 @@ impl RigBackend for GenicamBackend {
 
     async fn open_gonio(&self, req: GonioOpenRequest<'_>) -> Result<OpenedGonio, RunError> {
         let (inner_cfg, cfg) = inner_rig(req.rig).map_err(RunError::Rig)?;
-        let target = cfg.target().map_err(RunError::Rig)?;
-        let format = cfg.format().map_err(RunError::Rig)?;
-        let gain_unit = cfg.gain().map_err(RunError::Rig)?;
         let inner = self.inner.for_rig(&inner_cfg)?;
-        let OpenedGonio { robot, rail, lamp, camera: twin, clock, truth, links } =
-            inner.open_gonio(GonioOpenRequest { rig: &inner_cfg, ..req }).await?;
-        // The fed fake camera first, so that the client finds it at the address.
-        let fake = match (&cfg.serial, &target) {
-            (Some(serial), Target::Address(address)) if cfg.emulated => {
-                let (address, serial) = (*address, serial.clone());
-                let fake = blocking(move || {
-                    FedFakeCamera::start(address, &serial)
-                        .map_err(|e| format!("devices.camera (emulated GenICam): {e}"))
-                })
-                .await?;
-                Some(Arc::new(fake))
-            }
-            _ => None,
-        };
-        let t = target.clone();
-        let camera = blocking(move || {
-            GenicamCamera::open(OpenOptions { control_timeout: Duration::from_secs(5), ..OpenOptions::new(t.clone()) })
-                .map_err(|e| format!("devices.camera (GenICam {t}): {e}"))
-        })
-        .await?;
-        let info = camera.info();
-        if let (true, Some(serial)) = (cfg.emulated, &cfg.serial) {
-            if &info.serial != serial {
-                return Err(RunError::Rig(format!(
-                    "devices.camera: the camera at {target} has serial {:?}, not the fake camera's {serial:?}: another camera holds the address",
-                    info.serial
-                )));
-            }
+        let opened = inner.open_gonio(GonioOpenRequest { rig: &inner_cfg, ..req }).await?;
+        with_genicam_camera(&cfg, opened).await
+    }
+
+    async fn open_calibration(&self, req: CalibrationOpenRequest<'_>) -> Result<OpenedRig, RunError> {
+        let (inner_cfg, cfg) = inner_rig(req.rig).map_err(RunError::Rig)?;
+        let inner = self.inner.for_rig(&inner_cfg)?;
+        match inner.open_calibration(CalibrationOpenRequest { rig: &inner_cfg, ..req }).await? {
+            OpenedRig::Gonio(opened) => Ok(OpenedRig::Gonio(with_genicam_camera(&cfg, opened).await?)),
+            OpenedRig::Dome(_) => Err(RunError::Rig(
+                "devices.camera.kind = \"genicam\": GenICam cameras are opened on gonioreflectometers only so far \
+                 (a dome's cameras are kind = \"sim\" or \"ptp\")"
+                    .into(),
+            )),
         }
-        // The sensor as the rig config describes it (the simulated twin reads the same
-        // [camera] and [sensor] sections).
-        let caps = twin.capabilities();
-        let settings = twin.settings();
-        if format.bits() < caps.bit_depth || format.bayer() != caps.bayer {
-            return Err(RunError::Rig(format!(
-                "devices.camera.link.pixel_format = {:?} does not carry the sensor's {}-bit {} samples; allowed: a {}-bit or wider {} format",
-                format.name(),
-                caps.bit_depth,
-                caps.bayer.map_or("monochrome".to_string(), |b| format!("{b:?} Bayer")),
-                caps.bit_depth,
-                if caps.bayer.is_some() { "Bayer" } else { "Mono" }
-            )));
+    }
+
+    fn preflight(&self, rig: &RigConfig, roles: &[Role]) -> Vec<DeviceCheck> {
+        let (inner_cfg, cfg) = match inner_rig(rig) {
+            Ok(v) => v,
+            Err(e) => {
+                let mut c = DeviceCheck::unasked("camera", &rig.devices.camera.kind, "");
+                (c.note, c.failure) = (None, Some(e));
+                return vec![c];
+            }
+        };
+        let mut checks = match self.inner.for_rig(&inner_cfg) {
+            Ok(inner) => inner.preflight(&inner_cfg, roles),
+            Err(e) => {
+                let mut c = DeviceCheck::unasked("camera", "genicam", "");
+                (c.note, c.failure) = (None, Some(e.to_string()));
+                return vec![c];
+            }
+        };
+        if let Some(c) = checks.iter_mut().find(|c| c.role == "camera") {
+            *c = preflight_camera(&cfg);
         }
-        let options = DeviceOptions {
-            name: "camera".into(),
-            width: caps.width as u32,
-            height: caps.height as u32,
-            pixel_format: format,
-            bit_depth: caps.bit_depth,
-            black_level: caps.black_level,
-            white_level: caps.white_level,
-            exposure_range_s: caps.exposure_range_s,
-            gain_range: caps.gain_range,
-            gain_unit,
-            initial: (settings.exposure_s, settings.gain),
-        };
-        let device =
-            GenicamDevice::open(camera, options, clock.clone()).await.map_err(|e| RunError::Rig(e.to_string()))?;
-        let costs = Arc::new(Costs::default());
-        let (camera, label): (Box<dyn Camera>, String) = match &fake {
-            Some(f) => {
-                let feed = f.feed();
-                // Only the GenICam calls are metered: the simulated frame's rendering is not the
-                // GenICam path's cost.
-                let genicam = Metered { camera: device, costs: costs.clone() };
-                let mut fed = FedCamera { sim: twin, genicam, feed, fake: f.clone(), format, pending: None };
-                // The simulated sensor starts where the GenICam camera was set.
-                fed.sim
-                    .set_exposure_s(fed.genicam.settings().exposure_s)
-                    .await
-                    .map_err(|e| RunError::Rig(e.to_string()))?;
-                fed.sim.set_gain(fed.genicam.settings().gain).await.map_err(|e| RunError::Rig(e.to_string()))?;
-                (
-                    Box::new(fed),
-                    format!(
-                        "GenICam {target} ({} {}, serial {}): Aravis GigE fake camera fed by the simulator",
-                        info.vendor, info.model, info.serial
-                    ),
-                )
-            }
-            None => {
-                drop(twin);
-                (
-                    Box::new(Metered { camera: device, costs: costs.clone() }),
-                    format!("GenICam {target} ({} {}, serial {})", info.vendor, info.model, info.serial),
-                )
-            }
-        };
-        Ok(OpenedGonio {
-            robot,
-            rail,
-            lamp,
-            camera,
-            clock,
-            truth,
-            links: Box::new(Links { inner: links, costs, target: label, _fake: fake }),
-        })
+        checks
     }
 
     fn check_rig(&self, rig: &RigConfig) -> Result<(), String> {
@@ -519,6 +458,158 @@ impl RigBackend for GenicamBackend {
         let _ = options;
         Ok(())
     }
+}
+
+/// `opened` (the inner backend's devices, its camera the simulated twin) with the GenICam
+/// camera of `cfg` in the twin's place: a fed fake camera serving the twin's frames when
+/// `cfg.emulated`, else the camera at the address, the twin dropped.
+async fn with_genicam_camera(cfg: &CameraConfig, opened: OpenedGonio) -> Result<OpenedGonio, RunError> {
+    let OpenedGonio { robot, rail, lamp, camera: twin, clock, truth, links } = opened;
+    let target = cfg.target().map_err(RunError::Rig)?;
+    let format = cfg.format().map_err(RunError::Rig)?;
+    let gain_unit = cfg.gain().map_err(RunError::Rig)?;
+    // The fed fake camera first, so that the client finds it at the address.
+    let fake = match (&cfg.serial, &target) {
+        (Some(serial), Target::Address(address)) if cfg.emulated => {
+            let (address, serial) = (*address, serial.clone());
+            let fake = blocking(move || {
+                FedFakeCamera::start(address, &serial).map_err(|e| format!("devices.camera (emulated GenICam): {e}"))
+            })
+            .await?;
+            Some(Arc::new(fake))
+        }
+        _ => None,
+    };
+    let t = target.clone();
+    let camera = blocking(move || {
+        GenicamCamera::open(OpenOptions { control_timeout: Duration::from_secs(5), ..OpenOptions::new(t.clone()) })
+            .map_err(|e| format!("devices.camera (GenICam {t}): {e}"))
+    })
+    .await?;
+    let info = camera.info();
+    if let (true, Some(serial)) = (cfg.emulated, &cfg.serial) {
+        if &info.serial != serial {
+            return Err(RunError::Rig(format!(
+                "devices.camera: the camera at {target} has serial {:?}, not the fake camera's {serial:?}: another camera holds the address",
+                info.serial
+            )));
+        }
+    }
+    // The sensor as the rig config describes it (the simulated twin reads the same
+    // [camera] and [sensor] sections).
+    let caps = twin.capabilities();
+    let settings = twin.settings();
+    if format.bits() < caps.bit_depth || format.bayer() != caps.bayer {
+        return Err(RunError::Rig(format!(
+            "devices.camera.link.pixel_format = {:?} does not carry the sensor's {}-bit {} samples; allowed: a {}-bit or wider {} format",
+            format.name(),
+            caps.bit_depth,
+            caps.bayer.map_or("monochrome".to_string(), |b| format!("{b:?} Bayer")),
+            caps.bit_depth,
+            if caps.bayer.is_some() { "Bayer" } else { "Mono" }
+        )));
+    }
+    let options = DeviceOptions {
+        name: "camera".into(),
+        width: caps.width as u32,
+        height: caps.height as u32,
+        pixel_format: format,
+        bit_depth: caps.bit_depth,
+        black_level: caps.black_level,
+        white_level: caps.white_level,
+        exposure_range_s: caps.exposure_range_s,
+        gain_range: caps.gain_range,
+        gain_unit,
+        initial: (settings.exposure_s, settings.gain),
+    };
+    let device = GenicamDevice::open(camera, options, clock.clone()).await.map_err(|e| RunError::Rig(e.to_string()))?;
+    let costs = Arc::new(Costs::default());
+    let (camera, label): (Box<dyn Camera>, String) = match &fake {
+        Some(f) => {
+            let feed = f.feed();
+            // Only the GenICam calls are metered: the simulated frame's rendering is not the
+            // GenICam path's cost.
+            let genicam = Metered { camera: device, costs: costs.clone() };
+            let mut fed = FedCamera { sim: twin, genicam, feed, fake: f.clone(), format, pending: None };
+            // The simulated sensor starts where the GenICam camera was set.
+            fed.sim
+                .set_exposure_s(fed.genicam.settings().exposure_s)
+                .await
+                .map_err(|e| RunError::Rig(e.to_string()))?;
+            fed.sim.set_gain(fed.genicam.settings().gain).await.map_err(|e| RunError::Rig(e.to_string()))?;
+            (
+                Box::new(fed),
+                format!(
+                    "GenICam {target} ({} {}, serial {}): Aravis GigE fake camera fed by the simulator",
+                    info.vendor, info.model, info.serial
+                ),
+            )
+        }
+        None => {
+            drop(twin);
+            (
+                Box::new(Metered { camera: device, costs: costs.clone() }),
+                format!("GenICam {target} ({} {}, serial {})", info.vendor, info.model, info.serial),
+            )
+        }
+    };
+    Ok(OpenedGonio {
+        robot,
+        rail,
+        lamp,
+        camera,
+        clock,
+        truth,
+        links: Box::new(Links { inner: links, costs, target: label, _fake: fake }),
+    })
+}
+
+/// Preflight of the GenICam camera: opened by its address (no streaming), who it says it is
+/// and its temperature. A fed fake camera is served only when the rig is opened: not asked.
+fn preflight_camera(cfg: &CameraConfig) -> DeviceCheck {
+    let mut c = DeviceCheck::unasked("camera", "genicam", "");
+    c.note = None;
+    let target = match cfg.target() {
+        Ok(t) => t,
+        Err(e) => {
+            c.failure = Some(e);
+            return c;
+        }
+    };
+    c.port = Some(format!("GenICam {target}"));
+    if cfg.emulated {
+        c.note = Some("emulated: the fed fake camera is served when the rig is opened".into());
+        return c;
+    }
+    let probed = probe_one(target, false);
+    match probed.info {
+        Ok(info) => {
+            c.identity = Some(DeviceInfo {
+                name: "camera".into(),
+                backend: "genicam".into(),
+                model: format!("{} {}", info.vendor, info.model),
+                serial: Some(info.serial.clone()),
+                firmware: info.version.clone(),
+            });
+            c.health = Some("Ok".into());
+            match cfg.format() {
+                Ok(f) if !info.pixel_formats.iter().any(|p| p == f.name()) => {
+                    c.failure = Some(format!(
+                        "the camera does not offer devices.camera.link.pixel_format = {:?}; it offers {}",
+                        f.name(),
+                        info.pixel_formats.join(", ")
+                    ))
+                }
+                Ok(_) => {}
+                Err(e) => c.failure = Some(e),
+            }
+            if let Some(t) = probed.temperature_c {
+                c.note = Some(format!("temperature {t:.1} °C"));
+            }
+        }
+        Err(e) => c.failure = Some(e),
+    }
+    c
 }
 
 /// What `btfrig hw probe` learned of one GenICam camera.
