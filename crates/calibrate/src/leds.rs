@@ -99,8 +99,8 @@ pub struct LedSource {
 pub struct LedEntry {
     /// Output relative to the file's reference (green channel).
     pub power: f64,
-    /// Standard uncertainty of `power` (from the frames' scatter over the tile, scaled to the
-    /// scatter between repeated frames of the same light).
+    /// Standard uncertainty of `power` (from the scatter over the tile of the light's frames'
+    /// mean, scaled to the scatter between repeated frames of the same light: [`fit_leds`]).
     pub power_sigma: f64,
     /// Camera-RGB ratios of the light on a white reflector, green = 1.
     pub colour: [f64; 3],
@@ -274,6 +274,33 @@ pub fn fit_leds(
     let n = dome.led_count();
     let points = square_points(rig.plate.sample_side_m - 2.0 * opts.tile_margin_m, opts.step_m);
     let (e_per_dn, dark) = (rig.sensor.electrons_per_dn, rig.sensor.dark_current_e_per_s);
+    // DN above black and mean dark signal, as the dome pipeline reads a frame.
+    let above_dark = |f: &RawFrame| -> Vec<f32> {
+        let dark_dn = (dark * f.meta.exposure_s * f.meta.gain / e_per_dn) as f32;
+        let black = f32::from(f.meta.black_level);
+        f.data.iter().map(|&v| f32::from(v) - black - dark_dn).collect()
+    };
+    // `W_c` (over the tile's albedo) and its standard error from the scatter over the tile, of
+    // `values` (DN above dark, the layout of `f`) of light `s.light` seen as in shot `s`.
+    let signal = |s: &LedShot, values: &[f32]| -> Result<([f64; 3], [f64; 3]), LedCalibError> {
+        let f = &s.frame;
+        let rgb = demosaic_bilinear_values(f.width, f.height, f.meta.bayer, values);
+        let image = LinearImage { width: f.width, height: f.height, data: rgb.data };
+        let to_rate = Radiometry {
+            dn_range: 1.0,
+            exposure_s: dome.light_units(f.meta.exposure_s),
+            dn_per_electron: f.meta.gain / e_per_dn,
+            dark_e_per_s: 0.0,
+            nominal_irradiance: 1.0,
+            white_balance: [1.0; 3],
+            matrix: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+        };
+        let pose = dome.scene_pose(s.camera, s.turntable_rad, s.light);
+        let w = lambertian_signal(&image, camera, &pose, dome.light_distance_m(), &to_rate, &points)
+            .map_err(|e| LedCalibError::Measure { light: s.light, camera: s.camera, message: e.to_string() })?;
+        let a = opts.reference_albedo;
+        Ok((w.mean.map(|v| v / a), w.sigma.map(|v| v / a)))
+    };
     let measured: Vec<(usize, [f64; 3], [f64; 3])> = shots
         .par_iter()
         .map(|s| {
@@ -288,51 +315,54 @@ pub fn fit_leds(
                     f.width, f.height, camera.width, camera.height
                 )));
             }
-            // DN above black and mean dark signal, as the dome pipeline reads a frame.
-            let dark_dn = (dark * f.meta.exposure_s * f.meta.gain / e_per_dn) as f32;
-            let black = f32::from(f.meta.black_level);
-            let values: Vec<f32> = f.data.iter().map(|&v| f32::from(v) - black - dark_dn).collect();
-            let rgb = demosaic_bilinear_values(f.width, f.height, f.meta.bayer, &values);
-            let image = LinearImage { width: f.width, height: f.height, data: rgb.data };
-            let to_rate = Radiometry {
-                dn_range: 1.0,
-                exposure_s: dome.light_units(f.meta.exposure_s),
-                dn_per_electron: f.meta.gain / e_per_dn,
-                dark_e_per_s: 0.0,
-                nominal_irradiance: 1.0,
-                white_balance: [1.0; 3],
-                matrix: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-            };
-            let pose = dome.scene_pose(s.camera, s.turntable_rad, s.light);
-            let w = lambertian_signal(&image, camera, &pose, dome.light_distance_m(), &to_rate, &points)
-                .map_err(|e| bad(e.to_string()))?;
-            let a = opts.reference_albedo;
-            Ok((s.light, w.mean.map(|v| v / a), w.sigma.map(|v| v / a)))
+            let (w, sigma) = signal(s, &above_dark(f))?;
+            Ok((s.light, w, sigma))
         })
         .collect::<Result<_, _>>()?;
-    // Per light: the mean of its frames and the root-sum-square of their errors over n.
-    let mut sum = vec![([0.0f64; 3], [0.0f64; 3], 0usize); n];
-    for (j, w, s) in &measured {
+    let mut sum = vec![([0.0f64; 3], 0usize); n];
+    for (j, w, _) in &measured {
         for c in 0..3 {
             sum[*j].0[c] += w[c];
-            sum[*j].1[c] += s[c] * s[c];
         }
-        sum[*j].2 += 1;
+        sum[*j].1 += 1;
     }
-    if let Some(j) = sum.iter().position(|s| s.2 == 0) {
+    if let Some(j) = sum.iter().position(|s| s.1 == 0) {
         return Err(LedCalibError::Rig(format!("light {j} has no calibration frame (every one of the {n} needs one)")));
     }
-    let frames = sum.iter().map(|s| s.2).min().unwrap_or(0);
-    let mean: Vec<[f64; 3]> = sum.iter().map(|(w, _, k)| w.map(|x| x / *k as f64)).collect();
+    let frames = sum.iter().map(|s| s.1).min().unwrap_or(0);
+    let mean: Vec<[f64; 3]> = sum.iter().map(|(w, k)| w.map(|x| x / *k as f64)).collect();
+    // A light's error: the scatter over the tile of the mean of its frames (one image per
+    // light: what the frames share, the photosites' fixed pattern and the tile, stays in it
+    // at full size, while their independent noise averages down), scaled by how much larger
+    // the scatter between repeated frames is than their stated errors (neighbouring points
+    // share photosites through the demosaic, so the points' scatter understates the noise).
     let inflation = scatter_inflation(&measured, &mean);
-    let per: Vec<([f64; 3], [f64; 3])> = sum
-        .iter()
-        .zip(&mean)
-        .map(|((_, v, k), w)| {
-            let k = *k as f64;
-            (*w, std::array::from_fn(|c| v[c].sqrt() / k * inflation[c]))
+    let sigma: Vec<[f64; 3]> = (0..n)
+        .into_par_iter()
+        .map(|j| {
+            let mine: Vec<&LedShot> = shots.iter().filter(|s| s.light == j).collect();
+            let first = mine[0];
+            let one_view = mine.iter().all(|s| s.camera == first.camera && s.turntable_rad == first.turntable_rad);
+            if !one_view {
+                // Frames from several views share no fixed pattern: the root-sum-square of
+                // their stated errors over their number.
+                let mine: Vec<_> = measured.iter().filter(|m| m.0 == j).collect();
+                let k = mine.len() as f64;
+                return Ok(std::array::from_fn(|c| mine.iter().map(|m| m.2[c].powi(2)).sum::<f64>().sqrt() / k));
+            }
+            let mut acc = vec![0.0f64; first.frame.data.len()];
+            for s in &mine {
+                for (a, v) in acc.iter_mut().zip(above_dark(&s.frame)) {
+                    *a += f64::from(v);
+                }
+            }
+            let k = mine.len() as f64;
+            let avg: Vec<f32> = acc.iter().map(|a| (a / k) as f32).collect();
+            Ok(signal(first, &avg)?.1)
         })
-        .collect();
+        .collect::<Result<_, LedCalibError>>()?;
+    let per: Vec<([f64; 3], [f64; 3])> =
+        mean.iter().zip(&sigma).map(|(w, s)| (*w, std::array::from_fn(|c| s[c] * inflation[c]))).collect();
     let reference_rate = per.iter().map(|(w, _)| w[1]).sum::<f64>() / n as f64;
     let leds = per
         .iter()
