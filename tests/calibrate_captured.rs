@@ -13,13 +13,13 @@ use support::{btfrig, ok, repo, scratch};
 
 use btfrig_calibrate::dark_flat::RadiometricPlan;
 use btfrig_calibrate::emva::SensorPlan;
-use btfrig_calibrate::leds::LedFitOptions;
+use btfrig_calibrate::leds::{measure_leds, LedCalibrationFile, LedFitOptions};
 use btfrig_calibrate::light::LightPlan;
 use btfrig_core::config::RigConfig;
 use btfrig_measurement::backend::RigTime;
 use btfrig_measurement::captured_calibration::{
-    capture_dark_flat, capture_leds, capture_light, capture_sensor, check_devices, CalibrationSession,
-    LedCaptureOptions,
+    capture_dark_flat, capture_led_shots, capture_leds, capture_light, capture_sensor, check_devices,
+    CalibrationSession, LedCaptureOptions,
 };
 
 fn rig(name: &str) -> RigConfig {
@@ -188,7 +188,8 @@ const SHIPPED: &[(&str, &[&str])] = &[
 ];
 
 /// The slow ones (minutes: 151 flashes x 64 frames, a 12 MP light calibration, the
-/// 1600 x 1200 sensor series): `--ignored`.
+/// 1600 x 1200 sensor series): `--ignored`. Eleven of the flashes are recomputed by default
+/// (`eleven_shipped_flash_entries_are_what_the_procedure_makes`).
 const SHIPPED_SLOW: &[(&str, &[&str])] = &[
     ("calibration/bonn-camera-array-sim-flashes.toml", &["calibrate", "leds", "--rig", "bonn-camera-array-sim"]),
     (
@@ -234,6 +235,40 @@ fn the_shipped_radiometric_calibrations_are_what_the_procedures_make() {
 #[ignore = "minutes: cargo test --release -p btfrig-cli --test calibrate_captured -- --ignored"]
 fn the_slow_shipped_radiometric_calibrations_are_what_the_procedures_make() {
     recompute(SHIPPED_SLOW, "shipped-radiometric-slow");
+}
+
+/// The shipped camera array's flash file (`btfrig calibrate leds --rig bonn-camera-array-sim`:
+/// 151 flashes x 64 frames, minutes) checked on eleven flashes spread over the rings: each
+/// entry depends on its own flash's frames only, given the file's reference rate (the mean
+/// over all flashes) and scatter inflation (pooled over all), so the eleven recomputed
+/// entries equal the shipped ones bit for bit. The whole file is recomputed by the ignored
+/// `the_slow_shipped_radiometric_calibrations_are_what_the_procedures_make`.
+#[test]
+fn eleven_shipped_flash_entries_are_what_the_procedure_makes() {
+    let cfg = rig("bonn-camera-array-sim");
+    let text = std::fs::read_to_string(repo("calibration/bonn-camera-array-sim-flashes.toml")).unwrap();
+    let shipped = LedCalibrationFile::from_toml(&text, "shipped flashes").unwrap();
+    let seed = shipped.source.seed.unwrap();
+    assert_eq!(seed, cfg.rig.seed, "the shipped file was made with the rig's seed");
+    // The options of `btfrig calibrate leds` on a camera array.
+    let opts = LedCaptureOptions {
+        repeats: 64,
+        multiplexed: false,
+        exposure_fraction: 0.5,
+        fit: LedFitOptions { seed: Some(seed), ..LedFitOptions::default() },
+    };
+    let lights: Vec<usize> = (0..shipped.leds.len()).step_by(15).collect();
+    let (shots, _, frames) = capture_led_shots(&session(&cfg, seed), &opts, Some(&lights)).unwrap();
+    assert_eq!(frames, 64 * lights.len());
+    let camera = btfrig_calibrate::processing_camera(&cfg, None).unwrap();
+    let (signals, _) = measure_leds(&cfg, &camera, &shots, &opts.fit).unwrap();
+    let inflation = shipped.source.scatter_inflation.expect("the file states its scatter inflation");
+    for &j in &lights {
+        let made = signals[j].as_ref().unwrap().entry(inflation, shipped.reference_rate);
+        assert_eq!(made, shipped.leds[j], "flash {j}");
+        assert_eq!(signals[j].as_ref().unwrap().frames, shipped.source.frames_per_light);
+    }
+    assert!(signals.iter().enumerate().all(|(j, s)| s.is_some() == lights.contains(&j)));
 }
 
 /// `btfrig calibrate sensor` writes a file that reads back, naming the command in its header.

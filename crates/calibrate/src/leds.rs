@@ -91,6 +91,10 @@ pub struct LedSource {
     pub reference_albedo: f64,
     /// Frames measured per light.
     pub frames_per_light: usize,
+    /// Per channel, how much larger the scatter between repeated frames of a light was than
+    /// the frames' stated errors; every light's sigma is scaled by it ([`fit_leds`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scatter_inflation: Option<[f64; 3]>,
 }
 
 /// One light's calibration.
@@ -253,14 +257,45 @@ impl Default for LedFitOptions {
     }
 }
 
-/// Fits the LED calibration of `rig` from `shots` (every light at least once; several frames
-/// of one light are averaged), processing with `camera` (the processing camera).
-pub fn fit_leds(
+/// One light's white signal, measured by [`measure_leds`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct LightSignal {
+    /// `W_c` over the tile's albedo: the mean of the light's frames.
+    pub white: [f64; 3],
+    /// Its standard error before the scatter inflation: the scatter over the tile of the mean
+    /// of the light's frames (what the frames share, the photosites' fixed pattern and the
+    /// tile, stays in it at full size; their independent noise averages down).
+    pub sigma: [f64; 3],
+    /// Frames measured.
+    pub frames: usize,
+}
+
+impl LightSignal {
+    /// The light's file entry, its sigma scaled by `inflation`, its power relative to
+    /// `reference_rate`.
+    pub fn entry(&self, inflation: [f64; 3], reference_rate: f64) -> LedEntry {
+        let (w, s) = (self.white, std::array::from_fn::<f64, 3, _>(|c| self.sigma[c] * inflation[c]));
+        let rel = |c: usize| s[c] / w[c];
+        LedEntry {
+            power: w[1] / reference_rate,
+            power_sigma: w[1] / reference_rate * rel(1),
+            colour: [w[0] / w[1], 1.0, w[2] / w[1]],
+            colour_sigma: [w[0] / w[1] * rel(0).hypot(rel(1)), 0.0, w[2] / w[1] * rel(2).hypot(rel(1))],
+        }
+    }
+}
+
+/// The lights of `shots` measured (processing with `camera`): per light of the rig its
+/// signal (`None` without a frame), and per channel the scatter inflation (how much larger
+/// the scatter between repeated frames of a light is than their stated errors: neighbouring
+/// points share photosites through the demosaic, so the points' scatter understates the
+/// noise). Each light's signal depends on its own frames only.
+pub fn measure_leds(
     rig: &RigConfig,
     camera: &CameraModel,
     shots: &[LedShot],
     opts: &LedFitOptions,
-) -> Result<LedCalibrationFile, LedCalibError> {
+) -> Result<(Vec<Option<LightSignal>>, [f64; 3]), LedCalibError> {
     let dome = rig.dome.as_ref().ok_or_else(|| {
         LedCalibError::Rig(format!(
             "rig {} is a {}, not an LED dome or camera array",
@@ -319,63 +354,66 @@ pub fn fit_leds(
             Ok((s.light, w, sigma))
         })
         .collect::<Result<_, _>>()?;
-    let mut sum = vec![([0.0f64; 3], 0usize); n];
+    let n_frames = |j: usize| measured.iter().filter(|m| m.0 == j).count();
+    let mut sum = vec![[0.0f64; 3]; n];
     for (j, w, _) in &measured {
         for c in 0..3 {
-            sum[*j].0[c] += w[c];
+            sum[*j][c] += w[c];
         }
-        sum[*j].1 += 1;
     }
-    if let Some(j) = sum.iter().position(|s| s.1 == 0) {
-        return Err(LedCalibError::Rig(format!("light {j} has no calibration frame (every one of the {n} needs one)")));
-    }
-    let frames = sum.iter().map(|s| s.1).min().unwrap_or(0);
-    let mean: Vec<[f64; 3]> = sum.iter().map(|(w, k)| w.map(|x| x / *k as f64)).collect();
-    // A light's error: the scatter over the tile of the mean of its frames (one image per
-    // light: what the frames share, the photosites' fixed pattern and the tile, stays in it
-    // at full size, while their independent noise averages down), scaled by how much larger
-    // the scatter between repeated frames is than their stated errors (neighbouring points
-    // share photosites through the demosaic, so the points' scatter understates the noise).
+    let mean: Vec<[f64; 3]> = sum.iter().enumerate().map(|(j, w)| w.map(|x| x / n_frames(j).max(1) as f64)).collect();
     let inflation = scatter_inflation(&measured, &mean);
-    let sigma: Vec<[f64; 3]> = (0..n)
+    let signals = (0..n)
         .into_par_iter()
         .map(|j| {
             let mine: Vec<&LedShot> = shots.iter().filter(|s| s.light == j).collect();
-            let first = mine[0];
+            let Some(first) = mine.first().copied() else { return Ok(None) };
             let one_view = mine.iter().all(|s| s.camera == first.camera && s.turntable_rad == first.turntable_rad);
-            if !one_view {
+            let k = mine.len() as f64;
+            let sigma = if one_view {
+                let mut acc = vec![0.0f64; first.frame.data.len()];
+                for s in &mine {
+                    for (a, v) in acc.iter_mut().zip(above_dark(&s.frame)) {
+                        *a += f64::from(v);
+                    }
+                }
+                let avg: Vec<f32> = acc.iter().map(|a| (a / k) as f32).collect();
+                signal(first, &avg)?.1
+            } else {
                 // Frames from several views share no fixed pattern: the root-sum-square of
                 // their stated errors over their number.
                 let mine: Vec<_> = measured.iter().filter(|m| m.0 == j).collect();
-                let k = mine.len() as f64;
-                return Ok(std::array::from_fn(|c| mine.iter().map(|m| m.2[c].powi(2)).sum::<f64>().sqrt() / k));
-            }
-            let mut acc = vec![0.0f64; first.frame.data.len()];
-            for s in &mine {
-                for (a, v) in acc.iter_mut().zip(above_dark(&s.frame)) {
-                    *a += f64::from(v);
-                }
-            }
-            let k = mine.len() as f64;
-            let avg: Vec<f32> = acc.iter().map(|a| (a / k) as f32).collect();
-            Ok(signal(first, &avg)?.1)
+                std::array::from_fn(|c| mine.iter().map(|m| m.2[c].powi(2)).sum::<f64>().sqrt() / k)
+            };
+            Ok(Some(LightSignal { white: mean[j], sigma, frames: mine.len() }))
         })
-        .collect::<Result<_, LedCalibError>>()?;
-    let per: Vec<([f64; 3], [f64; 3])> =
-        mean.iter().zip(&sigma).map(|(w, s)| (*w, std::array::from_fn(|c| s[c] * inflation[c]))).collect();
-    let reference_rate = per.iter().map(|(w, _)| w[1]).sum::<f64>() / n as f64;
-    let leds = per
+        .collect::<Result<Vec<_>, LedCalibError>>()?;
+    Ok((signals, inflation))
+}
+
+/// Fits the LED calibration of `rig` from `shots` (every light at least once; several frames
+/// of one light are averaged), processing with `camera` (the processing camera).
+pub fn fit_leds(
+    rig: &RigConfig,
+    camera: &CameraModel,
+    shots: &[LedShot],
+    opts: &LedFitOptions,
+) -> Result<LedCalibrationFile, LedCalibError> {
+    let (signals, inflation) = measure_leds(rig, camera, shots, opts)?;
+    let dome = rig.dome.as_ref().expect("measure_leds checked the rig is a dome");
+    let n = signals.len();
+    let per: Vec<&LightSignal> = signals
         .iter()
-        .map(|(w, s)| {
-            let rel = |c: usize| s[c] / w[c];
-            LedEntry {
-                power: w[1] / reference_rate,
-                power_sigma: w[1] / reference_rate * rel(1),
-                colour: [w[0] / w[1], 1.0, w[2] / w[1]],
-                colour_sigma: [w[0] / w[1] * rel(0).hypot(rel(1)), 0.0, w[2] / w[1] * rel(2).hypot(rel(1))],
-            }
+        .enumerate()
+        .map(|(j, s)| {
+            s.as_ref().ok_or_else(|| {
+                LedCalibError::Rig(format!("light {j} has no calibration frame (every one of the {n} needs one)"))
+            })
         })
-        .collect();
+        .collect::<Result<_, _>>()?;
+    let frames = per.iter().map(|s| s.frames).min().unwrap_or(0);
+    let reference_rate = per.iter().map(|s| s.white[1]).sum::<f64>() / n as f64;
+    let leds = per.iter().map(|s| s.entry(inflation, reference_rate)).collect();
     let light = if dome.is_flash() { "flash" } else { "LED" };
     Ok(LedCalibrationFile {
         format_version: LED_FORMAT_VERSION,
@@ -393,6 +431,7 @@ pub fn fit_leds(
             seed: opts.seed,
             reference_albedo: opts.reference_albedo,
             frames_per_light: frames,
+            scatter_inflation: Some(inflation),
         },
         leds,
     })
