@@ -13,13 +13,13 @@ use support::{btfrig, ok, repo, scratch};
 
 use btfrig_calibrate::dark_flat::RadiometricPlan;
 use btfrig_calibrate::emva::SensorPlan;
-use btfrig_calibrate::leds::LedFitOptions;
+use btfrig_calibrate::leds::{measure_leds, LedCalibrationFile, LedFitOptions};
 use btfrig_calibrate::light::LightPlan;
 use btfrig_core::config::RigConfig;
 use btfrig_measurement::backend::RigTime;
 use btfrig_measurement::captured_calibration::{
-    capture_dark_flat, capture_leds, capture_light, capture_sensor, check_devices, CalibrationSession,
-    LedCaptureOptions,
+    capture_dark_flat, capture_led_shots, capture_leds, capture_light, capture_sensor, check_devices,
+    CalibrationSession, LedCaptureOptions,
 };
 
 fn rig(name: &str) -> RigConfig {
@@ -77,22 +77,44 @@ fn dark_and_flat_fields_captured_match_the_sensor_and_lens() {
     assert!(t.flat_rms_rel[0] < 0.003 && t.flat_rms_rel[0] < 1.5 * res.stats.flats[0].sigma_rms, "{t:?}");
 }
 
+/// The lamp's power and colour and the plate's albedo over several seeds: within 0.1 % and
+/// 0.05 % of the truth, and their stated sigmas describe the errors (z rms within [0.5, 2],
+/// no |z| of 4 over the 30 figures).
 #[test]
 fn the_lamp_from_a_white_tile_captured_matches_the_lamp() {
     let cfg = rig("bonn-gonio-sim-small");
-    let plan = LightPlan::default_plan();
-    let cal = capture_light(&session(&cfg, 5), &plan, "test".into()).unwrap();
-    let e = cal.file.light("lamp").unwrap();
+    // The small rig's camera is ten times coarser than the default rig's (a photosite is
+    // about 2 mm on the tile): its measured points are spaced to see different photosites
+    // (on the default plan's 1 mm grid, four points share each photosite and their scatter
+    // understates the noise of their mean).
+    let plan = LightPlan { step_m: 0.005, tile_margin_m: 0.006, ..LightPlan::default_plan() };
     let (w, p) = btfrig_sim_calibration::light::light_truth(&cfg).unwrap();
     eprintln!("| parameter | truth | estimate | sigma | z |\n|---|---|---|---|---|");
-    for c in 0..3 {
-        // Both also carry the renderer's spatial sampling of tile and plate, which the stated
-        // sigma (the sensor noise alone) does not: held to 0.1 % and 0.05 %.
-        within(&format!("lamp W_{c}, e-/s"), e.white_rate_e_per_s[c], e.white_rate_sigma[c], w[c], f64::INFINITY);
-        within(&format!("plate albedo {c}"), e.plate_albedo[c], e.plate_albedo_sigma[c], p[c], f64::INFINITY);
-        assert!((e.white_rate_e_per_s[c] / w[c] - 1.0).abs() < 0.001, "channel {c}: {e:?} vs {w:?}");
-        assert!((e.plate_albedo[c] / p[c] - 1.0).abs() < 0.0005, "channel {c}: {e:?} vs {p:?}");
+    let mut z = Vec::new();
+    for seed in 5..10 {
+        let cal = capture_light(&session(&cfg, seed), &plan, "test".into()).unwrap();
+        let e = cal.file.light("lamp").unwrap();
+        for c in 0..3 {
+            within(&format!("seed {seed} lamp W_{c}, e-/s"), e.white_rate_e_per_s[c], e.white_rate_sigma[c], w[c], 0.0);
+            within(&format!("seed {seed} plate albedo {c}"), e.plate_albedo[c], e.plate_albedo_sigma[c], p[c], 0.0);
+            z.push((e.white_rate_e_per_s[c] - w[c]) / e.white_rate_sigma[c]);
+            z.push((e.plate_albedo[c] - p[c]) / e.plate_albedo_sigma[c]);
+            assert!((e.white_rate_e_per_s[c] / w[c] - 1.0).abs() < 0.001, "channel {c}: {e:?} vs {w:?}");
+            assert!((e.plate_albedo[c] / p[c] - 1.0).abs() < 0.0005, "channel {c}: {e:?} vs {p:?}");
+        }
     }
+    let (rms, max) = z_figures(&z);
+    eprintln!("lamp and plate: {} figures, z rms {rms:.2}, max |z| {max:.2}", z.len());
+    assert!(
+        (0.5..=2.0).contains(&rms) && max < 4.0,
+        "the stated sigmas describe the errors: z rms {rms:.2}, max {max:.2}"
+    );
+}
+
+/// The root mean square and the largest magnitude of `z`.
+fn z_figures(z: &[f64]) -> (f64, f64) {
+    let rms = (z.iter().map(|v| v * v).sum::<f64>() / z.len() as f64).sqrt();
+    (rms, z.iter().fold(0.0f64, |m, v| m.max(v.abs())))
 }
 
 fn led_check(name: &str, multiplexed: bool, repeats: usize, exposure_fraction: f64) {
@@ -121,7 +143,10 @@ fn led_check(name: &str, multiplexed: bool, repeats: usize, exposure_fraction: f
         100.0 * worst
     );
     assert!(worst < 0.01, "per-LED power within 1 % of the truth: worst {:.3} %", 100.0 * worst);
-    assert!(z_rms < 2.0 && worst_z < 5.0, "the stated sigmas cover the errors: z rms {z_rms:.2}, max {worst_z:.2}");
+    assert!(
+        (0.5..=2.0).contains(&z_rms) && worst_z < 5.0,
+        "the stated sigmas describe the errors: z rms {z_rms:.2}, max {worst_z:.2}"
+    );
 }
 
 #[test]
@@ -163,7 +188,8 @@ const SHIPPED: &[(&str, &[&str])] = &[
 ];
 
 /// The slow ones (minutes: 151 flashes x 64 frames, a 12 MP light calibration, the
-/// 1600 x 1200 sensor series): `--ignored`.
+/// 1600 x 1200 sensor series): `--ignored`. Eleven of the flashes are recomputed by default
+/// (`eleven_shipped_flash_entries_are_what_the_procedure_makes`).
 const SHIPPED_SLOW: &[(&str, &[&str])] = &[
     ("calibration/bonn-camera-array-sim-flashes.toml", &["calibrate", "leds", "--rig", "bonn-camera-array-sim"]),
     (
@@ -209,6 +235,40 @@ fn the_shipped_radiometric_calibrations_are_what_the_procedures_make() {
 #[ignore = "minutes: cargo test --release -p btfrig-cli --test calibrate_captured -- --ignored"]
 fn the_slow_shipped_radiometric_calibrations_are_what_the_procedures_make() {
     recompute(SHIPPED_SLOW, "shipped-radiometric-slow");
+}
+
+/// The shipped camera array's flash file (`btfrig calibrate leds --rig bonn-camera-array-sim`:
+/// 151 flashes x 64 frames, minutes) checked on eleven flashes spread over the rings: each
+/// entry depends on its own flash's frames only, given the file's reference rate (the mean
+/// over all flashes) and scatter inflation (pooled over all), so the eleven recomputed
+/// entries equal the shipped ones bit for bit. The whole file is recomputed by the ignored
+/// `the_slow_shipped_radiometric_calibrations_are_what_the_procedures_make`.
+#[test]
+fn eleven_shipped_flash_entries_are_what_the_procedure_makes() {
+    let cfg = rig("bonn-camera-array-sim");
+    let text = std::fs::read_to_string(repo("calibration/bonn-camera-array-sim-flashes.toml")).unwrap();
+    let shipped = LedCalibrationFile::from_toml(&text, "shipped flashes").unwrap();
+    let seed = shipped.source.seed.unwrap();
+    assert_eq!(seed, cfg.rig.seed, "the shipped file was made with the rig's seed");
+    // The options of `btfrig calibrate leds` on a camera array.
+    let opts = LedCaptureOptions {
+        repeats: 64,
+        multiplexed: false,
+        exposure_fraction: 0.5,
+        fit: LedFitOptions { seed: Some(seed), ..LedFitOptions::default() },
+    };
+    let lights: Vec<usize> = (0..shipped.leds.len()).step_by(15).collect();
+    let (shots, _, frames) = capture_led_shots(&session(&cfg, seed), &opts, Some(&lights)).unwrap();
+    assert_eq!(frames, 64 * lights.len());
+    let camera = btfrig_calibrate::processing_camera(&cfg, None).unwrap();
+    let (signals, _) = measure_leds(&cfg, &camera, &shots, &opts.fit).unwrap();
+    let inflation = shipped.source.scatter_inflation.expect("the file states its scatter inflation");
+    for &j in &lights {
+        let made = signals[j].as_ref().unwrap().entry(inflation, shipped.reference_rate);
+        assert_eq!(made, shipped.leds[j], "flash {j}");
+        assert_eq!(signals[j].as_ref().unwrap().frames, shipped.source.frames_per_light);
+    }
+    assert!(signals.iter().enumerate().all(|(j, s)| s.is_some() == lights.contains(&j)));
 }
 
 /// `btfrig calibrate sensor` writes a file that reads back, naming the command in its header.

@@ -91,6 +91,10 @@ pub struct LedSource {
     pub reference_albedo: f64,
     /// Frames measured per light.
     pub frames_per_light: usize,
+    /// Per channel, how much larger the scatter between repeated frames of a light was than
+    /// the frames' stated errors; every light's sigma is scaled by it ([`fit_leds`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scatter_inflation: Option<[f64; 3]>,
 }
 
 /// One light's calibration.
@@ -99,8 +103,8 @@ pub struct LedSource {
 pub struct LedEntry {
     /// Output relative to the file's reference (green channel).
     pub power: f64,
-    /// Standard uncertainty of `power` (from the frames' scatter over the tile, scaled to the
-    /// scatter between repeated frames of the same light).
+    /// Standard uncertainty of `power` (from the scatter over the tile of the light's frames'
+    /// mean, scaled to the scatter between repeated frames of the same light: [`fit_leds`]).
     pub power_sigma: f64,
     /// Camera-RGB ratios of the light on a white reflector, green = 1.
     pub colour: [f64; 3],
@@ -253,14 +257,45 @@ impl Default for LedFitOptions {
     }
 }
 
-/// Fits the LED calibration of `rig` from `shots` (every light at least once; several frames
-/// of one light are averaged), processing with `camera` (the processing camera).
-pub fn fit_leds(
+/// One light's white signal, measured by [`measure_leds`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct LightSignal {
+    /// `W_c` over the tile's albedo: the mean of the light's frames.
+    pub white: [f64; 3],
+    /// Its standard error before the scatter inflation: the scatter over the tile of the mean
+    /// of the light's frames (what the frames share, the photosites' fixed pattern and the
+    /// tile, stays in it at full size; their independent noise averages down).
+    pub sigma: [f64; 3],
+    /// Frames measured.
+    pub frames: usize,
+}
+
+impl LightSignal {
+    /// The light's file entry, its sigma scaled by `inflation`, its power relative to
+    /// `reference_rate`.
+    pub fn entry(&self, inflation: [f64; 3], reference_rate: f64) -> LedEntry {
+        let (w, s) = (self.white, std::array::from_fn::<f64, 3, _>(|c| self.sigma[c] * inflation[c]));
+        let rel = |c: usize| s[c] / w[c];
+        LedEntry {
+            power: w[1] / reference_rate,
+            power_sigma: w[1] / reference_rate * rel(1),
+            colour: [w[0] / w[1], 1.0, w[2] / w[1]],
+            colour_sigma: [w[0] / w[1] * rel(0).hypot(rel(1)), 0.0, w[2] / w[1] * rel(2).hypot(rel(1))],
+        }
+    }
+}
+
+/// The lights of `shots` measured (processing with `camera`): per light of the rig its
+/// signal (`None` without a frame), and per channel the scatter inflation (how much larger
+/// the scatter between repeated frames of a light is than their stated errors: neighbouring
+/// points share photosites through the demosaic, so the points' scatter understates the
+/// noise). Each light's signal depends on its own frames only.
+pub fn measure_leds(
     rig: &RigConfig,
     camera: &CameraModel,
     shots: &[LedShot],
     opts: &LedFitOptions,
-) -> Result<LedCalibrationFile, LedCalibError> {
+) -> Result<(Vec<Option<LightSignal>>, [f64; 3]), LedCalibError> {
     let dome = rig.dome.as_ref().ok_or_else(|| {
         LedCalibError::Rig(format!(
             "rig {} is a {}, not an LED dome or camera array",
@@ -274,6 +309,33 @@ pub fn fit_leds(
     let n = dome.led_count();
     let points = square_points(rig.plate.sample_side_m - 2.0 * opts.tile_margin_m, opts.step_m);
     let (e_per_dn, dark) = (rig.sensor.electrons_per_dn, rig.sensor.dark_current_e_per_s);
+    // DN above black and mean dark signal, as the dome pipeline reads a frame.
+    let above_dark = |f: &RawFrame| -> Vec<f32> {
+        let dark_dn = (dark * f.meta.exposure_s * f.meta.gain / e_per_dn) as f32;
+        let black = f32::from(f.meta.black_level);
+        f.data.iter().map(|&v| f32::from(v) - black - dark_dn).collect()
+    };
+    // `W_c` (over the tile's albedo) and its standard error from the scatter over the tile, of
+    // `values` (DN above dark, the layout of `f`) of light `s.light` seen as in shot `s`.
+    let signal = |s: &LedShot, values: &[f32]| -> Result<([f64; 3], [f64; 3]), LedCalibError> {
+        let f = &s.frame;
+        let rgb = demosaic_bilinear_values(f.width, f.height, f.meta.bayer, values);
+        let image = LinearImage { width: f.width, height: f.height, data: rgb.data };
+        let to_rate = Radiometry {
+            dn_range: 1.0,
+            exposure_s: dome.light_units(f.meta.exposure_s),
+            dn_per_electron: f.meta.gain / e_per_dn,
+            dark_e_per_s: 0.0,
+            nominal_irradiance: 1.0,
+            white_balance: [1.0; 3],
+            matrix: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+        };
+        let pose = dome.scene_pose(s.camera, s.turntable_rad, s.light);
+        let w = lambertian_signal(&image, camera, &pose, dome.light_distance_m(), &to_rate, &points)
+            .map_err(|e| LedCalibError::Measure { light: s.light, camera: s.camera, message: e.to_string() })?;
+        let a = opts.reference_albedo;
+        Ok((w.mean.map(|v| v / a), w.sigma.map(|v| v / a)))
+    };
     let measured: Vec<(usize, [f64; 3], [f64; 3])> = shots
         .par_iter()
         .map(|s| {
@@ -288,64 +350,70 @@ pub fn fit_leds(
                     f.width, f.height, camera.width, camera.height
                 )));
             }
-            // DN above black and mean dark signal, as the dome pipeline reads a frame.
-            let dark_dn = (dark * f.meta.exposure_s * f.meta.gain / e_per_dn) as f32;
-            let black = f32::from(f.meta.black_level);
-            let values: Vec<f32> = f.data.iter().map(|&v| f32::from(v) - black - dark_dn).collect();
-            let rgb = demosaic_bilinear_values(f.width, f.height, f.meta.bayer, &values);
-            let image = LinearImage { width: f.width, height: f.height, data: rgb.data };
-            let to_rate = Radiometry {
-                dn_range: 1.0,
-                exposure_s: dome.light_units(f.meta.exposure_s),
-                dn_per_electron: f.meta.gain / e_per_dn,
-                dark_e_per_s: 0.0,
-                nominal_irradiance: 1.0,
-                white_balance: [1.0; 3],
-                matrix: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-            };
-            let pose = dome.scene_pose(s.camera, s.turntable_rad, s.light);
-            let w = lambertian_signal(&image, camera, &pose, dome.light_distance_m(), &to_rate, &points)
-                .map_err(|e| bad(e.to_string()))?;
-            let a = opts.reference_albedo;
-            Ok((s.light, w.mean.map(|v| v / a), w.sigma.map(|v| v / a)))
+            let (w, sigma) = signal(s, &above_dark(f))?;
+            Ok((s.light, w, sigma))
         })
         .collect::<Result<_, _>>()?;
-    // Per light: the mean of its frames and the root-sum-square of their errors over n.
-    let mut sum = vec![([0.0f64; 3], [0.0f64; 3], 0usize); n];
-    for (j, w, s) in &measured {
+    let n_frames = |j: usize| measured.iter().filter(|m| m.0 == j).count();
+    let mut sum = vec![[0.0f64; 3]; n];
+    for (j, w, _) in &measured {
         for c in 0..3 {
-            sum[*j].0[c] += w[c];
-            sum[*j].1[c] += s[c] * s[c];
+            sum[*j][c] += w[c];
         }
-        sum[*j].2 += 1;
     }
-    if let Some(j) = sum.iter().position(|s| s.2 == 0) {
-        return Err(LedCalibError::Rig(format!("light {j} has no calibration frame (every one of the {n} needs one)")));
-    }
-    let frames = sum.iter().map(|s| s.2).min().unwrap_or(0);
-    let mean: Vec<[f64; 3]> = sum.iter().map(|(w, _, k)| w.map(|x| x / *k as f64)).collect();
+    let mean: Vec<[f64; 3]> = sum.iter().enumerate().map(|(j, w)| w.map(|x| x / n_frames(j).max(1) as f64)).collect();
     let inflation = scatter_inflation(&measured, &mean);
-    let per: Vec<([f64; 3], [f64; 3])> = sum
-        .iter()
-        .zip(&mean)
-        .map(|((_, v, k), w)| {
-            let k = *k as f64;
-            (*w, std::array::from_fn(|c| v[c].sqrt() / k * inflation[c]))
+    let signals = (0..n)
+        .into_par_iter()
+        .map(|j| {
+            let mine: Vec<&LedShot> = shots.iter().filter(|s| s.light == j).collect();
+            let Some(first) = mine.first().copied() else { return Ok(None) };
+            let one_view = mine.iter().all(|s| s.camera == first.camera && s.turntable_rad == first.turntable_rad);
+            let k = mine.len() as f64;
+            let sigma = if one_view {
+                let mut acc = vec![0.0f64; first.frame.data.len()];
+                for s in &mine {
+                    for (a, v) in acc.iter_mut().zip(above_dark(&s.frame)) {
+                        *a += f64::from(v);
+                    }
+                }
+                let avg: Vec<f32> = acc.iter().map(|a| (a / k) as f32).collect();
+                signal(first, &avg)?.1
+            } else {
+                // Frames from several views share no fixed pattern: the root-sum-square of
+                // their stated errors over their number.
+                let mine: Vec<_> = measured.iter().filter(|m| m.0 == j).collect();
+                std::array::from_fn(|c| mine.iter().map(|m| m.2[c].powi(2)).sum::<f64>().sqrt() / k)
+            };
+            Ok(Some(LightSignal { white: mean[j], sigma, frames: mine.len() }))
         })
-        .collect();
-    let reference_rate = per.iter().map(|(w, _)| w[1]).sum::<f64>() / n as f64;
-    let leds = per
+        .collect::<Result<Vec<_>, LedCalibError>>()?;
+    Ok((signals, inflation))
+}
+
+/// Fits the LED calibration of `rig` from `shots` (every light at least once; several frames
+/// of one light are averaged), processing with `camera` (the processing camera).
+pub fn fit_leds(
+    rig: &RigConfig,
+    camera: &CameraModel,
+    shots: &[LedShot],
+    opts: &LedFitOptions,
+) -> Result<LedCalibrationFile, LedCalibError> {
+    let (signals, inflation) = measure_leds(rig, camera, shots, opts)?;
+    let dome = rig.dome.as_ref().expect("measure_leds checked the rig is a dome");
+    let n = signals.len();
+    let per: Vec<&LightSignal> = signals
         .iter()
-        .map(|(w, s)| {
-            let rel = |c: usize| s[c] / w[c];
-            LedEntry {
-                power: w[1] / reference_rate,
-                power_sigma: w[1] / reference_rate * rel(1),
-                colour: [w[0] / w[1], 1.0, w[2] / w[1]],
-                colour_sigma: [w[0] / w[1] * rel(0).hypot(rel(1)), 0.0, w[2] / w[1] * rel(2).hypot(rel(1))],
-            }
+        .enumerate()
+        .map(|(j, s)| {
+            s.as_ref().ok_or_else(|| {
+                LedCalibError::Rig(format!("light {j} has no calibration frame (every one of the {n} needs one)"))
+            })
         })
-        .collect();
+        .collect::<Result<_, _>>()?;
+    let frames = per.iter().map(|s| s.frames).min().unwrap_or(0);
+    let reference_rate = per.iter().map(|s| s.white[1]).sum::<f64>() / n as f64;
+    let leds = per.iter().map(|s| s.entry(inflation, reference_rate)).collect();
     let light = if dome.is_flash() { "flash" } else { "LED" };
     Ok(LedCalibrationFile {
         format_version: LED_FORMAT_VERSION,
@@ -363,6 +431,7 @@ pub fn fit_leds(
             seed: opts.seed,
             reference_albedo: opts.reference_albedo,
             frames_per_light: frames,
+            scatter_inflation: Some(inflation),
         },
         leds,
     })

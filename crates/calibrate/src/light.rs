@@ -210,7 +210,8 @@ pub struct LightEntry {
     /// `W_c`: camera-RGB signal rate of a white Lambertian reflector lit along its normal from
     /// the nominal lamp distance, e-/s per photosite at gain 1, (R, G, B).
     pub white_rate_e_per_s: [f64; 3],
-    /// Standard error of `white_rate_e_per_s` (noise only).
+    /// Standard error of `white_rate_e_per_s`: the frames' noise, or their scatter when
+    /// larger ([`calibrate_light`]).
     pub white_rate_sigma: [f64; 3],
     /// White balance the rate implies: `W_g / W_c` (the white reflector's camera RGB to (1, 1, 1)).
     pub white_balance: [f64; 3],
@@ -363,17 +364,32 @@ pub fn calibrate_light(
     let mean = |f: &dyn Fn(&FrameFigures) -> [f64; 3]| -> [f64; 3] {
         std::array::from_fn(|c| measured.iter().map(|m| f(m)[c]).sum::<f64>() / n)
     };
-    // Frames are independent: the mean's error is the root-sum-square of theirs over n.
-    let rss = |f: &dyn Fn(&FrameFigures) -> [f64; 3]| -> [f64; 3] {
-        std::array::from_fn(|c| measured.iter().map(|m| f(m)[c].powi(2)).sum::<f64>().sqrt() / n)
+    // The mean's error, per channel the larger of two figures. Each frame states its error
+    // from the scatter of its points; the frames see the tile through mostly the same
+    // photosites (the camera aims at the sample's centre), so that scatter's fixed-pattern
+    // part (the photosites' response) is common to them and does not average down: the
+    // frames' stated errors are taken at their root mean square, not divided by sqrt(n).
+    // The frames also differ by what a frame's scatter cannot see (the pose each was taken at,
+    // spatially correlated structure): the scatter between them over sqrt(n), their standard
+    // error as independent measurements (with one frame, its stated error alone).
+    let sigma = |value: &dyn Fn(&FrameFigures) -> [f64; 3], error: &dyn Fn(&FrameFigures) -> [f64; 3]| -> [f64; 3] {
+        let m = mean(value);
+        std::array::from_fn(|c| {
+            let stated = (measured.iter().map(|f| error(f)[c].powi(2)).sum::<f64>() / n).sqrt();
+            if measured.len() < 2 {
+                return stated;
+            }
+            let scatter = measured.iter().map(|f| (value(f)[c] - m[c]).powi(2)).sum::<f64>() / (n - 1.0);
+            stated.max((scatter / n).sqrt())
+        })
     };
     let w = mean(&|m| m.0);
     let entry = LightEntry {
         white_rate_e_per_s: w,
-        white_rate_sigma: rss(&|m| m.1),
+        white_rate_sigma: sigma(&|m| m.0, &|m| m.1),
         white_balance: std::array::from_fn(|c| w[1] / w[c]),
         plate_albedo: mean(&|m| m.2),
-        plate_albedo_sigma: rss(&|m| m.3),
+        plate_albedo_sigma: sigma(&|m| m.2, &|m| m.3),
         reference_albedo: plan.reference_albedo,
         frames: measured.len(),
     };

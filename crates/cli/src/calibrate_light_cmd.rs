@@ -10,10 +10,9 @@ use std::time::Instant;
 
 use anyhow::Context;
 use btfrig_calibrate::light::{LightCalibrationFile, LightPlan, LAMP};
-use btfrig_core::config::RigConfig;
 use btfrig_measurement::captured_calibration::{capture_light, CalibrationSession};
 use btfrig_process::light::{LampReference, LightCorrection};
-use btfrig_sim_calibration::light::{calibrate_light_simulated, light_truth, SimLightCalibration};
+use btfrig_sim_calibration::light::light_truth;
 
 /// `btfrig calibrate light`.
 #[derive(Debug, clap::Args)]
@@ -116,14 +115,6 @@ pub fn light(a: &CalibrateLightArgs) -> anyhow::Result<()> {
 struct Truth {
     true_white_rate: [f64; 3],
     true_plate_albedo: [f64; 3],
-}
-
-/// The light correction for a simulated run on `cfg`: the default light calibration plan run
-/// on the rig first (a few seconds), its lamp entry used with drift correction on.
-pub fn calibrated_lamp(cfg: &RigConfig) -> anyhow::Result<LightCorrection> {
-    let SimLightCalibration { file, .. } =
-        calibrate_light_simulated(cfg, &LightPlan::default_plan(), cfg.rig.seed).context("light calibration")?;
-    correction(&file)
 }
 
 /// The lamp's correction from the light calibration file at `path`.

@@ -36,9 +36,9 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<ExitCode> {
     // the nominal pose and compared with the truth.
     let req = RunRequest::from_text(text, &cwd.join(format!("<embedded rig-configs/plans/{name}.toml>")), &out)
         .with_nominal_comparison(true)
-        // The lamp's power and colour from a light calibration run first, its drift corrected
-        // per frame (docs/light.md).
-        .with_light(Some(crate::calibrate_light_cmd::calibrated_lamp(&crate::rig::load(a.rig.as_deref())?)?));
+        // The lamp's power and colour from the rig's light calibration file ([lamp]
+        // calibration, as a run loads it), its drift corrected per frame (docs/light.md).
+        .with_light(demo_lamp(a.rig.as_deref())?);
     // The default model (FMF) is built while the demo captures (docs/compression.md).
     let req = req.with_compressed_model(Some(btfrig_core::plan::CompressedModel::Fmf));
     let s = crate::run_cmd::execute(&req)?;
@@ -172,4 +172,21 @@ fn run_dome(a: &DemoArgs, demo: DomeDemo) -> anyhow::Result<ExitCode> {
         crate::compress_cmd::print_streaming(figures);
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// The lamp correction of a gonioreflectometer demo: the light calibration file the rig config
+/// names (`[lamp] calibration`), drift correction on, as `btfrig run --light FILE` with that
+/// file. Without one the run processes in relative units, as `btfrig run` does.
+fn demo_lamp(rig: Option<&std::path::Path>) -> anyhow::Result<Option<btfrig_process::light::LightCorrection>> {
+    let cfg = crate::rig::load(rig)?;
+    let rig_path = rig.filter(|p| crate::rig::builtin(p).is_none());
+    let lamp = btfrig_measurement::model::config_lamp_correction(&cfg, rig_path)?;
+    if lamp.is_none() {
+        eprintln!(
+            "btfrig demo: rig {} names no light calibration ([lamp] calibration): relative units (make one with \
+             `btfrig calibrate light`)",
+            cfg.rig.name
+        );
+    }
+    Ok(lamp.map(|(correction, _)| correction))
 }

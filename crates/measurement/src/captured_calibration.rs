@@ -598,6 +598,24 @@ pub fn capture_leds(
     camera: &CameraModel,
     opts: &LedCaptureOptions,
 ) -> Result<LedCapture, RunError> {
+    let (shots, exposure_s, frames) = capture_led_shots(session, opts, None)?;
+    let mut fit = opts.fit.clone();
+    if opts.multiplexed {
+        fit.method = format!("white reference tile lit by Hadamard S-matrix patterns, demultiplexed ({})", fit.method);
+    }
+    let file = fit_leds(session.rig, camera, &shots, &fit).map_err(|e| RunError::Rig(e.to_string()))?;
+    Ok(LedCapture { file, exposure_s, frames })
+}
+
+/// The frames of [`capture_leds`] (one per light and repeat, demultiplexed when multiplexed),
+/// their exposure and how many frames were taken; with `lights`, of those lights only, one
+/// at a time. A light's frames are the same whichever others are taken (the simulated
+/// cameras' noise is keyed by what a frame shows), so a few lights check a whole file.
+pub fn capture_led_shots(
+    session: &CalibrationSession<'_>,
+    opts: &LedCaptureOptions,
+    lights: Option<&[usize]>,
+) -> Result<(Vec<LedShot>, f64, usize), RunError> {
     check_devices(session, "leds")?;
     let cfg = session.rig;
     let dome = cfg.dome.as_ref().ok_or_else(|| {
@@ -605,10 +623,20 @@ pub fn capture_leds(
     })?;
     let n = dome.led_count();
     let flash = dome.is_flash();
-    let cameras: Vec<usize> = if flash { (0..n).collect() } else { vec![0] };
+    let lights: Vec<usize> = lights.map_or_else(|| (0..n).collect(), <[usize]>::to_vec);
+    if let Some(j) = lights.iter().find(|&&j| j >= n) {
+        return Err(RunError::Input { what: "lights".into(), message: format!("light {j}: the rig has {n} (0..{n})") });
+    }
+    if opts.multiplexed && lights.len() != n {
+        return Err(RunError::Input {
+            what: "lights".into(),
+            message: "multiplexed patterns light every light: a subset is measured one light at a time".into(),
+        });
+    }
+    let cameras: Vec<usize> = if flash { lights.clone() } else { vec![0] };
     let repeats = opts.repeats.max(1);
     let rt = session.runtime()?;
-    let (shots, exposure_s, frames) = rt.block_on(async {
+    rt.block_on(async {
         let target = MountedTarget::WhiteTile { albedo: opts.fit.reference_albedo };
         let OpenedRig::Dome(mut d) = session.open(&target, &cameras, "leds").await? else {
             return Err(RunError::Rig(format!("rig {}: not opened as a dome", cfg.rig.name)));
@@ -640,11 +668,12 @@ pub fn capture_leds(
         let mut shots = Vec::new();
         let mut frames = 0usize;
         if !opts.multiplexed {
-            for j in 0..n {
+            for (i, &j) in lights.iter().enumerate() {
                 dev.leds.set_pattern(&LedPattern::single(n, j)).await.map_err(leds_err)?;
-                let c = if flash { j } else { 0 };
+                // A flash's own camera (opened in the order of `lights`); an LED's camera 0.
+                let (c, device) = if flash { (j, i) } else { (0, 0) };
                 for _ in 0..repeats {
-                    let frame = shoot(cfg, &mut *dev.cameras[c], exposure_s, 1.0).await?;
+                    let frame = shoot(cfg, &mut *dev.cameras[device], exposure_s, 1.0).await?;
                     frames += 1;
                     shots.push(LedShot { light: j, camera: c, turntable_rad: 0.0, frame });
                 }
@@ -673,13 +702,7 @@ pub fn capture_leds(
         }
         dev.leds.all_off().await.map_err(leds_err)?;
         Ok((shots, exposure_s, frames))
-    })?;
-    let mut fit = opts.fit.clone();
-    if opts.multiplexed {
-        fit.method = format!("white reference tile lit by Hadamard S-matrix patterns, demultiplexed ({})", fit.method);
-    }
-    let file = fit_leds(cfg, camera, &shots, &fit).map_err(|e| RunError::Rig(e.to_string()))?;
-    Ok(LedCapture { file, exposure_s, frames })
+    })
 }
 
 /// Per pattern frames (each a stack of repeats) to one frame per light: each repeat's

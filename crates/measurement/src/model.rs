@@ -36,6 +36,19 @@ fn rig_err(what: &str, e: impl std::fmt::Display) -> RunError {
 /// correction (power and colour; no drift correction, which a run asks for with its own
 /// light calibration), with where it came from; `None` when the config names none.
 pub fn config_light(rig: &RigConfig, rig_path: Option<&Path>) -> Result<Option<(LightCorrection, String)>, RunError> {
+    let Some((mut correction, origin)) = config_lamp_correction(rig, rig_path)? else { return Ok(None) };
+    correction.correct_drift = false;
+    Ok(Some((correction, origin)))
+}
+
+/// The lamp's correction (drift correction on, as a run's own light calibration) from the
+/// light calibration file the rig config names (`[lamp] calibration`: `builtin:NAME` or a
+/// path relative to the rig file's directory), with where it came from; `None` when the
+/// config names none.
+pub fn config_lamp_correction(
+    rig: &RigConfig,
+    rig_path: Option<&Path>,
+) -> Result<Option<(LightCorrection, String)>, RunError> {
     let Some(reference) = rig.lamp.calibration.as_deref() else { return Ok(None) };
     let what = format!("[lamp] calibration = {reference:?}");
     let (text, origin) = if let Some(name) = reference.strip_prefix("builtin:") {
@@ -52,8 +65,7 @@ pub fn config_light(rig: &RigConfig, rig_path: Option<&Path>) -> Result<Option<(
         (text, path.display().to_string())
     };
     let file = LightCalibrationFile::from_toml(&text, &origin).map_err(|e| rig_err(&what, e))?;
-    let mut correction = lamp_correction(&file).map_err(|e| rig_err(&what, format!("{origin}: {e}")))?;
-    correction.correct_drift = false;
+    let correction = lamp_correction(&file).map_err(|e| rig_err(&what, format!("{origin}: {e}")))?;
     Ok(Some((correction, origin)))
 }
 

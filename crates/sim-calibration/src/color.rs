@@ -119,3 +119,31 @@ fn run(
     let references = rig.references(plan)?;
     calibrate_color(cfg, camera, plan, &references, exposure_scale, &mut rig, progress)
 }
+
+/// The simulated chart `chart` of the default colour plan as a "measured reference file":
+/// its patch spectra under the lamp of rig `cfg` as CIE L*a*b* (D50) CSV, as a lab measures
+/// its own chart with a spectrophotometer (`btfrig calibrate color --reference CHART=FILE`).
+/// `rig_arg` is the rig config as the header names it. The `sim_chart_lab` example prints it;
+/// `calibration/bonn-gonio-sim-chart-*-lab-d50.csv` are its output (a test recomputes them).
+pub fn chart_lab_csv(cfg: &RigConfig, rig_arg: &str, chart: &str) -> Result<String, RigCalibError> {
+    use btfrig_color::space::{bradford, d65_white, linear_srgb_to_xyz, mat3_apply, xyz_to_lab};
+    let plan = ColorPlan::default_plan();
+    let index = plan.charts.iter().position(|c| c.name == chart).ok_or_else(|| {
+        let known: Vec<&str> = plan.charts.iter().map(|c| c.name.as_str()).collect();
+        RigCalibError::Rig(format!("chart {chart:?} is not in the default colour plan (it has: {})", known.join(", ")))
+    })?;
+    let refs = SimChartCamera::new(cfg, &plan, cfg.rig.seed)?.references(&plan)?;
+    // ICC D50, as the published data and `ReferenceValues::linear_srgb`.
+    let d50 = [0.9642, 1.0, 0.8249];
+    let to_d50 = bradford(d65_white(), d50);
+    let mut out = format!(
+        "# {chart}: the simulated chart's patch spectra under the lamp of {}, CIE L*a*b* (D50)\n\
+         # made by: cargo run --release -p btfrig-sim-calibration --example sim_chart_lab -- {rig_arg} {chart}\nL,a,b\n",
+        cfg.rig.name
+    );
+    for rgb in &refs.patches[index] {
+        let lab = xyz_to_lab(mat3_apply(&to_d50, linear_srgb_to_xyz(*rgb)), d50);
+        out += &format!("{:.6},{:.6},{:.6}\n", lab[0], lab[1], lab[2]);
+    }
+    Ok(out)
+}

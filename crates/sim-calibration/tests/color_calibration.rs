@@ -165,3 +165,22 @@ fn the_colour_calibration_file_states_its_own_statistics() {
     let best = s.candidates.iter().filter(|c| c.error.is_empty()).min_by(|x, y| x.cv_mean.total_cmp(&y.cv_mean));
     assert_eq!(best.map(|c| c.model.as_str()), Some(s.model.as_str()));
 }
+
+/// The shipped simulated charts' "measured" reference files
+/// (`calibration/bonn-gonio-sim-chart-*-lab-d50.csv`, the shipped colour calibration's
+/// references) are what the `sim_chart_lab` example prints, byte for byte.
+#[test]
+fn the_shipped_simulated_chart_references_are_what_sim_chart_lab_prints() {
+    let cfg = rig();
+    for chart in ["colorchecker-sg140", "colorchecker24"] {
+        let shipped =
+            format!("{}/../../calibration/bonn-gonio-sim-chart-{chart}-lab-d50.csv", env!("CARGO_MANIFEST_DIR"));
+        let made =
+            btfrig_sim_calibration::color::chart_lab_csv(&cfg, "rig-configs/bonn-gonio-sim.toml", chart).unwrap();
+        assert_eq!(
+            made,
+            std::fs::read_to_string(&shipped).unwrap(),
+            "{shipped} differs from what sim_chart_lab prints"
+        );
+    }
+}
