@@ -251,6 +251,20 @@ pub struct Bench {
     /// Positioning error of the devices.
     pub positioning: PositioningError,
     dictionary: Dictionary,
+    last_windows: std::cell::Cell<Option<WindowStats>>,
+}
+
+/// How the `lm-roi` setting searched one frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WindowStats {
+    /// Windows searched.
+    pub windows: usize,
+    /// Their pixels over the frame's.
+    pub pixel_fraction: f64,
+    /// Dark regions dropped at a window's side.
+    pub cut_by_window: usize,
+    /// Whether the windows gave the whole-frame detector's plate markers and corners (1e-6 px).
+    pub same_as_whole_frame: bool,
 }
 
 impl Bench {
@@ -278,6 +292,7 @@ impl Bench {
             light: Direction::from_degrees(45.0, 0.0),
             positioning,
             dictionary,
+            last_windows: std::cell::Cell::new(None),
         })
     }
 
@@ -470,6 +485,51 @@ impl Bench {
             ),
         });
 
+        // `lm-roi`: what `PlateRegistrar::register_image` runs by default: the markers searched
+        // only in windows predicted from the nominal pose within the estimator's gate, then `lm`.
+        // Bilinear only (the pose is what differs).
+        let tolerance = (self.registrar.options.max_rotation_deg, self.registrar.options.max_translation_m);
+        let mut times = Vec::new();
+        let mut found = None;
+        for _ in 0..repeat {
+            let t = Instant::now();
+            found = Some(self.registrar.detect_predicted(&image, &nominal, tolerance)?);
+            times.push(t.elapsed().as_secs_f64());
+        }
+        let roi_detect_s = median(times);
+        let (windows, found) = found.expect("at least one repeat");
+        let (roi_corr, roi_detected, _) = self.registrar.correspondences(&found.detections);
+        let roi_ids: Vec<(u32, [Point2<f64>; 4])> =
+            found.detections.iter().filter(|d| roi_detected.contains(&d.id)).map(|d| (d.id, d.corners)).collect();
+        let roi_corners = self.corner_error(frame, &roi_ids);
+        let t = Instant::now();
+        let roi = register(&roi_corr, cam, &nominal, &self.registrar.options);
+        let roi_register_s = t.elapsed().as_secs_f64();
+        let roi_result = match roi {
+            Ok(r) => SettingResult {
+                setting: "lm-roi".into(),
+                detect_s: roi_detect_s,
+                register_s: roi_register_s,
+                markers: roi_detected.len(),
+                corner_rms_px: roi_corners.map(|c| c.0),
+                corner_bias_px: roi_corners.map(|c| c.1),
+                texel: self.texel_error(frame, &r.pose),
+                filters: self.textures(frame, &r.pose, repeat)?.into_iter().take(1).collect(),
+                error: None,
+            },
+            Err(e) => SettingResult::failed("lm-roi", roi_detect_s, roi_detected.len(), e.to_string()),
+        };
+        let search = WindowStats {
+            windows: windows.len(),
+            pixel_fraction: found.pixels as f64 / (frame.rgb.width * frame.rgb.height) as f64,
+            cut_by_window: found.cut_by_window,
+            same_as_whole_frame: ids.len() == roi_ids.len()
+                && ids
+                    .iter()
+                    .zip(&roi_ids)
+                    .all(|(a, b)| a.0 == b.0 && a.1.iter().zip(&b.1).all(|(p, q)| (p - q).norm() < 1e-6)),
+        };
+
         for (name, prior) in [("lm", None), ("lm+prior", Some(PRIOR_SIGMA))] {
             let options = RegisterOptions { prior_sigma: prior, ..self.registrar.options.clone() };
             let mut times = Vec::new();
@@ -495,7 +555,14 @@ impl Bench {
                 Err(e) => SettingResult::failed(name, detect_s, detected.len(), e.to_string()),
             });
         }
+        out.push(roi_result);
+        self.last_windows.set(Some(search));
         Ok(out)
+    }
+
+    /// The window search of the last [`Bench::run_ours`].
+    pub fn last_window_stats(&self) -> Option<WindowStats> {
+        self.last_windows.get()
     }
 
     /// Texel position error of an image mapping given as a homography `h` from the sample
