@@ -257,12 +257,14 @@ pub struct Bench {
 /// How the `lm-roi` setting searched one frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct WindowStats {
+    /// The windows' tolerance (degrees, metres).
+    pub tolerance: (f64, f64),
     /// Windows searched.
     pub windows: usize,
-    /// Their pixels over the frame's.
+    /// Pixels searched over the frame's (above 1 after a fallback).
     pub pixel_fraction: f64,
-    /// Dark regions dropped at a window's side.
-    pub cut_by_window: usize,
+    /// Whether the windows missed and the whole frame was searched.
+    pub fell_back: bool,
     /// Whether the windows gave the whole-frame detector's plate markers and corners (1e-6 px).
     pub same_as_whole_frame: bool,
 }
@@ -486,48 +488,54 @@ impl Bench {
         });
 
         // `lm-roi`: what `PlateRegistrar::register_image` runs by default: the markers searched
-        // only in windows predicted from the nominal pose within the estimator's gate, then `lm`.
-        // Bilinear only (the pose is what differs).
-        let tolerance = (self.registrar.options.max_rotation_deg, self.registrar.options.max_translation_m);
-        let mut times = Vec::new();
-        let mut found = None;
+        // only in windows predicted from the nominal pose, their tolerance learned from the
+        // frames registered before (the estimator's gate for the first), the whole frame when
+        // they miss; then `lm`. Bilinear only (the pose is what differs).
+        let tolerance = self.registrar.learned_tolerance();
+        let mut detect_times = Vec::new();
+        let mut register_times = Vec::new();
+        let mut roi = None;
         for _ in 0..repeat {
-            let t = Instant::now();
-            found = Some(self.registrar.detect_predicted(&image, &nominal, tolerance)?);
-            times.push(t.elapsed().as_secs_f64());
+            let r = self.registrar.register_within(&image, &nominal, Some(tolerance));
+            if let Ok(r) = &r {
+                detect_times.push(r.detect_s);
+                register_times.push(r.register_s);
+            }
+            roi = Some(r);
         }
-        let roi_detect_s = median(times);
-        let (windows, found) = found.expect("at least one repeat");
-        let (roi_corr, roi_detected, _) = self.registrar.correspondences(&found.detections);
-        let roi_ids: Vec<(u32, [Point2<f64>; 4])> =
-            found.detections.iter().filter(|d| roi_detected.contains(&d.id)).map(|d| (d.id, d.corners)).collect();
-        let roi_corners = self.corner_error(frame, &roi_ids);
-        let t = Instant::now();
-        let roi = register(&roi_corr, cam, &nominal, &self.registrar.options);
-        let roi_register_s = t.elapsed().as_secs_f64();
-        let roi_result = match roi {
-            Ok(r) => SettingResult {
-                setting: "lm-roi".into(),
-                detect_s: roi_detect_s,
-                register_s: roi_register_s,
-                markers: roi_detected.len(),
-                corner_rms_px: roi_corners.map(|c| c.0),
-                corner_bias_px: roi_corners.map(|c| c.1),
-                texel: self.texel_error(frame, &r.pose),
-                filters: self.textures(frame, &r.pose, repeat)?.into_iter().take(1).collect(),
-                error: None,
-            },
-            Err(e) => SettingResult::failed("lm-roi", roi_detect_s, roi_detected.len(), e.to_string()),
-        };
-        let search = WindowStats {
-            windows: windows.len(),
-            pixel_fraction: found.pixels as f64 / (frame.rgb.width * frame.rgb.height) as f64,
-            cut_by_window: found.cut_by_window,
-            same_as_whole_frame: ids.len() == roi_ids.len()
-                && ids
-                    .iter()
-                    .zip(&roi_ids)
-                    .all(|(a, b)| a.0 == b.0 && a.1.iter().zip(&b.1).all(|(p, q)| (p - q).norm() < 1e-6)),
+        let roi_result = match roi.expect("at least one repeat") {
+            Ok(r) => {
+                self.registrar.remember(&r.registration, &nominal);
+                let roi_ids: Vec<(u32, [Point2<f64>; 4])> =
+                    r.detections.iter().filter(|d| r.detected.contains(&d.id)).map(|d| (d.id, d.corners)).collect();
+                let roi_corners = self.corner_error(frame, &roi_ids);
+                self.last_windows.set(Some(WindowStats {
+                    tolerance,
+                    windows: r.search.windows,
+                    pixel_fraction: r.search.pixels as f64 / r.search.frame_pixels as f64,
+                    fell_back: r.search.whole_frame,
+                    same_as_whole_frame: ids.len() == roi_ids.len()
+                        && ids
+                            .iter()
+                            .zip(&roi_ids)
+                            .all(|(a, b)| a.0 == b.0 && a.1.iter().zip(&b.1).all(|(p, q)| (p - q).norm() < 1e-6)),
+                }));
+                SettingResult {
+                    setting: "lm-roi".into(),
+                    detect_s: median(detect_times),
+                    register_s: median(register_times),
+                    markers: r.detected.len(),
+                    corner_rms_px: roi_corners.map(|c| c.0),
+                    corner_bias_px: roi_corners.map(|c| c.1),
+                    texel: self.texel_error(frame, &r.registration.pose),
+                    filters: self.textures(frame, &r.registration.pose, repeat)?.into_iter().take(1).collect(),
+                    error: None,
+                }
+            }
+            Err(e) => {
+                self.last_windows.set(None);
+                SettingResult::failed("lm-roi", f64::NAN, 0, e.to_string())
+            }
         };
 
         for (name, prior) in [("lm", None), ("lm+prior", Some(PRIOR_SIGMA))] {
@@ -556,7 +564,6 @@ impl Bench {
             });
         }
         out.push(roi_result);
-        self.last_windows.set(Some(search));
         Ok(out)
     }
 

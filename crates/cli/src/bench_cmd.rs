@@ -153,13 +153,15 @@ pub fn registration(a: &BenchRegistrationArgs) -> anyhow::Result<()> {
             let mut results = b.run_ours(&frame, a.repeat)?;
             if let Some(w) = b.last_window_stats() {
                 println!(
-                    "view {},{}: lm-roi searched {} window(s), {:.1} % of the frame, {} region(s) cut by a window; \
+                    "view {},{}: lm-roi searched {} window(s) for {:.2} deg / {:.1} mm, {:.1} % of the frame{}; \
                      markers and corners {} the whole-frame search's",
                     frame.view_deg.0,
                     frame.view_deg.1,
                     w.windows,
+                    w.tolerance.0,
+                    w.tolerance.1 * 1e3,
                     100.0 * w.pixel_fraction,
-                    w.cut_by_window,
+                    if w.fell_back { ", then the whole frame (missed)" } else { "" },
                     if w.same_as_whole_frame { "equal to" } else { "DIFFER from" }
                 );
             }

@@ -50,6 +50,8 @@ pub enum FrameError {
 pub struct FrameRegistration {
     /// The pose estimate and its diagnostics.
     pub registration: Registration,
+    /// The detections the pose was estimated from (foreign ids included).
+    pub detections: Vec<Detection>,
     /// Ids of the plate's markers that were detected, ascending.
     pub detected: Vec<u32>,
     /// Ids decoded in the image that are not on this plate (ignored).
@@ -69,14 +71,46 @@ pub enum MarkerSearch {
     WholeFrame,
     /// A window per plate marker around its projection with the nominal pose, grown by how far
     /// the sample may be from it: a rotation by up to `tolerance.0` degrees about the sample's
-    /// origin and a shift by up to `tolerance.1` metres (`None`: the estimator's gate,
-    /// [`RegisterOptions::max_rotation_deg`] and [`RegisterOptions::max_translation_m`]).
+    /// origin and a shift by up to `tolerance.1` metres. `None`: learned from the frames this
+    /// registrar has registered, [`LEARNED_FACTOR`] times the largest deviation of a measured
+    /// pose from its nominal pose (at least [`LEARNED_FLOOR`]), never beyond the estimator's
+    /// gate ([`RegisterOptions::max_rotation_deg`], [`RegisterOptions::max_translation_m`]),
+    /// which is used until a frame has registered.
     /// The whole frame is searched when the windows give no pose, or when the measured pose
     /// puts a marker that lies inside the image outside its window.
     Predicted {
-        /// `(rotation degrees, translation metres)`, or `None` for the estimator's gate.
+        /// `(rotation degrees, translation metres)`, or `None` to learn it.
         tolerance: Option<(f64, f64)>,
     },
+}
+
+/// Learned windows: this many times the largest deviation from the nominal pose seen so far.
+pub const LEARNED_FACTOR: f64 = 3.0;
+/// Learned windows: at least this tolerance (degrees, metres).
+pub const LEARNED_FLOOR: (f64, f64) = (0.2, 0.001);
+
+/// The largest deviation (rotation radians, translation metres) of a measured pose from its
+/// nominal pose over the frames registered so far. Frames may be registered on several
+/// threads at once, hence the lock; a clone starts from the same figures.
+#[derive(Debug, Default)]
+struct Deviation(std::sync::Mutex<Option<(f64, f64)>>);
+
+impl Clone for Deviation {
+    fn clone(&self) -> Self {
+        Deviation(std::sync::Mutex::new(self.get()))
+    }
+}
+
+impl Deviation {
+    fn get(&self) -> Option<(f64, f64)> {
+        *self.0.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    fn observe(&self, rot: f64, trans: f64) {
+        let mut g = self.0.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        let (r, t) = g.unwrap_or((0.0, 0.0));
+        *g = Some((r.max(rot), t.max(trans)));
+    }
 }
 
 /// How the markers of one frame were searched.
@@ -120,8 +154,9 @@ pub struct PlateRegistrar {
     pub detect: DetectParams,
     /// Estimator settings.
     pub options: RegisterOptions,
-    /// Where markers are searched (default: predicted windows within the estimator's gate).
+    /// Where markers are searched (default: predicted windows, tolerance learned).
     pub search: MarkerSearch,
+    deviation: Deviation,
 }
 
 impl PlateRegistrar {
@@ -137,6 +172,7 @@ impl PlateRegistrar {
             detect,
             options,
             search: MarkerSearch::Predicted { tolerance: None },
+            deviation: Deviation::default(),
         })
     }
 
@@ -242,14 +278,27 @@ impl PlateRegistrar {
     /// Detects the markers in `image` (a grey image of the frame: the green channel of a
     /// Bayer camera carries half its photosites) and estimates the sample pose, with
     /// `nominal` (the kinematic pose) as prior and gate. Where it searches: [`Self::search`].
+    /// A registered frame's deviation from `nominal` is remembered for the learned windows.
     pub fn register_image(&self, image: &GrayImage, nominal: &ScenePose) -> Result<FrameRegistration, FrameError> {
-        let frame_pixels = image.width * image.height;
         let tolerance = match self.search {
             MarkerSearch::WholeFrame => None,
-            MarkerSearch::Predicted { tolerance } => {
-                Some(tolerance.unwrap_or((self.options.max_rotation_deg, self.options.max_translation_m)))
-            }
+            MarkerSearch::Predicted { tolerance: Some(t) } => Some(t),
+            MarkerSearch::Predicted { tolerance: None } => Some(self.learned_tolerance()),
         };
+        let r = self.register_within(image, nominal, tolerance)?;
+        self.remember(&r.registration, nominal);
+        Ok(r)
+    }
+
+    /// [`Self::register_image`] with windows for `tolerance` (degrees, metres; `None`: the
+    /// whole frame), remembering nothing.
+    pub fn register_within(
+        &self,
+        image: &GrayImage,
+        nominal: &ScenePose,
+        tolerance: Option<(f64, f64)>,
+    ) -> Result<FrameRegistration, FrameError> {
+        let frame_pixels = image.width * image.height;
         let Some((rot_deg, trans_m)) = tolerance else {
             let search =
                 SearchRecord { windows: 0, pixels: frame_pixels, frame_pixels, whole_frame: true, fallback: None };
@@ -269,6 +318,7 @@ impl PlateRegistrar {
         match (attempt, miss) {
             (Ok(registration), None) => Ok(FrameRegistration {
                 registration,
+                detections: found.detections,
                 detected,
                 foreign,
                 detect_s,
@@ -294,6 +344,24 @@ impl PlateRegistrar {
         }
     }
 
+    /// The window tolerance of `MarkerSearch::Predicted { tolerance: None }` (degrees, metres).
+    pub fn learned_tolerance(&self) -> (f64, f64) {
+        let gate = (self.options.max_rotation_deg, self.options.max_translation_m);
+        match self.deviation.get() {
+            None => gate,
+            Some((rot, trans)) => (
+                (LEARNED_FACTOR * rot.to_degrees()).max(LEARNED_FLOOR.0).min(gate.0),
+                (LEARNED_FACTOR * trans).max(LEARNED_FLOOR.1).min(gate.1),
+            ),
+        }
+    }
+
+    /// Remembers how far `registration` is from `nominal` (for the learned windows).
+    pub fn remember(&self, registration: &Registration, nominal: &ScenePose) {
+        let d = crate::refine::difference(&registration.sample_to_camera, &sample_to_camera(nominal));
+        self.deviation.observe(Vector3::new(d[0], d[1], d[2]).norm(), Vector3::new(d[3], d[4], d[5]).norm());
+    }
+
     /// Whole-frame detection and registration; `spent` (detect, register seconds) is added.
     fn register_whole(
         &self,
@@ -310,7 +378,7 @@ impl PlateRegistrar {
         let registration = register(&corr, &self.camera, nominal, &self.options)
             .map_err(|source| FrameError::Register { detected: detected.clone(), source })?;
         let register_s = spent.1 + t.elapsed().as_secs_f64();
-        Ok(FrameRegistration { registration, detected, foreign, detect_s, register_s, search })
+        Ok(FrameRegistration { registration, detections, detected, foreign, detect_s, register_s, search })
     }
 
     /// A plate marker that the measured pose `s2c` puts inside the image (clear of the
