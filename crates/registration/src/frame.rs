@@ -218,7 +218,8 @@ impl PlateRegistrar {
     /// `rotation_rad · |corner| + translation_m` of its nominal place (what a rotation about
     /// the sample's origin and a shift within the tolerance can do; the image motion of the
     /// sampled ball's rim is grown by a quarter for the points between the samples), plus a
-    /// pad of 3 px and a fifth of the marker's side for the quiet zone the detector needs.
+    /// pad of 4 px and a twentieth of the marker's side for the border's blur (the threshold
+    /// and the corner fits read the image around a window, so no quiet zone is needed inside).
     /// Clipped to the image; markers whose window is empty are left out.
     pub fn search_windows(&self, nominal: &ScenePose, rotation_rad: f64, translation_m: f64) -> Vec<(u32, Window)> {
         let cam = &self.camera;
@@ -242,7 +243,7 @@ impl PlateRegistrar {
                 }
             }
             let side = (0..4).map(|k| (centre_px[(k + 1) % 4] - centre_px[k]).norm()).fold(0.0, f64::max);
-            let pad = 3.0 + 0.2 * side;
+            let pad = 4.0 + 0.05 * side;
             let (x0, y0) = ((lo.x - pad).floor().max(0.0), (lo.y - pad).floor().max(0.0));
             let (x1, y1) = ((hi.x + pad).ceil() + 1.0, (hi.y + pad).ceil() + 1.0);
             if !(x1 > x0 && y1 > y0 && x0.is_finite() && y1.is_finite()) {
