@@ -201,6 +201,31 @@ pub fn merge_bracket(
     let mut rate = vec![0.0f32; w * h];
     let mut variance = vec![0.0f32; w * h];
     let mut used = vec![0u8; w * h];
+    if n == 2 {
+        // The usual bracket, without branches (see `merge_pair_row`).
+        let c = PairConstants {
+            exposure: [order[0].meta.exposure_s, order[1].meta.exposure_s],
+            k: [ks[0], ks[1]],
+            inv_k_exposure: [inv_k_exposure[0], inv_k_exposure[1]],
+            quant: [quant[0], quant[1]],
+            white: [white[0], white[1]],
+            black0: black[0],
+            limit: [limits[0], limits[1]],
+            inv_band1: inv_band[1],
+            rn2,
+        };
+        let rows: Vec<Result<(), HdrError>> = rate
+            .par_chunks_mut(w.max(1))
+            .zip(variance.par_chunks_mut(w.max(1)))
+            .zip(used.par_chunks_mut(w.max(1)))
+            .enumerate()
+            .map(|(y, ((r_row, v_row), u_row))| {
+                merge_pair_row(&c, [order[0], order[1]], calibration, y, r_row, v_row, u_row)
+            })
+            .collect();
+        rows.into_iter().collect::<Result<Vec<()>, HdrError>>()?;
+        return Ok(MergedFrame { width: w, height: h, rate, variance, used });
+    }
     let rows: Vec<Result<(), HdrError>> = rate
         .par_chunks_mut(w.max(1))
         .zip(variance.par_chunks_mut(w.max(1)))
@@ -318,6 +343,83 @@ pub fn merge_bracket(
         .collect();
     rows.into_iter().collect::<Result<Vec<()>, HdrError>>()?;
     Ok(MergedFrame { width: w, height: h, rate, variance, used })
+}
+
+/// Per-frame constants of a two-frame merge (frame 0 the shorter signal scale).
+struct PairConstants {
+    exposure: [f64; 2],
+    k: [f64; 2],
+    inv_k_exposure: [f64; 2],
+    quant: [f64; 2],
+    white: [f64; 2],
+    black0: f64,
+    limit: [f64; 2],
+    inv_band1: f64,
+    rn2: f64,
+}
+
+/// One row of a two-frame merge, every photosite through the same arithmetic (no branches,
+/// so photosites overlap in the pipeline): the usable-sample count `m` only selects. With
+/// `m = 1` the long sample's fade share is set to 0, which reduces the two-sample formulas to
+/// the one-sample ones exactly; the fade share `α = f / (1 + ρ (1 - f))` with
+/// `ρ = s₁² V₀ / (s₀² V₁)` is written with one division, `f s₀² V₁ / (s₀² V₁ + s₁² V₀ (1 - f))`.
+#[allow(clippy::too_many_arguments)]
+fn merge_pair_row(
+    c: &PairConstants,
+    frames: [&RawFrame; 2],
+    calibration: &impl PhotositeCalibration,
+    y: usize,
+    r_row: &mut [f32],
+    v_row: &mut [f32],
+    u_row: &mut [u8],
+) -> Result<(), HdrError> {
+    let w = r_row.len();
+    let (d0, d1) = (&frames[0].data[y * w..(y + 1) * w], &frames[1].data[y * w..(y + 1) * w]);
+    let (m0, m1) = (&frames[0].meta, &frames[1].meta);
+    let var_e2 = |at: f64, scale: f64, dark_e: f64, j: usize| (at * scale + dark_e).max(0.0) + c.rn2 + c.quant[j];
+    for x in 0..w {
+        let flat = calibration.flat(x, y);
+        if !(flat.is_finite() && flat > 0.0) {
+            return Err(HdrError::OutOfRange {
+                what: format!("flat({x}, {y})"),
+                value: flat,
+                allowed: "finite and > 0",
+            });
+        }
+        let inv_flat = 1.0 / flat;
+        let (dn0, dn1) = (f64::from(d0[x]), f64::from(d1[x]));
+        let (de0, de1) = (calibration.dark_electrons(x, y, m0), calibration.dark_electrons(x, y, m1));
+        let (dd0, dd1) = (calibration.dark_dn(x, y, m0), calibration.dark_dn(x, y, m1));
+        let (s0, s1) = (c.exposure[0] * flat, c.exposure[1] * flat);
+        let r0 = (dn0 - dd0) * c.inv_k_exposure[0] * inv_flat;
+        let r1 = (dn1 - dd1) * c.inv_k_exposure[1] * inv_flat;
+        let usable0 = dn0 < c.white[0] && dn0 - c.black0 <= c.limit[0];
+        // The long sample's share, judged from the short one (module docs).
+        let at = r0.max(0.0);
+        let p = (r0 * s1 + de1) * c.k[1];
+        let fade = ((c.limit[1] - p) * c.inv_band1).clamp(0.0, 1.0);
+        let a = s0 * s0 * var_e2(at, s1, de1, 1);
+        let b = s1 * s1 * var_e2(at, s0, de0, 0);
+        let alpha = fade * a / (a + b * (1.0 - fade));
+        let use1 = usable0 && dn1 < c.white[1] && alpha > 0.0;
+        let alpha1 = if use1 { alpha } else { 0.0 };
+        // Two passes: variances at the long sample's rate, then at the merged estimate. With
+        // weights w_i = α_i s_i² / V_i, multiplied through by V₀ V₁: one division per pass.
+        let pass = |at: f64| {
+            let at = at.max(0.0);
+            let (v0, v1) = (var_e2(at, s0, de0, 0), var_e2(at, s1, de1, 1));
+            let (u0, u1) = (s0 * s0 * v1, alpha1 * s1 * s1 * v0);
+            let inv_d = 1.0 / (u0 + u1);
+            ((u0 * r0 + u1 * r1) * inv_d, (u0 + alpha1 * u1) * v0 * v1 * inv_d * inv_d)
+        };
+        let first = if use1 { pass(r1).0 } else { r0 };
+        let (r, var) = pass(first);
+        // Saturated even in the short exposure: its clipped value, flagged.
+        let clipped_var = var_e2(0.0, 0.0, r0 * s0 + de0, 0) / (s0 * s0);
+        (r_row[x], v_row[x], u_row[x]) =
+            if usable0 { (r as f32, var as f32, 1 + u8::from(use1)) } else { (r0 as f32, clipped_var as f32, 0) };
+    }
+    Ok(())
 }
 
 /// The checks every merge makes, the frames in order of signal scale (shortest first), their
