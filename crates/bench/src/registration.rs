@@ -134,6 +134,8 @@ pub struct Frame {
     pub rgb: LinearImage,
     /// Its green channel (what the detectors see).
     pub green: Vec<f32>,
+    /// The raw frame it was demosaiced from.
+    pub raw: btfrig_core::frame::RawFrame,
     /// Conversion of `rgb` to the ground truth's units.
     pub radiometry: Radiometry,
     /// Point-sampled ground truth (the renderer's definition), `size²` texels.
@@ -341,7 +343,7 @@ impl Bench {
         let clean_radiometry =
             Radiometry { dn_range: 1.0, exposure_s: 1.0, dn_per_electron: 1.0, dark_e_per_s: 0.0, ..radiometry };
         let clean = (LinearImage { width: img.width, height: img.height, data: img.data }, clean_radiometry);
-        Ok(Frame { view_deg, commanded, truth, rgb, green, radiometry, gt_point, gt_box, clean })
+        Ok(Frame { view_deg, commanded, truth, rgb, green, raw, radiometry, gt_point, gt_box, clean })
     }
 
     /// Distance of detected corners from the projection of the true corners: (RMS radial,

@@ -172,8 +172,8 @@ pub fn registration(a: &BenchRegistrationArgs) -> anyhow::Result<()> {
                         cmd.env(key, v);
                     }
                 }
-                match run_opencv(&mut cmd, &b, &frame, a.repeat, k) {
-                    Ok((s, v)) => {
+                match run_opencv(&mut cmd, &b, &frame, a.repeat, k, false) {
+                    Ok((s, v, _)) => {
                         opencv_version = Some(v);
                         results.push(s);
                     }
