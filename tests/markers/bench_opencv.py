@@ -20,6 +20,13 @@ result.json (detections, homography, times) and texture.f32 (size x size x 3 flo
 at the sample's +y edge, column 0 at its -x edge, like btfrig's textures), and
 texture_clean.f32 from clean.f32 through the same maps (untimed).
 
+With "pipeline": true in job.json, the script starts from the raw frame instead (raw.u16:
+uint16 little-endian photosites, h x w; "bayer" names the mosaic as btfrig does, "black" and
+"white" its levels): cv2.cvtColor demosaics it (timed as demosaic_s; the Bayer code is chosen
+by a self-check on a synthetic mosaic, so OpenCV's naming cannot swap red and blue), its green
+channel goes to the detector, and remap + warpPerspective resample its uint16 RGB; the texture
+is then converted to fractions of white above black (untimed, 256 x 256 values).
+
 Pixel centres: OpenCV puts them at integer coordinates for remap, warpPerspective and the
 ArUco corners, as btfrig does; `pixel_centre_check` pins this for the warp (a destination
 pixel sampled through a 0.25 px shift of a ramp must read 0.25 more than its column).
@@ -56,6 +63,28 @@ def pixel_centre_check():
     return float(dst[4, 10])
 
 
+BAYER_CODES = ["COLOR_BayerRG2RGB", "COLOR_BayerBG2RGB", "COLOR_BayerGR2RGB", "COLOR_BayerGB2RGB"]
+
+
+def bayer_code(pattern):
+    """The cvtColor code that turns a mosaic laid out as btfrig's `pattern` (RGGB, BGGR, GRBG,
+    GBRG: the 2x2 cell from the top-left photosite) into RGB: the one that puts a mosaic lit
+    only at its red sites into the red channel."""
+    cell = {"RGGB": "RGGB", "BGGR": "BGGR", "GRBG": "GRBG", "GBRG": "GBRG"}[pattern]
+    mosaic = np.zeros((16, 16), dtype=np.uint16)
+    for dy in range(2):
+        for dx in range(2):
+            if cell[2 * dy + dx] == "R":
+                mosaic[dy::2, dx::2] = 1000
+    best, code = -1.0, None
+    for name in BAYER_CODES:
+        out = cv2.cvtColor(mosaic, getattr(cv2, name))[4:12, 4:12].astype(np.float64)
+        score = out[:, :, 0].mean() - out[:, :, 2].mean()
+        if score > best:
+            best, code = score, getattr(cv2, name)
+    return code
+
+
 def main() -> int:
     d = sys.argv[1]
     job = json.load(open(os.path.join(d, "job.json")))
@@ -65,6 +94,13 @@ def main() -> int:
     green = np.fromfile(os.path.join(d, "green.f32"), dtype="<f4").reshape(h, w)
     rgb = np.fromfile(os.path.join(d, "rgb.f32"), dtype="<f4").reshape(h, w, 3)
     times = {}
+    pipeline = bool(job.get("pipeline"))
+    if pipeline:
+        raw = np.fromfile(os.path.join(d, "raw.u16"), dtype="<u2").reshape(h, w)
+        code = bayer_code(job["bayer"])
+        rgb, times["demosaic_s"] = median_time(lambda: cv2.cvtColor(raw, code), repeat)
+        black, white = float(job["black"]), float(job["white"])
+        green = (rgb[:, :, 1].astype(np.float32) - black) / (white - black)
 
     # 8-bit grey for the detector (it needs CV_8U): the 99.9th percentile maps to 255.
     t = time.perf_counter()
@@ -118,6 +154,8 @@ def main() -> int:
             lambda: cv2.warpPerspective(undistorted, m, (size, size),
                                         flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                                         borderMode=cv2.BORDER_CONSTANT), repeat)
+        if pipeline:
+            tex = (tex.astype(np.float32) - black) / (white - black)
         np.ascontiguousarray(tex, dtype="<f4").tofile(os.path.join(d, "texture.f32"))
         # The noise-free image through the same two resamplings (untimed): geometry and
         # interpolation without sensor noise.

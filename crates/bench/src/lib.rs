@@ -10,6 +10,8 @@
 //! - [`registration`]: marker detection, pose estimation and rectification filters against
 //!   the true pose and the ground-truth texture (`btfrig bench registration`)
 //! - [`opencv`]: the OpenCV peer of the registration benchmark, on the same frames
+//! - [`pipeline`]: raw frame to texture stage by stage, against OpenCV and a memory pass;
+//!   the HDR merge before and after (`btfrig bench pipeline`)
 //! - [`color`]: colour-correction models' fit and apply time and CIEDE2000 (`bench color`)
 //! - [`demux`]: demultiplexing methods' time against a memory-bandwidth floor (`bench demux`)
 //! - [`compress`]: linear BTF models on a simulated BTF: size, speed, error (`bench compress`)
@@ -19,6 +21,7 @@ pub mod color;
 pub mod compress;
 pub mod demux;
 pub mod opencv;
+pub mod pipeline;
 pub mod registration;
 pub mod render;
 pub mod serve;

@@ -37,14 +37,17 @@ pub fn write_f32(path: &Path, values: impl Iterator<Item = f32>) -> anyhow::Resu
 }
 
 /// Runs OpenCV on `frame` (files in a fresh temp dir, removed afterwards) and measures its
-/// result with our truth.
+/// result with our truth. With `pipeline`, OpenCV also demosaics the raw frame
+/// (`cv2.cvtColor`) and warps its own RGB; the demosaic time comes back as the third value
+/// (seconds; 0 otherwise).
 pub fn run_opencv(
     python: &mut Command,
     b: &Bench,
     frame: &Frame,
     repeat: usize,
     index: usize,
-) -> anyhow::Result<(SettingResult, String)> {
+    pipeline: bool,
+) -> anyhow::Result<(SettingResult, String, f64)> {
     let dir = std::env::temp_dir().join(format!("btfrig-bench-opencv-{}-{index}", std::process::id()));
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let result = (|| {
@@ -64,7 +67,14 @@ pub fn run_opencv(
             "dictionary": b.cfg.plate.marker_dictionary,
             "size": b.size, "region": [r.x_min, r.x_max, r.y_min, r.y_max],
             "plate": plate, "repeat": repeat,
+            "pipeline": pipeline,
+            "bayer": frame.raw.meta.bayer.map(|p| format!("{p:?}").to_uppercase()),
+            "black": frame.raw.meta.black_level, "white": frame.raw.meta.white_level,
         });
+        if pipeline {
+            let bytes: Vec<u8> = frame.raw.data.iter().flat_map(|v| v.to_le_bytes()).collect();
+            std::fs::write(dir.join("raw.u16"), bytes)?;
+        }
         std::fs::write(dir.join("job.json"), job.to_string())?;
         write_f32(&dir.join("green.f32"), frame.green.iter().copied())?;
         write_f32(&dir.join("rgb.f32"), frame.rgb.data.iter().flat_map(|p| *p))?;
@@ -92,6 +102,7 @@ pub fn run_opencv(
             .collect();
         let t = &res["times"];
         let ts = |k: &str| t[k].as_f64().unwrap_or(0.0);
+        let demosaic_s = ts("demosaic_s");
         if res["H"].is_null() {
             let why = res["error"].as_str().unwrap_or("no homography").to_string();
             return Ok((
@@ -107,6 +118,7 @@ pub fn run_opencv(
                     error: Some(why),
                 },
                 version,
+                demosaic_s,
             ));
         }
         let hv = &res["H"];
@@ -120,7 +132,7 @@ pub fn run_opencv(
             (ts("detect_s"), ts("undistort_points_s") + ts("homography_s"), ts("undistort_image_s") + ts("warp_s"));
         let textures = (read("texture.f32")?, read("texture_clean.f32")?);
         let s = b.evaluate_homography(frame, "opencv", "linear", &detections, &h, textures, times)?;
-        Ok((s, version))
+        Ok((s, version, demosaic_s))
     })();
     let _ = std::fs::remove_dir_all(&dir);
     result

@@ -134,6 +134,8 @@ pub struct Frame {
     pub rgb: LinearImage,
     /// Its green channel (what the detectors see).
     pub green: Vec<f32>,
+    /// The raw frame it was demosaiced from.
+    pub raw: btfrig_core::frame::RawFrame,
     /// Conversion of `rgb` to the ground truth's units.
     pub radiometry: Radiometry,
     /// Point-sampled ground truth (the renderer's definition), `size²` texels.
@@ -251,6 +253,22 @@ pub struct Bench {
     /// Positioning error of the devices.
     pub positioning: PositioningError,
     dictionary: Dictionary,
+    last_windows: std::cell::Cell<Option<WindowStats>>,
+}
+
+/// How the `lm-roi` setting searched one frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WindowStats {
+    /// The windows' tolerance (degrees, metres).
+    pub tolerance: (f64, f64),
+    /// Windows searched.
+    pub windows: usize,
+    /// Pixels searched over the frame's (above 1 after a fallback).
+    pub pixel_fraction: f64,
+    /// Whether the windows missed and the whole frame was searched.
+    pub fell_back: bool,
+    /// Whether the windows gave the whole-frame detector's plate markers and corners (1e-6 px).
+    pub same_as_whole_frame: bool,
 }
 
 impl Bench {
@@ -278,6 +296,7 @@ impl Bench {
             light: Direction::from_degrees(45.0, 0.0),
             positioning,
             dictionary,
+            last_windows: std::cell::Cell::new(None),
         })
     }
 
@@ -324,7 +343,7 @@ impl Bench {
         let clean_radiometry =
             Radiometry { dn_range: 1.0, exposure_s: 1.0, dn_per_electron: 1.0, dark_e_per_s: 0.0, ..radiometry };
         let clean = (LinearImage { width: img.width, height: img.height, data: img.data }, clean_radiometry);
-        Ok(Frame { view_deg, commanded, truth, rgb, green, radiometry, gt_point, gt_box, clean })
+        Ok(Frame { view_deg, commanded, truth, rgb, green, raw, radiometry, gt_point, gt_box, clean })
     }
 
     /// Distance of detected corners from the projection of the true corners: (RMS radial,
@@ -470,6 +489,57 @@ impl Bench {
             ),
         });
 
+        // `lm-roi`: what `PlateRegistrar::register_image` runs by default: the markers searched
+        // only in windows predicted from the nominal pose, their tolerance learned from the
+        // frames registered before (the estimator's gate for the first), the whole frame when
+        // they miss; then `lm`. Bilinear only (the pose is what differs).
+        let tolerance = self.registrar.learned_tolerance();
+        let mut detect_times = Vec::new();
+        let mut register_times = Vec::new();
+        let mut roi = None;
+        for _ in 0..repeat {
+            let r = self.registrar.register_within(&image, &nominal, Some(tolerance));
+            if let Ok(r) = &r {
+                detect_times.push(r.detect_s);
+                register_times.push(r.register_s);
+            }
+            roi = Some(r);
+        }
+        let roi_result = match roi.expect("at least one repeat") {
+            Ok(r) => {
+                self.registrar.remember(&r.registration, &nominal);
+                let roi_ids: Vec<(u32, [Point2<f64>; 4])> =
+                    r.detections.iter().filter(|d| r.detected.contains(&d.id)).map(|d| (d.id, d.corners)).collect();
+                let roi_corners = self.corner_error(frame, &roi_ids);
+                self.last_windows.set(Some(WindowStats {
+                    tolerance,
+                    windows: r.search.windows,
+                    pixel_fraction: r.search.pixels as f64 / r.search.frame_pixels as f64,
+                    fell_back: r.search.whole_frame,
+                    same_as_whole_frame: ids.len() == roi_ids.len()
+                        && ids
+                            .iter()
+                            .zip(&roi_ids)
+                            .all(|(a, b)| a.0 == b.0 && a.1.iter().zip(&b.1).all(|(p, q)| (p - q).norm() < 1e-6)),
+                }));
+                SettingResult {
+                    setting: "lm-roi".into(),
+                    detect_s: median(detect_times),
+                    register_s: median(register_times),
+                    markers: r.detected.len(),
+                    corner_rms_px: roi_corners.map(|c| c.0),
+                    corner_bias_px: roi_corners.map(|c| c.1),
+                    texel: self.texel_error(frame, &r.registration.pose),
+                    filters: self.textures(frame, &r.registration.pose, repeat)?.into_iter().take(1).collect(),
+                    error: None,
+                }
+            }
+            Err(e) => {
+                self.last_windows.set(None);
+                SettingResult::failed("lm-roi", f64::NAN, 0, e.to_string())
+            }
+        };
+
         for (name, prior) in [("lm", None), ("lm+prior", Some(PRIOR_SIGMA))] {
             let options = RegisterOptions { prior_sigma: prior, ..self.registrar.options.clone() };
             let mut times = Vec::new();
@@ -495,7 +565,13 @@ impl Bench {
                 Err(e) => SettingResult::failed(name, detect_s, detected.len(), e.to_string()),
             });
         }
+        out.push(roi_result);
         Ok(out)
+    }
+
+    /// The window search of the last [`Bench::run_ours`].
+    pub fn last_window_stats(&self) -> Option<WindowStats> {
+        self.last_windows.get()
     }
 
     /// Texel position error of an image mapping given as a homography `h` from the sample

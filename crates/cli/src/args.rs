@@ -398,6 +398,9 @@ pub enum BenchCommand {
     /// Marker registration and rectification: per pose setting and filter, time per frame
     /// and texel / texture error against the simulator's truth (docs/benchmarks.md).
     Registration(BenchRegistrationArgs),
+    /// One frame from raw photosites to texture, stage by stage, against the OpenCV pipeline
+    /// and a memory pass; the HDR merge before and after (docs/benchmarks.md).
+    Pipeline(crate::bench_pipeline::BenchPipelineArgs),
     /// Colour-correction models: fit and apply time against held-out CIEDE2000 (docs/color.md).
     Color(crate::bench_color::BenchColorArgs),
     /// Demultiplexing S-matrix captures: fast transform vs dense inverse vs least squares,

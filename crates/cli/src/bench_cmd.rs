@@ -72,7 +72,7 @@ const DEFAULT_VIEWS: [(f64, f64); 6] =
     [(0.0, 0.0), (45.0, 90.0), (45.0, 270.0), (75.0, 90.0), (75.0, 270.0), (80.0, 90.0)];
 
 /// Order of the settings in the tables.
-const SETTINGS: [&str; 6] = ["nominal", "true", "dlt", "lm", "lm+prior", "opencv"];
+const SETTINGS: [&str; 7] = ["nominal", "true", "dlt", "lm", "lm+prior", "lm-roi", "opencv"];
 
 fn fmt(v: f64, prec: usize) -> String {
     if v.is_finite() {
@@ -151,6 +151,20 @@ pub fn registration(a: &BenchRegistrationArgs) -> anyhow::Result<()> {
         for (k, &view) in views.iter().enumerate() {
             let frame = b.frame(view, a.seed + k as u64).with_context(|| format!("view {view:?}"))?;
             let mut results = b.run_ours(&frame, a.repeat)?;
+            if let Some(w) = b.last_window_stats() {
+                println!(
+                    "view {},{}: lm-roi searched {} window(s) for {:.2} deg / {:.1} mm, {:.1} % of the frame{}; \
+                     markers and corners {} the whole-frame search's",
+                    frame.view_deg.0,
+                    frame.view_deg.1,
+                    w.windows,
+                    w.tolerance.0,
+                    w.tolerance.1 * 1e3,
+                    100.0 * w.pixel_fraction,
+                    if w.fell_back { ", then the whole frame (missed)" } else { "" },
+                    if w.same_as_whole_frame { "equal to" } else { "DIFFER from" }
+                );
+            }
             if let Some(py) = python.as_mut() {
                 let mut cmd = Command::new(py.get_program());
                 for (key, val) in py.get_envs() {
@@ -158,8 +172,8 @@ pub fn registration(a: &BenchRegistrationArgs) -> anyhow::Result<()> {
                         cmd.env(key, v);
                     }
                 }
-                match run_opencv(&mut cmd, &b, &frame, a.repeat, k) {
-                    Ok((s, v)) => {
+                match run_opencv(&mut cmd, &b, &frame, a.repeat, k, false) {
+                    Ok((s, v, _)) => {
                         opencv_version = Some(v);
                         results.push(s);
                     }
@@ -285,7 +299,9 @@ pub fn registration(a: &BenchRegistrationArgs) -> anyhow::Result<()> {
     );
     println!(
         "settings: nominal = kinematic pose; dlt = normalised DLT on all detected corners (undistorted), decomposed, \
-         no LM; lm = marker-pair RANSAC + LM (PlateRegistrar::register_image); lm+prior = lm with a weak prior of \
+         no LM; lm = marker-pair RANSAC + LM on the whole-frame detections; lm-roi = lm on the detections in windows \
+         predicted from the nominal pose within the estimator's gate (PlateRegistrar::register_image's default; \
+         bilinear only); lm+prior = lm with a weak prior of \
          {:?} (deg, m); opencv = {} (aruco SUBPIX + undistortPoints + findHomography RANSAC; rectify = remap \
          undistort + warpPerspective INTER_LINEAR; times from Python's perf_counter around the cv2 calls).",
         btfrig_bench::registration::PRIOR_SIGMA,

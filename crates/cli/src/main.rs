@@ -7,7 +7,7 @@
 // - calibrate_cmd (geometry), calibrate_{rig_geometry,color,radiometric,light,leds,sensor}_cmd: the calibrations
 // - hw_cmd: btfrig hw probe; kinematics_cmd: btfrig kinematics check
 // - sim_cmd, captures_cmd, session: btfrig sim ... on a simulated gonio session
-// - bench_cmd, bench_{color,compress,demux,serve}: btfrig bench ... (harnesses in btfrig-bench)
+// - bench_cmd, bench_{color,compress,demux,pipeline,serve}: btfrig bench ... (harnesses in btfrig-bench)
 
 mod args;
 mod backends;
@@ -15,6 +15,7 @@ mod bench_cmd;
 mod bench_color;
 mod bench_compress;
 mod bench_demux;
+mod bench_pipeline;
 mod bench_serve;
 mod calibrate_cmd;
 mod calibrate_color_cmd;
@@ -88,6 +89,7 @@ fn main() -> std::process::ExitCode {
             done(bench_cmd::render(rig.as_deref(), &material, texels, repeat))
         }
         Command::Bench(BenchCommand::Registration(a)) => done(bench_cmd::registration(&a)),
+        Command::Bench(BenchCommand::Pipeline(a)) => done(bench_pipeline::bench(&a)),
         Command::Bench(BenchCommand::Color(a)) => done(bench_color::bench(&a)),
         Command::Bench(BenchCommand::Demux(a)) => done(bench_demux::bench(&a)),
         Command::Bench(BenchCommand::Compress(a)) => done(bench_compress::bench(&a)),

@@ -30,5 +30,8 @@
 pub mod detect;
 pub mod dictionary;
 
-pub use detect::{detect, detect_raw, DetectError, DetectParams, Detection, GrayImage, GreenSites, Quality};
+pub use detect::{
+    detect, detect_in_windows, detect_raw, DetectError, DetectParams, Detection, GrayImage, GreenSites, Quality,
+    Window, WindowSearch,
+};
 pub use dictionary::{Dictionary, DictionaryError};

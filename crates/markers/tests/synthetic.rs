@@ -2,7 +2,7 @@
 //! (32 x 32 points per pixel) through a known homography, so the true corners are known
 //! without the renderer; images without markers; a marker cut by the image border.
 
-use btfrig_markers::{detect, DetectParams, Dictionary, GrayImage};
+use btfrig_markers::{detect, detect_in_windows, DetectParams, Dictionary, GrayImage, Window};
 use nalgebra::{Matrix3, Point2, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -243,4 +243,48 @@ fn dictionary_agrees_with_the_renderers_copy() {
             }
         }
     }
+}
+
+#[test]
+fn windows_find_what_the_whole_frame_finds_and_drop_what_they_cut() {
+    // Two markers and a dark bar on a noisy, shaded image; windows around each marker give
+    // exactly the whole-frame detections; a window through a marker finds nothing there and
+    // counts the cut region; a window on the bar only finds nothing.
+    let dict = Dictionary::dict_4x4_50();
+    let mut img: Vec<f32> = (0..W * H).map(|i| 0.7 + 0.3 * (i % W) as f32 / W as f32).collect();
+    let qa = quad((100.4, 120.2), 70.0, 0.3, 0.1);
+    let qb = quad((290.7, 160.1), 80.0, -0.5, 0.0);
+    draw(&mut img, &dict, 11, &qa);
+    draw(&mut img, &dict, 23, &qb);
+    for y in 250..270 {
+        for x in 150..380 {
+            img[y * W + x] = 0.05;
+        }
+    }
+    add_noise(&mut img, 0.01, 77);
+    let g = GrayImage::new(W, H, &img).unwrap();
+    let p = DetectParams::default();
+    let whole = detect(&g, &dict, &p).unwrap();
+    assert_eq!(whole.iter().map(|d| d.id).collect::<Vec<_>>(), vec![11, 23]);
+    let around = [Window::new(40, 60, 165, 185), Window::new(220, 90, 370, 235)];
+    let found = detect_in_windows(&g, &dict, &p, &around).unwrap();
+    assert_eq!(found.detections.len(), 2);
+    for (a, b) in whole.iter().zip(&found.detections) {
+        assert_eq!(a.id, b.id);
+        for k in 0..4 {
+            // Same pixels, same fits: only the threshold's integral starts elsewhere.
+            assert!((a.corners[k] - b.corners[k]).norm() < 1e-9, "{a:?} vs {b:?}");
+            assert!((a.corner_sigma_px[k] - b.corner_sigma_px[k]).abs() < 1e-12);
+        }
+    }
+    assert_eq!(found.pixels, around.iter().map(Window::area).sum::<usize>());
+    // A window ending in the middle of marker 23, and one over the bar's middle.
+    let cut = detect_in_windows(&g, &dict, &p, &[Window::new(220, 90, 290, 235), Window::new(200, 240, 300, 290)])
+        .unwrap();
+    assert!(cut.detections.is_empty(), "{:?}", cut.detections);
+    assert!(cut.cut_by_window >= 2, "cut regions counted: {}", cut.cut_by_window);
+    // Windows past the image are clipped; a window covering the frame is the whole frame.
+    let all = detect_in_windows(&g, &dict, &p, &[Window::new(0, 0, W + 50, H + 50)]).unwrap();
+    assert_eq!(all.detections, whole);
+    assert_eq!((all.pixels, all.cut_by_window), (W * H, 0));
 }

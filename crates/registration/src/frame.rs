@@ -2,15 +2,25 @@
 //! their corners with the plate layout, estimate the sample pose ([`crate::register`]).
 //!
 //! This is the glue the pipeline and the benchmark share, so both measure the same thing.
+//!
+//! Where the markers are searched ([`MarkerSearch`]): by default only in a window around each
+//! marker's position predicted from the nominal pose, as far as the pose may be off (the
+//! estimator's own tolerance, so no pose it would accept puts a marker outside its window);
+//! the whole frame when that prediction misses. Inside its window a marker is found exactly
+//! as in the whole frame (`btfrig_markers::detect_in_windows`), so the accuracy is the
+//! whole-frame detector's.
 
 use std::time::Instant;
 
 use btfrig_core::camera::CameraModel;
 use btfrig_core::config::plate::{MarkerPlacement, PlateConfig};
 use btfrig_core::pose::ScenePose;
-use btfrig_markers::{detect, DetectError, DetectParams, Detection, Dictionary, GrayImage};
+use btfrig_markers::{
+    detect, detect_in_windows, DetectError, DetectParams, Detection, Dictionary, GrayImage, Window, WindowSearch,
+};
+use nalgebra::{Isometry3, Point2, Point3, Vector3};
 
-use crate::{register, Correspondence, RegisterError, RegisterOptions, Registration};
+use crate::{register, sample_to_camera, Correspondence, RegisterError, RegisterOptions, Registration};
 
 /// Why a frame could not be registered.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -40,6 +50,8 @@ pub enum FrameError {
 pub struct FrameRegistration {
     /// The pose estimate and its diagnostics.
     pub registration: Registration,
+    /// The detections the pose was estimated from (foreign ids included).
+    pub detections: Vec<Detection>,
     /// Ids of the plate's markers that were detected, ascending.
     pub detected: Vec<u32>,
     /// Ids decoded in the image that are not on this plate (ignored).
@@ -48,6 +60,88 @@ pub struct FrameRegistration {
     pub detect_s: f64,
     /// Seconds spent estimating the pose.
     pub register_s: f64,
+    /// Where the markers were searched.
+    pub search: SearchRecord,
+}
+
+/// Where [`PlateRegistrar::register_image`] searches for the markers.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum MarkerSearch {
+    /// The whole frame, every time.
+    WholeFrame,
+    /// A window per plate marker around its projection with the nominal pose, grown by how far
+    /// the sample may be from it: a rotation by up to `tolerance.0` degrees about the sample's
+    /// origin and a shift by up to `tolerance.1` metres. `None`: learned from the frames this
+    /// registrar has registered, [`LEARNED_FACTOR`] times the largest deviation of a measured
+    /// pose from its nominal pose (at least [`LEARNED_FLOOR`]), never beyond the estimator's
+    /// gate ([`RegisterOptions::max_rotation_deg`], [`RegisterOptions::max_translation_m`]),
+    /// which is used until a frame has registered.
+    /// The whole frame is searched when the windows give no pose, or when the measured pose
+    /// puts a marker that lies inside the image outside its window.
+    Predicted {
+        /// `(rotation degrees, translation metres)`, or `None` to learn it.
+        tolerance: Option<(f64, f64)>,
+    },
+}
+
+/// Learned windows: this many times the largest deviation from the nominal pose seen so far.
+pub const LEARNED_FACTOR: f64 = 3.0;
+/// Learned windows: at least this tolerance (degrees, metres).
+pub const LEARNED_FLOOR: (f64, f64) = (0.2, 0.001);
+
+/// The largest deviation (rotation radians, translation metres) of a measured pose from its
+/// nominal pose over the frames registered so far. Frames may be registered on several
+/// threads at once, hence the lock; a clone starts from the same figures.
+#[derive(Debug, Default)]
+struct Deviation(std::sync::Mutex<Option<(f64, f64)>>);
+
+impl Clone for Deviation {
+    fn clone(&self) -> Self {
+        Deviation(std::sync::Mutex::new(self.get()))
+    }
+}
+
+impl Deviation {
+    fn get(&self) -> Option<(f64, f64)> {
+        *self.0.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    fn observe(&self, rot: f64, trans: f64) {
+        let mut g = self.0.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        let (r, t) = g.unwrap_or((0.0, 0.0));
+        *g = Some((r.max(rot), t.max(trans)));
+    }
+}
+
+/// How the markers of one frame were searched.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct SearchRecord {
+    /// Windows searched before any whole-frame search (0: none, the whole frame at once).
+    pub windows: usize,
+    /// Pixels searched in all (windows, plus the frame after a fallback).
+    pub pixels: usize,
+    /// Pixels of the frame.
+    pub frame_pixels: usize,
+    /// Whether the whole frame was searched.
+    pub whole_frame: bool,
+    /// Why the windows were not enough, when they were tried and the whole frame followed.
+    pub fallback: Option<String>,
+}
+
+/// Directions of the tolerance ball sampled to bound a corner's image motion: the 26
+/// neighbours of a cube's centre, normalised.
+fn ball_directions() -> Vec<Vector3<f64>> {
+    let mut out = Vec::with_capacity(26);
+    for x in -1i32..=1 {
+        for y in -1i32..=1 {
+            for z in -1i32..=1 {
+                if (x, y, z) != (0, 0, 0) {
+                    out.push(Vector3::new(f64::from(x), f64::from(y), f64::from(z)).normalize());
+                }
+            }
+        }
+    }
+    out
 }
 
 /// Registers frames of one rig: camera model, plate layout, detector and estimator settings.
@@ -60,6 +154,9 @@ pub struct PlateRegistrar {
     pub detect: DetectParams,
     /// Estimator settings.
     pub options: RegisterOptions,
+    /// Where markers are searched (default: predicted windows, tolerance learned).
+    pub search: MarkerSearch,
+    deviation: Deviation,
 }
 
 impl PlateRegistrar {
@@ -68,7 +165,15 @@ impl PlateRegistrar {
         let dictionary = Dictionary::by_name(&plate.marker_dictionary)
             .ok_or_else(|| FrameError::UnknownDictionary { name: plate.marker_dictionary.clone() })?;
         let detect = DetectParams { camera: Some(camera.clone()), ..DetectParams::default() };
-        Ok(PlateRegistrar { camera, markers: plate.marker_placements(), dictionary, detect, options })
+        Ok(PlateRegistrar {
+            camera,
+            markers: plate.marker_placements(),
+            dictionary,
+            detect,
+            options,
+            search: MarkerSearch::Predicted { tolerance: None },
+            deviation: Deviation::default(),
+        })
     }
 
     /// The camera model frames are registered with.
@@ -108,17 +213,224 @@ impl PlateRegistrar {
         (out, detected, foreign)
     }
 
+    /// The search window of each plate marker whose corners all project with `nominal`: the
+    /// bounding box of the corners' images when each corner moves anywhere within
+    /// `rotation_rad · |corner| + translation_m` of its nominal place (what a rotation about
+    /// the sample's origin and a shift within the tolerance can do; the image motion of the
+    /// sampled ball's rim is grown by a quarter for the points between the samples), plus a
+    /// pad of 4 px and a twentieth of the marker's side for the border's blur (the threshold
+    /// and the corner fits read the image around a window, so no quiet zone is needed inside).
+    /// Clipped to the image; markers whose window is empty are left out.
+    pub fn search_windows(&self, nominal: &ScenePose, rotation_rad: f64, translation_m: f64) -> Vec<(u32, Window)> {
+        let cam = &self.camera;
+        let t = sample_to_camera(nominal);
+        let dirs = ball_directions();
+        let mut out = Vec::with_capacity(self.markers.len());
+        'markers: for m in &self.markers {
+            let (mut lo, mut hi) =
+                (Point2::new(f64::INFINITY, f64::INFINITY), Point2::new(f64::NEG_INFINITY, f64::NEG_INFINITY));
+            let mut centre_px = [Point2::origin(); 4];
+            for (k, c) in m.corners_sample_m.iter().enumerate() {
+                let x = t * Point3::new(c.x, c.y, 0.0);
+                let Some(p0) = cam.project(&x) else { continue 'markers };
+                centre_px[k] = p0;
+                let r = rotation_rad * c.coords.norm() + translation_m;
+                for p in std::iter::once(p0)
+                    .chain(dirs.iter().filter_map(|d| cam.project(&(x + d * r)).map(|p| p0 + (p - p0) * 1.25)))
+                {
+                    lo = Point2::new(lo.x.min(p.x), lo.y.min(p.y));
+                    hi = Point2::new(hi.x.max(p.x), hi.y.max(p.y));
+                }
+            }
+            let side = (0..4).map(|k| (centre_px[(k + 1) % 4] - centre_px[k]).norm()).fold(0.0, f64::max);
+            let pad = 4.0 + 0.05 * side;
+            let (x0, y0) = ((lo.x - pad).floor().max(0.0), (lo.y - pad).floor().max(0.0));
+            let (x1, y1) = ((hi.x + pad).ceil() + 1.0, (hi.y + pad).ceil() + 1.0);
+            if !(x1 > x0 && y1 > y0 && x0.is_finite() && y1.is_finite()) {
+                continue;
+            }
+            let w = Window::new(
+                x0 as usize,
+                y0 as usize,
+                x1.min(cam.width as f64) as usize,
+                y1.min(cam.height as f64) as usize,
+            );
+            if w.area() > 0 {
+                out.push((m.id, w));
+            }
+        }
+        out
+    }
+
+    /// The windows of [`Self::search_windows`] for `tolerance` (degrees, metres), merged where
+    /// that searches fewer pixels, and what the detector found in them.
+    pub fn detect_predicted(
+        &self,
+        image: &GrayImage,
+        nominal: &ScenePose,
+        tolerance: (f64, f64),
+    ) -> Result<(Vec<Window>, WindowSearch), DetectError> {
+        let per_marker = self.search_windows(nominal, tolerance.0.to_radians(), tolerance.1);
+        let windows = merge_windows(per_marker.into_iter().map(|(_, w)| w).collect());
+        let found = detect_in_windows(image, &self.dictionary, &self.detect, &windows)?;
+        Ok((windows, found))
+    }
+
     /// Detects the markers in `image` (a grey image of the frame: the green channel of a
     /// Bayer camera carries half its photosites) and estimates the sample pose, with
-    /// `nominal` (the kinematic pose) as prior and gate.
+    /// `nominal` (the kinematic pose) as prior and gate. Where it searches: [`Self::search`].
+    /// A registered frame's deviation from `nominal` is remembered for the learned windows.
     pub fn register_image(&self, image: &GrayImage, nominal: &ScenePose) -> Result<FrameRegistration, FrameError> {
+        let tolerance = match self.search {
+            MarkerSearch::WholeFrame => None,
+            MarkerSearch::Predicted { tolerance: Some(t) } => Some(t),
+            MarkerSearch::Predicted { tolerance: None } => Some(self.learned_tolerance()),
+        };
+        let r = self.register_within(image, nominal, tolerance)?;
+        self.remember(&r.registration, nominal);
+        Ok(r)
+    }
+
+    /// [`Self::register_image`] with windows for `tolerance` (degrees, metres; `None`: the
+    /// whole frame), remembering nothing.
+    pub fn register_within(
+        &self,
+        image: &GrayImage,
+        nominal: &ScenePose,
+        tolerance: Option<(f64, f64)>,
+    ) -> Result<FrameRegistration, FrameError> {
+        let frame_pixels = image.width * image.height;
+        let Some((rot_deg, trans_m)) = tolerance else {
+            let search =
+                SearchRecord { windows: 0, pixels: frame_pixels, frame_pixels, whole_frame: true, fallback: None };
+            return self.register_whole(image, nominal, search, (0.0, 0.0));
+        };
+        let t = Instant::now();
+        let (windows, found) = self.detect_predicted(image, nominal, (rot_deg, trans_m))?;
+        let detect_s = t.elapsed().as_secs_f64();
+        let (corr, detected, foreign) = self.correspondences(&found.detections);
+        let t = Instant::now();
+        let attempt = register(&corr, &self.camera, nominal, &self.options);
+        let register_s = t.elapsed().as_secs_f64();
+        let miss = match &attempt {
+            Ok(r) => self.missed_window(&r.sample_to_camera, &windows, image.width, image.height),
+            Err(e) => Some(format!("no pose from the windows: {e}")),
+        };
+        match (attempt, miss) {
+            (Ok(registration), None) => Ok(FrameRegistration {
+                registration,
+                detections: found.detections,
+                detected,
+                foreign,
+                detect_s,
+                register_s,
+                search: SearchRecord {
+                    windows: windows.len(),
+                    pixels: found.pixels,
+                    frame_pixels,
+                    whole_frame: false,
+                    fallback: None,
+                },
+            }),
+            (_, miss) => {
+                let search = SearchRecord {
+                    windows: windows.len(),
+                    pixels: found.pixels + frame_pixels,
+                    frame_pixels,
+                    whole_frame: true,
+                    fallback: miss,
+                };
+                self.register_whole(image, nominal, search, (detect_s, register_s))
+            }
+        }
+    }
+
+    /// The window tolerance of `MarkerSearch::Predicted { tolerance: None }` (degrees, metres).
+    pub fn learned_tolerance(&self) -> (f64, f64) {
+        let gate = (self.options.max_rotation_deg, self.options.max_translation_m);
+        match self.deviation.get() {
+            None => gate,
+            Some((rot, trans)) => (
+                (LEARNED_FACTOR * rot.to_degrees()).max(LEARNED_FLOOR.0).min(gate.0),
+                (LEARNED_FACTOR * trans).max(LEARNED_FLOOR.1).min(gate.1),
+            ),
+        }
+    }
+
+    /// Remembers how far `registration` is from `nominal` (for the learned windows).
+    pub fn remember(&self, registration: &Registration, nominal: &ScenePose) {
+        let d = crate::refine::difference(&registration.sample_to_camera, &sample_to_camera(nominal));
+        self.deviation.observe(Vector3::new(d[0], d[1], d[2]).norm(), Vector3::new(d[3], d[4], d[5]).norm());
+    }
+
+    /// Whole-frame detection and registration; `spent` (detect, register seconds) is added.
+    fn register_whole(
+        &self,
+        image: &GrayImage,
+        nominal: &ScenePose,
+        search: SearchRecord,
+        spent: (f64, f64),
+    ) -> Result<FrameRegistration, FrameError> {
         let t = Instant::now();
         let detections = detect(image, &self.dictionary, &self.detect)?;
-        let detect_s = t.elapsed().as_secs_f64();
+        let detect_s = spent.0 + t.elapsed().as_secs_f64();
         let (corr, detected, foreign) = self.correspondences(&detections);
         let t = Instant::now();
         let registration = register(&corr, &self.camera, nominal, &self.options)
             .map_err(|source| FrameError::Register { detected: detected.clone(), source })?;
-        Ok(FrameRegistration { registration, detected, foreign, detect_s, register_s: t.elapsed().as_secs_f64() })
+        let register_s = spent.1 + t.elapsed().as_secs_f64();
+        Ok(FrameRegistration { registration, detections, detected, foreign, detect_s, register_s, search })
+    }
+
+    /// A plate marker that the measured pose `s2c` puts inside the image (clear of the
+    /// detector's border margin) but inside no search window: the prediction missed it.
+    fn missed_window(&self, s2c: &Isometry3<f64>, windows: &[Window], width: usize, height: usize) -> Option<String> {
+        let m = self.detect.border_margin_px as f64;
+        let in_image =
+            |p: &Point2<f64>| p.x >= m && p.y >= m && p.x <= width as f64 - 1.0 - m && p.y <= height as f64 - 1.0 - m;
+        for marker in &self.markers {
+            let corners: Option<Vec<Point2<f64>>> = marker
+                .corners_sample_m
+                .iter()
+                .map(|c| self.camera.project(&(s2c * Point3::new(c.x, c.y, 0.0))))
+                .collect();
+            let Some(corners) = corners else { continue };
+            if !corners.iter().all(in_image) {
+                continue;
+            }
+            // Two pixels inside a window's sides: the dark border's blur must not reach them.
+            let inside = |w: &Window, p: &Point2<f64>| {
+                p.x >= w.x0 as f64 + 2.0
+                    && p.y >= w.y0 as f64 + 2.0
+                    && p.x <= w.x1 as f64 - 3.0
+                    && p.y <= w.y1 as f64 - 3.0
+            };
+            if !windows.iter().any(|w| corners.iter().all(|p| inside(w, p))) {
+                return Some(format!("marker {} measured outside the search windows", marker.id));
+            }
+        }
+        None
+    }
+}
+
+/// Merges overlapping windows whose union is no larger than the two together, so that no
+/// pixel is searched twice where one window does as well.
+fn merge_windows(mut windows: Vec<Window>) -> Vec<Window> {
+    loop {
+        let mut merged = false;
+        'outer: for i in 0..windows.len() {
+            for j in i + 1..windows.len() {
+                let u = windows[i].union(&windows[j]);
+                if u.area() <= windows[i].area() + windows[j].area() {
+                    windows[i] = u;
+                    windows.swap_remove(j);
+                    merged = true;
+                    break 'outer;
+                }
+            }
+        }
+        if !merged {
+            return windows;
+        }
     }
 }

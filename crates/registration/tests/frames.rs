@@ -9,7 +9,7 @@ use btfrig_core::Direction;
 use btfrig_imaging::demosaic::demosaic_bilinear;
 use btfrig_imaging::Region;
 use btfrig_markers::GrayImage;
-use btfrig_registration::{texel_position_error, PlateRegistrar, RegisterOptions};
+use btfrig_registration::{texel_position_error, MarkerSearch, PlateRegistrar, RegisterOptions};
 use btfrig_render::material::MaterialSpec;
 use btfrig_render::renderer::RenderOptions;
 use btfrig_render::rig_scene::RigScene;
@@ -41,6 +41,7 @@ fn rendered_frames_register_within_the_acceptance() {
     let region = Region::centred_square(cfg.plate.sample_side_m);
     let opts = RenderOptions::default();
     let exposure = scene.exposure_for_white(0.5, 1e-4, 30.0);
+    let mut searched = Vec::new();
     for view in [(0.0, 0.0), (45.0, 90.0), (75.0, 90.0)] {
         let (cmd, truth) = joints(&scene, view);
         let (raw, _) = scene.capture(&truth, 1.0, exposure, 1.0, 11, &opts).unwrap();
@@ -64,5 +65,67 @@ fn rendered_frames_register_within_the_acceptance() {
         let (mean_bound, max_bound) = (0.02, 0.05);
         assert!(mean < mean_bound && max < max_bound, "view {view:?}: {mean} / {max}");
         assert!(mean < nmean / 3.0);
+        assert!(r.search.fallback.is_none() && !r.search.whole_frame, "{:?}", r.search);
+        searched.push(r.search.pixels as f64 / r.search.frame_pixels as f64);
+    }
+    // The first frame's windows hold the estimator's gate (2 deg, 10 mm); the later ones 3x
+    // the deviation seen (0.1 deg on every joint: a few tenths of a degree, no shift: the
+    // floor of 1 mm), so they cover far less of the frame.
+    let (rot, trans) = registrar.learned_tolerance();
+    println!("searched fraction per view {searched:.3?}; learned tolerance {rot:.3} deg / {:.2} mm", trans * 1e3);
+    assert!(rot < 1.0 && trans < 0.002, "{rot} deg, {trans} m");
+    assert!(searched[1] < 0.6 * searched[0] && searched[2] < 0.6 * searched[0], "{searched:?}");
+}
+
+#[test]
+fn predicted_windows_register_as_the_whole_frame_does_and_fall_back_when_they_miss() {
+    let (cfg, scene) = scene("lacquered-wood");
+    let cam = scene.camera().model().clone();
+    let predicted = PlateRegistrar::new(cam.clone(), &cfg.plate, RegisterOptions::default()).unwrap();
+    assert_eq!(predicted.search, MarkerSearch::Predicted { tolerance: None }, "the default");
+    let mut whole = predicted.clone();
+    whole.search = MarkerSearch::WholeFrame;
+    // Windows for a sample within 0.001 deg / 0.01 mm of the nominal pose; the nominal pose's
+    // sample is moved 8 mm (inside the estimator's 10 mm gate, about 32 px in the image), so
+    // these windows miss and the default ones do not.
+    let mut tight = predicted.clone();
+    tight.search = MarkerSearch::Predicted { tolerance: Some((0.001, 1e-5)) };
+    let opts = RenderOptions::default();
+    let exposure = scene.exposure_for_white(0.5, 1e-4, 30.0);
+    for view in [(0.0, 0.0), (75.0, 90.0)] {
+        let (cmd, truth) = joints(&scene, view);
+        let (raw, _) = scene.capture(&truth, 1.0, exposure, 1.0, 11, &opts).unwrap();
+        let green: Vec<f32> = demosaic_bilinear(&raw).data.iter().map(|p| p[1]).collect();
+        let img = GrayImage::new(raw.width, raw.height, &green).unwrap();
+        let mut nominal = scene.pose(&cmd);
+        nominal.sample_to_world.translation.vector += nalgebra::Vector3::new(0.008, 0.0, 0.0);
+        let w = whole.register_image(&img, &nominal).unwrap();
+        let p = predicted.register_image(&img, &nominal).unwrap();
+        let t = tight.register_image(&img, &nominal).unwrap();
+        let s = &p.search;
+        println!(
+            "view {view:?}: {} windows, {:.1} % of the frame, detect {:.1} ms (whole frame {:.1} ms); tight: {:?}",
+            s.windows,
+            100.0 * s.pixels as f64 / s.frame_pixels as f64,
+            p.detect_s * 1e3,
+            w.detect_s * 1e3,
+            t.search.fallback
+        );
+        assert!(w.search.whole_frame && w.search.windows == 0 && w.search.fallback.is_none());
+        assert!(!s.whole_frame && s.windows > 0 && s.fallback.is_none(), "{s:?}");
+        assert!(s.pixels * 2 < s.frame_pixels, "the windows cover less than half the frame: {s:?}");
+        // Within its window a marker is found as in the whole frame: same markers, same pose.
+        for r in [&p, &t] {
+            assert_eq!(r.detected, w.detected);
+            let d = btfrig_registration::refine::difference(
+                &r.registration.sample_to_camera,
+                &w.registration.sample_to_camera,
+            );
+            assert!(d.norm() < 1e-9, "view {view:?}: pose differs by {d:?}");
+        }
+        // The tight windows missed: the whole frame was searched, and the record says why.
+        assert!(t.search.whole_frame, "{:?}", t.search);
+        assert!(t.search.fallback.as_deref().is_some_and(|f| f.contains("window")), "{:?}", t.search);
+        assert!(t.search.pixels > t.search.frame_pixels);
     }
 }

@@ -62,37 +62,175 @@ pub struct Detection {
     pub quality: Quality,
 }
 
+/// A rectangle of pixels to search: columns `x0..x1`, rows `y0..y1` (ends exclusive).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Window {
+    /// First column.
+    pub x0: usize,
+    /// First row.
+    pub y0: usize,
+    /// One past the last column.
+    pub x1: usize,
+    /// One past the last row.
+    pub y1: usize,
+}
+
+impl Window {
+    /// The window `x0..x1` x `y0..y1`.
+    pub fn new(x0: usize, y0: usize, x1: usize, y1: usize) -> Self {
+        Window { x0, y0, x1, y1 }
+    }
+
+    /// The whole of `image`.
+    pub fn all(image: &GrayImage) -> Self {
+        Window { x0: 0, y0: 0, x1: image.width, y1: image.height }
+    }
+
+    /// Pixels in the window.
+    pub fn area(&self) -> usize {
+        self.x1.saturating_sub(self.x0) * self.y1.saturating_sub(self.y0)
+    }
+
+    /// The window cut to an image of `width` x `height` (empty if it lies outside).
+    pub fn clipped(&self, width: usize, height: usize) -> Self {
+        let (x1, y1) = (self.x1.min(width), self.y1.min(height));
+        Window { x0: self.x0.min(x1), y0: self.y0.min(y1), x1, y1 }
+    }
+
+    /// The smallest window holding both.
+    pub fn union(&self, other: &Window) -> Self {
+        Window {
+            x0: self.x0.min(other.x0),
+            y0: self.y0.min(other.y0),
+            x1: self.x1.max(other.x1),
+            y1: self.y1.max(other.y1),
+        }
+    }
+
+    /// Whether the point `(x, y)` (pixel coordinates, integer = centre) lies inside.
+    pub fn contains(&self, x: f64, y: f64) -> bool {
+        x >= self.x0 as f64 && y >= self.y0 as f64 && x <= self.x1 as f64 - 1.0 && y <= self.y1 as f64 - 1.0
+    }
+}
+
+/// What a search of windows found and did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct WindowSearch {
+    /// The markers, as [`detect`] reports them.
+    pub detections: Vec<Detection>,
+    /// Pixels thresholded and scanned (overlaps counted twice).
+    pub pixels: usize,
+    /// Dark regions dropped because they reached a window's side inside the image: something
+    /// there continues beyond the window, so the window cannot tell whether it is a marker.
+    pub cut_by_window: usize,
+}
+
 /// Finds the markers of `dict` in `image`. Markers touching the border (within
 /// [`DetectParams::border_margin_px`]), regions that are not clean quads, and quads whose
 /// border is not black or whose code is farther than [`DetectParams::max_hamming`] from
 /// every code are rejected. Each id is reported at most once (the best fit wins).
 pub fn detect(image: &GrayImage, dict: &Dictionary, params: &DetectParams) -> Result<Vec<Detection>, DetectError> {
     params.validate(image)?;
-    let dark = threshold(image, params);
+    let all = Window::all(image);
     let parity = match params.green_sites {
-        GreenSites::All => None,
+        GreenSites::Auto => demosaic_green_parity(image, &[all], 8),
+        g => fixed_parity(g),
+    };
+    let mut out = Vec::new();
+    for d in search_window(image, dict, params, parity, all).0 {
+        keep_best(&mut out, d);
+    }
+    out.sort_by_key(|d| d.id);
+    Ok(out)
+}
+
+/// Finds the markers of `dict` inside `windows` only (each clipped to the image), the windows
+/// searched in parallel. A marker region lying wholly inside a window, clear of the window's
+/// sides, is found exactly as [`detect`] finds it on the whole image: the threshold's local
+/// mean reads the image beyond the window, and the corner fits read the image, not the
+/// window. A region reaching a window's side inside the image is dropped and counted
+/// ([`WindowSearch::cut_by_window`]): the caller's windows must hold each marker with a margin.
+/// With [`GreenSites::Auto`] the demosaic is recognised from the windows' pixels.
+pub fn detect_in_windows(
+    image: &GrayImage,
+    dict: &Dictionary,
+    params: &DetectParams,
+    windows: &[Window],
+) -> Result<WindowSearch, DetectError> {
+    use rayon::prelude::*;
+    params.validate(image)?;
+    let windows: Vec<Window> =
+        windows.iter().map(|w| w.clipped(image.width, image.height)).filter(|w| w.area() > 0).collect();
+    let parity = match params.green_sites {
+        // Every second row of the windows: a window around a marker holds a few thousand
+        // non-flat pixels, the recogniser needs 1000.
+        GreenSites::Auto => demosaic_green_parity(image, &windows, 2),
+        g => fixed_parity(g),
+    };
+    let found: Vec<(Vec<Detection>, usize)> =
+        windows.par_iter().map(|&win| search_window(image, dict, params, parity, win)).collect();
+    let mut out = Vec::new();
+    let mut cut_by_window = 0;
+    for (dets, cut) in found {
+        cut_by_window += cut;
+        for d in dets {
+            keep_best(&mut out, d);
+        }
+    }
+    out.sort_by_key(|d| d.id);
+    Ok(WindowSearch { detections: out, pixels: windows.iter().map(Window::area).sum(), cut_by_window })
+}
+
+fn fixed_parity(g: GreenSites) -> Option<usize> {
+    match g {
         GreenSites::Even => Some(0),
         GreenSites::Odd => Some(1),
-        GreenSites::Auto => demosaic_green_parity(image),
-    };
+        GreenSites::All | GreenSites::Auto => None,
+    }
+}
+
+/// Adds `d` to `out` unless a better fit of the same id is there.
+fn keep_best(out: &mut Vec<Detection>, d: Detection) {
+    match out.iter_mut().find(|o| o.id == d.id) {
+        Some(o) => {
+            if score(&d) < score(o) {
+                *o = d;
+            }
+        }
+        None => out.push(d),
+    }
+}
+
+/// Steps 1 to 6 inside `win`: the detections (an id may repeat) and the number of regions
+/// dropped for reaching a side of `win` that is not the image's border.
+fn search_window(
+    image: &GrayImage,
+    dict: &Dictionary,
+    params: &DetectParams,
+    parity: Option<usize>,
+    win: Window,
+) -> (Vec<Detection>, usize) {
+    let dark = threshold(image, params, win);
     let (w, h) = (image.width, image.height);
+    let (ww, wh) = (win.x1 - win.x0, win.y1 - win.y0);
     let max_side = params.max_side_frac * w.min(h) as f64;
-    let mut seen = vec![false; w * h];
+    let mut seen = vec![false; ww * wh];
     let mut stack = Vec::new();
     let mut pixels: Vec<(u32, u32)> = Vec::new();
     let mut out: Vec<Detection> = Vec::new();
-    for start in 0..w * h {
+    let mut cut = 0;
+    for start in 0..ww * wh {
         if !dark[start] || seen[start] {
             continue;
         }
-        // Flood fill (8-connected) of one dark region.
+        // Flood fill (8-connected) of one dark region, in window coordinates.
         pixels.clear();
         stack.push(start);
         seen[start] = true;
         let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
         while let Some(i) = stack.pop() {
-            let (x, y) = (i % w, i / w);
-            pixels.push((x as u32, y as u32));
+            let (x, y) = (i % ww, i / ww);
+            pixels.push(((x + win.x0) as u32, (y + win.y0) as u32));
             x0 = x0.min(x);
             x1 = x1.max(x);
             y0 = y0.min(y);
@@ -100,10 +238,10 @@ pub fn detect(image: &GrayImage, dict: &Dictionary, params: &DetectParams) -> Re
             for dy in -1i64..=1 {
                 for dx in -1i64..=1 {
                     let (nx, ny) = (x as i64 + dx, y as i64 + dy);
-                    if nx < 0 || ny < 0 || nx >= w as i64 || ny >= h as i64 {
+                    if nx < 0 || ny < 0 || nx >= ww as i64 || ny >= wh as i64 {
                         continue;
                     }
-                    let j = ny as usize * w + nx as usize;
+                    let j = ny as usize * ww + nx as usize;
                     if dark[j] && !seen[j] {
                         seen[j] = true;
                         stack.push(j);
@@ -111,6 +249,16 @@ pub fn detect(image: &GrayImage, dict: &Dictionary, params: &DetectParams) -> Re
                 }
             }
         }
+        // A region at a side of the window that is not the image's may continue outside.
+        if (x0 == 0 && win.x0 > 0)
+            || (y0 == 0 && win.y0 > 0)
+            || (x1 + 1 == ww && win.x1 < w)
+            || (y1 + 1 == wh && win.y1 < h)
+        {
+            cut += 1;
+            continue;
+        }
+        let (x0, x1, y0, y1) = (x0 + win.x0, x1 + win.x0, y0 + win.y0, y1 + win.y0);
         let (bw, bh) = ((x1 - x0 + 1) as f64, (y1 - y0 + 1) as f64);
         if bw.max(bh) < params.min_side_px || bw.max(bh) > max_side * 1.5 || bw.min(bh) < 3.0 {
             continue;
@@ -120,18 +268,10 @@ pub fn detect(image: &GrayImage, dict: &Dictionary, params: &DetectParams) -> Re
             continue;
         }
         if let Some(d) = candidate(image, dict, params, parity, &pixels) {
-            match out.iter_mut().find(|o| o.id == d.id) {
-                Some(o) => {
-                    if score(&d) < score(o) {
-                        *o = d;
-                    }
-                }
-                None => out.push(d),
-            }
+            out.push(d);
         }
     }
-    out.sort_by_key(|d| d.id);
-    Ok(out)
+    (out, cut)
 }
 
 /// Finds the markers in a raw frame: the edges are fitted on its green photosites (on every
