@@ -260,6 +260,10 @@ fn demo_runs_the_default_plan_into_a_verified_dataset_and_refuses_to_overwrite()
     let e = fails(btfrig().args(["demo", "--out"]).arg(&out));
     assert!(e.contains("not empty"), "{e}");
     assert_eq!(before, std::fs::read(out.join("report.json")).unwrap(), "nothing overwritten");
+    // The same demo through a GenICam camera, compared with this one (one direct demo for both:
+    // each takes about a minute).
+    #[cfg(feature = "genicam")]
+    genicam_demo_gives_the_direct_demo_textures(&dir, &out, &v);
 }
 
 #[test]
@@ -1018,14 +1022,11 @@ fn texture_hashes(dataset: &Path) -> std::collections::BTreeMap<String, String> 
 
 /// `btfrig demo --rig gonio-genicam --json` (the demo with its camera behind a real GenICam
 /// stream, GigE Vision on loopback, in a network namespace with only `lo`) writes the same
-/// textures as the direct demo, and its report shows the GenICam path's cost.
+/// textures as the direct demo `d` wrote into `direct`, and its report shows the GenICam path's
+/// cost. Called by the demo test.
 #[cfg(feature = "genicam")]
-#[test]
-fn genicam_demo_gives_the_direct_demo_textures() {
-    let dir = scratch("genicam-demo");
-    let (direct, genicam) = (dir.join("direct"), dir.join("genicam"));
-    let d: serde_json::Value =
-        serde_json::from_str(ok(btfrig().args(["demo", "--json", "--out"]).arg(&direct)).trim()).unwrap();
+fn genicam_demo_gives_the_direct_demo_textures(dir: &Path, direct: &Path, d: &serde_json::Value) {
+    let genicam = dir.join("genicam");
     let o = Command::new("unshare")
         .args(["--net", "--", "sh", "-c", "ip link set lo up && exec \"$0\" \"$@\""])
         .arg(env!("CARGO_BIN_EXE_btfrig"))
@@ -1036,7 +1037,7 @@ fn genicam_demo_gives_the_direct_demo_textures() {
     assert!(o.status.success(), "{}", text(&o));
     let g: serde_json::Value = serde_json::from_str(String::from_utf8_lossy(&o.stdout).trim()).unwrap();
     assert_eq!((d["captures"].as_u64(), g["captures"].as_u64()), (Some(60), Some(60)));
-    let (dt, gt) = (texture_hashes(&direct), texture_hashes(&genicam));
+    let (dt, gt) = (texture_hashes(direct), texture_hashes(&genicam));
     assert_eq!(dt.len(), 60);
     assert_eq!(gt, dt, "texture hashes differ between the GenICam and the direct demo");
     let report: serde_json::Value =
