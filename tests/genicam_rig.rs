@@ -19,7 +19,7 @@ mod support;
 
 use std::collections::BTreeSet;
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
+use std::process::Child;
 use std::time::{Duration, Instant};
 
 use support::http::{Daemon, AUTH};
@@ -84,12 +84,7 @@ capture_timeout_s = 5
 
 /// Starts the fake camera on 127.0.0.1 and waits until it answers on its control channel.
 fn start_camera() -> Child {
-    let child = Command::new("arv-fake-gv-camera-0.8")
-        .args(["-i", "127.0.0.1", "-s", SERIAL])
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("arv-fake-gv-camera-0.8 (Debian's aravis-tools; tests/install-deps.sh installs it)");
+    let child = netns::spawn_fake_gv(SERIAL);
     let t0 = Instant::now();
     loop {
         let o = btfrig().args(["hw", "probe", "--genicam", "127.0.0.1"]).output().unwrap();

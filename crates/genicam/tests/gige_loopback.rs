@@ -6,7 +6,7 @@
 mod support;
 
 use std::net::Ipv4Addr;
-use std::process::{Child, Command, Stdio};
+use std::process::Child;
 use std::time::{Duration, Instant};
 
 use btfrig_genicam::{
@@ -19,12 +19,7 @@ const LOOPBACK: Ipv4Addr = Ipv4Addr::LOCALHOST;
 
 /// Starts `arv-fake-gv-camera-0.8` on 127.0.0.1 and waits until it answers (an open succeeds).
 fn start_fake_gv() -> Child {
-    let child = Command::new("arv-fake-gv-camera-0.8")
-        .args(["-i", "127.0.0.1", "-s", "GV01"])
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("arv-fake-gv-camera-0.8 (Debian's aravis-tools; tests/install-deps.sh installs it)");
+    let child = support::spawn_fake_gv("GV01");
     let t0 = Instant::now();
     loop {
         match GenicamCamera::open(OpenOptions::new(Target::Address(LOOPBACK))) {

@@ -40,12 +40,7 @@ fn a_new_client_takes_over_from_a_killed_one() {
         return;
     }
     support::assert_loopback_only();
-    let mut fake = Command::new("arv-fake-gv-camera-0.8")
-        .args(["-i", "127.0.0.1", "-s", "TAKEOVER"])
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("arv-fake-gv-camera-0.8 (Debian's aravis-tools)");
+    let mut fake = support::spawn_fake_gv("TAKEOVER");
     std::thread::sleep(Duration::from_millis(500));
     let mut first = Command::new(std::env::current_exe().unwrap())
         .args(["a_new_client_takes_over_from_a_killed_one", "--exact", "--nocapture"])

@@ -5,7 +5,7 @@
 
 #![allow(dead_code)]
 
-use std::process::Command;
+use std::process::{Child, Command, Stdio};
 
 const INSIDE: &str = "BTFRIG_GENICAM_NETNS";
 
@@ -41,4 +41,15 @@ pub fn assert_loopback_only() {
     let dev = std::fs::read_to_string("/proc/self/net/dev").unwrap();
     let links: Vec<&str> = dev.lines().skip(2).filter_map(|l| l.split(':').next()).map(str::trim).collect();
     assert_eq!(links, ["lo"], "network interfaces in the test's namespace");
+}
+
+/// Starts Aravis's GigE Vision fake camera (`arv-fake-gv-camera-0.8`, Debian's aravis-tools)
+/// on 127.0.0.1 with `serial`; the caller waits until it answers.
+pub fn spawn_fake_gv(serial: &str) -> Child {
+    Command::new("arv-fake-gv-camera-0.8")
+        .args(["-i", "127.0.0.1", "-s", serial])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("arv-fake-gv-camera-0.8 (Debian's aravis-tools; tests/install-deps.sh installs it)")
 }
