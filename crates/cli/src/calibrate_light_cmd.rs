@@ -38,15 +38,14 @@ pub struct CalibrateLightArgs {
 pub fn light(a: &CalibrateLightArgs) -> anyhow::Result<()> {
     let t0 = Instant::now();
     let cfg = crate::rig::load(a.rig.as_deref())?;
-    let rig_name = a.rig.as_ref().map_or("<embedded bonn-gonio-sim>".to_string(), |p| p.display().to_string());
-    let (plan, plan_name) = match &a.plan {
-        None => (LightPlan::default_plan(), "<embedded rig-configs/plans/calibration-light.toml>".to_string()),
-        Some(p) => {
-            let text = std::fs::read_to_string(p)
-                .with_context(|| format!("cannot read light calibration plan {}", p.display()))?;
-            (LightPlan::from_toml(&text, &p.display().to_string())?, p.display().to_string())
-        }
-    };
+    let rig_name = crate::rig::display_name(a.rig.as_deref());
+    let (plan, plan_name) = crate::rig::plan_or_default(
+        a.plan.as_deref(),
+        "light calibration plan",
+        LightPlan::default_plan,
+        "<embedded rig-configs/plans/calibration-light.toml>",
+        LightPlan::from_toml,
+    )?;
     let seed = a.seed.unwrap_or(cfg.rig.seed);
     let source = format!(
         "btfrig calibrate light --rig {rig_name} --plan {plan_name} --seed {seed}: rig {}, {} frames captured through \

@@ -40,14 +40,14 @@ pub struct CalibrateRadiometricArgs {
 pub fn run(a: &CalibrateRadiometricArgs) -> anyhow::Result<()> {
     let t0 = Instant::now();
     let cfg = crate::rig::load(a.rig.as_deref())?;
-    let rig_name = a.rig.as_ref().map_or("<embedded bonn-gonio-sim>".to_string(), |p| p.display().to_string());
-    let plan = match &a.plan {
-        None => RadiometricPlan::default_plan(),
-        Some(p) => {
-            let text = std::fs::read_to_string(p).with_context(|| format!("cannot read plan {}", p.display()))?;
-            RadiometricPlan::from_toml(&text, &p.display().to_string())?
-        }
-    };
+    let rig_name = crate::rig::display_name(a.rig.as_deref());
+    let (plan, plan_name) = crate::rig::plan_or_default(
+        a.plan.as_deref(),
+        "plan",
+        RadiometricPlan::default_plan,
+        "<embedded>",
+        RadiometricPlan::from_toml,
+    )?;
     let seed = a.seed.unwrap_or(cfg.rig.seed);
     if !a.json {
         println!(
@@ -75,7 +75,6 @@ pub fn run(a: &CalibrateRadiometricArgs) -> anyhow::Result<()> {
     let header_path = a.out.join(btfrig_calibrate::dark_flat::HEADER_FILE);
     let text =
         std::fs::read_to_string(&header_path).with_context(|| format!("cannot read {}", header_path.display()))?;
-    let plan_name = a.plan.as_ref().map_or("<embedded>".to_string(), |p| p.display().to_string());
     std::fs::write(
         &header_path,
         format!(

@@ -39,18 +39,14 @@ pub struct CalibrateSensorArgs {
 pub fn sensor(a: &CalibrateSensorArgs) -> anyhow::Result<()> {
     let t0 = Instant::now();
     let cfg = crate::rig::load(a.rig.as_deref())?;
-    let rig_name = a.rig.as_ref().map_or("<embedded bonn-gonio-sim>".to_string(), |p| p.display().to_string());
-    let (plan, plan_name) = match &a.plan {
-        None => (SensorPlan::default_plan(), "<embedded rig-configs/plans/calibration-sensor.toml>".to_string()),
-        Some(p) => {
-            let text =
-                std::fs::read_to_string(p).with_context(|| format!("cannot read sensor plan {}", p.display()))?;
-            (
-                SensorPlan::from_toml(&text, &p.display().to_string()).map_err(anyhow::Error::msg)?,
-                p.display().to_string(),
-            )
-        }
-    };
+    let rig_name = crate::rig::display_name(a.rig.as_deref());
+    let (plan, plan_name) = crate::rig::plan_or_default(
+        a.plan.as_deref(),
+        "sensor plan",
+        SensorPlan::default_plan,
+        "<embedded rig-configs/plans/calibration-sensor.toml>",
+        SensorPlan::from_toml,
+    )?;
     let seed = a.seed.unwrap_or(cfg.rig.seed);
     let json = a.json;
     let session = CalibrationSession::installed(&cfg, seed);

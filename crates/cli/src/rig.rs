@@ -51,6 +51,29 @@ pub fn builtin(path: &Path) -> Option<&'static str> {
     })
 }
 
+/// How a command names its `--rig` in output and file headers: the path as given, or the
+/// embedded default.
+pub fn display_name(path: Option<&Path>) -> String {
+    path.map_or("<embedded bonn-gonio-sim>".to_string(), |p| p.display().to_string())
+}
+
+/// A calibration plan from `--plan`: the file at `path` read and parsed by `parse` (text,
+/// origin), or without one `default()` named `default_name`; with the name headers use.
+/// `what` names the plan in the read error.
+pub fn plan_or_default<P, E: std::fmt::Display>(
+    path: Option<&Path>,
+    what: &str,
+    default: impl FnOnce() -> P,
+    default_name: &str,
+    parse: impl FnOnce(&str, &str) -> Result<P, E>,
+) -> anyhow::Result<(P, String)> {
+    let Some(p) = path else { return Ok((default(), default_name.to_string())) };
+    let text = std::fs::read_to_string(p).with_context(|| format!("cannot read {what} {}", p.display()))?;
+    let origin = p.display().to_string();
+    let plan = parse(&text, &origin).map_err(|e| anyhow::anyhow!("{e}"))?;
+    Ok((plan, origin))
+}
+
 /// Whether every device of `cfg` is simulated (`kind = "sim"`): only then may a command
 /// print error figures against the simulator's truth.
 pub fn all_simulated(cfg: &RigConfig) -> bool {

@@ -101,9 +101,8 @@ fn rig_geometry_lowers_the_nominal_pose_error_of_a_rig_with_offset_joints() {
         .unwrap();
     // What the markers see: pan - rail, tilt, roll.
     let truth = [0.4 - 0.1, -0.3, 0.25];
-    for k in 0..3 {
-        let (e, s) = (f.offsets.robot_deg[k], f.robot_sigma_deg[k]);
-        assert!((e - truth[k]).abs() < 4.0 * s + 0.01, "offset {k}: {e} +- {s}, truth {}", truth[k]);
+    for (k, ((e, s), t)) in f.offsets.robot_deg.iter().zip(&f.robot_sigma_deg).zip(truth).enumerate() {
+        assert!((e - t).abs() < 4.0 * s + 0.01, "offset {k}: {e} +- {s}, truth {t}");
     }
     assert!(f.fit.rms_after_deg < 0.5 * f.fit.rms_before_deg, "{:?}", f.fit);
     // The same rig processing with the file.
