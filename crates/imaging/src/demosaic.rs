@@ -36,33 +36,22 @@ pub fn demosaic_bilinear(raw: &RawFrame) -> CameraRgbImage {
 const ROWS_PER_JOB: usize = 32;
 
 /// The bilinear demosaic of the mosaic `value(y * w + x)`, every pixel exactly as
-/// [`bilinear_pixel`] computes it: inside the border each channel's neighbours are summed in
-/// the same (row-major) order from rows normalised once per job, without per-neighbour
-/// channel lookups; the border pixels go through [`bilinear_pixel`] itself.
+/// [`bilinear_pixel`] computes it: inside the border each channel's neighbours (a pair, a
+/// cross or the diagonals) are summed in the same row-major order from rows normalised once
+/// per job, without per-neighbour channel lookups; the border pixels go through
+/// [`bilinear_pixel`] itself.
 fn bilinear(w: usize, h: usize, bayer: Option<BayerPattern>, value: impl Fn(usize) -> f32 + Sync) -> Vec<[f32; 3]> {
     let mut data = vec![[0.0f32; 3]; w * h];
     let Some(bayer) = bayer else {
         data.par_iter_mut().enumerate().for_each(|(i, o)| *o = [value(i); 3]);
         return data;
     };
-    // Per parity class `(x % 2) + 2 (y % 2)` and channel: the 3x3 offsets (dy, dx) of that
-    // channel's photosites, in the row-major order the sums take.
-    let offsets: [[Vec<(usize, usize)>; 3]; 4] = std::array::from_fn(|k| {
-        std::array::from_fn(|c| {
-            let (px, py) = (2 + k % 2, 2 + k / 2);
-            (0..3)
-                .flat_map(|dy| (0..3).map(move |dx| (dy, dx)))
-                .filter(|&(dy, dx)| bayer.channel_at(px + dx - 1, py + dy - 1) == c)
-                .collect()
-        })
-    });
     data.par_chunks_mut((ROWS_PER_JOB * w).max(1)).enumerate().for_each(|(job, rows)| {
         let y0 = job * ROWS_PER_JOB;
         let n = rows.len() / w.max(1);
         // Normalised rows y0 - 1 ..= y0 + n (those inside the image).
         let (ya, yb) = (y0.saturating_sub(1), (y0 + n + 1).min(h));
         let norm: Vec<f32> = (ya * w..yb * w).map(&value).collect();
-        let at = |x: usize, y: usize| norm[(y - ya) * w + x];
         for (r, row) in rows.chunks_mut(w).enumerate() {
             let y = y0 + r;
             if y == 0 || y + 1 == h || w < 3 {
@@ -78,20 +67,26 @@ fn bilinear(w: usize, h: usize, bayer: Option<BayerPattern>, value: impl Fn(usiz
                 &norm[(y - ya) * w..(y + 1 - ya) * w],
                 &norm[(y + 1 - ya) * w..(y + 2 - ya) * w],
             );
-            let lines = [up, mid, down];
+            // On a Bayer mosaic a green site has its two other channels as a horizontal and a
+            // vertical pair, a red or blue site has green as a cross and the other as the
+            // diagonals; the sums run from 0 in the row-major order of `bilinear_pixel`.
             for (x, out) in row.iter_mut().enumerate().take(w - 1).skip(1) {
-                let class = &offsets[(x & 1) + 2 * (y & 1)];
                 let own = bayer.channel_at(x, y);
-                for c in 0..3 {
-                    out[c] = if c == own {
-                        at(x, y)
-                    } else {
-                        let mut sum = 0.0f32;
-                        for &(dy, dx) in &class[c] {
-                            sum += lines[dy][x + dx - 1];
-                        }
-                        sum / class[c].len() as f32
-                    };
+                let (l, c, r) = (mid[x - 1], mid[x], mid[x + 1]);
+                let (u, d) = (up[x], down[x]);
+                if own == 1 {
+                    let horizontal = (0.0 + l + r) / 2.0;
+                    let vertical = (0.0 + u + d) / 2.0;
+                    let hc = bayer.channel_at(x + 1, y);
+                    out[1] = c;
+                    out[hc] = horizontal;
+                    out[2 - hc] = vertical;
+                } else {
+                    let cross = (0.0 + u + l + r + d) / 4.0;
+                    let diagonal = (0.0 + up[x - 1] + up[x + 1] + down[x - 1] + down[x + 1]) / 4.0;
+                    out[own] = c;
+                    out[1] = cross;
+                    out[2 - own] = diagonal;
                 }
             }
         }
