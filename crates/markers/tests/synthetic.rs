@@ -279,8 +279,8 @@ fn windows_find_what_the_whole_frame_finds_and_drop_what_they_cut() {
     }
     assert_eq!(found.pixels, around.iter().map(Window::area).sum::<usize>());
     // A window ending in the middle of marker 23, and one over the bar's middle.
-    let cut = detect_in_windows(&g, &dict, &p, &[Window::new(220, 90, 290, 235), Window::new(200, 240, 300, 290)])
-        .unwrap();
+    let cut =
+        detect_in_windows(&g, &dict, &p, &[Window::new(220, 90, 290, 235), Window::new(200, 240, 300, 290)]).unwrap();
     assert!(cut.detections.is_empty(), "{:?}", cut.detections);
     assert!(cut.cut_by_window >= 2, "cut regions counted: {}", cut.cut_by_window);
     // Windows past the image are clipped; a window covering the frame is the whole frame.
