@@ -55,6 +55,9 @@ pub enum RigSceneError {
     Scene(#[from] SceneError),
 }
 
+/// One pixel's subsample rays, computed on first use.
+type SubsampleRays = OnceLock<Vec<Vector3<f64>>>;
+
 /// A camera model with its pixel rays and vignetting cached for integer pixel centres:
 /// undistortion is an iteration per pixel, too slow to repeat for every frame.
 #[derive(Debug, Clone)]
@@ -65,7 +68,7 @@ pub struct CachedCamera {
     interpolate: bool,
     /// Per pixel, its subsample rays once computed, for one supersampling factor
     /// ([`CachedCamera::caching_subsamples`]).
-    subsamples: Option<(usize, Vec<OnceLock<Vec<Vector3<f64>>>>)>,
+    subsamples: Option<(usize, Vec<SubsampleRays>)>,
 }
 
 impl CachedCamera {
