@@ -51,7 +51,10 @@ impl DomeScene {
     pub fn new(cfg: &RigConfig, material: &MaterialSpec) -> Result<DomeScene, RigSceneError> {
         cfg.validate()?;
         let dome = cfg.require_dome("a dome scene")?.clone();
-        let camera = CachedCamera::new(cfg.camera.to_model()?);
+        // Every LED's image of a view comes from the same camera: its marker-edge subsample
+        // rays are worth keeping.
+        let ss = RenderOptions::default().marker_supersampling as usize;
+        let camera = CachedCamera::new(cfg.camera.to_model()?).caching_subsamples(ss);
         let sensor = SensorModel::from_config(&cfg.sensor)?;
         let colour = ColourSystem::from_config(&cfg.lamp, &cfg.sensor)?;
         let k = electrons_per_second_scale(&cfg.camera, &cfg.sensor, &cfg.lamp, &colour);

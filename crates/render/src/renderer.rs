@@ -41,6 +41,25 @@ pub trait PixelRays: Sync {
     /// Used only to bound the region to render, with a margin; need not be exact to more
     /// than a pixel.
     fn project(&self, p: &Vector3<f64>) -> Option<[f64; 2]>;
+    /// Appends to `out` the rays of pixel `(x, y)`'s `ss x ss` subsample points (the
+    /// renderer's marker-edge supersampling, see [`subpixel_rays`]). A camera that renders
+    /// many frames may cache them; the rays must be exactly [`subpixel_rays`]'s.
+    fn subpixel_rays(&self, x: usize, y: usize, ss: usize, out: &mut Vec<Vector3<f64>>) {
+        subpixel_rays(self, x, y, ss, out);
+    }
+}
+
+/// Appends to `out` the rays through pixel `(x, y)`'s `ss x ss` subsample points, row by
+/// row: offsets `(i + 0.5) / ss - 0.5` pixels from its centre (a box filter, like a photosite).
+pub fn subpixel_rays<R: PixelRays + ?Sized>(rays: &R, x: usize, y: usize, ss: usize, out: &mut Vec<Vector3<f64>>) {
+    let (fx, fy) = (x as f64, y as f64);
+    for sy in 0..ss {
+        for sx in 0..ss {
+            let ox = (sx as f64 + 0.5) / ss as f64 - 0.5;
+            let oy = (sy as f64 + 0.5) / ss as f64 - 0.5;
+            out.push(rays.ray(fx + ox, fy + oy));
+        }
+    }
 }
 
 /// An ideal pinhole camera without distortion or vignetting (for tests and tools).
@@ -238,6 +257,7 @@ impl Renderer {
                 if y < y_range.0 || y >= y_range.1 {
                     return st;
                 }
+                let mut sub = Vec::new();
                 for (x, px) in row.iter_mut().enumerate().take(x_range.1).skip(x_range.0) {
                     let (fx, fy) = (x as f64, y as f64);
                     let d = frame.rot * rays.ray(fx, fy);
@@ -248,22 +268,20 @@ impl Renderer {
                     if let Hit::Plate(p, _) = hit {
                         if ss > 1 && self.scene.layout.marker_edge_distance(p.x, p.y, pixel_radius) < pixel_radius {
                             let mut acc = [0.0; 3];
-                            for sy in 0..ss {
-                                for sx in 0..ss {
-                                    let ox = (sx as f64 + 0.5) / ss as f64 - 0.5;
-                                    let oy = (sy as f64 + 0.5) / ss as f64 - 0.5;
-                                    let ds = frame.rot * rays.ray(fx + ox, fy + oy);
-                                    let (s, _) = self.radiance_and_hit(
-                                        &frame.origin,
-                                        &ds,
-                                        &frame.lamp,
-                                        ColourSpace::Camera,
-                                        opts.skips,
-                                        &mut st,
-                                    );
-                                    for c in 0..3 {
-                                        acc[c] += s[c];
-                                    }
+                            sub.clear();
+                            rays.subpixel_rays(x, y, ss, &mut sub);
+                            for r in &sub {
+                                let ds = frame.rot * r;
+                                let (s, _) = self.radiance_and_hit(
+                                    &frame.origin,
+                                    &ds,
+                                    &frame.lamp,
+                                    ColourSpace::Camera,
+                                    opts.skips,
+                                    &mut st,
+                                );
+                                for c in 0..3 {
+                                    acc[c] += s[c];
                                 }
                             }
                             v = acc.map(|a| a / (ss * ss) as f64);

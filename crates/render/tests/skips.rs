@@ -78,3 +78,33 @@ fn skips_on_and_off_give_the_same_image() {
         eprintln!("{}: bit-identical = {identical}", spec.name);
     }
 }
+
+/// A dome's camera keeps its marker-edge subsample rays between frames
+/// (`CachedCamera::caching_subsamples`): a saving, so every LED's image is bit for bit the
+/// uncached camera's, the first time (filling the cache) and again (from it).
+#[test]
+fn cached_subsample_rays_give_the_same_dome_images() {
+    use btfrig_core::config::RigConfig;
+    use btfrig_render::rig_scene::CachedCamera;
+    let text = btfrig_core::plan::BUILTIN_RIGS.iter().find(|(n, _)| *n == "builtin:bonn-dome-sim").unwrap().1;
+    let cfg = RigConfig::from_toml(text, "bonn-dome-sim").unwrap();
+    let dome = cfg.require_dome("the test").unwrap();
+    let spec = MaterialSpec::builtin("leather").unwrap().with_texels(128);
+    let r = Renderer::new(&cfg.plate, &spec, 1000.0, &resolver).unwrap();
+    let opts = RenderOptions::default();
+    let plain = CachedCamera::new(cfg.camera.to_model().unwrap());
+    let cached = plain.clone().caching_subsamples(opts.marker_supersampling as usize);
+    for pass in ["filling the cache", "from the cache"] {
+        for (c, turn, led) in [(4, 0.0, 0), (4, 0.0, 57), (4, 0.0, 197), (0, 1.2, 100), (9, 2.5, 23)] {
+            let pose = dome.scene_pose(c, turn, led);
+            let (a, _) = r.render_with_stats(&pose, &plain, &opts);
+            let (b, _) = r.render_with_stats(&pose, &cached, &opts);
+            assert!(a.max_value() > 0.0);
+            assert!(a.data == b.data, "camera {c}, turntable {turn}, LED {led}, {pass}: images differ");
+            // Marker edges were supersampled (the image differs from one ray per pixel), so
+            // the cache was used.
+            let one = r.render(&pose, &plain, &RenderOptions { marker_supersampling: 1, ..opts });
+            assert!(one.data != a.data, "camera {c}, turntable {turn}, LED {led}: no marker edge supersampled");
+        }
+    }
+}
