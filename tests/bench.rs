@@ -68,3 +68,31 @@ fn twelve_megapixel_rig_validates_and_images_the_same_field_of_view() {
     let w = |c: &RigConfig| c.sensor.pixel_pitch_um * c.camera.width_px as f64;
     assert!((w(&big) - w(&base)).abs() < 1e-9);
 }
+
+/// The first number after `key` on the line that contains it.
+fn figure_after(stdout: &str, key: &str) -> f64 {
+    let line = stdout.lines().find(|l| l.contains(key)).unwrap_or_else(|| panic!("no {key:?} in:\n{stdout}"));
+    let rest = &line[line.find(key).unwrap() + key.len()..];
+    rest.split(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .find(|t| !t.is_empty())
+        .and_then(|t| t.parse().ok())
+        .unwrap_or_else(|| panic!("no number after {key:?} in {line:?}"))
+}
+
+/// `btfrig bench pipeline` on one view of the default rig: every stage has its row, the frame
+/// registers in the predicted windows to a small error against the truth, and the fast HDR
+/// merge uses the same exposures as the reference merge and gives the same rates.
+#[test]
+fn bench_pipeline_runs_and_reports_stages_errors_and_the_hdr_merge() {
+    let stdout = ok(btfrig().args(["bench", "pipeline", "--views", "45,90", "--size", "32", "--repeat", "1"]));
+    for stage in ["demosaic", "marker detection", "registration / homography", "rectification", "total"] {
+        assert!(stdout.lines().any(|l| l.starts_with(stage)), "no {stage:?} row:\n{stdout}");
+    }
+    assert!(stdout.contains("1 of 1 frame(s) searched in predicted windows (0 fell back"), "{stdout}");
+    let texel = figure_after(&stdout, "against the truth: btfrig texel ");
+    let corner = figure_after(&stdout, "corner RMS ");
+    assert!(texel < 0.005 && corner < 0.07, "texel {texel}, corner RMS {corner} px:\n{stdout}");
+    assert!(stdout.contains("same exposures used true"), "{stdout}");
+    let diff = figure_after(&stdout, "largest relative difference ");
+    assert!(diff < 1e-6, "the fast HDR merge differs from the reference by {diff}:\n{stdout}");
+}

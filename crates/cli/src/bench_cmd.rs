@@ -82,22 +82,30 @@ fn fmt(v: f64, prec: usize) -> String {
     }
 }
 
+/// The views (degrees) and rigs a frame benchmark runs on: `views` or the defaults, `rigs` (each
+/// by its path) or the embedded simulated gonioreflectometer.
+pub(crate) fn views_and_rigs(
+    views: &[btfrig_core::Direction],
+    default_views: &[(f64, f64)],
+    rigs: &[std::path::PathBuf],
+) -> anyhow::Result<(Vec<(f64, f64)>, Vec<(String, RigConfig)>)> {
+    let views = if views.is_empty() {
+        default_views.to_vec()
+    } else {
+        views.iter().map(|d| (d.theta.to_degrees(), d.phi.to_degrees())).collect()
+    };
+    let rigs = if rigs.is_empty() {
+        vec![("bonn-gonio-sim (embedded)".into(), crate::rig::load(None)?)]
+    } else {
+        rigs.iter().map(|p| Ok((p.display().to_string(), crate::rig::load(Some(p))?))).collect::<anyhow::Result<_>>()?
+    };
+    Ok((views, rigs))
+}
+
 /// Runs the benchmark and prints the tables.
 pub fn registration(a: &BenchRegistrationArgs) -> anyhow::Result<()> {
     anyhow::ensure!((1..=100).contains(&a.repeat), "--repeat {}: allowed 1..=100", a.repeat);
-    let views: Vec<(f64, f64)> = if a.views.is_empty() {
-        DEFAULT_VIEWS.to_vec()
-    } else {
-        a.views.iter().map(|d| (d.theta.to_degrees(), d.phi.to_degrees())).collect()
-    };
-    let rigs: Vec<(String, RigConfig)> = if a.rig.is_empty() {
-        vec![("bonn-gonio-sim (embedded)".into(), crate::rig::load(None)?)]
-    } else {
-        a.rig
-            .iter()
-            .map(|p| Ok((p.display().to_string(), crate::rig::load(Some(p))?)))
-            .collect::<anyhow::Result<_>>()?
-    };
+    let (views, rigs) = crate::bench_cmd::views_and_rigs(&a.views, &DEFAULT_VIEWS, &a.rig)?;
     let material = crate::material::load(Some(&a.material))?;
     let mut python = if a.opencv {
         match python_with_opencv() {

@@ -9,7 +9,6 @@ use anyhow::Context;
 use btfrig_bench::opencv::{python_with_opencv, run_opencv};
 use btfrig_bench::pipeline::{capture_floor_s, hdr, memory_pass, run_ours, Stages};
 use btfrig_bench::registration::{Agg, Bench};
-use btfrig_core::config::RigConfig;
 
 /// `btfrig bench pipeline`.
 #[derive(Debug, clap::Args)]
@@ -56,19 +55,7 @@ fn add(a: &mut Stages, b: &Stages, n: f64) {
 pub fn bench(a: &BenchPipelineArgs) -> anyhow::Result<()> {
     anyhow::ensure!((1..=100).contains(&a.repeat), "--repeat {}: allowed 1..=100", a.repeat);
     anyhow::ensure!(a.hdr_ratio > 1.0 && a.hdr_ratio <= 1000.0, "--hdr-ratio {}: allowed (1, 1000]", a.hdr_ratio);
-    let views: Vec<(f64, f64)> = if a.views.is_empty() {
-        DEFAULT_VIEWS.to_vec()
-    } else {
-        a.views.iter().map(|d| (d.theta.to_degrees(), d.phi.to_degrees())).collect()
-    };
-    let rigs: Vec<(String, RigConfig)> = if a.rig.is_empty() {
-        vec![("bonn-gonio-sim (embedded)".into(), crate::rig::load(None)?)]
-    } else {
-        a.rig
-            .iter()
-            .map(|p| Ok((p.display().to_string(), crate::rig::load(Some(p))?)))
-            .collect::<anyhow::Result<_>>()?
-    };
+    let (views, rigs) = crate::bench_cmd::views_and_rigs(&a.views, &DEFAULT_VIEWS, &a.rig)?;
     let material = crate::material::load(Some(&a.material))?;
     let python = if a.opencv {
         match python_with_opencv() {
