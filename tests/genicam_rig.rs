@@ -75,7 +75,7 @@ format = "exr-half"
 [skip]
 max_captures = {CAPTURES}
 [run]
-max_retries = 1
+max_retries = 2
 backoff_s = 0.5
 capture_timeout_s = 5
 "#
@@ -152,9 +152,9 @@ fn a_genicam_camera_over_gige_and_serial_firmware_on_the_wall_clock_survive_paus
     assert_eq!(r.status, 201, "{}", r.text());
     let id = r.json()["id"].as_str().unwrap().to_string();
     let s = d.wait_run(&id, "viewer-token", 120, "capturing", |s| {
-        s["done"].as_u64().unwrap_or(0) >= 2 || s["state"] == "failed"
+        s["done"].as_u64().unwrap_or(0) >= 2 || s["state"] == "failed" || s["state"] == "paused"
     });
-    assert_ne!(s["state"], "failed", "{s}");
+    assert_eq!(s["state"], "running", "the run stopped before its second capture: {s}");
     let p = d.post(&format!("/api/v1/runs/{id}/pause"), "operator-ada", "");
     assert_eq!(p.status, 200, "{}", p.text());
     let paused = d.wait_run(&id, "viewer-token", 60, "paused", |s| s["state"] == "paused");
@@ -183,13 +183,13 @@ fn a_genicam_camera_over_gige_and_serial_firmware_on_the_wall_clock_survive_paus
     assert_eq!(r.status, 201, "{}", r.text());
     let id = r.json()["id"].as_str().unwrap().to_string();
     let s = d.wait_run(&id, "viewer-token", 180, "capturing after the daemon's restart", |s| {
-        s["done"].as_u64().unwrap_or(0) as usize >= killed_at + 2 || s["state"] == "failed"
+        s["done"].as_u64().unwrap_or(0) as usize >= killed_at + 2 || s["state"] == "failed" || s["state"] == "paused"
     });
-    assert_ne!(s["state"], "failed", "{s}");
+    assert_eq!(s["state"], "running", "the run stopped after the daemon's restart: {s}");
     kill(camera);
     let lost_at = Instant::now();
     // A retry, then a clear paused state naming the camera, within the retry budget: the
-    // 180 s bound only catches a hang (the retry and its reconnect take ~10 s here).
+    // 180 s bound only catches a hang (the retries and their reconnects take ~10-30 s here).
     let faulted = d.wait_run(&id, "viewer-token", 180, "paused on the lost camera", |s| s["state"] == "paused");
     let lost_s = lost_at.elapsed().as_secs_f64();
     let message = faulted["message"].as_str().unwrap_or_default();
@@ -198,7 +198,7 @@ fn a_genicam_camera_over_gige_and_serial_firmware_on_the_wall_clock_survive_paus
         "the pause does not name the camera: {faulted}"
     );
     let warnings = faulted["warnings"].to_string();
-    assert!(warnings.contains("retry 1 of 1"), "no retry before the pause: {faulted}");
+    assert!(warnings.contains("retry 1 of 2"), "no retry before the pause: {faulted}");
     let done_at_loss = faulted["done"].as_u64().unwrap() as usize;
     assert!(done_at_loss < CAPTURES, "{faulted}");
     // Paused on the fault stays paused while the camera is away.

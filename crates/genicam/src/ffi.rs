@@ -131,7 +131,7 @@ unsafe extern "C" fn fill(
     // are plain getters on it.
     let (feed, width, height, target) = unsafe {
         let mut size = 0usize;
-        let target = aravis_sys::arv_buffer_get_data(buffer, &mut size) as *mut u8;
+        let target = aravis_sys::arv_buffer_get_data(buffer, &mut size);
         (
             &*(data as *const Feed),
             aravis_sys::arv_buffer_get_image_width(buffer),
