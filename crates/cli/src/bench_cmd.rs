@@ -82,6 +82,15 @@ fn fmt(v: f64, prec: usize) -> String {
     }
 }
 
+/// The Python with OpenCV when `--opencv` asks for it; without it (a note printed) the
+/// benchmark runs btfrig's side only.
+pub(crate) fn opencv_if_asked(opencv: bool) -> Option<std::process::Command> {
+    if !opencv {
+        return None;
+    }
+    python_with_opencv().map_err(|why| println!("OpenCV not available ({why}); running without it")).ok()
+}
+
 /// The views (degrees) and rigs a frame benchmark runs on: `views` or the defaults, `rigs` (each
 /// by its path) or the embedded simulated gonioreflectometer.
 pub(crate) fn views_and_rigs(
@@ -107,17 +116,7 @@ pub fn registration(a: &BenchRegistrationArgs) -> anyhow::Result<()> {
     anyhow::ensure!((1..=100).contains(&a.repeat), "--repeat {}: allowed 1..=100", a.repeat);
     let (views, rigs) = crate::bench_cmd::views_and_rigs(&a.views, &DEFAULT_VIEWS, &a.rig)?;
     let material = crate::material::load(Some(&a.material))?;
-    let mut python = if a.opencv {
-        match python_with_opencv() {
-            Ok(p) => Some(p),
-            Err(why) => {
-                println!("OpenCV not available ({why}); running without it");
-                None
-            }
-        }
-    } else {
-        None
-    };
+    let mut python = crate::bench_cmd::opencv_if_asked(a.opencv);
     let mut opencv_version = None;
     println!(
         "registration benchmark: {} view(s) {:?} (light 45,0), {}x{} texels over the sample, material {}, seed {}, \

@@ -6,7 +6,7 @@
 use std::process::Command;
 
 use anyhow::Context;
-use btfrig_bench::opencv::{python_with_opencv, run_opencv};
+use btfrig_bench::opencv::run_opencv;
 use btfrig_bench::pipeline::{capture_floor_s, hdr, memory_pass, run_ours, Stages};
 use btfrig_bench::registration::{Agg, Bench};
 
@@ -57,17 +57,7 @@ pub fn bench(a: &BenchPipelineArgs) -> anyhow::Result<()> {
     anyhow::ensure!(a.hdr_ratio > 1.0 && a.hdr_ratio <= 1000.0, "--hdr-ratio {}: allowed (1, 1000]", a.hdr_ratio);
     let (views, rigs) = crate::bench_cmd::views_and_rigs(&a.views, &DEFAULT_VIEWS, &a.rig)?;
     let material = crate::material::load(Some(&a.material))?;
-    let python = if a.opencv {
-        match python_with_opencv() {
-            Ok(p) => Some(p),
-            Err(why) => {
-                println!("OpenCV not available ({why}); running without it");
-                None
-            }
-        }
-    } else {
-        None
-    };
+    let python = crate::bench_cmd::opencv_if_asked(a.opencv);
     println!(
         "pipeline benchmark: {} view(s) {:?} (light 45,0), {}x{} texels, material {}, seed {}, median of {} repeat(s), \
          {} rayon threads",
