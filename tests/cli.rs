@@ -833,7 +833,12 @@ fn demo_rig_camera_array_multiplexes_all_151_flashes_end_to_end() {
     assert!(std::path::Path::new(v["compression_model"].as_str().unwrap()).is_file(), "{v}");
     ok(btfrig().args(["dataset", "verify"]).arg(&out));
     // The human summary names the flashes, and gonio-only commands refuse the array by name.
+    // With GenICam, this second run has its three cameras behind real GenICam streams and gives
+    // the first run's textures.
+    #[cfg(not(feature = "genicam"))]
     let text = ok(btfrig().args(["demo", "--rig", "camera-array", "--out"]).arg(dir.join("run2")));
+    #[cfg(feature = "genicam")]
+    let text = genicam_camera_array_demo_gives_the_direct_demo_textures(&dir, &out);
     assert!(text.contains("camera-array plan: 151 flashes x 3 views; multiplexing with s-matrix 151"), "{text}");
     assert!(text.contains("453 (151 flashes x 3 views)"), "{text}");
     let e = fails(btfrig().args(["kinematics", "check", "--rig", "camera-array"]));
@@ -1018,6 +1023,60 @@ fn texture_hashes(dataset: &Path) -> std::collections::BTreeMap<String, String> 
             )
         })
         .collect()
+}
+
+/// The camera array's demo with each of its three cameras a GenICam camera: Aravis's GigE
+/// Vision fake cameras fed by the simulator, one per camera position at its own loopback
+/// address (`link.addresses`, 151 of them), in a network namespace whose `lo` holds the three
+/// addresses the demo plan's cameras 0, 31 and 103 use. Its textures equal the direct demo's
+/// in `direct`. Returns the run's human summary.
+#[cfg(feature = "genicam")]
+fn genicam_camera_array_demo_gives_the_direct_demo_textures(dir: &Path, direct: &Path) -> String {
+    let cfg = include_str!("../rig-configs/bonn-camera-array-sim.toml");
+    let address = |position: usize| format!("127.0.{}.{}", (position + 2) / 256, (position + 2) % 256);
+    let addresses: Vec<String> = (0..151).map(|p| format!("{:?}", address(p))).collect();
+    let camera = format!(
+        "[devices.camera]\nkind = \"genicam\"\nlink = {{ emulated = true, addresses = [{}], pixel_format = \"BayerRG16\", serial = \"BTFARRAY\" }}",
+        addresses.join(", ")
+    );
+    assert!(cfg.contains("[devices.camera]\nkind = \"sim\""));
+    let rig = dir.join("camera-array-genicam.toml");
+    std::fs::write(&rig, cfg.replace("[devices.camera]\nkind = \"sim\"", &camera)).unwrap();
+    let lo: Vec<String> = [0, 31, 103].iter().map(|&p| format!("ip addr add {}/8 dev lo", address(p))).collect();
+    let genicam = dir.join("genicam");
+    let o = Command::new("unshare")
+        .args(["--net", "--", "sh", "-c", &format!("ip link set lo up && {} && exec \"$0\" \"$@\"", lo.join(" && "))])
+        .arg(env!("CARGO_BIN_EXE_btfrig"))
+        .args(["demo", "--rig"])
+        .arg(&rig)
+        .arg("--out")
+        .arg(&genicam)
+        .output()
+        .expect("unshare (util-linux) runs; it needs root or CAP_SYS_ADMIN");
+    assert!(o.status.success(), "{}", text(&o));
+    let (dt, gt) = (texture_hashes(direct), texture_hashes(&genicam));
+    assert_eq!((dt.len(), gt.len()), (453, 453));
+    let differ: Vec<&String> =
+        dt.iter().filter(|(name, hash)| gt.get(*name) != Some(hash)).map(|(name, _)| name).collect();
+    assert!(
+        differ.is_empty(),
+        "{} of 453 textures differ between the GenICam and the direct camera-array demo, first {:?}",
+        differ.len(),
+        &differ[..differ.len().min(5)]
+    );
+    // The report shows what each camera's GenICam link cost.
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(genicam.join("report.json")).unwrap()).unwrap();
+    let cameras: Vec<&serde_json::Value> =
+        report["links"].as_array().expect("links").iter().filter(|l| l["role"] == "camera").collect();
+    assert_eq!(cameras.len(), 3, "{}", report["links"]);
+    for (c, address) in cameras.iter().zip(["127.0.0.2", "127.0.0.33", "127.0.0.105"]) {
+        println!("camera-array GenICam link: {c}");
+        assert!(c["target"].as_str().unwrap().starts_with(&format!("GenICam {address} ")), "{c}");
+        assert_eq!(c["dropped_buffers"], 0, "{c}");
+        assert!(c["exchanges"].as_u64().unwrap() >= 151, "{c}");
+    }
+    String::from_utf8_lossy(&o.stdout).into_owned()
 }
 
 /// `btfrig demo --rig gonio-genicam --json` (the demo with its camera behind a real GenICam

@@ -67,7 +67,7 @@ pub fn probe(
     let devices = btfrig_sim_backend::probe(&cfg).map_err(anyhow::Error::msg)?;
     let mut failed = Vec::new();
     for d in &devices {
-        if d.role == "camera" && camera.is_some() {
+        if d.role == "camera" && !camera.is_empty() {
             // The simulated twin the probe opened in the GenICam camera's place.
             continue;
         }
@@ -85,7 +85,7 @@ pub fn probe(
             failed.push(format!("devices.{}{link}: {f}", d.role));
         }
     }
-    if let Some((line, failure)) = camera {
+    for (line, failure) in camera {
         println!("  camera    kind genicam {line}");
         failed.extend(failure);
     }
@@ -180,13 +180,16 @@ fn genicam_cameras(addresses: &[Ipv4Addr], discover: bool) -> anyhow::Result<()>
 fn rig_genicam_camera(
     cfg: &btfrig_core::config::RigConfig,
 ) -> anyhow::Result<(btfrig_core::config::RigConfig, RigCamera)> {
-    let camera = btfrig_genicam_backend::probe_rig_camera(cfg).map_err(anyhow::Error::msg)?;
+    let cameras = btfrig_genicam_backend::probe_rig_camera(cfg).map_err(anyhow::Error::msg)?;
     let rest = btfrig_genicam_backend::without_genicam_camera(cfg).map_err(anyhow::Error::msg)?;
     Ok((
         rest,
-        camera.as_ref().map(|c| {
-            (describe(c), c.info.as_ref().err().map(|e| format!("devices.camera on GenICam {}: {e}", c.target)))
-        }),
+        cameras
+            .iter()
+            .map(|c| {
+                (describe(c), c.info.as_ref().err().map(|e| format!("devices.camera on GenICam {}: {e}", c.target)))
+            })
+            .collect(),
     ))
 }
 
@@ -194,8 +197,8 @@ fn rig_genicam_camera(
 fn rig_genicam_camera(
     cfg: &btfrig_core::config::RigConfig,
 ) -> anyhow::Result<(btfrig_core::config::RigConfig, RigCamera)> {
-    Ok((cfg.clone(), None))
+    Ok((cfg.clone(), Vec::new()))
 }
 
 /// A rig's GenICam camera as `hw probe` saw it: its line, and why it failed.
-type RigCamera = Option<(String, Option<String>)>;
+type RigCamera = Vec<(String, Option<String>)>;

@@ -114,7 +114,7 @@ async fn front_dome(rig: &RigConfig, opened: OpenedDome) -> Result<OpenedDome, R
         devices: DomeDevices { turntable, leds, cameras, clock },
         truth,
         // Dropped in order: the firmware first, then what the inner backend keeps.
-        links: Box::new((firmware, links)),
+        links: Box::new(Links { firmware, _inner: links }),
     })
 }
 

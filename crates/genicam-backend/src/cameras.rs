@@ -29,20 +29,31 @@ pub(crate) struct Links {
     pub(crate) _fake: Option<Arc<FedFakeCamera>>,
 }
 
+impl Costs {
+    /// The camera's link as the report shows it.
+    pub(crate) fn link_use(&self, role: &'static str, target: String) -> LinkUse {
+        LinkUse {
+            role,
+            target,
+            exchanges: self.frames.load(Ordering::Relaxed),
+            bytes_out: 0,
+            bytes_in: self.bytes.load(Ordering::Relaxed),
+            wall_s: self.wall_s(),
+            wire_s: None,
+            dropped_buffers: Some(self.dropped.load(Ordering::Relaxed)),
+        }
+    }
+
+    /// Wall time spent in the camera's calls, s.
+    pub(crate) fn wall_s(&self) -> f64 {
+        self.wall_ns.load(Ordering::Relaxed) as f64 * 1e-9
+    }
+}
+
 impl LinkReport for Links {
     fn link_use(&self) -> Vec<LinkUse> {
         let mut v = self.inner.link_use();
-        let c = &self.costs;
-        v.push(LinkUse {
-            role: "camera",
-            target: self.target.clone(),
-            exchanges: c.frames.load(Ordering::Relaxed),
-            bytes_out: 0,
-            bytes_in: c.bytes.load(Ordering::Relaxed),
-            wall_s: c.wall_ns.load(Ordering::Relaxed) as f64 * 1e-9,
-            wire_s: None,
-            dropped_buffers: Some(c.dropped.load(Ordering::Relaxed)),
-        });
+        v.push(self.costs.link_use("camera", self.target.clone()));
         v
     }
 
@@ -51,7 +62,7 @@ impl LinkReport for Links {
     }
 
     fn camera_coding_wall_s(&self) -> Option<f64> {
-        Some(self.costs.wall_ns.load(Ordering::Relaxed) as f64 * 1e-9)
+        Some(self.costs.wall_s())
     }
 
     fn count(&self) -> usize {

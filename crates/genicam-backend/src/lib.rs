@@ -19,20 +19,22 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use async_trait::async_trait;
+use btfrig_acquire::dome::DomeDevices;
 use btfrig_core::config::RigConfig;
 use btfrig_genicam::{DeviceOptions, FedFakeCamera, GenicamCamera, GenicamDevice, OpenOptions};
-use btfrig_hw::Camera;
+use btfrig_hw::{Camera, SharedClock};
 use btfrig_measurement::backend::{
-    BackendRegistry, CalibrationOpenRequest, GonioOpenRequest, OpenedGonio, OpenedRig, RigBackend, SceneOptions,
+    BackendRegistry, CalibrationOpenRequest, DomeOpenRequest, GonioOpenRequest, LinkReport, LinkUse, OpenedDome,
+    OpenedGonio, OpenedRig, RigBackend, SceneOptions,
 };
 use btfrig_measurement::preflight::{DeviceCheck, Role};
 use btfrig_measurement::RunError;
 
 pub use cameras::FedCamera;
 use cameras::{Costs, Links, Metered};
-use config::inner_rig;
-pub use config::CameraConfig;
-use probe::preflight_camera;
+use config::{inner_rig, rig_sites};
+pub use config::{CameraConfig, CameraSite};
+use probe::preflight_cameras;
 pub use probe::{probe_cameras, probe_rig_camera, without_genicam_camera, ProbedCamera};
 
 pub use btfrig_genicam::Target;
@@ -75,19 +77,26 @@ impl RigBackend for GenicamBackend {
         let (inner_cfg, cfg) = inner_rig(req.rig).map_err(RunError::Rig)?;
         let inner = self.inner.for_rig(&inner_cfg)?;
         let opened = inner.open_gonio(GonioOpenRequest { rig: &inner_cfg, ..req }).await?;
-        with_genicam_camera(&cfg, opened).await
+        with_genicam_camera(req.rig, &cfg, opened).await
+    }
+
+    async fn open_dome(&self, req: DomeOpenRequest<'_>) -> Result<OpenedDome, RunError> {
+        let (inner_cfg, cfg) = inner_rig(req.rig).map_err(RunError::Rig)?;
+        let inner = self.inner.for_rig(&inner_cfg)?;
+        let rig = req.rig;
+        let positions = req.plan.cameras.clone();
+        let opened = inner.open_dome(DomeOpenRequest { rig: &inner_cfg, ..req }).await?;
+        with_genicam_cameras(rig, &cfg, &positions, opened).await
     }
 
     async fn open_calibration(&self, req: CalibrationOpenRequest<'_>) -> Result<OpenedRig, RunError> {
         let (inner_cfg, cfg) = inner_rig(req.rig).map_err(RunError::Rig)?;
         let inner = self.inner.for_rig(&inner_cfg)?;
         match inner.open_calibration(CalibrationOpenRequest { rig: &inner_cfg, ..req }).await? {
-            OpenedRig::Gonio(opened) => Ok(OpenedRig::Gonio(with_genicam_camera(&cfg, opened).await?)),
-            OpenedRig::Dome(_) => Err(RunError::Rig(
-                "devices.camera.kind = \"genicam\": GenICam cameras are opened on gonioreflectometers only so far \
-                 (a dome's cameras are kind = \"sim\" or \"ptp\")"
-                    .into(),
-            )),
+            OpenedRig::Gonio(opened) => Ok(OpenedRig::Gonio(with_genicam_camera(req.rig, &cfg, opened).await?)),
+            OpenedRig::Dome(opened) => {
+                Ok(OpenedRig::Dome(with_genicam_cameras(req.rig, &cfg, req.cameras, opened).await?))
+            }
         }
     }
 
@@ -108,8 +117,10 @@ impl RigBackend for GenicamBackend {
                 return vec![c];
             }
         };
-        if let Some(c) = checks.iter_mut().find(|c| c.role == "camera") {
-            *c = preflight_camera(&cfg);
+        if let Some(at) = checks.iter().position(|c| c.role == "camera") {
+            checks.retain(|c| c.role != "camera");
+            let cameras = preflight_cameras(rig, &cfg);
+            checks.splice(at..at, cameras);
         }
         checks
     }
@@ -129,36 +140,141 @@ impl RigBackend for GenicamBackend {
 }
 
 /// `opened` (the inner backend's devices, its camera the simulated twin) with the GenICam
-/// camera of `cfg` in the twin's place: a fed fake camera serving the twin's frames when
-/// `cfg.emulated`, else the camera at the address, the twin dropped.
-async fn with_genicam_camera(cfg: &CameraConfig, opened: OpenedGonio) -> Result<OpenedGonio, RunError> {
+/// camera of `cfg` in the twin's place.
+async fn with_genicam_camera(
+    rig: &RigConfig,
+    cfg: &CameraConfig,
+    opened: OpenedGonio,
+) -> Result<OpenedGonio, RunError> {
     let OpenedGonio { robot, rail, lamp, camera: twin, clock, truth, links } = opened;
-    let target = cfg.target().map_err(RunError::Rig)?;
+    let site = rig_sites(rig, cfg).map_err(RunError::Rig)?.remove(0);
+    let placed = place_genicam_camera(cfg, &site, "camera".into(), twin, clock.clone()).await?;
+    Ok(OpenedGonio {
+        robot,
+        rail,
+        lamp,
+        camera: placed.camera,
+        clock,
+        truth,
+        links: Box::new(Links { inner: links, costs: placed.costs, target: placed.label, _fake: placed.fake }),
+    })
+}
+
+/// A dome's or camera array's devices with a GenICam camera in each simulated twin's place:
+/// the camera at `positions[i]`'s address replaces the twin `i`. The cameras open in turn
+/// (each open is a few control exchanges; a dome's handful of cameras takes well under a
+/// second).
+async fn with_genicam_cameras(
+    rig: &RigConfig,
+    cfg: &CameraConfig,
+    positions: &[usize],
+    opened: OpenedDome,
+) -> Result<OpenedDome, RunError> {
+    let OpenedDome { devices, truth, links } = opened;
+    let sites = rig_sites(rig, cfg).map_err(RunError::Rig)?;
+    if devices.cameras.len() != positions.len() {
+        return Err(RunError::Rig(format!(
+            "the inner backend opened {} cameras for camera positions {positions:?}",
+            devices.cameras.len()
+        )));
+    }
+    let mut cameras = Vec::with_capacity(positions.len());
+    let mut fakes = Vec::new();
+    let mut meters = Vec::new();
+    for (twin, &position) in devices.cameras.into_iter().zip(positions) {
+        let site = sites.get(position).ok_or_else(|| {
+            RunError::Rig(format!("camera position {position}: the rig has {} camera positions", sites.len()))
+        })?;
+        let placed = place_genicam_camera(cfg, site, format!("camera {position}"), twin, devices.clock.clone()).await?;
+        cameras.push(placed.camera);
+        meters.push((format!("camera {position}"), placed.label, placed.costs));
+        fakes.extend(placed.fake);
+    }
+    Ok(OpenedDome {
+        devices: DomeDevices { cameras, ..devices },
+        truth,
+        links: Box::new(DomeLinks { inner: links, cameras: meters, _fakes: fakes }),
+    })
+}
+
+/// A dome's links: the inner backend's and one per GenICam camera (its position, label and
+/// costs). Dropped in field order: the fed fake cameras last, since they outlive the clients
+/// that stream from them.
+struct DomeLinks {
+    inner: Box<dyn LinkReport>,
+    cameras: Vec<(String, String, Arc<Costs>)>,
+    _fakes: Vec<Arc<FedFakeCamera>>,
+}
+
+impl LinkReport for DomeLinks {
+    fn link_use(&self) -> Vec<LinkUse> {
+        let mut v = self.inner.link_use();
+        v.extend(self.cameras.iter().map(|(_, target, costs)| costs.link_use("camera", target.clone())));
+        v
+    }
+
+    fn skipped_lines(&self) -> Vec<(&'static str, u64)> {
+        self.inner.skipped_lines()
+    }
+
+    fn camera_coding_wall_s(&self) -> Option<f64> {
+        Some(self.cameras.iter().map(|(_, _, c)| c.wall_s()).sum())
+    }
+
+    fn count(&self) -> usize {
+        self.inner.count() + self.cameras.len()
+    }
+}
+
+/// One GenICam camera in its simulated twin's place.
+struct Placed {
+    camera: Box<dyn Camera>,
+    label: String,
+    costs: Arc<Costs>,
+    fake: Option<Arc<FedFakeCamera>>,
+}
+
+/// The GenICam camera of `site` in place of `twin`: a fed fake camera serving the twin's frames
+/// when `cfg.emulated`, else the camera at the address, the twin dropped. `name` is the
+/// device's name in messages.
+async fn place_genicam_camera(
+    cfg: &CameraConfig,
+    site: &CameraSite,
+    name: String,
+    twin: Box<dyn Camera>,
+    clock: SharedClock,
+) -> Result<Placed, RunError> {
+    let target = site.target.clone();
     let format = cfg.format().map_err(RunError::Rig)?;
     let gain_unit = cfg.gain().map_err(RunError::Rig)?;
+    let key = if site.position == 0 && cfg.addresses.is_none() {
+        "devices.camera".to_string()
+    } else {
+        format!("devices.camera (position {})", site.position)
+    };
     // The fed fake camera first, so that the client finds it at the address.
-    let fake = match (&cfg.serial, &target) {
+    let fake = match (&site.serial, &target) {
         (Some(serial), Target::Address(address)) if cfg.emulated => {
-            let (address, serial) = (*address, serial.clone());
+            let (address, serial, k) = (*address, serial.clone(), key.clone());
             let fake = blocking(move || {
-                FedFakeCamera::start(address, &serial).map_err(|e| format!("devices.camera (emulated GenICam): {e}"))
+                FedFakeCamera::start(address, &serial).map_err(|e| format!("{k} (emulated GenICam): {e}"))
             })
             .await?;
             Some(Arc::new(fake))
         }
         _ => None,
     };
-    let t = target.clone();
+    let (t, k) = (target.clone(), key.clone());
     let camera = blocking(move || {
         GenicamCamera::open(OpenOptions { control_timeout: Duration::from_secs(5), ..OpenOptions::new(t.clone()) })
-            .map_err(|e| format!("devices.camera (GenICam {t}): {e}"))
+            .map_err(|e| format!("{k} (GenICam {t}): {e}"))
     })
     .await?;
     let info = camera.info();
-    if let (true, Some(serial)) = (cfg.emulated, &cfg.serial) {
+    if let (true, Some(serial)) = (cfg.emulated, &site.serial) {
         if &info.serial != serial {
             return Err(RunError::Rig(format!(
-                "devices.camera: the camera at {target} has serial {:?}, not the fake camera's {serial:?}: another camera holds the address",
+                "{key}: the camera at {target} has serial {:?}, not the fake camera's {serial:?}: another camera holds the address",
                 info.serial
             )));
         }
@@ -178,7 +294,7 @@ async fn with_genicam_camera(cfg: &CameraConfig, opened: OpenedGonio) -> Result<
         )));
     }
     let options = DeviceOptions {
-        name: "camera".into(),
+        name,
         width: caps.width as u32,
         height: caps.height as u32,
         pixel_format: format,
@@ -190,7 +306,7 @@ async fn with_genicam_camera(cfg: &CameraConfig, opened: OpenedGonio) -> Result<
         gain_unit,
         initial: (settings.exposure_s, settings.gain),
     };
-    let device = GenicamDevice::open(camera, options, clock.clone()).await.map_err(|e| RunError::Rig(e.to_string()))?;
+    let device = GenicamDevice::open(camera, options, clock).await.map_err(|e| RunError::Rig(e.to_string()))?;
     let costs = Arc::new(Costs::default());
     let (camera, label): (Box<dyn Camera>, String) = match &fake {
         Some(f) => {
@@ -221,13 +337,5 @@ async fn with_genicam_camera(cfg: &CameraConfig, opened: OpenedGonio) -> Result<
             )
         }
     };
-    Ok(OpenedGonio {
-        robot,
-        rail,
-        lamp,
-        camera,
-        clock,
-        truth,
-        links: Box::new(Links { inner: links, costs, target: label, _fake: fake }),
-    })
+    Ok(Placed { camera, label, costs, fake })
 }

@@ -7,22 +7,38 @@ use btfrig_genicam::{FedFakeCamera, GenicamCamera, OpenOptions};
 use btfrig_hw::DeviceInfo;
 use btfrig_measurement::preflight::DeviceCheck;
 
-use crate::config::{inner_rig, CameraConfig};
+use crate::config::{inner_rig, rig_sites, CameraConfig, CameraSite};
 use crate::Target;
 
-/// Preflight of the GenICam camera: opened by its address (no streaming), who it says it is
-/// and its temperature. A fed fake camera is served only when the rig is opened: not asked.
-pub(crate) fn preflight_camera(cfg: &CameraConfig) -> DeviceCheck {
-    let mut c = DeviceCheck::unasked("camera", "genicam", "");
-    c.note = None;
-    let target = match cfg.target() {
-        Ok(t) => t,
+/// Preflight of the rig's GenICam cameras (one, or one per camera position of a dome or
+/// camera array, asked in parallel so that absent cameras' timeouts do not add up).
+pub(crate) fn preflight_cameras(rig: &RigConfig, cfg: &CameraConfig) -> Vec<DeviceCheck> {
+    let sites = match rig_sites(rig, cfg) {
+        Ok(s) => s,
         Err(e) => {
-            c.failure = Some(e);
-            return c;
+            let mut c = DeviceCheck::unasked("camera", "genicam", "");
+            (c.note, c.failure) = (None, Some(e));
+            return vec![c];
         }
     };
-    c.port = Some(format!("GenICam {target}"));
+    let dome = rig.dome.is_some();
+    std::thread::scope(|scope| {
+        let jobs: Vec<_> = sites.iter().map(|site| scope.spawn(move || preflight_camera(cfg, site, dome))).collect();
+        jobs.into_iter().map(|j| j.join().expect("a camera preflight panicked")).collect()
+    })
+}
+
+/// Preflight of one GenICam camera: opened by its address (no streaming), who it says it is
+/// and its temperature. A fed fake camera is served only when the rig is opened: not asked.
+fn preflight_camera(cfg: &CameraConfig, site: &CameraSite, dome: bool) -> DeviceCheck {
+    let mut c = DeviceCheck::unasked("camera", "genicam", "");
+    c.note = None;
+    let target = site.target.clone();
+    c.port = Some(if dome {
+        format!("GenICam {target}, camera position {}", site.position)
+    } else {
+        format!("GenICam {target}")
+    });
     if cfg.emulated {
         c.note = Some("emulated: the fed fake camera is served when the rig is opened".into());
         return c;
@@ -100,21 +116,29 @@ pub fn probe_cameras(targets: &[Target], discover: bool) -> Vec<ProbedCamera> {
     out
 }
 
-/// `btfrig hw probe --rig`: the rig's GenICam camera, if its camera is one (a fed fake camera
-/// is served for the probe's duration). `Ok(None)` for a rig of another camera kind.
-pub fn probe_rig_camera(rig: &RigConfig) -> Result<Option<ProbedCamera>, String> {
+/// `btfrig hw probe --rig`: the rig's GenICam cameras, if its camera is one (a dome's or
+/// camera array's: one per camera position; fed fake cameras are served for the probe's
+/// duration). Empty for a rig of another camera kind.
+pub fn probe_rig_camera(rig: &RigConfig) -> Result<Vec<ProbedCamera>, String> {
     if rig.devices.camera.kind != "genicam" {
-        return Ok(None);
+        return Ok(Vec::new());
     }
-    let (cfg, _) = CameraConfig::split(&rig.devices.camera)?;
-    let target = cfg.target()?;
-    let _fake = match (&cfg.serial, &target) {
-        (Some(serial), Target::Address(a)) if cfg.emulated => {
-            Some(FedFakeCamera::start(*a, serial).map_err(|e| format!("devices.camera (emulated GenICam): {e}"))?)
+    let (_, cfg) = inner_rig(rig)?;
+    let sites = rig_sites(rig, &cfg)?;
+    let mut fakes = Vec::new();
+    for site in &sites {
+        if let (Some(serial), Target::Address(a), true) = (&site.serial, &site.target, cfg.emulated) {
+            fakes.push(
+                FedFakeCamera::start(*a, serial).map_err(|e| format!("devices.camera (emulated GenICam {a}): {e}"))?,
+            );
         }
-        _ => None,
-    };
-    Ok(Some(probe_one(target, false)))
+    }
+    let probed = std::thread::scope(|scope| {
+        let jobs: Vec<_> = sites.iter().map(|s| scope.spawn(|| probe_one(s.target.clone(), false))).collect();
+        jobs.into_iter().map(|j| j.join().expect("a camera probe panicked")).collect()
+    });
+    drop(fakes);
+    Ok(probed)
 }
 
 /// The rig with its GenICam camera as the simulated twin the other devices' probe opens

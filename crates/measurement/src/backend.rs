@@ -212,8 +212,9 @@ pub struct OpenedDome {
     pub devices: DomeDevices,
     /// The truth behind the frames: simulated backends only.
     pub truth: Option<Arc<dyn DomeTruthProbe>>,
-    /// Keeps any firmware emulators alive: drop it after the devices.
-    pub links: Box<dyn Send>,
+    /// The links to the devices, for the report (keeps any firmware emulators and fed fake
+    /// cameras alive: drop it after the devices).
+    pub links: Box<dyn LinkReport>,
 }
 
 /// What a calibration puts in the sample's place. On a real rig the operator mounts it when

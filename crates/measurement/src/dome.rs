@@ -519,6 +519,7 @@ pub fn run_controlled(
         preview: req.preview,
         stage_s: BTreeMap::new(),
     });
+    let mut stop_links = Vec::new();
     let outcome: Result<(EngineOutcome, Stop), RunError> = rt.block_on(async {
         let opened = backend
             .open_dome(DomeOpenRequest {
@@ -529,7 +530,7 @@ pub fn run_controlled(
                 time,
             })
             .await?;
-        let OpenedDome { mut devices, truth, links: _links } = opened;
+        let OpenedDome { mut devices, truth, links } = opened;
         // The truth behind the frames, for the report's error figures only (a real rig has none).
         state.truth = truth;
         if let Some(t) = devices.turntable.as_mut() {
@@ -553,6 +554,9 @@ pub fn run_controlled(
         let (c, stop) = tokio::join!(consume, listen);
         let engine = handle.join().await;
         c?;
+        // What each device link cost (a GenICam camera's frames, bytes, wall time and dropped
+        // buffers; serial firmware's exchanges); `links` is dropped after the devices.
+        stop_links = links.link_use();
         Ok((engine, stop))
     });
     // The view groups committed after the engine's last event (the last one always is).
@@ -620,6 +624,9 @@ pub fn run_controlled(
         "preflight".into(),
         preflight.devices.iter().map(crate::preflight::DeviceCheck::to_json).collect::<serde_json::Value>(),
     );
+    if !stop_links.is_empty() {
+        extra.insert("links".into(), stop_links.iter().map(crate::backend::LinkUse::to_json).collect());
+    }
     extra.insert("planning_brightness".into(), json!({ "e_per_s": brightness.e_per_s, "source": brightness.source }));
     // Like the gonio report: every texture of the dataset, and this session's apart.
     extra.insert("captures_this_session".into(), json!(s.textures));

@@ -283,7 +283,7 @@ impl RigBackend for SimBackend {
         Ok(OpenedDome {
             devices: DomeDevices { turntable: dome.turntable, leds: dome.led_array, cameras: dome.cameras, clock },
             truth: Some(truth),
-            links: Box::new(()),
+            links: Box::new(InProcess),
         })
     }
 

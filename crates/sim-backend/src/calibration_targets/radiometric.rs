@@ -76,7 +76,7 @@ pub(super) async fn open_radiometric(req: CalibrationOpenRequest<'_>) -> Result<
             Ok(OpenedRig::Dome(OpenedDome {
                 devices: DomeDevices { turntable: dome.turntable, leds: dome.led_array, cameras: dome.cameras, clock },
                 truth: None,
-                links: Box::new(()),
+                links: Box::new(btfrig_measurement::backend::InProcess),
             }))
         }
         (Some(_), target) => {
@@ -93,7 +93,7 @@ pub(super) async fn open_radiometric(req: CalibrationOpenRequest<'_>) -> Result<
             Ok(OpenedRig::Dome(OpenedDome {
                 devices: DomeDevices { turntable: sim.turntable, leds, cameras: vec![sim.camera], clock },
                 truth: None,
-                links: Box::new(()),
+                links: Box::new(btfrig_measurement::backend::InProcess),
             }))
         }
     }
