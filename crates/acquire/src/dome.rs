@@ -120,7 +120,7 @@ impl Dome {
         };
         let time_s = clock.now_s();
         let cap = DomeCapture { index, step, frames, attempts: c.attempts(index), time_s };
-        if self.frames.send(cap).await.is_err() {
+        if c.frame_queue.send(&self.frames, &clock, cap).await.is_err() {
             return Err(Stop::ConsumerGone);
         }
         c.delivered(index, exposure_s, time_s);

@@ -93,7 +93,8 @@ impl Gonio {
             joints: self.joints[index],
             times,
         };
-        if self.frames.send(cf).await.is_err() {
+        let clock = c.clock.clone();
+        if c.frame_queue.send(&self.frames, &clock, cf).await.is_err() {
             return Err(Stop::ConsumerGone);
         }
         c.delivered(index, exposed, times.transfer_end_s);

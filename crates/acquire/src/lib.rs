@@ -411,6 +411,58 @@ pub struct RunSummary {
     /// receiver counts as one until [`RunHandle::events`] takes it). Events are advisory: the
     /// run and its frames do not depend on them.
     pub events_dropped: u64,
+    /// The frame channel to the consumer, as the engine saw it when delivering.
+    pub frame_queue: FrameQueueFigures,
+}
+
+/// The bounded frame channel between capture and processing, as the engine saw it: how full
+/// it got and how long capture waited because it was full (docs/pipeline.md, "Channels and
+/// back-pressure"). A consumer that keeps up never lets it fill.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct FrameQueueFigures {
+    /// Frames (gonio steps, dome captures) the channel holds at most.
+    pub capacity: usize,
+    /// Frames delivered into it.
+    pub delivered: u64,
+    /// The most frames it held, counted right after each delivery (`capacity`: it filled).
+    pub max_fill: usize,
+    /// Deliveries that found it full and waited for the consumer.
+    pub full_waits: u64,
+    /// Rig-clock seconds those deliveries waited (virtual time does not pass while the
+    /// consumer's blocking work runs, so on a simulated rig only `full_wait_wall_s` counts).
+    pub full_wait_s: f64,
+    /// Wall seconds those deliveries waited.
+    pub full_wait_wall_s: f64,
+}
+
+impl FrameQueueFigures {
+    /// Sends `item` on `tx`, counting the fill and any wait for a free slot; `Err` when the
+    /// consumer is gone.
+    pub(crate) async fn send<T>(
+        &mut self,
+        tx: &mpsc::Sender<T>,
+        clock: &btfrig_hw::SharedClock,
+        item: T,
+    ) -> Result<(), ()> {
+        self.capacity = tx.max_capacity();
+        let permit = match tx.try_reserve() {
+            Ok(p) => p,
+            Err(mpsc::error::TrySendError::Full(())) => {
+                self.full_waits += 1;
+                let (rig, wall) = (clock.now_s(), std::time::Instant::now());
+                let p = tx.reserve().await.map_err(|_| ())?;
+                self.full_wait_s += clock.now_s() - rig;
+                self.full_wait_wall_s += wall.elapsed().as_secs_f64();
+                p
+            }
+            Err(mpsc::error::TrySendError::Closed(())) => return Err(()),
+        };
+        permit.send(item);
+        self.delivered += 1;
+        // Only the engine reserves slots, so the slots taken are the frames waiting.
+        self.max_fill = self.max_fill.max(tx.max_capacity() - tx.capacity());
+        Ok(())
+    }
 }
 
 /// What the engine tells its listeners.

@@ -51,6 +51,7 @@ pub(crate) struct Core {
     pub(crate) pause_req: bool,
     pub(crate) abort_req: bool,
     pub(crate) motion_wait_wall_s: f64,
+    pub(crate) frame_queue: crate::FrameQueueFigures,
     events_dropped: u64,
     exposure_s: f64,
 }
@@ -86,6 +87,7 @@ impl Core {
             pause_req: false,
             abort_req: false,
             motion_wait_wall_s: 0.0,
+            frame_queue: crate::FrameQueueFigures::default(),
             events_dropped: 0,
             exposure_s: 0.0,
         }
@@ -232,6 +234,7 @@ impl Core {
             mean_step_s: if self.measured_n > 0 { self.measured_sum_s / self.measured_n as f64 } else { 0.0 },
             motion_wait_wall_s: self.motion_wait_wall_s,
             events_dropped: self.events_dropped,
+            frame_queue: self.frame_queue,
         }
     }
 

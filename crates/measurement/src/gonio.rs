@@ -253,6 +253,7 @@ fn run_capture(
         link_added_wall_s,
         events_dropped,
         identities,
+        frame_queue,
     } = session?;
     let totals = totals?;
     let mut warnings = warnings;
@@ -291,6 +292,7 @@ fn run_capture(
     summary.links = links;
     summary.processing = Some(processing);
     summary.motion_wait_wall_s = motion_wait_wall_s;
+    summary.frame_queue = Some(frame_queue);
     summary.link_added_wall_s = link_added_wall_s;
     summary.events_dropped = events_dropped;
     summary.rig_time = Some(time);
@@ -424,6 +426,9 @@ fn summarise(
         peak_rss_mib: peak_rss_mib(),
         lamp: None,
         hdr: journal_hdr(dataset, fixed.per_exposure_overhead_s),
+        skips: report::journal_skips(dataset),
+        processing_s_per_capture: report::journal_mean_step_wall_s(dataset),
+        frame_queue: None,
         links: Vec::new(),
         processing: None,
         motion_wait_wall_s: 0.0,
@@ -475,6 +480,8 @@ fn report_of(s: &RunSummary, previous: &[Session], this: &Session, sessions: Vec
             "nominal_max_texel_err": s.nominal_max_texel_err,
         }),
     );
+    put("skips", s.skips.to_json());
+    put("pipeline", s.pipeline_json());
     put("critical_path_s", json!(s.critical_path_s));
     put("naive_order_hardware_s", json!(s.naive_order_hardware_s));
     put("planned_captures", json!(s.planned_captures));
@@ -558,6 +565,8 @@ struct SessionResult {
     events_dropped: u64,
     /// The opened devices' identities by role.
     identities: Vec<(&'static str, btfrig_hw::DeviceInfo)>,
+    /// The frame channel between the engine and the pipeline, as the engine saw it.
+    frame_queue: btfrig_acquire::FrameQueueFigures,
 }
 
 fn fault_of(r: &PauseReason) -> Option<Fault> {
@@ -835,5 +844,6 @@ async fn session(input: SessionInput<'_>) -> Result<SessionResult, RunError> {
             .then(|| summary.motion_wait_wall_s + firmware.camera_coding_wall_s().unwrap_or(0.0)),
         events_dropped,
         identities,
+        frame_queue: summary.frame_queue,
     })
 }

@@ -200,6 +200,125 @@ pub fn journal_poses<S: btfrig_store::Storage>(dataset: &btfrig_store::Dataset<S
     c
 }
 
+/// What processing skipped over the journaled steps, and the time that saved
+/// (`docs/registration.md`, "What the windows save"; `report.json`'s `skips`).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct SkipFigures {
+    /// Steps whose markers were searched (a journaled search record).
+    pub searched: u64,
+    /// Of those, searched in predicted windows only: whole-frame searches avoided.
+    pub in_windows: u64,
+    /// Searched in the whole frame after the windows, by cause (`no-pose`,
+    /// `marker-outside-windows`).
+    pub fallbacks: BTreeMap<String, u64>,
+    /// The first [`FALLBACK_STEPS_LISTED`] fallback steps with their details.
+    pub fallback_steps: Vec<(btfrig_store::StepId, String)>,
+    /// Searched in the whole frame only (the search asked for it).
+    pub whole_frame_only: u64,
+    /// Mean over searched steps of the pixels searched over the frame's pixels.
+    pub mean_searched_fraction: f64,
+    /// Seconds the detections took, over the steps with a whole-frame figure.
+    pub detect_s: f64,
+    /// Seconds whole-frame detections would have taken on the same steps.
+    pub whole_frame_s: f64,
+    /// Searched steps without a whole-frame figure (registered before the reference).
+    pub without_estimate: u64,
+    /// Seconds spent on the run's reference whole-frame search.
+    pub reference_s: f64,
+    /// Frames that did not need their own registration: the further exposures of merged
+    /// HDR brackets, registered once per step.
+    pub registrations_reused: u64,
+    /// Steps with HDR on whose policy took fewer exposures than always bracketing would
+    /// have (`None`: HDR off); their rig time saved is `hdr.hdr_time_saved_s`.
+    pub hdr_brackets_not_needed: Option<u64>,
+}
+
+/// Fallback steps listed by name in [`SkipFigures::fallback_steps`].
+pub const FALLBACK_STEPS_LISTED: usize = 20;
+
+impl SkipFigures {
+    /// `whole_frame_s - detect_s - reference_s`: detection time the windows saved, net of
+    /// the reference search that measured it.
+    pub fn search_time_saved_s(&self) -> f64 {
+        self.whole_frame_s - self.detect_s - self.reference_s
+    }
+
+    /// As `report.json`'s `skips` object.
+    pub fn to_json(&self) -> Value {
+        json!({
+            "marker_searches": self.searched,
+            "whole_frame_searches_avoided": self.in_windows,
+            "search_fallbacks": self.fallbacks,
+            "search_fallback_steps": self.fallback_steps.iter()
+                .map(|(s, d)| json!({"light": s.light, "view": s.view, "reason": d}))
+                .collect::<Vec<_>>(),
+            "whole_frame_only": self.whole_frame_only,
+            "mean_searched_fraction": self.mean_searched_fraction,
+            "detect_s": self.detect_s,
+            "whole_frame_detect_s": self.whole_frame_s,
+            "steps_without_whole_frame_figure": self.without_estimate,
+            "reference_search_s": self.reference_s,
+            "search_time_saved_s": self.search_time_saved_s(),
+            "registrations_reused": self.registrations_reused,
+            "hdr_brackets_not_needed": self.hdr_brackets_not_needed,
+        })
+    }
+}
+
+/// The skip figures of every journaled step (exact across sessions).
+pub fn journal_skips<S: btfrig_store::Storage>(dataset: &btfrig_store::Dataset<S>) -> SkipFigures {
+    let mut f = SkipFigures::default();
+    let mut fraction_sum = 0.0;
+    let mut hdr_steps = 0u64;
+    let mut not_needed = 0u64;
+    for step in dataset.completed() {
+        let Some(r) = dataset.step_record(step) else { continue };
+        if let Some(h) = &r.hdr {
+            hdr_steps += 1;
+            not_needed += u64::from(h.exposures_s.len() < h.always_s.len());
+        }
+        let Some(reg) = &r.registration else { continue };
+        if reg.pose != btfrig_store::PoseSource::NominalByPlan {
+            let exposures = r.hdr.as_ref().map_or(1, |h| h.exposures_s.len());
+            f.registrations_reused += exposures.saturating_sub(1) as u64;
+        }
+        let Some(s) = &reg.search else { continue };
+        f.searched += 1;
+        fraction_sum += s.searched_fraction;
+        match (&s.fallback, s.whole_frame) {
+            (Some(cause), _) => {
+                *f.fallbacks.entry(cause.clone()).or_insert(0) += 1;
+                if f.fallback_steps.len() < FALLBACK_STEPS_LISTED {
+                    f.fallback_steps.push((step, s.fallback_detail.clone().unwrap_or_else(|| cause.clone())));
+                }
+            }
+            (None, true) => f.whole_frame_only += 1,
+            (None, false) => f.in_windows += 1,
+        }
+        f.reference_s += s.reference_s;
+        match s.whole_frame_s {
+            Some(w) => {
+                f.whole_frame_s += w;
+                f.detect_s += s.detect_s;
+            }
+            None => f.without_estimate += 1,
+        }
+    }
+    if f.searched > 0 {
+        f.mean_searched_fraction = fraction_sum / f.searched as f64;
+    }
+    f.hdr_brackets_not_needed = (hdr_steps > 0).then_some(not_needed);
+    f
+}
+
+/// Mean over the journaled steps of their processing wall time (journal timing `wall_s`:
+/// from the frame's arrival in processing to its texture written); `None` without steps.
+pub fn journal_mean_step_wall_s<S: btfrig_store::Storage>(dataset: &btfrig_store::Dataset<S>) -> Option<f64> {
+    let walls: Vec<f64> =
+        dataset.completed().into_iter().filter_map(|s| dataset.step_record(s)).map(|r| r.timing.wall_s).collect();
+    (!walls.is_empty()).then(|| walls.iter().sum::<f64>() / walls.len() as f64)
+}
+
 /// Stage times summed over every journaled step (exact across sessions, killed ones too).
 pub fn journal_stage_s<S: btfrig_store::Storage>(dataset: &btfrig_store::Dataset<S>) -> (BTreeMap<String, f64>, u64) {
     let mut stage_s = BTreeMap::new();

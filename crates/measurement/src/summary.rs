@@ -76,6 +76,14 @@ pub struct RunSummary {
     /// HDR figures over every journaled capture, with HDR on (`[exposure] hdr = "adaptive"`
     /// or `mode = "bracket"`).
     pub hdr: Option<HdrFigures>,
+    /// What processing skipped over every journaled capture, and the time that saved.
+    pub skips: crate::report::SkipFigures,
+    /// Mean wall seconds a journaled capture took to process and write (its journal
+    /// timing's `wall_s`); `None` without captures.
+    pub processing_s_per_capture: Option<f64>,
+    /// This session's frame channel between capture and processing; `None` when no
+    /// session ran the engine.
+    pub frame_queue: Option<btfrig_acquire::FrameQueueFigures>,
     /// This session's cost of each emulated device's link (serial and PTP backends against
     /// emulated firmware); empty on a rig of in-process simulated devices.
     pub links: Vec<backend::LinkUse>,
@@ -139,6 +147,23 @@ impl ProcessingInfo {
 }
 
 impl RunSummary {
+    /// `report.json`'s `pipeline` object: whether processing kept ahead of capture. The
+    /// frame channel's capacity, the most frames it held and the time capture waited on it
+    /// (this session's), and processing per capture against the rig's time per capture.
+    pub fn pipeline_json(&self) -> serde_json::Value {
+        let q = self.frame_queue.unwrap_or_default();
+        json!({
+            "frame_queue_capacity": q.capacity,
+            "frame_queue_max_fill": q.max_fill,
+            "frame_queue_delivered": q.delivered,
+            "frame_queue_full_waits": q.full_waits,
+            "capture_waited_on_full_queue_s": q.full_wait_s,
+            "capture_waited_on_full_queue_wall_s": q.full_wait_wall_s,
+            "processing_s_per_capture": self.processing_s_per_capture,
+            "hardware_s_per_capture": (self.captures > 0).then(|| self.hardware_s / self.captures as f64),
+        })
+    }
+
     /// The summary as one JSON object (the fields `btfrig demo --json` prints).
     pub fn to_json(&self) -> serde_json::Value {
         let mut v = json!({
@@ -174,6 +199,8 @@ impl RunSummary {
             "events_dropped": self.events_dropped,
             "dataset": self.dataset.display().to_string(),
             "processing_notes": self.processing.as_ref().map(|p| p.notes.clone()),
+            "skips": self.skips.to_json(),
+            "pipeline": self.pipeline_json(),
         });
         light::add_summary_fields(&mut v, self.lamp.as_ref());
         if let (Some(c), Some(o)) = (&self.compression, v.as_object_mut()) {

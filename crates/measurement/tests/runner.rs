@@ -144,6 +144,25 @@ fn hidden_markers_fall_back_on_record_or_pause_naming_the_step_and_the_run_resum
     let r = report(&dir);
     assert_eq!(r["registration"]["fallbacks"], 2);
     assert_eq!(r["registration"]["registered"], 10);
+    // Skip counts (issue 27): every frame's markers were searched; the ten that registered
+    // in their predicted windows avoided a whole-frame search, the two covered ones fell
+    // back to it (no pose from the windows) and are listed by step.
+    let k = &r["skips"];
+    assert_eq!(k["marker_searches"], 12, "{k}");
+    assert_eq!(k["whole_frame_searches_avoided"], 10, "{k}");
+    assert_eq!(k["search_fallbacks"], serde_json::json!({"no-pose": 2}), "{k}");
+    assert_eq!(k["search_fallback_steps"].as_array().unwrap().len(), 2, "{k}");
+    assert_eq!(k["registrations_reused"], 0, "{k}");
+    assert_eq!(k["hdr_brackets_not_needed"], serde_json::Value::Null, "{k}");
+    // One reference whole-frame search was timed (by one step), and the figure reached the
+    // steps after it: at most the two frames in flight with it lack one.
+    assert_eq!(journal_steps_with(&dir, r#""reference_s":0.0"#), 11, "one step timed the reference");
+    assert!(k["steps_without_whole_frame_figure"].as_u64().unwrap() <= 2, "{k}");
+    assert!(k["whole_frame_detect_s"].as_f64().unwrap() > 0.0, "{k}");
+    // The frame channel: its capacity, and how full it got (this session's 12 frames).
+    let p = &r["pipeline"];
+    assert_eq!((p["frame_queue_capacity"].as_u64(), p["frame_queue_delivered"].as_u64()), (Some(4), Some(12)), "{p}");
+    assert!((1..=4).contains(&p["frame_queue_max_fill"].as_u64().unwrap()), "{p}");
     // The journal says which textures used a fallback.
     let journal = std::fs::read_to_string(dir.join("dataset/journal.btfj")).unwrap();
     assert_eq!(journal.matches(r#""pose":"nominal-fallback""#).count(), 2);
@@ -170,6 +189,20 @@ fn hidden_markers_fall_back_on_record_or_pause_naming_the_step_and_the_run_resum
     assert_eq!(s.outcome, RunOutcome::Finished);
     assert_eq!((s.captures, s.captures_this_session, s.sessions), (12, 10, 2));
     assert_eq!((s.registered, s.fallbacks), (12, 0));
+    // All twelve steps (both sessions) searched in their windows, none fell back.
+    let k = &report(&dir)["skips"];
+    assert_eq!(
+        (k["marker_searches"].as_u64(), k["whole_frame_searches_avoided"].as_u64()),
+        (Some(12), Some(12)),
+        "{k}"
+    );
+    assert_eq!(k["search_fallbacks"], serde_json::json!({}), "{k}");
+}
+
+/// Journaled steps whose record contains `text`.
+fn journal_steps_with(dir: &Path, text: &str) -> usize {
+    let journal = std::fs::read_to_string(dir.join("dataset/journal.btfj")).unwrap();
+    journal.lines().filter(|l| l.contains(r#""type":"step""#) && l.contains(text)).count()
 }
 
 /// The control's queue is bounded: commands beyond `CONTROL_CAPACITY` waiting unread are

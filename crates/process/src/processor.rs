@@ -40,15 +40,18 @@ pub struct Processor {
 impl Processor {
     /// A processor with `model` (camera, sensor, plate, kinematics, calibrations), writing
     /// textures only ([`Outputs::default`]). One marker registrar is built here for the whole
-    /// run, with the model's camera and the registrar's default settings (their pose tolerance,
-    /// 2 degrees / 10 mm from the nominal pose, is a real rig's, not the simulator's jitter).
+    /// run, with the model's camera and the registrar's default settings but the pose
+    /// tolerance of the rig config (`[geometry] pose_tolerance_deg`, `pose_tolerance_mm`;
+    /// absent: 2 degrees / 10 mm, a real rig's), which also sizes the first frame's windows.
     /// Refused: a light calibration with an unusable figure, a dark/flat calibration of
     /// another sensor size.
     pub fn new(model: ProcessingModel, settings: ProcessSettings) -> Result<Self, PipelineError> {
         let camera = &model.camera;
         let registrar = match settings.registration.method {
             RegistrationMethod::Markers => {
-                let mut r = PlateRegistrar::new(camera.clone(), &model.plate, RegisterOptions::default())?;
+                let (deg, m) = model.gonio.geometry().pose_tolerance();
+                let options = RegisterOptions::with_pose_tolerance(deg, m);
+                let mut r = PlateRegistrar::new(camera.clone(), &model.plate, options)?;
                 r.detect = btfrig_markers::DetectParams { camera: Some(camera.clone()), ..r.detect.clone() };
                 Some(r)
             }

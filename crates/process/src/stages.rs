@@ -10,8 +10,8 @@ use btfrig_hw::truth::{ExposureTruth, SampleRegion};
 use btfrig_imaging::demosaic::demosaic_bilinear;
 use btfrig_imaging::{rectify, to_radiance_factor, vignetting_map, LinearImage};
 use btfrig_markers::GrayImage;
-use btfrig_registration::{texel_position_error_with_cameras, PlateRegistrar};
-use btfrig_store::{PoseSource, StepId, StepRegistration};
+use btfrig_registration::{texel_position_error_with_cameras, FrameError, PlateRegistrar, SearchRecord};
+use btfrig_store::{PoseSource, StepId, StepRegistration, StepSearch};
 
 use crate::{dark_flat, light, OnRegistrationFailure, PipelineError, Processor};
 
@@ -127,11 +127,12 @@ impl Processor {
                 stage_s.insert("register".to_string(), t.elapsed().as_secs_f64());
                 match found {
                     Ok(r) => r,
-                    Err(reason) => match s.registration.on_failure {
+                    Err((reason, search)) => match s.registration.on_failure {
                         OnRegistrationFailure::Fail => return Err(PipelineError::Registration { step, reason }),
-                        OnRegistrationFailure::Nominal => {
-                            (nominal, StepRegistration { reason: Some(reason), ..record(PoseSource::NominalFallback) })
-                        }
+                        OnRegistrationFailure::Nominal => (
+                            nominal,
+                            StepRegistration { reason: Some(reason), search, ..record(PoseSource::NominalFallback) },
+                        ),
                     },
                 }
             }
@@ -270,31 +271,54 @@ impl Processor {
     }
 
     /// Registers `image` (its green channel: half of a Bayer sensor's photosites) against the
-    /// plate; the pose and its record, or the reason it failed.
+    /// plate; the pose and its record, or the reason it failed with the search's record
+    /// when the markers were searched.
     fn register(
         &self,
         registrar: &PlateRegistrar,
         image: &LinearImage,
         nominal: &ScenePose,
-    ) -> Result<(ScenePose, StepRegistration), String> {
+    ) -> Result<(ScenePose, StepRegistration), (String, Option<StepSearch>)> {
         let green: Vec<f32> = image.data.iter().map(|p| p[1]).collect();
-        let gray = GrayImage::new(image.width, image.height, &green).map_err(|e| e.to_string())?;
-        let r = registrar.register_image(&gray, nominal).map_err(|e| e.to_string())?.registration;
+        let gray = GrayImage::new(image.width, image.height, &green).map_err(|e| (e.to_string(), None))?;
+        let found = registrar.register_image(&gray, nominal).map_err(|e| {
+            let search = match &e {
+                FrameError::Register { search, .. } => Some(step_search(search)),
+                _ => None,
+            };
+            (e.to_string(), search)
+        })?;
+        let r = &found.registration;
         let s = &self.settings;
         let sigma = r.texel_sigma(registrar.camera(), s.region, s.size);
         let rec = StepRegistration {
             markers: r.inlier_markers.clone(),
             rms_px: Some(r.rms_px),
             texel_sigma: sigma.is_finite().then_some(sigma),
+            search: Some(step_search(&found.search)),
             ..record(PoseSource::Markers)
         };
-        Ok((r.pose, rec))
+        Ok((found.registration.pose, rec))
     }
 }
 
 /// A registration record with only its pose source set.
 fn record(pose: PoseSource) -> StepRegistration {
-    StepRegistration { pose, markers: Vec::new(), rms_px: None, texel_sigma: None, reason: None }
+    StepRegistration { pose, markers: Vec::new(), rms_px: None, texel_sigma: None, reason: None, search: None }
+}
+
+/// The journal's record of a frame's marker search.
+fn step_search(s: &SearchRecord) -> StepSearch {
+    StepSearch {
+        windows: s.windows as u32,
+        searched_fraction: s.pixels as f64 / s.frame_pixels.max(1) as f64,
+        whole_frame: s.whole_frame,
+        fallback: s.cause.map(|c| c.as_str().to_string()),
+        fallback_detail: s.fallback.clone(),
+        detect_s: s.detect_s,
+        whole_frame_s: s.whole_frame_s,
+        reference_s: s.reference_s,
+    }
 }
 
 /// Sum of squared differences and of the squared truth over texels and channels.

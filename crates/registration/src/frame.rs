@@ -42,6 +42,8 @@ pub enum FrameError {
         detected: Vec<u32>,
         /// Why registration refused.
         source: RegisterError,
+        /// Where the markers were searched.
+        search: Box<SearchRecord>,
     },
 }
 
@@ -126,6 +128,71 @@ pub struct SearchRecord {
     pub whole_frame: bool,
     /// Why the windows were not enough, when they were tried and the whole frame followed.
     pub fallback: Option<String>,
+    /// The kind of `fallback`.
+    pub cause: Option<FallbackCause>,
+    /// Seconds the detection took (windows and any whole-frame search; as
+    /// [`FrameRegistration::detect_s`], kept here for frames that failed to register).
+    pub detect_s: f64,
+    /// Seconds one whole-frame detection takes on this frame: measured when this frame's
+    /// whole frame was searched, else the registrar's reference search (one per registrar,
+    /// [`PlateRegistrar::time_whole_frame`]) scaled by pixels; `None` before any reference.
+    pub whole_frame_s: Option<f64>,
+    /// Seconds this frame spent on the registrar's reference whole-frame search (timed only,
+    /// its result unused; 0 on every other frame).
+    pub reference_s: f64,
+}
+
+/// Why the predicted windows were not enough.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FallbackCause {
+    /// The markers found in the windows gave no pose.
+    NoPose,
+    /// The measured pose puts a marker inside the image outside every window.
+    MarkerOutsideWindows,
+}
+
+impl FallbackCause {
+    /// The name as journaled and reported.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            FallbackCause::NoPose => "no-pose",
+            FallbackCause::MarkerOutsideWindows => "marker-outside-windows",
+        }
+    }
+}
+
+/// Seconds per pixel of a whole-frame detection, once measured, and whether a frame has
+/// claimed the measurement (two frames in flight must not both pay for it).
+#[derive(Debug, Default)]
+struct WholeFrameCost {
+    s_per_px: std::sync::Mutex<Option<f64>>,
+    claimed: std::sync::atomic::AtomicBool,
+}
+
+impl Clone for WholeFrameCost {
+    fn clone(&self) -> Self {
+        let c = WholeFrameCost::default();
+        *c.s_per_px.lock().unwrap_or_else(std::sync::PoisonError::into_inner) = self.get();
+        c
+    }
+}
+
+impl WholeFrameCost {
+    fn get(&self) -> Option<f64> {
+        *self.s_per_px.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    fn observe(&self, seconds: f64, pixels: usize) {
+        if pixels > 0 {
+            let mut g = self.s_per_px.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+            g.get_or_insert(seconds / pixels as f64);
+        }
+    }
+
+    /// True once for the frame that is to measure (none measured or claimed yet).
+    fn claim(&self) -> bool {
+        self.get().is_none() && !self.claimed.swap(true, std::sync::atomic::Ordering::AcqRel)
+    }
 }
 
 /// Directions of the tolerance ball sampled to bound a corner's image motion: the 26
@@ -156,7 +223,13 @@ pub struct PlateRegistrar {
     pub options: RegisterOptions,
     /// Where markers are searched (default: predicted windows, tolerance learned).
     pub search: MarkerSearch,
+    /// With [`MarkerSearch::Predicted`]: time one whole-frame detection on the first frame
+    /// that registered in its windows (its result is not used), so that every frame's
+    /// [`SearchRecord::whole_frame_s`] says what the windows saved (default on; benches
+    /// that time the search themselves turn it off).
+    pub time_whole_frame: bool,
     deviation: Deviation,
+    whole_frame_cost: WholeFrameCost,
 }
 
 impl PlateRegistrar {
@@ -172,7 +245,9 @@ impl PlateRegistrar {
             detect,
             options,
             search: MarkerSearch::Predicted { tolerance: None },
+            time_whole_frame: true,
             deviation: Deviation::default(),
+            whole_frame_cost: WholeFrameCost::default(),
         })
     }
 
@@ -286,8 +361,30 @@ impl PlateRegistrar {
             MarkerSearch::Predicted { tolerance: Some(t) } => Some(t),
             MarkerSearch::Predicted { tolerance: None } => Some(self.learned_tolerance()),
         };
-        let r = self.register_within(image, nominal, tolerance)?;
+        let mut r = match self.register_within(image, nominal, tolerance) {
+            Ok(r) => r,
+            Err(FrameError::Register { detected, source, mut search }) => {
+                self.account_whole_frame(&mut search);
+                return Err(FrameError::Register { detected, source, search });
+            }
+            Err(e) => return Err(e),
+        };
         self.remember(&r.registration, nominal);
+        let pixels = r.search.frame_pixels;
+        match r.search.whole_frame_s {
+            Some(s) => self.whole_frame_cost.observe(s, pixels),
+            None if self.time_whole_frame && self.whole_frame_cost.claim() => {
+                let t = Instant::now();
+                detect(image, &self.dictionary, &self.detect)?;
+                let s = t.elapsed().as_secs_f64();
+                self.whole_frame_cost.observe(s, pixels);
+                r.search.reference_s = s;
+            }
+            None => {}
+        }
+        if r.search.whole_frame_s.is_none() {
+            r.search.whole_frame_s = self.whole_frame_cost.get().map(|c| c * pixels as f64);
+        }
         Ok(r)
     }
 
@@ -301,8 +398,13 @@ impl PlateRegistrar {
     ) -> Result<FrameRegistration, FrameError> {
         let frame_pixels = image.width * image.height;
         let Some((rot_deg, trans_m)) = tolerance else {
-            let search =
-                SearchRecord { windows: 0, pixels: frame_pixels, frame_pixels, whole_frame: true, fallback: None };
+            let search = SearchRecord {
+                windows: 0,
+                pixels: frame_pixels,
+                frame_pixels,
+                whole_frame: true,
+                ..SearchRecord::default()
+            };
             return self.register_whole(image, nominal, search, (0.0, 0.0));
         };
         let t = Instant::now();
@@ -313,8 +415,10 @@ impl PlateRegistrar {
         let attempt = register(&corr, &self.camera, nominal, &self.options);
         let register_s = t.elapsed().as_secs_f64();
         let miss = match &attempt {
-            Ok(r) => self.missed_window(&r.sample_to_camera, &windows, image.width, image.height),
-            Err(e) => Some(format!("no pose from the windows: {e}")),
+            Ok(r) => self
+                .missed_window(&r.sample_to_camera, &windows, image.width, image.height)
+                .map(|m| (FallbackCause::MarkerOutsideWindows, m)),
+            Err(e) => Some((FallbackCause::NoPose, format!("no pose from the windows: {e}"))),
         };
         match (attempt, miss) {
             (Ok(registration), None) => Ok(FrameRegistration {
@@ -329,7 +433,8 @@ impl PlateRegistrar {
                     pixels: found.pixels,
                     frame_pixels,
                     whole_frame: false,
-                    fallback: None,
+                    detect_s,
+                    ..SearchRecord::default()
                 },
             }),
             (_, miss) => {
@@ -338,10 +443,20 @@ impl PlateRegistrar {
                     pixels: found.pixels + frame_pixels,
                     frame_pixels,
                     whole_frame: true,
-                    fallback: miss,
+                    cause: miss.as_ref().map(|m| m.0),
+                    fallback: miss.map(|m| m.1),
+                    ..SearchRecord::default()
                 };
                 self.register_whole(image, nominal, search, (detect_s, register_s))
             }
+        }
+    }
+
+    /// A failed frame's whole-frame search feeds the reference figure, or gets it.
+    fn account_whole_frame(&self, search: &mut SearchRecord) {
+        match search.whole_frame_s {
+            Some(s) => self.whole_frame_cost.observe(s, search.frame_pixels),
+            None => search.whole_frame_s = self.whole_frame_cost.get().map(|c| c * search.frame_pixels as f64),
         }
     }
 
@@ -368,16 +483,20 @@ impl PlateRegistrar {
         &self,
         image: &GrayImage,
         nominal: &ScenePose,
-        search: SearchRecord,
+        mut search: SearchRecord,
         spent: (f64, f64),
     ) -> Result<FrameRegistration, FrameError> {
         let t = Instant::now();
         let detections = detect(image, &self.dictionary, &self.detect)?;
-        let detect_s = spent.0 + t.elapsed().as_secs_f64();
+        let whole_s = t.elapsed().as_secs_f64();
+        search.whole_frame_s = Some(whole_s);
+        let detect_s = spent.0 + whole_s;
+        search.detect_s = detect_s;
         let (corr, detected, foreign) = self.correspondences(&detections);
         let t = Instant::now();
-        let registration = register(&corr, &self.camera, nominal, &self.options)
-            .map_err(|source| FrameError::Register { detected: detected.clone(), source })?;
+        let registration = register(&corr, &self.camera, nominal, &self.options).map_err(|source| {
+            FrameError::Register { detected: detected.clone(), source, search: Box::new(search.clone()) }
+        })?;
         let register_s = spent.1 + t.elapsed().as_secs_f64();
         Ok(FrameRegistration { registration, detections, detected, foreign, detect_s, register_s, search })
     }

@@ -43,7 +43,7 @@ use rand::seq::SliceRandom;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-pub use frame::{FrameError, FrameRegistration, MarkerSearch, PlateRegistrar, SearchRecord};
+pub use frame::{FallbackCause, FrameError, FrameRegistration, MarkerSearch, PlateRegistrar, SearchRecord};
 pub use metric::{back_project, sample_to_camera, texel_position_error, texel_position_error_with_cameras};
 pub use refine::{Matrix6, Vector6};
 
@@ -119,11 +119,11 @@ impl Default for RegisterOptions {
 }
 
 impl RegisterOptions {
-    /// Defaults with the prior tolerance derived from the rig's positioning error: the
-    /// largest joint error standard deviation plus offset, `joint_error_deg`, times 10 (at
-    /// least 0.5 degrees), and 10 mm of translation.
-    pub fn for_positioning_error(joint_error_deg: f64) -> Self {
-        RegisterOptions { max_rotation_deg: (10.0 * joint_error_deg).max(0.5), ..Default::default() }
+    /// Defaults with the rig's pose tolerance: how far (degrees of rotation, metres of
+    /// translation) the sample may be from its nominal pose (the rig config's
+    /// `[geometry] pose_tolerance_deg` and `pose_tolerance_mm`).
+    pub fn with_pose_tolerance(rotation_deg: f64, translation_m: f64) -> Self {
+        RegisterOptions { max_rotation_deg: rotation_deg, max_translation_m: translation_m, ..Default::default() }
     }
 }
 

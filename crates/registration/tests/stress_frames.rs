@@ -233,6 +233,7 @@ fn degenerate_marker_sets_fail_clearly() {
                 e @ btfrig_registration::FrameError::Register {
                     detected,
                     source: btfrig_registration::RegisterError::TooFewMarkers { found, needed: 3, .. },
+                    ..
                 },
             ) => {
                 assert_eq!(*found, visible.len(), "{label}");

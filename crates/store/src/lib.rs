@@ -153,6 +153,37 @@ pub struct StepRegistration {
     /// Why registration failed (fallbacks only).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reason: Option<String>,
+    /// Where the markers were searched (absent in journals written before it was recorded,
+    /// and when no marker search ran).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub search: Option<StepSearch>,
+}
+
+/// How a step's markers were searched (`docs/registration.md`, "What the windows save").
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StepSearch {
+    /// Windows predicted from the nominal pose and searched first (0: the whole frame only).
+    pub windows: u32,
+    /// Pixels searched over the frame's pixels (windows, plus 1 after a fallback).
+    pub searched_fraction: f64,
+    /// Whether the whole frame was searched (a fallback, or the search asked for it).
+    pub whole_frame: bool,
+    /// Why the windows were not enough (`no-pose`, `marker-outside-windows`): fallbacks only.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fallback: Option<String>,
+    /// The fallback's details (which marker, which error).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fallback_detail: Option<String>,
+    /// Seconds the detection took (windows and any whole-frame search).
+    pub detect_s: f64,
+    /// Seconds a whole-frame detection takes on this frame: measured when it ran, else the
+    /// run's one reference search scaled by pixels; absent before any reference.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub whole_frame_s: Option<f64>,
+    /// Seconds this step spent timing the run's reference whole-frame search (0 on all others).
+    #[serde(default)]
+    pub reference_s: f64,
 }
 
 /// The exposures of a step captured with HDR on (`docs/hdr.md`): journaled with the step so

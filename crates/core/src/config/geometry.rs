@@ -48,7 +48,22 @@ pub struct GonioGeometry {
     /// commanded joints for the nominal pose; the simulator never reads it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub calibration: Option<String>,
+    /// How far the sample's pose may be from the nominal (kinematic) pose after a move, as
+    /// the rig's specification says: degrees of rotation. Registration accepts no pose
+    /// farther away, and the first frame's marker search windows are that large.
+    /// Absent: [`DEFAULT_POSE_TOLERANCE_DEG`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pose_tolerance_deg: Option<f64>,
+    /// The same for the translation, millimetres. Absent: [`DEFAULT_POSE_TOLERANCE_MM`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pose_tolerance_mm: Option<f64>,
 }
+
+/// The pose tolerance of a rig config without `pose_tolerance_deg`: a real rig's, not the
+/// simulator's jitter.
+pub const DEFAULT_POSE_TOLERANCE_DEG: f64 = 2.0;
+/// The pose tolerance of a rig config without `pose_tolerance_mm`.
+pub const DEFAULT_POSE_TOLERANCE_MM: f64 = 10.0;
 
 impl Default for GonioGeometry {
     /// The default simulated Bonn-like rig (the values of `rig-configs/bonn-gonio-sim.toml`).
@@ -75,7 +90,17 @@ impl GonioGeometry {
             arm_radius_m: 0.05,
             robot_shoulder_m: [-0.6, -0.6, -0.8],
             calibration: None,
+            pose_tolerance_deg: None,
+            pose_tolerance_mm: None,
         }
+    }
+
+    /// The pose tolerance in force: (degrees, metres), the defaults where a key is absent.
+    pub fn pose_tolerance(&self) -> (f64, f64) {
+        (
+            self.pose_tolerance_deg.unwrap_or(DEFAULT_POSE_TOLERANCE_DEG),
+            self.pose_tolerance_mm.unwrap_or(DEFAULT_POSE_TOLERANCE_MM) / 1000.0,
+        )
     }
 
     /// Appends every out-of-range value of this section to `errors`.
@@ -98,6 +123,12 @@ impl GonioGeometry {
         range("holder_plate_thickness_m", self.holder_plate_thickness_m, 0.0, 0.1, "0 ..= 0.1");
         range("arm_flange_length_m", self.arm_flange_length_m, 0.0, 2.0, "0 ..= 2");
         range("arm_radius_m", self.arm_radius_m, 0.001, 0.5, "0.001 ..= 0.5");
+        if let Some(v) = self.pose_tolerance_deg {
+            range("pose_tolerance_deg", v, 0.05, 10.0, "0.05 ..= 10 degrees");
+        }
+        if let Some(v) = self.pose_tolerance_mm {
+            range("pose_tolerance_mm", v, 0.1, 100.0, "0.1 ..= 100 mm");
+        }
         for k in 0..3 {
             range(&format!("robot_shoulder_m[{k}]"), self.robot_shoulder_m[k], -10.0, 10.0, "-10 ..= 10");
         }
@@ -158,7 +189,16 @@ mod tests {
         let g = geometry_of(DEFAULT_RIG);
         // The shipped rig names its rig-geometry calibration; the nominal geometry is Bonn's.
         assert_eq!(g.calibration.as_deref(), Some("builtin:bonn-gonio-sim-rig-geometry"));
-        assert_eq!(GonioGeometry { calibration: None, ..g.clone() }, GonioGeometry::bonn());
+        assert_eq!(
+            GonioGeometry { calibration: None, pose_tolerance_deg: None, pose_tolerance_mm: None, ..g.clone() },
+            GonioGeometry::bonn()
+        );
+        // It states its pose tolerance (docs/rig-config.md); without the keys, the defaults.
+        assert_eq!(g.pose_tolerance(), (1.5, 0.005));
+        assert_eq!(
+            GonioGeometry::bonn().pose_tolerance(),
+            (DEFAULT_POSE_TOLERANCE_DEG, DEFAULT_POSE_TOLERANCE_MM / 1e3)
+        );
         let mut errors = Vec::new();
         g.validate(&mut errors);
         assert!(errors.is_empty(), "{errors:?}");
@@ -173,6 +213,8 @@ mod tests {
             joint_min_deg: [-120.0, f64::NAN, 10.0],
             joint_max_deg: [120.0, 85.0, 0.0],
             robot_shoulder_m: [0.1, 0.0, 0.0],
+            pose_tolerance_deg: Some(0.0),
+            pose_tolerance_mm: Some(f64::INFINITY),
             ..GonioGeometry::bonn()
         };
         let mut errors = Vec::new();
@@ -184,7 +226,9 @@ mod tests {
         assert!(has("geometry.joint_min_deg[1] = NaN"), "{text:#?}");
         assert!(has("geometry.joint_max_deg[2] = 0"), "{text:#?}");
         assert!(has("geometry.robot_shoulder_m"), "{text:#?}");
-        assert_eq!(errors.len(), 5, "{text:#?}");
+        assert!(has("geometry.pose_tolerance_deg = 0 is out of range: allowed 0.05 ..= 10 degrees"), "{text:#?}");
+        assert!(has("geometry.pose_tolerance_mm = inf"), "{text:#?}");
+        assert_eq!(errors.len(), 7, "{text:#?}");
     }
 
     #[test]
