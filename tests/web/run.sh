@@ -99,8 +99,11 @@ if [ "$only" != operator ]; then
     fi
     demo_pid=""
     tail -n 4 "$out/demo.log" | sed 's/^/# /'
+    # The other two models, in the other two colour models, so every decoding path is compared.
+    "$bin" compress "$data/demo" --method pcmf --color ylog-uv --no-eval | sed 's/^/# /'
+    "$bin" compress "$data/demo" --method pvmf --color rgb --no-eval | sed 's/^/# /'
     "$bin" dataset report "$data/demo" --out "$out/report.html" | sed 's/^/# /'
-    "$bin" dataset render "$data/demo" --light 25,40 --view 10,200 --out "$out/render-cli.png" | sed 's/^/# /'
+    "$bin" dataset render "$data/demo" --model fmf --light 25,40 --view 10,200 --out "$out/render-cli.png" | sed 's/^/# /'
     if [ -n "${BTFRIG_WEB_EXTRA:-}" ]; then cp -r "$BTFRIG_WEB_EXTRA"/. "$data"/; fi
     BTFRIG_WEBDEPS="$webdeps" node "$here/viewer.test.mjs" "$url" "$out" || status=$?
 fi

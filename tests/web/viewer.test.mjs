@@ -7,7 +7,7 @@
 //    its FMF model (streamed), and for three (light, view) pairs — the first set by dragging
 //    on the hemisphere widgets — the canvas equals btfrig's own render of the model at the
 //    same pair (GET .../render) within TOLERANCE; moving the light changes the image;
-//    a screenshot per pair;
+//    a screenshot per pair; its PCMF (log-Y) and PVMF (RGB) models at one pair each;
 // 2. the coverage plot's counts equal report.json's (captures, skipped by reason);
 // 3. `btfrig dataset render` (the CLI) gives the API's pixels;
 // 4. frame rate with the synthetic 256 x 256, 81 x 81 FMF model: printed, not asserted;
@@ -117,12 +117,26 @@ try {
     check(s.max <= TOLERANCE.max && s.mean <= TOLERANCE.mean, `pair ${i + 1}: canvas equals btfrig's render within ${TOLERANCE.max} levels (mean under ${TOLERANCE.mean})`, JSON.stringify(s));
     images.push(px);
     await page.screenshot({ path: path.join(out, `viewer-pair${i + 1}.png`), fullPage: true });
+    if (i === 1) await page.locator("#model-section").screenshot({ path: path.join(out, "viewer-model.png") });
   }
   // Moving the light (alone) changes the image.
   const moved = await page.evaluate((p) => { window.btfViewer.setPair([25, 220], p.view); return window.btfViewer.pixels(); }, pairs[1]);
   const change = compare(images[1], moved);
   console.log(`# light moved from [25, 40] to [25, 220]: mean change ${change.mean.toFixed(2)} levels, max ${change.max}`);
   check(change.mean > 1, "moving the light changes the image");
+
+  // The PCMF (log-Y colour model) and PVMF (RGB) models of the same dataset at one pair each.
+  for (const other of ["pcmf", "pvmf"]) {
+    await page.evaluate((m) => window.btfViewer.load("demo", m), other);
+    const oh = await page.evaluate(() => window.btfViewer.header);
+    const p = pairs[1];
+    const px = await page.evaluate((p) => { window.btfViewer.setPair(p.light, p.view); return window.btfViewer.pixels(); }, p);
+    const q = `light_theta=${p.light[0]}&light_phi=${p.light[1]}&view_theta=${p.view[0]}&view_phi=${p.view[1]}`;
+    const r = await page.request.get(`${base}/api/v1/datasets/demo/models/${other}/render?${q}`, { headers: { Authorization: `Bearer ${token}` } });
+    const s = compare(px, await decodePng(page, (await r.body()).toString("base64")));
+    console.log(`# ${oh.label} (${oh.parts} parts, colour ${oh.color}) at pair 2: canvas vs btfrig's render: max ${s.max}, mean ${s.mean.toFixed(4)} levels`);
+    check(r.ok() && s.max <= TOLERANCE.max && s.mean <= TOLERANCE.mean, `${other}: canvas equals btfrig's render within the tolerance`, JSON.stringify(s));
+  }
 
   // ---- 2. coverage against report.json ----
   const rep = JSON.parse((await (await page.request.get(`${base}/api/v1/datasets/demo/files/report.json`, { headers: { Authorization: `Bearer ${token}` } })).body()).toString());
