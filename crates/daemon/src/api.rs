@@ -597,6 +597,22 @@ pub fn document() -> serde_json::Value {
         }
     }
     doc["components"]["schemas"]["StartRun"]["properties"]["dataset"]["pattern"] = NAME_PATTERN.into();
+    // The render's ranges, as `look::pair_from_degrees` and `render_model` check them.
+    if let Some(params) =
+        doc["paths"]["/api/v1/datasets/{name}/models/{model}/render"]["get"]["parameters"].as_array_mut()
+    {
+        for p in params.iter_mut() {
+            match p["name"].as_str() {
+                Some("light_theta" | "view_theta") => {
+                    p["schema"]["minimum"] = 0.into();
+                    p["schema"]["maximum"] = 90.into();
+                }
+                Some("scale") => p["schema"]["exclusiveMinimum"] = 0.into(),
+                Some("format") => p["schema"]["enum"] = serde_json::json!(["png", "exr"]),
+                _ => {}
+            }
+        }
+    }
     // The calibrations the daemon runs, from the list it checks against.
     doc["components"]["schemas"]["StartCalibration"]["properties"]["kind"]["enum"] =
         crate::calibrations::KINDS.iter().map(|k| serde_json::Value::from(*k)).collect();
@@ -1054,6 +1070,8 @@ pub async fn render_model(
     ApiPath((name, model)): ApiPath<(String, String)>,
     query: Result<axum::extract::Query<RenderQuery>, axum::extract::rejection::QueryRejection>,
 ) -> Result<Response, Problem> {
+    // What the path names first: an unknown dataset or model is 404 whatever the query.
+    let m = s.load_model(&name, &model).await?;
     let axum::extract::Query(q) =
         query.map_err(|e| Problem::unprocessable(format!("bad query: {}; see /api/v1/openapi.json", e.body_text())))?;
     let (light, view) = crate::look::pair_from_degrees([q.light_theta, q.light_phi], [q.view_theta, q.view_phi])
@@ -1068,7 +1086,6 @@ pub async fn render_model(
             return Err(Problem::unprocessable(format!("scale {sc}: allowed a finite number above 0")));
         }
     }
-    let m = s.load_model(&name, &model).await?;
     let bytes =
         tokio::task::spawn_blocking(move || crate::look::render_file(&m, light, view, q.scale.map(|v| v as f32), exr))
             .await
