@@ -430,8 +430,11 @@ pub fn render_file(
 /// then renders of the same model).
 #[derive(Default)]
 pub struct ModelCache {
-    last: std::sync::Mutex<Option<(PathBuf, std::time::SystemTime, u64, std::sync::Arc<Model>)>>,
+    last: std::sync::Mutex<Option<CachedModel>>,
 }
+
+/// A model with its file, the file's modification time and size.
+type CachedModel = (PathBuf, std::time::SystemTime, u64, std::sync::Arc<Model>);
 
 impl ModelCache {
     /// The model in `file`, read unless the cached one has the same path, time and size.
