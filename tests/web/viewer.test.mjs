@@ -7,7 +7,8 @@
 //    its FMF model (streamed), and for three (light, view) pairs — the first set by dragging
 //    on the hemisphere widgets — the canvas equals btfrig's own render of the model at the
 //    same pair (GET .../render) within TOLERANCE; moving the light changes the image;
-//    a screenshot per pair; its PCMF (log-Y) and PVMF (RGB) models at one pair each;
+//    a screenshot per pair; its PCMF (log-Y) and PVMF (RGB) models at one pair each; the
+//    side-by-side comparison with the measured texture at the nearest measured pair;
 // 2. the coverage plot's counts equal report.json's (captures, skipped by reason);
 // 3. `btfrig dataset render` (the CLI) gives the API's pixels;
 // 4. frame rate with the synthetic 256 x 256, 81 x 81 FMF model: printed, not asserted;
@@ -117,7 +118,14 @@ try {
     check(s.max <= TOLERANCE.max && s.mean <= TOLERANCE.mean, `pair ${i + 1}: canvas equals btfrig's render within ${TOLERANCE.max} levels (mean under ${TOLERANCE.mean})`, JSON.stringify(s));
     images.push(px);
     await page.screenshot({ path: path.join(out, `viewer-pair${i + 1}.png`), fullPage: true });
-    if (i === 1) await page.locator("#model-section").screenshot({ path: path.join(out, "viewer-model.png") });
+    if (i === 1) {
+      // The model beside the measured texture at the nearest measured pair, with their difference.
+      const c = await page.evaluate(() => window.btfViewer.compared());
+      console.log(`# comparison at pair 2: ${c.text}`);
+      check(/^light \d+ view \d+$/.test(c.pair || "") && c.relRmse > 0 && c.relRmse < 0.1,
+        `side by side with the measurement: nearest measured ${c.pair}, relative RMSE ${c.relRmse} (under 0.1)`, JSON.stringify(c));
+      await page.locator("#model-section").screenshot({ path: path.join(out, "viewer-model.png") });
+    }
   }
   // Moving the light (alone) changes the image.
   const moved = await page.evaluate((p) => { window.btfViewer.setPair([25, 220], p.view); return window.btfViewer.pixels(); }, pairs[1]);

@@ -530,7 +530,7 @@ pub enum PathErrors {
     paths(
         healthz, me, rig_status, rig_stop, list_plans, validate_plan, dry_run_plan, start_run, list_runs, get_run,
         pause_run, resume_run, abort_run, run_events, preview, list_datasets, get_dataset, get_dataset_file,
-        get_coverage, get_model_data, render_model, start_calibration, list_calibrations, get_calibration
+        get_coverage, get_model_data, render_model, compare_model, start_calibration, list_calibrations, get_calibration
     ),
     components(schemas(Problem, RunStatus, RunState, ProgressUnit, crate::look::Coverage, crate::look::PairState)),
     modifiers(&BearerScheme)
@@ -584,6 +584,7 @@ pub fn document() -> serde_json::Value {
         "/api/v1/datasets/{name}/coverage",
         "/api/v1/datasets/{name}/models/{model}/data",
         "/api/v1/datasets/{name}/models/{model}/render",
+        "/api/v1/datasets/{name}/models/{model}/compare",
     ] {
         if let Some(params) = paths[op]["get"]["parameters"].as_array_mut() {
             for p in params.iter_mut() {
@@ -1093,6 +1094,54 @@ pub async fn render_model(
             .map_err(Problem::internal)?;
     let ct = if exr { "image/x-exr" } else { "image/png" };
     Ok(([(header::CONTENT_TYPE, ct), (header::CACHE_CONTROL, "no-store")], bytes).into_response())
+}
+
+#[utoipa::path(get, path = "/api/v1/datasets/{name}/models/{model}/compare", tag = "datasets", security(("bearer" = [])),
+    params(("name" = String, Path, description = "Dataset name"),
+        ("model" = String, Path, description = "The model: `<method>` of `<name>.<method>.btfm`"),
+        RenderQuery),
+    responses((status = 200, description = "Three panels side by side (8-bit sRGB PNG): the model and the measured texture at the measured \
+pair nearest to the query (both at `scale`), and their absolute difference at 4 x `scale` (`format` is not used: always PNG)",
+            content_type = "image/png", body = Vec<u8>,
+            headers(("x-btfrig-pair" = String, description = "The nearest measured pair: `light L view V`"),
+                ("x-btfrig-directions" = String, description = "Its directions: `light THETA,PHI view THETA,PHI` in degrees"),
+                ("x-btfrig-rel-rmse" = String, description = "Relative RMSE of the model against the measured texture there"))),
+        AuthErrors,
+        PathErrors,
+        (status = 422, description = "A direction or scale out of range, or the dataset's textures or the model do not read", body = Problem, content_type = "application/problem+json")))]
+/// The model beside the measurement at the measured pair nearest to the query, with their difference.
+pub async fn compare_model(
+    State(s): Shared,
+    _v: Viewer,
+    ApiPath((name, model)): ApiPath<(String, String)>,
+    query: Result<axum::extract::Query<RenderQuery>, axum::extract::rejection::QueryRejection>,
+) -> Result<Response, Problem> {
+    let m = s.load_model(&name, &model).await?;
+    let root = s.dataset_root(&name)?;
+    let axum::extract::Query(q) =
+        query.map_err(|e| Problem::unprocessable(format!("bad query: {}; see /api/v1/openapi.json", e.body_text())))?;
+    let (light, view) = crate::look::pair_from_degrees([q.light_theta, q.light_phi], [q.view_theta, q.view_phi])
+        .map_err(Problem::unprocessable)?;
+    if let Some(sc) = q.scale {
+        if !(sc.is_finite() && sc > 0.0) {
+            return Err(Problem::unprocessable(format!("scale {sc}: allowed a finite number above 0")));
+        }
+    }
+    let c =
+        tokio::task::spawn_blocking(move || crate::look::compare(&root, &m, light, view, q.scale.map(|v| v as f32)))
+            .await
+            .map_err(|e| Problem::internal(format!("the comparison crashed: {e}")))?
+            .map_err(|e| Problem::unprocessable(format!("dataset {name:?}: {e}")))?;
+    let hv = |t: String| HeaderValue::from_str(&t).unwrap_or(HeaderValue::from_static("?"));
+    let mut r = ([(header::CONTENT_TYPE, "image/png"), (header::CACHE_CONTROL, "no-store")], c.png).into_response();
+    let h = r.headers_mut();
+    h.insert("x-btfrig-pair", hv(format!("light {} view {}", c.light, c.view)));
+    h.insert(
+        "x-btfrig-directions",
+        hv(format!("light {:.2},{:.2} view {:.2},{:.2}", c.light_deg[0], c.light_deg[1], c.view_deg[0], c.view_deg[1])),
+    );
+    h.insert("x-btfrig-rel-rmse", hv(format!("{:.5}", c.rel_rmse)));
+    Ok(r)
 }
 
 fn content_type(p: &Path) -> &'static str {

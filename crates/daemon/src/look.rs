@@ -655,3 +655,87 @@ mod tests {
         assert!(check_model_name("../x").is_err() && check_model_name("").is_err());
     }
 }
+
+/// The model beside the measurement at the measured pair nearest to (light, view).
+#[derive(Debug, Clone)]
+pub struct Comparison {
+    /// The dataset's light index of the nearest measured pair.
+    pub light: u32,
+    /// Its view id.
+    pub view: u32,
+    /// Its light direction (degrees `[theta, phi]`).
+    pub light_deg: [f64; 2],
+    /// Its view direction.
+    pub view_deg: [f64; 2],
+    /// `sqrt(sum (model - measured)^2 / sum measured^2)` over the texture's texels and channels.
+    pub rel_rmse: f64,
+    /// Three panels side by side, 8-bit sRGB PNG: the model, the measured texture (both at
+    /// `scale`), and `|model - measured|` at 4 x `scale`.
+    pub png: Vec<u8>,
+}
+
+/// Gain of the difference panel over the display scale.
+pub const DIFFERENCE_GAIN: f32 = 4.0;
+
+/// [`Comparison`] of `model` with the dataset in `dir` at the measured pair nearest to
+/// (light, view) (least sum of the light's and the view's angles).
+pub fn compare(
+    dir: &Path,
+    model: &Model,
+    light: Direction,
+    view: Direction,
+    scale: Option<f32>,
+) -> Result<Comparison, String> {
+    let src = btfrig_compress::dataset::DatasetSource::open(dir).map_err(|e| e.to_string())?;
+    let lay = src.layout();
+    let dirs_of = |s: btfrig_store::StepId| {
+        let (l, v) = src.layout_pair(s);
+        lay.directions(lay.index(l as usize, v as usize))
+    };
+    let step = *src
+        .steps()
+        .iter()
+        .min_by(|a, b| {
+            let d = |s: btfrig_store::StepId| {
+                let (l, v) = dirs_of(s);
+                light.angle_to(l) + view.angle_to(v)
+            };
+            d(**a).total_cmp(&d(**b))
+        })
+        .ok_or("the dataset has no measured texture")?;
+    let measured = src.read(step).map_err(|e| e.to_string())?;
+    let (ld, vd) = dirs_of(step);
+    let (w, h) = (model.layout.width, model.layout.height);
+    if (w, h) != (lay.width, lay.height) {
+        return Err(format!("the model's textures are {w} x {h}, the dataset's {} x {}", lay.width, lay.height));
+    }
+    let modelled = render(model, ld, vd);
+    let mut e = btfrig_compress::eval::ErrorSums::default();
+    e.add(&modelled, &measured);
+    let diff: Vec<[f32; 3]> =
+        modelled.iter().zip(&measured).map(|(p, q)| std::array::from_fn(|c| (p[c] - q[c]).abs())).collect();
+    let scale = scale.unwrap_or_else(|| display_scale(model));
+    let panels = [srgb8(&modelled, scale), srgb8(&measured, scale), srgb8(&diff, scale * DIFFERENCE_GAIN)];
+    const GAP: usize = 4;
+    let width = 3 * w + 2 * GAP;
+    let mut rgb = vec![255u8; width * h * 3];
+    for (k, p) in panels.iter().enumerate() {
+        for y in 0..h {
+            let at = (y * width + k * (w + GAP)) * 3;
+            rgb[at..at + 3 * w].copy_from_slice(&p[y * w * 3..(y + 1) * w * 3]);
+        }
+    }
+    let png = btfrig_imageio::encode_srgb8_png(Path::new("comparison"), width, h, &rgb).map_err(|e| e.to_string())?;
+    let deg = |d: Direction| {
+        let (t, p) = d.to_degrees();
+        [t, p]
+    };
+    Ok(Comparison {
+        light: step.light,
+        view: step.view,
+        light_deg: deg(ld),
+        view_deg: deg(vd),
+        rel_rmse: e.rel_rmse(),
+        png,
+    })
+}

@@ -397,8 +397,37 @@
     requestDraw();
   }
 
+  // The model beside the measurement at the nearest measured pair (GET .../compare), asked
+  // for once the pair has rested for 300 ms.
+  let compareTimer = null, compareUrl = null, compareSeq = 0;
+  function requestCompare() {
+    clearTimeout(compareTimer);
+    if (!model || !model.source) return;
+    compareTimer = setTimeout(updateCompare, 300);
+  }
+  async function updateCompare() {
+    const [dataset, name] = model.source;
+    const seq = ++compareSeq;
+    const q = `light_theta=${pair.light[0]}&light_phi=${pair.light[1]}&view_theta=${pair.view[0]}&view_phi=${pair.view[1]}&scale=${scale()}`;
+    const r = await fetch(`${API}/datasets/${encodeURIComponent(dataset)}/models/${encodeURIComponent(name)}/compare?${q}`, { headers: auth() });
+    if (seq !== compareSeq) return;
+    if (!r.ok) {
+      $("compare-text").textContent = `no comparison: ${await problemText(r)}`;
+      return;
+    }
+    const url = URL.createObjectURL(await r.blob());
+    if (compareUrl) URL.revokeObjectURL(compareUrl);
+    compareUrl = url;
+    $("compare").src = url;
+    const text = `${r.headers.get("x-btfrig-pair")} (${r.headers.get("x-btfrig-directions")} deg): relative RMSE ${r.headers.get("x-btfrig-rel-rmse")}`;
+    $("compare-text").textContent = text;
+    $("compare").dataset.pair = r.headers.get("x-btfrig-pair");
+    $("compare").dataset.relRmse = r.headers.get("x-btfrig-rel-rmse");
+  }
+
   let drawPending = false;
   function requestDraw() {
+    requestCompare();
     if (drawPending) return;
     drawPending = true;
     requestAnimationFrame(() => {
@@ -450,6 +479,7 @@
     const data = buf.buffer.slice(0, got);
     const md = parseData(data);
     model = md;
+    model.source = [dataset, name];
     setupGl(md);
     const h = md.h;
     $("v-info").textContent = `${h.label}, ${h.width} x ${h.height} texels, ${h.light.dirs.length} x ${h.view.dirs.length} directions, ${h.terms} terms, ${h.color}; ${(got / 1048576).toFixed(1)} MiB`;
@@ -457,6 +487,7 @@
     hemis.light.paint();
     hemis.view.paint();
     draw();
+    requestCompare();
     $("btf").dataset.model = `${dataset}/${name}`;
   }
 
@@ -559,6 +590,12 @@
       setDirection("light", light);
       setDirection("view", view);
       draw();
+    },
+    // The comparison at the current pair, once it has arrived: {pair, relRmse}.
+    async compared() {
+      clearTimeout(compareTimer);
+      await updateCompare();
+      return { pair: $("compare").dataset.pair, relRmse: Number($("compare").dataset.relRmse), text: $("compare-text").textContent };
     },
     // The canvas as RGBA rows, top row first (as the texture's row 0).
     pixels() {
