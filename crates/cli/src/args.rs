@@ -369,6 +369,12 @@ pub enum DatasetCommand {
         #[arg(long, default_value = "png")]
         format: String,
     },
+    /// Render the dataset's compressed model at a (light, view) pair, as the viewer does:
+    /// btfrig's own evaluation, to PNG (sRGB) or EXR (linear) (docs/looking.md).
+    Render(crate::look_cmd::RenderArgs),
+    /// The coverage plot and the dataset's figures as one self-contained HTML file that
+    /// opens without the daemon (docs/looking.md).
+    Report(crate::look_cmd::ReportArgs),
     /// Check every file's size and hash, completeness, and orphans; exit 1 on any problem.
     Verify {
         /// The dataset directory.

@@ -30,6 +30,7 @@ mod dataset_cmd;
 mod demo_cmd;
 mod hw_cmd;
 mod kinematics_cmd;
+mod look_cmd;
 mod material;
 mod plan_cmd;
 mod reprocess_cmd;
@@ -70,6 +71,8 @@ fn main() -> std::process::ExitCode {
             done(dataset_cmd::export_recording(&dir, &out, &format))
         }
         Command::Dataset(DatasetCommand::Export(a)) => done(compress_cmd::export(&a)),
+        Command::Dataset(DatasetCommand::Render(a)) => done(look_cmd::render(&a)),
+        Command::Dataset(DatasetCommand::Report(a)) => done(look_cmd::report(&a)),
         Command::Compress(a) => done(compress_cmd::compress(&a)),
         Command::Reprocess(a) => done(reprocess_cmd::run(&a)),
         Command::Sparse(args::SparseCommand::Select(a)) => done(compress_cmd::select(&a)),

@@ -445,6 +445,8 @@ pub struct DatasetEntry {
     pub captures: u64,
     /// The plan's name.
     pub plan: String,
+    /// Its compressed models: the `<method>` of each `<name>.<method>.btfm` beside it.
+    pub models: Vec<String>,
 }
 
 /// The list of calibrations.
@@ -528,9 +530,9 @@ pub enum PathErrors {
     paths(
         healthz, me, rig_status, rig_stop, list_plans, validate_plan, dry_run_plan, start_run, list_runs, get_run,
         pause_run, resume_run, abort_run, run_events, preview, list_datasets, get_dataset, get_dataset_file,
-        start_calibration, list_calibrations, get_calibration
+        get_coverage, get_model_data, render_model, compare_model, start_calibration, list_calibrations, get_calibration
     ),
-    components(schemas(Problem, RunStatus, RunState, ProgressUnit)),
+    components(schemas(Problem, RunStatus, RunState, ProgressUnit, crate::look::Coverage, crate::look::PairState)),
     modifiers(&BearerScheme)
 )]
 /// The OpenAPI document, generated from the handlers above.
@@ -573,15 +575,45 @@ pub fn document() -> serde_json::Value {
     paths["/api/v1/datasets/{name}/files/{path}"]["get"]["responses"]["200"]["content"] =
         serde_json::json!({ "*/*": {} });
     paths["/api/v1/preview"]["get"]["responses"]["200"]["content"] = serde_json::json!({ "image/png": {} });
+    paths["/api/v1/datasets/{name}/models/{model}/render"]["get"]["responses"]["200"]["content"] =
+        serde_json::json!({ "image/png": {}, "image/x-exr": {} });
     // Dataset names as `check_name` takes them, written once.
-    for op in ["/api/v1/datasets/{name}", "/api/v1/datasets/{name}/files/{path}"] {
+    for op in [
+        "/api/v1/datasets/{name}",
+        "/api/v1/datasets/{name}/files/{path}",
+        "/api/v1/datasets/{name}/coverage",
+        "/api/v1/datasets/{name}/models/{model}/data",
+        "/api/v1/datasets/{name}/models/{model}/render",
+        "/api/v1/datasets/{name}/models/{model}/compare",
+    ] {
         if let Some(params) = paths[op]["get"]["parameters"].as_array_mut() {
-            for p in params.iter_mut().filter(|p| p["name"] == "name") {
-                p["schema"]["pattern"] = NAME_PATTERN.into();
+            for p in params.iter_mut() {
+                if p["name"] == "name" {
+                    p["schema"]["pattern"] = NAME_PATTERN.into();
+                }
+                if p["name"] == "model" {
+                    p["schema"]["pattern"] = MODEL_PATTERN.into();
+                }
             }
         }
     }
     doc["components"]["schemas"]["StartRun"]["properties"]["dataset"]["pattern"] = NAME_PATTERN.into();
+    // The render's ranges, as `look::pair_from_degrees` and `render_model` check them.
+    if let Some(params) =
+        doc["paths"]["/api/v1/datasets/{name}/models/{model}/render"]["get"]["parameters"].as_array_mut()
+    {
+        for p in params.iter_mut() {
+            match p["name"].as_str() {
+                Some("light_theta" | "view_theta") => {
+                    p["schema"]["minimum"] = 0.into();
+                    p["schema"]["maximum"] = 90.into();
+                }
+                Some("scale") => p["schema"]["exclusiveMinimum"] = 0.into(),
+                Some("format") => p["schema"]["enum"] = serde_json::json!(["png", "exr"]),
+                _ => {}
+            }
+        }
+    }
     // The calibrations the daemon runs, from the list it checks against.
     doc["components"]["schemas"]["StartCalibration"]["properties"]["kind"]["enum"] =
         crate::calibrations::KINDS.iter().map(|k| serde_json::Value::from(*k)).collect();
@@ -952,6 +984,164 @@ pub async fn get_dataset_file(
         .map_err(|_| Problem::not_found(format!("dataset {name:?} has no file {path:?}")))?;
     let ct = content_type(&file);
     Ok(([(header::CONTENT_TYPE, ct)], Body::from(bytes)).into_response())
+}
+
+/// The JSON Schema pattern of a model name, as [`crate::look::check_model_name`] decides.
+pub const MODEL_PATTERN: &str = "^[A-Za-z0-9_-]{1,40}$";
+
+#[utoipa::path(get, path = "/api/v1/datasets/{name}/coverage", tag = "datasets", security(("bearer" = [])),
+    params(("name" = String, Path, description = "Dataset name")),
+    responses((status = 200, description = "Every (light, view) pair: measured, skipped (and why) or pending", body = crate::look::Coverage),
+        AuthErrors,
+        PathErrors,
+        (status = 422, description = "Not a gonio dataset, or its manifest or journal does not read", body = Problem, content_type = "application/problem+json")))]
+/// The coverage of a dataset's (light, view) pairs, counted as its report counts them.
+pub async fn get_coverage(
+    State(s): Shared,
+    _v: Viewer,
+    ApiPath(name): ApiPath<String>,
+) -> Result<Json<crate::look::Coverage>, Problem> {
+    let root = s.dataset_root(&name)?;
+    tokio::task::spawn_blocking(move || crate::look::coverage(&root))
+        .await
+        .map_err(|e| Problem::internal(format!("the coverage crashed: {e}")))?
+        .map(Json)
+        .map_err(|e| Problem::unprocessable(format!("dataset {name:?}: {e}")))
+}
+
+#[utoipa::path(get, path = "/api/v1/datasets/{name}/models/{model}/data", tag = "datasets", security(("bearer" = [])),
+    params(("name" = String, Path, description = "Dataset name"),
+        ("model" = String, Path, description = "The model: `<method>` of `<name>.<method>.btfm` (GET /api/v1/datasets lists them)")),
+    responses((status = 200, description = "The model for the browser's renderer, streamed: `BTFVIEW1`, a u32 LE header length, \
+a JSON header (samplings, triangles, blocks), then little-endian f32 blocks (docs/http-api.md, \"viewer data\")",
+            content_type = "application/octet-stream", body = Vec<u8>),
+        AuthErrors,
+        PathErrors,
+        (status = 422, description = "The model file does not read", body = Problem, content_type = "application/problem+json")))]
+/// A dataset's compressed model as the viewer takes it, streamed in pieces.
+pub async fn get_model_data(
+    State(s): Shared,
+    _v: Viewer,
+    ApiPath((name, model)): ApiPath<(String, String)>,
+) -> Result<Response, Problem> {
+    let m = s.load_model(&name, &model).await?;
+    let data = tokio::task::spawn_blocking(move || crate::look::ViewerData::new(m))
+        .await
+        .map_err(|e| Problem::internal(format!("preparing the model crashed: {e}")))?;
+    let len = data.len();
+    let stream = futures_util::stream::iter(data.chunks().map(Ok::<_, std::convert::Infallible>));
+    let mut r = Body::from_stream(stream).into_response();
+    r.headers_mut().insert(header::CONTENT_TYPE, HeaderValue::from_static("application/octet-stream"));
+    r.headers_mut().insert(header::CONTENT_LENGTH, HeaderValue::from(len));
+    Ok(r)
+}
+
+/// Where `GET .../render` evaluates the model.
+#[derive(Debug, Deserialize, utoipa::IntoParams)]
+#[serde(deny_unknown_fields)]
+#[into_params(parameter_in = Query)]
+pub struct RenderQuery {
+    /// Light polar angle, degrees, 0 to 90.
+    pub light_theta: f64,
+    /// Light azimuth, degrees.
+    pub light_phi: f64,
+    /// View polar angle, degrees, 0 to 90.
+    pub view_theta: f64,
+    /// View azimuth, degrees.
+    pub view_phi: f64,
+    /// Display scale of the linear values before the sRGB curve (PNG only; default: the
+    /// model's display scale, as the viewer starts with).
+    pub scale: Option<f64>,
+    /// `png` (8-bit sRGB, the default) or `exr` (linear float RGB).
+    pub format: Option<String>,
+}
+
+#[utoipa::path(get, path = "/api/v1/datasets/{name}/models/{model}/render", tag = "datasets", security(("bearer" = [])),
+    params(("name" = String, Path, description = "Dataset name"),
+        ("model" = String, Path, description = "The model: `<method>` of `<name>.<method>.btfm`"),
+        RenderQuery),
+    responses((status = 200, description = "btfrig's own evaluation of the model at the pair", content_type = "image/png", body = Vec<u8>),
+        AuthErrors,
+        PathErrors,
+        (status = 422, description = "A direction or scale out of range, or the model file does not read", body = Problem, content_type = "application/problem+json")))]
+/// The model's texture at a (light, view) pair, evaluated as `btfrig dataset render` does.
+pub async fn render_model(
+    State(s): Shared,
+    _v: Viewer,
+    ApiPath((name, model)): ApiPath<(String, String)>,
+    query: Result<axum::extract::Query<RenderQuery>, axum::extract::rejection::QueryRejection>,
+) -> Result<Response, Problem> {
+    // What the path names first: an unknown dataset or model is 404 whatever the query.
+    let m = s.load_model(&name, &model).await?;
+    let axum::extract::Query(q) =
+        query.map_err(|e| Problem::unprocessable(format!("bad query: {}; see /api/v1/openapi.json", e.body_text())))?;
+    let (light, view) = crate::look::pair_from_degrees([q.light_theta, q.light_phi], [q.view_theta, q.view_phi])
+        .map_err(Problem::unprocessable)?;
+    let exr = match q.format.as_deref() {
+        None | Some("png") => false,
+        Some("exr") => true,
+        Some(f) => return Err(Problem::unprocessable(format!("format {f:?}: allowed png, exr"))),
+    };
+    if let Some(sc) = q.scale {
+        if !(sc.is_finite() && sc > 0.0) {
+            return Err(Problem::unprocessable(format!("scale {sc}: allowed a finite number above 0")));
+        }
+    }
+    let bytes =
+        tokio::task::spawn_blocking(move || crate::look::render_file(&m, light, view, q.scale.map(|v| v as f32), exr))
+            .await
+            .map_err(|e| Problem::internal(format!("the render crashed: {e}")))?
+            .map_err(Problem::internal)?;
+    let ct = if exr { "image/x-exr" } else { "image/png" };
+    Ok(([(header::CONTENT_TYPE, ct), (header::CACHE_CONTROL, "no-store")], bytes).into_response())
+}
+
+#[utoipa::path(get, path = "/api/v1/datasets/{name}/models/{model}/compare", tag = "datasets", security(("bearer" = [])),
+    params(("name" = String, Path, description = "Dataset name"),
+        ("model" = String, Path, description = "The model: `<method>` of `<name>.<method>.btfm`"),
+        RenderQuery),
+    responses((status = 200, description = "Three panels side by side (8-bit sRGB PNG): the model and the measured texture at the measured \
+pair nearest to the query (both at `scale`), and their absolute difference at 4 x `scale` (`format` is not used: always PNG)",
+            content_type = "image/png", body = Vec<u8>,
+            headers(("x-btfrig-pair" = String, description = "The nearest measured pair: `light L view V`"),
+                ("x-btfrig-directions" = String, description = "Its directions: `light THETA,PHI view THETA,PHI` in degrees"),
+                ("x-btfrig-rel-rmse" = String, description = "Relative RMSE of the model against the measured texture there"))),
+        AuthErrors,
+        PathErrors,
+        (status = 422, description = "A direction or scale out of range, or the dataset's textures or the model do not read", body = Problem, content_type = "application/problem+json")))]
+/// The model beside the measurement at the measured pair nearest to the query, with their difference.
+pub async fn compare_model(
+    State(s): Shared,
+    _v: Viewer,
+    ApiPath((name, model)): ApiPath<(String, String)>,
+    query: Result<axum::extract::Query<RenderQuery>, axum::extract::rejection::QueryRejection>,
+) -> Result<Response, Problem> {
+    let m = s.load_model(&name, &model).await?;
+    let root = s.dataset_root(&name)?;
+    let axum::extract::Query(q) =
+        query.map_err(|e| Problem::unprocessable(format!("bad query: {}; see /api/v1/openapi.json", e.body_text())))?;
+    let (light, view) = crate::look::pair_from_degrees([q.light_theta, q.light_phi], [q.view_theta, q.view_phi])
+        .map_err(Problem::unprocessable)?;
+    if let Some(sc) = q.scale {
+        if !(sc.is_finite() && sc > 0.0) {
+            return Err(Problem::unprocessable(format!("scale {sc}: allowed a finite number above 0")));
+        }
+    }
+    let c =
+        tokio::task::spawn_blocking(move || crate::look::compare(&root, &m, light, view, q.scale.map(|v| v as f32)))
+            .await
+            .map_err(|e| Problem::internal(format!("the comparison crashed: {e}")))?
+            .map_err(|e| Problem::unprocessable(format!("dataset {name:?}: {e}")))?;
+    let hv = |t: String| HeaderValue::from_str(&t).unwrap_or(HeaderValue::from_static("?"));
+    let mut r = ([(header::CONTENT_TYPE, "image/png"), (header::CACHE_CONTROL, "no-store")], c.png).into_response();
+    let h = r.headers_mut();
+    h.insert("x-btfrig-pair", hv(format!("light {} view {}", c.light, c.view)));
+    h.insert(
+        "x-btfrig-directions",
+        hv(format!("light {:.2},{:.2} view {:.2},{:.2}", c.light_deg[0], c.light_deg[1], c.view_deg[0], c.view_deg[1])),
+    );
+    h.insert("x-btfrig-rel-rmse", hv(format!("{:.5}", c.rel_rmse)));
+    Ok(r)
 }
 
 fn content_type(p: &Path) -> &'static str {

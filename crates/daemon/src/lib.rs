@@ -19,12 +19,14 @@
 // - runs:         the one run the rig can hold, and the runs before it
 // - calibrations: calibrations started through the API
 // - plan_jobs:    plan checks and dry runs in flight
+// - look:         model renders, the viewer's model data, dataset coverage, the report page
 // - auth:         tokens and roles; problem: errors as problem+json
 // - metrics:      Prometheus /metrics; server: the HTTP server and its limits
 
 pub mod api;
 pub mod auth;
 pub mod calibrations;
+pub mod look;
 pub mod metrics;
 pub mod plan_jobs;
 pub mod problem;
@@ -123,6 +125,8 @@ pub struct AppState {
     pub calibrations: Calibrations,
     /// Counters.
     pub metrics: Arc<Metrics>,
+    /// The last compressed model read for the viewer.
+    pub models: look::ModelCache,
 }
 
 /// Why the daemon could not start.
@@ -195,6 +199,7 @@ impl AppState {
             runs: Runs::new(cfg.data.clone(), metrics.clone()),
             calibrations: Calibrations::default(),
             metrics,
+            models: look::ModelCache::default(),
         };
         Ok((state, generated))
     }
@@ -498,7 +503,8 @@ impl AppState {
                 // A dome run's `done` counts steps; its dataset holds textures.
                 captures = c.textures.unwrap_or(c.done);
             }
-            out.push(DatasetEntry { name, state, captures, plan });
+            let models = look::models_of(&self.data, &name);
+            out.push(DatasetEntry { name, state, captures, plan, models });
         }
         out.sort_by(|a, b| a.name.cmp(&b.name));
         out
@@ -524,6 +530,28 @@ impl AppState {
             return Err(none());
         }
         Ok(root)
+    }
+
+    /// Dataset `name`'s compressed model `model` (`DATA/<name>.<model>.btfm`, a regular
+    /// file, not a link), read on a blocking thread (the last one is cached).
+    async fn load_model(self: &Arc<Self>, name: &str, model: &str) -> Result<Arc<btfrig_compress::Model>, Problem> {
+        self.dataset_root(name)?;
+        look::check_model_name(model).map_err(Problem::bad_request)?;
+        let file = look::model_file(&self.data, name, model);
+        let none = || {
+            Problem::not_found(format!(
+                "dataset {name:?} has no model {model:?}; its models: {:?}",
+                look::models_of(&self.data, name)
+            ))
+        };
+        if !std::fs::symlink_metadata(&file).is_ok_and(|m| m.is_file()) {
+            return Err(none());
+        }
+        let state = self.clone();
+        tokio::task::spawn_blocking(move || state.models.get(&file))
+            .await
+            .map_err(|e| Problem::internal(format!("reading the model crashed: {e}")))?
+            .map_err(|e| Problem::unprocessable(format!("model {model:?} of dataset {name:?} does not read: {e}")))
     }
 
     /// `rel` inside dataset `name`, refusing anything that leaves it (also through links).
@@ -711,6 +739,8 @@ fn load_plans(dir: Option<&Path>, data: &Path, rig: &RigConfig) -> Result<Vec<Na
 const INDEX_HTML: &str = include_str!("../ui/index.html");
 const APP_JS: &str = include_str!("../ui/app.js");
 const STYLE_CSS: &str = include_str!("../ui/style.css");
+const VIEWER_HTML: &str = include_str!("../ui/viewer.html");
+const VIEWER_JS: &str = include_str!("../ui/viewer.js");
 
 /// Every route of the daemon.
 pub fn router(state: Arc<AppState>) -> Router {
@@ -732,6 +762,10 @@ pub fn router(state: Arc<AppState>) -> Router {
         .route("/datasets", get(api::list_datasets))
         .route("/datasets/{name}", get(api::get_dataset))
         .route("/datasets/{name}/files/{*path}", get(api::get_dataset_file))
+        .route("/datasets/{name}/coverage", get(api::get_coverage))
+        .route("/datasets/{name}/models/{model}/data", get(api::get_model_data))
+        .route("/datasets/{name}/models/{model}/render", get(api::render_model))
+        .route("/datasets/{name}/models/{model}/compare", get(api::compare_model))
         .route("/calibrations", get(api::list_calibrations).post(api::start_calibration))
         .route("/calibrations/{id}", get(api::get_calibration));
     let metrics = state.metrics.clone();
@@ -740,6 +774,23 @@ pub fn router(state: Arc<AppState>) -> Router {
         .route("/", get(|| async { ([(header::CONTENT_TYPE, "text/html; charset=utf-8")], INDEX_HTML) }))
         .route("/ui/app.js", get(|| async { ([(header::CONTENT_TYPE, "text/javascript; charset=utf-8")], APP_JS) }))
         .route("/ui/style.css", get(|| async { ([(header::CONTENT_TYPE, "text/css; charset=utf-8")], STYLE_CSS) }))
+        .route("/viewer", get(|| async { ([(header::CONTENT_TYPE, "text/html; charset=utf-8")], VIEWER_HTML) }))
+        .route(
+            "/ui/viewer.js",
+            get(|| async { ([(header::CONTENT_TYPE, "text/javascript; charset=utf-8")], VIEWER_JS) }),
+        )
+        .route(
+            "/ui/plots.js",
+            get(|| async { ([(header::CONTENT_TYPE, "text/javascript; charset=utf-8")], look::PLOTS_JS) }),
+        )
+        .route(
+            "/ui/vendor/uPlot.iife.min.js",
+            get(|| async { ([(header::CONTENT_TYPE, "text/javascript; charset=utf-8")], look::UPLOT_JS) }),
+        )
+        .route(
+            "/ui/vendor/uPlot.min.css",
+            get(|| async { ([(header::CONTENT_TYPE, "text/css; charset=utf-8")], look::UPLOT_CSS) }),
+        )
         .route("/healthz", get(api::healthz))
         .route("/metrics", get(api::metrics))
         .fallback(api::not_found)
