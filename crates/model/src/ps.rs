@@ -14,6 +14,12 @@
 //! the mirror direction.
 //!
 //! [`PsMethod::Robust`] keeps the same model and changes which observations count:
+//! 0. **a start from one value per light direction**: when a light direction was captured
+//!    from several views (a gonio's views under one lamp position), steps 1–3 first run on
+//!    one value per direction, the `group_quantile` of its views (by the channels' mean;
+//!    default the median): a Lambertian texel looks the same from every view, while
+//!    highlights are view-dependent and brighter. That fit is the start of step 3 on every
+//!    observation, which then averages the views' noise and rejects their highlights;
 //! 1. **shadow threshold**: observations darker than `shadow_fraction` of the texel's
 //!    brightest are dropped (the 3 brightest are always kept);
 //! 2. **leave-one-light-out start**: with 4 to 16 distinct light directions the start is the
@@ -69,6 +75,9 @@ pub struct PsParams {
     pub iterations: usize,
     /// Noise floor, relative to `|b|` (the residual scale when there are no degrees of freedom).
     pub relative_noise: f64,
+    /// Robust: the quantile of a light direction's observations over its views that stands
+    /// for them (0: the darkest, 0.5: the median).
+    pub group_quantile: f64,
     /// Two light directions closer than this (radians) are one direction (a gonio's views
     /// under the same lamp position).
     pub same_light_rad: f64,
@@ -83,6 +92,7 @@ impl PsParams {
             tukey_c: 4.685,
             iterations: 15,
             relative_noise: 0.03,
+            group_quantile: 0.5,
             same_light_rad: 1e-3,
         }
     }
@@ -232,17 +242,45 @@ pub fn photometric_stereo(input: &PsInput<'_>, params: &PsParams) -> Result<Norm
     let n = input.width * input.height;
     let (reps, group) = light_groups(input.lights, params.same_light_rad);
     let lights: Vec<Vector3<f64>> = input.lights.iter().map(|l| Vector3::from(*l)).collect();
+    let q = params.group_quantile;
+    if !(0.0..=1.0).contains(&q) {
+        return Err(ModelError::OutOfRange {
+            field: "group_quantile".into(),
+            value: q.to_string(),
+            allowed: "0 ..= 1".into(),
+        });
+    }
+    let grouped = params.method == PsMethod::Robust && reps.len() < lights.len();
+    let rep_lights: Vec<Vector3<f64>> = reps.iter().map(|l| Vector3::from(*l)).collect();
+    let identity: Vec<usize> = (0..reps.len()).collect();
+    let members: Vec<Vec<usize>> =
+        (0..reps.len()).map(|g| (0..group.len()).filter(|&i| group[i] == g).collect()).collect();
     let texels: Vec<TexelFit> = (0..n)
         .into_par_iter()
         .map_init(
-            || Scratch::new(input.images.len()),
-            |sc, t| {
+            || (Scratch::new(input.images.len()), Scratch::new(reps.len()), Vec::new()),
+            |(sc, sg, order), t| {
                 for (i, img) in input.images.iter().enumerate() {
                     let p = img[t];
                     sc.rgb[i] = [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])];
                     sc.grey[i] = (sc.rgb[i][0] + sc.rgb[i][1] + sc.rgb[i][2]) / 3.0;
                 }
-                fit_texel(&lights, &group, reps.len(), params, sc)
+                if !grouped {
+                    return fit_texel(&lights, &group, reps.len(), params, sc, None);
+                }
+                for (g, m) in members.iter().enumerate() {
+                    order.clear();
+                    order.extend_from_slice(m);
+                    order.sort_by(|&a, &b| sc.grey[a].total_cmp(&sc.grey[b]));
+                    let pick = order[((q * (order.len() - 1) as f64).round() as usize).min(order.len() - 1)];
+                    sg.rgb[g] = sc.rgb[pick];
+                    sg.grey[g] = sc.grey[pick];
+                }
+                let start = fit_texel(&rep_lights, &identity, reps.len(), params, sg, None);
+                if start.used == 0 {
+                    return start;
+                }
+                fit_texel(&lights, &group, reps.len(), params, sc, Some(start.b))
             },
         )
         .collect();
@@ -280,6 +318,8 @@ struct TexelFit {
     albedo: [f32; 3],
     sigma_deg: f32,
     used: u32,
+    /// `ρ n` of the channels' mean.
+    b: Vector3<f64>,
 }
 
 /// Weighted least squares for `b`; `None` when the kept lights do not span 3 dimensions.
@@ -349,10 +389,11 @@ fn fit_texel(
     n_groups: usize,
     params: &PsParams,
     sc: &mut Scratch,
+    start: Option<Vector3<f64>>,
 ) -> TexelFit {
     let m = lights.len();
     let y = &sc.grey;
-    let flat = TexelFit { normal: [0.0, 0.0, 1.0], albedo: [0.0; 3], sigma_deg: 90.0, used: 0 };
+    let flat = TexelFit { normal: [0.0, 0.0, 1.0], albedo: [0.0; 3], sigma_deg: 90.0, used: 0, b: Vector3::zeros() };
     sc.w.fill(1.0);
     if params.method == PsMethod::Robust {
         let brightest = y.iter().copied().fold(0.0, f64::max);
@@ -365,9 +406,12 @@ fn fit_texel(
         }
     }
     let Some((mut b, _)) = solve(lights, y, &sc.w) else { return flat };
+    if let Some(s) = start {
+        b = s;
+    }
     if params.method == PsMethod::Robust {
         // Leave one light direction out: the best start by Tukey loss.
-        if (4..=16).contains(&n_groups) {
+        if start.is_none() && (4..=16).contains(&n_groups) {
             let base = sc.w.clone();
             let cost = |b: &Vector3<f64>| {
                 let cs = params.tukey_c * scale(lights, y, &base, b, params);
@@ -464,7 +508,7 @@ fn fit_texel(
         }
         *a = if den > 0.0 { (num / den) as f32 } else { 0.0 };
     }
-    TexelFit { normal: [nrm.x, nrm.y, nrm.z], albedo, sigma_deg, used }
+    TexelFit { normal: [nrm.x, nrm.y, nrm.z], albedo, sigma_deg, used, b }
 }
 
 #[cfg(test)]
