@@ -20,7 +20,8 @@ fn dot(a: &[f64; 3], b: &[f64; 3]) -> f64 {
 
 /// Renders Lambertian images `albedo * max(0, n·l)` of the normals, with Gaussian noise of
 /// `noise` (relative to 1) and, with probability `shadow_p`, one observation per texel cast
-/// into shadow (value 2 % of its lit value).
+/// into shadow (value 2 % of its lit value) and, with the same probability, another with a
+/// highlight (+0.4).
 fn render(
     normals: &[[f64; 3]],
     albedo: [f32; 3],
@@ -34,8 +35,11 @@ fn render(
     let mut imgs = vec![vec![[0.0f32; 3]; normals.len()]; lights.len()];
     for (t, n) in normals.iter().enumerate() {
         let shadowed = if rng.gen::<f64>() < shadow_p { Some(rng.gen_range(0..lights.len())) } else { None };
+        let highlight = if rng.gen::<f64>() < shadow_p { Some(rng.gen_range(0..lights.len())) } else { None };
         for (i, l) in lights.iter().enumerate() {
-            let s = dot(n, l).max(0.0) * if shadowed == Some(i) { 0.02 } else { 1.0 };
+            let lit = dot(n, l).max(0.0);
+            let s = lit * if shadowed == Some(i) { 0.02 } else { 1.0 }
+                + if highlight == Some(i) && shadowed != Some(i) && lit > 0.0 { 0.4 } else { 0.0 };
             for c in 0..3 {
                 let e = if noise > 0.0 { nd.sample(&mut rng) } else { 0.0 };
                 imgs[i][t][c] = (f64::from(albedo[c]) * s + e) as f32;
@@ -105,7 +109,7 @@ fn sphere(size: usize) -> Vec<[f64; 3]> {
 }
 
 #[test]
-fn the_robust_method_beats_least_squares_on_a_shadowed_sphere() {
+fn the_robust_method_beats_least_squares_on_a_sphere_with_shadows_and_highlights() {
     let size = 40;
     let normals = sphere(size);
     let lights = ring_lights();
@@ -117,7 +121,7 @@ fn the_robust_method_beats_least_squares_on_a_shadowed_sphere() {
         surface_errors(&ls.normal, None, &ls.sigma_deg, &truth),
         surface_errors(&rb.normal, None, &rb.sigma_deg, &truth),
     );
-    eprintln!("sphere, 40 % of texels with a cast shadow: least squares {el:?}\nrobust {er:?}");
+    eprintln!("sphere, 40 % of texels with a cast shadow, 40 % with a highlight: least squares {el:?}\nrobust {er:?}");
     assert!(el.normal_mean_deg > 3.0, "shadows must bias least squares: {el:?}");
     assert!(er.normal_mean_deg < 1.0 && er.normal_p95_deg < 3.0, "robust: {er:?}");
     assert!(er.normal_mean_deg < 0.25 * el.normal_mean_deg);
