@@ -92,6 +92,35 @@ impl SurfaceTruthProbe for SimSurface {
     }
 }
 
+/// The noise-free textures of a gonio dataset's captures: the renderer's ground truth at the
+/// nominal pose of each `(light, view)` (sample frame), over the dataset's region at its texel
+/// size, as radiance factors (the scale `btfrig bench compress` uses). One point sample per
+/// texel. `None` for a dataset whose rig is not a gonioreflectometer.
+pub fn truth_textures(
+    manifest: &Manifest,
+    material: &str,
+    pairs: &[(btfrig_core::Direction, btfrig_core::Direction)],
+) -> anyhow::Result<Option<Vec<Vec<[f32; 3]>>>> {
+    let cfg = btfrig_core::config::RigConfig::from_toml(&manifest.rig.config_toml, "manifest rig.config_toml")?;
+    if cfg.rig.kind.is_dome() {
+        return Ok(None);
+    }
+    let spec = MaterialSpec::builtin(material)?;
+    let scene = btfrig_render::rig_scene::RigScene::new(&cfg, &spec)?;
+    let scale = (scene.sensor().dn_per_electron(1.0) / scene.white_signal_dn(1.0, 1.0)) as f32;
+    let r = dataset_region(manifest);
+    let region = btfrig_render::ground_truth::Region { x_min: r.x_min, x_max: r.x_max, y_min: r.y_min, y_max: r.y_max };
+    let (w, h) = (manifest.texture.width as usize, manifest.texture.height as usize);
+    let mut out = Vec::with_capacity(pairs.len());
+    for (l, v) in pairs {
+        let joints =
+            scene.gonio().ik(*l, *v).map_err(|e| anyhow::anyhow!("truth of light {l:?}, view {v:?}: {e:?}"))?;
+        let gt = scene.renderer().ground_truth(&scene.pose(&joints), w, h, Some(region));
+        out.push(gt.data.iter().map(|p| p.map(|c| c * scale)).collect());
+    }
+    Ok(Some(out))
+}
+
 /// The region a dataset's textures cover.
 pub fn dataset_region(manifest: &Manifest) -> Region {
     let r = manifest.texture.region;

@@ -65,6 +65,9 @@ pub struct BenchModelArgs {
     /// Robust: the quantile over its views that stands for a repeated light direction.
     #[arg(long, default_value_t = 0.5)]
     pub group_quantile: f64,
+    /// Only photometric stereo (no reflectance models, no FMF/PCMF, no truth textures).
+    #[arg(long)]
+    pub ps_only: bool,
     /// Print one JSON object.
     #[arg(long)]
     pub json: bool,
@@ -83,6 +86,9 @@ struct Observations {
     source: DatasetSource,
     what: String,
     lights: Vec<[f64; 3]>,
+    views: Vec<[f64; 3]>,
+    /// Each capture's (light, view) directions and its layout index.
+    pairs: Vec<(btfrig_core::Direction, btfrig_core::Direction, usize)>,
     images: Vec<Vec<[f32; 3]>>,
 }
 
@@ -107,16 +113,19 @@ impl Observations {
             );
         }
         let layout = source.layout();
-        let mut lights = Vec::with_capacity(steps.len());
+        let (mut lights, mut views, mut pairs) = (Vec::new(), Vec::new(), Vec::new());
         for s in &steps {
             let (l, v) = source.layout_pair(*s);
-            let (dl, _) = layout.directions(layout.index(l as usize, v as usize));
-            let d = dl.to_vector();
+            let a = layout.index(l as usize, v as usize);
+            let (dl, dv) = layout.directions(a);
+            let (d, e) = (dl.to_vector(), dv.to_vector());
             lights.push([d.x, d.y, d.z]);
+            views.push([e.x, e.y, e.z]);
+            pairs.push((dl, dv, a));
         }
         use rayon::prelude::*;
         let images = steps.par_iter().map(|s| source.read(*s)).collect::<std::result::Result<Vec<_>, _>>()?;
-        Ok(Observations { source, what, lights, images })
+        Ok(Observations { source, what, lights, views, pairs, images })
     }
 
     fn input(&self) -> (Vec<&[[f32; 3]]>, usize, usize) {
@@ -244,11 +253,133 @@ struct PsRow {
     fit_s: f64,
 }
 
+/// One row of `bench model`'s reflectance table.
+#[derive(Debug, serde::Serialize)]
+struct FitRow {
+    material: String,
+    model: String,
+    /// Stored bytes (half floats for the per-texel models, the model file for FMF/PCMF).
+    bytes: usize,
+    /// Relative RMSE against the measured textures.
+    rel_rmse_data: f64,
+    /// Relative RMSE against the noise-free truth (`None` without one).
+    rel_rmse_truth: Option<f64>,
+    fit_s: f64,
+    eval_s: f64,
+}
+
+/// Sums of squared differences and of squared references.
+#[derive(Default, Clone, Copy)]
+struct Sums {
+    diff: f64,
+    norm: f64,
+}
+
+impl Sums {
+    fn add(&mut self, a: &[[f32; 3]], b: &[[f32; 3]]) {
+        for (p, q) in a.iter().zip(b) {
+            for c in 0..3 {
+                self.diff += (f64::from(p[c]) - f64::from(q[c])).powi(2);
+                self.norm += f64::from(q[c]).powi(2);
+            }
+        }
+    }
+    fn rel(&self) -> f64 {
+        (self.diff / self.norm.max(1e-300)).sqrt()
+    }
+}
+
+fn score(decoded: &[Vec<[f32; 3]>], obs: &Observations, truth: Option<&Vec<Vec<[f32; 3]>>>) -> (f64, Option<f64>) {
+    let mut d = Sums::default();
+    let mut t = Sums::default();
+    for (i, m) in decoded.iter().enumerate() {
+        d.add(m, &obs.images[i]);
+        if let Some(tr) = truth {
+            t.add(m, &tr[i]);
+        }
+    }
+    (d.rel(), truth.map(|_| t.rel()))
+}
+
+fn reflectance_rows(obs: &mut Observations, material: &str, rows: &mut Vec<FitRow>) -> anyhow::Result<()> {
+    use btfrig_compress::{build, file, Method, ModelParams, Precision};
+    use btfrig_model::lafortune::{fit, BtfInput, LafortuneParams};
+    let pairs: Vec<_> = obs.pairs.iter().map(|p| (p.0, p.1)).collect();
+    let truth = btfrig_bench::model::truth_textures(obs.source.manifest(), material, &pairs)?;
+    let texels = obs.source.layout().texels();
+    // The data itself against the truth: the floor every model is measured above.
+    let (_, data_truth) = score(&obs.images, obs, truth.as_ref());
+    rows.push(FitRow {
+        material: material.into(),
+        model: "measured data".into(),
+        bytes: obs.images.len() * texels * 6,
+        rel_rmse_data: 0.0,
+        rel_rmse_truth: data_truth,
+        fit_s: 0.0,
+        eval_s: 0.0,
+    });
+    for k in 1..=3 {
+        let refs: Vec<&[[f32; 3]]> = obs.images.iter().map(|v| v.as_slice()).collect();
+        let input = BtfInput { texels, lights: &obs.lights, views: &obs.views, images: &refs };
+        let t = Instant::now();
+        let map = fit(&input, &LafortuneParams::new(k))?;
+        let fit_s = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let decoded: Vec<Vec<[f32; 3]>> = obs.lights.iter().zip(&obs.views).map(|(l, v)| map.texture(l, v)).collect();
+        let eval_s = t.elapsed().as_secs_f64();
+        let (e_data, e_truth) = score(&decoded, obs, truth.as_ref());
+        let bytes = texels * map.values_per_texel() * 2;
+        rows.push(FitRow {
+            material: material.into(),
+            model: format!("lafortune-{k}"),
+            bytes,
+            rel_rmse_data: e_data,
+            rel_rmse_truth: e_truth,
+            fit_s,
+            eval_s,
+        });
+        // FMF and PCMF (8 clusters) with the fewest terms of at least this storage.
+        for pcmf in [false, true] {
+            let mut chosen = None;
+            for terms in 1..=64usize {
+                let mut p =
+                    ModelParams::new(if pcmf { Method::Pcmf { clusters: 8, shared_basis: None } } else { Method::Fmf });
+                p.terms = [terms, terms.div_ceil(2), terms.div_ceil(2)];
+                p.precision = Precision::F16;
+                let t = Instant::now();
+                let Ok((model, _)) = build::<f32>(obs.source.layout().clone(), &p, &mut obs.source) else { break };
+                let fit_s = t.elapsed().as_secs_f64();
+                let size = file::encode(&model, serde_json::Value::Null).len();
+                chosen = Some((model, fit_s, size, terms));
+                if size >= bytes {
+                    break;
+                }
+            }
+            let Some((model, fit_s, size, terms)) = chosen else { continue };
+            let t = Instant::now();
+            let decoded: Vec<Vec<[f32; 3]>> = obs.pairs.iter().map(|p| model.texture(p.2)).collect();
+            let eval_s = t.elapsed().as_secs_f64();
+            let (e_data, e_truth) = score(&decoded, obs, truth.as_ref());
+            rows.push(FitRow {
+                material: material.into(),
+                model: format!("{}-{terms} (~lafortune-{k})", if pcmf { "pcmf-8" } else { "fmf" }),
+                bytes: size,
+                rel_rmse_data: e_data,
+                rel_rmse_truth: e_truth,
+                fit_s,
+                eval_s,
+            });
+        }
+    }
+    Ok(())
+}
+
 /// `btfrig bench model`.
 pub fn bench(a: &BenchModelArgs) -> anyhow::Result<()> {
     let mut rows = Vec::new();
+    let mut fits = Vec::new();
     for d in &a.datasets {
-        let obs = Observations::read(d, a.view)?;
+        let mut obs = Observations::read(d, a.view)?;
         let mut estimates = Vec::new();
         for method in [PsMethod::LeastSquares, PsMethod::Robust] {
             let (map, fit_s) = obs.normals(&PsParams { group_quantile: a.group_quantile, ..PsParams::new(method) })?;
@@ -269,9 +400,15 @@ pub fn bench(a: &BenchModelArgs) -> anyhow::Result<()> {
                 fit_s,
             });
         }
+        if !a.ps_only {
+            reflectance_rows(&mut obs, &probe.material, &mut fits)?;
+        }
     }
     if a.json {
-        println!("{}", serde_json::to_string_pretty(&serde_json::json!({ "photometric_stereo": rows }))?);
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&serde_json::json!({ "photometric_stereo": rows, "reflectance": fits }))?
+        );
         return Ok(());
     }
     println!(
@@ -294,6 +431,27 @@ pub fn bench(a: &BenchModelArgs) -> anyhow::Result<()> {
             e.height_rel_rmse,
             e.height_range_m * 1e3,
             r.fit_s
+        );
+    }
+    if fits.is_empty() {
+        return Ok(());
+    }
+    println!();
+    println!("reflectance models against the measured textures and the noise-free truth (relative RMSE)");
+    println!(
+        "{:<16} {:<26} {:>10} {:>10} {:>10} {:>9} {:>9}",
+        "material", "model", "bytes", "vs data", "vs truth", "fit s", "eval s"
+    );
+    for r in &fits {
+        println!(
+            "{:<16} {:<26} {:>10} {:>10.4} {:>10} {:>9.3} {:>9.3}",
+            r.material,
+            r.model,
+            r.bytes,
+            r.rel_rmse_data,
+            r.rel_rmse_truth.map_or("-".into(), |v| format!("{v:.4}")),
+            r.fit_s,
+            r.eval_s
         );
     }
     Ok(())

@@ -14,6 +14,16 @@ pub enum ModelError {
         /// Needed.
         need: usize,
     },
+    /// Fewer observations than a model has parameters.
+    #[error("{what}: {have} observation(s); it needs at least {need} (light, view) pairs")]
+    TooFewObservations {
+        /// Which fit.
+        what: String,
+        /// Observations given.
+        have: usize,
+        /// Needed.
+        need: usize,
+    },
     /// The light directions span less than 3 dimensions (all in one plane through the origin).
     #[error("{what}: the {have} light directions are (nearly) coplanar (smallest/largest eigenvalue of L^T L {ratio:.2e}, must exceed {min:.0e}); add a light out of their plane")]
     DegenerateLights {

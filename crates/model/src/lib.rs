@@ -9,6 +9,8 @@
 //!   [`ps::NormalMap`]: unit normal, albedo and the normal's angular uncertainty per texel.
 //! * [`integrate`]: the normal map's gradients to a [`integrate::HeightMap`] by weighted
 //!   least squares with natural boundaries, and its Monte Carlo uncertainty.
+//! * [`lafortune`]: per-texel Lafortune lobes (`K` = 1..3) and a colour albedo by bounded
+//!   Levenberg–Marquardt, [`lafortune::fit`] to a [`lafortune::LafortuneMap`].
 //! * [`truth`]: error figures against an injected [`truth::SurfaceTruthProbe`] (the
 //!   simulator's), used only after estimation.
 //!
@@ -29,6 +31,7 @@
 
 pub mod error;
 pub mod integrate;
+pub mod lafortune;
 pub mod ps;
 pub mod truth;
 
