@@ -15,11 +15,14 @@
 //! - [`color`]: colour-correction models' fit and apply time and CIEDE2000 (`bench color`)
 //! - [`demux`]: demultiplexing methods' time against a memory-bandwidth floor (`bench demux`)
 //! - [`compress`]: linear BTF models on a simulated BTF: size, speed, error (`bench compress`)
+//! - [`model`]: the true surface of a simulated dataset for photometric stereo's and the
+//!   reflectance fits' error figures (`bench model`)
 //! - [`serve`]: HTTP client and helpers of the daemon load benchmark (`bench serve`)
 
 pub mod color;
 pub mod compress;
 pub mod demux;
+pub mod model;
 pub mod opencv;
 pub mod pipeline;
 pub mod registration;

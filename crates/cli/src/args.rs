@@ -41,6 +41,10 @@ pub enum Command {
     /// Calibrations of the rig.
     #[command(subcommand)]
     Calibrate(CalibrateCommand),
+    /// From measurement to material: photometric stereo, height, reflectance models
+    /// (docs/material-models.md).
+    #[command(subcommand)]
+    Model(crate::model_cmd::ModelCommand),
     /// Compress a dataset into a linear BTF model file: FMF, PVMF or PCMF (docs/compression.md).
     Compress(crate::compress_cmd::CompressArgs),
     /// Process a gonio dataset's raw frames again, e.g. after a better calibration, into a new
@@ -416,6 +420,9 @@ pub enum BenchCommand {
     /// decode throughput and relative RMSE against the measured data and the ground truth;
     /// sparse acquisition (docs/compression.md).
     Compress(crate::bench_compress::BenchCompressArgs),
+    /// Material models of simulated datasets: photometric stereo (least squares and robust)
+    /// against the true surface (docs/material-models.md).
+    Model(crate::model_cmd::BenchModelArgs),
     /// The daemon under load: a simulated run through `btfrig serve` with and without a
     /// second process sending status requests; p99 latency and the run's slowdown.
     Serve(crate::bench_serve::BenchServeArgs),

@@ -7,6 +7,7 @@
 // - calibrate_cmd (geometry), calibrate_{rig_geometry,color,radiometric,light,leds,sensor}_cmd: the calibrations
 // - hw_cmd: btfrig hw probe; kinematics_cmd: btfrig kinematics check
 // - sim_cmd, captures_cmd, session: btfrig sim ... on a simulated gonio session
+// - model_cmd: btfrig model ... and btfrig bench model (btfrig-model)
 // - bench_cmd, bench_{color,compress,demux,pipeline,serve}: btfrig bench ... (harnesses in btfrig-bench)
 
 mod args;
@@ -32,6 +33,7 @@ mod hw_cmd;
 mod kinematics_cmd;
 mod look_cmd;
 mod material;
+mod model_cmd;
 mod plan_cmd;
 mod reprocess_cmd;
 mod rig;
@@ -74,6 +76,7 @@ fn main() -> std::process::ExitCode {
         Command::Dataset(DatasetCommand::Render(a)) => done(look_cmd::render(&a)),
         Command::Dataset(DatasetCommand::Report(a)) => done(look_cmd::report(&a)),
         Command::Compress(a) => done(compress_cmd::compress(&a)),
+        Command::Model(model_cmd::ModelCommand::Ps(a)) => done(model_cmd::ps(&a)),
         Command::Reprocess(a) => done(reprocess_cmd::run(&a)),
         Command::Sparse(args::SparseCommand::Select(a)) => done(compress_cmd::select(&a)),
         Command::Sparse(args::SparseCommand::Reconstruct(a)) => done(compress_cmd::reconstruct(&a)),
@@ -96,6 +99,7 @@ fn main() -> std::process::ExitCode {
         Command::Bench(BenchCommand::Color(a)) => done(bench_color::bench(&a)),
         Command::Bench(BenchCommand::Demux(a)) => done(bench_demux::bench(&a)),
         Command::Bench(BenchCommand::Compress(a)) => done(bench_compress::bench(&a)),
+        Command::Bench(BenchCommand::Model(a)) => done(model_cmd::bench(&a)),
         Command::Bench(BenchCommand::Serve(a)) => done(bench_serve::bench(&a)),
         Command::Bench(BenchCommand::ServeLoad(a)) => done(bench_serve::load(&a)),
     };

@@ -1,0 +1,458 @@
+//! `btfrig model ps` and `btfrig bench model`: argument handling, reading a dataset's
+//! textures and writing the maps, over `btfrig-model` (docs/material-models.md). The truth of
+//! `bench model` comes from `btfrig_bench::model::SimSurface` and is read only after the
+//! estimates are made.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::Context;
+use btfrig_bench::model::{dataset_region, SimSurface};
+use btfrig_compress::dataset::DatasetSource;
+use btfrig_model::integrate::{height_sigma, integrate, HeightMap, IntegrateParams};
+use btfrig_model::ps::{photometric_stereo, NormalMap, PsInput, PsMethod, PsParams};
+use btfrig_model::truth::{surface_errors, SurfaceErrors, SurfaceTruthProbe};
+use clap::{Args, Subcommand};
+use exr::prelude::*;
+
+/// `btfrig model ...`.
+#[derive(Debug, Subcommand)]
+pub enum ModelCommand {
+    /// Photometric stereo: normal, albedo and height maps (EXR) with their uncertainty and a
+    /// JSON descriptor, from a dataset's rectified textures and light directions.
+    Ps(PsArgs),
+}
+
+/// `btfrig model ps`.
+#[derive(Debug, Args)]
+pub struct PsArgs {
+    /// The dataset directory.
+    pub dataset: PathBuf,
+    /// Output directory (new or empty; nothing is overwritten).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// robust (shadow threshold, leave-one-light-out start, Tukey IRLS) or least-squares.
+    #[arg(long, default_value = "robust")]
+    pub method: String,
+    /// Robust: the quantile over its views that stands for a repeated light direction.
+    #[arg(long, default_value_t = 0.5)]
+    pub group_quantile: f64,
+    /// Use only this view (the dataset's view id); default: every capture (all views share
+    /// the rectified texel grid).
+    #[arg(long)]
+    pub view: Option<u32>,
+    /// Monte Carlo draws of the height uncertainty.
+    #[arg(long, default_value_t = 16)]
+    pub draws: usize,
+    /// Print the descriptor as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `btfrig bench model`.
+#[derive(Debug, Args)]
+pub struct BenchModelArgs {
+    /// Datasets of the simulated rig (e.g. `btfrig demo --material M --out DIR` for three
+    /// materials); the truth is the material their plan names.
+    #[arg(required = true, num_args = 1..)]
+    pub datasets: Vec<PathBuf>,
+    /// Material of every dataset instead of the one its plan names (built-in name).
+    #[arg(long)]
+    pub material: Option<String>,
+    /// Use only this view (the dataset's view id).
+    #[arg(long)]
+    pub view: Option<u32>,
+    /// Robust: the quantile over its views that stands for a repeated light direction.
+    #[arg(long, default_value_t = 0.5)]
+    pub group_quantile: f64,
+    /// Only photometric stereo (no reflectance models, no FMF/PCMF, no truth textures).
+    #[arg(long)]
+    pub ps_only: bool,
+    /// Print one JSON object.
+    #[arg(long)]
+    pub json: bool,
+}
+
+fn parse_method(s: &str) -> anyhow::Result<PsMethod> {
+    match s {
+        "robust" => Ok(PsMethod::Robust),
+        "least-squares" | "ls" => Ok(PsMethod::LeastSquares),
+        other => anyhow::bail!("--method {other:?}: allowed: robust, least-squares"),
+    }
+}
+
+/// A dataset's textures and light directions for photometric stereo.
+struct Observations {
+    source: DatasetSource,
+    what: String,
+    lights: Vec<[f64; 3]>,
+    views: Vec<[f64; 3]>,
+    /// Each capture's (light, view) directions and its layout index.
+    pairs: Vec<(btfrig_core::Direction, btfrig_core::Direction, usize)>,
+    images: Vec<Vec<[f32; 3]>>,
+}
+
+impl Observations {
+    fn read(dir: &Path, view: Option<u32>) -> anyhow::Result<Self> {
+        let source = DatasetSource::open(dir).with_context(|| format!("dataset {}", dir.display()))?;
+        let steps: Vec<_> = source.steps().iter().copied().filter(|s| view.is_none_or(|v| s.view == v)).collect();
+        let what = match view {
+            Some(v) => format!("dataset {}, view {v}", dir.display()),
+            None => format!("dataset {}, all {} captures", dir.display(), steps.len()),
+        };
+        if let Some(v) = view {
+            anyhow::ensure!(
+                !steps.is_empty(),
+                "{what}: no captures of view {v}; the dataset's views with captures: {:?}",
+                {
+                    let mut v: Vec<u32> = source.steps().iter().map(|s| s.view).collect();
+                    v.sort_unstable();
+                    v.dedup();
+                    v
+                }
+            );
+        }
+        let layout = source.layout();
+        let (mut lights, mut views, mut pairs) = (Vec::new(), Vec::new(), Vec::new());
+        for s in &steps {
+            let (l, v) = source.layout_pair(*s);
+            let a = layout.index(l as usize, v as usize);
+            let (dl, dv) = layout.directions(a);
+            let (d, e) = (dl.to_vector(), dv.to_vector());
+            lights.push([d.x, d.y, d.z]);
+            views.push([e.x, e.y, e.z]);
+            pairs.push((dl, dv, a));
+        }
+        use rayon::prelude::*;
+        let images = steps.par_iter().map(|s| source.read(*s)).collect::<std::result::Result<Vec<_>, _>>()?;
+        Ok(Observations { source, what, lights, views, pairs, images })
+    }
+
+    fn input(&self) -> (Vec<&[[f32; 3]]>, usize, usize) {
+        let l = self.source.layout();
+        (self.images.iter().map(|v| v.as_slice()).collect(), l.width, l.height)
+    }
+
+    fn texel_m(&self) -> f64 {
+        let m = self.source.manifest();
+        m.texture.region.size_m[0] / f64::from(m.texture.width)
+    }
+
+    fn normals(&self, params: &PsParams) -> anyhow::Result<(NormalMap, f64)> {
+        let (refs, w, h) = self.input();
+        let input = PsInput { what: &self.what, width: w, height: h, lights: &self.lights, images: &refs };
+        let t = Instant::now();
+        let map = photometric_stereo(&input, params)?;
+        Ok((map, t.elapsed().as_secs_f64()))
+    }
+}
+
+/// Slopes of texels steeper than this (`n_z` below it) are clamped.
+const MIN_NZ: f64 = 0.1;
+
+/// Integration weight of a texel from its normal's uncertainty: `1 / (1 + (σ / 5°)²)`.
+fn weights(map: &NormalMap) -> Vec<f64> {
+    map.sigma_deg.iter().map(|s| 1.0 / (1.0 + (f64::from(*s) / 5.0).powi(2))).collect()
+}
+
+fn heights(map: &NormalMap, texel_m: f64) -> anyhow::Result<HeightMap> {
+    let w = weights(map);
+    Ok(integrate(map.width, map.height, &map.gradients(MIN_NZ), Some(&w), texel_m, &IntegrateParams::default())?)
+}
+
+fn write_y_exr(path: &Path, width: usize, height: usize, name: &str, data: Vec<f32>) -> anyhow::Result<()> {
+    let channel = AnyChannel::new("Y", FlatSamples::F32(data));
+    let layer = Layer::new(
+        (width, height),
+        LayerAttributes::named(name),
+        Encoding::SMALL_LOSSLESS,
+        AnyChannels::sort(SmallVec::from_vec(vec![channel])),
+    );
+    Image::from_layer(layer).write().to_file(path).with_context(|| format!("cannot write {}", path.display()))
+}
+
+/// `btfrig model ps`.
+pub fn ps(a: &PsArgs) -> anyhow::Result<()> {
+    let method = parse_method(&a.method)?;
+    let obs = Observations::read(&a.dataset, a.view)?;
+    let params = PsParams { group_quantile: a.group_quantile, ..PsParams::new(method) };
+    let (map, ps_s) = obs.normals(&params)?;
+    let texel_m = obs.texel_m();
+    let t = Instant::now();
+    let hm = heights(&map, texel_m)?;
+    let w = weights(&map);
+    let sigma = height_sigma(
+        map.width,
+        map.height,
+        &map.gradients(MIN_NZ),
+        &map.gradient_sigma(MIN_NZ),
+        Some(&w),
+        texel_m,
+        a.draws,
+        1,
+    )?;
+    let int_s = t.elapsed().as_secs_f64();
+    let out = crate::captures_cmd::prepare_output(Some(a.out.clone()), "btfrig-model")?;
+    let (w, h) = (map.width, map.height);
+    let normal_rgb: Vec<[f32; 3]> = map.normal.iter().map(|n| [n[0] as f32, n[1] as f32, n[2] as f32]).collect();
+    btfrig_imageio::write_rgb_exr(&out.join("normal.exr"), w, h, &normal_rgb)?;
+    btfrig_imageio::write_rgb_exr(&out.join("albedo.exr"), w, h, &map.albedo)?;
+    write_y_exr(&out.join("height.exr"), w, h, "height", hm.h.iter().map(|v| *v as f32).collect())?;
+    write_y_exr(&out.join("normal_sigma.exr"), w, h, "normal_sigma_deg", map.sigma_deg.clone())?;
+    write_y_exr(&out.join("height_sigma.exr"), w, h, "height_sigma", sigma.iter().map(|v| *v as f32).collect())?;
+    let region = dataset_region(obs.source.manifest());
+    let (hmin, hmax) = hm.h.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(l, u), v| (l.min(*v), u.max(*v)));
+    let mean_sigma = map.sigma_deg.iter().map(|s| f64::from(*s)).sum::<f64>() / map.sigma_deg.len() as f64;
+    let desc = serde_json::json!({
+        "format": "btfrig-material-maps",
+        "version": 1,
+        "source": { "dataset": a.dataset.display().to_string(), "manifest_plan_hash": obs.source.manifest().plan.hash, "captures": obs.lights.len(), "view": a.view },
+        "method": method.name(),
+        "params": params,
+        "width": w, "height": h,
+        "region_m": region,
+        "texel_m": texel_m,
+        "frame": "sample frame: x along texture columns (right), y along -rows (up), z out of the surface; row 0 at the region's +y edge",
+        "maps": {
+            "normal": { "file": "normal.exr", "channels": ["R", "G", "B"], "meaning": "unit normal (x, y, z) in the sample frame, not colour" },
+            "albedo": { "file": "albedo.exr", "channels": ["R", "G", "B"], "meaning": "Lambertian albedo, linear sRGB (rho: a white Lambertian reflector is 1)" },
+            "height": { "file": "height.exr", "channels": ["Y"], "unit": "m", "meaning": "height above the mean plane (zero mean), integrated from the normals", "min": hmin, "max": hmax },
+            "normal_sigma": { "file": "normal_sigma.exr", "channels": ["Y"], "unit": "deg", "meaning": "standard deviation of the normal's direction" },
+            "height_sigma": { "file": "height_sigma.exr", "channels": ["Y"], "unit": "m", "meaning": "standard deviation of the height (Monte Carlo over the normals' uncertainty)", "draws": a.draws },
+        },
+        "timing_s": { "photometric_stereo": ps_s, "integration_and_uncertainty": int_s },
+        "mean_normal_sigma_deg": mean_sigma,
+    });
+    let text = serde_json::to_string_pretty(&desc)?;
+    std::fs::write(out.join("model.json"), format!("{text}\n"))
+        .with_context(|| format!("cannot write {}", out.join("model.json").display()))?;
+    if a.json {
+        println!("{text}");
+    } else {
+        println!("btfrig model ps: {} ({}), {} x {} texels", obs.what, method.name(), w, h);
+        println!("  normals          mean predicted sigma {mean_sigma:.2} deg, {ps_s:.2} s");
+        println!(
+            "  height           {:.3} .. {:.3} mm, {} CG iterations, {int_s:.2} s with uncertainty",
+            hmin * 1e3,
+            hmax * 1e3,
+            hm.iterations
+        );
+        println!("  maps             {}", out.display());
+    }
+    Ok(())
+}
+
+/// One row of `bench model`'s photometric-stereo table.
+#[derive(Debug, serde::Serialize)]
+struct PsRow {
+    dataset: String,
+    material: String,
+    captures: usize,
+    method: &'static str,
+    errors: SurfaceErrors,
+    fit_s: f64,
+}
+
+/// One row of `bench model`'s reflectance table.
+#[derive(Debug, serde::Serialize)]
+struct FitRow {
+    material: String,
+    model: String,
+    /// Stored bytes (half floats for the per-texel models, the model file for FMF/PCMF).
+    bytes: usize,
+    /// Relative RMSE against the measured textures.
+    rel_rmse_data: f64,
+    /// Relative RMSE against the noise-free truth (`None` without one).
+    rel_rmse_truth: Option<f64>,
+    fit_s: f64,
+    eval_s: f64,
+}
+
+/// Sums of squared differences and of squared references.
+#[derive(Default, Clone, Copy)]
+struct Sums {
+    diff: f64,
+    norm: f64,
+}
+
+impl Sums {
+    fn add(&mut self, a: &[[f32; 3]], b: &[[f32; 3]]) {
+        for (p, q) in a.iter().zip(b) {
+            for c in 0..3 {
+                self.diff += (f64::from(p[c]) - f64::from(q[c])).powi(2);
+                self.norm += f64::from(q[c]).powi(2);
+            }
+        }
+    }
+    fn rel(&self) -> f64 {
+        (self.diff / self.norm.max(1e-300)).sqrt()
+    }
+}
+
+fn score(decoded: &[Vec<[f32; 3]>], obs: &Observations, truth: Option<&Vec<Vec<[f32; 3]>>>) -> (f64, Option<f64>) {
+    let mut d = Sums::default();
+    let mut t = Sums::default();
+    for (i, m) in decoded.iter().enumerate() {
+        d.add(m, &obs.images[i]);
+        if let Some(tr) = truth {
+            t.add(m, &tr[i]);
+        }
+    }
+    (d.rel(), truth.map(|_| t.rel()))
+}
+
+fn reflectance_rows(obs: &mut Observations, material: &str, rows: &mut Vec<FitRow>) -> anyhow::Result<()> {
+    use btfrig_compress::{build, file, Method, ModelParams, Precision};
+    use btfrig_model::lafortune::{fit, BtfInput, LafortuneParams};
+    let pairs: Vec<_> = obs.pairs.iter().map(|p| (p.0, p.1)).collect();
+    let truth = btfrig_bench::model::truth_textures(obs.source.manifest(), material, &pairs)?;
+    let texels = obs.source.layout().texels();
+    // The data itself against the truth: the floor every model is measured above.
+    let (_, data_truth) = score(&obs.images, obs, truth.as_ref());
+    rows.push(FitRow {
+        material: material.into(),
+        model: "measured data".into(),
+        bytes: obs.images.len() * texels * 6,
+        rel_rmse_data: 0.0,
+        rel_rmse_truth: data_truth,
+        fit_s: 0.0,
+        eval_s: 0.0,
+    });
+    for k in 1..=3 {
+        let refs: Vec<&[[f32; 3]]> = obs.images.iter().map(|v| v.as_slice()).collect();
+        let input = BtfInput { texels, lights: &obs.lights, views: &obs.views, images: &refs };
+        let t = Instant::now();
+        let map = fit(&input, &LafortuneParams::new(k))?;
+        let fit_s = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let decoded: Vec<Vec<[f32; 3]>> = obs.lights.iter().zip(&obs.views).map(|(l, v)| map.texture(l, v)).collect();
+        let eval_s = t.elapsed().as_secs_f64();
+        let (e_data, e_truth) = score(&decoded, obs, truth.as_ref());
+        let bytes = texels * map.values_per_texel() * 2;
+        rows.push(FitRow {
+            material: material.into(),
+            model: format!("lafortune-{k}"),
+            bytes,
+            rel_rmse_data: e_data,
+            rel_rmse_truth: e_truth,
+            fit_s,
+            eval_s,
+        });
+        // FMF and PCMF (8 clusters) with the fewest terms of at least this storage.
+        for pcmf in [false, true] {
+            let mut chosen = None;
+            for terms in 1..=64usize {
+                let mut p =
+                    ModelParams::new(if pcmf { Method::Pcmf { clusters: 8, shared_basis: None } } else { Method::Fmf });
+                p.terms = [terms, terms.div_ceil(2), terms.div_ceil(2)];
+                p.precision = Precision::F16;
+                let t = Instant::now();
+                let Ok((model, _)) = build::<f32>(obs.source.layout().clone(), &p, &mut obs.source) else { break };
+                let fit_s = t.elapsed().as_secs_f64();
+                let size = file::encode(&model, serde_json::Value::Null).len();
+                chosen = Some((model, fit_s, size, terms));
+                if size >= bytes {
+                    break;
+                }
+            }
+            let Some((model, fit_s, size, terms)) = chosen else { continue };
+            let t = Instant::now();
+            let decoded: Vec<Vec<[f32; 3]>> = obs.pairs.iter().map(|p| model.texture(p.2)).collect();
+            let eval_s = t.elapsed().as_secs_f64();
+            let (e_data, e_truth) = score(&decoded, obs, truth.as_ref());
+            rows.push(FitRow {
+                material: material.into(),
+                model: format!("{}-{terms} (~lafortune-{k})", if pcmf { "pcmf-8" } else { "fmf" }),
+                bytes: size,
+                rel_rmse_data: e_data,
+                rel_rmse_truth: e_truth,
+                fit_s,
+                eval_s,
+            });
+        }
+    }
+    Ok(())
+}
+
+/// `btfrig bench model`.
+pub fn bench(a: &BenchModelArgs) -> anyhow::Result<()> {
+    let mut rows = Vec::new();
+    let mut fits = Vec::new();
+    for d in &a.datasets {
+        let mut obs = Observations::read(d, a.view)?;
+        let mut estimates = Vec::new();
+        for method in [PsMethod::LeastSquares, PsMethod::Robust] {
+            let (map, fit_s) = obs.normals(&PsParams { group_quantile: a.group_quantile, ..PsParams::new(method) })?;
+            let hm = heights(&map, obs.texel_m())?;
+            estimates.push((method, map, hm, fit_s));
+        }
+        // The truth, only now that the estimates are made.
+        let probe = SimSurface::for_dataset(obs.source.manifest(), a.material.as_deref())?;
+        let l = obs.source.layout();
+        let truth = probe.surface(dataset_region(obs.source.manifest()), l.width, l.height);
+        for (method, map, hm, fit_s) in estimates {
+            rows.push(PsRow {
+                dataset: d.display().to_string(),
+                material: probe.material.clone(),
+                captures: obs.lights.len(),
+                method: method.name(),
+                errors: surface_errors(&map.normal, Some(&hm.h), &map.sigma_deg, &truth),
+                fit_s,
+            });
+        }
+        if !a.ps_only {
+            reflectance_rows(&mut obs, &probe.material, &mut fits)?;
+        }
+    }
+    if a.json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&serde_json::json!({ "photometric_stereo": rows, "reflectance": fits }))?
+        );
+        return Ok(());
+    }
+    println!(
+        "photometric stereo against the simulator's true surface (per texel: normalised mean normal, mean height)"
+    );
+    println!(
+        "{:<16} {:>8} {:<14} {:>10} {:>10} {:>9} {:>10} {:>10} {:>8}",
+        "material", "captures", "method", "mean deg", "p95 deg", "pred deg", "height/rng", "range mm", "fit s"
+    );
+    for r in &rows {
+        let e = &r.errors;
+        println!(
+            "{:<16} {:>8} {:<14} {:>10.2} {:>10.2} {:>9.2} {:>10.4} {:>10.3} {:>8.3}",
+            r.material,
+            r.captures,
+            r.method,
+            e.normal_mean_deg,
+            e.normal_p95_deg,
+            e.predicted_sigma_deg,
+            e.height_rel_rmse,
+            e.height_range_m * 1e3,
+            r.fit_s
+        );
+    }
+    if fits.is_empty() {
+        return Ok(());
+    }
+    println!();
+    println!("reflectance models against the measured textures and the noise-free truth (relative RMSE)");
+    println!(
+        "{:<16} {:<26} {:>10} {:>10} {:>10} {:>9} {:>9}",
+        "material", "model", "bytes", "vs data", "vs truth", "fit s", "eval s"
+    );
+    for r in &fits {
+        println!(
+            "{:<16} {:<26} {:>10} {:>10.4} {:>10} {:>9.3} {:>9.3}",
+            r.material,
+            r.model,
+            r.bytes,
+            r.rel_rmse_data,
+            r.rel_rmse_truth.map_or("-".into(), |v| format!("{v:.4}")),
+            r.fit_s,
+            r.eval_s
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,91 @@
+//! `btfrig model ps` on synthetic datasets (docs/material-models.md): a Lambertian tilted plane
+//! seen from two views under four lights gives its normal back through the whole path
+//! (manifest directions, EXR textures, maps and descriptor written); too few lights, a view
+//! without captures and a bad method are refused with what is missing. The demo dataset's
+//! figures against the simulator's truth are checked in tests/cli.rs, on the demo run that
+//! test makes anyway.
+
+mod support;
+
+use btfrig_compress::dataset::write_dataset;
+use btfrig_compress::Layout;
+use btfrig_core::sampling::Sampling;
+use btfrig_core::Direction;
+use support::{btfrig, ok, scratch, text};
+
+fn fails(cmd: &mut std::process::Command) -> String {
+    let o = cmd.output().expect("btfrig runs");
+    assert!(!o.status.success(), "{}", text(&o));
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// A `w x w` dataset of a Lambertian plane with normal `n` and albedo (0.6, 0.4, 0.2).
+fn plane_dataset(dir: &std::path::Path, lights: &[(f64, f64)], n: [f64; 3], w: usize) {
+    let ld: Vec<Direction> = lights.iter().map(|&(t, p)| Direction::from_degrees(t, p)).collect();
+    let vd = vec![Direction::from_degrees(0.0, 0.0), Direction::from_degrees(30.0, 45.0)];
+    let layout =
+        Layout::full(Sampling::from_list("light", ld).unwrap(), Sampling::from_list("view", vd).unwrap(), w, w);
+    let l2 = layout.clone();
+    write_dataset(
+        dir,
+        &layout,
+        &mut |a| {
+            let (l, _) = l2.directions(a);
+            let v = l.to_vector();
+            let s = (v.x * n[0] + v.y * n[1] + v.z * n[2]).max(0.0) as f32;
+            vec![[0.6 * s, 0.4 * s, 0.2 * s]; w * w]
+        },
+        "synthetic",
+        "a Lambertian plane",
+        false,
+    )
+    .unwrap();
+}
+
+#[test]
+fn model_ps_recovers_a_plane_and_names_what_is_missing() {
+    let dir = scratch("model-ps");
+    let t = 20f64.to_radians();
+    let n = [t.sin() * 0.3f64.cos(), t.sin() * 0.3f64.sin(), t.cos()];
+    let data = dir.join("plane");
+    plane_dataset(&data, &[(0.0, 0.0), (30.0, 0.0), (30.0, 120.0), (30.0, 240.0)], n, 8);
+    let out = dir.join("maps");
+    let stdout = ok(btfrig().args(["model", "ps"]).arg(&data).arg("--out").arg(&out).arg("--json"));
+    let d: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert_eq!(d["method"], "robust", "{d}");
+    assert_eq!(d["source"]["captures"], 8, "{d}");
+    for f in ["normal.exr", "albedo.exr", "height.exr", "normal_sigma.exr", "height_sigma.exr", "model.json"] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    let (w, h, normal) = btfrig_imageio::read_rgb_exr(&out.join("normal.exr")).unwrap();
+    assert_eq!((w, h), (8, 8));
+    for p in &normal {
+        let c = f64::from(p[0]) * n[0] + f64::from(p[1]) * n[1] + f64::from(p[2]) * n[2];
+        assert!(c > (0.1f64).to_radians().cos(), "normal {p:?} against {n:?}");
+    }
+    let (_, _, albedo) = btfrig_imageio::read_rgb_exr(&out.join("albedo.exr")).unwrap();
+    assert!(albedo.iter().all(|a| (a[0] - 0.6).abs() < 1e-3 && (a[2] - 0.2).abs() < 1e-3), "{:?}", albedo[0]);
+    // A plane integrates to a plane: the height spans the tilt over the region.
+    let hmax = d["maps"]["height"]["max"].as_f64().unwrap();
+    assert!(hmax > 0.0, "{d}");
+    // Nothing is overwritten.
+    let e = fails(btfrig().args(["model", "ps"]).arg(&data).arg("--out").arg(&out));
+    assert!(e.contains("not empty"), "{e}");
+
+    // Two lights only: the message says how many there are and how many are needed.
+    let two = dir.join("two");
+    plane_dataset(&two, &[(0.0, 0.0), (30.0, 90.0)], n, 4);
+    let e = fails(btfrig().args(["model", "ps"]).arg(&two).arg("--out").arg(dir.join("x")));
+    assert!(e.contains("2 distinct light direction(s)") && e.contains("at least 3"), "{e}");
+    assert!(!dir.join("x").exists(), "nothing written for a refused input");
+    // Coplanar lights.
+    let flat = dir.join("flat");
+    plane_dataset(&flat, &[(30.0, 0.0), (0.0, 0.0), (30.0, 180.0)], n, 4);
+    let e = fails(btfrig().args(["model", "ps"]).arg(&flat).arg("--out").arg(dir.join("y")));
+    assert!(e.contains("coplanar"), "{e}");
+    // A view without captures, a bad method.
+    let e = fails(btfrig().args(["model", "ps"]).arg(&data).args(["--view", "7", "--out"]).arg(dir.join("z")));
+    assert!(e.contains("no captures of view 7") && e.contains("[0, 1]"), "{e}");
+    let e = fails(btfrig().args(["model", "ps"]).arg(&data).args(["--method", "magic", "--out"]).arg(dir.join("z")));
+    assert!(e.contains("allowed: robust, least-squares"), "{e}");
+}
