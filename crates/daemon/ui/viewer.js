@@ -489,6 +489,11 @@
     draw();
     requestCompare();
     $("btf").dataset.model = `${dataset}/${name}`;
+    // The model's error per capture, below the other plots (a model without textures to
+    // compare with says why not).
+    getJson(`/datasets/${encodeURIComponent(dataset)}/models/${encodeURIComponent(name)}/errors`)
+      .then((e) => BtfPlots.modelErrors($("model-errors"), h.label, e.errors))
+      .catch((e) => { $("model-errors").textContent = `no compression error: ${e.message || e}`; });
   }
 
   // ---- datasets and plots ----
