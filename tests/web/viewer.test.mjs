@@ -8,7 +8,8 @@
 //    on the hemisphere widgets — the canvas equals btfrig's own render of the model at the
 //    same pair (GET .../render) within TOLERANCE; moving the light changes the image;
 //    a screenshot per pair; its PCMF (log-Y) and PVMF (RGB) models at one pair each; the
-//    side-by-side comparison with the measured texture at the nearest measured pair;
+//    side-by-side comparison with the measured texture at the nearest measured pair; the
+//    sample on a cylinder brighter on the side towards the light;
 // 2. the coverage plot's counts equal report.json's (captures, skipped by reason); the
 //    compression error per capture is plotted, one point per capture;
 // 3. `btfrig dataset render` (the CLI) gives the API's pixels;
@@ -134,6 +135,25 @@ try {
   const change = compare(images[1], moved);
   console.log(`# light moved from [25, 40] to [25, 220]: mean change ${change.mean.toFixed(2)} levels, max ${change.max}`);
   check(change.mean > 1, "moving the light changes the image");
+
+  // The sample on a cylinder: lit from the right, then from the left; each side brighter
+  // when lit (per-column light directions), and the image changes.
+  const cylMeans = async (light) => page.evaluate((light) => {
+    window.btfViewer.setPair(light, [0, 0]);
+    const px = window.btfViewer.cylinderPixels();
+    const side = (x0, x1) => {
+      let s = 0, n = 0;
+      for (let y = 0; y < 256; y++) for (let x = x0; x < x1; x++) { const i = (y * 256 + x) * 4; s += px[i] + px[i + 1] + px[i + 2]; n += 3; }
+      return s / n;
+    };
+    return { left: side(20, 100), right: side(156, 236), px };
+  }, light);
+  const fromRight = await cylMeans([60, 0]);
+  const fromLeft = await cylMeans([60, 180]);
+  console.log(`# cylinder: lit from the right: left ${fromRight.left.toFixed(1)}, right ${fromRight.right.toFixed(1)}; from the left: left ${fromLeft.left.toFixed(1)}, right ${fromLeft.right.toFixed(1)} (mean sRGB level)`);
+  check(fromRight.right > fromRight.left && fromLeft.left > fromLeft.right && compare(fromRight.px, fromLeft.px).mean > 1,
+    "the cylinder's side towards the light is the brighter one, and it changes with the light");
+  await page.locator("#model-section").screenshot({ path: path.join(out, "viewer-cylinder.png") });
 
   // The PCMF (log-Y colour model) and PVMF (RGB) models of the same dataset at one pair each.
   for (const other of ["pcmf", "pvmf"]) {
