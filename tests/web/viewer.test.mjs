@@ -8,12 +8,15 @@
 //    on the hemisphere widgets — the canvas equals btfrig's own render of the model at the
 //    same pair (GET .../render) within TOLERANCE; moving the light changes the image;
 //    a screenshot per pair; its PCMF (log-Y) and PVMF (RGB) models at one pair each; the
-//    side-by-side comparison with the measured texture at the nearest measured pair;
-// 2. the coverage plot's counts equal report.json's (captures, skipped by reason);
+//    side-by-side comparison with the measured texture at the nearest measured pair; the
+//    sample on a cylinder brighter on the side towards the light;
+// 2. the coverage plot's counts equal report.json's (captures, skipped by reason); the
+//    compression error per capture is plotted, one point per capture;
 // 3. `btfrig dataset render` (the CLI) gives the API's pixels;
 // 4. frame rate with the synthetic 256 x 256, 81 x 81 FMF model: printed, not asserted;
 // 5. the report file opens from disk with every request refused, and shows the coverage
-//    (counts as report.json) and the per-capture plots with one point per capture.
+//    (counts as report.json) and the per-capture plots (registration, stage times,
+//    compression error) with one point per capture.
 import { createRequire } from "node:module";
 import fs from "node:fs";
 import os from "node:os";
@@ -133,6 +136,25 @@ try {
   console.log(`# light moved from [25, 40] to [25, 220]: mean change ${change.mean.toFixed(2)} levels, max ${change.max}`);
   check(change.mean > 1, "moving the light changes the image");
 
+  // The sample on a cylinder: lit from the right, then from the left; each side brighter
+  // when lit (per-column light directions), and the image changes.
+  const cylMeans = async (light) => page.evaluate((light) => {
+    window.btfViewer.setPair(light, [0, 0]);
+    const px = window.btfViewer.cylinderPixels();
+    const side = (x0, x1) => {
+      let s = 0, n = 0;
+      for (let y = 0; y < 256; y++) for (let x = x0; x < x1; x++) { const i = (y * 256 + x) * 4; s += px[i] + px[i + 1] + px[i + 2]; n += 3; }
+      return s / n;
+    };
+    return { left: side(20, 100), right: side(156, 236), px };
+  }, light);
+  const fromRight = await cylMeans([60, 0]);
+  const fromLeft = await cylMeans([60, 180]);
+  console.log(`# cylinder: lit from the right: left ${fromRight.left.toFixed(1)}, right ${fromRight.right.toFixed(1)}; from the left: left ${fromLeft.left.toFixed(1)}, right ${fromLeft.right.toFixed(1)} (mean sRGB level)`);
+  check(fromRight.right > fromRight.left && fromLeft.left > fromLeft.right && compare(fromRight.px, fromLeft.px).mean > 1,
+    "the cylinder's side towards the light is the brighter one, and it changes with the light");
+  await page.locator("#model-section").screenshot({ path: path.join(out, "viewer-cylinder.png") });
+
   // The PCMF (log-Y colour model) and PVMF (RGB) models of the same dataset at one pair each.
   for (const other of ["pcmf", "pvmf"]) {
     await page.evaluate((m) => window.btfViewer.load("demo", m), other);
@@ -146,6 +168,9 @@ try {
     check(r.ok() && s.max <= TOLERANCE.max && s.mean <= TOLERANCE.mean, `${other}: canvas equals btfrig's render within the tolerance`, JSON.stringify(s));
   }
 
+  await page.evaluate(() => window.btfViewer.load("demo", "fmf"));
+  await page.locator('#model-errors[data-points]').waitFor({ state: "attached", timeout: 20000 });
+
   // ---- 2. coverage against report.json ----
   const rep = JSON.parse((await (await page.request.get(`${base}/api/v1/datasets/demo/files/report.json`, { headers: { Authorization: `Bearer ${token}` } })).body()).toString());
   await page.locator("#coverage[data-measured]").waitFor({ state: "attached", timeout: 20000 });
@@ -155,6 +180,9 @@ try {
   check(JSON.stringify(Object.entries(cov.skipped).sort()) === JSON.stringify(Object.entries(rep.skipped).sort()), "coverage plot's skipped pairs by reason = report's");
   check(await page.locator("#coverage canvas.coverage-matrix").count() === 1, "coverage matrix drawn");
   check(await page.locator("#stages .uplot canvas").count() >= 1, "stage-time plot drawn (uPlot)");
+  const errPoints = await page.$eval("#model-errors", (e) => Number(e.dataset.points));
+  check(errPoints === rep.captures && await page.locator("#model-errors .uplot canvas").count() === 1,
+    `compression error per capture plotted: ${errPoints} points`);
   await page.locator("#plots-section").screenshot({ path: path.join(out, "viewer-coverage.png") });
 
   // ---- 3. the CLI's render equals the API's ----
@@ -193,7 +221,7 @@ try {
     const rc = await rp.$eval("#coverage", (e) => ({ measured: Number(e.dataset.measured), skipped: JSON.parse(e.dataset.skipped) }));
     check(rc.measured === rep.captures && JSON.stringify(Object.entries(rc.skipped).sort()) === JSON.stringify(Object.entries(rep.skipped).sort()),
       `report file: coverage ${rc.measured} measured, skipped ${JSON.stringify(rc.skipped)} = report.json`);
-    for (const id of ["registration", "stages"]) {
+    for (const id of ["registration", "stages", "compression"]) {
       const n = await rp.$eval(`#${id}`, (e) => Number(e.dataset.points));
       const drawn = await rp.locator(`#${id} .uplot canvas`).count();
       check(n === rep.captures && drawn >= 1, `report file: ${id} plot drawn with ${n} points (one per capture)`);

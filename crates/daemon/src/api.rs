@@ -530,7 +530,7 @@ pub enum PathErrors {
     paths(
         healthz, me, rig_status, rig_stop, list_plans, validate_plan, dry_run_plan, start_run, list_runs, get_run,
         pause_run, resume_run, abort_run, run_events, preview, list_datasets, get_dataset, get_dataset_file,
-        get_coverage, get_model_data, render_model, compare_model, start_calibration, list_calibrations, get_calibration
+        get_coverage, get_model_data, render_model, compare_model, model_errors, start_calibration, list_calibrations, get_calibration
     ),
     components(schemas(Problem, RunStatus, RunState, ProgressUnit, crate::look::Coverage, crate::look::PairState)),
     modifiers(&BearerScheme)
@@ -585,6 +585,7 @@ pub fn document() -> serde_json::Value {
         "/api/v1/datasets/{name}/models/{model}/data",
         "/api/v1/datasets/{name}/models/{model}/render",
         "/api/v1/datasets/{name}/models/{model}/compare",
+        "/api/v1/datasets/{name}/models/{model}/errors",
     ] {
         if let Some(params) = paths[op]["get"]["parameters"].as_array_mut() {
             for p in params.iter_mut() {
@@ -1142,6 +1143,35 @@ pub async fn compare_model(
     );
     h.insert("x-btfrig-rel-rmse", hv(format!("{:.5}", c.rel_rmse)));
     Ok(r)
+}
+
+/// The model's error at every measured capture.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct CaptureErrors {
+    /// In capture (journal) order.
+    pub errors: Vec<crate::look::CaptureError>,
+}
+
+#[utoipa::path(get, path = "/api/v1/datasets/{name}/models/{model}/errors", tag = "datasets", security(("bearer" = [])),
+    params(("name" = String, Path, description = "Dataset name"),
+        ("model" = String, Path, description = "The model: `<method>` of `<name>.<method>.btfm`")),
+    responses((status = 200, description = "The model's relative RMSE at every measured capture, in capture order", body = CaptureErrors),
+        AuthErrors,
+        PathErrors,
+        (status = 422, description = "The dataset's textures or the model do not read", body = Problem, content_type = "application/problem+json")))]
+/// The compression error per capture: the model at each measured capture against its texture.
+pub async fn model_errors(
+    State(s): Shared,
+    _v: Viewer,
+    ApiPath((name, model)): ApiPath<(String, String)>,
+) -> Result<Json<CaptureErrors>, Problem> {
+    let m = s.load_model(&name, &model).await?;
+    let root = s.dataset_root(&name)?;
+    tokio::task::spawn_blocking(move || crate::look::capture_errors(&root, &m))
+        .await
+        .map_err(|e| Problem::internal(format!("the errors crashed: {e}")))?
+        .map(|errors| Json(CaptureErrors { errors }))
+        .map_err(|e| Problem::unprocessable(format!("dataset {name:?}: {e}")))
 }
 
 fn content_type(p: &Path) -> &'static str {

@@ -766,6 +766,7 @@ pub fn router(state: Arc<AppState>) -> Router {
         .route("/datasets/{name}/models/{model}/data", get(api::get_model_data))
         .route("/datasets/{name}/models/{model}/render", get(api::render_model))
         .route("/datasets/{name}/models/{model}/compare", get(api::compare_model))
+        .route("/datasets/{name}/models/{model}/errors", get(api::model_errors))
         .route("/calibrations", get(api::list_calibrations).post(api::start_calibration))
         .route("/calibrations/{id}", get(api::get_calibration));
     let metrics = state.metrics.clone();

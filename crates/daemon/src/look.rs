@@ -487,6 +487,9 @@ pub struct ReportData {
     pub captures: Vec<CaptureRow>,
     /// `report.json` as written by the run (null before the run's first report).
     pub report: serde_json::Value,
+    /// The compression error per capture of the dataset's model (`fmf` when there is one,
+    /// else the first): `(model, errors in capture order)`, or why there is none.
+    pub model_errors: Result<(String, Vec<CaptureError>), String>,
 }
 
 /// The report page's data for the dataset in `dir`.
@@ -516,7 +519,16 @@ pub fn report_data(dir: &Path) -> Result<ReportData, String> {
         .and_then(|b| serde_json::from_slice(&b).ok())
         .unwrap_or(serde_json::Value::Null);
     let name = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    Ok(ReportData { name, coverage, captures, report })
+    let parent = dir.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let models = models_of(parent, &name);
+    let model_errors = match models.iter().find(|m| *m == "fmf").or(models.first()) {
+        None => Err("no compressed model beside the dataset".to_string()),
+        Some(m) => btfrig_compress::file::read(&model_file(parent, &name, m))
+            .map_err(|e| e.to_string())
+            .and_then(|model| capture_errors(dir, &model))
+            .map(|e| (m.clone(), e)),
+    };
+    Ok(ReportData { name, coverage, captures, report, model_errors })
 }
 
 /// The plots' script, shared by the operator page (`/ui/plots.js`) and the report file.
@@ -556,6 +568,8 @@ table {{ border-collapse: collapse; }} td, th {{ padding: 2px 8px; text-align: l
 <div id="exposure" class="plot"></div>
 <h2>Stage times per capture</h2>
 <div id="stages" class="plot"></div>
+<h2>Compression error per capture</h2>
+<div id="compression" class="plot"></div>
 <script id="report-data" type="application/json">{json}</script>
 <script>{uplot}</script>
 <script>{plots}</script>
@@ -738,4 +752,46 @@ pub fn compare(
         rel_rmse: e.rel_rmse(),
         png,
     })
+}
+
+/// The model's error at one measured capture.
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct CaptureError {
+    /// Light index.
+    pub light: u32,
+    /// View id.
+    pub view: u32,
+    /// `sqrt(sum (model - measured)^2 / sum measured^2)` over the texture.
+    pub rel_rmse: f64,
+}
+
+/// The model's relative RMSE at every measured capture of the dataset in `dir`, in journal
+/// (capture) order: the model evaluated at the capture's directions against its texture.
+pub fn capture_errors(dir: &Path, model: &Model) -> Result<Vec<CaptureError>, String> {
+    use rayon::prelude::*;
+    let src = btfrig_compress::dataset::DatasetSource::open(dir).map_err(|e| e.to_string())?;
+    let lay = src.layout();
+    if (model.layout.width, model.layout.height) != (lay.width, lay.height) {
+        return Err(format!(
+            "the model's textures are {} x {}, the dataset's {} x {}",
+            model.layout.width, model.layout.height, lay.width, lay.height
+        ));
+    }
+    let jpath = dir.join(btfrig_store::JOURNAL_FILE);
+    let bytes = std::fs::read(&jpath).map_err(|e| format!("{}: {e}", jpath.display()))?;
+    let replay = btfrig_store::journal::replay(&jpath.display().to_string(), &bytes).map_err(|e| e.to_string())?;
+    let mut steps: Vec<_> = src.steps().to_vec();
+    let started = |s: &btfrig_store::StepId| replay.done.get(s).map_or(0.0, |r| r.timing.started_unix_s);
+    steps.sort_by(|a, b| started(a).total_cmp(&started(b)));
+    steps
+        .par_iter()
+        .map(|&s| {
+            let (l, v) = src.layout_pair(s);
+            let (ld, vd) = lay.directions(lay.index(l as usize, v as usize));
+            let measured = src.read(s).map_err(|e| e.to_string())?;
+            let mut e = btfrig_compress::eval::ErrorSums::default();
+            e.add(&model.query(vd, ld).texture(), &measured);
+            Ok(CaptureError { light: s.light, view: s.view, rel_rmse: e.rel_rmse() })
+        })
+        .collect()
 }

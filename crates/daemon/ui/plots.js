@@ -131,7 +131,17 @@ const BtfPlots = (() => {
     series(doc.getElementById("stages"), "Stage times", "seconds", rows,
       stages.map((s) => ({ label: s, values: rows.map((c) => (c.stage_s[s] ?? null)) })).concat(
         [{ label: "wall (start to commit)", values: rows.map((c) => c.wall_s) }]));
+    const me = data.model_errors;
+    if (me.Ok) modelErrors(doc.getElementById("compression"), me.Ok[0], me.Ok[1]);
+    else doc.getElementById("compression").textContent = `no compression error: ${me.Err}`;
   }
 
-  return { coverage, series, report };
+  // The model's relative RMSE per capture (look::capture_errors), in capture order.
+  function modelErrors(el, label, errors) {
+    return series(el, `Compression error per capture (${label})`, "relative RMSE", errors, [
+      { label: `${label}: relative RMSE against the measured texture`, values: errors.map((e) => e.rel_rmse) },
+    ]);
+  }
+
+  return { coverage, series, report, modelErrors };
 })();

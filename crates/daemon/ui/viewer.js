@@ -221,9 +221,10 @@
   uniform int quads, parts, pvmf, colorModel, height;
   uniform ivec3 act;
   uniform float logEps, scale;
+  int rowBase = 0;
   out vec4 outColor;
   float partValue(int c, int p, int cp, ivec2 xy) {
-    int row = c * parts + p;
+    int row = rowBase + c * parts + p;
     vec4 m = texelFetch(ang, ivec2(0, row), 0);
     float v = m.x;
     for (int j = 0; j < quads; j++) {
@@ -236,8 +237,7 @@
     x = clamp(x, 0.0, 1.0);
     return x <= 0.0031308 ? 12.92 * x : 1.055 * pow(x, 1.0 / 2.4) - 0.055;
   }
-  void main() {
-    ivec2 xy = ivec2(int(gl_FragCoord.x), height - 1 - int(gl_FragCoord.y));
+  vec4 shade(ivec2 xy) {
     vec3 d = vec3(0.0);
     for (int c = 0; c < 3; c++) {
       float s = 0.0;
@@ -255,8 +255,35 @@
       rgb = vec3(y + 1.13983 * d.z, y + (-0.114 * 2.03211 / 0.587) * d.y + (-0.299 * 1.13983 / 0.587) * d.z, y + 2.03211 * d.y);
     }
     rgb *= scale;
-    outColor = vec4(srgb(rgb.r), srgb(rgb.g), srgb(rgb.b), 1.0);
-  }`;
+    return vec4(srgb(rgb.r), srgb(rgb.g), srgb(rgb.b), 1.0);
+  }
+  vec4 shadeAt(ivec2 xy, int base) { rowBase = base; return shade(xy); }
+  #ifdef CYLINDER
+  // The sample wrapped round a cylinder (vertical axis, radius 1, seen from the front,
+  // orthographic): per column its own (light, view) pair in the surface's frame, whose
+  // interpolated rows start at rowBase = column * 3 * parts; one texture tile per unit of
+  // arc length and of height.
+  uniform int cols, size;
+  void main() {
+    int px = int(gl_FragCoord.x), py = size - 1 - int(gl_FragCoord.y);
+    float x = (float(px) + 0.5) / float(size) * 2.0 - 1.0;
+    int col = clamp(int((x + 1.0) * 0.5 * float(cols)), 0, cols - 1);
+    int base = col * 3 * parts;
+    if (texelFetch(ang, ivec2(0, base), 0).z < 0.5) { outColor = vec4(0.0, 0.0, 0.0, 1.0); return; }
+    ivec2 dims = textureSize(clus, 0);
+    float arc = asin(clamp(x, -1.0, 1.0)) + 1.5707963;
+    int tu = int(floor(arc * float(dims.x))) % dims.x;
+    int tv = int(floor((float(py) + 0.5) / float(size) * 2.0 * float(dims.y))) % dims.y;
+    outColor = shadeAt(ivec2(tu, tv), base);
+  }
+  #else
+  void main() {
+    outColor = shadeAt(ivec2(int(gl_FragCoord.x), height - 1 - int(gl_FragCoord.y)), 0);
+  }
+  #endif`;
+
+  // The flat texture's program, or the cylinder's (the same shading, another mapping).
+  const withDefine = (src, define) => src.replace("#version 300 es", `#version 300 es\n#define ${define}`);
 
   function compile(type, src) {
     const s = gl.createShader(type);
@@ -293,6 +320,22 @@
       for (const n of ["coef", "ang", "clus", "quads", "parts", "pvmf", "colorModel", "height", "act", "logEps", "scale"]) {
         uni[n] = gl.getUniformLocation(prog, n);
       }
+      cyl.prog = gl.createProgram();
+      gl.attachShader(cyl.prog, compile(gl.VERTEX_SHADER, VS));
+      gl.attachShader(cyl.prog, compile(gl.FRAGMENT_SHADER, withDefine(FS, "CYLINDER")));
+      gl.linkProgram(cyl.prog);
+      if (!gl.getProgramParameter(cyl.prog, gl.LINK_STATUS)) throw new Error(`program: ${gl.getProgramInfoLog(cyl.prog)}`);
+      for (const n of ["coef", "ang", "clus", "quads", "parts", "pvmf", "colorModel", "act", "logEps", "scale", "cols", "size"]) {
+        cyl.uni[n] = gl.getUniformLocation(cyl.prog, n);
+      }
+      cyl.target = gl.createTexture();
+      gl.activeTexture(gl.TEXTURE4);
+      gl.bindTexture(gl.TEXTURE_2D, cyl.target);
+      gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGBA8, CYL_SIZE, CYL_SIZE, 0, gl.RGBA, gl.UNSIGNED_BYTE, null);
+      cyl.fbo = gl.createFramebuffer();
+      gl.bindFramebuffer(gl.FRAMEBUFFER, cyl.fbo);
+      gl.framebufferTexture2D(gl.FRAMEBUFFER, gl.COLOR_ATTACHMENT0, gl.TEXTURE_2D, cyl.target, 0);
+      gl.bindFramebuffer(gl.FRAMEBUFFER, null);
     }
     const layers = h.coef_parts * 3 * h.quads;
     const maxLayers = gl.getParameter(gl.MAX_ARRAY_TEXTURE_LAYERS);
@@ -317,6 +360,82 @@
     gl.uniform1i(uni.colorModel, { rgb: 0, yuv: 1, "ylog-uv": 2 }[h.color]);
     gl.uniform1i(uni.height, h.height);
     gl.uniform1f(uni.logEps, h.log_eps);
+    // The cylinder: one interpolated block of rows per column, as many columns as fit.
+    cyl.cols = Math.max(1, Math.min(CYL_SIZE / 2, Math.floor(gl.getParameter(gl.MAX_TEXTURE_SIZE) / (3 * h.parts))));
+    cyl.data = new Float32Array(cyl.cols * 3 * h.parts * 4 * (1 + h.quads));
+    cyl.ang = floatTexture(3, gl.TEXTURE_2D);
+    gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGBA32F, 1 + h.quads, cyl.cols * 3 * h.parts, 0, gl.RGBA, gl.FLOAT, cyl.data);
+    gl.useProgram(cyl.prog);
+    gl.uniform1i(cyl.uni.coef, 0);
+    gl.uniform1i(cyl.uni.ang, 3);
+    gl.uniform1i(cyl.uni.clus, 2);
+    gl.uniform1i(cyl.uni.quads, h.quads);
+    gl.uniform1i(cyl.uni.parts, h.parts);
+    gl.uniform1i(cyl.uni.pvmf, 0);
+    gl.uniform1i(cyl.uni.colorModel, { rgb: 0, yuv: 1, "ylog-uv": 2 }[h.color]);
+    gl.uniform1f(cyl.uni.logEps, h.log_eps);
+    gl.uniform1i(cyl.uni.cols, cyl.cols);
+    gl.uniform1i(cyl.uni.size, CYL_SIZE);
+    gl.useProgram(prog);
+  }
+
+  // ---- the sample on a cylinder ----
+  const CYL_SIZE = 256;
+  const cyl = { uni: {} };
+  const vec = ([t, p]) => unit(t * RAD, p * RAD);
+  const dot3 = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+  // Direction `w` (world: x right, y up, z towards the viewer) in the frame of the surface
+  // whose normal is `n` (x along the circumference, y along the axis), degrees.
+  function local(w, n) {
+    const ex = [n[2], 0, -n[0]], ey = [0, 1, 0];
+    const v = [dot3(w, ex), dot3(w, ey), dot3(w, n)];
+    const t = Math.acos(Math.max(-1, Math.min(1, v[2]))) / RAD;
+    let p = Math.atan2(v[1], v[0]) / RAD;
+    if (p < 0) p += 360;
+    return [t, t < 1e-9 ? 0 : p];
+  }
+
+  function drawCylinder() {
+    const h = model.h;
+    const note = $("cyl-text");
+    if (h.part_rows === "view") {
+      note.textContent = "the cylinder view shows FMF and PCMF models (a PVMF's parts differ per column)";
+      return;
+    }
+    const L = vec(pair.light), V = vec(pair.view);
+    const stride = 4 * (1 + h.quads), block = 3 * h.parts * stride;
+    cyl.data.fill(0);
+    for (let c = 0; c < cyl.cols; c++) {
+      const x = ((c + 0.5) / cyl.cols) * 2 - 1;
+      const n = [x, 0, Math.sqrt(Math.max(0, 1 - x * x))];
+      const l = local(L, n), v = local(V, n);
+      if (l[0] >= 90 || v[0] >= 90) continue;
+      interpolateAngular(model, l, v);
+      cyl.data.set(angData, c * block);
+      cyl.data[c * block + 2] = 1;
+    }
+    gl.useProgram(cyl.prog);
+    gl.activeTexture(gl.TEXTURE3);
+    gl.bindTexture(gl.TEXTURE_2D, cyl.ang);
+    gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, 1 + h.quads, cyl.cols * 3 * h.parts, gl.RGBA, gl.FLOAT, cyl.data);
+    gl.uniform1f(cyl.uni.scale, scale());
+    gl.bindFramebuffer(gl.FRAMEBUFFER, cyl.fbo);
+    gl.viewport(0, 0, CYL_SIZE, CYL_SIZE);
+    gl.drawArrays(gl.TRIANGLES, 0, 3);
+    const px = new Uint8ClampedArray(CYL_SIZE * CYL_SIZE * 4);
+    gl.readPixels(0, 0, CYL_SIZE, CYL_SIZE, gl.RGBA, gl.UNSIGNED_BYTE, px);
+    gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+    gl.viewport(0, 0, h.width, h.height);
+    gl.useProgram(prog);
+    // readPixels is bottom-up.
+    const img = new ImageData(CYL_SIZE, CYL_SIZE);
+    const row = CYL_SIZE * 4;
+    for (let y = 0; y < CYL_SIZE; y++) img.data.set(px.subarray((CYL_SIZE - 1 - y) * row, (CYL_SIZE - y) * row), y * row);
+    const cv = $("cyl");
+    cv.width = CYL_SIZE;
+    cv.height = CYL_SIZE;
+    cv.getContext("2d").putImageData(img, 0, 0);
+    note.textContent = `${cyl.cols} columns, each with its own (light, view) pair in the surface's frame`;
   }
 
   // Renders the model at the current pair; returns the milliseconds it took on the CPU side.
@@ -433,6 +552,7 @@
     requestAnimationFrame(() => {
       drawPending = false;
       draw();
+      if (model) drawCylinder();
     });
   }
 
@@ -487,8 +607,14 @@
     hemis.light.paint();
     hemis.view.paint();
     draw();
+    drawCylinder();
     requestCompare();
     $("btf").dataset.model = `${dataset}/${name}`;
+    // The model's error per capture, below the other plots (a model without textures to
+    // compare with says why not).
+    getJson(`/datasets/${encodeURIComponent(dataset)}/models/${encodeURIComponent(name)}/errors`)
+      .then((e) => BtfPlots.modelErrors($("model-errors"), h.label, e.errors))
+      .catch((e) => { $("model-errors").textContent = `no compression error: ${e.message || e}`; });
   }
 
   // ---- datasets and plots ----
@@ -590,6 +716,11 @@
       setDirection("light", light);
       setDirection("view", view);
       draw();
+    },
+    // The cylinder view at the current pair, RGBA rows top first.
+    cylinderPixels() {
+      drawCylinder();
+      return Array.from($("cyl").getContext("2d").getImageData(0, 0, CYL_SIZE, CYL_SIZE).data);
     },
     // The comparison at the current pair, once it has arrived: {pair, relRmse}.
     async compared() {
