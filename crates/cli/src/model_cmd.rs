@@ -318,9 +318,21 @@ fn reflectance_rows(obs: &mut Observations, material: &str, rows: &mut Vec<FitRo
         fit_s: 0.0,
         eval_s: 0.0,
     });
-    for k in 1..=3 {
+    // The lobes relative to photometric stereo's normals (robust): normal mapping.
+    let (w, h) = (obs.source.layout().width, obs.source.layout().height);
+    let (refs, _, _) = obs.input();
+    let ps_in = PsInput { what: &obs.what, width: w, height: h, lights: &obs.lights, images: &refs };
+    let normals = photometric_stereo(&ps_in, &PsParams::new(PsMethod::Robust))?.normal;
+    drop(refs);
+    for (k, with_normals) in [(1, false), (1, true), (2, true), (3, true)] {
         let refs: Vec<&[[f32; 3]]> = obs.images.iter().map(|v| v.as_slice()).collect();
-        let input = BtfInput { texels, lights: &obs.lights, views: &obs.views, images: &refs };
+        let input = BtfInput {
+            texels,
+            lights: &obs.lights,
+            views: &obs.views,
+            images: &refs,
+            normals: with_normals.then_some(normals.as_slice()),
+        };
         let t = Instant::now();
         let map = fit(&input, &LafortuneParams::new(k))?;
         let fit_s = t.elapsed().as_secs_f64();
@@ -328,16 +340,20 @@ fn reflectance_rows(obs: &mut Observations, material: &str, rows: &mut Vec<FitRo
         let decoded: Vec<Vec<[f32; 3]>> = obs.lights.iter().zip(&obs.views).map(|(l, v)| map.texture(l, v)).collect();
         let eval_s = t.elapsed().as_secs_f64();
         let (e_data, e_truth) = score(&decoded, obs, truth.as_ref());
-        let bytes = texels * map.values_per_texel() * 2;
+        // Half floats; a normal is 2 of them (z follows).
+        let bytes = texels * (map.values_per_texel() + if with_normals { 2 } else { 0 }) * 2;
         rows.push(FitRow {
             material: material.into(),
-            model: format!("lafortune-{k}"),
+            model: format!("lafortune-{k}{}", if with_normals { "+normal" } else { "" }),
             bytes,
             rel_rmse_data: e_data,
             rel_rmse_truth: e_truth,
             fit_s,
             eval_s,
         });
+        if !with_normals {
+            continue;
+        }
         // FMF and PCMF (8 clusters) with the fewest terms of at least this storage.
         for pcmf in [false, true] {
             let mut chosen = None;
