@@ -68,6 +68,16 @@ fn model_ps_recovers_a_plane_and_names_what_is_missing() {
     // A plane integrates to a plane: the height spans the tilt over the region.
     let hmax = d["maps"]["height"]["max"].as_f64().unwrap();
     assert!(hmax > 0.0, "{d}");
+    // Lafortune lobes relative to those normals: a Lambertian plane needs no lobe.
+    let lo = dir.join("lafortune");
+    let stdout = ok(btfrig().args(["model", "lafortune"]).arg(&data).arg("--out").arg(&lo).arg("--json"));
+    let d: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert!(d["rel_rmse_data"].as_f64().unwrap() < 1e-3, "{d}");
+    for f in ["albedo.exr", "normal.exr", "lobe1.exr", "model.json"] {
+        assert!(lo.join(f).is_file(), "{f} missing");
+    }
+    let e = fails(btfrig().args(["model", "lafortune"]).arg(&data).args(["--lobes", "4", "--out"]).arg(dir.join("l4")));
+    assert!(e.contains("lobes = 4: 1, 2 or 3"), "{e}");
     // Nothing is overwritten.
     let e = fails(btfrig().args(["model", "ps"]).arg(&data).arg("--out").arg(&out));
     assert!(e.contains("not empty"), "{e}");

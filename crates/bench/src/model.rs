@@ -94,8 +94,8 @@ impl SurfaceTruthProbe for SimSurface {
 
 /// The noise-free textures of a gonio dataset's captures: the renderer's ground truth at the
 /// nominal pose of each `(light, view)` (sample frame), over the dataset's region at its texel
-/// size, as radiance factors (the scale `btfrig bench compress` uses). One point sample per
-/// texel. `None` for a dataset whose rig is not a gonioreflectometer.
+/// size, as radiance factors (the scale `btfrig bench compress` uses), each texel the mean of
+/// `SUBSAMPLES`² point samples over its area (as the run report's truth). `None` for a dataset whose rig is not a gonioreflectometer.
 pub fn truth_textures(
     manifest: &Manifest,
     material: &str,
@@ -115,7 +115,8 @@ pub fn truth_textures(
     for (l, v) in pairs {
         let joints =
             scene.gonio().ik(*l, *v).map_err(|e| anyhow::anyhow!("truth of light {l:?}, view {v:?}: {e:?}"))?;
-        let gt = scene.renderer().ground_truth(&scene.pose(&joints), w, h, Some(region));
+        let k = SUBSAMPLES;
+        let gt = scene.renderer().ground_truth(&scene.pose(&joints), w * k, h * k, Some(region)).box_average(k);
         out.push(gt.data.iter().map(|p| p.map(|c| c * scale)).collect());
     }
     Ok(Some(out))

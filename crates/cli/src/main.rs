@@ -77,6 +77,7 @@ fn main() -> std::process::ExitCode {
         Command::Dataset(DatasetCommand::Report(a)) => done(look_cmd::report(&a)),
         Command::Compress(a) => done(compress_cmd::compress(&a)),
         Command::Model(model_cmd::ModelCommand::Ps(a)) => done(model_cmd::ps(&a)),
+        Command::Model(model_cmd::ModelCommand::Lafortune(a)) => done(model_cmd::lafortune(&a)),
         Command::Reprocess(a) => done(reprocess_cmd::run(&a)),
         Command::Sparse(args::SparseCommand::Select(a)) => done(compress_cmd::select(&a)),
         Command::Sparse(args::SparseCommand::Reconstruct(a)) => done(compress_cmd::reconstruct(&a)),

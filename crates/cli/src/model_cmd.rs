@@ -21,6 +21,28 @@ pub enum ModelCommand {
     /// Photometric stereo: normal, albedo and height maps (EXR) with their uncertainty and a
     /// JSON descriptor, from a dataset's rectified textures and light directions.
     Ps(PsArgs),
+    /// Per-texel Lafortune lobes (K = 1..3) relative to photometric stereo's normals: normal,
+    /// albedo and lobe-parameter maps (EXR) and a JSON descriptor.
+    Lafortune(LafortuneArgs),
+}
+
+/// `btfrig model lafortune`.
+#[derive(Debug, Args)]
+pub struct LafortuneArgs {
+    /// The dataset directory.
+    pub dataset: PathBuf,
+    /// Output directory (new or empty; nothing is overwritten).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Lobes per texel, 1..=3.
+    #[arg(long, default_value_t = 1)]
+    pub lobes: usize,
+    /// Lobes in the sample frame instead of relative to photometric stereo's normals.
+    #[arg(long)]
+    pub no_normals: bool,
+    /// Print the descriptor as JSON.
+    #[arg(long)]
+    pub json: bool,
 }
 
 /// `btfrig model ps`.
@@ -242,6 +264,74 @@ pub fn ps(a: &PsArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// `btfrig model lafortune`.
+pub fn lafortune(a: &LafortuneArgs) -> anyhow::Result<()> {
+    use btfrig_model::lafortune::{fit, BtfInput, LafortuneParams, ALBEDO_BOUNDS, LOBE_BOUNDS};
+    let obs = Observations::read(&a.dataset, None)?;
+    let (refs, w, h) = obs.input();
+    let normals = if a.no_normals {
+        None
+    } else {
+        let input = PsInput { what: &obs.what, width: w, height: h, lights: &obs.lights, images: &refs };
+        Some(photometric_stereo(&input, &PsParams::new(PsMethod::Robust))?.normal)
+    };
+    let input =
+        BtfInput { texels: w * h, lights: &obs.lights, views: &obs.views, images: &refs, normals: normals.as_deref() };
+    let t = Instant::now();
+    let map = fit(&input, &LafortuneParams::new(a.lobes))?;
+    let fit_s = t.elapsed().as_secs_f64();
+    let mut sums = Sums::default();
+    for (i, (l, v)) in obs.lights.iter().zip(&obs.views).enumerate() {
+        sums.add(&map.texture(l, v), &obs.images[i]);
+    }
+    let out = crate::captures_cmd::prepare_output(Some(a.out.clone()), "btfrig-lafortune")?;
+    btfrig_imageio::write_rgb_exr(&out.join("albedo.exr"), w, h, &map.albedo)?;
+    let mut files = serde_json::Map::new();
+    files.insert("albedo".into(), serde_json::json!({ "file": "albedo.exr", "channels": ["R", "G", "B"], "meaning": "diffuse albedo rho, linear sRGB" }));
+    if let Some(n) = &normals {
+        let rgb: Vec<[f32; 3]> = n.iter().map(|n| [n[0] as f32, n[1] as f32, n[2] as f32]).collect();
+        btfrig_imageio::write_rgb_exr(&out.join("normal.exr"), w, h, &rgb)?;
+        files.insert("normal".into(), serde_json::json!({ "file": "normal.exr", "channels": ["R", "G", "B"], "meaning": "unit normal (x, y, z), sample frame; the lobes' frame" }));
+    }
+    for k in 0..a.lobes {
+        let p: Vec<[f32; 3]> = (0..w * h)
+            .map(|t| {
+                let l = map.lobe[t * a.lobes + k];
+                [l.cxy as f32, l.cz as f32, l.n as f32]
+            })
+            .collect();
+        let name = format!("lobe{}.exr", k + 1);
+        btfrig_imageio::write_rgb_exr(&out.join(&name), w, h, &p)?;
+        files.insert(format!("lobe{}", k + 1), serde_json::json!({ "file": name, "channels": ["R", "G", "B"], "meaning": "lobe parameters: R = C_xy, G = C_z, B = exponent n (not colour)" }));
+    }
+    let rel = sums.rel();
+    let desc = serde_json::json!({
+        "format": "btfrig-material-maps",
+        "version": 1,
+        "model": "lafortune",
+        "formula": "I_c(l, v) = l_z (rho_c + sum_k max(0, C_xy,k (l_x v_x + l_y v_y) + C_z,k l_z v_z)^n_k), l and v in the texel's frame (normal map) or the sample frame",
+        "lobes": a.lobes,
+        "relative_to_normals": normals.is_some(),
+        "bounds": { "albedo": ALBEDO_BOUNDS, "lobe": LOBE_BOUNDS },
+        "source": { "dataset": a.dataset.display().to_string(), "manifest_plan_hash": obs.source.manifest().plan.hash, "captures": obs.lights.len() },
+        "width": w, "height": h,
+        "region_m": dataset_region(obs.source.manifest()),
+        "maps": files,
+        "rel_rmse_data": rel,
+        "fit_s": fit_s,
+    });
+    let text = serde_json::to_string_pretty(&desc)?;
+    std::fs::write(out.join("model.json"), format!("{text}\n"))
+        .with_context(|| format!("cannot write {}", out.join("model.json").display()))?;
+    if a.json {
+        println!("{text}");
+    } else {
+        println!("btfrig model lafortune: {} lobe(s), {} x {} texels, relative RMSE {rel:.4} against the {} captures, {fit_s:.2} s", a.lobes, w, h, obs.lights.len());
+        println!("  maps             {}", out.display());
+    }
+    Ok(())
+}
+
 /// One row of `bench model`'s photometric-stereo table.
 #[derive(Debug, serde::Serialize)]
 struct PsRow {
@@ -318,9 +408,21 @@ fn reflectance_rows(obs: &mut Observations, material: &str, rows: &mut Vec<FitRo
         fit_s: 0.0,
         eval_s: 0.0,
     });
-    for k in 1..=3 {
+    // The lobes relative to photometric stereo's normals (robust): normal mapping.
+    let (w, h) = (obs.source.layout().width, obs.source.layout().height);
+    let (refs, _, _) = obs.input();
+    let ps_in = PsInput { what: &obs.what, width: w, height: h, lights: &obs.lights, images: &refs };
+    let normals = photometric_stereo(&ps_in, &PsParams::new(PsMethod::Robust))?.normal;
+    drop(refs);
+    for (k, with_normals) in [(1, false), (1, true), (2, true), (3, true)] {
         let refs: Vec<&[[f32; 3]]> = obs.images.iter().map(|v| v.as_slice()).collect();
-        let input = BtfInput { texels, lights: &obs.lights, views: &obs.views, images: &refs };
+        let input = BtfInput {
+            texels,
+            lights: &obs.lights,
+            views: &obs.views,
+            images: &refs,
+            normals: with_normals.then_some(normals.as_slice()),
+        };
         let t = Instant::now();
         let map = fit(&input, &LafortuneParams::new(k))?;
         let fit_s = t.elapsed().as_secs_f64();
@@ -328,16 +430,20 @@ fn reflectance_rows(obs: &mut Observations, material: &str, rows: &mut Vec<FitRo
         let decoded: Vec<Vec<[f32; 3]>> = obs.lights.iter().zip(&obs.views).map(|(l, v)| map.texture(l, v)).collect();
         let eval_s = t.elapsed().as_secs_f64();
         let (e_data, e_truth) = score(&decoded, obs, truth.as_ref());
-        let bytes = texels * map.values_per_texel() * 2;
+        // Half floats; a normal is 2 of them (z follows).
+        let bytes = texels * (map.values_per_texel() + if with_normals { 2 } else { 0 }) * 2;
         rows.push(FitRow {
             material: material.into(),
-            model: format!("lafortune-{k}"),
+            model: format!("lafortune-{k}{}", if with_normals { "+normal" } else { "" }),
             bytes,
             rel_rmse_data: e_data,
             rel_rmse_truth: e_truth,
             fit_s,
             eval_s,
         });
+        if !with_normals {
+            continue;
+        }
         // FMF and PCMF (8 clusters) with the fewest terms of at least this storage.
         for pcmf in [false, true] {
             let mut chosen = None;

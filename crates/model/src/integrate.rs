@@ -201,6 +201,8 @@ pub fn integrate(
 /// Per-texel standard deviation of the integrated height when each gradient component of
 /// texel `t` has standard deviation `sigma[t]`, by Monte Carlo: `draws` integrations of
 /// perturbed gradients (Gaussian, seeded by `seed`), the spread around the unperturbed one.
+// The arguments are those of `integrate` plus the noise and its draws.
+#[allow(clippy::too_many_arguments)]
 pub fn height_sigma(
     width: usize,
     height: usize,

@@ -9,10 +9,14 @@
 //!
 //! a colour diffuse albedo `ρ_c` and `K` grey isotropic lobes (`C_xy < 0` forward scattering
 //! around the mirror direction, `C_xy > 0` retro-reflection), `3 + 3K` values per texel.
+//! With a normal map (photometric stereo's) the directions are first taken into each texel's
+//! local frame (tangent `t ⟂ n` in the `x z` plane, `b = n × t`, `n`), so the lobes are those
+//! of the tilted facet and `l_z` is its cosine `n·l`; an observation with `n·l ≤ 0` or
+//! `n·v ≤ 0` is the facet's attached shadow or back side and predicts 0.
 //!
 //! The lobes are fitted to the channels' mean by Levenberg–Marquardt with the parameters
 //! projected onto their bounds after each step (`0 ≤ ρ ≤ 2`, `−3 ≤ C_xy ≤ 3`, `0 ≤ C_z ≤ 3`,
-//! `1 ≤ n ≤ 300`), with analytic derivatives. Well-posed starts: the albedo is the lower
+//! `1 ≤ n ≤ 1000`), with analytic derivatives. Well-posed starts: the albedo is the lower
 //! quartile of `I / l_z`; lobe `k` starts from the fit with `K − 1` lobes plus a forward
 //! lobe (`C_xy = −C_z`) of exponent 8 or 60, whichever ends lower. At grazing angles and
 //! outside a lobe the base is 0, the lobe 0 and its exponent derivative 0 (no `ln 0`), so
@@ -24,7 +28,7 @@ use serde::Serialize;
 use crate::error::{ModelError, Result};
 
 /// Bounds of the lobe parameters `(C_xy, C_z, n)`.
-pub const LOBE_BOUNDS: [(f64, f64); 3] = [(-3.0, 3.0), (0.0, 3.0), (1.0, 300.0)];
+pub const LOBE_BOUNDS: [(f64, f64); 3] = [(-3.0, 3.0), (0.0, 3.0), (1.0, 1000.0)];
 /// Bounds of the grey albedo.
 pub const ALBEDO_BOUNDS: (f64, f64) = (0.0, 2.0);
 
@@ -52,6 +56,19 @@ pub struct LafortuneMap {
     pub lobe: Vec<Lobe>,
     /// LM iterations summed over texels.
     pub iterations: u64,
+    /// The texels' normals the lobes are relative to (`None`: the sample's normal).
+    pub normal: Option<Vec<[f64; 3]>>,
+}
+
+/// `d` in the local frame of the unit normal `n` (`t ⟂ n` in the `x z` plane, `b = n × t`).
+pub fn to_local(n: &[f64; 3], d: &[f64; 3]) -> [f64; 3] {
+    // t = normalise(e_x − n_x n): defined unless n is along x, which a surface normal is not.
+    let mut t = [1.0 - n[0] * n[0], -n[0] * n[1], -n[0] * n[2]];
+    let tl = (t[0] * t[0] + t[1] * t[1] + t[2] * t[2]).sqrt().max(1e-12);
+    t = t.map(|x| x / tl);
+    let b = [n[1] * t[2] - n[2] * t[1], n[2] * t[0] - n[0] * t[2], n[0] * t[1] - n[1] * t[0]];
+    let dot = |a: &[f64; 3]| a[0] * d[0] + a[1] * d[1] + a[2] * d[2];
+    [dot(&t), dot(&b), dot(n)]
 }
 
 impl LafortuneMap {
@@ -60,9 +77,16 @@ impl LafortuneMap {
         3 + 3 * self.lobes
     }
 
-    /// The model's radiance factor of texel `t` under `l` seen from `v`.
+    /// The model's radiance factor of texel `t` under `l` seen from `v` (sample frame).
     pub fn eval(&self, t: usize, l: &[f64; 3], v: &[f64; 3]) -> [f32; 3] {
-        let s = lobe_sum(&self.lobe[t * self.lobes..(t + 1) * self.lobes], l, v);
+        let (l, v) = match &self.normal {
+            Some(n) => (to_local(&n[t], l), to_local(&n[t], v)),
+            None => (*l, *v),
+        };
+        if !(l[2] > 0.0 && v[2] > 0.0) {
+            return [0.0; 3];
+        }
+        let s = lobe_sum(&self.lobe[t * self.lobes..(t + 1) * self.lobes], &l, &v);
         let a = self.albedo[t];
         [0, 1, 2].map(|c| (l[2] * (f64::from(a[c]) + s)) as f32)
     }
@@ -121,6 +145,8 @@ pub struct BtfInput<'a> {
     pub views: &'a [[f64; 3]],
     /// The images.
     pub images: &'a [&'a [[f32; 3]]],
+    /// Unit normal per texel (photometric stereo's) the lobes are relative to, or `None`.
+    pub normals: Option<&'a [[f64; 3]]>,
 }
 
 /// Fits `params.lobes` lobes per texel (module documentation).
@@ -162,20 +188,50 @@ pub fn fit(input: &BtfInput<'_>, params: &LafortuneParams) -> Result<LafortuneMa
             allowed: "finite unit vectors above the surface".into(),
         });
     }
+    if let Some(n) = input.normals {
+        if n.len() != input.texels {
+            return Err(ModelError::WrongSize { what: "normals".into(), got: n.len(), expected: input.texels });
+        }
+    }
     let fits: Vec<([f32; 3], Vec<Lobe>, u64)> = (0..input.texels)
         .into_par_iter()
         .map(|t| {
-            let rgb: Vec<[f64; 3]> = input.images.iter().map(|img| img[t].map(f64::from)).collect();
+            // Observations in the texel's frame, those its facet can see and be lit in.
+            let (mut lights, mut views, mut rgb) = (Vec::new(), Vec::new(), Vec::new());
+            for ((l, v), img) in input.lights.iter().zip(input.views).zip(input.images) {
+                let (l, v) = match input.normals {
+                    Some(n) => (to_local(&n[t], l), to_local(&n[t], v)),
+                    None => (*l, *v),
+                };
+                if l[2] > 1e-3 && v[2] > 1e-3 {
+                    lights.push(l);
+                    views.push(v);
+                    rgb.push(img[t].map(f64::from));
+                }
+            }
+            if lights.len() < 1 + 3 * params.lobes {
+                // Too few lit observations for lobes: the albedo alone.
+                let den: f64 = lights.iter().map(|l| l[2] * l[2]).sum();
+                let a = [0, 1, 2].map(|c| {
+                    let num: f64 = lights.iter().zip(&rgb).map(|(l, p)| l[2] * p[c]).sum();
+                    if den > 0.0 {
+                        (num / den).clamp(0.0, 2.0) as f32
+                    } else {
+                        0.0
+                    }
+                });
+                return (a, vec![Lobe { cxy: 0.0, cz: 0.0, n: 1.0 }; params.lobes], 0);
+            }
+            let (lights, views) = (&lights[..], &views[..]);
             let y: Vec<f64> = rgb.iter().map(|p| (p[0] + p[1] + p[2]) / 3.0).collect();
-            let (rho, lobes, it) = fit_texel(input.lights, input.views, &y, params);
+            let (rho, lobes, it) = fit_texel(lights, views, &y, params);
             // Colour albedo: I_c = l_z (ρ_c + S) → ρ_c = Σ l_z (I_c − l_z S) / Σ l_z².
             let mut albedo = [0.0f32; 3];
-            let den: f64 = input.lights.iter().map(|l| l[2] * l[2]).sum();
+            let den: f64 = lights.iter().map(|l| l[2] * l[2]).sum();
             for (c, a) in albedo.iter_mut().enumerate() {
-                let num: f64 = input
-                    .lights
+                let num: f64 = lights
                     .iter()
-                    .zip(input.views)
+                    .zip(views)
                     .zip(&rgb)
                     .map(|((l, v), p)| l[2] * (p[c] - l[2] * lobe_sum(&lobes, l, v)))
                     .sum();
@@ -190,6 +246,7 @@ pub fn fit(input: &BtfInput<'_>, params: &LafortuneParams) -> Result<LafortuneMa
         albedo: Vec::with_capacity(input.texels),
         lobe: Vec::with_capacity(input.texels * params.lobes),
         iterations: 0,
+        normal: input.normals.map(|n| n.to_vec()),
     };
     for (a, l, it) in fits {
         out.albedo.push(a);
@@ -345,7 +402,7 @@ mod tests {
             })
             .collect();
         let refs: Vec<&[[f32; 3]]> = imgs.iter().map(|v| v.as_slice()).collect();
-        let input = BtfInput { texels: 2, lights: &lights, views: &views, images: &refs };
+        let input = BtfInput { texels: 2, lights: &lights, views: &views, images: &refs, normals: None };
         for k in 1..=3 {
             let m = fit(&input, &LafortuneParams::new(k)).unwrap();
             let mut err = 0.0f64;
@@ -363,8 +420,51 @@ mod tests {
             assert!((m.albedo[0][0] - 0.3).abs() < 0.01, "{:?}", m.albedo[0]);
         }
         // Too few observations for 3 lobes are named.
-        let few = BtfInput { texels: 2, lights: &lights[..5], views: &views[..5], images: &refs[..5] };
+        let few = BtfInput { texels: 2, lights: &lights[..5], views: &views[..5], images: &refs[..5], normals: None };
         let e = fit(&few, &LafortuneParams::new(3)).unwrap_err().to_string();
         assert!(e.contains("5 observation(s)") && e.contains("at least 10"), "{e}");
+    }
+
+    #[test]
+    fn lobes_of_a_tilted_facet_need_its_normal() {
+        // A facet tilted 30 deg with a Phong-like lobe in its own frame.
+        let n = dir(30.0, 60.0);
+        let truth = Lobe { cxy: -1.0, cz: 1.0, n: 12.0 };
+        let (mut lights, mut views) = (Vec::new(), Vec::new());
+        for lt in [0.0, 15.0, 30.0, 45.0, 60.0, 75.0] {
+            for lp in [0.0, 72.0, 144.0, 216.0, 288.0] {
+                for vt in [0.0, 20.0, 40.0, 60.0] {
+                    for vp in [30.0, 150.0, 270.0] {
+                        lights.push(dir(lt, lp));
+                        views.push(dir(vt, vp));
+                    }
+                }
+            }
+        }
+        let model = |l: &[f64; 3], v: &[f64; 3]| {
+            let (ll, vl) = (to_local(&n, l), to_local(&n, v));
+            if ll[2] <= 0.0 || vl[2] <= 0.0 {
+                return 0.0;
+            }
+            ll[2] * (0.4 + lobe_sum(&[truth], &ll, &vl))
+        };
+        let imgs: Vec<Vec<[f32; 3]>> = lights.iter().zip(&views).map(|(l, v)| vec![[model(l, v) as f32; 3]]).collect();
+        let refs: Vec<&[[f32; 3]]> = imgs.iter().map(|v| v.as_slice()).collect();
+        let rel = |normals: Option<&[[f64; 3]]>| {
+            let input = BtfInput { texels: 1, lights: &lights, views: &views, images: &refs, normals };
+            let m = fit(&input, &LafortuneParams::new(1)).unwrap();
+            let (mut e, mut s) = (0.0, 0.0);
+            for (i, (l, v)) in lights.iter().zip(&views).enumerate() {
+                let p = m.eval(0, l, v);
+                assert!(p.iter().all(|x| x.is_finite()));
+                e += (f64::from(p[0]) - f64::from(imgs[i][0][0])).powi(2);
+                s += f64::from(imgs[i][0][0]).powi(2);
+            }
+            (e / s).sqrt()
+        };
+        let normals = [n];
+        let (with, without) = (rel(Some(&normals)), rel(None));
+        assert!(with < 1e-3, "with the normal: {with}");
+        assert!(without > 20.0 * with.max(1e-4), "without: {without}, with: {with}");
     }
 }

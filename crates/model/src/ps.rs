@@ -350,7 +350,7 @@ fn tukey(r: f64, cs: f64) -> f64 {
 }
 
 fn tukey_loss(r: f64, cs: f64) -> f64 {
-    let u = (r / cs).min(1.0).max(-1.0);
+    let u = (r / cs).clamp(-1.0, 1.0);
     1.0 - (1.0 - u * u).powi(3)
 }
 
@@ -490,24 +490,18 @@ fn fit_texel(
     let p = Matrix3::identity() - nrm * nrm.transpose();
     let tang = (p * cov * p).trace().max(0.0);
     let sigma_deg = (tang.sqrt() / rho).atan().to_degrees() as f32;
-    let mut albedo = [0.0f32; 3];
-    let mut den = 0.0;
-    for i in 0..m {
-        let s = nrm.dot(&lights[i]);
-        if sc.w[i] > 0.0 && s > 0.0 {
-            den += sc.w[i] * s * s;
-        }
-    }
-    for (c, a) in albedo.iter_mut().enumerate() {
-        let mut num = 0.0;
-        for i in 0..m {
-            let s = nrm.dot(&lights[i]);
-            if sc.w[i] > 0.0 && s > 0.0 {
-                num += sc.w[i] * sc.rgb[i][c] * s;
+    // Weighted least squares per channel over the lit, weighted observations.
+    let (mut num, mut den) = ([0.0f64; 3], 0.0);
+    for ((l, &w), rgb) in lights.iter().zip(&sc.w).zip(&sc.rgb) {
+        let s = nrm.dot(l);
+        if w > 0.0 && s > 0.0 {
+            den += w * s * s;
+            for c in 0..3 {
+                num[c] += w * rgb[c] * s;
             }
         }
-        *a = if den > 0.0 { (num / den) as f32 } else { 0.0 };
     }
+    let albedo = num.map(|x| if den > 0.0 { (x / den) as f32 } else { 0.0 });
     TexelFit { normal: [nrm.x, nrm.y, nrm.z], albedo, sigma_deg, used, b }
 }
 
