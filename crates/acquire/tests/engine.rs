@@ -155,6 +155,10 @@ async fn forty_steps_delivered_once_in_order_and_overlap_matches_the_planner() {
     let RunOutcome::Finished(sum) = outcome else { panic!("{outcome:?}") };
     assert_eq!((sum.total, sum.captured, sum.skipped_done, sum.retries), (40, 40, 0, 0));
     assert!(frames.iter().all(|f| f.attempts == 1));
+    // A consumer that keeps up: the 4-frame channel never fills and capture never waits on it.
+    let q = sum.frame_queue;
+    assert_eq!((q.capacity, q.delivered, q.full_waits), (4, 40, 0), "{q:?}");
+    assert!(q.max_fill < q.capacity && q.full_wait_s == 0.0, "{q:?}");
 
     let planned = sched.timing.hardware_s;
     let rel = (sum.hardware_s - planned).abs() / planned;
@@ -525,6 +529,10 @@ async fn slow_consumer_backpressure_delays_the_run_without_losing_frames() {
     assert_eq!(consumer.await.unwrap(), 10);
     // With a 1-frame channel the engine can be at most ~2 frames ahead of the consumer.
     assert!(sum.hardware_s > 8.0 * 12.0, "{} s", sum.hardware_s);
+    // The frame queue says so: full, and capture waited on it (about 12 - 6 s per frame).
+    let q = sum.frame_queue;
+    assert_eq!((q.capacity, q.delivered, q.max_fill), (1, 10, 1), "{q:?}");
+    assert!(q.full_waits >= 8 && q.full_wait_s > 8.0 * 4.0, "{q:?}");
 }
 
 #[tokio::test(start_paused = true)]

@@ -279,7 +279,10 @@ impl Bench {
         anyhow::ensure!((8..=4096).contains(&size), "--size {size}: allowed 8..=4096");
         let scene = RigScene::new(&cfg, material)?;
         let camera = scene.camera().model().clone();
-        let mut registrar = PlateRegistrar::new(camera.clone(), &cfg.plate, RegisterOptions::default())?;
+        // The rig's pose tolerance, as processing uses it (the gate, and the first windows).
+        let (deg, m) = cfg.geometry.pose_tolerance();
+        let mut registrar =
+            PlateRegistrar::new(camera.clone(), &cfg.plate, RegisterOptions::with_pose_tolerance(deg, m))?;
         let scale = camera.width as f64 / 1600.0;
         let window = ((51.0 * scale).round() as usize).max(3) | 1;
         registrar.detect.threshold_window_px = window;

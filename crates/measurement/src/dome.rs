@@ -143,6 +143,9 @@ pub struct DomeRunSummary {
     /// View groups rectified with the nominal pose because registration failed (each one's
     /// reason is a warning).
     pub fallbacks: u64,
+    /// Pattern frames that did not need their own registration: a view group is registered
+    /// once, from the sum of its frames (issue 27's skip counts).
+    pub registrations_reused: u64,
     /// Mean texel position error of the poses used against the true poses, texels (mean over
     /// view groups of the mean over texels; simulated rig).
     pub registration_mean_texel_err: Option<f64>,
@@ -211,6 +214,7 @@ impl DomeRunSummary {
             "reference_mux_texture_rel_rmse": self.reference_mux_texture_rel_rmse,
             "registered": self.registered,
             "fallbacks": self.fallbacks,
+            "registrations_reused": self.registrations_reused,
             "registration_mean_texel_err": self.registration_mean_texel_err,
             "registration_max_texel_err": self.registration_max_texel_err,
             "nominal_mean_texel_err": self.nominal_mean_texel_err,
@@ -996,6 +1000,7 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
         let t0 = Instant::now();
         let pose = self.processing.register(&stack);
         let register_s = t0.elapsed().as_secs_f64();
+        self.out.registrations_reused += stack.frames().saturating_sub(1) as u64;
         match pose.source {
             PoseSource::Markers => self.out.registered += 1,
             _ => {

@@ -59,6 +59,9 @@ fn a_turntable_positioning_error_is_measured_by_registration_not_taken_from_the_
     assert!(reg < 0.05 && reg < nominal / 5.0, "registered {reg} texels vs nominal {nominal}");
     let json = s.to_json();
     assert_eq!(json["registered"], 1);
+    // The group's pattern frames were registered once, from their sum.
+    assert!(s.frames > 1, "{json}");
+    assert_eq!(json["registrations_reused"], s.frames - 1, "{json}");
     assert!(json["registration_mean_texel_err"].as_f64().is_some(), "{json}");
 }
 

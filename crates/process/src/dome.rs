@@ -292,6 +292,11 @@ impl GroupStack {
         }
     }
 
+    /// Pattern frames the group has (arrived or not).
+    pub fn frames(&self) -> usize {
+        self.filled.len()
+    }
+
     /// Whether every frame has arrived.
     pub fn is_complete(&self) -> bool {
         self.filled.iter().all(|f| *f)

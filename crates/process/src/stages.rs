@@ -278,7 +278,7 @@ impl Processor {
         registrar: &PlateRegistrar,
         image: &LinearImage,
         nominal: &ScenePose,
-    ) -> Result<(ScenePose, StepRegistration), (String, Option<StepSearch>)> {
+    ) -> Result<(ScenePose, StepRegistration), RegistrationFailure> {
         let green: Vec<f32> = image.data.iter().map(|p| p[1]).collect();
         let gray = GrayImage::new(image.width, image.height, &green).map_err(|e| (e.to_string(), None))?;
         let found = registrar.register_image(&gray, nominal).map_err(|e| {
@@ -302,14 +302,17 @@ impl Processor {
     }
 }
 
+/// Why a frame did not register, and its marker search's record when the markers were searched.
+type RegistrationFailure = (String, Option<Box<StepSearch>>);
+
 /// A registration record with only its pose source set.
 fn record(pose: PoseSource) -> StepRegistration {
     StepRegistration { pose, markers: Vec::new(), rms_px: None, texel_sigma: None, reason: None, search: None }
 }
 
 /// The journal's record of a frame's marker search.
-fn step_search(s: &SearchRecord) -> StepSearch {
-    StepSearch {
+fn step_search(s: &SearchRecord) -> Box<StepSearch> {
+    Box::new(StepSearch {
         windows: s.windows as u32,
         searched_fraction: s.pixels as f64 / s.frame_pixels.max(1) as f64,
         whole_frame: s.whole_frame,
@@ -318,7 +321,7 @@ fn step_search(s: &SearchRecord) -> StepSearch {
         detect_s: s.detect_s,
         whole_frame_s: s.whole_frame_s,
         reference_s: s.reference_s,
-    }
+    })
 }
 
 /// Sum of squared differences and of the squared truth over texels and channels.

@@ -461,7 +461,7 @@ mod tests {
             rms_px: None,
             texel_sigma: None,
             reason: Some("registration needs at least 3 good markers, found 0".into()),
-            search: Some(crate::StepSearch {
+            search: Some(Box::new(crate::StepSearch {
                 windows: 12,
                 searched_fraction: 1.3,
                 whole_frame: true,
@@ -470,7 +470,7 @@ mod tests {
                 detect_s: 0.5,
                 whole_frame_s: Some(0.4),
                 reference_s: 0.0,
-            }),
+            })),
         };
         let Record::Step(mut r) = step(1, 2) else { unreachable!() };
         r.registration = Some(reg.clone());

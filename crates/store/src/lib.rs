@@ -154,9 +154,10 @@ pub struct StepRegistration {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reason: Option<String>,
     /// Where the markers were searched (absent in journals written before it was recorded,
-    /// and when no marker search ran).
+    /// and when no marker search ran). Boxed: most records of a journal are steps, and this
+    /// keeps the record enum's variants of similar size.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub search: Option<StepSearch>,
+    pub search: Option<Box<StepSearch>>,
 }
 
 /// How a step's markers were searched (`docs/registration.md`, "What the windows save").
