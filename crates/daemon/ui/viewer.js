@@ -503,7 +503,7 @@
     };
     cv.addEventListener("pointerdown", (e) => { cv.setPointerCapture(e.pointerId); set(e); });
     cv.addEventListener("pointermove", (e) => {
-      if (e.buttons & 1 || (which === "light" && $("follow").checked)) set(e);
+      if (e.buttons & 1 || $(which === "light" ? "follow" : "follow-view").checked) set(e);
     });
     hemis[which] = { paint };
   }
@@ -670,6 +670,9 @@
       BtfPlots.series($("stages"), "Stage times", "seconds", rows,
         stages.map((s) => ({ label: s, values: rows.map((c) => (c.timing.stage_s || {})[s] ?? null) })));
     }
+    // A dome's multiplex gain per view group is in its report (written when the run ends).
+    const rep = await fetch(`${API}/datasets/${encodeURIComponent(name)}/files/report.json`, { headers: auth() });
+    BtfPlots.multiplexGain($("multiplex-gain"), rep.ok ? await rep.json().catch(() => null) : null);
     // A dataset being measured: the plots fill in as captures are committed.
     const ds = datasets.find((x) => x.name === name);
     if (ds && ["running", "paused", "starting"].includes(ds.state)) {
