@@ -9,7 +9,7 @@
 //    same pair (GET .../render) within TOLERANCE; moving the light changes the image;
 //    a screenshot per pair; its PCMF (log-Y) and PVMF (RGB) models at one pair each; the
 //    side-by-side comparison with the measured texture at the nearest measured pair; the
-//    sample on a cylinder brighter on the side towards the light;
+//    sample on a cylinder (FMF, and PVMF) brighter on the side towards the light;
 // 2. the coverage plot's counts equal report.json's (captures, skipped by reason); the
 //    compression error per capture is plotted, one point per capture;
 // 3. `btfrig dataset render` (the CLI) gives the API's pixels;
@@ -190,6 +190,13 @@ try {
     const s = compare(px, await decodePng(page, (await r.body()).toString("base64")));
     console.log(`# ${oh.label} (${oh.parts} parts, colour ${oh.color}) at pair 2: canvas vs btfrig's render: max ${s.max}, mean ${s.mean.toFixed(4)} levels`);
     check(r.ok() && s.max <= TOLERANCE.max && s.mean <= TOLERANCE.mean, `${other}: canvas equals btfrig's render within the tolerance`, JSON.stringify(s));
+    if (other === "pvmf") {
+      // A PVMF on the cylinder: each column sums its own view parts.
+      const [cr, cl] = [await cylMeans([60, 0]), await cylMeans([60, 180])];
+      console.log(`# pvmf cylinder: lit from the right: left ${cr.left.toFixed(1)}, right ${cr.right.toFixed(1)}; from the left: left ${cl.left.toFixed(1)}, right ${cl.right.toFixed(1)}`);
+      check(cr.right > cr.left && cl.left > cl.right && cr.right > 20 && compare(cr.px, cl.px).mean > 1,
+        "pvmf: the cylinder's side towards the light is the brighter one");
+    }
   }
 
   await page.evaluate(() => window.btfViewer.load("demo", "fmf"));
