@@ -9,7 +9,7 @@
 //    same pair (GET .../render) within TOLERANCE; moving the light changes the image;
 //    a screenshot per pair; its PCMF (log-Y) and PVMF (RGB) models at one pair each; the
 //    side-by-side comparison with the measured texture at the nearest measured pair; the
-//    sample on a cylinder brighter on the side towards the light;
+//    sample on a cylinder (FMF, and PVMF) brighter on the side towards the light;
 // 2. the coverage plot's counts equal report.json's (captures, skipped by reason); the
 //    compression error per capture is plotted, one point per capture;
 // 3. `btfrig dataset render` (the CLI) gives the API's pixels;
@@ -107,6 +107,30 @@ try {
   const fields = await page.evaluate(() => ["light-theta", "light-phi", "view-theta", "view-phi"].map((id) => Number(document.getElementById(id).value)));
   check(JSON.stringify(fields) === JSON.stringify([...dragged.light, ...dragged.view]), `the fields show the dragged pair ${fields}`);
 
+  // "follows the mouse": the view (then the light) moves with the pointer, no button pressed;
+  // unchecked, moving leaves it.
+  const hover = async (sel, fx, fy) => {
+    const b = await page.locator(sel).boundingBox();
+    await page.mouse.move(b.x + b.width * fx, b.y + b.height * fy, { steps: 3 });
+  };
+  await page.locator("#follow-view").check();
+  await hover("#view-hemi", 0.85, 0.5);
+  const followed = await page.evaluate(() => window.btfViewer.pair);
+  await page.locator("#follow-view").uncheck();
+  await page.locator("#follow").check();
+  await hover("#light-hemi", 0.5, 0.2);
+  const lit = await page.evaluate(() => window.btfViewer.pair);
+  await page.locator("#follow").uncheck();
+  await hover("#view-hemi", 0.3, 0.3);
+  await hover("#light-hemi", 0.7, 0.7);
+  const left = await page.evaluate(() => window.btfViewer.pair);
+  console.log(`# follow the mouse: view ${JSON.stringify(followed.view)}, then light ${JSON.stringify(lit.light)}; unchecked ${JSON.stringify(left)}`);
+  check(followed.view[0] > 30 && (followed.view[1] < 5 || followed.view[1] > 355) && JSON.stringify(followed.light) === JSON.stringify(dragged.light),
+    `view follows the mouse (to the right: phi 0), light unchanged`);
+  check(lit.light[0] > 30 && Math.abs(lit.light[1] - 90) < 5 && JSON.stringify(lit.view) === JSON.stringify(followed.view),
+    `light follows the mouse (upwards: phi 90), view unchanged`);
+  check(JSON.stringify(left) === JSON.stringify(lit), "unchecked, moving the mouse changes nothing");
+
   const pairs = [dragged, { light: [25, 40], view: [10, 200] }, { light: [0, 0], view: [28, 300] }];
   const images = [];
   for (const [i, p] of pairs.entries()) {
@@ -166,6 +190,13 @@ try {
     const s = compare(px, await decodePng(page, (await r.body()).toString("base64")));
     console.log(`# ${oh.label} (${oh.parts} parts, colour ${oh.color}) at pair 2: canvas vs btfrig's render: max ${s.max}, mean ${s.mean.toFixed(4)} levels`);
     check(r.ok() && s.max <= TOLERANCE.max && s.mean <= TOLERANCE.mean, `${other}: canvas equals btfrig's render within the tolerance`, JSON.stringify(s));
+    if (other === "pvmf") {
+      // A PVMF on the cylinder: each column sums its own view parts.
+      const [cr, cl] = [await cylMeans([60, 0]), await cylMeans([60, 180])];
+      console.log(`# pvmf cylinder: lit from the right: left ${cr.left.toFixed(1)}, right ${cr.right.toFixed(1)}; from the left: left ${cl.left.toFixed(1)}, right ${cl.right.toFixed(1)}`);
+      check(cr.right > cr.left && cl.left > cl.right && cr.right > 20 && compare(cr.px, cl.px).mean > 1,
+        "pvmf: the cylinder's side towards the light is the brighter one");
+    }
   }
 
   await page.evaluate(() => window.btfViewer.load("demo", "fmf"));
@@ -226,6 +257,24 @@ try {
       const drawn = await rp.locator(`#${id} .uplot canvas`).count();
       check(n === rep.captures && drawn >= 1, `report file: ${id} plot drawn with ${n} points (one per capture)`);
     }
+    // Multiplex gain per view group: none for the gonio demo; a dome-shaped report (the
+    // stuck-LED dome test's figures, crates/measurement/tests/dome.rs) plots one point a group.
+    const none = await rp.$eval("#multiplex-gain", (e) => ({ points: e.dataset.points, text: e.textContent }));
+    check(none.points === "0" && none.text.includes("none"), `report file: no multiplex gain for a gonio run ("${none.text}")`);
+    const mg = await rp.evaluate(() => {
+      const el = document.createElement("div");
+      document.body.append(el);
+      const u = BtfPlots.multiplexGain(el, { multiplex_gain_predicted: 1.972, multiplex_gain_measured: 1.95,
+        multiplex_gain_per_group: [{ view: 15, camera: 4, rotation: 1, gain: 1.598, lights: 198, faults: 1 },
+          { view: 16, camera: 5, rotation: 1, gain: 1.972, lights: 198, faults: 0 }] });
+      const out = { points: el.dataset.points, series: el.dataset.series, canvas: el.querySelectorAll(".uplot canvas").length,
+        data: u ? u.data.map((s) => Array.from(s)) : null };
+      el.remove();
+      return out;
+    });
+    console.log(`# multiplex gain plot of a dome-shaped report: ${JSON.stringify(mg)}`);
+    check(mg.points === "2" && mg.canvas >= 1 && JSON.stringify(mg.data) === JSON.stringify([[1, 2], [1.598, 1.972], [1.972, 1.972], [1.95, null]]),
+      "report file: multiplex gain per view group plotted (group, predicted after faults, run's predicted, measured first group)");
     check(refused.length === 0, "the report file asked for nothing beyond itself", refused.join(", "));
     await rp.screenshot({ path: path.join(out, "report.png"), fullPage: true });
     await rp.close();

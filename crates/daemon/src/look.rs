@@ -568,6 +568,8 @@ table {{ border-collapse: collapse; }} td, th {{ padding: 2px 8px; text-align: l
 <div id="exposure" class="plot"></div>
 <h2>Stage times per capture</h2>
 <div id="stages" class="plot"></div>
+<h2>Multiplex gain per view group (domes, camera arrays)</h2>
+<div id="multiplex-gain" class="plot"></div>
 <h2>Compression error per capture</h2>
 <div id="compression" class="plot"></div>
 <script id="report-data" type="application/json">{json}</script>

@@ -63,10 +63,11 @@ const BtfPlots = (() => {
   }
 
   // One uPlot chart of per-capture series (x: capture number in journal order). `series`:
-  // [{label, values}], values may hold null. The element carries the point count.
-  function series(el, title, ylabel, rows, series) {
+  // [{label, values}], values may hold null. The element carries the point count. `xaxis`
+  // (optional): {label, values} for another x than the capture number.
+  function series(el, title, ylabel, rows, series, xaxis) {
     el.textContent = "";
-    const x = rows.map((_, i) => i + 1);
+    const x = xaxis ? xaxis.values : rows.map((_, i) => i + 1);
     const colors = ["#1d3557", "#e63946", "#2a9d8f", "#f4a261", "#8d5fd3", "#6c757d"];
     const shown = series.filter((s) => s.values.some((v) => v !== null && v !== undefined));
     el.dataset.points = String(rows.length);
@@ -84,8 +85,8 @@ const BtfPlots = (() => {
       width: Math.min(900, Math.max(420, el.clientWidth || 720)),
       height: 220,
       scales: { x: { time: false } },
-      axes: [{ label: "capture (journal order)" }, { label: ylabel }],
-      series: [{ label: "capture" }].concat(
+      axes: [{ label: xaxis ? xaxis.label : "capture (journal order)" }, { label: ylabel }],
+      series: [{ label: xaxis ? xaxis.label : "capture" }].concat(
         shown.map((s, i) => ({ label: s.label, stroke: colors[i % colors.length], width: 1.5,
           points: { show: true, size: 4 } }))),
     };
@@ -131,6 +132,7 @@ const BtfPlots = (() => {
     series(doc.getElementById("stages"), "Stage times", "seconds", rows,
       stages.map((s) => ({ label: s, values: rows.map((c) => (c.stage_s[s] ?? null)) })).concat(
         [{ label: "wall (start to commit)", values: rows.map((c) => c.wall_s) }]));
+    multiplexGain(doc.getElementById("multiplex-gain"), data.report);
     const me = data.model_errors;
     if (me.Ok) modelErrors(doc.getElementById("compression"), me.Ok[0], me.Ok[1]);
     else doc.getElementById("compression").textContent = `no compression error: ${me.Err}`;
@@ -143,5 +145,26 @@ const BtfPlots = (() => {
     ]);
   }
 
-  return { coverage, series, report, modelErrors };
+  // A dome's or camera array's multiplex gain per view group (report.json's
+  // multiplex_gain_per_group, in the order the groups were committed), with the run's
+  // predicted gain and the gain measured on its first group against the simulator's truth.
+  function multiplexGain(el, report) {
+    const groups = (report && report.multiplex_gain_per_group) || [];
+    const title = "Multiplex gain per view group";
+    if (!groups.length) {
+      el.textContent = "";
+      el.dataset.points = "0";
+      el.textContent = `${title}: none (not a multiplexed dome or camera-array run, or no report yet)`;
+      return null;
+    }
+    const x = { label: "view group (commit order)", values: groups.map((_, i) => i + 1) };
+    const measured = report.multiplex_gain_measured;
+    return series(el, title, "SNR gain over single light", groups, [
+      { label: "predicted after the group's faults", values: groups.map((g) => g.gain) },
+      { label: "predicted (run)", values: groups.map(() => report.multiplex_gain_predicted ?? null) },
+      { label: "measured, first group (truth)", values: groups.map((_, i) => (i === 0 ? measured ?? null : null)) },
+    ], x);
+  }
+
+  return { coverage, series, report, modelErrors, multiplexGain };
 })();

@@ -244,6 +244,11 @@
       if (pvmf == 0) {
         int p = int(texelFetch(clus, xy, 0).r + 0.5);
         s = partValue(c, p, 0, xy);
+      } else if (pvmf == 2) {
+        // A PVMF on the cylinder: each column's own view parts, marked in its rows (y = 1).
+        for (int p = 0; p < parts; p++) {
+          if (texelFetch(ang, ivec2(0, rowBase + c * parts + p), 0).y > 0.5) s += partValue(c, p, p, xy);
+        }
       } else {
         for (int i = 0; i < 3; i++) { int p = act[i]; if (p >= 0) s += partValue(c, p, p, xy); }
       }
@@ -371,7 +376,7 @@
     gl.uniform1i(cyl.uni.clus, 2);
     gl.uniform1i(cyl.uni.quads, h.quads);
     gl.uniform1i(cyl.uni.parts, h.parts);
-    gl.uniform1i(cyl.uni.pvmf, 0);
+    gl.uniform1i(cyl.uni.pvmf, h.part_rows === "view" ? 2 : 0);
     gl.uniform1i(cyl.uni.colorModel, { rgb: 0, yuv: 1, "ylog-uv": 2 }[h.color]);
     gl.uniform1f(cyl.uni.logEps, h.log_eps);
     gl.uniform1i(cyl.uni.cols, cyl.cols);
@@ -398,10 +403,6 @@
   function drawCylinder() {
     const h = model.h;
     const note = $("cyl-text");
-    if (h.part_rows === "view") {
-      note.textContent = "the cylinder view shows FMF and PCMF models (a PVMF's parts differ per column)";
-      return;
-    }
     const L = vec(pair.light), V = vec(pair.view);
     const stride = 4 * (1 + h.quads), block = 3 * h.parts * stride;
     cyl.data.fill(0);
@@ -503,7 +504,7 @@
     };
     cv.addEventListener("pointerdown", (e) => { cv.setPointerCapture(e.pointerId); set(e); });
     cv.addEventListener("pointermove", (e) => {
-      if (e.buttons & 1 || (which === "light" && $("follow").checked)) set(e);
+      if (e.buttons & 1 || $(which === "light" ? "follow" : "follow-view").checked) set(e);
     });
     hemis[which] = { paint };
   }
@@ -670,6 +671,9 @@
       BtfPlots.series($("stages"), "Stage times", "seconds", rows,
         stages.map((s) => ({ label: s, values: rows.map((c) => (c.timing.stage_s || {})[s] ?? null) })));
     }
+    // A dome's multiplex gain per view group is in its report (written when the run ends).
+    const rep = await fetch(`${API}/datasets/${encodeURIComponent(name)}/files/report.json`, { headers: auth() });
+    BtfPlots.multiplexGain($("multiplex-gain"), rep.ok ? await rep.json().catch(() => null) : null);
     // A dataset being measured: the plots fill in as captures are committed.
     const ds = datasets.find((x) => x.name === name);
     if (ds && ["running", "paused", "starting"].includes(ds.state)) {

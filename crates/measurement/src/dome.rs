@@ -84,6 +84,23 @@ pub struct DomeRunRequest {
     pub compressed_model: Option<btfrig_core::plan::CompressedModel>,
 }
 
+/// One view group's predicted multiplex gain (`DomeRunSummary::multiplex_gain_per_group`).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct GroupGain {
+    /// The dataset's view id of the group.
+    pub view: u32,
+    /// Arc camera index.
+    pub camera: usize,
+    /// Rotation index.
+    pub rotation: u32,
+    /// Predicted SNR gain over single light.
+    pub gain: f64,
+    /// Lights solved for (dead ones are not).
+    pub lights: usize,
+    /// Faults the demultiplexer found in the group.
+    pub faults: usize,
+}
+
 /// What a dome run did and measured.
 #[derive(Debug, Clone, Default)]
 pub struct DomeRunSummary {
@@ -110,6 +127,11 @@ pub struct DomeRunSummary {
     /// Measured SNR gain against the simulator's noise-free images (`None` without
     /// multiplexing or reference LEDs).
     pub multiplex_gain_measured: Option<f64>,
+    /// Per multiplexed view group, the predicted gain after the faults its demultiplexing
+    /// found: `multiplex_gain_predicted` times the mean over the lights it solved for of the
+    /// fault-free code's noise over this group's (1 in a group without faults). From the
+    /// frames only (no truth); empty for single light.
+    pub multiplex_gain_per_group: Vec<GroupGain>,
     /// Exposure time saved against single-light capture reaching the same SNR (predicted).
     pub time_saved_fraction: f64,
     /// Rig time of the run (virtual), s.
@@ -202,6 +224,7 @@ impl DomeRunSummary {
             "multiplex_reason": self.multiplex_reason,
             "multiplex_gain_predicted": self.multiplex_gain_predicted,
             "multiplex_gain_measured": self.multiplex_gain_measured,
+            "multiplex_gain_per_group": self.multiplex_gain_per_group,
             "time_saved_fraction": self.time_saved_fraction,
             "hardware_s": self.hardware_s,
             "exposure_time_s": self.exposure_time_s,
@@ -513,7 +536,7 @@ pub fn run_controlled(
     // The consumer's latest `TexturesCommitted` (cumulative, so the newest says all: a full
     // queue of one keeps the latest).
     let (commit_tx, mut commit_rx) = tokio::sync::watch::channel::<Option<RunEvent>>(None);
-    let mut state = Consumer::new(&v, schedule.leds, &processing, &code, &dataset, view_id);
+    let mut state = Consumer::new(&v, schedule.leds, &processing, &code, schedule.pattern_scale, &dataset, view_id);
     state.sink = compression.as_ref().map(|c| c.texture_sink());
     state.commits = Some(Committing {
         tx: commit_tx,
@@ -586,6 +609,7 @@ pub fn run_controlled(
     s.multiplex_reason = schedule.reason.clone();
     s.denoise_terms = v.plan.dome.denoise_terms;
     s.multiplex_gain_predicted = schedule.predicted_gain;
+    s.multiplex_gain_per_group.iter_mut().for_each(|g| g.gain *= schedule.predicted_gain);
     s.time_saved_fraction = schedule.time_saved_fraction;
     s.hardware_s = engine.hardware_s;
     // What the session's listener lost (it fell behind the engine's event queue).
@@ -859,6 +883,8 @@ pub(crate) struct Consumer<'a, F: Fn(usize, u32) -> u32> {
     leds: usize,
     processing: &'a DomeProcessing,
     code: &'a GroupCode,
+    /// The patterns' power relative to the calibrated (`group_code`).
+    pattern_scale: f64,
     dataset: &'a Dataset,
     /// The truth behind the frames, consulted only for the report's error figures.
     truth: Option<Arc<dyn DomeTruthProbe>>,
@@ -904,6 +930,7 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
         leds: usize,
         processing: &'a DomeProcessing,
         code: &'a GroupCode,
+        pattern_scale: f64,
         dataset: &'a Dataset,
         view_id: F,
     ) -> Self {
@@ -912,6 +939,7 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
             leds,
             processing,
             code,
+            pattern_scale,
             dataset,
             truth: None,
             sink: None,
@@ -1043,6 +1071,12 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
             }
         }
         let demux_s = started.elapsed().as_secs_f64();
+        if let Some(report) = &result.report {
+            let gain = self.group_noise_ratio(report);
+            let view = (self.view_id)(c, k);
+            let faults = report.faults.iter().filter(|f| f.source < self.leds).count();
+            self.out.multiplex_gain_per_group.push(GroupGain { view, camera: c, rotation: k, faults, ..gain });
+        }
         // A stuck LED's own image is recovered only on average (docs/multiplexing.md): it is
         // stored, but left out of the texture error, which speaks for the healthy LEDs.
         let faulty: Vec<usize> =
@@ -1152,6 +1186,26 @@ impl<'a, F: Fn(usize, u32) -> u32> Consumer<'a, F> {
             }));
         }
         Ok(())
+    }
+
+    /// A group's fault-free code noise over its own, averaged over the lights solved for (the
+    /// run multiplies it by the predicted gain; view, camera and rotation left 0).
+    fn group_noise_ratio(&self, report: &btfrig_mux::lsq::DemuxReport) -> GroupGain {
+        // The fast path's noise per unit frame noise is 2√n/(n+1)/a_j (btfrig_mux::lsq).
+        let order = match self.code {
+            GroupCode::Single => 1,
+            GroupCode::Multiplexed(d) => d.s().order(),
+            GroupCode::Grouped(ds) => ds.first().map_or(1, |d| d.s().order()),
+        } as f64;
+        let base = 2.0 * order.sqrt() / (order + 1.0);
+        let ratios: Vec<f64> = (0..self.leds)
+            .filter_map(|j| {
+                let (sigma, a) = (*report.noise_gain.get(j)?, self.processing.leds.power.get(j)? * self.pattern_scale);
+                (sigma > 0.0 && a > 0.0).then(|| base / (a * sigma))
+            })
+            .collect();
+        let gain = if ratios.is_empty() { 0.0 } else { ratios.iter().sum::<f64>() / ratios.len() as f64 };
+        GroupGain { view: 0, camera: 0, rotation: 0, gain, lights: ratios.len(), faults: 0 }
     }
 
     /// The measured gain and the reference textures' error (module docs).

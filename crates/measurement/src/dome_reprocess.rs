@@ -194,7 +194,8 @@ fn process(
         let vk = ValidatedDomePlan { cameras: cams.iter().map(|(c, _)| *c).collect(), ..v.clone() };
         let view_ids: BTreeMap<(usize, u32), u32> = cams.iter().map(|(c, r)| ((*c, k), r.view)).collect();
         let view_id = |c: usize, k: u32| view_ids[&(c, k)];
-        let mut consumer = crate::dome::Consumer::new(&vk, schedule.leds, processing, code, dataset, view_id);
+        let mut consumer =
+            crate::dome::Consumer::new(&vk, schedule.leds, processing, code, schedule.pattern_scale, dataset, view_id);
         for p in 0..schedule.frames_per_group {
             let frames = cams
                 .iter()

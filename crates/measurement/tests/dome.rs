@@ -88,6 +88,15 @@ fn a_stuck_led_is_detected_reported_and_solved_around() {
     let (e0, e1) = (clean.texture_rel_rmse.unwrap(), s.texture_rel_rmse.unwrap());
     assert!(e1 < 1.4 * e0, "stuck {e1} vs clean {e0}");
     assert_eq!(s.textures, 198);
+    // Per view group: the predicted gain where no fault was found, lowered by the re-solve's
+    // noise in the group with the stuck LED (also in report.json, which the report plots).
+    let (g0, g1) = (&clean.multiplex_gain_per_group, &s.multiplex_gain_per_group);
+    eprintln!("per-group gain: clean {g0:?}, stuck {g1:?}, predicted {}", s.multiplex_gain_predicted);
+    assert_eq!((g0.len(), g0[0].faults, g0[0].lights, g1.len(), g1[0].faults), (1, 0, 198, 1, 1));
+    assert!((g0[0].gain / clean.multiplex_gain_predicted - 1.0).abs() < 1e-9, "{g0:?}");
+    let ratio = g1[0].gain / s.multiplex_gain_predicted;
+    assert!(ratio > 0.5 && ratio < 0.95, "stuck group's gain {ratio} x predicted");
+    assert_eq!(report["multiplex_gain_per_group"][0]["gain"].as_f64(), Some(g1[0].gain), "{report}");
 }
 
 #[test]
