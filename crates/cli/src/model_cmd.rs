@@ -90,6 +90,10 @@ pub struct BenchModelArgs {
     /// Only photometric stereo (no reflectance models, no FMF/PCMF, no truth textures).
     #[arg(long)]
     pub ps_only: bool,
+    /// Of the reflectance models only lafortune-1+normal with and without seed 003's shadow
+    /// and occlusion maps (no FMF/PCMF, no more lobes): the cheap check of the maps.
+    #[arg(long, conflicts_with = "ps_only")]
+    pub sbrdf_only: bool,
     /// Print one JSON object.
     #[arg(long)]
     pub json: bool,
@@ -391,7 +395,12 @@ fn score(decoded: &[Vec<[f32; 3]>], obs: &Observations, truth: Option<&Vec<Vec<[
     (d.rel(), truth.map(|_| t.rel()))
 }
 
-fn reflectance_rows(obs: &mut Observations, material: &str, rows: &mut Vec<FitRow>) -> anyhow::Result<()> {
+fn reflectance_rows(
+    obs: &mut Observations,
+    material: &str,
+    sbrdf_only: bool,
+    rows: &mut Vec<FitRow>,
+) -> anyhow::Result<()> {
     use btfrig_compress::{build, file, Method, ModelParams, Precision};
     use btfrig_model::lafortune::{fit, BtfInput, LafortuneParams};
     let pairs: Vec<_> = obs.pairs.iter().map(|p| (p.0, p.1)).collect();
@@ -414,7 +423,9 @@ fn reflectance_rows(obs: &mut Observations, material: &str, rows: &mut Vec<FitRo
     let ps_in = PsInput { what: &obs.what, width: w, height: h, lights: &obs.lights, images: &refs };
     let normals = photometric_stereo(&ps_in, &PsParams::new(PsMethod::Robust))?.normal;
     drop(refs);
-    for (k, with_normals) in [(1, false), (1, true), (2, true), (3, true)] {
+    let configs: &[(usize, bool)] =
+        if sbrdf_only { &[(1, true)] } else { &[(1, false), (1, true), (2, true), (3, true)] };
+    for &(k, with_normals) in configs {
         let refs: Vec<&[[f32; 3]]> = obs.images.iter().map(|v| v.as_slice()).collect();
         let input = BtfInput {
             texels,
@@ -442,6 +453,37 @@ fn reflectance_rows(obs: &mut Observations, material: &str, rows: &mut Vec<FitRo
             eval_s,
         });
         if !with_normals {
+            continue;
+        }
+        // Seed 003: the SBRDF times self-shadowing (per light) and self-occlusion (per view) maps.
+        {
+            use btfrig_model::sbrdf::{fit as fit_maps, ShadowInput, ShadowParams};
+            let base: Vec<&[[f32; 3]]> = decoded.iter().map(|v| v.as_slice()).collect();
+            let input = ShadowInput { texels, lights: &obs.lights, views: &obs.views, images: &refs, base: &base };
+            let t = Instant::now();
+            let maps = fit_maps(&input, &ShadowParams::default())?;
+            let maps_fit_s = t.elapsed().as_secs_f64();
+            let t = Instant::now();
+            let combined: Vec<Vec<[f32; 3]>> =
+                obs.lights.iter().zip(&obs.views).map(|(l, v)| maps.apply(l, v, &map.texture(l, v))).collect();
+            let maps_eval_s = t.elapsed().as_secs_f64();
+            let (d2, t2) = score(&combined, obs, truth.as_ref());
+            rows.push(FitRow {
+                material: material.into(),
+                // One byte per factor in [0, 1].
+                model: format!(
+                    "lafortune-{k}+normal+shadow/occl ({}+{} dirs)",
+                    maps.light_dirs.len(),
+                    maps.view_dirs.len()
+                ),
+                bytes: bytes + texels * maps.values_per_texel(),
+                rel_rmse_data: d2,
+                rel_rmse_truth: t2,
+                fit_s: fit_s + maps_fit_s,
+                eval_s: maps_eval_s,
+            });
+        }
+        if sbrdf_only {
             continue;
         }
         // FMF and PCMF (8 clusters) with the fewest terms of at least this storage.
@@ -507,7 +549,7 @@ pub fn bench(a: &BenchModelArgs) -> anyhow::Result<()> {
             });
         }
         if !a.ps_only {
-            reflectance_rows(&mut obs, &probe.material, &mut fits)?;
+            reflectance_rows(&mut obs, &probe.material, a.sbrdf_only, &mut fits)?;
         }
     }
     if a.json {
@@ -545,12 +587,12 @@ pub fn bench(a: &BenchModelArgs) -> anyhow::Result<()> {
     println!();
     println!("reflectance models against the measured textures and the noise-free truth (relative RMSE)");
     println!(
-        "{:<16} {:<26} {:>10} {:>10} {:>10} {:>9} {:>9}",
+        "{:<16} {:<44} {:>10} {:>10} {:>10} {:>9} {:>9}",
         "material", "model", "bytes", "vs data", "vs truth", "fit s", "eval s"
     );
     for r in &fits {
         println!(
-            "{:<16} {:<26} {:>10} {:>10.4} {:>10} {:>9.3} {:>9.3}",
+            "{:<16} {:<44} {:>10} {:>10.4} {:>10} {:>9.3} {:>9.3}",
             r.material,
             r.model,
             r.bytes,
