@@ -470,13 +470,13 @@ fn reflectance_rows(
             let (d2, t2) = score(&combined, obs, truth.as_ref());
             rows.push(FitRow {
                 material: material.into(),
-                // One byte per factor in [0, 1].
+                // One byte per factor in [0, 1], a half float for the gain.
                 model: format!(
                     "lafortune-{k}+normal+shadow/occl ({}+{} dirs)",
                     maps.light_dirs.len(),
                     maps.view_dirs.len()
                 ),
-                bytes: bytes + texels * maps.values_per_texel(),
+                bytes: bytes + texels * (maps.values_per_texel() + 1),
                 rel_rmse_data: d2,
                 rel_rmse_truth: t2,
                 fit_s: fit_s + maps_fit_s,

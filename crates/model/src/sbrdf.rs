@@ -12,11 +12,15 @@
 //! light-independent). They are fitted per texel by alternating least squares over the
 //! measured (light, view) pairs, each factor having a closed form given the other
 //! (`S(l) = Σ I·O·B / Σ (O·B)²` over the pairs with that light, summed over channels),
-//! clamped to `[0, 1]`. The product's scale is fixed by rescaling so the largest `O` of a
-//! texel is 1 (which keeps every `S ≤ 1`). A light or view whose predictions are all ~0 has
-//! nothing to say and keeps the factor 1; constant or zero input gives finite factors, never
-//! NaN. The maps store `texels × (light directions + view directions)` values (8 bits each
-//! suffice for `[0, 1]`); at an unmeasured direction the nearest stored one is used.
+//! kept `≥ 0`. The SBRDF was fitted to shadowed data, so it is too dark where the texel is lit
+//! and seen: the factors may exceed 1 during the fit, and at the end each texel's largest
+//! `S` and largest `O` are divided out into a per-texel gain `g` (which folds into the SBRDF
+//! exactly: `ρ·g` and, for a Lafortune lobe, `C·g^{1/n}`):
+//! `I ≈ g(t) · S(t, l) · O(t, v) · B`, with `S, O ∈ [0, 1]` and the largest of each 1.
+//! A light or view whose predictions are all ~0 has nothing to say and keeps the factor 1;
+//! constant or zero input gives finite factors, never NaN. The maps store
+//! `texels × (light directions + view directions)` values (8 bits each suffice for
+//! `[0, 1]`) plus the gain; at an unmeasured direction the nearest stored one is used.
 
 use rayon::prelude::*;
 use serde::Serialize;
@@ -67,6 +71,8 @@ pub struct ShadowOcclusionMaps {
     pub shadow: Vec<f32>,
     /// `O`: `texels × view_dirs.len()`, texel-major, in `[0, 1]`.
     pub occlusion: Vec<f32>,
+    /// `g`: per texel, the SBRDF's brightness correction (the factors' maxima).
+    pub gain: Vec<f32>,
 }
 
 fn distinct(dirs: &[[f64; 3]]) -> (Vec<[f64; 3]>, Vec<usize>) {
@@ -101,15 +107,17 @@ fn nearest(dirs: &[[f64; 3]], d: &[f64; 3]) -> usize {
 }
 
 impl ShadowOcclusionMaps {
-    /// Values stored per texel.
+    /// Values stored per texel (the factors and the gain).
     pub fn values_per_texel(&self) -> usize {
-        self.light_dirs.len() + self.view_dirs.len()
+        self.light_dirs.len() + self.view_dirs.len() + 1
     }
 
-    /// `S(t, l) · O(t, v)` at the nearest stored directions.
+    /// `g(t) · S(t, l) · O(t, v)` at the nearest stored directions.
     pub fn factor(&self, t: usize, l: &[f64; 3], v: &[f64; 3]) -> f32 {
         let (nl, nv) = (self.light_dirs.len(), self.view_dirs.len());
-        self.shadow[t * nl + nearest(&self.light_dirs, l)] * self.occlusion[t * nv + nearest(&self.view_dirs, v)]
+        self.gain[t]
+            * self.shadow[t * nl + nearest(&self.light_dirs, l)]
+            * self.occlusion[t * nv + nearest(&self.view_dirs, v)]
     }
 
     /// The combined model's texture: the SBRDF's texture `base` for `(l, v)` times the factors.
@@ -119,7 +127,7 @@ impl ShadowOcclusionMaps {
         base.iter()
             .enumerate()
             .map(|(t, b)| {
-                let f = self.shadow[t * nl + li] * self.occlusion[t * nv + vi];
+                let f = self.gain[t] * self.shadow[t * nl + li] * self.occlusion[t * nv + vi];
                 b.map(|x| x * f)
             })
             .collect()
@@ -158,7 +166,7 @@ pub fn fit(input: &ShadowInput<'_>, params: &ShadowParams) -> Result<ShadowOcclu
     let (light_dirs, li) = distinct(input.lights);
     let (view_dirs, vi) = distinct(input.views);
     let (nl, nv) = (light_dirs.len(), view_dirs.len());
-    let per_texel: Vec<(Vec<f32>, Vec<f32>)> = (0..input.texels)
+    let per_texel: Vec<(Vec<f32>, Vec<f32>, f32)> = (0..input.texels)
         .into_par_iter()
         .map(|t| {
             // Per image: Σ_c I·B and Σ_c B² (the only sums the updates need).
@@ -178,27 +186,40 @@ pub fn fit(input: &ShadowInput<'_>, params: &ShadowParams) -> Result<ShadowOcclu
                 }
                 for j in 0..f.len() {
                     if den[j] > floor {
-                        f[j] = (num[j] / den[j]).clamp(0.0, 1.0);
+                        f[j] = (num[j] / den[j]).max(0.0);
                     }
                 }
             };
             for _ in 0..params.iterations {
                 update(&mut s, &o, &li, &vi);
                 update(&mut o, &s, &vi, &li);
+                // Keep the split balanced (the product's scale is free during the fit).
                 let m = o.iter().cloned().fold(0.0, f64::max);
                 if m > 1e-12 {
                     o.iter_mut().for_each(|x| *x /= m);
                     s.iter_mut().for_each(|x| *x *= m);
                 }
             }
-            (s.iter().map(|&x| x as f32).collect(), o.iter().map(|&x| x as f32).collect())
+            let mut g = 1.0;
+            for f in [&mut s, &mut o] {
+                let m = f.iter().cloned().fold(0.0, f64::max);
+                if m > 1e-12 {
+                    f.iter_mut().for_each(|x| *x /= m);
+                    g *= m;
+                } else {
+                    g = 0.0;
+                }
+            }
+            (s.iter().map(|&x| x as f32).collect(), o.iter().map(|&x| x as f32).collect(), g as f32)
         })
         .collect();
     let mut shadow = Vec::with_capacity(input.texels * nl);
     let mut occlusion = Vec::with_capacity(input.texels * nv);
-    for (s, o) in per_texel {
+    let mut gain = Vec::with_capacity(input.texels);
+    for (s, o, g) in per_texel {
         shadow.extend(s);
         occlusion.extend(o);
+        gain.push(g);
     }
-    Ok(ShadowOcclusionMaps { texels: input.texels, light_dirs, view_dirs, shadow, occlusion })
+    Ok(ShadowOcclusionMaps { texels: input.texels, light_dirs, view_dirs, shadow, occlusion, gain })
 }

@@ -45,20 +45,25 @@ fn known_shadow_and_occlusion_factors_are_recovered() {
             *x = if j == t % 4 { 1.0 } else { rng.gen_range(0.2..1.0) };
         }
     }
+    // The SBRDF's brightness is off by a per-texel gain (it was fitted to shadowed data).
+    let g_true: Vec<f64> = (0..texels).map(|_| rng.gen_range(0.5..2.0)).collect();
     let base: Vec<Vec<[f32; 3]>> =
         idx.iter().map(|_| (0..texels).map(|_| [0, 1, 2].map(|_| rng.gen_range(0.05..0.9f32))).collect()).collect();
     let images: Vec<Vec<[f32; 3]>> = idx
         .iter()
         .enumerate()
-        .map(|(i, &(a, b))| (0..texels).map(|t| base[i][t].map(|x| x * (s_true[t][a] * o_true[t][b]) as f32)).collect())
+        .map(|(i, &(a, b))| {
+            (0..texels).map(|t| base[i][t].map(|x| x * (g_true[t] * s_true[t][a] * o_true[t][b]) as f32)).collect()
+        })
         .collect();
     let ir: Vec<&[[f32; 3]]> = images.iter().map(|v| v.as_slice()).collect();
     let br: Vec<&[[f32; 3]]> = base.iter().map(|v| v.as_slice()).collect();
     let input = ShadowInput { texels, lights: &lights, views: &views, images: &ir, base: &br };
     let maps = fit(&input, &ShadowParams { iterations: 400 }).unwrap();
-    assert_eq!((maps.light_dirs.len(), maps.view_dirs.len(), maps.values_per_texel()), (5, 4, 9));
+    assert_eq!((maps.light_dirs.len(), maps.view_dirs.len(), maps.values_per_texel()), (5, 4, 10));
     let mut worst = 0.0f64;
     for t in 0..texels {
+        worst = worst.max((f64::from(maps.gain[t]) - g_true[t]).abs() / g_true[t]);
         for a in 0..5 {
             worst = worst.max((f64::from(maps.shadow[t * 5 + a]) - s_true[t][a]).abs());
         }
@@ -84,7 +89,7 @@ fn constant_zero_and_rank_deficient_input_stay_finite() {
     let (lights, views, idx) = pairs();
     // Texel 0: data equals the SBRDF (factors 1). Texel 1: the SBRDF predicts 0 everywhere
     // (nothing to learn: factors stay 1). Texel 2: the data is 0 (factors 0, product 0).
-    // Texel 3: data brighter than the SBRDF (factors clamp at 1).
+    // Texel 3: data 3x the SBRDF (factors 1, gain 3).
     let base: Vec<Vec<[f32; 3]>> = idx.iter().map(|_| vec![[0.5; 3], [0.0; 3], [0.5; 3], [0.2; 3]]).collect();
     let images: Vec<Vec<[f32; 3]>> = idx.iter().map(|_| vec![[0.5; 3], [0.3; 3], [0.0; 3], [0.6; 3]]).collect();
     let ir: Vec<&[[f32; 3]]> = images.iter().map(|v| v.as_slice()).collect();
@@ -93,13 +98,14 @@ fn constant_zero_and_rank_deficient_input_stay_finite() {
     let maps = fit(&input, &ShadowParams::default()).unwrap();
     assert!(maps.shadow.iter().chain(&maps.occlusion).all(|x| x.is_finite() && (0.0..=1.0).contains(x)));
     let f = |t: usize| maps.factor(t, &lights[7], &views[7]);
-    assert!((f(0) - 1.0).abs() < 1e-6 && (f(1) - 1.0).abs() < 1e-6 && f(2) == 0.0 && (f(3) - 1.0).abs() < 1e-6);
+    assert!((f(0) - 1.0).abs() < 1e-6 && (f(1) - 1.0).abs() < 1e-6 && f(2) == 0.0 && (f(3) - 3.0).abs() < 1e-5);
+    assert!((maps.gain[3] - 3.0).abs() < 1e-5 && maps.shadow[3 * 5..].iter().all(|&x| (x - 1.0).abs() < 1e-6));
     // One light and one view only (rank 1 in both): still finite.
     let one = [ir[0]];
     let oneb = [br[0]];
     let input = ShadowInput { texels, lights: &lights[..1], views: &views[..1], images: &one, base: &oneb };
     let maps = fit(&input, &ShadowParams::default()).unwrap();
-    assert!(maps.shadow.iter().chain(&maps.occlusion).all(|x| x.is_finite()));
+    assert!(maps.shadow.iter().chain(&maps.occlusion).chain(&maps.gain).all(|x| x.is_finite()));
     // Bad input is named.
     let input = ShadowInput { texels, lights: &lights[..2], views: &views, images: &ir, base: &br };
     let e = fit(&input, &ShadowParams::default()).unwrap_err();
