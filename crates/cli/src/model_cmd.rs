@@ -40,6 +40,10 @@ pub struct LafortuneArgs {
     /// Lobes in the sample frame instead of relative to photometric stereo's normals.
     #[arg(long)]
     pub no_normals: bool,
+    /// Also fit and write seed 003's self-shadowing (per light direction) and self-occlusion
+    /// (per view direction) maps and the per-texel gain on top of the lobes.
+    #[arg(long)]
+    pub shadow_maps: bool,
     /// Print the descriptor as JSON.
     #[arg(long)]
     pub json: bool,
@@ -308,7 +312,39 @@ pub fn lafortune(a: &LafortuneArgs) -> anyhow::Result<()> {
         btfrig_imageio::write_rgb_exr(&out.join(&name), w, h, &p)?;
         files.insert(format!("lobe{}", k + 1), serde_json::json!({ "file": name, "channels": ["R", "G", "B"], "meaning": "lobe parameters: R = C_xy, G = C_z, B = exponent n (not colour)" }));
     }
-    let rel = sums.rel();
+    let mut rel = sums.rel();
+    let mut shadow_desc = serde_json::Value::Null;
+    if a.shadow_maps {
+        use btfrig_model::sbrdf::{fit as fit_maps, ShadowInput, ShadowParams};
+        let base: Vec<Vec<[f32; 3]>> = obs.lights.iter().zip(&obs.views).map(|(l, v)| map.texture(l, v)).collect();
+        let base_refs: Vec<&[[f32; 3]]> = base.iter().map(|v| v.as_slice()).collect();
+        let input =
+            ShadowInput { texels: w * h, lights: &obs.lights, views: &obs.views, images: &refs, base: &base_refs };
+        let maps = fit_maps(&input, &ShadowParams::default())?;
+        let mut with_maps = Sums::default();
+        for (i, (l, v)) in obs.lights.iter().zip(&obs.views).enumerate() {
+            with_maps.add(&maps.apply(l, v, &base[i]), &obs.images[i]);
+        }
+        // Stacked maps: direction j occupies rows j*h .. (j+1)*h; grey in R = G = B.
+        let stack = |f: &[f32], dirs: usize| -> Vec<[f32; 3]> {
+            (0..dirs).flat_map(|j| (0..w * h).map(move |t| [f[t * dirs + j]; 3])).collect()
+        };
+        let (nl, nv) = (maps.light_dirs.len(), maps.view_dirs.len());
+        btfrig_imageio::write_rgb_exr(&out.join("shadow.exr"), w, h * nl, &stack(&maps.shadow, nl))?;
+        btfrig_imageio::write_rgb_exr(&out.join("occlusion.exr"), w, h * nv, &stack(&maps.occlusion, nv))?;
+        let gain: Vec<[f32; 3]> = maps.gain.iter().map(|&g| [g; 3]).collect();
+        btfrig_imageio::write_rgb_exr(&out.join("gain.exr"), w, h, &gain)?;
+        files.insert("shadow".into(), serde_json::json!({ "file": "shadow.exr", "channels": ["R"], "meaning": "self-shadowing factor S in [0, 1]; light direction j (see light_dirs) is rows j*height .. (j+1)*height" }));
+        files.insert("occlusion".into(), serde_json::json!({ "file": "occlusion.exr", "channels": ["R"], "meaning": "self-occlusion factor O in [0, 1]; view direction j (see view_dirs) is rows j*height .. (j+1)*height" }));
+        files.insert("gain".into(), serde_json::json!({ "file": "gain.exr", "channels": ["R"], "meaning": "per-texel gain g multiplying the lobe model" }));
+        shadow_desc = serde_json::json!({
+            "formula": "I_c(l, v) = g * S(l) * O(v) * lafortune_c(l, v), S and O at the nearest stored direction",
+            "light_dirs": maps.light_dirs,
+            "view_dirs": maps.view_dirs,
+            "rel_rmse_data_without": rel,
+        });
+        rel = with_maps.rel();
+    }
     let desc = serde_json::json!({
         "format": "btfrig-material-maps",
         "version": 1,
@@ -321,6 +357,7 @@ pub fn lafortune(a: &LafortuneArgs) -> anyhow::Result<()> {
         "width": w, "height": h,
         "region_m": dataset_region(obs.source.manifest()),
         "maps": files,
+        "shadow_occlusion": shadow_desc,
         "rel_rmse_data": rel,
         "fit_s": fit_s,
     });
