@@ -11,8 +11,11 @@ fn unit(theta_deg: f64, phi_deg: f64) -> [f64; 3] {
     [t.sin() * p.cos(), t.sin() * p.sin(), t.cos()]
 }
 
+/// Light and view direction of each capture, and its (light, view) index.
+type Pairs = (Vec<[f64; 3]>, Vec<[f64; 3]>, Vec<(usize, usize)>);
+
 /// 5 light directions × 4 view directions, every pair measured.
-fn pairs() -> (Vec<[f64; 3]>, Vec<[f64; 3]>, Vec<(usize, usize)>) {
+fn pairs() -> Pairs {
     let ls: Vec<_> = (0..5).map(|k| unit(10.0 * k as f64, 70.0 * k as f64)).collect();
     let vs: Vec<_> = (0..4).map(|k| unit(15.0 * k as f64, 100.0 * k as f64 + 20.0)).collect();
     let mut lights = Vec::new();
@@ -64,11 +67,11 @@ fn known_shadow_and_occlusion_factors_are_recovered() {
     let mut worst = 0.0f64;
     for t in 0..texels {
         worst = worst.max((f64::from(maps.gain[t]) - g_true[t]).abs() / g_true[t]);
-        for a in 0..5 {
-            worst = worst.max((f64::from(maps.shadow[t * 5 + a]) - s_true[t][a]).abs());
+        for (a, s) in s_true[t].iter().enumerate() {
+            worst = worst.max((f64::from(maps.shadow[t * 5 + a]) - s).abs());
         }
-        for b in 0..4 {
-            worst = worst.max((f64::from(maps.occlusion[t * 4 + b]) - o_true[t][b]).abs());
+        for (b, o) in o_true[t].iter().enumerate() {
+            worst = worst.max((f64::from(maps.occlusion[t * 4 + b]) - o).abs());
         }
     }
     assert!(worst < 1e-3, "largest factor error {worst}");
