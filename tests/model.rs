@@ -76,6 +76,15 @@ fn model_ps_recovers_a_plane_and_names_what_is_missing() {
     for f in ["albedo.exr", "normal.exr", "lobe1.exr", "model.json"] {
         assert!(lo.join(f).is_file(), "{f} missing");
     }
+    // Seed 003's maps on top: an unshadowed plane keeps factors and gain 1.
+    let sm = dir.join("shadow-maps");
+    let stdout = ok(btfrig().args(["model", "lafortune", "--shadow-maps", "--json"]).arg(&data).arg("--out").arg(&sm));
+    let d: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert!(d["rel_rmse_data"].as_f64().unwrap() < 1e-3, "{d}");
+    assert!(d["shadow_occlusion"]["light_dirs"].as_array().unwrap().len() >= 3, "{d}");
+    for f in ["shadow.exr", "occlusion.exr", "gain.exr", "model.json"] {
+        assert!(sm.join(f).is_file(), "{f} missing");
+    }
     let e = fails(btfrig().args(["model", "lafortune"]).arg(&data).args(["--lobes", "4", "--out"]).arg(dir.join("l4")));
     assert!(e.contains("lobes = 4: 1, 2 or 3"), "{e}");
     // Nothing is overwritten.

@@ -40,6 +40,10 @@ pub struct LafortuneArgs {
     /// Lobes in the sample frame instead of relative to photometric stereo's normals.
     #[arg(long)]
     pub no_normals: bool,
+    /// Also fit and write seed 003's self-shadowing (per light direction) and self-occlusion
+    /// (per view direction) maps and the per-texel gain on top of the lobes.
+    #[arg(long)]
+    pub shadow_maps: bool,
     /// Print the descriptor as JSON.
     #[arg(long)]
     pub json: bool,
@@ -90,6 +94,10 @@ pub struct BenchModelArgs {
     /// Only photometric stereo (no reflectance models, no FMF/PCMF, no truth textures).
     #[arg(long)]
     pub ps_only: bool,
+    /// Of the reflectance models only lafortune-1+normal with and without seed 003's shadow
+    /// and occlusion maps (no FMF/PCMF, no more lobes): the cheap check of the maps.
+    #[arg(long, conflicts_with = "ps_only")]
+    pub sbrdf_only: bool,
     /// Print one JSON object.
     #[arg(long)]
     pub json: bool,
@@ -304,7 +312,39 @@ pub fn lafortune(a: &LafortuneArgs) -> anyhow::Result<()> {
         btfrig_imageio::write_rgb_exr(&out.join(&name), w, h, &p)?;
         files.insert(format!("lobe{}", k + 1), serde_json::json!({ "file": name, "channels": ["R", "G", "B"], "meaning": "lobe parameters: R = C_xy, G = C_z, B = exponent n (not colour)" }));
     }
-    let rel = sums.rel();
+    let mut rel = sums.rel();
+    let mut shadow_desc = serde_json::Value::Null;
+    if a.shadow_maps {
+        use btfrig_model::sbrdf::{fit as fit_maps, ShadowInput, ShadowParams};
+        let base: Vec<Vec<[f32; 3]>> = obs.lights.iter().zip(&obs.views).map(|(l, v)| map.texture(l, v)).collect();
+        let base_refs: Vec<&[[f32; 3]]> = base.iter().map(|v| v.as_slice()).collect();
+        let input =
+            ShadowInput { texels: w * h, lights: &obs.lights, views: &obs.views, images: &refs, base: &base_refs };
+        let maps = fit_maps(&input, &ShadowParams::default())?;
+        let mut with_maps = Sums::default();
+        for (i, (l, v)) in obs.lights.iter().zip(&obs.views).enumerate() {
+            with_maps.add(&maps.apply(l, v, &base[i]), &obs.images[i]);
+        }
+        // Stacked maps: direction j occupies rows j*h .. (j+1)*h; grey in R = G = B.
+        let stack = |f: &[f32], dirs: usize| -> Vec<[f32; 3]> {
+            (0..dirs).flat_map(|j| (0..w * h).map(move |t| [f[t * dirs + j]; 3])).collect()
+        };
+        let (nl, nv) = (maps.light_dirs.len(), maps.view_dirs.len());
+        btfrig_imageio::write_rgb_exr(&out.join("shadow.exr"), w, h * nl, &stack(&maps.shadow, nl))?;
+        btfrig_imageio::write_rgb_exr(&out.join("occlusion.exr"), w, h * nv, &stack(&maps.occlusion, nv))?;
+        let gain: Vec<[f32; 3]> = maps.gain.iter().map(|&g| [g; 3]).collect();
+        btfrig_imageio::write_rgb_exr(&out.join("gain.exr"), w, h, &gain)?;
+        files.insert("shadow".into(), serde_json::json!({ "file": "shadow.exr", "channels": ["R"], "meaning": "self-shadowing factor S in [0, 1]; light direction j (see light_dirs) is rows j*height .. (j+1)*height" }));
+        files.insert("occlusion".into(), serde_json::json!({ "file": "occlusion.exr", "channels": ["R"], "meaning": "self-occlusion factor O in [0, 1]; view direction j (see view_dirs) is rows j*height .. (j+1)*height" }));
+        files.insert("gain".into(), serde_json::json!({ "file": "gain.exr", "channels": ["R"], "meaning": "per-texel gain g multiplying the lobe model" }));
+        shadow_desc = serde_json::json!({
+            "formula": "I_c(l, v) = g * S(l) * O(v) * lafortune_c(l, v), S and O at the nearest stored direction",
+            "light_dirs": maps.light_dirs,
+            "view_dirs": maps.view_dirs,
+            "rel_rmse_data_without": rel,
+        });
+        rel = with_maps.rel();
+    }
     let desc = serde_json::json!({
         "format": "btfrig-material-maps",
         "version": 1,
@@ -317,6 +357,7 @@ pub fn lafortune(a: &LafortuneArgs) -> anyhow::Result<()> {
         "width": w, "height": h,
         "region_m": dataset_region(obs.source.manifest()),
         "maps": files,
+        "shadow_occlusion": shadow_desc,
         "rel_rmse_data": rel,
         "fit_s": fit_s,
     });
@@ -391,7 +432,12 @@ fn score(decoded: &[Vec<[f32; 3]>], obs: &Observations, truth: Option<&Vec<Vec<[
     (d.rel(), truth.map(|_| t.rel()))
 }
 
-fn reflectance_rows(obs: &mut Observations, material: &str, rows: &mut Vec<FitRow>) -> anyhow::Result<()> {
+fn reflectance_rows(
+    obs: &mut Observations,
+    material: &str,
+    sbrdf_only: bool,
+    rows: &mut Vec<FitRow>,
+) -> anyhow::Result<()> {
     use btfrig_compress::{build, file, Method, ModelParams, Precision};
     use btfrig_model::lafortune::{fit, BtfInput, LafortuneParams};
     let pairs: Vec<_> = obs.pairs.iter().map(|p| (p.0, p.1)).collect();
@@ -414,7 +460,9 @@ fn reflectance_rows(obs: &mut Observations, material: &str, rows: &mut Vec<FitRo
     let ps_in = PsInput { what: &obs.what, width: w, height: h, lights: &obs.lights, images: &refs };
     let normals = photometric_stereo(&ps_in, &PsParams::new(PsMethod::Robust))?.normal;
     drop(refs);
-    for (k, with_normals) in [(1, false), (1, true), (2, true), (3, true)] {
+    let configs: &[(usize, bool)] =
+        if sbrdf_only { &[(1, true)] } else { &[(1, false), (1, true), (2, true), (3, true)] };
+    for &(k, with_normals) in configs {
         let refs: Vec<&[[f32; 3]]> = obs.images.iter().map(|v| v.as_slice()).collect();
         let input = BtfInput {
             texels,
@@ -442,6 +490,37 @@ fn reflectance_rows(obs: &mut Observations, material: &str, rows: &mut Vec<FitRo
             eval_s,
         });
         if !with_normals {
+            continue;
+        }
+        // Seed 003: the SBRDF times self-shadowing (per light) and self-occlusion (per view) maps.
+        {
+            use btfrig_model::sbrdf::{fit as fit_maps, ShadowInput, ShadowParams};
+            let base: Vec<&[[f32; 3]]> = decoded.iter().map(|v| v.as_slice()).collect();
+            let input = ShadowInput { texels, lights: &obs.lights, views: &obs.views, images: &refs, base: &base };
+            let t = Instant::now();
+            let maps = fit_maps(&input, &ShadowParams::default())?;
+            let maps_fit_s = t.elapsed().as_secs_f64();
+            let t = Instant::now();
+            let combined: Vec<Vec<[f32; 3]>> =
+                obs.lights.iter().zip(&obs.views).map(|(l, v)| maps.apply(l, v, &map.texture(l, v))).collect();
+            let maps_eval_s = t.elapsed().as_secs_f64();
+            let (d2, t2) = score(&combined, obs, truth.as_ref());
+            rows.push(FitRow {
+                material: material.into(),
+                // One byte per factor in [0, 1], a half float for the gain.
+                model: format!(
+                    "lafortune-{k}+normal+shadow/occl ({}+{} dirs)",
+                    maps.light_dirs.len(),
+                    maps.view_dirs.len()
+                ),
+                bytes: bytes + texels * (maps.values_per_texel() + 1),
+                rel_rmse_data: d2,
+                rel_rmse_truth: t2,
+                fit_s: fit_s + maps_fit_s,
+                eval_s: maps_eval_s,
+            });
+        }
+        if sbrdf_only {
             continue;
         }
         // FMF and PCMF (8 clusters) with the fewest terms of at least this storage.
@@ -507,7 +586,7 @@ pub fn bench(a: &BenchModelArgs) -> anyhow::Result<()> {
             });
         }
         if !a.ps_only {
-            reflectance_rows(&mut obs, &probe.material, &mut fits)?;
+            reflectance_rows(&mut obs, &probe.material, a.sbrdf_only, &mut fits)?;
         }
     }
     if a.json {
@@ -545,12 +624,12 @@ pub fn bench(a: &BenchModelArgs) -> anyhow::Result<()> {
     println!();
     println!("reflectance models against the measured textures and the noise-free truth (relative RMSE)");
     println!(
-        "{:<16} {:<26} {:>10} {:>10} {:>10} {:>9} {:>9}",
+        "{:<16} {:<44} {:>10} {:>10} {:>10} {:>9} {:>9}",
         "material", "model", "bytes", "vs data", "vs truth", "fit s", "eval s"
     );
     for r in &fits {
         println!(
-            "{:<16} {:<26} {:>10} {:>10.4} {:>10} {:>9.3} {:>9.3}",
+            "{:<16} {:<44} {:>10} {:>10.4} {:>10} {:>9.3} {:>9.3}",
             r.material,
             r.model,
             r.bytes,

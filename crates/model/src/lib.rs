@@ -11,6 +11,8 @@
 //!   least squares with natural boundaries, and its Monte Carlo uncertainty.
 //! * [`lafortune`]: per-texel Lafortune lobes (`K` = 1..3) and a colour albedo by bounded
 //!   Levenberg–Marquardt, [`lafortune::fit`] to a [`lafortune::LafortuneMap`].
+//! * [`sbrdf`]: seed 003's self-shadowing (per light) and self-occlusion (per view) maps
+//!   on top of an SBRDF's predictions, [`sbrdf::fit`] to [`sbrdf::ShadowOcclusionMaps`].
 //! * [`truth`]: error figures against an injected [`truth::SurfaceTruthProbe`] (the
 //!   simulator's), used only after estimation.
 //!
@@ -33,6 +35,7 @@ pub mod error;
 pub mod integrate;
 pub mod lafortune;
 pub mod ps;
+pub mod sbrdf;
 pub mod truth;
 
 pub use error::{ModelError, Result};
