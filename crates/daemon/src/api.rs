@@ -1057,6 +1057,25 @@ pub struct RenderQuery {
     pub format: Option<String>,
 }
 
+impl RenderQuery {
+    /// The query as the handler received it, checked: the pair as directions (theta 0 to 90
+    /// degrees) and a finite positive scale.
+    fn checked(
+        query: Result<axum::extract::Query<RenderQuery>, axum::extract::rejection::QueryRejection>,
+    ) -> Result<(RenderQuery, btfrig_core::Direction, btfrig_core::Direction), Problem> {
+        let axum::extract::Query(q) = query
+            .map_err(|e| Problem::unprocessable(format!("bad query: {}; see /api/v1/openapi.json", e.body_text())))?;
+        let (light, view) = crate::look::pair_from_degrees([q.light_theta, q.light_phi], [q.view_theta, q.view_phi])
+            .map_err(Problem::unprocessable)?;
+        if let Some(sc) = q.scale {
+            if !(sc.is_finite() && sc > 0.0) {
+                return Err(Problem::unprocessable(format!("scale {sc}: allowed a finite number above 0")));
+            }
+        }
+        Ok((q, light, view))
+    }
+}
+
 #[utoipa::path(get, path = "/api/v1/datasets/{name}/models/{model}/render", tag = "datasets", security(("bearer" = [])),
     params(("name" = String, Path, description = "Dataset name"),
         ("model" = String, Path, description = "The model: `<method>` of `<name>.<method>.btfm`"),
@@ -1074,20 +1093,12 @@ pub async fn render_model(
 ) -> Result<Response, Problem> {
     // What the path names first: an unknown dataset or model is 404 whatever the query.
     let m = s.load_model(&name, &model).await?;
-    let axum::extract::Query(q) =
-        query.map_err(|e| Problem::unprocessable(format!("bad query: {}; see /api/v1/openapi.json", e.body_text())))?;
-    let (light, view) = crate::look::pair_from_degrees([q.light_theta, q.light_phi], [q.view_theta, q.view_phi])
-        .map_err(Problem::unprocessable)?;
+    let (q, light, view) = RenderQuery::checked(query)?;
     let exr = match q.format.as_deref() {
         None | Some("png") => false,
         Some("exr") => true,
         Some(f) => return Err(Problem::unprocessable(format!("format {f:?}: allowed png, exr"))),
     };
-    if let Some(sc) = q.scale {
-        if !(sc.is_finite() && sc > 0.0) {
-            return Err(Problem::unprocessable(format!("scale {sc}: allowed a finite number above 0")));
-        }
-    }
     let bytes =
         tokio::task::spawn_blocking(move || crate::look::render_file(&m, light, view, q.scale.map(|v| v as f32), exr))
             .await
@@ -1119,15 +1130,7 @@ pub async fn compare_model(
 ) -> Result<Response, Problem> {
     let m = s.load_model(&name, &model).await?;
     let root = s.dataset_root(&name)?;
-    let axum::extract::Query(q) =
-        query.map_err(|e| Problem::unprocessable(format!("bad query: {}; see /api/v1/openapi.json", e.body_text())))?;
-    let (light, view) = crate::look::pair_from_degrees([q.light_theta, q.light_phi], [q.view_theta, q.view_phi])
-        .map_err(Problem::unprocessable)?;
-    if let Some(sc) = q.scale {
-        if !(sc.is_finite() && sc > 0.0) {
-            return Err(Problem::unprocessable(format!("scale {sc}: allowed a finite number above 0")));
-        }
-    }
+    let (q, light, view) = RenderQuery::checked(query)?;
     let c =
         tokio::task::spawn_blocking(move || crate::look::compare(&root, &m, light, view, q.scale.map(|v| v as f32)))
             .await
