@@ -5,7 +5,8 @@
 //!
 //! The operator page (`tests/web/ui.test.mjs`): a viewer is refused Start with the daemon's
 //! message, an operator starts plan "demo", sees the progress bar advance and the preview image
-//! change, pauses (the page shows "paused"), saves `target/web/screenshot.png`, aborts.
+//! change, the viewer's plots of the running dataset fill in as captures are committed, pauses
+//! (the page shows "paused"), saves `target/web/screenshot.png`, aborts.
 //!
 //! The viewer (`tests/web/viewer.test.mjs`), on the dataset `btfrig demo` makes meanwhile: the
 //! canvas equals btfrig's own render of the FMF model at three (light, view) pairs, moving the

@@ -7,6 +7,8 @@
 // 2. as an operator (#token=operator-token): the token leaves the address bar, devices and
 //    plans load, plan "demo" is chosen, Start; the progress bar advances at least twice and
 //    the preview image changes (new blob, different bytes) at least once;
+// 2b. meanwhile /viewer on the run's dataset (as a viewer): its coverage and registration
+//    plots fill in as captures are committed (the counts grow, measured + pending stays);
 // 3. Pause: the state shows "paused", Pause is disabled and Resume enabled; screenshot;
 // 4. Abort (two clicks: the page asks for a confirmation): the state shows "aborted";
 // 5. a plan file (demo.toml with the simulator's "flaky" faults) through the file field:
@@ -157,6 +159,28 @@ try {
   check(advances >= 2, `progress bar advanced ${advances} times`);
   check(hashes.size >= 2, `preview image changed (${hashes.size} distinct images)`);
   check(/\S/.test(await text(page, "#eta")) && (await text(page, "#eta")) !== "–", `ETA shown: ${await text(page, "#eta")}`);
+
+  // ---- 2b. the viewer's plots of the run's dataset fill in while the run goes on ----
+  const runName = (await text(page, "#run-dataset")).trim();
+  const live = await newPage("live viewer");
+  await live.goto(`${base}/viewer?dataset=${encodeURIComponent(runName)}#token=viewer-token`);
+  await live.locator("#coverage[data-measured]").waitFor({ state: "attached", timeout: 20000 });
+  const liveCounts = () => live.$eval("#coverage", (e) => ({
+    measured: Number(e.dataset.measured), pending: Number(e.dataset.pending),
+    points: Number(document.getElementById("registration").dataset.points || 0) }));
+  const c0 = await liveCounts();
+  let grew = false;
+  try {
+    // The page polls every 3 s; the run commits a capture every fraction of a second.
+    await live.waitForFunction((m) => Number(document.getElementById("coverage").dataset.measured) > m, c0.measured, { timeout: 60000 });
+    grew = true;
+  } catch (_) { /* reported below */ }
+  const c1 = await liveCounts();
+  console.log(`# live viewer on ${runName}: measured ${c0.measured} -> ${c1.measured}, pending ${c0.pending} -> ${c1.pending}, registration points ${c0.points} -> ${c1.points}`);
+  check(grew && c1.pending < c0.pending && c1.measured + c1.pending === c0.measured + c0.pending,
+    `the viewer's coverage plot of the running dataset fills in (${c0.measured} -> ${c1.measured} measured)`);
+  check(c1.points > c0.points, `its registration plot gains points (${c0.points} -> ${c1.points})`);
+  await live.close();
 
   // ---- 3. pause ----
   await page.locator("#pause:not([disabled])").waitFor({ timeout: 10000 });

@@ -674,11 +674,27 @@
     // A dome's multiplex gain per view group is in its report (written when the run ends).
     const rep = await fetch(`${API}/datasets/${encodeURIComponent(name)}/files/report.json`, { headers: auth() });
     BtfPlots.multiplexGain($("multiplex-gain"), rep.ok ? await rep.json().catch(() => null) : null);
-    // A dataset being measured: the plots fill in as captures are committed.
+    // A dataset being measured: the plots fill in as captures are committed, until its run
+    // ends (its state is asked again each time, so the last poll shows the finished run).
     const ds = datasets.find((x) => x.name === name);
-    if (ds && ["running", "paused", "starting"].includes(ds.state)) {
-      plotTimer = setTimeout(() => loadPlots(name).catch(() => {}), 3000);
+    if (ds && LIVE_STATES.includes(ds.state)) {
+      plotTimer = setTimeout(() => refreshLive(name).catch(() => {}), 3000);
     }
+  }
+  const LIVE_STATES = ["running", "paused", "starting"];
+
+  async function refreshLive(name) {
+    if ($("v-dataset").value !== name) return;
+    const d = await getJson("/datasets");
+    const now = d.datasets.find((x) => x.name === name);
+    const i = datasets.findIndex((x) => x.name === name);
+    if (now && i >= 0) {
+      datasets[i] = now;
+      const o = [...$("v-dataset").options].find((x) => x.value === name);
+      if (o) o.textContent = `${now.name} (${now.state}, ${now.captures} captures${now.models.length ? "" : ", no model"})`;
+    }
+    $("coverage").dataset.live = String(Boolean(now && LIVE_STATES.includes(now.state)));
+    await loadPlots(name);
   }
 
   // The journal's step records (one JSON object a line after a length and checksum).
