@@ -671,13 +671,15 @@
       BtfPlots.series($("stages"), "Stage times", "seconds", rows,
         stages.map((s) => ({ label: s, values: rows.map((c) => (c.timing.stage_s || {})[s] ?? null) })));
     }
-    // A dome's multiplex gain per view group is in its report (written when the run ends).
-    const rep = await fetch(`${API}/datasets/${encodeURIComponent(name)}/files/report.json`, { headers: auth() });
-    BtfPlots.multiplexGain($("multiplex-gain"), rep.ok ? await rep.json().catch(() => null) : null);
+    // A dome's multiplex gain per view group is in its report, written when the run ends (so
+    // not asked for while it runs).
+    const ds = datasets.find((x) => x.name === name);
+    const live = Boolean(ds && LIVE_STATES.includes(ds.state));
+    const rep = live ? null : await fetch(`${API}/datasets/${encodeURIComponent(name)}/files/report.json`, { headers: auth() });
+    BtfPlots.multiplexGain($("multiplex-gain"), rep && rep.ok ? await rep.json().catch(() => null) : null);
     // A dataset being measured: the plots fill in as captures are committed, until its run
     // ends (its state is asked again each time, so the last poll shows the finished run).
-    const ds = datasets.find((x) => x.name === name);
-    if (ds && LIVE_STATES.includes(ds.state)) {
+    if (live) {
       plotTimer = setTimeout(() => refreshLive(name).catch(() => {}), 3000);
     }
   }
