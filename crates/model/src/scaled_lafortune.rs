@@ -1,0 +1,198 @@
+//! Scaled Lafortune lobes (seed 000, section 3.1.2, Daubert et al.): Lafortune lobes times a
+//! per-texel, view-dependent scale `T(v)` that models the relief's occlusion (masking).
+//!
+//! ```text
+//! I_c(l, v) = T(t, v) · l_z · ( ρ_c + Σ_k max(0, C_xy,k (l_x v_x + l_y v_y) + C_z,k l_z v_z)^{n_k} )
+//! ```
+//!
+//! Seed 000's equation 4, `BTF(x, v, l) ≈ T_x(v) (ρ_d,x + Σ_j s_x,j(v, l))`, in the form of
+//! [`crate::lafortune`]: a colour albedo `ρ_c`, `K` grey lobes (fitted to the channels'
+//! mean, as Meseth et al. do, not one set per channel as Daubert et al.) and the foreshortening
+//! `l_z`, with the directions in the texel's frame when a normal map is given. `T` is one grey
+//! value per texel and distinct view direction of the data (the lookup table), in `[0, 1]`
+//! with each texel's largest 1 (the split between `T` and the lobes is otherwise free); at an
+//! unmeasured view the nearest measured one is used. Storage: `3 + 3K` values and one
+//! `T` per view per texel.
+//!
+//! Fit per texel: the plain Lafortune fit (`T = 1`), then rounds of (1) `T(v) = Σ y B / Σ B²`
+//! over the view's observations (`B = l_z (ρ + S)`, the grey model; closed form), normalised to
+//! a largest value of 1 with the albedo and lobe strengths taking the factor (`ρ·m`,
+//! `C·m^{1/n}`), (2) the lobes refined by the same bounded Levenberg–Marquardt with the
+//! observations scaled by `T` ([`crate::lafortune`]'s solver). The round with the lowest cost
+//! is kept, so the scaled fit is never worse on the data than the plain one. A view that
+//! sees nothing of the texel keeps `T = 1`.
+
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::error::{ModelError, Result};
+use crate::lafortune::{
+    check_input, colour_albedo, fit_texel, gather, lobe_sum, no_lobes, refine_texel, BtfInput, LafortuneMap,
+    LafortuneParams, Lobe, TexelObs, ALBEDO_BOUNDS, LOBE_BOUNDS,
+};
+use crate::sbrdf::{distinct, nearest};
+
+/// Tuning of [`fit`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct ScaledParams {
+    /// The lobes' fit (lobes per texel, LM iterations per start or round).
+    pub lafortune: LafortuneParams,
+    /// Alternating rounds of scale and lobes after the plain fit.
+    pub rounds: usize,
+}
+
+impl ScaledParams {
+    /// `lobes` lobes, 6 rounds.
+    pub fn new(lobes: usize) -> Self {
+        ScaledParams { lafortune: LafortuneParams::new(lobes), rounds: 6 }
+    }
+}
+
+/// Scaled Lafortune models of every texel.
+#[derive(Debug, Clone, Serialize)]
+pub struct ScaledLafortuneMap {
+    /// Albedo, lobes and the normals they are relative to.
+    pub lafortune: LafortuneMap,
+    /// The distinct view directions (sample frame), one scale each per texel.
+    pub view_dirs: Vec<[f64; 3]>,
+    /// `T`: `texels × view_dirs.len()`, texel-major, in `[0, 1]`.
+    pub scale: Vec<f32>,
+}
+
+impl ScaledLafortuneMap {
+    /// Values stored per texel (`3 + 3K` and one scale per view).
+    pub fn values_per_texel(&self) -> usize {
+        self.lafortune.values_per_texel() + self.view_dirs.len()
+    }
+
+    /// The model's radiance factor of texel `t` under `l` seen from `v` (sample frame).
+    pub fn eval(&self, t: usize, l: &[f64; 3], v: &[f64; 3]) -> [f32; 3] {
+        let s = self.scale[t * self.view_dirs.len() + nearest(&self.view_dirs, v)];
+        self.lafortune.eval(t, l, v).map(|x| x * s)
+    }
+
+    /// The model's texture for one (light, view) pair.
+    pub fn texture(&self, l: &[f64; 3], v: &[f64; 3]) -> Vec<[f32; 3]> {
+        let j = nearest(&self.view_dirs, v);
+        let nv = self.view_dirs.len();
+        let mut out = self.lafortune.texture(l, v);
+        for (t, p) in out.iter_mut().enumerate() {
+            let s = self.scale[t * nv + j];
+            *p = p.map(|x| x * s);
+        }
+        out
+    }
+}
+
+/// One texel's grey model `l_z (ρ + S)` per observation.
+fn grey_model(rho: f64, lobes: &[Lobe], lights: &[[f64; 3]], views: &[[f64; 3]]) -> Vec<f64> {
+    lights.iter().zip(views).map(|(l, v)| l[2] * (rho + lobe_sum(lobes, l, v))).collect()
+}
+
+fn cost(y: &[f64], model: &[f64], scale: &[f64]) -> f64 {
+    y.iter().zip(model).zip(scale).map(|((y, b), s)| (y - s * b).powi(2)).sum()
+}
+
+/// One texel: `(albedo, lobes, T per distinct view, LM iterations)`.
+fn fit_one(
+    o_lights: &[[f64; 3]],
+    o_views: &[[f64; 3]],
+    rgb: &[[f64; 3]],
+    view_of: &[usize],
+    n_views: usize,
+    params: &ScaledParams,
+) -> ([f32; 3], Vec<Lobe>, Vec<f64>, u64) {
+    let y: Vec<f64> = rgb.iter().map(|p| (p[0] + p[1] + p[2]) / 3.0).collect();
+    let mut t_view = vec![1.0f64; n_views];
+    let mut scale = vec![1.0f64; y.len()];
+    let k = params.lafortune.lobes;
+    if y.len() < 1 + 3 * k {
+        let none = no_lobes(k);
+        let o = TexelObs { lights: o_lights, views: o_views, y: &y, scale: &scale };
+        return (colour_albedo(0.0, &none, &o, rgb), none, t_view, 0);
+    }
+    let o = TexelObs { lights: o_lights, views: o_views, y: &y, scale: &scale };
+    let (mut rho, mut lobes, mut iters) = fit_texel(&o, &params.lafortune);
+    let b = grey_model(rho, &lobes, o_lights, o_views);
+    let mut best = (cost(&y, &b, &scale), rho, lobes.clone(), t_view.clone());
+    for _ in 0..params.rounds {
+        // (1) T per view in closed form, given the lobes.
+        let b = grey_model(rho, &lobes, o_lights, o_views);
+        let (mut num, mut den) = (vec![0.0; n_views], vec![0.0; n_views]);
+        for ((yi, bi), &j) in y.iter().zip(&b).zip(view_of) {
+            num[j] += yi * bi;
+            den[j] += bi * bi;
+        }
+        let floor = 1e-12 * den.iter().cloned().fold(0.0, f64::max).max(1e-300);
+        for j in 0..n_views {
+            if den[j] > floor {
+                t_view[j] = (num[j] / den[j]).max(0.0);
+            }
+        }
+        let m = t_view.iter().cloned().fold(0.0, f64::max);
+        if m <= 1e-12 {
+            break;
+        }
+        t_view.iter_mut().for_each(|x| *x /= m);
+        // The lobes take the factor: ρ·m and (C·m^{1/n})^n = C^n·m.
+        rho = (rho * m).clamp(ALBEDO_BOUNDS.0, ALBEDO_BOUNDS.1);
+        for lb in &mut lobes {
+            let f = m.powf(1.0 / lb.n);
+            lb.cxy = (lb.cxy * f).clamp(LOBE_BOUNDS[0].0, LOBE_BOUNDS[0].1);
+            lb.cz = (lb.cz * f).clamp(LOBE_BOUNDS[1].0, LOBE_BOUNDS[1].1);
+        }
+        for (s, &j) in scale.iter_mut().zip(view_of) {
+            *s = t_view[j];
+        }
+        // (2) The lobes, given T.
+        let o = TexelObs { lights: o_lights, views: o_views, y: &y, scale: &scale };
+        let (r, l, it) = refine_texel(rho, &lobes, &o, params.lafortune.iterations);
+        (rho, lobes) = (r, l);
+        iters += it;
+        let c = cost(&y, &grey_model(rho, &lobes, o_lights, o_views), &scale);
+        if c < best.0 {
+            best = (c, rho, lobes.clone(), t_view.clone());
+        }
+    }
+    let (_, rho, lobes, t_view) = best;
+    for (s, &j) in scale.iter_mut().zip(view_of) {
+        *s = t_view[j];
+    }
+    let o = TexelObs { lights: o_lights, views: o_views, y: &y, scale: &scale };
+    (colour_albedo(rho, &lobes, &o, rgb), lobes, t_view, iters)
+}
+
+/// Fits scaled Lafortune lobes per texel (module documentation).
+pub fn fit(input: &BtfInput<'_>, params: &ScaledParams) -> Result<ScaledLafortuneMap> {
+    check_input(input, params.lafortune.lobes, "scaled Lafortune fit")?;
+    if input.texels == 0 {
+        return Err(ModelError::Empty("scaled Lafortune fit: no texels".into()));
+    }
+    let (view_dirs, view_idx) = distinct(input.views);
+    let nv = view_dirs.len();
+    let k = params.lafortune.lobes;
+    let fits: Vec<([f32; 3], Vec<Lobe>, Vec<f64>, u64)> = (0..input.texels)
+        .into_par_iter()
+        .map(|t| {
+            let g = gather(input, t);
+            let view_of: Vec<usize> = g.index.iter().map(|&i| view_idx[i]).collect();
+            fit_one(&g.lights, &g.views, &g.rgb, &view_of, nv, params)
+        })
+        .collect();
+    let mut map = LafortuneMap {
+        lobes: k,
+        texels: input.texels,
+        albedo: Vec::with_capacity(input.texels),
+        lobe: Vec::with_capacity(input.texels * k),
+        iterations: 0,
+        normal: input.normals.map(|n| n.to_vec()),
+    };
+    let mut scale = Vec::with_capacity(input.texels * nv);
+    for (a, l, s, it) in fits {
+        map.albedo.push(a);
+        map.lobe.extend(l);
+        scale.extend(s.iter().map(|&x| x as f32));
+        map.iterations += it;
+    }
+    Ok(ScaledLafortuneMap { lafortune: map, view_dirs, scale })
+}
