@@ -241,14 +241,13 @@ pub fn fit(input: &BtfInput<'_>, params: &LafortuneParams) -> Result<LafortuneMa
         .map(|t| {
             let g = gather(input, t);
             let y = g.grey();
-            let ones = vec![1.0; y.len()];
-            let o = TexelObs { lights: &g.lights, views: &g.views, y: &y, scale: &ones };
+            let o = TexelObs { lights: &g.lights, views: &g.views, y: &y, view: &[], scales: 0 };
             if y.len() < 1 + 3 * params.lobes {
                 let none = no_lobes(params.lobes);
-                return (colour_albedo(0.0, &none, &o, &g.rgb), none, 0);
+                return (colour_albedo(0.0, &none, &[], &o, &g.rgb), none, 0);
             }
             let (rho, lobes, it) = fit_texel(&o, params);
-            (colour_albedo(rho, &lobes, &o, &g.rgb), lobes, it)
+            (colour_albedo(rho, &lobes, &[], &o, &g.rgb), lobes, it)
         })
         .collect();
     let mut out = LafortuneMap {
@@ -267,66 +266,95 @@ pub fn fit(input: &BtfInput<'_>, params: &LafortuneParams) -> Result<LafortuneMa
     Ok(out)
 }
 
-fn unpack(p: &[f64]) -> (f64, Vec<Lobe>) {
-    (p[0], p[1..].chunks_exact(3).map(|c| Lobe { cxy: c[0], cz: c[1], n: c[2] }).collect())
+/// `(ρ, lobes, view scales)` of a parameter vector with `scales` view scales at its end.
+pub(crate) fn unpack(p: &[f64], scales: usize) -> (f64, Vec<Lobe>, &[f64]) {
+    let k = p.len() - scales;
+    (p[0], p[1..k].chunks_exact(3).map(|c| Lobe { cxy: c[0], cz: c[1], n: c[2] }).collect(), &p[k..])
 }
 
-fn project(p: &mut [f64]) {
+/// The parameter vector `[ρ, (C_xy, C_z, n) per lobe, T per view]`.
+pub(crate) fn pack(rho: f64, lobes: &[Lobe], scales: &[f64]) -> Vec<f64> {
+    std::iter::once(rho).chain(lobes.iter().flat_map(|l| [l.cxy, l.cz, l.n])).chain(scales.iter().copied()).collect()
+}
+
+/// Projects onto the bounds (view scales in `[0, 1]`).
+fn project(p: &mut [f64], scales: usize) {
+    let k = p.len() - scales;
     p[0] = p[0].clamp(ALBEDO_BOUNDS.0, ALBEDO_BOUNDS.1);
-    for c in p[1..].chunks_exact_mut(3) {
+    for c in p[1..k].chunks_exact_mut(3) {
         for (x, (lo, hi)) in c.iter_mut().zip(LOBE_BOUNDS) {
             *x = x.clamp(lo, hi);
         }
     }
+    p[k..].iter_mut().for_each(|t| *t = t.clamp(0.0, 1.0));
 }
 
-/// One texel's observations in its frame: `y[i] ≈ scale[i] · l_z (ρ + S(l, v))`. `scale` is 1
-/// for plain lobes and the view's factor `T(v)` for scaled lobes ([`crate::scaled_lafortune`]).
+/// One texel's observations in its frame: `y[i] ≈ T(view[i]) · l_z (ρ + S(l, v))`. Plain lobes
+/// have no view scales (`scales = 0`, `T = 1`); scaled lobes ([`crate::scaled_lafortune`])
+/// have `scales` of them at the end of the parameter vector ([`pack`]).
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct TexelObs<'a> {
     pub lights: &'a [[f64; 3]],
     pub views: &'a [[f64; 3]],
     pub y: &'a [f64],
-    pub scale: &'a [f64],
+    /// Each observation's view (index of its scale).
+    pub view: &'a [usize],
+    /// View scales in the parameters.
+    pub scales: usize,
+}
+
+impl TexelObs<'_> {
+    /// Observation `i`'s view scale under the scales `t` (1 without).
+    fn scale(&self, t: &[f64], i: usize) -> f64 {
+        if t.is_empty() {
+            1.0
+        } else {
+            t[self.view[i]]
+        }
+    }
 }
 
 fn cost(p: &[f64], o: &TexelObs<'_>) -> f64 {
-    let (rho, lobes) = unpack(p);
+    let (rho, lobes, t) = unpack(p, o.scales);
     o.lights
         .iter()
         .zip(o.views)
         .zip(o.y)
-        .zip(o.scale)
-        .map(|(((l, v), yi), s)| (yi - s * l[2] * (rho + lobe_sum(&lobes, l, v))).powi(2))
+        .enumerate()
+        .map(|(i, ((l, v), yi))| (yi - o.scale(t, i) * l[2] * (rho + lobe_sum(&lobes, l, v))).powi(2))
         .sum()
 }
 
 /// Levenberg–Marquardt from `p`, projected on the bounds; returns the cost and iterations.
+/// An observation depends on `ρ`, the lobes and one view scale: `JᵀJ` is accumulated over
+/// those entries only.
 fn lm(p: &mut Vec<f64>, o: &TexelObs<'_>, iterations: usize) -> (f64, u64) {
     let (lights, views, y) = (o.lights, o.views, o.y);
     let k = p.len();
+    let shared = k - o.scales;
     let mut c = cost(p, o);
     let mut lambda = 1e-3;
     let mut it = 0u64;
     let mut jtj = vec![0.0; k * k];
     let mut jtr = vec![0.0; k];
-    let mut row = vec![0.0; k];
+    let mut row = vec![0.0; shared + 1];
+    let mut idx: Vec<usize> = (0..=shared).collect();
     for _ in 0..iterations {
         it += 1;
         jtj.fill(0.0);
         jtr.fill(0.0);
-        let (rho, lobes) = unpack(p);
-        for (((l, v), yi), s) in lights.iter().zip(views).zip(y).zip(o.scale) {
+        let (rho, lobes, t) = unpack(p, o.scales);
+        for (i, ((l, v), yi)) in lights.iter().zip(views).zip(y).enumerate() {
             let mut model = rho;
             row[0] = l[2];
             for (j, lb) in lobes.iter().enumerate() {
-                let (b, t) = base(lb, l, v);
+                let (b, tp) = base(lb, l, v);
                 let o = 1 + 3 * j;
                 if b > 1e-12 {
                     let bn = b.powf(lb.n);
                     let d = lb.n * bn / b;
                     model += bn;
-                    row[o] = l[2] * d * t;
+                    row[o] = l[2] * d * tp;
                     row[o + 1] = l[2] * d * l[2] * v[2];
                     row[o + 2] = l[2] * bn * b.ln();
                 } else {
@@ -335,13 +363,22 @@ fn lm(p: &mut Vec<f64>, o: &TexelObs<'_>, iterations: usize) -> (f64, u64) {
                     row[o + 2] = 0.0;
                 }
             }
-            // The scale multiplies the model and so every derivative.
-            row.iter_mut().for_each(|x| *x *= s);
+            // The view scale multiplies the model and so every derivative; its own
+            // derivative is the unscaled model.
+            let s = o.scale(t, i);
+            row[..shared].iter_mut().for_each(|x| *x *= s);
+            let n = if o.scales > 0 {
+                row[shared] = l[2] * model;
+                idx[shared] = shared + o.view[i];
+                shared + 1
+            } else {
+                shared
+            };
             let r = yi - s * l[2] * model;
-            for a in 0..k {
-                jtr[a] += row[a] * r;
-                for b in 0..k {
-                    jtj[a * k + b] += row[a] * row[b];
+            for a in 0..n {
+                jtr[idx[a]] += row[a] * r;
+                for b in 0..n {
+                    jtj[idx[a] * k + idx[b]] += row[a] * row[b];
                 }
             }
         }
@@ -356,7 +393,7 @@ fn lm(p: &mut Vec<f64>, o: &TexelObs<'_>, iterations: usize) -> (f64, u64) {
                 continue;
             };
             let mut q: Vec<f64> = p.iter().zip(step.iter()).map(|(x, s)| x + s).collect();
-            project(&mut q);
+            project(&mut q, o.scales);
             let cq = cost(&q, o);
             if cq.is_finite() && cq < c {
                 let rel = (c - cq) / c.max(1e-300);
@@ -375,10 +412,10 @@ fn lm(p: &mut Vec<f64>, o: &TexelObs<'_>, iterations: usize) -> (f64, u64) {
     (c, it)
 }
 
-/// The lobes from scratch (module documentation: well-posed starts).
+/// Plain lobes from scratch (module documentation: well-posed starts); `o` without scales.
 pub(crate) fn fit_texel(o: &TexelObs<'_>, params: &LafortuneParams) -> (f64, Vec<Lobe>, u64) {
-    let mut ratios: Vec<f64> =
-        o.lights.iter().zip(o.y).zip(o.scale).map(|((l, yi), s)| yi / (s * l[2]).max(1e-12)).collect();
+    debug_assert_eq!(o.scales, 0, "plain lobes");
+    let mut ratios: Vec<f64> = o.lights.iter().zip(o.y).map(|(l, yi)| yi / l[2]).collect();
     ratios.sort_by(|a, b| a.total_cmp(b));
     let rho0 = ratios[ratios.len() / 4].clamp(ALBEDO_BOUNDS.0, ALBEDO_BOUNDS.1);
     let mut best: (f64, Vec<f64>) = (cost(&[rho0], o), vec![rho0]);
@@ -396,32 +433,30 @@ pub(crate) fn fit_texel(o: &TexelObs<'_>, params: &LafortuneParams) -> (f64, Vec
         }
         best = round.expect("two starts");
     }
-    let (rho, lobes) = unpack(&best.1);
+    let (rho, lobes, _) = unpack(&best.1, 0);
     (rho, lobes, iters)
 }
 
-/// Refines `(rho, lobes)` by LM from where they are (projected on the bounds first).
-pub(crate) fn refine_texel(rho: f64, lobes: &[Lobe], o: &TexelObs<'_>, iterations: usize) -> (f64, Vec<Lobe>, u64) {
-    let mut p: Vec<f64> = std::iter::once(rho).chain(lobes.iter().flat_map(|l| [l.cxy, l.cz, l.n])).collect();
-    project(&mut p);
-    let (_, it) = lm(&mut p, o, iterations);
-    let (rho, lobes) = unpack(&p);
-    (rho, lobes, it)
+/// Refines the parameters `p` ([`pack`]) by LM from where they are (projected on the bounds
+/// first); the cost and iterations.
+pub(crate) fn refine_texel(p: &mut Vec<f64>, o: &TexelObs<'_>, iterations: usize) -> (f64, u64) {
+    project(p, o.scales);
+    lm(p, o, iterations)
 }
 
-/// The colour albedo given the lobes: `I_c = s l_z (ρ_c + S)` → `ρ_c = Σ s l_z (I_c − s l_z S) / Σ (s l_z)²`,
+/// The colour albedo given the lobes and view scales `t` (empty: 1):
+/// `I_c = s l_z (ρ_c + S)` → `ρ_c = Σ s l_z (I_c − s l_z S) / Σ (s l_z)²`,
 /// clamped to `[0, 2 max(ρ, 1)]` (`ρ` the grey fit's).
-pub(crate) fn colour_albedo(rho: f64, lobes: &[Lobe], o: &TexelObs<'_>, rgb: &[[f64; 3]]) -> [f32; 3] {
+pub(crate) fn colour_albedo(rho: f64, lobes: &[Lobe], t: &[f64], o: &TexelObs<'_>, rgb: &[[f64; 3]]) -> [f32; 3] {
     let mut albedo = [0.0f32; 3];
-    let den: f64 = o.lights.iter().zip(o.scale).map(|(l, s)| (s * l[2]).powi(2)).sum();
+    let sl: Vec<f64> = o.lights.iter().enumerate().map(|(i, l)| o.scale(t, i) * l[2]).collect();
+    let den: f64 = sl.iter().map(|x| x * x).sum();
     for (c, a) in albedo.iter_mut().enumerate() {
-        let num: f64 = o
-            .lights
+        let num: f64 = sl
             .iter()
-            .zip(o.views)
+            .zip(o.lights.iter().zip(o.views))
             .zip(rgb)
-            .zip(o.scale)
-            .map(|(((l, v), p), s)| s * l[2] * (p[c] - s * l[2] * lobe_sum(lobes, l, v)))
+            .map(|((sl, (l, v)), p)| sl * (p[c] - sl * lobe_sum(lobes, l, v)))
             .sum();
         *a = if den > 0.0 { (num / den).clamp(0.0, 2.0 * rho.max(1.0)) as f32 } else { 0.0 };
     }

@@ -14,37 +14,38 @@
 //! unmeasured view the nearest measured one is used. Storage: `3 + 3K` values and one
 //! `T` per view per texel.
 //!
-//! Fit per texel: the plain Lafortune fit (`T = 1`), then rounds of (1) `T(v) = Σ y B / Σ B²`
-//! over the view's observations (`B = l_z (ρ + S)`, the grey model; closed form), normalised to
-//! a largest value of 1 with the albedo and lobe strengths taking the factor (`ρ·m`,
-//! `C·m^{1/n}`), (2) the lobes refined by the same bounded Levenberg–Marquardt with the
-//! observations scaled by `T` ([`crate::lafortune`]'s solver). The round with the lowest cost
-//! is kept, so the scaled fit is never worse on the data than the plain one. A view that
-//! sees nothing of the texel keeps `T = 1`.
+//! Fit per texel: the plain Lafortune fit (`T = 1`); `T(v) = Σ y B / Σ B²` over the view's
+//! observations in closed form given it (`B = l_z (ρ + S)`, the grey model); then albedo, lobes
+//! and every `T` at once by [`crate::lafortune`]'s bounded Levenberg–Marquardt (`T ∈ [0, 1]`;
+//! each observation depends on one `T`, so `JᵀJ` is accumulated over `2 + 3K` entries). The
+//! split between `T` and the lobes is free: at the end the largest `T` is divided out into
+//! `ρ·m` and `C·m^{1/n}` (the same model). A view that sees nothing of the texel keeps
+//! `T = 1`. The colour albedo then follows by linear least squares per channel, as for the
+//! plain lobes.
 
 use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::error::{ModelError, Result};
 use crate::lafortune::{
-    check_input, colour_albedo, fit_texel, gather, lobe_sum, no_lobes, refine_texel, BtfInput, LafortuneMap,
-    LafortuneParams, Lobe, TexelObs, ALBEDO_BOUNDS, LOBE_BOUNDS,
+    check_input, colour_albedo, fit_texel, gather, lobe_sum, no_lobes, pack, refine_texel, unpack, BtfInput, Gathered,
+    LafortuneMap, LafortuneParams, Lobe, TexelObs, ALBEDO_BOUNDS, LOBE_BOUNDS,
 };
 use crate::sbrdf::{distinct, nearest};
 
 /// Tuning of [`fit`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct ScaledParams {
-    /// The lobes' fit (lobes per texel, LM iterations per start or round).
+    /// The plain lobes' fit that starts it (lobes per texel, LM iterations per start).
     pub lafortune: LafortuneParams,
-    /// Alternating rounds of scale and lobes after the plain fit.
-    pub rounds: usize,
+    /// LM iterations at most of the joint fit of lobes and view scales.
+    pub iterations: usize,
 }
 
 impl ScaledParams {
-    /// `lobes` lobes, 6 rounds.
+    /// `lobes` lobes, 100 joint iterations.
     pub fn new(lobes: usize) -> Self {
-        ScaledParams { lafortune: LafortuneParams::new(lobes), rounds: 6 }
+        ScaledParams { lafortune: LafortuneParams::new(lobes), iterations: 100 }
     }
 }
 
@@ -89,77 +90,51 @@ fn grey_model(rho: f64, lobes: &[Lobe], lights: &[[f64; 3]], views: &[[f64; 3]])
     lights.iter().zip(views).map(|(l, v)| l[2] * (rho + lobe_sum(lobes, l, v))).collect()
 }
 
-fn cost(y: &[f64], model: &[f64], scale: &[f64]) -> f64 {
-    y.iter().zip(model).zip(scale).map(|((y, b), s)| (y - s * b).powi(2)).sum()
+/// Divides the largest view scale out into the albedo and lobes (`ρ·m`, `C·m^{1/n}`): the
+/// same model with `max T = 1`. `m ≤ 1` after the bounded fit, so the lobes stay in bounds.
+fn normalise(rho: &mut f64, lobes: &mut [Lobe], t: &mut [f64]) {
+    let m = t.iter().cloned().fold(0.0, f64::max);
+    if m <= 1e-12 {
+        return;
+    }
+    t.iter_mut().for_each(|x| *x /= m);
+    *rho = (*rho * m).clamp(ALBEDO_BOUNDS.0, ALBEDO_BOUNDS.1);
+    for lb in lobes {
+        let f = m.powf(1.0 / lb.n);
+        lb.cxy = (lb.cxy * f).clamp(LOBE_BOUNDS[0].0, LOBE_BOUNDS[0].1);
+        lb.cz = (lb.cz * f).clamp(LOBE_BOUNDS[1].0, LOBE_BOUNDS[1].1);
+    }
 }
 
 /// One texel: `(albedo, lobes, T per distinct view, LM iterations)`.
-fn fit_one(
-    o_lights: &[[f64; 3]],
-    o_views: &[[f64; 3]],
-    rgb: &[[f64; 3]],
-    view_of: &[usize],
-    n_views: usize,
-    params: &ScaledParams,
-) -> ([f32; 3], Vec<Lobe>, Vec<f64>, u64) {
-    let y: Vec<f64> = rgb.iter().map(|p| (p[0] + p[1] + p[2]) / 3.0).collect();
-    let mut t_view = vec![1.0f64; n_views];
-    let mut scale = vec![1.0f64; y.len()];
+fn fit_one(g: &Gathered, view_of: &[usize], n_views: usize, params: &ScaledParams) -> ([f32; 3], Vec<Lobe>, Vec<f64>, u64) {
+    let y = g.grey();
     let k = params.lafortune.lobes;
+    let plain = TexelObs { lights: &g.lights, views: &g.views, y: &y, view: view_of, scales: 0 };
     if y.len() < 1 + 3 * k {
         let none = no_lobes(k);
-        let o = TexelObs { lights: o_lights, views: o_views, y: &y, scale: &scale };
-        return (colour_albedo(0.0, &none, &o, rgb), none, t_view, 0);
+        return (colour_albedo(0.0, &none, &[], &plain, &g.rgb), none, vec![1.0; n_views], 0);
     }
-    let o = TexelObs { lights: o_lights, views: o_views, y: &y, scale: &scale };
-    let (mut rho, mut lobes, mut iters) = fit_texel(&o, &params.lafortune);
-    let b = grey_model(rho, &lobes, o_lights, o_views);
-    let mut best = (cost(&y, &b, &scale), rho, lobes.clone(), t_view.clone());
-    for _ in 0..params.rounds {
-        // (1) T per view in closed form, given the lobes.
-        let b = grey_model(rho, &lobes, o_lights, o_views);
-        let (mut num, mut den) = (vec![0.0; n_views], vec![0.0; n_views]);
-        for ((yi, bi), &j) in y.iter().zip(&b).zip(view_of) {
-            num[j] += yi * bi;
-            den[j] += bi * bi;
-        }
-        let floor = 1e-12 * den.iter().cloned().fold(0.0, f64::max).max(1e-300);
-        for j in 0..n_views {
-            if den[j] > floor {
-                t_view[j] = (num[j] / den[j]).max(0.0);
-            }
-        }
-        let m = t_view.iter().cloned().fold(0.0, f64::max);
-        if m <= 1e-12 {
-            break;
-        }
-        t_view.iter_mut().for_each(|x| *x /= m);
-        // The lobes take the factor: ρ·m and (C·m^{1/n})^n = C^n·m.
-        rho = (rho * m).clamp(ALBEDO_BOUNDS.0, ALBEDO_BOUNDS.1);
-        for lb in &mut lobes {
-            let f = m.powf(1.0 / lb.n);
-            lb.cxy = (lb.cxy * f).clamp(LOBE_BOUNDS[0].0, LOBE_BOUNDS[0].1);
-            lb.cz = (lb.cz * f).clamp(LOBE_BOUNDS[1].0, LOBE_BOUNDS[1].1);
-        }
-        for (s, &j) in scale.iter_mut().zip(view_of) {
-            *s = t_view[j];
-        }
-        // (2) The lobes, given T.
-        let o = TexelObs { lights: o_lights, views: o_views, y: &y, scale: &scale };
-        let (r, l, it) = refine_texel(rho, &lobes, &o, params.lafortune.iterations);
-        (rho, lobes) = (r, l);
-        iters += it;
-        let c = cost(&y, &grey_model(rho, &lobes, o_lights, o_views), &scale);
-        if c < best.0 {
-            best = (c, rho, lobes.clone(), t_view.clone());
-        }
+    let (mut rho, mut lobes, mut iters) = fit_texel(&plain, &params.lafortune);
+    // Start: T per view in closed form given the plain lobes, T = Σ y B / Σ B².
+    let b = grey_model(rho, &lobes, &g.lights, &g.views);
+    let (mut num, mut den) = (vec![0.0; n_views], vec![0.0; n_views]);
+    for ((yi, bi), &j) in y.iter().zip(&b).zip(view_of) {
+        num[j] += yi * bi;
+        den[j] += bi * bi;
     }
-    let (_, rho, lobes, t_view) = best;
-    for (s, &j) in scale.iter_mut().zip(view_of) {
-        *s = t_view[j];
-    }
-    let o = TexelObs { lights: o_lights, views: o_views, y: &y, scale: &scale };
-    (colour_albedo(rho, &lobes, &o, rgb), lobes, t_view, iters)
+    let floor = 1e-12 * den.iter().cloned().fold(0.0, f64::max).max(1e-300);
+    let mut t: Vec<f64> = num.iter().zip(&den).map(|(n, d)| if *d > floor { (n / d).max(0.0) } else { 1.0 }).collect();
+    normalise(&mut rho, &mut lobes, &mut t);
+    // Then everything at once by the lobes' bounded LM, the scales in [0, 1].
+    let scaled = TexelObs { scales: n_views, ..plain };
+    let mut p = pack(rho, &lobes, &t);
+    let (_, it) = refine_texel(&mut p, &scaled, params.iterations);
+    iters += it;
+    let (mut rho, mut lobes, t) = unpack(&p, n_views);
+    let mut t = t.to_vec();
+    normalise(&mut rho, &mut lobes, &mut t);
+    (colour_albedo(rho, &lobes, &t, &scaled, &g.rgb), lobes, t, iters)
 }
 
 /// Fits scaled Lafortune lobes per texel (module documentation).
@@ -176,7 +151,7 @@ pub fn fit(input: &BtfInput<'_>, params: &ScaledParams) -> Result<ScaledLafortun
         .map(|t| {
             let g = gather(input, t);
             let view_of: Vec<usize> = g.index.iter().map(|&i| view_idx[i]).collect();
-            fit_one(&g.lights, &g.views, &g.rgb, &view_of, nv, params)
+            fit_one(&g, &view_of, nv, params)
         })
         .collect();
     let mut map = LafortuneMap {

@@ -159,7 +159,7 @@ fn lights_on_one_ring_are_reported_ill_conditioned_and_stay_finite() {
     let lights: Vec<[f64; 3]> = (0..8).map(|k| dir(89.9, 45.0 * f64::from(k))).collect();
     let views = vec![v; lights.len()];
     let images: Vec<Vec<[f32; 3]>> =
-        lights.iter().map(|l| vec![[(0.3 + 0.1 * l[0]) as f32, 0.2, 0.1], [0.0; 3]]).collect();
+        lights.iter().map(|l| vec![[1.0, 0.7, 0.4].map(|c| (c * (0.3 + 0.1 * l[0])) as f32), [0.0; 3]]).collect();
     let refs: Vec<&[[f32; 3]]> = images.iter().map(|v| v.as_slice()).collect();
     let map = fit_ptm(&PtmInput { texels: 2, lights: &lights, views: &views, images: &refs }, &PtmParams::default())
         .unwrap();
