@@ -572,7 +572,8 @@ fn linear_rows(
     for pcmf in [false, true] {
         let mut chosen = None;
         for terms in 1..=64usize {
-            let mut p = ModelParams::new(if pcmf { Method::Pcmf { clusters: 8, shared_basis: None } } else { Method::Fmf });
+            let mut p =
+                ModelParams::new(if pcmf { Method::Pcmf { clusters: 8, shared_basis: None } } else { Method::Fmf });
             p.terms = [terms, terms.div_ceil(2), terms.div_ceil(2)];
             p.precision = Precision::F16;
             let t = Instant::now();

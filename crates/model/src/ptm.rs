@@ -209,12 +209,8 @@ pub fn fit(input: &PtmInput<'_>, params: &PtmParams) -> Result<PtmMap> {
     let groups: Vec<Vec<usize>> =
         (0..view_dirs.len()).map(|j| (0..view_of.len()).filter(|&i| view_of[i] == j).collect()).collect();
     let lights_of = |g: &[usize]| distinct(&g.iter().map(|&i| input.lights[i]).collect::<Vec<_>>()).0.len();
-    let short: Vec<(usize, usize)> = groups
-        .iter()
-        .enumerate()
-        .map(|(j, g)| (j, lights_of(g)))
-        .filter(|&(_, n)| n < COEFFICIENTS)
-        .collect();
+    let short: Vec<(usize, usize)> =
+        groups.iter().enumerate().map(|(j, g)| (j, lights_of(g))).filter(|&(_, n)| n < COEFFICIENTS).collect();
     if let Some(&(j, n)) = short.first() {
         let (th, ph) = deg(&view_dirs[j]);
         let most = groups.iter().map(|g| lights_of(g)).max().unwrap_or(0);

@@ -107,7 +107,12 @@ fn normalise(rho: &mut f64, lobes: &mut [Lobe], t: &mut [f64]) {
 }
 
 /// One texel: `(albedo, lobes, T per distinct view, LM iterations)`.
-fn fit_one(g: &Gathered, view_of: &[usize], n_views: usize, params: &ScaledParams) -> ([f32; 3], Vec<Lobe>, Vec<f64>, u64) {
+fn fit_one(
+    g: &Gathered,
+    view_of: &[usize],
+    n_views: usize,
+    params: &ScaledParams,
+) -> ([f32; 3], Vec<Lobe>, Vec<f64>, u64) {
     let y = g.grey();
     let k = params.lafortune.lobes;
     let plain = TexelObs { lights: &g.lights, views: &g.views, y: &y, view: view_of, scales: 0 };

@@ -163,8 +163,8 @@ fn lights_on_one_ring_are_reported_ill_conditioned_and_stay_finite() {
     let images: Vec<Vec<[f32; 3]>> =
         lights.iter().map(|l| vec![[1.0, 0.7, 0.4].map(|c| (c * (0.3 + 0.1 * l[0])) as f32), [0.0; 3]]).collect();
     let refs: Vec<&[[f32; 3]]> = images.iter().map(|v| v.as_slice()).collect();
-    let map = fit_ptm(&PtmInput { texels: 2, lights: &lights, views: &views, images: &refs }, &PtmParams::default())
-        .unwrap();
+    let map =
+        fit_ptm(&PtmInput { texels: 2, lights: &lights, views: &views, images: &refs }, &PtmParams::default()).unwrap();
     assert!(map.views[0].rcond < 1e-9, "{:?}", map.views[0]);
     assert!(map.coeffs.iter().flatten().chain(map.chroma.iter().flatten()).all(|x| x.is_finite()));
     let e = rel_rmse(|i, t| map.eval(t, &lights[i], &views[i]), &images);
