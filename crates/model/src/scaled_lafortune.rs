@@ -106,19 +106,28 @@ fn normalise(rho: &mut f64, lobes: &mut [Lobe], t: &mut [f64]) {
     }
 }
 
-/// One texel: `(albedo, lobes, T per distinct view, LM iterations)`.
-fn fit_one(
-    g: &Gathered,
-    view_of: &[usize],
-    n_views: usize,
-    params: &ScaledParams,
-) -> ([f32; 3], Vec<Lobe>, Vec<f64>, u64) {
+/// One texel's fit.
+struct TexelFit {
+    albedo: [f32; 3],
+    lobes: Vec<Lobe>,
+    /// `T` per distinct view.
+    scale: Vec<f64>,
+    iterations: u64,
+}
+
+/// One texel.
+fn fit_one(g: &Gathered, view_of: &[usize], n_views: usize, params: &ScaledParams) -> TexelFit {
     let y = g.grey();
     let k = params.lafortune.lobes;
     let plain = TexelObs { lights: &g.lights, views: &g.views, y: &y, view: view_of, scales: 0 };
     if y.len() < 1 + 3 * k {
         let none = no_lobes(k);
-        return (colour_albedo(0.0, &none, &[], &plain, &g.rgb), none, vec![1.0; n_views], 0);
+        return TexelFit {
+            albedo: colour_albedo(0.0, &none, &[], &plain, &g.rgb),
+            lobes: none,
+            scale: vec![1.0; n_views],
+            iterations: 0,
+        };
     }
     let (mut rho, mut lobes, mut iters) = fit_texel(&plain, &params.lafortune);
     // Start: T per view in closed form given the plain lobes, T = Σ y B / Σ B².
@@ -139,7 +148,7 @@ fn fit_one(
     let (mut rho, mut lobes, t) = unpack(&p, n_views);
     let mut t = t.to_vec();
     normalise(&mut rho, &mut lobes, &mut t);
-    (colour_albedo(rho, &lobes, &t, &scaled, &g.rgb), lobes, t, iters)
+    TexelFit { albedo: colour_albedo(rho, &lobes, &t, &scaled, &g.rgb), lobes, scale: t, iterations: iters }
 }
 
 /// Fits scaled Lafortune lobes per texel (module documentation).
@@ -151,7 +160,7 @@ pub fn fit(input: &BtfInput<'_>, params: &ScaledParams) -> Result<ScaledLafortun
     let (view_dirs, view_idx) = distinct(input.views);
     let nv = view_dirs.len();
     let k = params.lafortune.lobes;
-    let fits: Vec<([f32; 3], Vec<Lobe>, Vec<f64>, u64)> = (0..input.texels)
+    let fits: Vec<TexelFit> = (0..input.texels)
         .into_par_iter()
         .map(|t| {
             let g = gather(input, t);
@@ -168,11 +177,11 @@ pub fn fit(input: &BtfInput<'_>, params: &ScaledParams) -> Result<ScaledLafortun
         normal: input.normals.map(|n| n.to_vec()),
     };
     let mut scale = Vec::with_capacity(input.texels * nv);
-    for (a, l, s, it) in fits {
-        map.albedo.push(a);
-        map.lobe.extend(l);
-        scale.extend(s.iter().map(|&x| x as f32));
-        map.iterations += it;
+    for f in fits {
+        map.albedo.push(f.albedo);
+        map.lobe.extend(f.lobes);
+        scale.extend(f.scale.iter().map(|&x| x as f32));
+        map.iterations += f.iterations;
     }
     Ok(ScaledLafortuneMap { lafortune: map, view_dirs, scale })
 }
