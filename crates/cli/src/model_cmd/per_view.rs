@@ -122,13 +122,11 @@ pub fn ptm(a: &PtmArgs) -> anyhow::Result<()> {
     let rel = rel_data(&obs, |l, v| map.texture(l, v));
     let out = crate::captures_cmd::prepare_output(Some(a.out.clone()), "btfrig-ptm")?;
     // View j's map occupies rows j*h .. (j+1)*h of each file.
-    let (quad, lin, chroma): (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<[f32; 3]>) = (
-        map.coeffs.iter().map(|a| [a[0], a[1], a[2]]).collect(),
-        map.coeffs.iter().map(|a| [a[3], a[4], a[5]]).collect(),
-        map.chroma.clone(),
-    );
+    let quad: Vec<[f32; 3]> = map.coeffs.iter().map(|a| [a[0], a[1], a[2]]).collect();
+    let lin: Vec<[f32; 3]> = map.coeffs.iter().map(|a| [a[3], a[4], a[5]]).collect();
+    let chroma = &map.chroma;
     let nv = map.views.len();
-    for (name, data) in [("ptm_quadratic.exr", &quad), ("ptm_linear.exr", &lin), ("ptm_chroma.exr", &chroma)] {
+    for (name, data) in [("ptm_quadratic.exr", &quad), ("ptm_linear.exr", &lin), ("ptm_chroma.exr", chroma)] {
         btfrig_imageio::write_rgb_exr(&out.join(name), w, h * nv, data)?;
     }
     let worst = map.views.iter().map(|v| v.rcond).fold(f64::INFINITY, f64::min);
