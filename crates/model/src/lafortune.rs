@@ -170,24 +170,33 @@ pub(crate) fn check_input(input: &BtfInput<'_>, lobes: usize, what: &str) -> Res
     if m < need {
         return Err(ModelError::TooFewObservations { what: format!("a {what} with {lobes} lobe(s)"), have: m, need });
     }
-    for (i, img) in input.images.iter().enumerate() {
-        if img.len() != input.texels {
-            return Err(ModelError::WrongSize { what: format!("image {i}"), got: img.len(), expected: input.texels });
-        }
-    }
-    if let Some(i) =
-        input.lights.iter().chain(input.views).position(|d| !(d[2] > 0.0) || d.iter().any(|x| !x.is_finite()))
-    {
-        return Err(ModelError::OutOfRange {
-            field: format!("direction {i}"),
-            value: format!("{:?}", input.lights.iter().chain(input.views).nth(i)),
-            allowed: "finite unit vectors above the surface".into(),
-        });
-    }
+    check_images_and_directions(input.images, input.texels, input.lights, input.views)?;
     if let Some(n) = input.normals {
         if n.len() != input.texels {
             return Err(ModelError::WrongSize { what: "normals".into(), got: n.len(), expected: input.texels });
         }
+    }
+    Ok(())
+}
+
+/// Every image has `texels` values and every direction is finite and above the surface.
+pub(crate) fn check_images_and_directions(
+    images: &[&[[f32; 3]]],
+    texels: usize,
+    lights: &[[f64; 3]],
+    views: &[[f64; 3]],
+) -> Result<()> {
+    for (i, img) in images.iter().enumerate() {
+        if img.len() != texels {
+            return Err(ModelError::WrongSize { what: format!("image {i}"), got: img.len(), expected: texels });
+        }
+    }
+    if let Some(i) = lights.iter().chain(views).position(|d| !(d[2] > 0.0) || d.iter().any(|x| !x.is_finite())) {
+        return Err(ModelError::OutOfRange {
+            field: format!("direction {i}"),
+            value: format!("{:?}", lights.iter().chain(views).nth(i)),
+            allowed: "finite unit vectors above the surface".into(),
+        });
     }
     Ok(())
 }

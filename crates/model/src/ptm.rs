@@ -29,6 +29,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::error::{ModelError, Result};
+use crate::lafortune::check_images_and_directions;
 use crate::sbrdf::{distinct, nearest};
 
 /// Coefficients of the biquadratic.
@@ -133,19 +134,8 @@ fn check(input: &PtmInput<'_>) -> Result<()> {
             return Err(ModelError::WrongSize { what: format!("polynomial texture map: {what}"), got, expected: m });
         }
     }
-    if let Some(i) =
-        input.lights.iter().chain(input.views).position(|d| !(d[2] > 0.0) || d.iter().any(|x| !x.is_finite()))
-    {
-        return Err(ModelError::OutOfRange {
-            field: format!("direction {i}"),
-            value: format!("{:?}", input.lights.iter().chain(input.views).nth(i)),
-            allowed: "finite unit vectors above the surface".into(),
-        });
-    }
+    check_images_and_directions(input.images, input.texels, input.lights, input.views)?;
     for (i, img) in input.images.iter().enumerate() {
-        if img.len() != input.texels {
-            return Err(ModelError::WrongSize { what: format!("image {i}"), got: img.len(), expected: input.texels });
-        }
         if let Some(x) = img.iter().flatten().find(|x| !x.is_finite()) {
             return Err(ModelError::OutOfRange {
                 field: format!("image {i}"),

@@ -68,6 +68,18 @@ fn ptm_map(obs: &Observations, ridge: f64) -> anyhow::Result<PtmMap> {
     Ok(fit_ptm(&input, &PtmParams { ridge })?)
 }
 
+/// Writes the descriptor; prints it (`--json`) or `summary` and where the maps are.
+fn finish(out: &std::path::Path, desc: &serde_json::Value, json: bool, summary: &str) -> anyhow::Result<()> {
+    let text = write_descriptor(out, desc)?;
+    if json {
+        println!("{text}");
+    } else {
+        println!("{summary}");
+        println!("  maps             {}", out.display());
+    }
+    Ok(())
+}
+
 /// `btfrig model scaled-lafortune`.
 pub fn scaled_lafortune(a: &ScaledLafortuneArgs) -> anyhow::Result<()> {
     let obs = Observations::read(&a.dataset, None)?;
@@ -98,18 +110,12 @@ pub fn scaled_lafortune(a: &ScaledLafortuneArgs) -> anyhow::Result<()> {
         "rel_rmse_data": rel,
         "fit_s": fit_s,
     });
-    let text = write_descriptor(&out, &desc)?;
-    if a.json {
-        println!("{text}");
-    } else {
-        println!(
-            "btfrig model scaled-lafortune: {} lobe(s), {nv} view scales, {w} x {h} texels, relative RMSE {rel:.4} against the {} captures, {fit_s:.2} s",
-            a.lobes,
-            obs.lights.len()
-        );
-        println!("  maps             {}", out.display());
-    }
-    Ok(())
+    let summary = format!(
+        "btfrig model scaled-lafortune: {} lobe(s), {nv} view scales, {w} x {h} texels, relative RMSE {rel:.4} against the {} captures, {fit_s:.2} s",
+        a.lobes,
+        obs.lights.len()
+    );
+    finish(&out, &desc, a.json, &summary)
 }
 
 /// `btfrig model ptm`.
@@ -149,17 +155,11 @@ pub fn ptm(a: &PtmArgs) -> anyhow::Result<()> {
         "rel_rmse_data": rel,
         "fit_s": fit_s,
     });
-    let text = write_descriptor(&out, &desc)?;
-    if a.json {
-        println!("{text}");
-    } else {
-        println!(
-            "btfrig model ptm: {nv} views, {w} x {h} texels, relative RMSE {rel:.4} against the {} captures, worst reciprocal condition {worst:.1e}, {fit_s:.2} s",
-            obs.lights.len()
-        );
-        println!("  maps             {}", out.display());
-    }
-    Ok(())
+    let summary = format!(
+        "btfrig model ptm: {nv} views, {w} x {h} texels, relative RMSE {rel:.4} against the {} captures, worst reciprocal condition {worst:.1e}, {fit_s:.2} s",
+        obs.lights.len()
+    );
+    finish(&out, &desc, a.json, &summary)
 }
 
 /// `bench model`'s rows of the per-view models: scaled Lafortune (1 and 2 lobes, relative to
