@@ -19,8 +19,14 @@ fn fails(cmd: &mut std::process::Command) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
 
-/// A `w x w` dataset of a Lambertian plane with normal `n` and albedo (0.6, 0.4, 0.2).
-fn plane_dataset(dir: &std::path::Path, lights: &[(f64, f64)], n: [f64; 3], w: usize) {
+/// A `w x w` dataset under `lights` seen from two views (the zenith and 30°, 45°), the
+/// texture of each capture `texture(l, v)` (unit vectors, sample frame).
+fn dataset(
+    dir: &std::path::Path,
+    lights: &[(f64, f64)],
+    w: usize,
+    texture: impl Fn([f64; 3], [f64; 3]) -> Vec<[f32; 3]>,
+) {
     let ld: Vec<Direction> = lights.iter().map(|&(t, p)| Direction::from_degrees(t, p)).collect();
     let vd = vec![Direction::from_degrees(0.0, 0.0), Direction::from_degrees(30.0, 45.0)];
     let layout =
@@ -30,16 +36,23 @@ fn plane_dataset(dir: &std::path::Path, lights: &[(f64, f64)], n: [f64; 3], w: u
         dir,
         &layout,
         &mut |a| {
-            let (l, _) = l2.directions(a);
-            let v = l.to_vector();
-            let s = (v.x * n[0] + v.y * n[1] + v.z * n[2]).max(0.0) as f32;
-            vec![[0.6 * s, 0.4 * s, 0.2 * s]; w * w]
+            let (l, v) = l2.directions(a);
+            let (l, v) = (l.to_vector(), v.to_vector());
+            texture([l.x, l.y, l.z], [v.x, v.y, v.z])
         },
         "synthetic",
-        "a Lambertian plane",
+        "tests/model.rs",
         false,
     )
     .unwrap();
+}
+
+/// A `w x w` dataset of a Lambertian plane with normal `n` and albedo (0.6, 0.4, 0.2).
+fn plane_dataset(dir: &std::path::Path, lights: &[(f64, f64)], n: [f64; 3], w: usize) {
+    dataset(dir, lights, w, |l, _| {
+        let s = (l[0] * n[0] + l[1] * n[1] + l[2] * n[2]).max(0.0) as f32;
+        vec![[0.6 * s, 0.4 * s, 0.2 * s]; w * w]
+    });
 }
 
 #[test]
@@ -107,4 +120,75 @@ fn model_ps_recovers_a_plane_and_names_what_is_missing() {
     assert!(e.contains("no captures of view 7") && e.contains("[0, 1]"), "{e}");
     let e = fails(btfrig().args(["model", "ps"]).arg(&data).args(["--method", "magic", "--out"]).arg(dir.join("z")));
     assert!(e.contains("allowed: robust, least-squares"), "{e}");
+}
+
+#[test]
+fn model_ptm_and_scaled_lafortune_write_their_maps_and_refuse_the_wrong_kind() {
+    let dir = scratch("model-ptm");
+    // Seven lights per view; per texel and view a biquadratic in (l_x, l_y) with a chroma.
+    let lights = [(0.0, 0.0), (30.0, 0.0), (30.0, 72.0), (30.0, 144.0), (30.0, 216.0), (30.0, 288.0), (60.0, 45.0)];
+    let w = 4;
+    let data = dir.join("ptm-data");
+    dataset(&data, &lights, w, |l, v| {
+        (0..w * w)
+            .map(|t| {
+                let a5 = 0.5 + 0.02 * t as f64 + 0.2 * v[0];
+                let lum = a5 + 0.1 * l[0] - 0.05 * l[1] - 0.2 * l[0] * l[0] + 0.1 * l[0] * l[1];
+                [(1.2 * lum) as f32, lum as f32, (0.8 * lum) as f32]
+            })
+            .collect()
+    });
+    let out = dir.join("ptm");
+    let d: serde_json::Value =
+        serde_json::from_str(&ok(btfrig().args(["model", "ptm", "--json"]).arg(&data).arg("--out").arg(&out))).unwrap();
+    assert!(d["rel_rmse_data"].as_f64().unwrap() < 1e-5, "{d}");
+    assert_eq!(d["views"].as_array().unwrap().len(), 2, "{d}");
+    assert!(d["worst_rcond"].as_f64().unwrap() > 0.0, "{d}");
+    for f in ["ptm_quadratic.exr", "ptm_linear.exr", "ptm_chroma.exr"] {
+        let (fw, fh, _) = btfrig_imageio::read_rgb_exr(&out.join(f)).unwrap();
+        assert_eq!((fw, fh), (w, 2 * w), "{f}: one {w} x {w} map per view, stacked");
+    }
+    let (_, _, chroma) = btfrig_imageio::read_rgb_exr(&out.join("ptm_chroma.exr")).unwrap();
+    assert!(chroma.iter().all(|c| (c[0] - 1.2).abs() < 1e-4 && (c[2] - 0.8).abs() < 1e-4), "{:?}", chroma[0]);
+
+    // Scaled Lafortune lobes on a Lambertian plane: no lobe, every view scale 1.
+    let n = [0.0, 0.0, 1.0];
+    let plane = dir.join("plane");
+    plane_dataset(&plane, &lights, n, w);
+    let sl = dir.join("scaled");
+    let d: serde_json::Value = serde_json::from_str(&ok(btfrig()
+        .args(["model", "scaled-lafortune", "--json"])
+        .arg(&plane)
+        .arg("--out")
+        .arg(&sl)))
+    .unwrap();
+    assert!(d["rel_rmse_data"].as_f64().unwrap() < 1e-3, "{d}");
+    assert_eq!(d["view_dirs"].as_array().unwrap().len(), 2, "{d}");
+    let (fw, fh, scale) = btfrig_imageio::read_rgb_exr(&sl.join("view_scale.exr")).unwrap();
+    assert_eq!((fw, fh), (w, 2 * w));
+    assert!(scale.iter().all(|s| (s[0] - 1.0).abs() < 1e-3), "{:?}", scale[0]);
+    for f in ["albedo.exr", "normal.exr", "lobe1.exr", "model.json"] {
+        assert!(sl.join(f).is_file(), "{f} missing");
+    }
+
+    // Too few lights per view for a PTM: the view and the counts are named.
+    let four = dir.join("four");
+    plane_dataset(&four, &lights[..4], n, w);
+    let e = fails(btfrig().args(["model", "ptm"]).arg(&four).arg("--out").arg(dir.join("x")));
+    assert!(e.contains("4 distinct light direction(s)") && e.contains("at least 6"), "{e}");
+    assert!(!dir.join("x").exists(), "nothing written for a refused input");
+    // The maps of another command, a model file, any file, a directory without a manifest.
+    let e = fails(btfrig().args(["model", "ptm"]).arg(&out).arg("--out").arg(dir.join("x")));
+    assert!(e.contains("the material maps of `btfrig model ptm`") && e.contains("not a dataset"), "{e}");
+    let e = fails(btfrig().args(["model", "lafortune"]).arg(&sl).arg("--out").arg(dir.join("x")));
+    assert!(e.contains("the material maps of `btfrig model scaled-lafortune`"), "{e}");
+    ok(btfrig().arg("compress").arg(&plane).args(["--method", "fmf", "--terms", "2"]));
+    let btfm = dir.join("plane.fmf.btfm");
+    let e = fails(btfrig().args(["model", "scaled-lafortune"]).arg(&btfm).arg("--out").arg(dir.join("x")));
+    assert!(e.contains("a compressed BTF model file (fmf") && e.contains("pass the dataset"), "{e}");
+    let e = fails(btfrig().args(["model", "ps"]).arg(out.join("model.json")).arg("--out").arg(dir.join("x")));
+    assert!(e.contains("a file, not a dataset"), "{e}");
+    let e = fails(btfrig().args(["model", "ptm"]).arg(&dir).arg("--out").arg(dir.join("x")));
+    assert!(e.contains("no manifest.json, so not a dataset"), "{e}");
+    assert!(!dir.join("x").exists(), "nothing written for a refused input");
 }

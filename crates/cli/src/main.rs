@@ -78,6 +78,8 @@ fn main() -> std::process::ExitCode {
         Command::Compress(a) => done(compress_cmd::compress(&a)),
         Command::Model(model_cmd::ModelCommand::Ps(a)) => done(model_cmd::ps(&a)),
         Command::Model(model_cmd::ModelCommand::Lafortune(a)) => done(model_cmd::lafortune(&a)),
+        Command::Model(model_cmd::ModelCommand::ScaledLafortune(a)) => done(model_cmd::scaled_lafortune(&a)),
+        Command::Model(model_cmd::ModelCommand::Ptm(a)) => done(model_cmd::ptm(&a)),
         Command::Reprocess(a) => done(reprocess_cmd::run(&a)),
         Command::Sparse(args::SparseCommand::Select(a)) => done(compress_cmd::select(&a)),
         Command::Sparse(args::SparseCommand::Reconstruct(a)) => done(compress_cmd::reconstruct(&a)),

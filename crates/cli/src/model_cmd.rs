@@ -15,6 +15,10 @@ use btfrig_model::truth::{surface_errors, SurfaceErrors, SurfaceTruthProbe};
 use clap::{Args, Subcommand};
 use exr::prelude::*;
 
+mod input_kind;
+mod per_view;
+pub use per_view::{ptm, scaled_lafortune, PtmArgs, ScaledLafortuneArgs};
+
 /// `btfrig model ...`.
 #[derive(Debug, Subcommand)]
 pub enum ModelCommand {
@@ -24,6 +28,12 @@ pub enum ModelCommand {
     /// Per-texel Lafortune lobes (K = 1..3) relative to photometric stereo's normals: normal,
     /// albedo and lobe-parameter maps (EXR) and a JSON descriptor.
     Lafortune(LafortuneArgs),
+    /// Scaled Lafortune lobes (seed 000): the lobes times a per-texel, per-view scale T(v)
+    /// modelling occlusion; the lobe maps plus `view_scale.exr` and a JSON descriptor.
+    ScaledLafortune(ScaledLafortuneArgs),
+    /// A polynomial texture map per view (biquadratic in the projected light direction,
+    /// luminance and chroma): coefficient and chroma maps (EXR) and a JSON descriptor.
+    Ptm(PtmArgs),
 }
 
 /// `btfrig model lafortune`.
@@ -124,6 +134,7 @@ struct Observations {
 
 impl Observations {
     fn read(dir: &Path, view: Option<u32>) -> anyhow::Result<Self> {
+        input_kind::ensure_dataset(dir)?;
         let source = DatasetSource::open(dir).with_context(|| format!("dataset {}", dir.display()))?;
         let steps: Vec<_> = source.steps().iter().copied().filter(|s| view.is_none_or(|v| s.view == v)).collect();
         let what = match view {
@@ -253,9 +264,7 @@ pub fn ps(a: &PsArgs) -> anyhow::Result<()> {
         "timing_s": { "photometric_stereo": ps_s, "integration_and_uncertainty": int_s },
         "mean_normal_sigma_deg": mean_sigma,
     });
-    let text = serde_json::to_string_pretty(&desc)?;
-    std::fs::write(out.join("model.json"), format!("{text}\n"))
-        .with_context(|| format!("cannot write {}", out.join("model.json").display()))?;
+    let text = write_descriptor(&out, &desc)?;
     if a.json {
         println!("{text}");
     } else {
@@ -293,25 +302,7 @@ pub fn lafortune(a: &LafortuneArgs) -> anyhow::Result<()> {
         sums.add(&map.texture(l, v), &obs.images[i]);
     }
     let out = crate::captures_cmd::prepare_output(Some(a.out.clone()), "btfrig-lafortune")?;
-    btfrig_imageio::write_rgb_exr(&out.join("albedo.exr"), w, h, &map.albedo)?;
-    let mut files = serde_json::Map::new();
-    files.insert("albedo".into(), serde_json::json!({ "file": "albedo.exr", "channels": ["R", "G", "B"], "meaning": "diffuse albedo rho, linear sRGB" }));
-    if let Some(n) = &normals {
-        let rgb: Vec<[f32; 3]> = n.iter().map(|n| [n[0] as f32, n[1] as f32, n[2] as f32]).collect();
-        btfrig_imageio::write_rgb_exr(&out.join("normal.exr"), w, h, &rgb)?;
-        files.insert("normal".into(), serde_json::json!({ "file": "normal.exr", "channels": ["R", "G", "B"], "meaning": "unit normal (x, y, z), sample frame; the lobes' frame" }));
-    }
-    for k in 0..a.lobes {
-        let p: Vec<[f32; 3]> = (0..w * h)
-            .map(|t| {
-                let l = map.lobe[t * a.lobes + k];
-                [l.cxy as f32, l.cz as f32, l.n as f32]
-            })
-            .collect();
-        let name = format!("lobe{}.exr", k + 1);
-        btfrig_imageio::write_rgb_exr(&out.join(&name), w, h, &p)?;
-        files.insert(format!("lobe{}", k + 1), serde_json::json!({ "file": name, "channels": ["R", "G", "B"], "meaning": "lobe parameters: R = C_xy, G = C_z, B = exponent n (not colour)" }));
-    }
+    let mut files = lobe_maps(&out, w, h, &map)?;
     let mut rel = sums.rel();
     let mut shadow_desc = serde_json::Value::Null;
     if a.shadow_maps {
@@ -325,13 +316,9 @@ pub fn lafortune(a: &LafortuneArgs) -> anyhow::Result<()> {
         for (i, (l, v)) in obs.lights.iter().zip(&obs.views).enumerate() {
             with_maps.add(&maps.apply(l, v, &base[i]), &obs.images[i]);
         }
-        // Stacked maps: direction j occupies rows j*h .. (j+1)*h; grey in R = G = B.
-        let stack = |f: &[f32], dirs: usize| -> Vec<[f32; 3]> {
-            (0..dirs).flat_map(|j| (0..w * h).map(move |t| [f[t * dirs + j]; 3])).collect()
-        };
         let (nl, nv) = (maps.light_dirs.len(), maps.view_dirs.len());
-        btfrig_imageio::write_rgb_exr(&out.join("shadow.exr"), w, h * nl, &stack(&maps.shadow, nl))?;
-        btfrig_imageio::write_rgb_exr(&out.join("occlusion.exr"), w, h * nv, &stack(&maps.occlusion, nv))?;
+        btfrig_imageio::write_rgb_exr(&out.join("shadow.exr"), w, h * nl, &stack(&maps.shadow, w * h, nl))?;
+        btfrig_imageio::write_rgb_exr(&out.join("occlusion.exr"), w, h * nv, &stack(&maps.occlusion, w * h, nv))?;
         let gain: Vec<[f32; 3]> = maps.gain.iter().map(|&g| [g; 3]).collect();
         btfrig_imageio::write_rgb_exr(&out.join("gain.exr"), w, h, &gain)?;
         files.insert("shadow".into(), serde_json::json!({ "file": "shadow.exr", "channels": ["R"], "meaning": "self-shadowing factor S in [0, 1]; light direction j (see light_dirs) is rows j*height .. (j+1)*height" }));
@@ -361,9 +348,7 @@ pub fn lafortune(a: &LafortuneArgs) -> anyhow::Result<()> {
         "rel_rmse_data": rel,
         "fit_s": fit_s,
     });
-    let text = serde_json::to_string_pretty(&desc)?;
-    std::fs::write(out.join("model.json"), format!("{text}\n"))
-        .with_context(|| format!("cannot write {}", out.join("model.json").display()))?;
+    let text = write_descriptor(&out, &desc)?;
     if a.json {
         println!("{text}");
     } else {
@@ -371,6 +356,50 @@ pub fn lafortune(a: &LafortuneArgs) -> anyhow::Result<()> {
         println!("  maps             {}", out.display());
     }
     Ok(())
+}
+
+/// Writes `desc` as `out/model.json`; its text.
+fn write_descriptor(out: &Path, desc: &serde_json::Value) -> anyhow::Result<String> {
+    let text = serde_json::to_string_pretty(desc)?;
+    std::fs::write(out.join("model.json"), format!("{text}\n"))
+        .with_context(|| format!("cannot write {}", out.join("model.json").display()))?;
+    Ok(text)
+}
+
+/// Stacked maps of per-texel, per-direction factors (`f` texel-major, `dirs` per texel):
+/// direction j occupies rows j*h .. (j+1)*h; grey in R = G = B.
+fn stack(f: &[f32], texels: usize, dirs: usize) -> Vec<[f32; 3]> {
+    (0..dirs).flat_map(|j| (0..texels).map(move |t| [f[t * dirs + j]; 3])).collect()
+}
+
+/// Writes a Lafortune map's albedo, normal (if any) and lobe maps into `out`; their
+/// descriptor entries.
+fn lobe_maps(
+    out: &Path,
+    w: usize,
+    h: usize,
+    map: &btfrig_model::lafortune::LafortuneMap,
+) -> anyhow::Result<serde_json::Map<String, serde_json::Value>> {
+    btfrig_imageio::write_rgb_exr(&out.join("albedo.exr"), w, h, &map.albedo)?;
+    let mut files = serde_json::Map::new();
+    files.insert("albedo".into(), serde_json::json!({ "file": "albedo.exr", "channels": ["R", "G", "B"], "meaning": "diffuse albedo rho, linear sRGB" }));
+    if let Some(n) = &map.normal {
+        let rgb: Vec<[f32; 3]> = n.iter().map(|n| [n[0] as f32, n[1] as f32, n[2] as f32]).collect();
+        btfrig_imageio::write_rgb_exr(&out.join("normal.exr"), w, h, &rgb)?;
+        files.insert("normal".into(), serde_json::json!({ "file": "normal.exr", "channels": ["R", "G", "B"], "meaning": "unit normal (x, y, z), sample frame; the lobes' frame" }));
+    }
+    for k in 0..map.lobes {
+        let p: Vec<[f32; 3]> = (0..w * h)
+            .map(|t| {
+                let l = map.lobe[t * map.lobes + k];
+                [l.cxy as f32, l.cz as f32, l.n as f32]
+            })
+            .collect();
+        let name = format!("lobe{}.exr", k + 1);
+        btfrig_imageio::write_rgb_exr(&out.join(&name), w, h, &p)?;
+        files.insert(format!("lobe{}", k + 1), serde_json::json!({ "file": name, "channels": ["R", "G", "B"], "meaning": "lobe parameters: R = C_xy, G = C_z, B = exponent n (not colour)" }));
+    }
+    Ok(files)
 }
 
 /// One row of `bench model`'s photometric-stereo table.
@@ -438,7 +467,6 @@ fn reflectance_rows(
     sbrdf_only: bool,
     rows: &mut Vec<FitRow>,
 ) -> anyhow::Result<()> {
-    use btfrig_compress::{build, file, Method, ModelParams, Precision};
     use btfrig_model::lafortune::{fit, BtfInput, LafortuneParams};
     let pairs: Vec<_> = obs.pairs.iter().map(|p| (p.0, p.1)).collect();
     let truth = btfrig_bench::model::truth_textures(obs.source.manifest(), material, &pairs)?;
@@ -523,38 +551,54 @@ fn reflectance_rows(
         if sbrdf_only {
             continue;
         }
-        // FMF and PCMF (8 clusters) with the fewest terms of at least this storage.
-        for pcmf in [false, true] {
-            let mut chosen = None;
-            for terms in 1..=64usize {
-                let mut p =
-                    ModelParams::new(if pcmf { Method::Pcmf { clusters: 8, shared_basis: None } } else { Method::Fmf });
-                p.terms = [terms, terms.div_ceil(2), terms.div_ceil(2)];
-                p.precision = Precision::F16;
-                let t = Instant::now();
-                let Ok((model, _)) = build::<f32>(obs.source.layout().clone(), &p, &mut obs.source) else { break };
-                let fit_s = t.elapsed().as_secs_f64();
-                let size = file::encode(&model, serde_json::Value::Null).len();
-                chosen = Some((model, fit_s, size, terms));
-                if size >= bytes {
-                    break;
-                }
-            }
-            let Some((model, fit_s, size, terms)) = chosen else { continue };
+        linear_rows(obs, material, bytes, &format!("lafortune-{k}"), truth.as_ref(), rows)?;
+    }
+    if !sbrdf_only {
+        per_view::rows(obs, material, truth.as_ref(), &normals, rows)?;
+    }
+    Ok(())
+}
+
+/// FMF and PCMF (8 clusters) with the fewest terms of at least `bytes`, labelled `~like`.
+fn linear_rows(
+    obs: &mut Observations,
+    material: &str,
+    bytes: usize,
+    like: &str,
+    truth: Option<&Vec<Vec<[f32; 3]>>>,
+    rows: &mut Vec<FitRow>,
+) -> anyhow::Result<()> {
+    use btfrig_compress::{build, file, Method, ModelParams, Precision};
+    for pcmf in [false, true] {
+        let mut chosen = None;
+        for terms in 1..=64usize {
+            let mut p =
+                ModelParams::new(if pcmf { Method::Pcmf { clusters: 8, shared_basis: None } } else { Method::Fmf });
+            p.terms = [terms, terms.div_ceil(2), terms.div_ceil(2)];
+            p.precision = Precision::F16;
             let t = Instant::now();
-            let decoded: Vec<Vec<[f32; 3]>> = obs.pairs.iter().map(|p| model.texture(p.2)).collect();
-            let eval_s = t.elapsed().as_secs_f64();
-            let (e_data, e_truth) = score(&decoded, obs, truth.as_ref());
-            rows.push(FitRow {
-                material: material.into(),
-                model: format!("{}-{terms} (~lafortune-{k})", if pcmf { "pcmf-8" } else { "fmf" }),
-                bytes: size,
-                rel_rmse_data: e_data,
-                rel_rmse_truth: e_truth,
-                fit_s,
-                eval_s,
-            });
+            let Ok((model, _)) = build::<f32>(obs.source.layout().clone(), &p, &mut obs.source) else { break };
+            let fit_s = t.elapsed().as_secs_f64();
+            let size = file::encode(&model, serde_json::Value::Null).len();
+            chosen = Some((model, fit_s, size, terms));
+            if size >= bytes {
+                break;
+            }
         }
+        let Some((model, fit_s, size, terms)) = chosen else { continue };
+        let t = Instant::now();
+        let decoded: Vec<Vec<[f32; 3]>> = obs.pairs.iter().map(|p| model.texture(p.2)).collect();
+        let eval_s = t.elapsed().as_secs_f64();
+        let (e_data, e_truth) = score(&decoded, obs, truth);
+        rows.push(FitRow {
+            material: material.into(),
+            model: format!("{}-{terms} (~{like})", if pcmf { "pcmf-8" } else { "fmf" }),
+            bytes: size,
+            rel_rmse_data: e_data,
+            rel_rmse_truth: e_truth,
+            fit_s,
+            eval_s,
+        });
     }
     Ok(())
 }

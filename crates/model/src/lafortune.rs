@@ -103,7 +103,7 @@ fn base(lb: &Lobe, l: &[f64; 3], v: &[f64; 3]) -> (f64, f64) {
     (lb.cxy * t + lb.cz * z, t)
 }
 
-fn lobe_sum(lobes: &[Lobe], l: &[f64; 3], v: &[f64; 3]) -> f64 {
+pub(crate) fn lobe_sum(lobes: &[Lobe], l: &[f64; 3], v: &[f64; 3]) -> f64 {
     lobes
         .iter()
         .map(|lb| {
@@ -149,95 +149,114 @@ pub struct BtfInput<'a> {
     pub normals: Option<&'a [[f64; 3]]>,
 }
 
-/// Fits `params.lobes` lobes per texel (module documentation).
-pub fn fit(input: &BtfInput<'_>, params: &LafortuneParams) -> Result<LafortuneMap> {
-    if !(1..=3).contains(&params.lobes) {
+/// Checks `input` for a fit of `lobes` lobes (`what` names the fit in the messages).
+pub(crate) fn check_input(input: &BtfInput<'_>, lobes: usize, what: &str) -> Result<()> {
+    if !(1..=3).contains(&lobes) {
         return Err(ModelError::OutOfRange {
             field: "lobes".into(),
-            value: params.lobes.to_string(),
+            value: lobes.to_string(),
             allowed: "1, 2 or 3".into(),
         });
     }
     let m = input.images.len();
     if input.lights.len() != m || input.views.len() != m {
         return Err(ModelError::WrongSize {
-            what: "Lafortune fit: directions".into(),
+            what: format!("{what}: directions"),
             got: input.lights.len().min(input.views.len()),
             expected: m,
         });
     }
-    let need = 1 + 3 * params.lobes;
+    let need = 1 + 3 * lobes;
     if m < need {
-        return Err(ModelError::TooFewObservations {
-            what: format!("a Lafortune fit with {} lobe(s)", params.lobes),
-            have: m,
-            need,
-        });
+        return Err(ModelError::TooFewObservations { what: format!("a {what} with {lobes} lobe(s)"), have: m, need });
     }
-    for (i, img) in input.images.iter().enumerate() {
-        if img.len() != input.texels {
-            return Err(ModelError::WrongSize { what: format!("image {i}"), got: img.len(), expected: input.texels });
-        }
-    }
-    if let Some(i) =
-        input.lights.iter().chain(input.views).position(|d| !(d[2] > 0.0) || d.iter().any(|x| !x.is_finite()))
-    {
-        return Err(ModelError::OutOfRange {
-            field: format!("direction {i}"),
-            value: format!("{:?}", input.lights.iter().chain(input.views).nth(i)),
-            allowed: "finite unit vectors above the surface".into(),
-        });
-    }
+    check_images_and_directions(input.images, input.texels, input.lights, input.views)?;
     if let Some(n) = input.normals {
         if n.len() != input.texels {
             return Err(ModelError::WrongSize { what: "normals".into(), got: n.len(), expected: input.texels });
         }
     }
+    Ok(())
+}
+
+/// Every image has `texels` values and every direction is finite and above the surface.
+pub(crate) fn check_images_and_directions(
+    images: &[&[[f32; 3]]],
+    texels: usize,
+    lights: &[[f64; 3]],
+    views: &[[f64; 3]],
+) -> Result<()> {
+    for (i, img) in images.iter().enumerate() {
+        if img.len() != texels {
+            return Err(ModelError::WrongSize { what: format!("image {i}"), got: img.len(), expected: texels });
+        }
+    }
+    if let Some(i) = lights.iter().chain(views).position(|d| !(d[2] > 0.0) || d.iter().any(|x| !x.is_finite())) {
+        return Err(ModelError::OutOfRange {
+            field: format!("direction {i}"),
+            value: format!("{:?}", lights.iter().chain(views).nth(i)),
+            allowed: "finite unit vectors above the surface".into(),
+        });
+    }
+    Ok(())
+}
+
+/// Texel `t`'s observations that its facet can see and be lit in, in its frame.
+pub(crate) struct Gathered {
+    /// Light directions (texel frame).
+    pub lights: Vec<[f64; 3]>,
+    /// View directions (texel frame).
+    pub views: Vec<[f64; 3]>,
+    /// The texel's colour in each.
+    pub rgb: Vec<[f64; 3]>,
+    /// Each one's index into the input's images.
+    pub index: Vec<usize>,
+}
+
+impl Gathered {
+    /// The channels' mean per observation (what the grey lobes are fitted to).
+    pub fn grey(&self) -> Vec<f64> {
+        self.rgb.iter().map(|p| (p[0] + p[1] + p[2]) / 3.0).collect()
+    }
+}
+
+pub(crate) fn gather(input: &BtfInput<'_>, t: usize) -> Gathered {
+    let mut g = Gathered { lights: Vec::new(), views: Vec::new(), rgb: Vec::new(), index: Vec::new() };
+    for (i, ((l, v), img)) in input.lights.iter().zip(input.views).zip(input.images).enumerate() {
+        let (l, v) = match input.normals {
+            Some(n) => (to_local(&n[t], l), to_local(&n[t], v)),
+            None => (*l, *v),
+        };
+        if l[2] > 1e-3 && v[2] > 1e-3 {
+            g.lights.push(l);
+            g.views.push(v);
+            g.rgb.push(img[t].map(f64::from));
+            g.index.push(i);
+        }
+    }
+    g
+}
+
+/// No lobes (too few lit observations for them): the albedo alone.
+pub(crate) fn no_lobes(lobes: usize) -> Vec<Lobe> {
+    vec![Lobe { cxy: 0.0, cz: 0.0, n: 1.0 }; lobes]
+}
+
+/// Fits `params.lobes` lobes per texel (module documentation).
+pub fn fit(input: &BtfInput<'_>, params: &LafortuneParams) -> Result<LafortuneMap> {
+    check_input(input, params.lobes, "Lafortune fit")?;
     let fits: Vec<([f32; 3], Vec<Lobe>, u64)> = (0..input.texels)
         .into_par_iter()
         .map(|t| {
-            // Observations in the texel's frame, those its facet can see and be lit in.
-            let (mut lights, mut views, mut rgb) = (Vec::new(), Vec::new(), Vec::new());
-            for ((l, v), img) in input.lights.iter().zip(input.views).zip(input.images) {
-                let (l, v) = match input.normals {
-                    Some(n) => (to_local(&n[t], l), to_local(&n[t], v)),
-                    None => (*l, *v),
-                };
-                if l[2] > 1e-3 && v[2] > 1e-3 {
-                    lights.push(l);
-                    views.push(v);
-                    rgb.push(img[t].map(f64::from));
-                }
+            let g = gather(input, t);
+            let y = g.grey();
+            let o = TexelObs { lights: &g.lights, views: &g.views, y: &y, view: &[], scales: 0 };
+            if y.len() < 1 + 3 * params.lobes {
+                let none = no_lobes(params.lobes);
+                return (colour_albedo(0.0, &none, &[], &o, &g.rgb), none, 0);
             }
-            if lights.len() < 1 + 3 * params.lobes {
-                // Too few lit observations for lobes: the albedo alone.
-                let den: f64 = lights.iter().map(|l| l[2] * l[2]).sum();
-                let a = [0, 1, 2].map(|c| {
-                    let num: f64 = lights.iter().zip(&rgb).map(|(l, p)| l[2] * p[c]).sum();
-                    if den > 0.0 {
-                        (num / den).clamp(0.0, 2.0) as f32
-                    } else {
-                        0.0
-                    }
-                });
-                return (a, vec![Lobe { cxy: 0.0, cz: 0.0, n: 1.0 }; params.lobes], 0);
-            }
-            let (lights, views) = (&lights[..], &views[..]);
-            let y: Vec<f64> = rgb.iter().map(|p| (p[0] + p[1] + p[2]) / 3.0).collect();
-            let (rho, lobes, it) = fit_texel(lights, views, &y, params);
-            // Colour albedo: I_c = l_z (ρ_c + S) → ρ_c = Σ l_z (I_c − l_z S) / Σ l_z².
-            let mut albedo = [0.0f32; 3];
-            let den: f64 = lights.iter().map(|l| l[2] * l[2]).sum();
-            for (c, a) in albedo.iter_mut().enumerate() {
-                let num: f64 = lights
-                    .iter()
-                    .zip(views)
-                    .zip(&rgb)
-                    .map(|((l, v), p)| l[2] * (p[c] - l[2] * lobe_sum(&lobes, l, v)))
-                    .sum();
-                *a = if den > 0.0 { (num / den).clamp(0.0, 2.0 * rho.max(1.0)) as f32 } else { 0.0 };
-            }
-            (albedo, lobes, it)
+            let (rho, lobes, it) = fit_texel(&o, params);
+            (colour_albedo(rho, &lobes, &[], &o, &g.rgb), lobes, it)
         })
         .collect();
     let mut out = LafortuneMap {
@@ -256,49 +275,95 @@ pub fn fit(input: &BtfInput<'_>, params: &LafortuneParams) -> Result<LafortuneMa
     Ok(out)
 }
 
-fn unpack(p: &[f64]) -> (f64, Vec<Lobe>) {
-    (p[0], p[1..].chunks_exact(3).map(|c| Lobe { cxy: c[0], cz: c[1], n: c[2] }).collect())
+/// `(ρ, lobes, view scales)` of a parameter vector with `scales` view scales at its end.
+pub(crate) fn unpack(p: &[f64], scales: usize) -> (f64, Vec<Lobe>, &[f64]) {
+    let k = p.len() - scales;
+    (p[0], p[1..k].chunks_exact(3).map(|c| Lobe { cxy: c[0], cz: c[1], n: c[2] }).collect(), &p[k..])
 }
 
-fn project(p: &mut [f64]) {
+/// The parameter vector `[ρ, (C_xy, C_z, n) per lobe, T per view]`.
+pub(crate) fn pack(rho: f64, lobes: &[Lobe], scales: &[f64]) -> Vec<f64> {
+    std::iter::once(rho).chain(lobes.iter().flat_map(|l| [l.cxy, l.cz, l.n])).chain(scales.iter().copied()).collect()
+}
+
+/// Projects onto the bounds (view scales in `[0, 1]`).
+fn project(p: &mut [f64], scales: usize) {
+    let k = p.len() - scales;
     p[0] = p[0].clamp(ALBEDO_BOUNDS.0, ALBEDO_BOUNDS.1);
-    for c in p[1..].chunks_exact_mut(3) {
+    for c in p[1..k].chunks_exact_mut(3) {
         for (x, (lo, hi)) in c.iter_mut().zip(LOBE_BOUNDS) {
             *x = x.clamp(lo, hi);
         }
     }
+    p[k..].iter_mut().for_each(|t| *t = t.clamp(0.0, 1.0));
 }
 
-fn cost(p: &[f64], lights: &[[f64; 3]], views: &[[f64; 3]], y: &[f64]) -> f64 {
-    let (rho, lobes) = unpack(p);
-    lights.iter().zip(views).zip(y).map(|((l, v), yi)| (yi - l[2] * (rho + lobe_sum(&lobes, l, v))).powi(2)).sum()
+/// One texel's observations in its frame: `y[i] ≈ T(view[i]) · l_z (ρ + S(l, v))`. Plain lobes
+/// have no view scales (`scales = 0`, `T = 1`); scaled lobes ([`crate::scaled_lafortune`])
+/// have `scales` of them at the end of the parameter vector ([`pack`]).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct TexelObs<'a> {
+    pub lights: &'a [[f64; 3]],
+    pub views: &'a [[f64; 3]],
+    pub y: &'a [f64],
+    /// Each observation's view (index of its scale).
+    pub view: &'a [usize],
+    /// View scales in the parameters.
+    pub scales: usize,
+}
+
+impl TexelObs<'_> {
+    /// Observation `i`'s view scale under the scales `t` (1 without).
+    fn scale(&self, t: &[f64], i: usize) -> f64 {
+        if t.is_empty() {
+            1.0
+        } else {
+            t[self.view[i]]
+        }
+    }
+}
+
+fn cost(p: &[f64], o: &TexelObs<'_>) -> f64 {
+    let (rho, lobes, t) = unpack(p, o.scales);
+    o.lights
+        .iter()
+        .zip(o.views)
+        .zip(o.y)
+        .enumerate()
+        .map(|(i, ((l, v), yi))| (yi - o.scale(t, i) * l[2] * (rho + lobe_sum(&lobes, l, v))).powi(2))
+        .sum()
 }
 
 /// Levenberg–Marquardt from `p`, projected on the bounds; returns the cost and iterations.
-fn lm(p: &mut Vec<f64>, lights: &[[f64; 3]], views: &[[f64; 3]], y: &[f64], iterations: usize) -> (f64, u64) {
+/// An observation depends on `ρ`, the lobes and one view scale: `JᵀJ` is accumulated over
+/// those entries only.
+fn lm(p: &mut Vec<f64>, o: &TexelObs<'_>, iterations: usize) -> (f64, u64) {
+    let (lights, views, y) = (o.lights, o.views, o.y);
     let k = p.len();
-    let mut c = cost(p, lights, views, y);
+    let shared = k - o.scales;
+    let mut c = cost(p, o);
     let mut lambda = 1e-3;
     let mut it = 0u64;
     let mut jtj = vec![0.0; k * k];
     let mut jtr = vec![0.0; k];
-    let mut row = vec![0.0; k];
+    let mut row = vec![0.0; shared + 1];
+    let mut idx: Vec<usize> = (0..=shared).collect();
     for _ in 0..iterations {
         it += 1;
         jtj.fill(0.0);
         jtr.fill(0.0);
-        let (rho, lobes) = unpack(p);
-        for ((l, v), yi) in lights.iter().zip(views).zip(y) {
+        let (rho, lobes, t) = unpack(p, o.scales);
+        for (i, ((l, v), yi)) in lights.iter().zip(views).zip(y).enumerate() {
             let mut model = rho;
             row[0] = l[2];
             for (j, lb) in lobes.iter().enumerate() {
-                let (b, t) = base(lb, l, v);
+                let (b, tp) = base(lb, l, v);
                 let o = 1 + 3 * j;
                 if b > 1e-12 {
                     let bn = b.powf(lb.n);
                     let d = lb.n * bn / b;
                     model += bn;
-                    row[o] = l[2] * d * t;
+                    row[o] = l[2] * d * tp;
                     row[o + 1] = l[2] * d * l[2] * v[2];
                     row[o + 2] = l[2] * bn * b.ln();
                 } else {
@@ -307,11 +372,22 @@ fn lm(p: &mut Vec<f64>, lights: &[[f64; 3]], views: &[[f64; 3]], y: &[f64], iter
                     row[o + 2] = 0.0;
                 }
             }
-            let r = yi - l[2] * model;
-            for a in 0..k {
-                jtr[a] += row[a] * r;
-                for b in 0..k {
-                    jtj[a * k + b] += row[a] * row[b];
+            // The view scale multiplies the model and so every derivative; its own
+            // derivative is the unscaled model.
+            let s = o.scale(t, i);
+            row[..shared].iter_mut().for_each(|x| *x *= s);
+            let n = if o.scales > 0 {
+                row[shared] = l[2] * model;
+                idx[shared] = shared + o.view[i];
+                shared + 1
+            } else {
+                shared
+            };
+            let r = yi - s * l[2] * model;
+            for a in 0..n {
+                jtr[idx[a]] += row[a] * r;
+                for b in 0..n {
+                    jtj[idx[a] * k + idx[b]] += row[a] * row[b];
                 }
             }
         }
@@ -326,8 +402,8 @@ fn lm(p: &mut Vec<f64>, lights: &[[f64; 3]], views: &[[f64; 3]], y: &[f64], iter
                 continue;
             };
             let mut q: Vec<f64> = p.iter().zip(step.iter()).map(|(x, s)| x + s).collect();
-            project(&mut q);
-            let cq = cost(&q, lights, views, y);
+            project(&mut q, o.scales);
+            let cq = cost(&q, o);
             if cq.is_finite() && cq < c {
                 let rel = (c - cq) / c.max(1e-300);
                 *p = q;
@@ -345,18 +421,20 @@ fn lm(p: &mut Vec<f64>, lights: &[[f64; 3]], views: &[[f64; 3]], y: &[f64], iter
     (c, it)
 }
 
-fn fit_texel(lights: &[[f64; 3]], views: &[[f64; 3]], y: &[f64], params: &LafortuneParams) -> (f64, Vec<Lobe>, u64) {
-    let mut ratios: Vec<f64> = lights.iter().zip(y).map(|(l, yi)| yi / l[2]).collect();
+/// Plain lobes from scratch (module documentation: well-posed starts); `o` without scales.
+pub(crate) fn fit_texel(o: &TexelObs<'_>, params: &LafortuneParams) -> (f64, Vec<Lobe>, u64) {
+    debug_assert_eq!(o.scales, 0, "plain lobes");
+    let mut ratios: Vec<f64> = o.lights.iter().zip(o.y).map(|(l, yi)| yi / l[2]).collect();
     ratios.sort_by(|a, b| a.total_cmp(b));
     let rho0 = ratios[ratios.len() / 4].clamp(ALBEDO_BOUNDS.0, ALBEDO_BOUNDS.1);
-    let mut best: (f64, Vec<f64>) = (cost(&[rho0], lights, views, y), vec![rho0]);
+    let mut best: (f64, Vec<f64>) = (cost(&[rho0], o), vec![rho0]);
     let mut iters = 0;
     for _ in 0..params.lobes {
         let mut round: Option<(f64, Vec<f64>)> = None;
         for n0 in [8.0, 60.0] {
             let mut p = best.1.clone();
             p.extend([-0.9, 0.9, n0]);
-            let (c, it) = lm(&mut p, lights, views, y, params.iterations);
+            let (c, it) = lm(&mut p, o, params.iterations);
             iters += it;
             if round.as_ref().is_none_or(|r| c < r.0) {
                 round = Some((c, p));
@@ -364,8 +442,34 @@ fn fit_texel(lights: &[[f64; 3]], views: &[[f64; 3]], y: &[f64], params: &Lafort
         }
         best = round.expect("two starts");
     }
-    let (rho, lobes) = unpack(&best.1);
+    let (rho, lobes, _) = unpack(&best.1, 0);
     (rho, lobes, iters)
+}
+
+/// Refines the parameters `p` ([`pack`]) by LM from where they are (projected on the bounds
+/// first); the cost and iterations.
+pub(crate) fn refine_texel(p: &mut Vec<f64>, o: &TexelObs<'_>, iterations: usize) -> (f64, u64) {
+    project(p, o.scales);
+    lm(p, o, iterations)
+}
+
+/// The colour albedo given the lobes and view scales `t` (empty: 1):
+/// `I_c = s l_z (ρ_c + S)` → `ρ_c = Σ s l_z (I_c − s l_z S) / Σ (s l_z)²`,
+/// clamped to `[0, 2 max(ρ, 1)]` (`ρ` the grey fit's).
+pub(crate) fn colour_albedo(rho: f64, lobes: &[Lobe], t: &[f64], o: &TexelObs<'_>, rgb: &[[f64; 3]]) -> [f32; 3] {
+    let mut albedo = [0.0f32; 3];
+    let sl: Vec<f64> = o.lights.iter().enumerate().map(|(i, l)| o.scale(t, i) * l[2]).collect();
+    let den: f64 = sl.iter().map(|x| x * x).sum();
+    for (c, a) in albedo.iter_mut().enumerate() {
+        let num: f64 = sl
+            .iter()
+            .zip(o.lights.iter().zip(o.views))
+            .zip(rgb)
+            .map(|((sl, (l, v)), p)| sl * (p[c] - sl * lobe_sum(lobes, l, v)))
+            .sum();
+        *a = if den > 0.0 { (num / den).clamp(0.0, 2.0 * rho.max(1.0)) as f32 } else { 0.0 };
+    }
+    albedo
 }
 
 #[cfg(test)]

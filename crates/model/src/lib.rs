@@ -13,6 +13,11 @@
 //!   Levenberg–Marquardt, [`lafortune::fit`] to a [`lafortune::LafortuneMap`].
 //! * [`sbrdf`]: seed 003's self-shadowing (per light) and self-occlusion (per view) maps
 //!   on top of an SBRDF's predictions, [`sbrdf::fit`] to [`sbrdf::ShadowOcclusionMaps`].
+//! * [`scaled_lafortune`]: the lobes times a per-texel, per-view scale `T(v)` (seed 000's
+//!   scaled Lafortune lobes), [`scaled_lafortune::fit`] to a
+//!   [`scaled_lafortune::ScaledLafortuneMap`].
+//! * [`ptm`]: a polynomial texture map per view (biquadratic in the projected light
+//!   direction, luminance and chroma), [`ptm::fit`] to a [`ptm::PtmMap`].
 //! * [`truth`]: error figures against an injected [`truth::SurfaceTruthProbe`] (the
 //!   simulator's), used only after estimation.
 //!
@@ -35,7 +40,9 @@ pub mod error;
 pub mod integrate;
 pub mod lafortune;
 pub mod ps;
+pub mod ptm;
 pub mod sbrdf;
+pub mod scaled_lafortune;
 pub mod truth;
 
 pub use error::{ModelError, Result};

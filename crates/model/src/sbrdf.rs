@@ -75,7 +75,8 @@ pub struct ShadowOcclusionMaps {
     pub gain: Vec<f32>,
 }
 
-fn distinct(dirs: &[[f64; 3]]) -> (Vec<[f64; 3]>, Vec<usize>) {
+/// The distinct directions of `dirs` and each one's index into them.
+pub(crate) fn distinct(dirs: &[[f64; 3]]) -> (Vec<[f64; 3]>, Vec<usize>) {
     let mut uniq: Vec<[f64; 3]> = Vec::new();
     let idx = dirs
         .iter()
@@ -95,7 +96,8 @@ fn dist2(a: &[f64; 3], b: &[f64; 3]) -> f64 {
     (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)
 }
 
-fn nearest(dirs: &[[f64; 3]], d: &[f64; 3]) -> usize {
+/// The index of the direction of `dirs` nearest `d`.
+pub(crate) fn nearest(dirs: &[[f64; 3]], d: &[f64; 3]) -> usize {
     let mut best = (f64::INFINITY, 0);
     for (j, u) in dirs.iter().enumerate() {
         let e = dist2(u, d);
