@@ -78,6 +78,7 @@ fn main() -> std::process::ExitCode {
         Command::Compress(a) => done(compress_cmd::compress(&a)),
         Command::Model(model_cmd::ModelCommand::Ps(a)) => done(model_cmd::ps(&a)),
         Command::Model(model_cmd::ModelCommand::Lafortune(a)) => done(model_cmd::lafortune(&a)),
+        Command::Model(model_cmd::ModelCommand::Car(a)) => done(model_cmd::car::model_car(&a)),
         Command::Reprocess(a) => done(reprocess_cmd::run(&a)),
         Command::Sparse(args::SparseCommand::Select(a)) => done(compress_cmd::select(&a)),
         Command::Sparse(args::SparseCommand::Reconstruct(a)) => done(compress_cmd::reconstruct(&a)),

@@ -15,6 +15,8 @@ use btfrig_model::truth::{surface_errors, SurfaceErrors, SurfaceTruthProbe};
 use clap::{Args, Subcommand};
 use exr::prelude::*;
 
+pub mod car;
+
 /// `btfrig model ...`.
 #[derive(Debug, Subcommand)]
 pub enum ModelCommand {
@@ -24,6 +26,11 @@ pub enum ModelCommand {
     /// Per-texel Lafortune lobes (K = 1..3) relative to photometric stereo's normals: normal,
     /// albedo and lobe-parameter maps (EXR) and a JSON descriptor.
     Lafortune(LafortuneArgs),
+    /// Seed 002's probabilistic model: the (light, view) pairs clustered into sub-spaces, each
+    /// one's texture as colour PCA, a Gaussian-Laplacian pyramid and 2D causal autoregressive
+    /// models; a texture of any size for any pair, bump-mapped by the range map (EXR, PNG and
+    /// the model as JSON).
+    Car(car::CarArgs),
 }
 
 /// `btfrig model lafortune`.
@@ -98,6 +105,9 @@ pub struct BenchModelArgs {
     /// and occlusion maps (no FMF/PCMF, no more lobes): the cheap check of the maps.
     #[arg(long, conflicts_with = "ps_only")]
     pub sbrdf_only: bool,
+    /// Only the CAR synthesis rows (seed 002; statistics at held-out captures).
+    #[arg(long, conflicts_with_all = ["ps_only", "sbrdf_only"])]
+    pub car_only: bool,
     /// Print one JSON object.
     #[arg(long)]
     pub json: bool,
@@ -563,6 +573,7 @@ fn reflectance_rows(
 pub fn bench(a: &BenchModelArgs) -> anyhow::Result<()> {
     let mut rows = Vec::new();
     let mut fits = Vec::new();
+    let mut cars = Vec::new();
     for d in &a.datasets {
         let mut obs = Observations::read(d, a.view)?;
         let mut estimates = Vec::new();
@@ -585,14 +596,17 @@ pub fn bench(a: &BenchModelArgs) -> anyhow::Result<()> {
                 fit_s,
             });
         }
-        if !a.ps_only {
+        if !a.ps_only && !a.car_only {
             reflectance_rows(&mut obs, &probe.material, a.sbrdf_only, &mut fits)?;
+        }
+        if !a.ps_only && !a.sbrdf_only {
+            car::bench_rows(&obs, &probe.material, &mut cars)?;
         }
     }
     if a.json {
         println!(
             "{}",
-            serde_json::to_string_pretty(&serde_json::json!({ "photometric_stereo": rows, "reflectance": fits }))?
+            serde_json::to_string_pretty(&serde_json::json!({ "photometric_stereo": rows, "reflectance": fits, "car": cars }))?
         );
         return Ok(());
     }
@@ -618,6 +632,7 @@ pub fn bench(a: &BenchModelArgs) -> anyhow::Result<()> {
             r.fit_s
         );
     }
+    car::print_rows(&cars);
     if fits.is_empty() {
         return Ok(());
     }
