@@ -169,10 +169,14 @@ fn a_synthesised_stationary_texture_keeps_its_statistics() {
     let other = stationary_texture(sw, sh, 22);
     let floor = distance(&stats(sw, sh, &other), &reference);
     eprintln!("synthesis {d:?}\nanother realisation {floor:?}");
-    assert!(d.mean_rel < 0.03, "{d:?}");
-    assert!(d.worst_variance_factor() < 1.25, "{d:?}");
-    assert!(d.acf_rms < 0.06, "{d:?}");
-    assert!(d.emd_rel < 0.15, "{d:?}");
+    // Mean and variance are matched to the fitted texture's (BandModel); the autocorrelation and
+    // the histogram are the model's own: measured 0.056 and 0.007 here, another realisation of
+    // the true field 0.010 and 0.095 (the histogram of 128 x 128 texels of a strongly correlated
+    // field is itself uncertain).
+    assert!(d.mean_rel < 0.01, "{d:?}");
+    assert!(d.worst_variance_factor() < 1.05, "{d:?}");
+    assert!(d.acf_rms < 0.08, "{d:?}");
+    assert!(d.emd_rel < 0.05, "{d:?}");
     // White noise of the same mean and variance fails the autocorrelation: the bound tests it.
     let mut rng = ChaCha8Rng::seed_from_u64(9);
     let white: Vec<[f32; 3]> = (0..sw * sh)
@@ -183,7 +187,7 @@ fn a_synthesised_stationary_texture_keeps_its_statistics() {
         })
         .collect();
     let dw = distance(&stats(sw, sh, &white), &reference);
-    assert!(dw.acf_rms > 0.3, "{dw:?}");
+    assert!(dw.acf_rms > 0.2, "{dw:?}");
 }
 
 #[test]
@@ -239,8 +243,8 @@ fn the_bump_filter_shades_a_tilted_plane_as_lambert_does() {
     let l2 = [-(0.4f64.sin()), 0.0, 0.4f64.cos()];
     let out = model.synthesise(&l2, &[0.0, 0.0, 1.0], w, h, 1).unwrap().texture;
     let s2 = (want[0] * l2[0] + want[2] * l2[2]) / l2[2];
-    let e = out.iter().map(|p| (f64::from(p[0]) - 0.5 * s2).abs()).fold(0.0, f64::max);
-    assert!(e < 1e-5, "{e}: {:?} against {}", out[0], 0.5 * s2);
+    let e = out.iter().map(|p| (f64::from(p[0]) - 0.5 * s2 / expect).abs()).fold(0.0, f64::max);
+    assert!(e < 1e-5, "{e}: {:?} against {}", out[0], 0.5 * s2 / expect);
     // Mirrored tiling is continuous across the tile edge.
     let big = bump::tile_mirrored(w, h, &heights, 3 * w, h);
     assert_eq!(big[w - 1], big[w]);
