@@ -207,9 +207,10 @@ pub fn model_car(a: &CarArgs) -> anyhow::Result<()> {
 
 fn print_distance(label: &str, d: &StatsDistance) {
     println!(
-        "{label} mean {:.3} (relative), variance x{:.2}, ACF RMS {:.3}, EMD {:.3} (of the std)",
+        "{label} mean {:.3} (relative), variance x{:.2}, colour correlation {:.3}, ACF RMS {:.3}, EMD {:.3} (of the std)",
         d.mean_rel,
         d.worst_variance_factor(),
+        d.correlation_diff,
         d.acf_rms,
         d.emd_rel
     );
@@ -223,6 +224,7 @@ pub(super) struct CarRow {
     held_out: usize,
     mean_rel: f64,
     variance_factor: f64,
+    correlation_diff: f64,
     acf_rms: f64,
     emd_rel: f64,
     /// Parameter bytes (CAR), and the range map's.
@@ -251,6 +253,7 @@ pub(super) fn bench_rows(obs: &Observations, material: &str, rows: &mut Vec<CarR
         (
             ds.iter().map(|d| d.mean_rel).sum::<f64>() / n,
             ds.iter().map(|d| d.worst_variance_factor()).sum::<f64>() / n,
+            ds.iter().map(|d| d.correlation_diff).sum::<f64>() / n,
             ds.iter().map(|d| d.acf_rms).sum::<f64>() / n,
             ds.iter().map(|d| d.emd_rel).sum::<f64>() / n,
         )
@@ -279,13 +282,14 @@ pub(super) fn bench_rows(obs: &Observations, material: &str, rows: &mut Vec<CarR
             model.synthesise(&obs.lights[i], &obs.views[i], 4 * w, 4 * h, k as u64)?;
             synth_s += t.elapsed().as_secs_f64();
         }
-        let (m, v, a, e) = mean(&ds);
+        let (m, v, c, a, e) = mean(&ds);
         rows.push(CarRow {
             material: material.into(),
             model: name.into(),
             held_out: test.len(),
             mean_rel: m,
             variance_factor: v,
+            correlation_diff: c,
             acf_rms: a,
             emd_rel: e,
             bytes: model.parameter_bytes(),
@@ -294,13 +298,14 @@ pub(super) fn bench_rows(obs: &Observations, material: &str, rows: &mut Vec<CarR
             megapixels_per_s: (16 * w * h * test.len()) as f64 / 1e6 / synth_s.max(1e-9),
         });
     }
-    let (m, v, a, e) = mean(&nearest);
+    let (m, v, c, a, e) = mean(&nearest);
     rows.push(CarRow {
         material: material.into(),
         model: "nearest measured capture".into(),
         held_out: test.len(),
         mean_rel: m,
         variance_factor: v,
+        correlation_diff: c,
         acf_rms: a,
         emd_rel: e,
         bytes: train.len() * w * h * 6,
@@ -319,20 +324,22 @@ pub(super) fn print_rows(rows: &[CarRow]) {
     println!();
     println!("CAR synthesis (seed 002) at held-out captures: statistics, not pixel error (a synthesis is another");
     println!("realisation of the texture, so pixels do not correspond). Means over the held-out captures of:");
-    println!("|mean - measured|/measured, variance factor max(r, 1/r), ACF RMS difference (lags 1..8, x and y),");
-    println!("EMD / measured std (worst channel each); speed at 4x the measured size");
+    println!("|mean - measured|/measured, variance factor max(r, 1/r), largest difference of the channels'");
+    println!("correlation coefficients, ACF RMS difference (lags 1..8, x and y), EMD / measured std (worst");
+    println!("channel each); speed at 4x the measured size");
     println!(
-        "{:<16} {:<26} {:>5} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>7} {:>8}",
-        "material", "model", "held", "mean", "var x", "ACF", "EMD", "bytes", "range B", "fit s", "MP/s"
+        "{:<16} {:<26} {:>5} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>7} {:>8}",
+        "material", "model", "held", "mean", "var x", "RGB corr", "ACF", "EMD", "bytes", "range B", "fit s", "MP/s"
     );
     for r in rows {
         println!(
-            "{:<16} {:<26} {:>5} {:>8.4} {:>8.3} {:>8.4} {:>8.4} {:>8} {:>8} {:>7.3} {:>8.2}",
+            "{:<16} {:<26} {:>5} {:>8.4} {:>8.3} {:>8.4} {:>8.4} {:>8.4} {:>8} {:>8} {:>7.3} {:>8.2}",
             r.material,
             r.model,
             r.held_out,
             r.mean_rel,
             r.variance_factor,
+            r.correlation_diff,
             r.acf_rms,
             r.emd_rel,
             r.bytes,

@@ -1,7 +1,8 @@
 //! Texture statistics that a probabilistic model promises to keep (seed 002: "the same visual
 //! impression without pixel-wise correspondence"), and distances between two textures' ones:
 //!
-//! - per channel mean and variance;
+//! - per channel mean and variance, and the correlation coefficients between the channels
+//!   (R-G, R-B, G-B: what the spectral factorisation has to give back);
 //! - the normalised autocorrelation `ρ(k) = cov(Y_r, Y_{r+k}) / var` at lags 1..[`MAX_LAG`]
 //!   along x and along y (mirror-free: only pairs inside the texture); its distance is the
 //!   RMS difference over channels, axes and lags;
@@ -24,6 +25,8 @@ pub struct TextureStats {
     pub mean: [f64; 3],
     /// Variance per channel.
     pub variance: [f64; 3],
+    /// Correlation coefficients R-G, R-B, G-B.
+    pub correlation: [f64; 3],
     /// `ρ(k)` along x, per channel, lags 1..=MAX_LAG.
     pub acf_x: [[f64; MAX_LAG]; 3],
     /// `ρ(k)` along y.
@@ -40,6 +43,8 @@ pub struct StatsDistance {
     pub mean_rel: f64,
     /// `var / var_ref` per channel.
     pub variance_ratio: [f64; 3],
+    /// Largest difference of the channels' correlation coefficients.
+    pub correlation_diff: f64,
     /// RMS difference of the normalised autocorrelations.
     pub acf_rms: f64,
     /// Largest per-channel EMD over the reference's standard deviation.
@@ -92,7 +97,17 @@ pub fn stats(width: usize, height: usize, image: &[[f32; 3]]) -> TextureStats {
             acf_y[c][k - 1] = norm(sy, ny);
         }
     }
-    TextureStats { mean, variance, acf_x, acf_y, quantiles }
+    let correlation = [(0, 1), (0, 2), (1, 2)].map(|(a, b)| {
+        let cov = image.iter().map(|p| (f64::from(p[a]) - mean[a]) * (f64::from(p[b]) - mean[b])).sum::<f64>() / n;
+        let den = (variance[a] * variance[b]).sqrt();
+        // Constant channels: no correlation to speak of.
+        if den > 0.0 {
+            cov / den
+        } else {
+            0.0
+        }
+    });
+    TextureStats { mean, variance, correlation, acf_x, acf_y, quantiles }
 }
 
 /// The distance of `s`'s statistics from the reference `r`'s.
@@ -111,5 +126,6 @@ pub fn distance(s: &TextureStats, r: &TextureStats) -> StatsDistance {
             / QUANTILES as f64;
         emd_rel = emd_rel.max(emd / r.variance[c].sqrt().max(1e-12));
     }
-    StatsDistance { mean_rel, variance_ratio, acf_rms: (acf / (3 * 2 * MAX_LAG) as f64).sqrt(), emd_rel }
+    let correlation_diff = (0..3).map(|k| (s.correlation[k] - r.correlation[k]).abs()).fold(0.0, f64::max);
+    StatsDistance { mean_rel, variance_ratio, correlation_diff, acf_rms: (acf / (3 * 2 * MAX_LAG) as f64).sqrt(), emd_rel }
 }
