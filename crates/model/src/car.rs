@@ -35,6 +35,7 @@ pub mod stats;
 
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{ModelError, Result};
@@ -408,18 +409,26 @@ impl CarBtf {
         let nearest = self.nearest_pair(l, v);
         let c = self.pairs[nearest].subspace;
         let sub = &self.subspaces[c];
-        // The sub-space's texture is the same for every pair of it (one seed, one stream).
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        rng.set_stream(2 + c as u64);
-        let factors = sub
-            .factors
-            .iter()
-            .enumerate()
-            .map(|(k, f)| f.synthesise(&format!("sub-space {c}, factor {k}"), width, height, &mut rng))
-            .collect::<Result<Vec<_>>>()?;
+        // Each factor has a noise stream of its own, so they run in parallel and a sub-space's
+        // texture is the same for every pair of it.
+        let (factors, heights) = rayon::join(
+            || {
+                sub.factors
+                    .par_iter()
+                    .enumerate()
+                    .map(|(k, f)| {
+                        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+                        rng.set_stream(2 + 3 * c as u64 + k as u64);
+                        f.synthesise(&format!("sub-space {c}, factor {k}"), width, height, &mut rng)
+                    })
+                    .collect::<Result<Vec<_>>>()
+            },
+            || self.heights(width, height, seed),
+        );
+        let factors = factors?;
         let mut texture: Vec<[f32; 3]> =
             (0..width * height).map(|i| sub.colour.inverse([factors[0][i], factors[1][i], factors[2][i]])).collect();
-        if let (Some(hm), Some(r)) = (self.heights(width, height, seed)?, &self.range) {
+        if let (Some(hm), Some(r)) = (heights?, &self.range) {
             let s = bump::shading(&bump::normals(width, height, &hm, r.texel_m), l);
             for (px, s) in texture.iter_mut().zip(&s) {
                 *px = px.map(|x| (f64::from(x) * s) as f32);

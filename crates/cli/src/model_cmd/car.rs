@@ -258,14 +258,17 @@ pub(super) fn bench_rows(obs: &Observations, material: &str, rows: &mut Vec<CarR
             ds.iter().map(|d| d.emd_rel).sum::<f64>() / n,
         )
     };
+    // The default, its range-map alternatives, one pyramid level, the smallest neighbourhood.
     let variants = [
-        ("car (range: car)", RangeEnlargement::Car, true),
-        ("car (range: mirror)", RangeEnlargement::Mirror, true),
-        ("car (no bump)", RangeEnlargement::Car, false),
+        ("car L3 r2 (range: car)", RangeEnlargement::Car, true, 3, 2),
+        ("car L3 r2 (range: mirror)", RangeEnlargement::Mirror, true, 3, 2),
+        ("car L3 r2 (no bump)", RangeEnlargement::Car, false, 3, 2),
+        ("car L1 r2 (range: car)", RangeEnlargement::Car, true, 1, 2),
+        ("car L3 r1 (range: car)", RangeEnlargement::Car, true, 3, 1),
     ];
     let mut nearest = Vec::new();
-    for (name, range, bump) in variants {
-        let params = CarParams { range, ..CarParams::default() };
+    for (name, range, bump, levels, radius) in variants {
+        let params = CarParams { range, levels, radius, ..CarParams::default() };
         let t = Instant::now();
         let model = fit_on(obs, &train, &params, bump)?;
         let fit_s = t.elapsed().as_secs_f64();
