@@ -168,7 +168,7 @@ fn model_car_synthesises_any_size_and_names_bad_options() {
     let mean = tex.iter().map(|p| f64::from(p[0])).sum::<f64>() / tex.len() as f64;
     assert!((0.3..0.7).contains(&mean), "red mean {mean}");
     assert!(tex.iter().any(|p| (p[0] - tex[0][0]).abs() > 0.02), "no texture");
-    for f in ["texture.png", "measured.png", "height.exr", "model.json"] {
+    for f in ["texture.png", "measured.png", "comparison.png", "height.exr", "model.json"] {
         assert!(out.join(f).is_file(), "{f} missing");
     }
     let (pw, ph, _) = btfrig_imageio::read_srgb8_png(&out.join("texture.png")).unwrap();

@@ -288,3 +288,44 @@ fn bad_input_is_named() {
     assert!(e.to_string().contains("0x8: at least 1x1"), "{e}");
     assert!(m.spectral_radius < 1.0);
 }
+
+#[test]
+fn a_synthesised_range_map_keeps_the_measured_slopes() {
+    // A smooth random relief (a strongly correlated CAR field, 50 µm), constant colour.
+    let (w, h, texel) = (48, 40, 1e-3);
+    let mut rng = ChaCha8Rng::seed_from_u64(8);
+    let relief = ar::synthesise("relief", &radius1([0.6, -0.35, 0.6, 0.1], 5e-6, 0.0), w, h, &mut rng).unwrap();
+    let img = vec![[0.5f32, 0.4, 0.3]; w * h];
+    let images = [img.as_slice()];
+    let l = [0.0, 0.0, 1.0];
+    let input = CarInput {
+        what: "relief",
+        width: w,
+        height: h,
+        lights: &[l],
+        views: &[l],
+        images: &images,
+        heights: Some(&relief),
+        texel_m: texel,
+    };
+    let model = car::fit(&input, &CarParams { clusters: 1, ..CarParams::default() }).unwrap();
+    let slope = |w: usize, h: usize, v: &[f64]| {
+        let d: Vec<f64> = (0..h)
+            .flat_map(|y| (1..w).map(move |x| v[y * w + x] - v[y * w + x - 1]))
+            .chain((1..h).flat_map(|y| (0..w).map(move |x| v[y * w + x] - v[(y - 1) * w + x])))
+            .collect();
+        (d.iter().map(|x| x * x).sum::<f64>() / d.len() as f64).sqrt()
+    };
+    let big = model.heights(4 * w, 4 * h, 3).unwrap().unwrap();
+    let (want, got) = (slope(w, h, &relief), slope(4 * w, 4 * h, &big));
+    assert!((got / want - 1.0).abs() < 1e-9, "slope RMS {got} against {want}");
+    // The shading it gives varies like the measured relief's (same slopes, same light).
+    let var = |s: &[f64]| {
+        let m = s.iter().sum::<f64>() / s.len() as f64;
+        s.iter().map(|x| (x - m).powi(2)).sum::<f64>() / s.len() as f64
+    };
+    let l2 = [0.5f64.sin(), 0.0, 0.5f64.cos()];
+    let measured = var(&bump::shading(&bump::normals(w, h, &relief, texel), &l2));
+    let synthesised = var(&bump::shading(&bump::normals(4 * w, 4 * h, &big, texel), &l2));
+    assert!((synthesised / measured - 1.0).abs() < 0.5, "shading variance {synthesised} against {measured}");
+}
