@@ -194,6 +194,9 @@ pub struct RangeMap {
     pub texel_m: f64,
     /// The multi-scale CAR model of the heights ([`RangeEnlargement::Car`]).
     pub model: Option<BandModel>,
+    /// RMS height difference between neighbouring texels (along rows and columns), metres: a
+    /// synthesised range map is scaled to it, since the bump filter sees slopes, not heights.
+    pub slope_rms: f64,
     /// The measured heights, metres ([`RangeEnlargement::Mirror`]; empty otherwise).
     pub heights: Vec<f32>,
 }
@@ -234,6 +237,13 @@ fn mean_std(v: &[f64]) -> (f64, f64) {
     let n = v.len().max(1) as f64;
     let m = v.iter().sum::<f64>() / n;
     (m, (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / n).sqrt())
+}
+
+/// RMS difference between horizontally and vertically neighbouring values.
+fn neighbour_rms(width: usize, height: usize, v: &[f64]) -> f64 {
+    let dx = (0..height).flat_map(|y| (1..width).map(move |x| v[y * width + x] - v[y * width + x - 1]));
+    let dy = (1..height).flat_map(|y| (0..width).map(move |x| v[y * width + x] - v[(y - 1) * width + x]));
+    rms(dx.chain(dy))
 }
 
 fn rms(values: impl Iterator<Item = f64>) -> f64 {
@@ -343,7 +353,8 @@ pub fn fit(input: &CarInput, p: &CarParams) -> Result<CarBtf> {
                 }
                 RangeEnlargement::Mirror => (None, hm.iter().map(|v| *v as f32).collect()),
             };
-            Some(RangeMap { enlargement: p.range, texel_m: input.texel_m, model, heights })
+            let slope_rms = neighbour_rms(w, h, hm);
+            Some(RangeMap { enlargement: p.range, texel_m: input.texel_m, model, slope_rms, heights })
         }
     };
     let pairs = (0..assign.len())
@@ -381,7 +392,15 @@ impl CarBtf {
                 // A stream of its own: the relief does not change with the pair.
                 let mut rng = ChaCha8Rng::seed_from_u64(seed);
                 rng.set_stream(1);
-                m.synthesise("range map", width, height, &mut rng)?
+                let mut hm = m.synthesise("range map", width, height, &mut rng)?;
+                // The CAR keeps the heights' variance; the shading needs their slopes, which a
+                // smooth (near unit-root) range map's model reproduces less well: match them.
+                let s = neighbour_rms(width, height, &hm);
+                let gain = if s > 0.0 { r.slope_rms / s } else { 0.0 };
+                for v in &mut hm {
+                    *v = m.mean + gain * (*v - m.mean);
+                }
+                hm
             }
             None => {
                 let hm: Vec<f64> = r.heights.iter().map(|v| f64::from(*v)).collect();
