@@ -151,7 +151,20 @@ fn model_car_synthesises_any_size_and_names_bad_options() {
     textured_dataset(&data, 16);
     let out = dir.join("car");
     let stdout = ok(btfrig()
-        .args(["model", "car", "--size", "48x40", "--clusters", "2", "--radius", "1", "--light", "20,30", "--view", "10,-45"])
+        .args([
+            "model",
+            "car",
+            "--size",
+            "48x40",
+            "--clusters",
+            "2",
+            "--radius",
+            "1",
+            "--light",
+            "20,30",
+            "--view",
+            "10,-45",
+        ])
         .arg(&data)
         .arg("--out")
         .arg(&out)

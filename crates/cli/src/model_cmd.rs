@@ -606,7 +606,9 @@ pub fn bench(a: &BenchModelArgs) -> anyhow::Result<()> {
     if a.json {
         println!(
             "{}",
-            serde_json::to_string_pretty(&serde_json::json!({ "photometric_stereo": rows, "reflectance": fits, "car": cars }))?
+            serde_json::to_string_pretty(
+                &serde_json::json!({ "photometric_stereo": rows, "reflectance": fits, "car": cars })
+            )?
         );
         return Ok(());
     }

@@ -283,7 +283,11 @@ fn check(input: &CarInput, p: &CarParams) -> Result<()> {
     }
     if let Some(h) = input.heights {
         if h.len() != texels {
-            return Err(ModelError::WrongSize { what: format!("{}: range map", input.what), got: h.len(), expected: texels });
+            return Err(ModelError::WrongSize {
+                what: format!("{}: range map", input.what),
+                got: h.len(),
+                expected: texels,
+            });
         }
         if !(input.texel_m.is_finite() && input.texel_m > 0.0) {
             return Err(ModelError::OutOfRange {
@@ -321,20 +325,24 @@ pub fn fit(input: &CarInput, p: &CarParams) -> Result<CarBtf> {
         let centre: Vec<f64> =
             (0..dim).map(|d| members.iter().map(|&i| feats[i][d]).sum::<f64>() / members.len() as f64).collect();
         let d2 = |i: usize| feats[i].iter().zip(&centre).map(|(a, b)| (a - b).powi(2)).sum::<f64>();
-        let rep = members.iter().copied().min_by(|&a, &b| d2(a).total_cmp(&d2(b))).expect("k-means clusters are not empty");
+        let rep =
+            members.iter().copied().min_by(|&a, &b| d2(a).total_cmp(&d2(b))).expect("k-means clusters are not empty");
         let what = format!("{}: sub-space {c} (pair {rep})", input.what);
         let smooth: Vec<[f32; 3]> = match &normals {
             Some(n) => {
                 let s = bump::shading(n, &input.lights[rep]);
-                input.images[rep].iter().zip(&s).map(|(px, s)| px.map(|v| (f64::from(v) / s.max(bump::MIN_SHADE)) as f32)).collect()
+                input.images[rep]
+                    .iter()
+                    .zip(&s)
+                    .map(|(px, s)| px.map(|v| (f64::from(v) / s.max(bump::MIN_SHADE)) as f32))
+                    .collect()
             }
             None => input.images[rep].to_vec(),
         };
         let colour = ColourPca::fit(&what, &smooth)?;
         let floor = CONSTANT_BAND * rms(smooth.iter().flat_map(|px| px.map(f64::from)));
-        let factor_bands: Vec<Vec<f64>> = (0..3)
-            .map(|k| smooth.iter().map(|px| colour.forward(*px)[k]).collect())
-            .collect();
+        let factor_bands: Vec<Vec<f64>> =
+            (0..3).map(|k| smooth.iter().map(|px| colour.forward(*px)[k]).collect()).collect();
         let factors = factor_bands
             .iter()
             .enumerate()
@@ -357,9 +365,8 @@ pub fn fit(input: &CarInput, p: &CarParams) -> Result<CarBtf> {
             Some(RangeMap { enlargement: p.range, texel_m: input.texel_m, model, slope_rms, heights })
         }
     };
-    let pairs = (0..assign.len())
-        .map(|i| Pair { light: input.lights[i], view: input.views[i], subspace: assign[i] })
-        .collect();
+    let pairs =
+        (0..assign.len()).map(|i| Pair { light: input.lights[i], view: input.views[i], subspace: assign[i] }).collect();
     Ok(CarBtf { width: w, height: h, params: *p, pairs, subspaces, range })
 }
 

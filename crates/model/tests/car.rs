@@ -142,7 +142,9 @@ fn stationary_texture(w: usize, h: usize, seed: u64) -> Vec<[f32; 3]> {
     .map(|m| ar::synthesise("truth", &m, w, h, &mut rng).unwrap());
     let mix = [[0.8, 0.3, 0.1], [0.5, 0.6, -0.2], [0.2, 0.5, 0.3]];
     let mean = [0.45, 0.3, 0.15];
-    (0..w * h).map(|i| [0, 1, 2].map(|c| (mean[c] + (0..3).map(|k| mix[c][k] * bands[k][i]).sum::<f64>()) as f32)).collect()
+    (0..w * h)
+        .map(|i| [0, 1, 2].map(|c| (mean[c] + (0..3).map(|k| mix[c][k] * bands[k][i]).sum::<f64>()) as f32))
+        .collect()
 }
 
 #[test]
@@ -183,7 +185,8 @@ fn a_synthesised_stationary_texture_keeps_its_statistics() {
     let white: Vec<[f32; 3]> = (0..sw * sh)
         .map(|_| {
             [0, 1, 2].map(|c| {
-                (reference.mean[c] + reference.variance[c].sqrt() * rng.sample::<f64, _>(rand_distr::StandardNormal)) as f32
+                (reference.mean[c] + reference.variance[c].sqrt() * rng.sample::<f64, _>(rand_distr::StandardNormal))
+                    as f32
             })
         })
         .collect();
@@ -274,7 +277,11 @@ fn bad_input_is_named() {
     assert!(matches!(e, ModelError::WrongSize { .. }), "{e}");
     // 4 x 4 is too small for a radius-2 neighbourhood (12 parameters).
     let e = car::fit(&good, &CarParams::default()).unwrap_err();
-    assert!(e.to_string().contains("4 x 4 texels (0 complete neighbourhoods)") && e.to_string().contains("needs at least 13"), "{e}");
+    assert!(
+        e.to_string().contains("4 x 4 texels (0 complete neighbourhoods)")
+            && e.to_string().contains("needs at least 13"),
+        "{e}"
+    );
     let mut nan = vec![0.0; 64];
     nan[9] = f64::NAN;
     let e = ar::fit("band", 8, 8, &nan, 1, 0.0).unwrap_err();

@@ -263,7 +263,11 @@ fn held_out_split(n: usize) -> (Vec<usize>, Vec<usize>) {
 /// texture, the floor that neighbouring measurements set.
 pub(super) fn bench_rows(obs: &Observations, material: &str, rows: &mut Vec<CarRow>) -> anyhow::Result<()> {
     let (train, test) = held_out_split(obs.images.len());
-    anyhow::ensure!(!test.is_empty() && !train.is_empty(), "{}: too few captures to hold some out (5 or more needed)", obs.what);
+    anyhow::ensure!(
+        !test.is_empty() && !train.is_empty(),
+        "{}: too few captures to hold some out (5 or more needed)",
+        obs.what
+    );
     let (w, h) = (obs.source.layout().width, obs.source.layout().height);
     let mean = |ds: &[StatsDistance]| {
         let n = ds.len() as f64;

@@ -33,7 +33,11 @@ fn dist2(a: &[f64], b: &[f64]) -> f64 {
 
 /// The nearest of `centres` to `p`.
 fn nearest(centres: &[Vec<f64>], p: &[f64]) -> (usize, f64) {
-    centres.iter().enumerate().map(|(j, c)| (j, dist2(c, p))).fold((0, f64::INFINITY), |b, x| if x.1 < b.1 { x } else { b })
+    centres
+        .iter()
+        .enumerate()
+        .map(|(j, c)| (j, dist2(c, p)))
+        .fold((0, f64::INFINITY), |b, x| if x.1 < b.1 { x } else { b })
 }
 
 /// The cluster of every point (`k` clusters at most, fewer when there are fewer distinct
@@ -66,7 +70,8 @@ pub fn kmeans(points: &[Vec<f64>], k: usize, seed: u64) -> Vec<usize> {
         }
         assign = next;
         for (j, c) in centres.iter_mut().enumerate() {
-            let members: Vec<&Vec<f64>> = points.iter().zip(&assign).filter(|(_, a)| **a == j).map(|(p, _)| p).collect();
+            let members: Vec<&Vec<f64>> =
+                points.iter().zip(&assign).filter(|(_, a)| **a == j).map(|(p, _)| p).collect();
             if members.is_empty() {
                 continue;
             }

@@ -69,7 +69,9 @@ pub fn stats(width: usize, height: usize, image: &[[f32; 3]]) -> TextureStats {
         let mut v: Vec<f64> = image.iter().map(|p| f64::from(p[c])).collect();
         v.sort_by(f64::total_cmp);
         (0..QUANTILES)
-            .map(|i| if v.is_empty() { 0.0 } else { v[((i as f64 + 0.5) / QUANTILES as f64 * v.len() as f64) as usize] })
+            .map(
+                |i| if v.is_empty() { 0.0 } else { v[((i as f64 + 0.5) / QUANTILES as f64 * v.len() as f64) as usize] },
+            )
             .collect()
     });
     for c in 0..3 {
@@ -115,17 +117,22 @@ pub fn distance(s: &TextureStats, r: &TextureStats) -> StatsDistance {
     let mut mean_rel: f64 = 0.0;
     let mut emd_rel: f64 = 0.0;
     let mut acf = 0.0;
-    let mut variance_ratio = [0.0; 3];
+    let variance_ratio = [0, 1, 2].map(|c| s.variance[c] / r.variance[c].max(1e-300));
     for c in 0..3 {
         mean_rel = mean_rel.max((s.mean[c] - r.mean[c]).abs() / r.mean[c].abs().max(1e-12));
-        variance_ratio[c] = s.variance[c] / r.variance[c].max(1e-300);
         for k in 0..MAX_LAG {
             acf += (s.acf_x[c][k] - r.acf_x[c][k]).powi(2) + (s.acf_y[c][k] - r.acf_y[c][k]).powi(2);
         }
-        let emd = s.quantiles[c].iter().zip(&r.quantiles[c]).map(|(a, b)| (a - b).abs()).sum::<f64>()
-            / QUANTILES as f64;
+        let emd =
+            s.quantiles[c].iter().zip(&r.quantiles[c]).map(|(a, b)| (a - b).abs()).sum::<f64>() / QUANTILES as f64;
         emd_rel = emd_rel.max(emd / r.variance[c].sqrt().max(1e-12));
     }
     let correlation_diff = (0..3).map(|k| (s.correlation[k] - r.correlation[k]).abs()).fold(0.0, f64::max);
-    StatsDistance { mean_rel, variance_ratio, correlation_diff, acf_rms: (acf / (3 * 2 * MAX_LAG) as f64).sqrt(), emd_rel }
+    StatsDistance {
+        mean_rel,
+        variance_ratio,
+        correlation_diff,
+        acf_rms: (acf / (3 * 2 * MAX_LAG) as f64).sqrt(),
+        emd_rel,
+    }
 }
