@@ -65,7 +65,7 @@ fn parse_size(s: &str) -> anyhow::Result<(usize, usize)> {
     let bad = || anyhow::anyhow!("--size {s:?}: expected WxH with W and H from 1 to 16384 texels, e.g. 256x256");
     let (w, h) = s.split_once(['x', 'X']).ok_or_else(bad)?;
     let (w, h): (usize, usize) = (w.trim().parse().map_err(|_| bad())?, h.trim().parse().map_err(|_| bad())?);
-    
+    anyhow::ensure!((1..=16384).contains(&w) && (1..=16384).contains(&h), bad());
     Ok((w, h))
 }
 
