@@ -211,6 +211,14 @@ fn write_y_exr(path: &Path, width: usize, height: usize, name: &str, data: Vec<f
     Image::from_layer(layer).write().to_file(path).with_context(|| format!("cannot write {}", path.display()))
 }
 
+/// Writes `desc` as `DIR/model.json` (pretty, a final newline) and returns the text.
+fn write_model_json(out: &Path, desc: &serde_json::Value) -> anyhow::Result<String> {
+    let text = serde_json::to_string_pretty(desc)?;
+    let path = out.join("model.json");
+    std::fs::write(&path, format!("{text}\n")).with_context(|| format!("cannot write {}", path.display()))?;
+    Ok(text)
+}
+
 /// `btfrig model ps`.
 pub fn ps(a: &PsArgs) -> anyhow::Result<()> {
     let method = parse_method(&a.method)?;

@@ -13,6 +13,12 @@ use btfrig_model::ModelError;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
+/// One texture lit and seen from straight above, no range map.
+fn overhead<'a>(what: &'a str, w: usize, h: usize, images: &'a [&'a [[f32; 3]]]) -> CarInput<'a> {
+    const UP: &[[f64; 3]] = &[[0.0, 0.0, 1.0]];
+    CarInput { what, width: w, height: h, lights: UP, views: UP, images, heights: None, texel_m: 1e-3 }
+}
+
 /// Radius-1 offsets: left, then up-left, up, up-right.
 fn radius1(gamma: [f64; 4], sigma: f64, mean: f64) -> CarModel {
     CarModel::new(ar::neighbourhood(1), gamma.to_vec(), sigma, mean)
@@ -90,16 +96,7 @@ fn constant_and_rank_deficient_textures_give_valid_models() {
     let grey: Vec<[f32; 3]> = (0..w * h).map(|_| [rng.gen_range(0.2..0.6f32); 3]).collect();
     for (name, img) in [("constant", &constant), ("grey", &grey)] {
         let images = [img.as_slice()];
-        let input = CarInput {
-            what: name,
-            width: w,
-            height: h,
-            lights: &[[0.0, 0.0, 1.0]],
-            views: &[[0.0, 0.0, 1.0]],
-            images: &images,
-            heights: None,
-            texel_m: 1e-3,
-        };
+        let input = overhead(name, w, h, &images);
         let model = car::fit(&input, &CarParams::default()).unwrap();
         let s = model.synthesise(&[0.0, 0.0, 1.0], &[0.0, 0.0, 1.0], 50, 40, 3).unwrap().texture;
         assert!(s.iter().all(|p| p.iter().all(|v| v.is_finite())), "{name}: not finite");
@@ -152,16 +149,7 @@ fn a_synthesised_stationary_texture_keeps_its_statistics() {
     let (w, h) = (128, 128);
     let measured = stationary_texture(w, h, 21);
     let images = [measured.as_slice()];
-    let input = CarInput {
-        what: "stationary",
-        width: w,
-        height: h,
-        lights: &[[0.0, 0.0, 1.0]],
-        views: &[[0.0, 0.0, 1.0]],
-        images: &images,
-        heights: None,
-        texel_m: 1e-3,
-    };
+    let input = overhead("stationary", w, h, &images);
     let model = car::fit(&input, &CarParams { clusters: 1, ..CarParams::default() }).unwrap();
     let (sw, sh) = (256, 256);
     let synth = model.synthesise(&[0.0, 0.0, 1.0], &[0.0, 0.0, 1.0], sw, sh, 5).unwrap().texture;
@@ -259,16 +247,7 @@ fn the_bump_filter_shades_a_tilted_plane_as_lambert_does() {
 fn bad_input_is_named() {
     let img = vec![[0.5f32; 3]; 16];
     let images = [img.as_slice()];
-    let good = CarInput {
-        what: "dataset D",
-        width: 4,
-        height: 4,
-        lights: &[[0.0, 0.0, 1.0]],
-        views: &[[0.0, 0.0, 1.0]],
-        images: &images,
-        heights: None,
-        texel_m: 1e-3,
-    };
+    let good = overhead("dataset D", 4, 4, &images);
     let e = car::fit(&CarInput { width: 5, ..good }, &CarParams::default()).unwrap_err();
     assert!(e.to_string().contains("dataset D: texture 0: 16 values, expected 20"), "{e}");
     let e = car::fit(&good, &CarParams { clusters: 0, ..CarParams::default() }).unwrap_err();

@@ -191,9 +191,7 @@ pub fn model_car(a: &CarArgs) -> anyhow::Result<()> {
         "fit_s": fit_s,
         "model": model,
     });
-    let text = serde_json::to_string_pretty(&desc)?;
-    std::fs::write(out.join("model.json"), format!("{text}\n"))
-        .with_context(|| format!("cannot write {}", out.join("model.json").display()))?;
+    let text = super::write_model_json(&out, &desc)?;
     if a.json {
         println!("{text}");
     } else {
@@ -269,15 +267,24 @@ pub(super) fn bench_rows(obs: &Observations, material: &str, rows: &mut Vec<CarR
         obs.what
     );
     let (w, h) = (obs.source.layout().width, obs.source.layout().height);
-    let mean = |ds: &[StatsDistance]| {
+    // Means over the held-out captures; the sizes, times and speed as given.
+    let row = |model: &str, ds: &[StatsDistance], bytes: usize, range_bytes: usize, fit_s: f64, mps: f64| {
         let n = ds.len() as f64;
-        (
-            ds.iter().map(|d| d.mean_rel).sum::<f64>() / n,
-            ds.iter().map(|d| d.worst_variance_factor()).sum::<f64>() / n,
-            ds.iter().map(|d| d.correlation_diff).sum::<f64>() / n,
-            ds.iter().map(|d| d.acf_rms).sum::<f64>() / n,
-            ds.iter().map(|d| d.emd_rel).sum::<f64>() / n,
-        )
+        let avg = |f: &dyn Fn(&StatsDistance) -> f64| ds.iter().map(f).sum::<f64>() / n;
+        CarRow {
+            material: material.into(),
+            model: model.into(),
+            held_out: ds.len(),
+            mean_rel: avg(&|d| d.mean_rel),
+            variance_factor: avg(&|d| d.worst_variance_factor()),
+            correlation_diff: avg(&|d| d.correlation_diff),
+            acf_rms: avg(&|d| d.acf_rms),
+            emd_rel: avg(&|d| d.emd_rel),
+            bytes,
+            range_bytes,
+            fit_s,
+            megapixels_per_s: mps,
+        }
     };
     // The default, its range-map alternatives, one pyramid level, the smallest neighbourhood.
     let variants = [
@@ -306,37 +313,10 @@ pub(super) fn bench_rows(obs: &Observations, material: &str, rows: &mut Vec<CarR
             model.synthesise(&obs.lights[i], &obs.views[i], SPEED_SIZE, SPEED_SIZE, k as u64)?;
             synth_s += t.elapsed().as_secs_f64();
         }
-        let (m, v, c, a, e) = mean(&ds);
-        rows.push(CarRow {
-            material: material.into(),
-            model: name.into(),
-            held_out: test.len(),
-            mean_rel: m,
-            variance_factor: v,
-            correlation_diff: c,
-            acf_rms: a,
-            emd_rel: e,
-            bytes: model.parameter_bytes(),
-            range_bytes: model.range_bytes(),
-            fit_s,
-            megapixels_per_s: (SPEED_SIZE * SPEED_SIZE * test.len()) as f64 / 1e6 / synth_s.max(1e-9),
-        });
+        let mps = (SPEED_SIZE * SPEED_SIZE * test.len()) as f64 / 1e6 / synth_s.max(1e-9);
+        rows.push(row(name, &ds, model.parameter_bytes(), model.range_bytes(), fit_s, mps));
     }
-    let (m, v, c, a, e) = mean(&nearest);
-    rows.push(CarRow {
-        material: material.into(),
-        model: "nearest measured capture".into(),
-        held_out: test.len(),
-        mean_rel: m,
-        variance_factor: v,
-        correlation_diff: c,
-        acf_rms: a,
-        emd_rel: e,
-        bytes: train.len() * w * h * 6,
-        range_bytes: 0,
-        fit_s: 0.0,
-        megapixels_per_s: 0.0,
-    });
+    rows.push(row("nearest measured capture", &nearest, train.len() * w * h * 6, 0, 0.0, 0.0));
     Ok(())
 }
 
