@@ -272,6 +272,16 @@ fn demo_runs_the_default_plan_into_a_verified_dataset_and_refuses_to_overwrite()
     for k in ["rel_rmse_data", "rel_rmse_truth"] {
         assert!(g(maps, k) < 0.8 * g(sbrdf, k), "{k}: the maps must remove over 20 % of the SBRDF's error: {bench}");
     }
+    // Seed 002's CAR synthesis at the 12 held-out captures, statistics not pixels (measured:
+    // mean 0.05, variance x1.37, colour correlation 0.16, EMD 0.33; docs/benchmarks.md).
+    let car: serde_json::Value =
+        serde_json::from_str(&ok(btfrig().args(["bench", "model", "--car-only", "--json"]).arg(&out))).unwrap();
+    let rows = car["car"].as_array().unwrap();
+    let r = rows.iter().find(|r| r["model"] == "car L3 r2 (range: car)").unwrap();
+    assert_eq!(r["held_out"], 12, "{car}");
+    assert!(g(r, "mean_rel") < 0.1 && g(r, "variance_factor") < 2.0, "{car}");
+    assert!(g(r, "correlation_diff") < 0.3 && g(r, "emd_rel") < 0.5 && g(r, "acf_rms") < 0.7, "{car}");
+    assert!(r["bytes"].as_u64().unwrap() < 4096 && g(r, "megapixels_per_s") > 0.0, "{car}");
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
     assert_eq!(report["status"], "finished");

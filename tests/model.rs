@@ -192,3 +192,94 @@ fn model_ptm_and_scaled_lafortune_write_their_maps_and_refuse_the_wrong_kind() {
     assert!(e.contains("no manifest.json, so not a dataset"), "{e}");
     assert!(!dir.join("x").exists(), "nothing written for a refused input");
 }
+
+/// A `w x w` dataset of a textured Lambertian plane: a seeded random albedo pattern (smoothed
+/// white noise, so it has an autocorrelation) under 4 lights, seen from 2 views.
+fn textured_dataset(dir: &std::path::Path, w: usize) {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2);
+    let noise: Vec<f32> = (0..w * w).map(|_| rng.gen_range(-1.0..1.0f32)).collect();
+    let pattern: Vec<f32> = (0..w * w)
+        .map(|i| {
+            let (x, y) = (i % w, i / w);
+            let at = |dx: usize, dy: usize| noise[((y + dy) % w) * w + (x + dx) % w];
+            0.25 * (at(0, 0) + at(1, 0) + at(0, 1) + at(1, 1))
+        })
+        .collect();
+    let lights: Vec<Direction> = [(0.0, 0.0), (30.0, 0.0), (30.0, 120.0), (30.0, 240.0)]
+        .iter()
+        .map(|&(t, p)| Direction::from_degrees(t, p))
+        .collect();
+    let vd = vec![Direction::from_degrees(0.0, 0.0), Direction::from_degrees(30.0, 45.0)];
+    let layout =
+        Layout::full(Sampling::from_list("light", lights).unwrap(), Sampling::from_list("view", vd).unwrap(), w, w);
+    let l2 = layout.clone();
+    write_dataset(
+        dir,
+        &layout,
+        &mut |a| {
+            let s = l2.directions(a).0.to_vector().z as f32;
+            pattern.iter().map(|p| [(0.5 + 0.2 * p) * s, (0.3 + 0.1 * p) * s, 0.2 * s]).collect()
+        },
+        "synthetic",
+        "a textured Lambertian plane",
+        false,
+    )
+    .unwrap();
+}
+
+#[test]
+fn model_car_synthesises_any_size_and_names_bad_options() {
+    let dir = scratch("model-car");
+    let data = dir.join("textured");
+    textured_dataset(&data, 16);
+    let out = dir.join("car");
+    let stdout = ok(btfrig()
+        .args([
+            "model",
+            "car",
+            "--size",
+            "48x40",
+            "--clusters",
+            "2",
+            "--radius",
+            "1",
+            "--light",
+            "20,30",
+            "--view",
+            "10,-45",
+        ])
+        .arg(&data)
+        .arg("--out")
+        .arg(&out)
+        .arg("--json"));
+    let d: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert_eq!(d["format"], "btfrig-car-model", "{d}");
+    assert_eq!(d["source"]["captures"], 8, "{d}");
+    assert!(d["model"]["subspaces"].as_array().unwrap().len() <= 2, "{d}");
+    assert!(d["parameter_bytes"].as_u64().unwrap() > 0, "{d}");
+    let (w, h, tex) = btfrig_imageio::read_rgb_exr(&out.join("texture.exr")).unwrap();
+    assert_eq!((w, h), (48, 40));
+    assert!(tex.iter().all(|p| p.iter().all(|v| v.is_finite())), "non-finite texel");
+    // A texture, not a constant, around the measured mean colour (the light at 20°: ~0.47).
+    let mean = tex.iter().map(|p| f64::from(p[0])).sum::<f64>() / tex.len() as f64;
+    assert!((0.3..0.7).contains(&mean), "red mean {mean}");
+    assert!(tex.iter().any(|p| (p[0] - tex[0][0]).abs() > 0.02), "no texture");
+    for f in ["texture.png", "measured.png", "comparison.png", "height.exr", "model.json"] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    let (pw, ph, _) = btfrig_imageio::read_srgb8_png(&out.join("texture.png")).unwrap();
+    assert_eq!((pw, ph), (48, 40));
+    // Bad options name what is allowed.
+    let e = fails(btfrig().args(["model", "car", "--size", "0x5"]).arg(&data).arg("--out").arg(dir.join("a")));
+    assert!(e.contains("--size \"0x5\"") && e.contains("1 to 16384"), "{e}");
+    let e = fails(btfrig().args(["model", "car", "--range", "tiles"]).arg(&data).arg("--out").arg(dir.join("b")));
+    assert!(e.contains("allowed: car, mirror"), "{e}");
+    let e = fails(
+        btfrig().args(["model", "car", "--light", "95,0", "--view", "0,0"]).arg(&data).arg("--out").arg(dir.join("c")),
+    );
+    assert!(e.contains("--light \"95,0\"") && e.contains("0 <= THETA < 90"), "{e}");
+    let e = fails(btfrig().args(["model", "car", "--radius", "9"]).arg(&data).arg("--out").arg(dir.join("d")));
+    assert!(e.contains("radius-9 neighbourhood"), "{e}");
+    assert!(!dir.join("d").exists(), "nothing written for a refused input");
+}

@@ -80,6 +80,7 @@ fn main() -> std::process::ExitCode {
         Command::Model(model_cmd::ModelCommand::Lafortune(a)) => done(model_cmd::lafortune(&a)),
         Command::Model(model_cmd::ModelCommand::ScaledLafortune(a)) => done(model_cmd::scaled_lafortune(&a)),
         Command::Model(model_cmd::ModelCommand::Ptm(a)) => done(model_cmd::ptm(&a)),
+        Command::Model(model_cmd::ModelCommand::Car(a)) => done(model_cmd::car::model_car(&a)),
         Command::Reprocess(a) => done(reprocess_cmd::run(&a)),
         Command::Sparse(args::SparseCommand::Select(a)) => done(compress_cmd::select(&a)),
         Command::Sparse(args::SparseCommand::Reconstruct(a)) => done(compress_cmd::reconstruct(&a)),

@@ -18,6 +18,7 @@ use exr::prelude::*;
 mod input_kind;
 mod per_view;
 pub use per_view::{ptm, scaled_lafortune, PtmArgs, ScaledLafortuneArgs};
+pub mod car;
 
 /// `btfrig model ...`.
 #[derive(Debug, Subcommand)]
@@ -34,6 +35,11 @@ pub enum ModelCommand {
     /// A polynomial texture map per view (biquadratic in the projected light direction,
     /// luminance and chroma): coefficient and chroma maps (EXR) and a JSON descriptor.
     Ptm(PtmArgs),
+    /// Seed 002's probabilistic model: the (light, view) pairs clustered into sub-spaces, each
+    /// one's texture as colour PCA, a Gaussian-Laplacian pyramid and 2D causal autoregressive
+    /// models; a texture of any size for any pair, bump-mapped by the range map (EXR, PNG and
+    /// the model as JSON).
+    Car(car::CarArgs),
 }
 
 /// `btfrig model lafortune`.
@@ -108,6 +114,9 @@ pub struct BenchModelArgs {
     /// and occlusion maps (no FMF/PCMF, no more lobes): the cheap check of the maps.
     #[arg(long, conflicts_with = "ps_only")]
     pub sbrdf_only: bool,
+    /// Only the CAR synthesis rows (seed 002; statistics at held-out captures).
+    #[arg(long, conflicts_with_all = ["ps_only", "sbrdf_only"])]
+    pub car_only: bool,
     /// Print one JSON object.
     #[arg(long)]
     pub json: bool,
@@ -607,6 +616,7 @@ fn linear_rows(
 pub fn bench(a: &BenchModelArgs) -> anyhow::Result<()> {
     let mut rows = Vec::new();
     let mut fits = Vec::new();
+    let mut cars = Vec::new();
     for d in &a.datasets {
         let mut obs = Observations::read(d, a.view)?;
         let mut estimates = Vec::new();
@@ -629,14 +639,19 @@ pub fn bench(a: &BenchModelArgs) -> anyhow::Result<()> {
                 fit_s,
             });
         }
-        if !a.ps_only {
+        if !a.ps_only && !a.car_only {
             reflectance_rows(&mut obs, &probe.material, a.sbrdf_only, &mut fits)?;
+        }
+        if !a.ps_only && !a.sbrdf_only {
+            car::bench_rows(&obs, &probe.material, &mut cars)?;
         }
     }
     if a.json {
         println!(
             "{}",
-            serde_json::to_string_pretty(&serde_json::json!({ "photometric_stereo": rows, "reflectance": fits }))?
+            serde_json::to_string_pretty(
+                &serde_json::json!({ "photometric_stereo": rows, "reflectance": fits, "car": cars })
+            )?
         );
         return Ok(());
     }
@@ -662,6 +677,7 @@ pub fn bench(a: &BenchModelArgs) -> anyhow::Result<()> {
             r.fit_s
         );
     }
+    car::print_rows(&cars);
     if fits.is_empty() {
         return Ok(());
     }

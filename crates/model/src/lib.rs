@@ -3,6 +3,10 @@
 //!
 //! Brief overview: the main types and how data moves between them.
 //!
+//! * [`car`]: seed 002's probabilistic model: the (light, view) pairs clustered into
+//!   sub-spaces, each one's texture factorised (colour PCA, Gaussian-Laplacian pyramid) into
+//!   2D causal autoregressive models, [`car::fit`] to a [`car::CarBtf`] that synthesises
+//!   textures of any size for any pair, bump-mapped by the range map.
 //! * [`ps`]: calibrated photometric stereo. A [`ps::PsInput`] (rectified textures on one
 //!   texel grid and the light direction of each) goes through [`ps::photometric_stereo`]
 //!   with [`ps::PsParams`] (plain least squares or the robust estimator) to a
@@ -36,6 +40,7 @@
 
 #![warn(missing_docs)]
 
+pub mod car;
 pub mod error;
 pub mod integrate;
 pub mod lafortune;

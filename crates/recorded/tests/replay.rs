@@ -241,9 +241,8 @@ fn write_dng(path: &Path, width: u32, height: u32, samples: &[u16], black: u32, 
     let ascii = |s: &str| [s.as_bytes(), &[0]].concat();
     let short = |v: &[u16]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
     let long = |v: u32| v.to_le_bytes().to_vec();
-    let identity: Vec<u8> = (0..9)
-        .flat_map(|i| [if i % 4 == 0 { 1i32 } else { 0 }, 1].into_iter().flat_map(i32::to_le_bytes))
-        .collect();
+    let identity: Vec<u8> =
+        (0..9).flat_map(|i| [if i % 4 == 0 { 1i32 } else { 0 }, 1].into_iter().flat_map(i32::to_le_bytes)).collect();
     let strip_bytes = 2 * width * height;
     let mut entries: Vec<(u16, u16, u32, Vec<u8>)> = vec![
         (254, 4, 1, long(0)),
@@ -272,7 +271,8 @@ fn write_dng(path: &Path, width: u32, height: u32, samples: &[u16], black: u32, 
     let mut extra_at = 8 + ifd_len;
     let mut extra = Vec::new();
     let strip_at = {
-        let outside: u32 = entries.iter().filter(|e| e.3.len() > 4).map(|e| (e.3.len() as u32).next_multiple_of(2)).sum();
+        let outside: u32 =
+            entries.iter().filter(|e| e.3.len() > 4).map(|e| (e.3.len() as u32).next_multiple_of(2)).sum();
         8 + ifd_len + outside
     };
     entries.iter_mut().find(|e| e.0 == 273).unwrap().3 = long(strip_at);
