@@ -15,6 +15,7 @@ use std::time::Instant;
 use btfrig_core::camera::CameraModel;
 use btfrig_core::config::plate::{MarkerPlacement, PlateConfig};
 use btfrig_core::pose::ScenePose;
+use btfrig_imaging::Mosaic;
 use btfrig_markers::{
     detect, detect_in_windows, DetectError, DetectParams, Detection, Dictionary, GrayImage, Window, WindowSearch,
 };
@@ -211,6 +212,70 @@ fn ball_directions() -> Vec<Vector3<f64>> {
     out
 }
 
+/// The grey image a frame's markers are searched in.
+#[derive(Debug, Clone, Copy)]
+pub enum GreyFrame<'a> {
+    /// Given whole.
+    Image(GrayImage<'a>),
+    /// The green channel of the bilinear demosaic of this mosaic, computed only where the
+    /// search reads (its windows, grown by what the threshold and the edge fits read around
+    /// them; the whole frame when the search falls back to it): the same values there as
+    /// the whole frame's demosaic.
+    Mosaic(Mosaic<'a>),
+}
+
+/// A [`GreyFrame`] being read: a mosaic's green is filled in as the search asks for it,
+/// into a frame-sized buffer that is zero (and untouched) elsewhere.
+struct Grey<'a> {
+    source: GreyFrame<'a>,
+    buf: Vec<f32>,
+    whole: bool,
+}
+
+impl<'a> Grey<'a> {
+    fn new(source: GreyFrame<'a>) -> Self {
+        let (buf, whole) = match source {
+            GreyFrame::Image(_) => (Vec::new(), true),
+            // Zeroed by the allocator (fresh pages): only the pages filled are ever touched.
+            GreyFrame::Mosaic(m) => (vec![0.0; m.width * m.height], false),
+        };
+        Grey { source, buf, whole }
+    }
+
+    fn size(&self) -> (usize, usize) {
+        match self.source {
+            GreyFrame::Image(i) => (i.width, i.height),
+            GreyFrame::Mosaic(m) => (m.width, m.height),
+        }
+    }
+
+    /// Makes the image valid over `windows` grown by `margin` pixels.
+    fn prepare(&mut self, windows: &[Window], margin: usize) {
+        if let (GreyFrame::Mosaic(m), false) = (&self.source, self.whole) {
+            for w in windows {
+                let grown = (w.x0.saturating_sub(margin), w.y0.saturating_sub(margin), w.x1 + margin, w.y1 + margin);
+                m.fill_green(grown, &mut self.buf);
+            }
+        }
+    }
+
+    /// Makes the whole image valid.
+    fn prepare_all(&mut self) {
+        if let (GreyFrame::Mosaic(m), false) = (&self.source, self.whole) {
+            m.fill_green((0, 0, m.width, m.height), &mut self.buf);
+            self.whole = true;
+        }
+    }
+
+    /// The image (valid where prepared).
+    fn image(&self) -> Result<GrayImage<'_>, DetectError> {
+        match self.source {
+            GreyFrame::Image(i) => Ok(i),
+            GreyFrame::Mosaic(m) => GrayImage::new(m.width, m.height, &self.buf),
+        }
+    }
+}
+
 /// Registers frames of one rig: camera model, plate layout, detector and estimator settings.
 #[derive(Debug, Clone)]
 pub struct PlateRegistrar {
@@ -345,10 +410,27 @@ impl PlateRegistrar {
         nominal: &ScenePose,
         tolerance: (f64, f64),
     ) -> Result<(Vec<Window>, WindowSearch), DetectError> {
+        self.detect_predicted_in(&mut Grey::new(GreyFrame::Image(*image)), nominal, tolerance)
+    }
+
+    fn detect_predicted_in(
+        &self,
+        grey: &mut Grey,
+        nominal: &ScenePose,
+        tolerance: (f64, f64),
+    ) -> Result<(Vec<Window>, WindowSearch), DetectError> {
         let per_marker = self.search_windows(nominal, tolerance.0.to_radians(), tolerance.1);
         let windows = merge_windows(per_marker.into_iter().map(|(_, w)| w).collect());
-        let found = detect_in_windows(image, &self.dictionary, &self.detect, &windows)?;
+        grey.prepare(&windows, self.read_margin_px());
+        let found = detect_in_windows(&grey.image()?, &self.dictionary, &self.detect, &windows)?;
         Ok((windows, found))
+    }
+
+    /// How far beyond a search window the detector reads: the threshold's local mean (half
+    /// its window), and at least the edge fits' bands and profiles around a marker inside
+    /// the window (at most 4 + 2 px beyond its outline), with 2 px to spare.
+    fn read_margin_px(&self) -> usize {
+        (self.detect.threshold_window_px / 2).max(8) + 2
     }
 
     /// Detects the markers in `image` (a grey image of the frame: the green channel of a
@@ -356,12 +438,19 @@ impl PlateRegistrar {
     /// `nominal` (the kinematic pose) as prior and gate. Where it searches: [`Self::search`].
     /// A registered frame's deviation from `nominal` is remembered for the learned windows.
     pub fn register_image(&self, image: &GrayImage, nominal: &ScenePose) -> Result<FrameRegistration, FrameError> {
+        self.register_grey(GreyFrame::Image(*image), nominal)
+    }
+
+    /// [`Self::register_image`] of a grey frame given whole or as a mosaic whose green is
+    /// demosaiced only where the search reads ([`GreyFrame`]): the same registration.
+    pub fn register_grey(&self, frame: GreyFrame, nominal: &ScenePose) -> Result<FrameRegistration, FrameError> {
+        let mut grey = Grey::new(frame);
         let tolerance = match self.search {
             MarkerSearch::WholeFrame => None,
             MarkerSearch::Predicted { tolerance: Some(t) } => Some(t),
             MarkerSearch::Predicted { tolerance: None } => Some(self.learned_tolerance()),
         };
-        let mut r = match self.register_within(image, nominal, tolerance) {
+        let mut r = match self.register_in(&mut grey, nominal, tolerance) {
             Ok(r) => r,
             Err(FrameError::Register { detected, source, mut search }) => {
                 self.account_whole_frame(&mut search);
@@ -375,7 +464,8 @@ impl PlateRegistrar {
             Some(s) => self.whole_frame_cost.observe(s, pixels),
             None if self.time_whole_frame && self.whole_frame_cost.claim() => {
                 let t = Instant::now();
-                detect(image, &self.dictionary, &self.detect)?;
+                grey.prepare_all();
+                detect(&grey.image()?, &self.dictionary, &self.detect)?;
                 let s = t.elapsed().as_secs_f64();
                 self.whole_frame_cost.observe(s, pixels);
                 r.search.reference_s = s;
@@ -396,7 +486,27 @@ impl PlateRegistrar {
         nominal: &ScenePose,
         tolerance: Option<(f64, f64)>,
     ) -> Result<FrameRegistration, FrameError> {
-        let frame_pixels = image.width * image.height;
+        self.register_in(&mut Grey::new(GreyFrame::Image(*image)), nominal, tolerance)
+    }
+
+    /// [`Self::register_within`] of a [`GreyFrame`].
+    pub fn register_grey_within(
+        &self,
+        frame: GreyFrame,
+        nominal: &ScenePose,
+        tolerance: Option<(f64, f64)>,
+    ) -> Result<FrameRegistration, FrameError> {
+        self.register_in(&mut Grey::new(frame), nominal, tolerance)
+    }
+
+    fn register_in(
+        &self,
+        grey: &mut Grey,
+        nominal: &ScenePose,
+        tolerance: Option<(f64, f64)>,
+    ) -> Result<FrameRegistration, FrameError> {
+        let (width, height) = grey.size();
+        let frame_pixels = width * height;
         let Some((rot_deg, trans_m)) = tolerance else {
             let search = SearchRecord {
                 windows: 0,
@@ -405,10 +515,10 @@ impl PlateRegistrar {
                 whole_frame: true,
                 ..SearchRecord::default()
             };
-            return self.register_whole(image, nominal, search, (0.0, 0.0));
+            return self.register_whole(grey, nominal, search, (0.0, 0.0));
         };
         let t = Instant::now();
-        let (windows, found) = self.detect_predicted(image, nominal, (rot_deg, trans_m))?;
+        let (windows, found) = self.detect_predicted_in(grey, nominal, (rot_deg, trans_m))?;
         let detect_s = t.elapsed().as_secs_f64();
         let (corr, detected, foreign) = self.correspondences(&found.detections);
         let t = Instant::now();
@@ -416,7 +526,7 @@ impl PlateRegistrar {
         let register_s = t.elapsed().as_secs_f64();
         let miss = match &attempt {
             Ok(r) => self
-                .missed_window(&r.sample_to_camera, &windows, image.width, image.height)
+                .missed_window(&r.sample_to_camera, &windows, width, height)
                 .map(|m| (FallbackCause::MarkerOutsideWindows, m)),
             Err(e) => Some((FallbackCause::NoPose, format!("no pose from the windows: {e}"))),
         };
@@ -447,7 +557,7 @@ impl PlateRegistrar {
                     fallback: miss.map(|m| m.1),
                     ..SearchRecord::default()
                 };
-                self.register_whole(image, nominal, search, (detect_s, register_s))
+                self.register_whole(grey, nominal, search, (detect_s, register_s))
             }
         }
     }
@@ -481,13 +591,14 @@ impl PlateRegistrar {
     /// Whole-frame detection and registration; `spent` (detect, register seconds) is added.
     fn register_whole(
         &self,
-        image: &GrayImage,
+        grey: &mut Grey,
         nominal: &ScenePose,
         mut search: SearchRecord,
         spent: (f64, f64),
     ) -> Result<FrameRegistration, FrameError> {
         let t = Instant::now();
-        let detections = detect(image, &self.dictionary, &self.detect)?;
+        grey.prepare_all();
+        let detections = detect(&grey.image()?, &self.dictionary, &self.detect)?;
         let whole_s = t.elapsed().as_secs_f64();
         search.whole_frame_s = Some(whole_s);
         let detect_s = spent.0 + whole_s;
