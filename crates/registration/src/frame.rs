@@ -224,22 +224,56 @@ pub enum GreyFrame<'a> {
     Mosaic(Mosaic<'a>),
 }
 
-/// A [`GreyFrame`] being read: a mosaic's green is filled in as the search asks for it,
-/// into a frame-sized buffer that is zero (and untouched) elsewhere.
+/// Frame-sized grey buffers kept between frames, all zero: a mosaic's green is filled into
+/// one, and the filled parts are zeroed again when it comes back (fresh zeroed pages would
+/// cost a page fault per 4 KiB touched on every frame).
+#[derive(Debug, Default)]
+struct GreyBuffers(std::sync::Mutex<Vec<Vec<f32>>>);
+
+impl Clone for GreyBuffers {
+    fn clone(&self) -> Self {
+        GreyBuffers::default()
+    }
+}
+
+impl GreyBuffers {
+    /// Buffers kept at most (a run processes two frames at once).
+    const KEPT: usize = 2;
+
+    fn take(&self, len: usize) -> Vec<f32> {
+        let mut pool = self.0.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        match pool.iter().position(|b| b.len() == len) {
+            Some(i) => pool.swap_remove(i),
+            None => vec![0.0; len],
+        }
+    }
+
+    fn give(&self, buf: Vec<f32>) {
+        let mut pool = self.0.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        if pool.len() < Self::KEPT {
+            pool.push(buf);
+        }
+    }
+}
+
+/// A [`GreyFrame`] being read: a mosaic's green is filled in as the search asks for it, into
+/// a frame-sized buffer that is zero elsewhere (and zeroed again when done).
 struct Grey<'a> {
     source: GreyFrame<'a>,
     buf: Vec<f32>,
+    /// The rectangles filled so far, `(x0, y0, x1, y1)` clipped to the frame.
+    filled: Vec<(usize, usize, usize, usize)>,
     whole: bool,
+    pool: &'a GreyBuffers,
 }
 
 impl<'a> Grey<'a> {
-    fn new(source: GreyFrame<'a>) -> Self {
+    fn new(source: GreyFrame<'a>, pool: &'a GreyBuffers) -> Self {
         let (buf, whole) = match source {
             GreyFrame::Image(_) => (Vec::new(), true),
-            // Zeroed by the allocator (fresh pages): only the pages filled are ever touched.
-            GreyFrame::Mosaic(m) => (vec![0.0; m.width * m.height], false),
+            GreyFrame::Mosaic(m) => (pool.take(m.width * m.height), false),
         };
-        Grey { source, buf, whole }
+        Grey { source, buf, filled: Vec::new(), whole, pool }
     }
 
     fn size(&self) -> (usize, usize) {
@@ -253,8 +287,14 @@ impl<'a> Grey<'a> {
     fn prepare(&mut self, windows: &[Window], margin: usize) {
         if let (GreyFrame::Mosaic(m), false) = (&self.source, self.whole) {
             for w in windows {
-                let grown = (w.x0.saturating_sub(margin), w.y0.saturating_sub(margin), w.x1 + margin, w.y1 + margin);
+                let grown = (
+                    w.x0.saturating_sub(margin),
+                    w.y0.saturating_sub(margin),
+                    (w.x1 + margin).min(m.width),
+                    (w.y1 + margin).min(m.height),
+                );
                 m.fill_green(grown, &mut self.buf);
+                self.filled.push(grown);
             }
         }
     }
@@ -263,6 +303,7 @@ impl<'a> Grey<'a> {
     fn prepare_all(&mut self) {
         if let (GreyFrame::Mosaic(m), false) = (&self.source, self.whole) {
             m.fill_green((0, 0, m.width, m.height), &mut self.buf);
+            self.filled = vec![(0, 0, m.width, m.height)];
             self.whole = true;
         }
     }
@@ -273,6 +314,19 @@ impl<'a> Grey<'a> {
             GreyFrame::Image(i) => Ok(i),
             GreyFrame::Mosaic(m) => GrayImage::new(m.width, m.height, &self.buf),
         }
+    }
+}
+
+impl Drop for Grey<'_> {
+    fn drop(&mut self) {
+        let GreyFrame::Mosaic(m) = self.source else { return };
+        let mut buf = std::mem::take(&mut self.buf);
+        for &(x0, y0, x1, y1) in &self.filled {
+            for y in y0..y1 {
+                buf[y * m.width + x0..y * m.width + x1].fill(0.0);
+            }
+        }
+        self.pool.give(buf);
     }
 }
 
@@ -295,6 +349,7 @@ pub struct PlateRegistrar {
     pub time_whole_frame: bool,
     deviation: Deviation,
     whole_frame_cost: WholeFrameCost,
+    grey_buffers: GreyBuffers,
 }
 
 impl PlateRegistrar {
@@ -313,6 +368,7 @@ impl PlateRegistrar {
             time_whole_frame: true,
             deviation: Deviation::default(),
             whole_frame_cost: WholeFrameCost::default(),
+            grey_buffers: GreyBuffers::default(),
         })
     }
 
@@ -410,7 +466,7 @@ impl PlateRegistrar {
         nominal: &ScenePose,
         tolerance: (f64, f64),
     ) -> Result<(Vec<Window>, WindowSearch), DetectError> {
-        self.detect_predicted_in(&mut Grey::new(GreyFrame::Image(*image)), nominal, tolerance)
+        self.detect_predicted_in(&mut Grey::new(GreyFrame::Image(*image), &self.grey_buffers), nominal, tolerance)
     }
 
     fn detect_predicted_in(
@@ -444,7 +500,7 @@ impl PlateRegistrar {
     /// [`Self::register_image`] of a grey frame given whole or as a mosaic whose green is
     /// demosaiced only where the search reads ([`GreyFrame`]): the same registration.
     pub fn register_grey(&self, frame: GreyFrame, nominal: &ScenePose) -> Result<FrameRegistration, FrameError> {
-        let mut grey = Grey::new(frame);
+        let mut grey = Grey::new(frame, &self.grey_buffers);
         let tolerance = match self.search {
             MarkerSearch::WholeFrame => None,
             MarkerSearch::Predicted { tolerance: Some(t) } => Some(t),
@@ -486,7 +542,7 @@ impl PlateRegistrar {
         nominal: &ScenePose,
         tolerance: Option<(f64, f64)>,
     ) -> Result<FrameRegistration, FrameError> {
-        self.register_in(&mut Grey::new(GreyFrame::Image(*image)), nominal, tolerance)
+        self.register_in(&mut Grey::new(GreyFrame::Image(*image), &self.grey_buffers), nominal, tolerance)
     }
 
     /// [`Self::register_within`] of a [`GreyFrame`].
@@ -496,7 +552,7 @@ impl PlateRegistrar {
         nominal: &ScenePose,
         tolerance: Option<(f64, f64)>,
     ) -> Result<FrameRegistration, FrameError> {
-        self.register_in(&mut Grey::new(frame), nominal, tolerance)
+        self.register_in(&mut Grey::new(frame, &self.grey_buffers), nominal, tolerance)
     }
 
     fn register_in(
