@@ -14,9 +14,7 @@ use btfrig_core::config::RigConfig;
 use btfrig_core::frame::RawFrame;
 use btfrig_imaging::demosaic::demosaic_bilinear;
 use btfrig_imaging::hdr::{merge_bracket, merge_bracket_reference, MergeOptions, NoiseModel, NominalCalibration};
-use btfrig_imaging::{
-    rectify, rectify_vignetted, to_radiance_factor, vignetting_map, Filter, LinearImage, Mosaic,
-};
+use btfrig_imaging::{rectify, rectify_vignetted, to_radiance_factor, vignetting_map, Filter, LinearImage, Mosaic};
 use btfrig_markers::GrayImage;
 use btfrig_registration::{texel_position_error, GreyFrame, SearchRecord};
 use nalgebra::Point2;
@@ -159,7 +157,8 @@ pub fn run_whole_frame(b: &Bench, frame: &Frame, repeat: usize) -> anyhow::Resul
     let (radiometry_ms, out) = timed(repeat, || {
         vignetting_map(cam, &pose, b.region, b.size).and_then(|v| to_radiance_factor(&tex, &v, &frame.radiometry))
     });
-    let stages = Stages { demosaic_ms, detect_ms: median(detect), register_ms: median(register), rectify_ms, radiometry_ms };
+    let stages =
+        Stages { demosaic_ms, detect_ms: median(detect), register_ms: median(register), rectify_ms, radiometry_ms };
     Ok((stages, out?.data))
 }
 

@@ -35,6 +35,6 @@ pub mod radiometry;
 pub mod rectify;
 
 pub use metric::{compare, rel_rmse, TextureError};
-pub use radiometry::{to_radiance_factor, vignetting_map, Radiometry};
 pub use mosaic::Mosaic;
+pub use radiometry::{to_radiance_factor, vignetting_map, Radiometry};
 pub use rectify::{rectify, rectify_vignetted, Filter, LinearImage, RectifyError, Region, RgbSource, Texture};

@@ -245,8 +245,8 @@ pub fn rate_radiometry(r: &Radiometry) -> Radiometry {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use btfrig_core::Direction;
     use crate::rectify::LinearImage;
+    use btfrig_core::Direction;
 
     fn camera() -> CameraModel {
         CameraModel::pinhole(400, 300, 1200.0).unwrap()

@@ -52,7 +52,13 @@ impl<'a> Mosaic<'a> {
     pub fn of_raw(raw: &'a RawFrame) -> Result<Self, MosaicSizeError> {
         let black = f32::from(raw.meta.black_level);
         let range = (f32::from(raw.meta.white_level) - black).max(1.0);
-        Self::checked(raw.width, raw.height, raw.meta.bayer, raw.data.len(), Values::Raw { data: &raw.data, black, range })
+        Self::checked(
+            raw.width,
+            raw.height,
+            raw.meta.bayer,
+            raw.data.len(),
+            Values::Raw { data: &raw.data, black, range },
+        )
     }
 
     /// Already normalised values, as [`crate::demosaic::demosaic_bilinear_values`] takes them.
@@ -197,13 +203,8 @@ mod tests {
         }
     }
 
-    const PATTERNS: [Option<BayerPattern>; 5] = [
-        Some(BayerPattern::Rggb),
-        Some(BayerPattern::Bggr),
-        Some(BayerPattern::Grbg),
-        Some(BayerPattern::Gbrg),
-        None,
-    ];
+    const PATTERNS: [Option<BayerPattern>; 5] =
+        [Some(BayerPattern::Rggb), Some(BayerPattern::Bggr), Some(BayerPattern::Grbg), Some(BayerPattern::Gbrg), None];
 
     #[test]
     fn every_pixel_is_the_whole_frame_demosaics_bit_for_bit() {
@@ -280,7 +281,10 @@ mod tests {
                 let (c, v) = rectify_vignetted(&mosaic, &cam, &pose, region, 48, filter).unwrap();
                 assert_eq!(bits(&c), bits(&b), "{view:?} {filter:?}");
                 let map = vignetting_map(&cam, &pose, region, 48).unwrap();
-                assert_eq!(v.iter().map(|x| x.to_bits()).collect::<Vec<_>>(), map.iter().map(|x| x.to_bits()).collect::<Vec<_>>());
+                assert_eq!(
+                    v.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
+                    map.iter().map(|x| x.to_bits()).collect::<Vec<_>>()
+                );
                 assert!(v.iter().any(|&x| x > 0.0 && x < 1.0));
             }
         }

@@ -113,7 +113,10 @@ fn predicted_windows_register_as_the_whole_frame_does_and_fall_back_when_they_mi
         for (m, r) in on_mosaic.iter().zip([&w, &p, &t]) {
             assert_eq!(m.detections, r.detections, "view {view:?}: detections from the mosaic");
             assert_eq!(m.registration.sample_to_camera, r.registration.sample_to_camera, "view {view:?}");
-            assert_eq!((m.search.windows, m.search.pixels, m.search.whole_frame), (r.search.windows, r.search.pixels, r.search.whole_frame));
+            assert_eq!(
+                (m.search.windows, m.search.pixels, m.search.whole_frame),
+                (r.search.windows, r.search.pixels, r.search.whole_frame)
+            );
             assert_eq!(m.search.fallback, r.search.fallback);
         }
         let s = &p.search;
