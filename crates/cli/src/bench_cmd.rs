@@ -91,13 +91,16 @@ pub(crate) fn opencv_if_asked(opencv: bool) -> Option<std::process::Command> {
     python_with_opencv().map_err(|why| println!("OpenCV not available ({why}); running without it")).ok()
 }
 
+/// Views as (theta, phi) degrees, and rigs as (label, config).
+type ViewsAndRigs = (Vec<(f64, f64)>, Vec<(String, RigConfig)>);
+
 /// The views (degrees) and rigs a frame benchmark runs on: `views` or the defaults, `rigs` (each
 /// by its path) or the embedded simulated gonioreflectometer.
 pub(crate) fn views_and_rigs(
     views: &[btfrig_core::Direction],
     default_views: &[(f64, f64)],
     rigs: &[std::path::PathBuf],
-) -> anyhow::Result<(Vec<(f64, f64)>, Vec<(String, RigConfig)>)> {
+) -> anyhow::Result<ViewsAndRigs> {
     let views = if views.is_empty() {
         default_views.to_vec()
     } else {
