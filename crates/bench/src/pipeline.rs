@@ -1,6 +1,7 @@
 //! The measurement behind `btfrig bench pipeline`: one frame from raw photosites to texture,
-//! stage by stage, as btfrig's pipeline runs it (bilinear demosaic, marker registration in
-//! predicted windows, rectification, radiometry), against one plain read-and-write pass
+//! stage by stage, as btfrig's pipeline runs it (the mosaic read in place, marker registration
+//! in predicted windows, rectification with the vignetting map, radiometry), and as it ran
+//! before (whole-frame demosaic, separate vignetting map: [`run_whole_frame`]), against one plain read-and-write pass
 //! over the frame (the memory-bandwidth floor), and the 2-frame HDR merge before and after
 //! its rewrite ([`btfrig_imaging::hdr::merge_bracket_reference`] against
 //! [`btfrig_imaging::hdr::merge_bracket`]) on a rendered bracket. The OpenCV peer of the same
@@ -13,10 +14,9 @@ use btfrig_core::config::RigConfig;
 use btfrig_core::frame::RawFrame;
 use btfrig_imaging::demosaic::demosaic_bilinear;
 use btfrig_imaging::hdr::{merge_bracket, merge_bracket_reference, MergeOptions, NoiseModel, NominalCalibration};
-use btfrig_imaging::{rectify, to_radiance_factor, vignetting_map, Filter, LinearImage};
+use btfrig_imaging::{rectify, rectify_vignetted, to_radiance_factor, vignetting_map, Filter, LinearImage, Mosaic};
 use btfrig_markers::GrayImage;
-use btfrig_registration::{texel_position_error, SearchRecord};
-use btfrig_render::renderer::RenderOptions;
+use btfrig_registration::{texel_position_error, GreyFrame, SearchRecord};
 use nalgebra::Point2;
 
 use crate::registration::{sq_sums, Bench, Frame};
@@ -55,6 +55,10 @@ pub struct OursFrame {
     pub texture: (f64, f64),
     /// RMS distance of the detected plate corners from the projected true ones, pixels.
     pub corner_rms_px: Option<f64>,
+    /// Plate markers detected.
+    pub markers: usize,
+    /// The radiance-factor texture.
+    pub texture_data: Vec<[f32; 3]>,
     /// How the markers were searched.
     pub search: SearchRecord,
 }
@@ -76,38 +80,35 @@ fn timed<T>(repeat: usize, mut f: impl FnMut() -> T) -> (f64, T) {
     (median(times), out.expect("at least one repeat"))
 }
 
-/// btfrig's stages on `frame` (its raw photosites), with the bench's registrar (its learned
-/// windows carry over from frame to frame, as in a run). Bilinear rectification, the
-/// filter OpenCV's `warpPerspective(INTER_LINEAR)` matches.
+/// btfrig's stages on `frame` (its raw photosites), as a run's processing does them
+/// (`btfrig_process`'s `process_bracket`), with the bench's registrar (its learned windows
+/// carry over from frame to frame, as in a run): the mosaic read in place (no whole-frame
+/// demosaic: `demosaic_ms` is only wrapping it), the demosaiced green filled in and searched
+/// in the predicted windows, bilinear rectification (the filter OpenCV's
+/// `warpPerspective(INTER_LINEAR)` matches) with the vignetting map from the same
+/// projections, and the radiometric conversion.
 pub fn run_ours(b: &Bench, frame: &Frame, repeat: usize) -> anyhow::Result<OursFrame> {
     let filter = Filter::Bilinear;
     let cam = b.camera();
     let nominal = b.scene.pose(&frame.commanded);
-    let (demosaic_ms, dm) = timed(repeat, || demosaic_bilinear(&frame.raw));
-    let rgb = LinearImage { width: dm.width, height: dm.height, data: dm.data };
-    // Registration as the pipeline runs it: the green channel, then the registrar.
+    let (demosaic_ms, mosaic) = timed(repeat, || Mosaic::of_raw(&frame.raw));
+    let mosaic = mosaic?;
     let mut detect = Vec::new();
     let mut register = Vec::new();
     let mut last = None;
     let tolerance = b.registrar.learned_tolerance();
     for _ in 0..repeat.max(1) {
-        let t = Instant::now();
-        let green: Vec<f32> = rgb.data.iter().map(|p| p[1]).collect();
-        let image = GrayImage::new(rgb.width, rgb.height, &green)?;
-        let green_s = t.elapsed().as_secs_f64();
-        let r = b.registrar.register_within(&image, &nominal, Some(tolerance))?;
-        detect.push((green_s + r.detect_s) * 1e3);
+        let r = b.registrar.register_grey_within(GreyFrame::Mosaic(mosaic), &nominal, Some(tolerance))?;
+        detect.push(r.detect_s * 1e3);
         register.push(r.register_s * 1e3);
         last = Some(r);
     }
     let reg = last.expect("at least one repeat");
     b.registrar.remember(&reg.registration, &nominal);
     let pose = reg.registration.pose;
-    let (rectify_ms, tex) = timed(repeat, || rectify(&rgb, cam, &pose, b.region, b.size, filter));
-    let tex = tex?;
-    let (radiometry_ms, out) = timed(repeat, || {
-        vignetting_map(cam, &pose, b.region, b.size).and_then(|v| to_radiance_factor(&tex, &v, &frame.radiometry))
-    });
+    let (rectify_ms, tex) = timed(repeat, || rectify_vignetted(&mosaic, cam, &pose, b.region, b.size, filter));
+    let (tex, vig) = tex?;
+    let (radiometry_ms, out) = timed(repeat, || to_radiance_factor(&tex, &vig, &frame.radiometry));
     let out = out?;
     let ids: Vec<(u32, [Point2<f64>; 4])> =
         reg.detections.iter().filter(|d| reg.detected.contains(&d.id)).map(|d| (d.id, d.corners)).collect();
@@ -122,8 +123,43 @@ pub fn run_ours(b: &Bench, frame: &Frame, repeat: usize) -> anyhow::Result<OursF
         texel: texel_position_error(&b.scene.pose(&frame.truth), &pose, cam, b.region, b.size),
         texture: sq_sums(&out.data, &frame.gt_box),
         corner_rms_px: b.corner_error(frame, &ids).map(|c| c.0),
+        markers: reg.detected.len(),
         search: reg.search,
+        texture_data: out.data,
     })
+}
+
+/// Today's path before the in-place mosaic, kept to compare: the whole frame demosaiced
+/// ([`demosaic_bilinear`]), its green channel copied out and searched, [`rectify`] of the
+/// demosaiced image and a separate [`vignetting_map`]. Returns the stages' times and the
+/// radiance-factor texture (which [`run_ours`]'s equals bit for bit).
+pub fn run_whole_frame(b: &Bench, frame: &Frame, repeat: usize) -> anyhow::Result<(Stages, Vec<[f32; 3]>)> {
+    let filter = Filter::Bilinear;
+    let cam = b.camera();
+    let nominal = b.scene.pose(&frame.commanded);
+    let (demosaic_ms, dm) = timed(repeat, || demosaic_bilinear(&frame.raw));
+    let rgb = LinearImage { width: dm.width, height: dm.height, data: dm.data };
+    let tolerance = b.registrar.learned_tolerance();
+    let (mut detect, mut register, mut last) = (Vec::new(), Vec::new(), None);
+    for _ in 0..repeat.max(1) {
+        let t = Instant::now();
+        let green: Vec<f32> = rgb.data.iter().map(|p| p[1]).collect();
+        let image = GrayImage::new(rgb.width, rgb.height, &green)?;
+        let green_s = t.elapsed().as_secs_f64();
+        let r = b.registrar.register_within(&image, &nominal, Some(tolerance))?;
+        detect.push((green_s + r.detect_s) * 1e3);
+        register.push(r.register_s * 1e3);
+        last = Some(r);
+    }
+    let pose = last.expect("at least one repeat").registration.pose;
+    let (rectify_ms, tex) = timed(repeat, || rectify(&rgb, cam, &pose, b.region, b.size, filter));
+    let tex = tex?;
+    let (radiometry_ms, out) = timed(repeat, || {
+        vignetting_map(cam, &pose, b.region, b.size).and_then(|v| to_radiance_factor(&tex, &v, &frame.radiometry))
+    });
+    let stages =
+        Stages { demosaic_ms, detect_ms: median(detect), register_ms: median(register), rectify_ms, radiometry_ms };
+    Ok((stages, out?.data))
 }
 
 /// One plain pass over the frame (the memory-bandwidth floor): every raw photosite read and
@@ -161,7 +197,7 @@ pub struct HdrResult {
 /// and merges it both ways, alternating, `repeat` times each.
 pub fn hdr(b: &Bench, cfg: &RigConfig, frame: &Frame, ratio: f64, repeat: usize) -> anyhow::Result<HdrResult> {
     let long_exposure = frame.raw.meta.exposure_s * ratio;
-    let (long, _) = b.scene.capture(&frame.truth, 1.0, long_exposure, 1.0, 7_000_001, &RenderOptions::default())?;
+    let (long, _) = b.scene.capture(&frame.truth, 1.0, long_exposure, 1.0, 7_000_001, &b.render)?;
     let frames = [&frame.raw, &long];
     let s = &cfg.sensor;
     let cal = NominalCalibration { dark_current_e_per_s: s.dark_current_e_per_s, electrons_per_dn: s.electrons_per_dn };

@@ -252,6 +252,9 @@ pub struct Bench {
     pub light: Direction,
     /// Positioning error of the devices.
     pub positioning: PositioningError,
+    /// How frames are rendered (default: the renderer's; `marker_supersampling` is how
+    /// finely the simulated photosites integrate the marker edges).
+    pub render: RenderOptions,
     dictionary: Dictionary,
     last_windows: std::cell::Cell<Option<WindowStats>>,
 }
@@ -298,6 +301,7 @@ impl Bench {
             size,
             light: Direction::from_degrees(45.0, 0.0),
             positioning,
+            render: RenderOptions::default(),
             dictionary,
             last_windows: std::cell::Cell::new(None),
         })
@@ -321,7 +325,7 @@ impl Bench {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let truth = self.positioning.apply(&commanded, &mut rng);
         let exposure = self.scene.exposure_for_white(0.5, 1e-4, 30.0);
-        let (raw, _) = self.scene.capture(&truth, 1.0, exposure, 1.0, seed, &RenderOptions::default())?;
+        let (raw, _) = self.scene.capture(&truth, 1.0, exposure, 1.0, seed, &self.render)?;
         let dm = demosaic_bilinear(&raw);
         let green: Vec<f32> = dm.data.iter().map(|p| p[1]).collect();
         let rgb = LinearImage { width: dm.width, height: dm.height, data: dm.data };
@@ -341,7 +345,7 @@ impl Bench {
         };
         let gt_point = self.scene.ground_truth(&truth, 1.0, self.size).data;
         let gt_box = self.scene.ground_truth(&truth, 1.0, self.size * BOX_SAMPLES).box_average(BOX_SAMPLES).data;
-        let (img, _) = self.scene.radiance(&truth, 1.0, &RenderOptions::default());
+        let (img, _) = self.scene.radiance(&truth, 1.0, &self.render);
         // Rates in e-/s: exposure 1 s, 1 DN per electron, range 1, no dark current.
         let clean_radiometry =
             Radiometry { dn_range: 1.0, exposure_s: 1.0, dn_per_electron: 1.0, dark_e_per_s: 0.0, ..radiometry };

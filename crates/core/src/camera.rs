@@ -417,10 +417,23 @@ impl CameraModel {
 
     /// Relative illumination at pixel `px` (1 on the optical axis, see the module docs).
     pub fn vignetting(&self, px: Point2<f64>) -> f64 {
+        let cos = if self.vignetting.cos4 { self.pixel_ray(px).z } else { 1.0 };
+        self.vignetting_with_cos(px, cos)
+    }
+
+    /// [`CameraModel::vignetting`] at `px`, the image of the camera-frame point `p_cam`
+    /// (`px = project(p_cam)`): the ray is `p_cam`'s, not found again by undistorting `px`
+    /// (the same value to the undistortion's tolerance, without its Newton iterations).
+    pub fn vignetting_of_point(&self, p_cam: &Point3<f64>, px: Point2<f64>) -> f64 {
+        let cos = if self.vignetting.cos4 { p_cam.z / p_cam.coords.norm() } else { 1.0 };
+        self.vignetting_with_cos(px, cos)
+    }
+
+    /// The vignetting at `px` whose ray makes the angle of cosine `cos` with the optical axis.
+    fn vignetting_with_cos(&self, px: Point2<f64>, cos: f64) -> f64 {
         let mut v = 1.0;
         if self.vignetting.cos4 {
-            let c = self.pixel_ray(px).z;
-            v *= c * c * c * c;
+            v *= cos * cos * cos * cos;
         }
         let half_diag = 0.5 * (self.width as f64).hypot(self.height as f64);
         let rho2 = ((px.x - self.cx).powi(2) + (px.y - self.cy).powi(2)) / (half_diag * half_diag);
@@ -588,5 +601,23 @@ mod tests {
         let expect = ray.z.powi(4) * (1.0 - 0.1 * rho2);
         assert!((v - expect).abs() < 1e-12);
         assert!(v < 0.9 && v > 0.8, "{v}");
+    }
+
+    #[test]
+    fn vignetting_of_a_known_point_equals_vignetting_of_its_image() {
+        // Across the field of a distorting lens, near the fold included: the ray from the
+        // point itself gives what undistorting its image gives.
+        for cam in [realistic(), strong()] {
+            let mut worst = 0.0f64;
+            for i in 0..=20 {
+                for j in 0..=20 {
+                    let p = Point3::new((i as f64 - 10.0) * 0.017, (j as f64 - 10.0) * 0.013, 1.0) * 2.5;
+                    let Some(q) = cam.project(&p) else { continue };
+                    let (a, b) = (cam.vignetting_of_point(&p, q), cam.vignetting(q));
+                    worst = worst.max((a - b).abs());
+                }
+            }
+            assert!(worst < 1e-12, "{worst}");
+        }
     }
 }

@@ -67,36 +67,48 @@ fn bilinear(w: usize, h: usize, bayer: Option<BayerPattern>, value: impl Fn(usiz
                 &norm[(y - ya) * w..(y + 1 - ya) * w],
                 &norm[(y + 1 - ya) * w..(y + 2 - ya) * w],
             );
-            // On a Bayer mosaic a green site has its two other channels as a horizontal and a
-            // vertical pair, a red or blue site has green as a cross and the other as the
-            // diagonals; the sums run from 0 in the row-major order of `bilinear_pixel`.
             for (x, out) in row.iter_mut().enumerate().take(w - 1).skip(1) {
-                let own = bayer.channel_at(x, y);
-                let (l, c, r) = (mid[x - 1], mid[x], mid[x + 1]);
-                let (u, d) = (up[x], down[x]);
-                if own == 1 {
-                    let horizontal = (0.0 + l + r) / 2.0;
-                    let vertical = (0.0 + u + d) / 2.0;
-                    let hc = bayer.channel_at(x + 1, y);
-                    out[1] = c;
-                    out[hc] = horizontal;
-                    out[2 - hc] = vertical;
-                } else {
-                    let cross = (0.0 + u + l + r + d) / 4.0;
-                    let diagonal = (0.0 + up[x - 1] + up[x + 1] + down[x - 1] + down[x + 1]) / 4.0;
-                    out[own] = c;
-                    out[1] = cross;
-                    out[2 - own] = diagonal;
-                }
+                *out = interior_pixel(bayer, x, y, |dx, dy| {
+                    let line = [up, mid, down][dy];
+                    line[x + dx - 1]
+                });
             }
         }
     });
     data
 }
 
+/// One pixel of the bilinear demosaic away from the border (`0 < x < w - 1`,
+/// `0 < y < h - 1`), `v(dx, dy)` the normalised photosite at `(x + dx - 1, y + dy - 1)`: on a
+/// Bayer mosaic a green site has its two other channels as a horizontal and a vertical pair,
+/// a red or blue site has green as a cross and the other as the diagonals; the sums run from
+/// 0 in the row-major order of [`bilinear_pixel`], so the result is its, bit for bit.
+#[inline(always)]
+pub(crate) fn interior_pixel(bayer: BayerPattern, x: usize, y: usize, v: impl Fn(usize, usize) -> f32) -> [f32; 3] {
+    let mut out = [0.0f32; 3];
+    let own = bayer.channel_at(x, y);
+    let (l, c, r) = (v(0, 1), v(1, 1), v(2, 1));
+    let (u, d) = (v(1, 0), v(1, 2));
+    if own == 1 {
+        let horizontal = (0.0 + l + r) / 2.0;
+        let vertical = (0.0 + u + d) / 2.0;
+        let hc = bayer.channel_at(x + 1, y);
+        out[1] = c;
+        out[hc] = horizontal;
+        out[2 - hc] = vertical;
+    } else {
+        let cross = (0.0 + u + l + r + d) / 4.0;
+        let diagonal = (0.0 + v(0, 0) + v(2, 0) + v(0, 2) + v(2, 2)) / 4.0;
+        out[own] = c;
+        out[1] = cross;
+        out[2 - own] = diagonal;
+    }
+    out
+}
+
 /// One pixel of the bilinear demosaic: each missing channel the mean of its photosites in the
 /// 3x3 neighbourhood that lie inside the image, summed in row-major order.
-fn bilinear_pixel(
+pub(crate) fn bilinear_pixel(
     w: usize,
     h: usize,
     bayer: BayerPattern,

@@ -15,6 +15,7 @@
 
 // The files, one job each:
 // - demosaic:   a raw (Bayer or mono) frame to linear camera RGB, bilinear
+// - mosaic:     the same demosaic read in place, only at the pixels a stage reads
 // - rectify:    rectification onto the sample plane and its filters
 // - radiometry: conversion to radiance factor, the vignetting map
 // - dark_flat:  the dark model, master flats, per-photosite correction
@@ -29,9 +30,11 @@ pub mod exposure;
 pub mod hdr;
 pub mod light;
 pub mod metric;
+pub mod mosaic;
 pub mod radiometry;
 pub mod rectify;
 
 pub use metric::{compare, rel_rmse, TextureError};
+pub use mosaic::Mosaic;
 pub use radiometry::{to_radiance_factor, vignetting_map, Radiometry};
-pub use rectify::{rectify, Filter, LinearImage, RectifyError, Region, Texture};
+pub use rectify::{rectify, rectify_vignetted, Filter, LinearImage, RectifyError, Region, RgbSource, Texture};

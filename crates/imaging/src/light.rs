@@ -24,7 +24,7 @@ use btfrig_core::pose::ScenePose;
 use nalgebra::{Point2, Point3};
 
 use crate::radiometry::Radiometry;
-use crate::rectify::{bilinear, sample_to_camera, LinearImage};
+use crate::rectify::{bilinear, sample_to_camera, RgbSource};
 
 /// Why a white-reference measurement failed.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -147,8 +147,8 @@ pub const MIN_POINTS: usize = 16;
 /// Points whose image position is outside the frame, lit at more than 85 degrees, seen from
 /// behind, or whose value is an outlier (more than 4 robust standard deviations from the median
 /// in any channel: shadow, marker, dust) are left out.
-pub fn lambertian_signal(
-    image: &LinearImage,
+pub fn lambertian_signal<I: RgbSource + ?Sized>(
+    image: &I,
     camera: &CameraModel,
     pose: &ScenePose,
     lamp_distance_m: f64,
@@ -168,7 +168,8 @@ pub fn lambertian_signal(
     let d2 = lamp_distance_m * lamp_distance_m;
     let cos_min = (85f64).to_radians().cos();
     let mut values: Vec<[f64; 3]> = Vec::with_capacity(points.len());
-    if image.data.len() == image.width * image.height && image.width > 1 && image.height > 1 && cam_centre.z > 0.0 {
+    let (w, h) = (image.width(), image.height());
+    if image.pixels_held() == w * h && w > 1 && h > 1 && cam_centre.z > 0.0 {
         for p in points {
             let p3 = Point3::new(p.x, p.y, 0.0);
             let l = lamp - p3;
@@ -244,6 +245,7 @@ pub fn rate_radiometry(r: &Radiometry) -> Radiometry {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::rectify::LinearImage;
     use btfrig_core::Direction;
 
     fn camera() -> CameraModel {

@@ -101,7 +101,7 @@ pub fn vignetting_map(
             let (x, y) = region.point(size, size, col as f64 + 0.5, row as f64 + 0.5);
             let p = to_cam.transform_point(&Point3::new(x, y, 0.0));
             if let Some(q) = camera.project(&p).filter(|q| camera.in_image(*q)) {
-                *v = camera.vignetting(q) as f32;
+                *v = camera.vignetting_of_point(&p, q) as f32;
             }
         }
     });

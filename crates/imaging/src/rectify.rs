@@ -21,6 +21,38 @@ pub struct LinearImage {
     pub data: Vec<[f32; 3]>,
 }
 
+/// What rectification reads: linear camera RGB by pixel. A demosaiced [`LinearImage`], or a
+/// [`crate::mosaic::Mosaic`] demosaiced at the pixels read.
+pub trait RgbSource: Sync {
+    /// Width in pixels.
+    fn width(&self) -> usize;
+    /// Height in pixels.
+    fn height(&self) -> usize;
+    /// Pixels the source holds (must be `width * height`).
+    fn pixels_held(&self) -> usize;
+    /// The RGB of pixel `(x, y)`, `x < width`, `y < height`.
+    fn rgb(&self, x: usize, y: usize) -> [f32; 3];
+}
+
+impl RgbSource for LinearImage {
+    fn width(&self) -> usize {
+        self.width
+    }
+
+    fn height(&self) -> usize {
+        self.height
+    }
+
+    fn pixels_held(&self) -> usize {
+        self.data.len()
+    }
+
+    #[inline]
+    fn rgb(&self, x: usize, y: usize) -> [f32; 3] {
+        self.data[y * self.width + x]
+    }
+}
+
 /// A rectangle of the sample plane `z = 0`, metres, sample frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Region {
@@ -159,14 +191,15 @@ pub enum RectifyError {
 }
 
 /// Checks the image against itself and the camera.
-fn check_image(img: &LinearImage, camera: &CameraModel) -> Result<(), RectifyError> {
-    if img.data.len() != img.width * img.height {
-        return Err(RectifyError::ImageSize { width: img.width, height: img.height, len: img.data.len() });
+fn check_image<I: RgbSource + ?Sized>(img: &I, camera: &CameraModel) -> Result<(), RectifyError> {
+    let (width, height) = (img.width(), img.height());
+    if img.pixels_held() != width * height {
+        return Err(RectifyError::ImageSize { width, height, len: img.pixels_held() });
     }
-    if (img.width, img.height) != (camera.width, camera.height) {
+    if (width, height) != (camera.width, camera.height) {
         return Err(RectifyError::CameraSize {
-            image_w: img.width,
-            image_h: img.height,
+            image_w: width,
+            image_h: height,
             camera_w: camera.width,
             camera_h: camera.height,
         });
@@ -192,8 +225,8 @@ pub(crate) fn sample_to_camera(pose: &ScenePose) -> Isometry3<f64> {
 /// Bilinear lookup at image position `(x, y)` (integer = pixel centre), edge pixels
 /// extended; `None` outside the image area `[-0.5, w - 0.5] x [-0.5, h - 0.5]`.
 #[inline]
-pub(crate) fn bilinear(img: &LinearImage, x: f64, y: f64) -> Option<[f32; 3]> {
-    let (w, h) = (img.width, img.height);
+pub(crate) fn bilinear<I: RgbSource + ?Sized>(img: &I, x: f64, y: f64) -> Option<[f32; 3]> {
+    let (w, h) = (img.width(), img.height());
     if !(x >= -0.5 && y >= -0.5 && x <= w as f64 - 0.5 && y <= h as f64 - 0.5) {
         return None;
     }
@@ -206,7 +239,7 @@ pub(crate) fn bilinear(img: &LinearImage, x: f64, y: f64) -> Option<[f32; 3]> {
     let y1 = (y0 + 1).min(h - 1);
     let fx = (xc - x0 as f64) as f32;
     let fy = (yc - y0 as f64) as f32;
-    let (a, b, c, d) = (img.data[y0 * w + x0], img.data[y0 * w + x1], img.data[y1 * w + x0], img.data[y1 * w + x1]);
+    let (a, b, c, d) = (img.rgb(x0, y0), img.rgb(x1, y0), img.rgb(x0, y1), img.rgb(x1, y1));
     Some(std::array::from_fn(|k| {
         let top = a[k] + (b[k] - a[k]) * fx;
         let bottom = c[k] + (d[k] - c[k]) * fx;
@@ -219,14 +252,40 @@ pub(crate) fn bilinear(img: &LinearImage, x: f64, y: f64) -> Option<[f32; 3]> {
 /// [`crate::radiometry`] for the conversion to a radiance factor). Texels whose centre does
 /// not project into the image are 0 and counted in [`Texture::texels_outside`]; sub-samples
 /// of a supersampling filter that fall outside are left out of the average.
-pub fn rectify(
-    img: &LinearImage,
+pub fn rectify<I: RgbSource + ?Sized>(
+    img: &I,
     camera: &CameraModel,
     pose: &ScenePose,
     region: Region,
     size: usize,
     filter: Filter,
 ) -> Result<Texture, RectifyError> {
+    rectify_with(img, camera, pose, region, size, filter, false).map(|(t, _)| t)
+}
+
+/// [`rectify`] and, from the same projections of the texel centres,
+/// [`crate::radiometry::vignetting_map`] (equal to it): one pass instead of two.
+pub fn rectify_vignetted<I: RgbSource + ?Sized>(
+    img: &I,
+    camera: &CameraModel,
+    pose: &ScenePose,
+    region: Region,
+    size: usize,
+    filter: Filter,
+) -> Result<(Texture, Vec<f32>), RectifyError> {
+    rectify_with(img, camera, pose, region, size, filter, true).map(|(t, v)| (t, v.unwrap_or_default()))
+}
+
+/// [`rectify`], with the vignetting map when `vignetting` is set.
+fn rectify_with<I: RgbSource + ?Sized>(
+    img: &I,
+    camera: &CameraModel,
+    pose: &ScenePose,
+    region: Region,
+    size: usize,
+    filter: Filter,
+    vignetting: bool,
+) -> Result<(Texture, Option<Vec<f32>>), RectifyError> {
     check_image(img, camera)?;
     check_geometry(&region, size)?;
     match filter {
@@ -262,14 +321,27 @@ pub fn rectify(
         }
     };
     let mut data = vec![[0.0f32; 3]; size * size];
+    let mut vig = vec![0.0f32; if vignetting { size * size } else { 0 }];
+    let mut vig_rows: Vec<&mut [f32]> =
+        if vignetting { vig.chunks_mut(size).collect() } else { (0..size).map(|_| Default::default()).collect() };
     let outside: usize = data
         .par_chunks_mut(size)
+        .zip(vig_rows.par_iter_mut())
         .enumerate()
-        .map(|(row, out)| {
+        .map(|(row, (out, vig_row))| {
             let mut outside = 0;
             for (col, px) in out.iter_mut().enumerate() {
                 let (c, r) = (col as f64 + 0.5, row as f64 + 0.5);
-                let centre = project(c, r).and_then(|(x, y)| bilinear(img, x, y));
+                let (x, y) = region.point(size, size, c, r);
+                let p = to_cam.transform_point(&Point3::new(x, y, 0.0));
+                let q = camera.project(&p);
+                if vignetting {
+                    // As `vignetting_map` computes it, from this same projection.
+                    if let Some(q) = q.filter(|q| camera.in_image(*q)) {
+                        vig_row[col] = camera.vignetting_of_point(&p, q) as f32;
+                    }
+                }
+                let centre = q.and_then(|q| bilinear(img, q.x, q.y));
                 if centre.is_none() {
                     outside += 1;
                     continue;
@@ -304,12 +376,13 @@ pub fn rectify(
             outside
         })
         .sum();
-    Ok(Texture { width: size, height: size, region, data, texels_outside: outside })
+    let texture = Texture { width: size, height: size, region, data, texels_outside: outside };
+    Ok((texture, vignetting.then_some(vig)))
 }
 
 /// The elliptical weighted average of the image over the texel with projected corners `q`
 /// (see [`Filter::Ewa`]); `None` when no pixel of the ellipse is in the image.
-fn ewa(img: &LinearImage, q: &[(f64, f64); 4]) -> Option<[f32; 3]> {
+fn ewa<I: RgbSource + ?Sized>(img: &I, q: &[(f64, f64); 4]) -> Option<[f32; 3]> {
     let [a, b, c, d] = *q;
     let centre = ((a.0 + b.0 + c.0 + d.0) / 4.0, (a.1 + b.1 + c.1 + d.1) / 4.0);
     // Jacobian columns (pixels per texel along u and v).
@@ -325,8 +398,8 @@ fn ewa(img: &LinearImage, q: &[(f64, f64); 4]) -> Option<[f32; 3]> {
     let (hx, hy) = (3.0 * sxx.sqrt(), 3.0 * syy.sqrt());
     let x0 = (centre.0 - hx).ceil().max(0.0) as usize;
     let y0 = (centre.1 - hy).ceil().max(0.0) as usize;
-    let x1 = (centre.0 + hx).floor().min(img.width as f64 - 1.0);
-    let y1 = (centre.1 + hy).floor().min(img.height as f64 - 1.0);
+    let x1 = (centre.0 + hx).floor().min(img.width() as f64 - 1.0);
+    let y1 = (centre.1 + hy).floor().min(img.height() as f64 - 1.0);
     if x1 < 0.0 || y1 < 0.0 {
         return None;
     }
@@ -341,7 +414,7 @@ fn ewa(img: &LinearImage, q: &[(f64, f64); 4]) -> Option<[f32; 3]> {
                 continue;
             }
             let w = (-0.5 * e).exp();
-            let v = img.data[y * img.width + x];
+            let v = img.rgb(x, y);
             for k in 0..3 {
                 sum[k] += w * f64::from(v[k]);
             }
@@ -366,8 +439,8 @@ fn footprint_counts(q: &[(f64, f64); 4], max: usize) -> (usize, usize) {
 /// Mean of `nu x nv` bilinear lookups at the centres of a regular sub-grid of texel
 /// `(col, row)`; `None` when none of them lands in the image. Sub-sample positions come
 /// from the projected corners `quad` when given, else from `project`.
-fn box_average(
-    img: &LinearImage,
+fn box_average<I: RgbSource + ?Sized>(
+    img: &I,
     project: &impl Fn(f64, f64) -> Option<(f64, f64)>,
     quad: Option<&[(f64, f64); 4]>,
     col: f64,

@@ -19,10 +19,18 @@ use btfrig_imaging::demosaic::{demosaic_bilinear_values, CameraRgbImage};
 /// The frame corrected with `cal` and demosaiced, normalised so that `white - black` DN
 /// above dark is 1 (what the radiometric conversion expects of the plain demosaic).
 pub fn demosaic_corrected(frame: &RawFrame, cal: &DarkFlat) -> Result<CameraRgbImage, DarkFlatError> {
+    let v = corrected_values(frame, cal)?;
+    Ok(demosaic_bilinear_values(frame.width, frame.height, frame.meta.bayer, &v))
+}
+
+/// The photosites of [`demosaic_corrected`] before the demosaic: corrected with `cal`,
+/// normalised so that `white - black` DN above dark is 1 (for a
+/// [`btfrig_imaging::Mosaic::of_values`]).
+pub fn corrected_values(frame: &RawFrame, cal: &DarkFlat) -> Result<Vec<f32>, DarkFlatError> {
     let range = (f32::from(frame.meta.white_level) - f32::from(frame.meta.black_level)).max(1.0);
     let mut v = cal.corrected_dn(frame)?;
     v.iter_mut().for_each(|x| *x /= range);
-    Ok(demosaic_bilinear_values(frame.width, frame.height, frame.meta.bayer, &v))
+    Ok(v)
 }
 
 /// A vignetting map that is 1 wherever `vignetting` is positive (texels that project into the

@@ -23,7 +23,7 @@ use btfrig_core::camera::CameraModel;
 use btfrig_core::config::plate::PlateConfig;
 use btfrig_core::pose::ScenePose;
 use btfrig_imaging::light::{lambertian_signal, plate_patch_points, rate_radiometry, LightError, PatchOptions};
-use btfrig_imaging::{LinearImage, Radiometry};
+use btfrig_imaging::{Radiometry, RgbSource};
 use nalgebra::Point2;
 
 /// What the light calibration says about one light.
@@ -96,9 +96,9 @@ pub struct LampFactor {
 
 /// Measures the lamp factor of one frame (demosaiced `image`, `pose` it is rectified with,
 /// `radiometry` of the frame before any light calibration) on `points` of the plate.
-pub fn measure_lamp_factor(
+pub fn measure_lamp_factor<I: RgbSource + ?Sized>(
     light: &LightCorrection,
-    image: &LinearImage,
+    image: &I,
     camera: &CameraModel,
     pose: &ScenePose,
     lamp_distance_m: f64,

@@ -7,10 +7,8 @@ use btfrig_core::frame::RawFrame;
 use btfrig_core::kinematics::JointState;
 use btfrig_core::pose::ScenePose;
 use btfrig_hw::truth::{ExposureTruth, SampleRegion};
-use btfrig_imaging::demosaic::demosaic_bilinear;
-use btfrig_imaging::{rectify, to_radiance_factor, vignetting_map, LinearImage};
-use btfrig_markers::GrayImage;
-use btfrig_registration::{texel_position_error_with_cameras, FrameError, PlateRegistrar, SearchRecord};
+use btfrig_imaging::{rectify, rectify_vignetted, to_radiance_factor, vignetting_map, Mosaic, RectifyError};
+use btfrig_registration::{texel_position_error_with_cameras, FrameError, GreyFrame, PlateRegistrar, SearchRecord};
 use btfrig_store::{PoseSource, StepId, StepRegistration, StepSearch};
 
 use crate::{dark_flat, light, OnRegistrationFailure, PipelineError, Processor};
@@ -101,19 +99,27 @@ impl Processor {
         let mut stage_s = BTreeMap::new();
         let t = Instant::now();
         let mut saturated_photosites = None;
-        // For a mono sensor this only normalises to [0, 1] with equal channels.
-        let dm = match (&self.model.dark_flat, frames.len()) {
+        // A bracket is merged and a calibrated frame corrected per photosite first; a plain
+        // frame is read in place. Either way nothing is demosaiced whole: the marker search
+        // reads green in its windows, the rectification RGB under the sample
+        // (`btfrig_imaging::mosaic`, the bilinear demosaic's values exactly).
+        let values = match (&self.model.dark_flat, frames.len()) {
             (_, 2..) => {
-                let (dm, saturated) = self.demosaic_merged(step, frames)?;
+                let (values, saturated) = self.merged_values(step, frames)?;
                 saturated_photosites = Some(saturated);
-                dm
+                Some(values)
             }
-            (Some(cal), _) => {
-                dark_flat::demosaic_corrected(frame, cal).map_err(|source| PipelineError::DarkFlat { step, source })?
-            }
-            (None, _) => demosaic_bilinear(frame),
+            (Some(cal), _) => Some(
+                dark_flat::corrected_values(frame, cal).map_err(|source| PipelineError::DarkFlat { step, source })?,
+            ),
+            (None, _) => None,
         };
-        let image = LinearImage { width: dm.width, height: dm.height, data: dm.data };
+        let (w, h, bayer) = (frame.width, frame.height, frame.meta.bayer);
+        let image = match &values {
+            Some(v) => Mosaic::of_values(w, h, bayer, v),
+            None => Mosaic::of_raw(frame),
+        }
+        .map_err(|e| err(RectifyError::ImageSize { width: e.width, height: e.height, len: e.len }))?;
         stage_s.insert(if frames.len() > 1 { "hdr_merge" } else { "demosaic" }.to_string(), t.elapsed().as_secs_f64());
 
         let nominal = self.model.gonio.scene_pose(commanded);
@@ -139,7 +145,8 @@ impl Processor {
         };
 
         let t = Instant::now();
-        let tex = rectify(&image, cam, &pose, s.region, s.size, s.filter).map_err(err)?;
+        // The vignetting map from the rectifier's own projections.
+        let (tex, vig) = rectify_vignetted(&image, cam, &pose, s.region, s.size, s.filter).map_err(err)?;
         stage_s.insert("rectify".to_string(), t.elapsed().as_secs_f64());
 
         let t = Instant::now();
@@ -164,10 +171,7 @@ impl Processor {
                 radiometry.white_balance = std::array::from_fn(|k| c.white_balance[k] / factor[k]);
             }
         }
-        let mut vig = vignetting_map(cam, &pose, s.region, s.size).map_err(err)?;
-        if self.model.dark_flat.is_some() {
-            vig = dark_flat::unit_vignetting(vig);
-        }
+        let vig = if self.model.dark_flat.is_some() { dark_flat::unit_vignetting(vig) } else { vig };
         let mut tex = to_radiance_factor(&tex, &vig, &radiometry).map_err(err)?;
         if let Some(c) = &self.model.color {
             c.apply(&mut tex.data);
@@ -231,15 +235,11 @@ impl Processor {
         })
     }
 
-    /// Merges a bracket (base exposure first) and demosaics it in the base exposure's
+    /// Merges a bracket (base exposure first) into photosite values in the base exposure's
     /// normalised DN (`(DN - dark) / (white - black)` of a frame at the base's exposure and
     /// gain, above 1 where the base saturated); also returns the photosites saturated in
     /// every exposure.
-    fn demosaic_merged(
-        &self,
-        step: StepId,
-        frames: &[&RawFrame],
-    ) -> Result<(btfrig_imaging::demosaic::CameraRgbImage, u64), PipelineError> {
+    fn merged_values(&self, step: StepId, frames: &[&RawFrame]) -> Result<(Vec<f32>, u64), PipelineError> {
         use btfrig_imaging::hdr::{merge_bracket, MergeOptions, NoiseModel, NominalCalibration};
         let base = frames[0];
         let sensor = &self.model.sensor;
@@ -266,22 +266,19 @@ impl Processor {
         let range = (f64::from(base.meta.white_level) - f64::from(base.meta.black_level)).max(1.0);
         let scale = base.meta.exposure_s * sensor.dn_per_electron(base.meta.gain.max(1.0)) / range;
         let values: Vec<f32> = merged.rate.iter().map(|&r| (f64::from(r) * scale) as f32).collect();
-        let dm = btfrig_imaging::demosaic::demosaic_bilinear_values(base.width, base.height, base.meta.bayer, &values);
-        Ok((dm, merged.saturated_everywhere() as u64))
+        Ok((values, merged.saturated_everywhere() as u64))
     }
 
-    /// Registers `image` (its green channel: half of a Bayer sensor's photosites) against the
-    /// plate; the pose and its record, or the reason it failed with the search's record
+    /// Registers `image` (its demosaiced green channel, computed only where the markers are
+    /// searched; half of a Bayer sensor's photosites are green) against the plate; the pose and its record, or the reason it failed with the search's record
     /// when the markers were searched.
     fn register(
         &self,
         registrar: &PlateRegistrar,
-        image: &LinearImage,
+        image: &Mosaic,
         nominal: &ScenePose,
     ) -> Result<(ScenePose, StepRegistration), RegistrationFailure> {
-        let green: Vec<f32> = image.data.iter().map(|p| p[1]).collect();
-        let gray = GrayImage::new(image.width, image.height, &green).map_err(|e| (e.to_string(), None))?;
-        let found = registrar.register_image(&gray, nominal).map_err(|e| {
+        let found = registrar.register_grey(GreyFrame::Mosaic(*image), nominal).map_err(|e| {
             let search = match &e {
                 FrameError::Register { search, .. } => Some(step_search(search)),
                 _ => None,

@@ -15,6 +15,7 @@ use std::time::Instant;
 use btfrig_core::camera::CameraModel;
 use btfrig_core::config::plate::{MarkerPlacement, PlateConfig};
 use btfrig_core::pose::ScenePose;
+use btfrig_imaging::Mosaic;
 use btfrig_markers::{
     detect, detect_in_windows, DetectError, DetectParams, Detection, Dictionary, GrayImage, Window, WindowSearch,
 };
@@ -211,6 +212,124 @@ fn ball_directions() -> Vec<Vector3<f64>> {
     out
 }
 
+/// The grey image a frame's markers are searched in.
+#[derive(Debug, Clone, Copy)]
+pub enum GreyFrame<'a> {
+    /// Given whole.
+    Image(GrayImage<'a>),
+    /// The green channel of the bilinear demosaic of this mosaic, computed only where the
+    /// search reads (its windows, grown by what the threshold and the edge fits read around
+    /// them; the whole frame when the search falls back to it): the same values there as
+    /// the whole frame's demosaic.
+    Mosaic(Mosaic<'a>),
+}
+
+/// Frame-sized grey buffers kept between frames, all zero: a mosaic's green is filled into
+/// one, and the filled parts are zeroed again when it comes back (fresh zeroed pages would
+/// cost a page fault per 4 KiB touched on every frame).
+#[derive(Debug, Default)]
+struct GreyBuffers(std::sync::Mutex<Vec<Vec<f32>>>);
+
+impl Clone for GreyBuffers {
+    fn clone(&self) -> Self {
+        GreyBuffers::default()
+    }
+}
+
+impl GreyBuffers {
+    /// Buffers kept at most (a run processes two frames at once).
+    const KEPT: usize = 2;
+
+    fn take(&self, len: usize) -> Vec<f32> {
+        let mut pool = self.0.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        match pool.iter().position(|b| b.len() == len) {
+            Some(i) => pool.swap_remove(i),
+            None => vec![0.0; len],
+        }
+    }
+
+    fn give(&self, buf: Vec<f32>) {
+        let mut pool = self.0.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        if pool.len() < Self::KEPT {
+            pool.push(buf);
+        }
+    }
+}
+
+/// A [`GreyFrame`] being read: a mosaic's green is filled in as the search asks for it, into
+/// a frame-sized buffer that is zero elsewhere (and zeroed again when done).
+struct Grey<'a> {
+    source: GreyFrame<'a>,
+    buf: Vec<f32>,
+    /// The rectangles filled so far, `(x0, y0, x1, y1)` clipped to the frame.
+    filled: Vec<(usize, usize, usize, usize)>,
+    whole: bool,
+    pool: &'a GreyBuffers,
+}
+
+impl<'a> Grey<'a> {
+    fn new(source: GreyFrame<'a>, pool: &'a GreyBuffers) -> Self {
+        let (buf, whole) = match source {
+            GreyFrame::Image(_) => (Vec::new(), true),
+            GreyFrame::Mosaic(m) => (pool.take(m.width * m.height), false),
+        };
+        Grey { source, buf, filled: Vec::new(), whole, pool }
+    }
+
+    fn size(&self) -> (usize, usize) {
+        match self.source {
+            GreyFrame::Image(i) => (i.width, i.height),
+            GreyFrame::Mosaic(m) => (m.width, m.height),
+        }
+    }
+
+    /// Makes the image valid over `windows` grown by `margin` pixels.
+    fn prepare(&mut self, windows: &[Window], margin: usize) {
+        if let (GreyFrame::Mosaic(m), false) = (&self.source, self.whole) {
+            for w in windows {
+                let grown = (
+                    w.x0.saturating_sub(margin),
+                    w.y0.saturating_sub(margin),
+                    (w.x1 + margin).min(m.width),
+                    (w.y1 + margin).min(m.height),
+                );
+                m.fill_green(grown, &mut self.buf);
+                self.filled.push(grown);
+            }
+        }
+    }
+
+    /// Makes the whole image valid.
+    fn prepare_all(&mut self) {
+        if let (GreyFrame::Mosaic(m), false) = (&self.source, self.whole) {
+            m.fill_green((0, 0, m.width, m.height), &mut self.buf);
+            self.filled = vec![(0, 0, m.width, m.height)];
+            self.whole = true;
+        }
+    }
+
+    /// The image (valid where prepared).
+    fn image(&self) -> Result<GrayImage<'_>, DetectError> {
+        match self.source {
+            GreyFrame::Image(i) => Ok(i),
+            GreyFrame::Mosaic(m) => GrayImage::new(m.width, m.height, &self.buf),
+        }
+    }
+}
+
+impl Drop for Grey<'_> {
+    fn drop(&mut self) {
+        let GreyFrame::Mosaic(m) = self.source else { return };
+        let mut buf = std::mem::take(&mut self.buf);
+        for &(x0, y0, x1, y1) in &self.filled {
+            for y in y0..y1 {
+                buf[y * m.width + x0..y * m.width + x1].fill(0.0);
+            }
+        }
+        self.pool.give(buf);
+    }
+}
+
 /// Registers frames of one rig: camera model, plate layout, detector and estimator settings.
 #[derive(Debug, Clone)]
 pub struct PlateRegistrar {
@@ -230,6 +349,7 @@ pub struct PlateRegistrar {
     pub time_whole_frame: bool,
     deviation: Deviation,
     whole_frame_cost: WholeFrameCost,
+    grey_buffers: GreyBuffers,
 }
 
 impl PlateRegistrar {
@@ -248,6 +368,7 @@ impl PlateRegistrar {
             time_whole_frame: true,
             deviation: Deviation::default(),
             whole_frame_cost: WholeFrameCost::default(),
+            grey_buffers: GreyBuffers::default(),
         })
     }
 
@@ -345,10 +466,27 @@ impl PlateRegistrar {
         nominal: &ScenePose,
         tolerance: (f64, f64),
     ) -> Result<(Vec<Window>, WindowSearch), DetectError> {
+        self.detect_predicted_in(&mut Grey::new(GreyFrame::Image(*image), &self.grey_buffers), nominal, tolerance)
+    }
+
+    fn detect_predicted_in(
+        &self,
+        grey: &mut Grey,
+        nominal: &ScenePose,
+        tolerance: (f64, f64),
+    ) -> Result<(Vec<Window>, WindowSearch), DetectError> {
         let per_marker = self.search_windows(nominal, tolerance.0.to_radians(), tolerance.1);
         let windows = merge_windows(per_marker.into_iter().map(|(_, w)| w).collect());
-        let found = detect_in_windows(image, &self.dictionary, &self.detect, &windows)?;
+        grey.prepare(&windows, self.read_margin_px());
+        let found = detect_in_windows(&grey.image()?, &self.dictionary, &self.detect, &windows)?;
         Ok((windows, found))
+    }
+
+    /// How far beyond a search window the detector reads: the threshold's local mean (half
+    /// its window), and at least the edge fits' bands and profiles around a marker inside
+    /// the window (at most 4 + 2 px beyond its outline), with 2 px to spare.
+    fn read_margin_px(&self) -> usize {
+        (self.detect.threshold_window_px / 2).max(8) + 2
     }
 
     /// Detects the markers in `image` (a grey image of the frame: the green channel of a
@@ -356,12 +494,19 @@ impl PlateRegistrar {
     /// `nominal` (the kinematic pose) as prior and gate. Where it searches: [`Self::search`].
     /// A registered frame's deviation from `nominal` is remembered for the learned windows.
     pub fn register_image(&self, image: &GrayImage, nominal: &ScenePose) -> Result<FrameRegistration, FrameError> {
+        self.register_grey(GreyFrame::Image(*image), nominal)
+    }
+
+    /// [`Self::register_image`] of a grey frame given whole or as a mosaic whose green is
+    /// demosaiced only where the search reads ([`GreyFrame`]): the same registration.
+    pub fn register_grey(&self, frame: GreyFrame, nominal: &ScenePose) -> Result<FrameRegistration, FrameError> {
+        let mut grey = Grey::new(frame, &self.grey_buffers);
         let tolerance = match self.search {
             MarkerSearch::WholeFrame => None,
             MarkerSearch::Predicted { tolerance: Some(t) } => Some(t),
             MarkerSearch::Predicted { tolerance: None } => Some(self.learned_tolerance()),
         };
-        let mut r = match self.register_within(image, nominal, tolerance) {
+        let mut r = match self.register_in(&mut grey, nominal, tolerance) {
             Ok(r) => r,
             Err(FrameError::Register { detected, source, mut search }) => {
                 self.account_whole_frame(&mut search);
@@ -375,7 +520,8 @@ impl PlateRegistrar {
             Some(s) => self.whole_frame_cost.observe(s, pixels),
             None if self.time_whole_frame && self.whole_frame_cost.claim() => {
                 let t = Instant::now();
-                detect(image, &self.dictionary, &self.detect)?;
+                grey.prepare_all();
+                detect(&grey.image()?, &self.dictionary, &self.detect)?;
                 let s = t.elapsed().as_secs_f64();
                 self.whole_frame_cost.observe(s, pixels);
                 r.search.reference_s = s;
@@ -396,7 +542,27 @@ impl PlateRegistrar {
         nominal: &ScenePose,
         tolerance: Option<(f64, f64)>,
     ) -> Result<FrameRegistration, FrameError> {
-        let frame_pixels = image.width * image.height;
+        self.register_in(&mut Grey::new(GreyFrame::Image(*image), &self.grey_buffers), nominal, tolerance)
+    }
+
+    /// [`Self::register_within`] of a [`GreyFrame`].
+    pub fn register_grey_within(
+        &self,
+        frame: GreyFrame,
+        nominal: &ScenePose,
+        tolerance: Option<(f64, f64)>,
+    ) -> Result<FrameRegistration, FrameError> {
+        self.register_in(&mut Grey::new(frame, &self.grey_buffers), nominal, tolerance)
+    }
+
+    fn register_in(
+        &self,
+        grey: &mut Grey,
+        nominal: &ScenePose,
+        tolerance: Option<(f64, f64)>,
+    ) -> Result<FrameRegistration, FrameError> {
+        let (width, height) = grey.size();
+        let frame_pixels = width * height;
         let Some((rot_deg, trans_m)) = tolerance else {
             let search = SearchRecord {
                 windows: 0,
@@ -405,10 +571,10 @@ impl PlateRegistrar {
                 whole_frame: true,
                 ..SearchRecord::default()
             };
-            return self.register_whole(image, nominal, search, (0.0, 0.0));
+            return self.register_whole(grey, nominal, search, (0.0, 0.0));
         };
         let t = Instant::now();
-        let (windows, found) = self.detect_predicted(image, nominal, (rot_deg, trans_m))?;
+        let (windows, found) = self.detect_predicted_in(grey, nominal, (rot_deg, trans_m))?;
         let detect_s = t.elapsed().as_secs_f64();
         let (corr, detected, foreign) = self.correspondences(&found.detections);
         let t = Instant::now();
@@ -416,7 +582,7 @@ impl PlateRegistrar {
         let register_s = t.elapsed().as_secs_f64();
         let miss = match &attempt {
             Ok(r) => self
-                .missed_window(&r.sample_to_camera, &windows, image.width, image.height)
+                .missed_window(&r.sample_to_camera, &windows, width, height)
                 .map(|m| (FallbackCause::MarkerOutsideWindows, m)),
             Err(e) => Some((FallbackCause::NoPose, format!("no pose from the windows: {e}"))),
         };
@@ -447,7 +613,7 @@ impl PlateRegistrar {
                     fallback: miss.map(|m| m.1),
                     ..SearchRecord::default()
                 };
-                self.register_whole(image, nominal, search, (detect_s, register_s))
+                self.register_whole(grey, nominal, search, (detect_s, register_s))
             }
         }
     }
@@ -481,13 +647,14 @@ impl PlateRegistrar {
     /// Whole-frame detection and registration; `spent` (detect, register seconds) is added.
     fn register_whole(
         &self,
-        image: &GrayImage,
+        grey: &mut Grey,
         nominal: &ScenePose,
         mut search: SearchRecord,
         spent: (f64, f64),
     ) -> Result<FrameRegistration, FrameError> {
         let t = Instant::now();
-        let detections = detect(image, &self.dictionary, &self.detect)?;
+        grey.prepare_all();
+        let detections = detect(&grey.image()?, &self.dictionary, &self.detect)?;
         let whole_s = t.elapsed().as_secs_f64();
         search.whole_frame_s = Some(whole_s);
         let detect_s = spent.0 + whole_s;

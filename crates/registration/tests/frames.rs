@@ -7,9 +7,9 @@ use btfrig_core::kinematics::JointState;
 use btfrig_core::plan::BUILTIN_RIGS;
 use btfrig_core::Direction;
 use btfrig_imaging::demosaic::demosaic_bilinear;
-use btfrig_imaging::Region;
+use btfrig_imaging::{Mosaic, Region};
 use btfrig_markers::GrayImage;
-use btfrig_registration::{texel_position_error, MarkerSearch, PlateRegistrar, RegisterOptions};
+use btfrig_registration::{texel_position_error, GreyFrame, MarkerSearch, PlateRegistrar, RegisterOptions};
 use btfrig_render::material::MaterialSpec;
 use btfrig_render::renderer::RenderOptions;
 use btfrig_render::rig_scene::RigScene;
@@ -77,6 +77,8 @@ fn rendered_frames_register_within_the_acceptance() {
     assert!(searched[1] < 0.6 * searched[0] && searched[2] < 0.6 * searched[0], "{searched:?}");
 }
 
+/// Also: the raw mosaic, its green demosaiced only in the windows (and the whole frame after a
+/// fallback), gives the same detections, pose and search as the demosaiced frame's green.
 #[test]
 fn predicted_windows_register_as_the_whole_frame_does_and_fall_back_when_they_miss() {
     let (cfg, scene) = scene("lacquered-wood");
@@ -99,9 +101,24 @@ fn predicted_windows_register_as_the_whole_frame_does_and_fall_back_when_they_mi
         let img = GrayImage::new(raw.width, raw.height, &green).unwrap();
         let mut nominal = scene.pose(&cmd);
         nominal.sample_to_world.translation.vector += nalgebra::Vector3::new(0.008, 0.0, 0.0);
+        // The same search on the raw mosaic, its green demosaiced only where read: the
+        // registrars cloned first (they learn from each frame).
+        let mosaic = Mosaic::of_raw(&raw).unwrap();
+        let on_mosaic: Vec<_> = [&whole, &predicted, &tight]
+            .map(|r| r.clone().register_grey(GreyFrame::Mosaic(mosaic), &nominal).unwrap())
+            .into();
         let w = whole.register_image(&img, &nominal).unwrap();
         let p = predicted.register_image(&img, &nominal).unwrap();
         let t = tight.register_image(&img, &nominal).unwrap();
+        for (m, r) in on_mosaic.iter().zip([&w, &p, &t]) {
+            assert_eq!(m.detections, r.detections, "view {view:?}: detections from the mosaic");
+            assert_eq!(m.registration.sample_to_camera, r.registration.sample_to_camera, "view {view:?}");
+            assert_eq!(
+                (m.search.windows, m.search.pixels, m.search.whole_frame),
+                (r.search.windows, r.search.pixels, r.search.whole_frame)
+            );
+            assert_eq!(m.search.fallback, r.search.fallback);
+        }
         let s = &p.search;
         println!(
             "view {view:?}: {} windows, {:.1} % of the frame, detect {:.1} ms (whole frame {:.1} ms); tight: {:?}",
