@@ -86,13 +86,22 @@ capture_timeout_s = 5
 fn start_camera() -> Child {
     let child = netns::spawn_fake_gv(SERIAL);
     let t0 = Instant::now();
-    loop {
+    let silent = loop {
         let o = btfrig().args(["hw", "probe", "--genicam", "127.0.0.1"]).output().unwrap();
         if o.status.success() && String::from_utf8_lossy(&o.stdout).contains(SERIAL) {
-            return child;
+            break None;
         }
-        assert!(t0.elapsed() < Duration::from_secs(30), "the fake camera did not answer within 30 s:\n{}", text(&o));
+        if t0.elapsed() >= Duration::from_secs(30) {
+            break Some(text(&o));
+        }
         std::thread::sleep(Duration::from_millis(100));
+    };
+    match silent {
+        None => child,
+        Some(out) => {
+            kill(child); // not left behind by a failing test
+            panic!("the fake camera did not answer within 30 s:\n{out}");
+        }
     }
 }
 

@@ -143,7 +143,7 @@ fn a_missing_dark_flat_directory_is_named_before_anything_is_written() {
     let dir = tmp("missing");
     let rig = DOME.replace("dark_flat = \"builtin:bonn-dome-sim-dark-flat\"", "dark_flat = \"no-such-dark-flat\"");
     let e =
-        go(&dir, &rig, "cameras = [4]\nrotations = [1]\n").err().expect("a missing dark/flat calibration").to_string();
+        go(&dir, &rig, "cameras = [4]\nrotations = [1]\n").expect_err("a missing dark/flat calibration").to_string();
     assert!(e.contains("[camera] dark_flat = \"no-such-dark-flat\""), "{e}");
     assert!(e.contains(&dir.join("no-such-dark-flat").join("dark-flat.toml").display().to_string()), "{e}");
     assert!(!dir.join("out").exists());
