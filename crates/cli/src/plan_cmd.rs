@@ -38,7 +38,7 @@ pub fn check(file: &Path) -> anyhow::Result<()> {
         f.texel_m * 1e3,
         f.photosite_m * 1e3,
         f.photosites_per_texel(),
-        if f.resolved() { "" } else { ": finer than the camera resolves, the texels are interpolation (fewer texels or a smaller region)" }
+        if f.resolved() { "" } else { ": finer than the camera resolves, the texels are interpolation (fewer texels, a larger region or a finer camera)" }
     );
     Ok(())
 }
