@@ -41,6 +41,7 @@ mod run_cmd;
 mod serve_cmd;
 mod session;
 mod sim_cmd;
+mod texel_footprint;
 
 use args::{BenchCommand, CalibrateCommand, Cli, Command, DatasetCommand, KinematicsCommand, PlanCommand, SimCommand};
 use clap::Parser;

@@ -30,6 +30,16 @@ pub fn check(file: &Path) -> anyhow::Result<()> {
         list.captures.len(),
         list.skipped.len()
     );
+    let f = crate::texel_footprint::TexelFootprint::of(&v.rig, &v.texture);
+    println!(
+        "texture {} x {} texels of {:.3} mm; the camera sees {:.3} mm of the sample per photosite at the normal view ({:.2} photosites per texel){}",
+        v.texture.size,
+        v.texture.size,
+        f.texel_m * 1e3,
+        f.photosite_m * 1e3,
+        f.photosites_per_texel(),
+        if f.resolved() { "" } else { ": finer than the camera resolves, the texels are interpolation (fewer texels, a larger region or a finer camera)" }
+    );
     Ok(())
 }
 
