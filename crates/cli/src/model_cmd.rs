@@ -17,7 +17,7 @@ use exr::prelude::*;
 
 mod input_kind;
 mod per_view;
-pub use per_view::{ptm, scaled_lafortune, PtmArgs, ScaledLafortuneArgs};
+pub use per_view::{ptm, scaled_lafortune, PtmArgs};
 pub mod car;
 
 /// `btfrig model ...`.
@@ -31,7 +31,7 @@ pub enum ModelCommand {
     Lafortune(LafortuneArgs),
     /// Scaled Lafortune lobes (seed 000): the lobes times a per-texel, per-view scale T(v)
     /// modelling occlusion; the lobe maps plus `view_scale.exr` and a JSON descriptor.
-    ScaledLafortune(ScaledLafortuneArgs),
+    ScaledLafortune(LobeFitArgs),
     /// A polynomial texture map per view (biquadratic in the projected light direction,
     /// luminance and chroma): coefficient and chroma maps (EXR) and a JSON descriptor.
     Ptm(PtmArgs),
@@ -42,9 +42,10 @@ pub enum ModelCommand {
     Car(car::CarArgs),
 }
 
-/// `btfrig model lafortune`.
+/// What every lobe fit takes: `btfrig model scaled-lafortune`'s arguments, and
+/// `btfrig model lafortune`'s but for `--shadow-maps`.
 #[derive(Debug, Args)]
-pub struct LafortuneArgs {
+pub struct LobeFitArgs {
     /// The dataset directory.
     pub dataset: PathBuf,
     /// Output directory (new or empty; nothing is overwritten).
@@ -56,13 +57,20 @@ pub struct LafortuneArgs {
     /// Lobes in the sample frame instead of relative to photometric stereo's normals.
     #[arg(long)]
     pub no_normals: bool,
+    /// Print the descriptor as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `btfrig model lafortune`.
+#[derive(Debug, Args)]
+pub struct LafortuneArgs {
+    #[command(flatten)]
+    pub fit: LobeFitArgs,
     /// Also fit and write seed 003's self-shadowing (per light direction) and self-occlusion
     /// (per view direction) maps and the per-texel gain on top of the lobes.
     #[arg(long)]
     pub shadow_maps: bool,
-    /// Print the descriptor as JSON.
-    #[arg(long)]
-    pub json: bool,
 }
 
 /// `btfrig model ps`.
@@ -291,7 +299,8 @@ pub fn ps(a: &PsArgs) -> anyhow::Result<()> {
 }
 
 /// `btfrig model lafortune`.
-pub fn lafortune(a: &LafortuneArgs) -> anyhow::Result<()> {
+pub fn lafortune(args: &LafortuneArgs) -> anyhow::Result<()> {
+    let (a, shadow_maps) = (&args.fit, args.shadow_maps);
     use btfrig_model::lafortune::{fit, BtfInput, LafortuneParams, ALBEDO_BOUNDS, LOBE_BOUNDS};
     let obs = Observations::read(&a.dataset, None)?;
     let (refs, w, h) = obs.input();
@@ -314,7 +323,7 @@ pub fn lafortune(a: &LafortuneArgs) -> anyhow::Result<()> {
     let mut files = lobe_maps(&out, w, h, &map)?;
     let mut rel = sums.rel();
     let mut shadow_desc = serde_json::Value::Null;
-    if a.shadow_maps {
+    if shadow_maps {
         use btfrig_model::sbrdf::{fit as fit_maps, ShadowInput, ShadowParams};
         let base: Vec<Vec<[f32; 3]>> = obs.lights.iter().zip(&obs.views).map(|(l, v)| map.texture(l, v)).collect();
         let base_refs: Vec<&[[f32; 3]]> = base.iter().map(|v| v.as_slice()).collect();

@@ -12,25 +12,6 @@ use clap::Args;
 
 use super::{dataset_region, linear_rows, lobe_maps, score, stack, write_descriptor, FitRow, Observations, Sums};
 
-/// `btfrig model scaled-lafortune`.
-#[derive(Debug, Args)]
-pub struct ScaledLafortuneArgs {
-    /// The dataset directory.
-    pub dataset: PathBuf,
-    /// Output directory (new or empty; nothing is overwritten).
-    #[arg(long)]
-    pub out: PathBuf,
-    /// Lobes per texel, 1..=3.
-    #[arg(long, default_value_t = 1)]
-    pub lobes: usize,
-    /// Lobes in the sample frame instead of relative to photometric stereo's normals.
-    #[arg(long)]
-    pub no_normals: bool,
-    /// Print the descriptor as JSON.
-    #[arg(long)]
-    pub json: bool,
-}
-
 /// `btfrig model ptm`.
 #[derive(Debug, Args)]
 pub struct PtmArgs {
@@ -81,7 +62,7 @@ fn finish(out: &std::path::Path, desc: &serde_json::Value, json: bool, summary: 
 }
 
 /// `btfrig model scaled-lafortune`.
-pub fn scaled_lafortune(a: &ScaledLafortuneArgs) -> anyhow::Result<()> {
+pub fn scaled_lafortune(a: &super::LobeFitArgs) -> anyhow::Result<()> {
     let obs = Observations::read(&a.dataset, None)?;
     let (w, h) = (obs.source.layout().width, obs.source.layout().height);
     let normals = if a.no_normals { None } else { Some(obs.normals(&PsParams::new(PsMethod::Robust))?.0.normal) };
