@@ -49,16 +49,78 @@ pub trait PixelRays: Sync {
     }
 }
 
-/// Appends to `out` the rays through pixel `(x, y)`'s `ss x ss` subsample points, row by
-/// row: offsets `(i + 0.5) / ss - 0.5` pixels from its centre (a box filter, like a photosite).
+/// Appends to `out` the rays through pixel `(x, y)`'s `ss x ss` subsample points
+/// ([`subpixel_offsets`]: a box filter over the photosite, like a real one).
 pub fn subpixel_rays<R: PixelRays + ?Sized>(rays: &R, x: usize, y: usize, ss: usize, out: &mut Vec<Vector3<f64>>) {
     let (fx, fy) = (x as f64, y as f64);
-    for sy in 0..ss {
-        for sx in 0..ss {
-            let ox = (sx as f64 + 0.5) / ss as f64 - 0.5;
-            let oy = (sy as f64 + 0.5) / ss as f64 - 0.5;
-            out.push(rays.ray(fx + ox, fy + oy));
+    subpixel_offsets(x, y, ss, |[ox, oy]| out.push(rays.ray(fx + ox, fy + oy)));
+}
+
+/// The `ss x ss` subsample offsets of pixel `(x, y)` from its centre, in `(-0.5, 0.5)`,
+/// passed to `emit`: multi-jittered (Chiu, Shirley and Wang 1994), with jitter and shuffles
+/// drawn from a hash of the pixel, so the same pixel always gets the same points.
+///
+/// Why not a regular grid: an edge parallel to the pixel axes (every marker edge of a frontal
+/// view) then falls between the grid's `ss` columns, so its coverage is quantised to `1/ss`
+/// and every pixel along the edge is off the same way: up to `1/(2 ss)` px of bias in the
+/// image itself (0.125 px at `ss = 4`), which no detector can remove. Multi-jittered points
+/// have `ss²` distinct columns and rows (each at a random place in its stratum) and differ
+/// from pixel to pixel: each pixel's coverage is unbiased and its error averages out along
+/// the edge, at the same number of rays.
+pub fn subpixel_offsets(x: usize, y: usize, ss: usize, mut emit: impl FnMut([f64; 2])) {
+    let n = ss.max(1);
+    let mut rng = PixelHash::new(x, y);
+    // Cell (i, j) (column i, row j) holds one point; its fine column is one of the n columns
+    // inside coarse column i, its fine row one of the n rows inside coarse row j. The
+    // canonical start gives cell (i, j) fine column j and fine row i; shuffling the fine
+    // columns within each coarse column, and the fine rows within each coarse row, keeps one
+    // point per fine column and per fine row.
+    let mut fine_x: Vec<usize> = (0..n * n).map(|c| c / n).collect();
+    let mut fine_y: Vec<usize> = (0..n * n).map(|c| c % n).collect();
+    for i in 0..n {
+        for j in 0..n {
+            let k = j + rng.below(n - j);
+            fine_x.swap(j * n + i, k * n + i);
         }
+    }
+    for j in 0..n {
+        for i in 0..n {
+            let k = i + rng.below(n - i);
+            fine_y.swap(j * n + i, j * n + k);
+        }
+    }
+    let cells = (n * n) as f64;
+    for c in 0..n * n {
+        let (i, j) = (c % n, c / n);
+        let (ux, uy) = (rng.unit(), rng.unit());
+        emit([((i * n + fine_x[c]) as f64 + ux) / cells - 0.5, ((j * n + fine_y[c]) as f64 + uy) / cells - 0.5]);
+    }
+}
+
+/// A stream of pseudo-random numbers seeded by a pixel's position (SplitMix64, Steele, Lea
+/// and Flood 2014). Written out rather than taken from `rand`: each edge pixel needs a fresh
+/// seed and about 60 draws, and ChaCha8's set-up and block refill cost 6 % of a 1600 x 1200
+/// gonio run (measured with `perf`), where this is a few multiplications per draw.
+struct PixelHash(u64);
+
+impl PixelHash {
+    fn new(x: usize, y: usize) -> Self {
+        PixelHash(((x as u64) << 32 | y as u64) ^ 0x6d75_6c74_696a_6974)
+    }
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+    /// Uniform in `[0, 1)`.
+    fn unit(&mut self) -> f64 {
+        (self.next() >> 11) as f64 / (1u64 << 53) as f64
+    }
+    /// Uniform in `0..n`; `n` is at most 32 here, so the modulo's bias is below 1e-17.
+    fn below(&mut self, n: usize) -> usize {
+        (self.next() % n as u64) as usize
     }
 }
 
@@ -577,5 +639,58 @@ impl Renderer {
         let mut st = RenderStats::default();
         let hit = self.intersect(o, d, skips, &mut st);
         (self.radiance_along(o, d, &f.lamp, space, skips, &mut st), hit)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::subpixel_offsets;
+
+    fn offsets(x: usize, y: usize, n: usize) -> Vec<[f64; 2]> {
+        let mut v = Vec::new();
+        subpixel_offsets(x, y, n, |p| v.push(p));
+        v
+    }
+
+    #[test]
+    fn subsamples_are_multi_jittered_one_per_fine_column_and_row_and_cell() {
+        for (x, y, n) in [(0, 0, 4), (17, 3, 4), (1599, 1199, 4), (5, 9, 3), (2, 2, 8)] {
+            let pts = offsets(x, y, n);
+            assert_eq!(pts.len(), n * n);
+            let fine = |v: f64| ((v + 0.5) * (n * n) as f64).floor() as usize;
+            let coarse = |v: f64| ((v + 0.5) * n as f64).floor() as usize;
+            let mut cols: Vec<usize> = pts.iter().map(|p| fine(p[0])).collect();
+            let mut rows: Vec<usize> = pts.iter().map(|p| fine(p[1])).collect();
+            let mut cells: Vec<usize> = pts.iter().map(|p| coarse(p[1]) * n + coarse(p[0])).collect();
+            for v in [&mut cols, &mut rows, &mut cells] {
+                v.sort_unstable();
+                assert_eq!(*v, (0..n * n).collect::<Vec<_>>(), "pixel ({x}, {y}), n = {n}");
+            }
+            assert!(pts.iter().all(|p| p.iter().all(|v| v.abs() < 0.5)));
+            assert_eq!(pts, offsets(x, y, n), "the same pixel gets the same points");
+        }
+        assert_ne!(offsets(0, 0, 4), offsets(1, 0, 4), "pixels differ");
+    }
+
+    /// An edge along the pixel columns at every sub-pixel position: the coverage estimated
+    /// from the 16 points, averaged along 200 pixels of the edge, is the true coverage to
+    /// within 0.01 (its spread is about 0.002; a regular 4 x 4 grid is off by up to 1/8 at every pixel alike).
+    #[test]
+    fn coverage_of_an_axis_aligned_edge_is_unbiased_along_the_edge() {
+        let mut worst = 0.0f64;
+        for step in 0..40 {
+            let edge = -0.5 + (step as f64 + 0.37) / 40.0;
+            for axis in 0..2 {
+                let mean: f64 = (0..200)
+                    .map(|k| {
+                        let pts = offsets(7 + k * (1 - axis), 11 + k * axis, 4);
+                        pts.iter().filter(|p| p[axis] < edge).count() as f64 / pts.len() as f64
+                    })
+                    .sum::<f64>()
+                    / 200.0;
+                worst = worst.max((mean - (edge + 0.5)).abs());
+            }
+        }
+        assert!(worst < 0.01, "largest coverage bias {worst}");
     }
 }

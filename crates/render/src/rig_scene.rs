@@ -215,12 +215,7 @@ impl RigScene {
     /// plate and sample: same kinematics, true lens, sensor and lamp. For geometric camera
     /// calibration captures.
     pub fn with_target(cfg: &RigConfig, board: &TargetBoard) -> Result<RigScene, RigSceneError> {
-        let mut scene = Self::build(cfg, |lamp_scale, resolve| {
-            Ok(Renderer::from_scene(Scene::build_target(board, resolve)?, lamp_scale))
-        })?;
-        // A board frame is mostly marker edges: interpolate the supersampled rays.
-        scene.camera = scene.camera.interpolating(true);
-        Ok(scene)
+        Self::build(cfg, |lamp_scale, resolve| Ok(Renderer::from_scene(Scene::build_target(board, resolve)?, lamp_scale)))
     }
 
     /// The rig with a colour chart ([`ColorChart`]) in the sample region of its holder plate
@@ -245,7 +240,10 @@ impl RigScene {
         // The scene is posed by the gonioreflectometer's kinematics; a dome has DomeScene.
         cfg.require_gonio("a gonioreflectometer scene (RigScene; a dome uses DomeScene)")?;
         let gonio = Gonio::new(cfg.geometry.clone())?;
-        let camera = CachedCamera::new(cfg.camera.to_model()?);
+        // Marker-edge subsample rays interpolated from the cached pixel rays: about 1e-5 px
+        // from the exact ones, and it saves a Newton undistortion per subsample (measured
+        // 18-22 % of a 1600 x 1200 gonio run's time).
+        let camera = CachedCamera::new(cfg.camera.to_model()?).interpolating(true);
         let sensor = SensorModel::from_config(&cfg.sensor)?;
         let colour = ColourSystem::from_config(&cfg.lamp, &cfg.sensor)?;
         // The renderer's radiance is `lamp_scale * pi * f * cos / r^2`, and the sensor's rate
