@@ -66,9 +66,11 @@ pub struct DetectParams {
     /// hidden or not a clean square (pixels).
     pub max_edge_rms_px: f64,
     /// Systematic floor added (in quadrature, per axis) to each corner's standard deviation:
-    /// what the edge-fit residuals cannot see (rendering, model error). 0.02 px: the simulated
-    /// rig's frontal error, where the rendered image's own edge quantisation dominates
-    /// (`docs/markers.md`; the scanline-only fit, `edge_model: false`, wants 0.03).
+    /// what the edge-fit residuals cannot see (rendering, model error). 0.02 px: set to the
+    /// simulated rig's frontal error when the renderer's regular edge grid quantised it
+    /// (0.027 px); with multi-jittered edge samples it is 0.013 px at the renderer's default,
+    /// still under the floor (`docs/markers.md`; the scanline-only fit, `edge_model: false`,
+    /// wants 0.03).
     pub corner_sigma_floor_px: f64,
     /// When set, edge points are undistorted with this camera before the line fits (lens
     /// distortion bends the edges), and the corners distorted back. Must match the image size.
