@@ -43,6 +43,82 @@ pub(super) fn from_fit(cam: Option<&CameraModel>, p: Point2<f64>) -> Option<Poin
     }
 }
 
+/// The fitting frame's coordinates ([`to_fit`]) of the image points in a band along one
+/// edge, interpolated bilinearly from exact ones on a grid in the edge's own coordinates
+/// (`t` along `a -> b`, `s` along its normal): nodes at most [`EdgeBandMap::MAX_STEP_PX`]
+/// apart along the edge and three across the band. Undistortion is a Newton iteration per
+/// point and was most of a windowed marker search at 12 MP when done for every band pixel
+/// (`docs/benchmarks.md`); the lens moves a point smoothly (at most ~2e-5 px per px² of
+/// curvature on the simulated rigs), so the interpolation is within ~2e-4 px of the exact
+/// value, 1 % of the corners' 0.02 px floor. Without a camera it is the identity, exactly.
+pub(super) struct EdgeBandMap<'a> {
+    cam: Option<&'a CameraModel>,
+    origin: Point2<f64>,
+    dir: Vector2<f64>,
+    nrm: Vector2<f64>,
+    t0: f64,
+    dt: f64,
+    nt: usize,
+    s0: f64,
+    ds: f64,
+    /// Exact fitting-frame points, `s` index major: `nodes[j * nt + i]` at `(t0 + i dt, s0 + j ds)`.
+    nodes: Vec<Point2<f64>>,
+}
+
+impl<'a> EdgeBandMap<'a> {
+    /// Largest node spacing along the edge, px.
+    pub(super) const MAX_STEP_PX: f64 = 8.0;
+
+    /// The band `t` in `[t_lo, t_hi]`, `s` in `[s_lo, s_hi]` of the edge from `a` along the
+    /// unit direction `dir` (normal `nrm`), image coordinates. `None` if a node has no
+    /// preimage (far outside the image).
+    pub(super) fn new(
+        cam: Option<&'a CameraModel>,
+        a: Point2<f64>,
+        dir: Vector2<f64>,
+        nrm: Vector2<f64>,
+        (t_lo, t_hi): (f64, f64),
+        (s_lo, s_hi): (f64, f64),
+    ) -> Option<Self> {
+        let mut map = EdgeBandMap { cam, origin: a, dir, nrm, t0: t_lo, dt: 1.0, nt: 0, s0: s_lo, ds: 1.0, nodes: Vec::new() };
+        let Some(c) = cam else { return Some(map) };
+        map.nt = (((t_hi - t_lo) / Self::MAX_STEP_PX).ceil() as usize).max(1) + 1;
+        map.dt = ((t_hi - t_lo) / (map.nt - 1) as f64).max(1e-9);
+        map.ds = ((s_hi - s_lo) / 2.0).max(1e-9);
+        map.nodes.reserve(3 * map.nt);
+        for j in 0..3 {
+            for i in 0..map.nt {
+                let p = a + dir * (t_lo + i as f64 * map.dt) + nrm * (s_lo + j as f64 * map.ds);
+                map.nodes.push(to_fit(Some(c), p)?);
+            }
+        }
+        Some(map)
+    }
+
+    /// The fitting-frame point of image point `p` (exact outside the band).
+    pub(super) fn to_fit(&self, p: Point2<f64>) -> Option<Point2<f64>> {
+        if self.cam.is_none() {
+            return Some(p);
+        }
+        let d = p - self.origin;
+        let u = (self.dir.dot(&d) - self.t0) / self.dt;
+        let v = (self.nrm.dot(&d) - self.s0) / self.ds;
+        let eps = 1e-9;
+        if !(u >= -eps && u <= (self.nt - 1) as f64 + eps && v >= -eps && v <= 2.0 + eps) {
+            return to_fit(self.cam, p);
+        }
+        let i = (u.floor().max(0.0) as usize).min(self.nt - 2);
+        let j = (v.floor().max(0.0) as usize).min(1);
+        let (fu, fv) = (u - i as f64, v - j as f64);
+        let n = |i: usize, j: usize| self.nodes[j * self.nt + i].coords;
+        let q = n(i, j) * ((1.0 - fu) * (1.0 - fv))
+            + n(i + 1, j) * (fu * (1.0 - fv))
+            + n(i, j + 1) * ((1.0 - fu) * fv)
+            + n(i + 1, j + 1) * (fu * fv);
+        Some(Point2::from(q))
+    }
+}
+
 /// Fits edge `a -> b` (marker dark on the right-hand side of the direction in screen
 /// coordinates, i.e. the outward normal is `(dy, -dx)`). Each scanline's profile runs from
 /// `ad` pixels inside (dark) to `bl` pixels outside (light).
@@ -188,4 +264,50 @@ pub(super) fn intersect(l1: &EdgeFit, l2: &EdgeFit) -> Option<(Point2<f64>, [[f6
         }
     }
     Some((p, cov))
+}
+
+#[cfg(test)]
+mod tests {
+    use btfrig_core::camera::{CameraModel, Distortion, Vignetting};
+    use nalgebra::{Point2, Vector2};
+
+    use super::{to_fit, EdgeBandMap};
+
+    /// The simulated rigs' lens (k1 = -0.08, k2 = 0.02, p1 = -p2 = 1e-4) at 1600 x 1200 and a
+    /// stronger one (k1 = -0.3): the interpolated band agrees with the exact undistortion to
+    /// 2e-4 px (resp. 2e-3) on edges in the image corner, every 0.37 px across the band.
+    #[test]
+    fn band_map_matches_the_exact_undistortion() {
+        for (k1, tol) in [(-0.08, 2e-4), (-0.3, 2e-3)] {
+            let d = Distortion { k1, k2: 0.02, k3: 0.0, p1: 1e-4, p2: -1e-4 };
+            let cam = CameraModel::new(1600, 1200, 4800.0, 4800.0, 799.5, 599.5, d, Vignetting::default()).unwrap();
+            let mut worst = 0.0f64;
+            for (a, b) in [((20.0, 30.0), (190.0, 60.0)), ((1580.0, 1170.0), (1580.0, 900.0)), ((700.0, 600.0), (760.0, 640.0))] {
+                let (a, b): (Point2<f64>, Point2<f64>) = (Point2::new(a.0, a.1), Point2::new(b.0, b.1));
+                let len = (b - a).norm();
+                let dir: Vector2<f64> = (b - a) / len;
+                let nrm = Vector2::new(dir.y, -dir.x);
+                let map = EdgeBandMap::new(Some(&cam), a, dir, nrm, (0.5, len - 0.5), (-4.0, 5.0)).unwrap();
+                let mut t = 0.5;
+                while t <= len - 0.5 {
+                    let mut s = -4.0;
+                    while s <= 5.0 {
+                        let p = a + dir * t + nrm * s;
+                        let e = (map.to_fit(p).unwrap() - to_fit(Some(&cam), p).unwrap()).norm();
+                        worst = worst.max(e);
+                        s += 0.37;
+                    }
+                    t += 0.37;
+                }
+                // Outside the band: exact.
+                let far = a + nrm * 9.0;
+                assert_eq!(map.to_fit(far), to_fit(Some(&cam), far));
+            }
+            assert!(worst < tol, "k1 {k1}: largest difference {worst} px");
+            assert!(worst > 0.0, "the map interpolates (it is not the exact path)");
+        }
+        let p = Point2::new(3.25, 4.5);
+        let id = EdgeBandMap::new(None, p, Vector2::x(), Vector2::y(), (0.0, 10.0), (-1.0, 1.0)).unwrap();
+        assert_eq!(id.to_fit(p + Vector2::new(2.0, 0.5)), Some(p + Vector2::new(2.0, 0.5)));
+    }
 }

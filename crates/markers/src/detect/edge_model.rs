@@ -3,7 +3,7 @@
 use btfrig_core::camera::CameraModel;
 use nalgebra::{Point2, SMatrix, SVector, Vector2};
 
-use super::edge::{to_fit, EdgeFit};
+use super::edge::{to_fit, EdgeBandMap, EdgeFit};
 use super::GrayImage;
 
 /// Smallest blur of the edge model (pixels): below it an axis-parallel edge on a pixel
@@ -55,6 +55,15 @@ pub(super) fn fit_edge_model(
     let x1 = (xb.ceil().max(0.0) as usize).min(img.width - 1);
     let y0 = ya.floor().max(0.0) as usize;
     let y1 = (yb.ceil().max(0.0) as usize).min(img.height - 1);
+    // The cheap test below keeps pixels with `t` in this range and `s` in this one.
+    let band = EdgeBandMap::new(
+        cam,
+        a,
+        dir_img,
+        nrm_img,
+        (margin - 1.0, len_img - margin + 1.0),
+        (-hin - 1.0, hout + 1.0),
+    )?;
     let mut samples: Vec<(f64, f64, f64)> = Vec::new();
     for y in y0..=y1 {
         for x in x0..=x1 {
@@ -73,7 +82,7 @@ pub(super) fn fit_edge_model(
             if (inside(prev, a, px) < 1.0 || inside(b, next, px) < 1.0) && nrm_img.dot(&(px - a)) < 0.0 {
                 continue;
             }
-            let pf = to_fit(cam, px)?;
+            let pf = band.to_fit(px)?;
             let d = pf - af;
             let (t, s) = (dir.dot(&d), nrm.dot(&d));
             if t >= margin && t <= len - margin && s >= -hin && s <= hout {
