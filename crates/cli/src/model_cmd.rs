@@ -91,6 +91,11 @@ pub struct PsArgs {
     /// the rectified texel grid).
     #[arg(long)]
     pub view: Option<u32>,
+    /// Use only the views within this angle of the sample normal (degrees). Oblique views see
+    /// each texel's relief shifted by parallax and foreshortened, which costs accuracy
+    /// (docs/material-models.md); default: every view.
+    #[arg(long, conflicts_with = "view")]
+    pub max_view_theta: Option<f64>,
     /// Monte Carlo draws of the height uncertainty.
     #[arg(long, default_value_t = 16)]
     pub draws: usize,
@@ -112,6 +117,9 @@ pub struct BenchModelArgs {
     /// Use only this view (the dataset's view id).
     #[arg(long)]
     pub view: Option<u32>,
+    /// Use only the views within this angle of the sample normal (degrees); default: every view.
+    #[arg(long, conflicts_with = "view")]
+    pub max_view_theta: Option<f64>,
     /// Robust: the quantile over its views that stands for a repeated light direction.
     #[arg(long, default_value_t = 0.5)]
     pub group_quantile: f64,
@@ -138,6 +146,14 @@ fn parse_method(s: &str) -> anyhow::Result<PsMethod> {
     }
 }
 
+/// Which captures of a dataset to read: one view, or the views up to an angle from the
+/// sample normal, or all.
+#[derive(Debug, Clone, Copy, Default)]
+struct ViewSelection {
+    view: Option<u32>,
+    max_theta_deg: Option<f64>,
+}
+
 /// A dataset's textures and light directions for photometric stereo.
 struct Observations {
     source: DatasetSource,
@@ -150,13 +166,31 @@ struct Observations {
 }
 
 impl Observations {
-    fn read(dir: &Path, view: Option<u32>) -> anyhow::Result<Self> {
+    fn read(dir: &Path, sel: ViewSelection) -> anyhow::Result<Self> {
         input_kind::ensure_dataset(dir)?;
         let source = DatasetSource::open(dir).with_context(|| format!("dataset {}", dir.display()))?;
-        let steps: Vec<_> = source.steps().iter().copied().filter(|s| view.is_none_or(|v| s.view == v)).collect();
-        let what = match view {
-            Some(v) => format!("dataset {}, view {v}", dir.display()),
-            None => format!("dataset {}, all {} captures", dir.display(), steps.len()),
+        let view = sel.view;
+        if let Some(t) = sel.max_theta_deg {
+            anyhow::ensure!(
+                t.is_finite() && (0.0..=90.0).contains(&t),
+                "--max-view-theta {t}: allowed 0 to 90 degrees (the view's angle from the sample normal)"
+            );
+        }
+        let layout = source.layout();
+        let mut steps = Vec::new();
+        for s in source.steps().iter().copied().filter(|s| view.is_none_or(|v| s.view == v)) {
+            let (l, v) = source.layout_pair(s);
+            let a = layout.index(l as usize, v as usize);
+            let (dl, dv) = layout.directions(a);
+            // A small tolerance: layout directions are stored in degrees and converted.
+            if sel.max_theta_deg.is_none_or(|t| dv.theta.to_degrees() <= t + 1e-6) {
+                steps.push((s, dl, dv, a));
+            }
+        }
+        let what = match (view, sel.max_theta_deg) {
+            (Some(v), _) => format!("dataset {}, view {v}", dir.display()),
+            (None, Some(t)) => format!("dataset {}, the {} captures of views up to {t} deg", dir.display(), steps.len()),
+            (None, None) => format!("dataset {}, all {} captures", dir.display(), steps.len()),
         };
         if let Some(v) = view {
             anyhow::ensure!(
@@ -170,17 +204,29 @@ impl Observations {
                 }
             );
         }
-        let layout = source.layout();
+        if let Some(t) = sel.max_theta_deg {
+            anyhow::ensure!(
+                !steps.is_empty(),
+                "{what}: no captures of a view within {t} deg of the sample normal; the smallest view angle \
+                 in the dataset is {:.2} deg",
+                source
+                    .steps()
+                    .iter()
+                    .map(|s| {
+                        let (l, v) = source.layout_pair(*s);
+                        layout.directions(layout.index(l as usize, v as usize)).1.theta.to_degrees()
+                    })
+                    .fold(f64::INFINITY, f64::min)
+            );
+        }
         let (mut lights, mut views, mut pairs) = (Vec::new(), Vec::new(), Vec::new());
-        for s in &steps {
-            let (l, v) = source.layout_pair(*s);
-            let a = layout.index(l as usize, v as usize);
-            let (dl, dv) = layout.directions(a);
+        for &(_, dl, dv, a) in &steps {
             let (d, e) = (dl.to_vector(), dv.to_vector());
             lights.push([d.x, d.y, d.z]);
             views.push([e.x, e.y, e.z]);
             pairs.push((dl, dv, a));
         }
+        let steps: Vec<_> = steps.into_iter().map(|x| x.0).collect();
         use rayon::prelude::*;
         let images = steps.par_iter().map(|s| source.read(*s)).collect::<std::result::Result<Vec<_>, _>>()?;
         Ok(Observations { source, what, lights, views, pairs, images })
@@ -232,7 +278,7 @@ fn write_y_exr(path: &Path, width: usize, height: usize, name: &str, data: Vec<f
 /// `btfrig model ps`.
 pub fn ps(a: &PsArgs) -> anyhow::Result<()> {
     let method = parse_method(&a.method)?;
-    let obs = Observations::read(&a.dataset, a.view)?;
+    let obs = Observations::read(&a.dataset, ViewSelection { view: a.view, max_theta_deg: a.max_view_theta })?;
     let params = PsParams { group_quantile: a.group_quantile, ..PsParams::new(method) };
     let (map, ps_s) = obs.normals(&params)?;
     let texel_m = obs.texel_m();
@@ -302,7 +348,7 @@ pub fn ps(a: &PsArgs) -> anyhow::Result<()> {
 pub fn lafortune(args: &LafortuneArgs) -> anyhow::Result<()> {
     let (a, shadow_maps) = (&args.fit, args.shadow_maps);
     use btfrig_model::lafortune::{fit, BtfInput, LafortuneParams, ALBEDO_BOUNDS, LOBE_BOUNDS};
-    let obs = Observations::read(&a.dataset, None)?;
+    let obs = Observations::read(&a.dataset, ViewSelection::default())?;
     let (refs, w, h) = obs.input();
     let normals = if a.no_normals {
         None
@@ -627,7 +673,7 @@ pub fn bench(a: &BenchModelArgs) -> anyhow::Result<()> {
     let mut fits = Vec::new();
     let mut cars = Vec::new();
     for d in &a.datasets {
-        let mut obs = Observations::read(d, a.view)?;
+        let mut obs = Observations::read(d, ViewSelection { view: a.view, max_theta_deg: a.max_view_theta })?;
         let mut estimates = Vec::new();
         for method in [PsMethod::LeastSquares, PsMethod::Robust] {
             let (map, fit_s) = obs.normals(&PsParams { group_quantile: a.group_quantile, ..PsParams::new(method) })?;

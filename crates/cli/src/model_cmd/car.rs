@@ -133,7 +133,7 @@ pub fn model_car(a: &CarArgs) -> anyhow::Result<()> {
         (Some(l), Some(v)) => Some((parse_direction("light", l)?, parse_direction("view", v)?)),
         _ => None,
     };
-    let obs = Observations::read(&a.dataset, None)?;
+    let obs = Observations::read(&a.dataset, super::ViewSelection::default())?;
     let (mw, mh) = (obs.source.layout().width, obs.source.layout().height);
     let (w, h) = size.unwrap_or((4 * mw, 4 * mh));
     let (l, v) = pair.unwrap_or((obs.lights[0], obs.views[0]));

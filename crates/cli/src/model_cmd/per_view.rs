@@ -63,7 +63,7 @@ fn finish(out: &std::path::Path, desc: &serde_json::Value, json: bool, summary: 
 
 /// `btfrig model scaled-lafortune`.
 pub fn scaled_lafortune(a: &super::LobeFitArgs) -> anyhow::Result<()> {
-    let obs = Observations::read(&a.dataset, None)?;
+    let obs = Observations::read(&a.dataset, super::ViewSelection::default())?;
     let (w, h) = (obs.source.layout().width, obs.source.layout().height);
     let normals = if a.no_normals { None } else { Some(obs.normals(&PsParams::new(PsMethod::Robust))?.0.normal) };
     let t = Instant::now();
@@ -101,7 +101,7 @@ pub fn scaled_lafortune(a: &super::LobeFitArgs) -> anyhow::Result<()> {
 
 /// `btfrig model ptm`.
 pub fn ptm(a: &PtmArgs) -> anyhow::Result<()> {
-    let obs = Observations::read(&a.dataset, None)?;
+    let obs = Observations::read(&a.dataset, super::ViewSelection::default())?;
     let (w, h) = (obs.source.layout().width, obs.source.layout().height);
     let t = Instant::now();
     let map = ptm_map(&obs, a.ridge)?;
