@@ -148,39 +148,52 @@ pub(super) fn fit_edge(
     let nlines = (len - 2.0 * margin).floor() as usize;
     // Profiles first: the dark and light levels (outer quarters of the profiles) are averaged
     // over the whole edge, so the per-scanline offsets carry only the integral's noise.
-    let mut profiles = Vec::with_capacity(nlines);
+    // Per scanline only its base point and the profile's trapezoid integral are kept (no
+    // profile vectors): the same sums in the same order as summing stored profiles.
+    let mut profiles = Vec::with_capacity(nlines + 1);
     let (mut dsum, mut lsum, mut dn, mut ln) = (0.0, 0.0, 0.0, 0.0);
+    let q = (ns / 4).max(1);
     for k in 0..=nlines {
         let t = margin + k as f64 * (len - 2.0 * margin) / nlines as f64;
         let base = a + dir * t;
-        let prof: Vec<f64> = (0..ns)
-            .map(|i| {
-                let s = -ad + i as f64 * step;
-                let p = base + nrm * s;
-                img.bilinear(p.x, p.y)
-            })
-            .collect();
-        let q = (ns / 4).max(1);
-        dsum += prof[..q].iter().sum::<f64>();
+        let (mut all, mut head, mut tail, mut first, mut last) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for i in 0..ns {
+            let p = base + nrm * (-ad + i as f64 * step);
+            let v = img.bilinear(p.x, p.y);
+            all += v;
+            if i < q {
+                head += v;
+            }
+            if i >= ns - q {
+                tail += v;
+            }
+            if i == 0 {
+                first = v;
+            }
+            last = v;
+        }
+        dsum += head;
         dn += q as f64;
-        lsum += prof[ns - q..].iter().sum::<f64>();
+        lsum += tail;
         ln += q as f64;
-        profiles.push((base, prof));
+        // Trapezoid integral of the profile over [-ad, bl].
+        profiles.push((base, step * (all - 0.5 * (first + last))));
     }
     let (dark, light) = (dsum / dn, lsum / ln);
     if !(light - dark > 0.0) {
         return None;
     }
+    // Scanline points into the fitting frame: interpolated from exact undistortions every
+    // few px along the edge (`EdgeBandMap`), not one Newton iteration per scanline.
+    let band = EdgeBandMap::new(cam, a, dir, nrm, (margin, len - margin), (-ad, bl))?;
     let mut pts = Vec::with_capacity(profiles.len());
-    for (base, prof) in &profiles {
-        // Trapezoid integral of the profile over [-hw, hw].
-        let integ = step * (prof.iter().sum::<f64>() - 0.5 * (prof[0] + prof[ns - 1]));
+    for &(base, integ) in &profiles {
         // A step from `dark` to `light` at `e` has this integral over [-ad, bl].
         let e = (dark * ad + light * bl - integ) / (light - dark);
         if e < -ad || e > bl {
             continue;
         }
-        if let Some(p) = to_fit(cam, base + nrm * e) {
+        if let Some(p) = band.to_fit(base + nrm * e) {
             pts.push(p);
         }
     }
