@@ -214,37 +214,44 @@ fn search_window(
     let (w, h) = (image.width, image.height);
     let (ww, wh) = (win.x1 - win.x0, win.y1 - win.y0);
     let max_side = params.max_side_frac * w.min(h) as f64;
-    let mut seen = vec![false; ww * wh];
-    let mut stack = Vec::new();
+    // Dark pixels not yet visited, in the window framed by one row and column of zeros: the
+    // flood fill's neighbours then need no bounds test, and a pixel's position travels with
+    // it on the stack (no division of an index per pixel).
+    let pw = ww + 2;
+    let mut open = vec![0u8; pw * (wh + 2)];
+    for y in 0..wh {
+        let row = &mut open[(y + 1) * pw + 1..(y + 1) * pw + 1 + ww];
+        for (o, &d) in row.iter_mut().zip(&dark[y * ww..(y + 1) * ww]) {
+            *o = u8::from(d);
+        }
+    }
+    let mut stack: Vec<(u32, u32)> = Vec::new();
     let mut pixels: Vec<(u32, u32)> = Vec::new();
     let mut out: Vec<Detection> = Vec::new();
     let mut cut = 0;
-    for start in 0..ww * wh {
-        if !dark[start] || seen[start] {
+    for (sy, sx) in (0..wh).flat_map(|y| (0..ww).map(move |x| (y, x))) {
+        if open[(sy + 1) * pw + sx + 1] == 0 {
             continue;
         }
         // Flood fill (8-connected) of one dark region, in window coordinates.
         pixels.clear();
-        stack.push(start);
-        seen[start] = true;
+        stack.push((sx as u32, sy as u32));
+        open[(sy + 1) * pw + sx + 1] = 0;
         let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
-        while let Some(i) = stack.pop() {
-            let (x, y) = (i % ww, i / ww);
+        while let Some((x, y)) = stack.pop() {
+            let (x, y) = (x as usize, y as usize);
             pixels.push(((x + win.x0) as u32, (y + win.y0) as u32));
             x0 = x0.min(x);
             x1 = x1.max(x);
             y0 = y0.min(y);
             y1 = y1.max(y);
-            for dy in -1i64..=1 {
-                for dx in -1i64..=1 {
-                    let (nx, ny) = (x as i64 + dx, y as i64 + dy);
-                    if nx < 0 || ny < 0 || nx >= ww as i64 || ny >= wh as i64 {
-                        continue;
-                    }
-                    let j = ny as usize * ww + nx as usize;
-                    if dark[j] && !seen[j] {
-                        seen[j] = true;
-                        stack.push(j);
+            // Padded coordinates of the 3 x 3 neighbourhood: rows y .. y + 2, columns x .. x + 2.
+            for ny in y..y + 3 {
+                let row = ny * pw;
+                for nx in x..x + 3 {
+                    if open[row + nx] != 0 {
+                        open[row + nx] = 0;
+                        stack.push(((nx - 1) as u32, (ny - 1) as u32));
                     }
                 }
             }
