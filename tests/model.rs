@@ -122,7 +122,8 @@ fn model_ps_recovers_a_plane_and_names_what_is_missing() {
     assert!(e.contains("allowed: robust, least-squares"), "{e}");
     // Views up to an angle: the frontal view's 4 captures of the 8 (the other view is at 30 deg).
     let front = dir.join("front");
-    let stdout = ok(btfrig().args(["model", "ps", "--json", "--max-view-theta", "15"]).arg(&data).arg("--out").arg(&front));
+    let stdout =
+        ok(btfrig().args(["model", "ps", "--json", "--max-view-theta", "15"]).arg(&data).arg("--out").arg(&front));
     let d: serde_json::Value = serde_json::from_str(&stdout).unwrap();
     assert_eq!(d["source"]["captures"], 4, "{d}");
     let e = fails(btfrig().args(["model", "ps", "--max-view-theta", "95"]).arg(&data).arg("--out").arg(dir.join("z")));

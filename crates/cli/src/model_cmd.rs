@@ -189,7 +189,9 @@ impl Observations {
         }
         let what = match (view, sel.max_theta_deg) {
             (Some(v), _) => format!("dataset {}, view {v}", dir.display()),
-            (None, Some(t)) => format!("dataset {}, the {} captures of views up to {t} deg", dir.display(), steps.len()),
+            (None, Some(t)) => {
+                format!("dataset {}, the {} captures of views up to {t} deg", dir.display(), steps.len())
+            }
             (None, None) => format!("dataset {}, all {} captures", dir.display(), steps.len()),
         };
         if let Some(v) = view {

@@ -215,7 +215,9 @@ impl RigScene {
     /// plate and sample: same kinematics, true lens, sensor and lamp. For geometric camera
     /// calibration captures.
     pub fn with_target(cfg: &RigConfig, board: &TargetBoard) -> Result<RigScene, RigSceneError> {
-        Self::build(cfg, |lamp_scale, resolve| Ok(Renderer::from_scene(Scene::build_target(board, resolve)?, lamp_scale)))
+        Self::build(cfg, |lamp_scale, resolve| {
+            Ok(Renderer::from_scene(Scene::build_target(board, resolve)?, lamp_scale))
+        })
     }
 
     /// The rig with a colour chart ([`ColorChart`]) in the sample region of its holder plate

@@ -80,7 +80,8 @@ impl<'a> EdgeBandMap<'a> {
         (t_lo, t_hi): (f64, f64),
         (s_lo, s_hi): (f64, f64),
     ) -> Option<Self> {
-        let mut map = EdgeBandMap { cam, origin: a, dir, nrm, t0: t_lo, dt: 1.0, nt: 0, s0: s_lo, ds: 1.0, nodes: Vec::new() };
+        let mut map =
+            EdgeBandMap { cam, origin: a, dir, nrm, t0: t_lo, dt: 1.0, nt: 0, s0: s_lo, ds: 1.0, nodes: Vec::new() };
         let Some(c) = cam else { return Some(map) };
         map.nt = (((t_hi - t_lo) / Self::MAX_STEP_PX).ceil() as usize).max(1) + 1;
         map.dt = ((t_hi - t_lo) / (map.nt - 1) as f64).max(1e-9);
@@ -295,7 +296,9 @@ mod tests {
             let d = Distortion { k1, k2: 0.02, k3: 0.0, p1: 1e-4, p2: -1e-4 };
             let cam = CameraModel::new(1600, 1200, 4800.0, 4800.0, 799.5, 599.5, d, Vignetting::default()).unwrap();
             let mut worst = 0.0f64;
-            for (a, b) in [((20.0, 30.0), (190.0, 60.0)), ((1580.0, 1170.0), (1580.0, 900.0)), ((700.0, 600.0), (760.0, 640.0))] {
+            for (a, b) in
+                [((20.0, 30.0), (190.0, 60.0)), ((1580.0, 1170.0), (1580.0, 900.0)), ((700.0, 600.0), (760.0, 640.0))]
+            {
                 let (a, b): (Point2<f64>, Point2<f64>) = (Point2::new(a.0, a.1), Point2::new(b.0, b.1));
                 let len = (b - a).norm();
                 let dir: Vector2<f64> = (b - a) / len;

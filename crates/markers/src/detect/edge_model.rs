@@ -56,14 +56,8 @@ pub(super) fn fit_edge_model(
     let y0 = ya.floor().max(0.0) as usize;
     let y1 = (yb.ceil().max(0.0) as usize).min(img.height - 1);
     // The cheap test below keeps pixels with `t` in this range and `s` in this one.
-    let band = EdgeBandMap::new(
-        cam,
-        a,
-        dir_img,
-        nrm_img,
-        (margin - 1.0, len_img - margin + 1.0),
-        (-hin - 1.0, hout + 1.0),
-    )?;
+    let band =
+        EdgeBandMap::new(cam, a, dir_img, nrm_img, (margin - 1.0, len_img - margin + 1.0), (-hin - 1.0, hout + 1.0))?;
     let mut samples: Vec<(f64, f64, f64)> = Vec::new();
     for y in y0..=y1 {
         for x in x0..=x1 {
