@@ -21,7 +21,12 @@
 //!    highlights are view-dependent and brighter. That fit is the start of step 3 on every
 //!    observation, which then averages the views' noise and rejects their highlights;
 //! 1. **shadow threshold**: observations darker than `shadow_fraction` of the texel's
-//!    brightest are dropped (the 3 brightest are always kept);
+//!    bright level are dropped (the 3 brightest are always kept). The bright level is the
+//!    brightest value once the brightest fifth of the observations is set aside: a glossy
+//!    texel's highlights are tens of times its diffuse level, and measured against the
+//!    brightest (the rule before) every diffuse observation of lacquered wood counted as a
+//!    shadow, leaving the fit to the highlights (16° mean error on the full plan's views up
+//!    to 15°, `docs/material-models.md`);
 //! 2. **leave-one-light-out start**: with 4 to 16 distinct light directions the start is the
 //!    best of the fit on all of them and the fits leaving each direction out (scored by the
 //!    Tukey loss below), so one shadowed or highlighted light cannot steer the start;
@@ -62,12 +67,17 @@ impl PsMethod {
     }
 }
 
+/// The fraction of a texel's observations, the brightest, left out of its bright level (the
+/// reference of the shadow threshold).
+const BRIGHT_LEVEL_SKIP: f64 = 0.2;
+
 /// Tuning of [`photometric_stereo`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct PsParams {
     /// The estimator.
     pub method: PsMethod,
-    /// Robust: observations below this fraction of the texel's brightest are shadows.
+    /// Robust: observations below this fraction of the texel's bright level (its brightest
+    /// once the brightest fifth is set aside) are shadows.
     pub shadow_fraction: f64,
     /// Robust: Tukey's constant, in residual scales (4.685: 95 % efficiency for Gaussian noise).
     pub tukey_c: f64,
@@ -396,11 +406,14 @@ fn fit_texel(
     let flat = TexelFit { normal: [0.0, 0.0, 1.0], albedo: [0.0; 3], sigma_deg: 90.0, used: 0, b: Vector3::zeros() };
     sc.w.fill(1.0);
     if params.method == PsMethod::Robust {
-        let brightest = y.iter().copied().fold(0.0, f64::max);
         let mut order: Vec<usize> = (0..m).collect();
         order.sort_by(|&a, &b| y[b].total_cmp(&y[a]));
+        // The bright level: the brightest value once the brightest fifth is set aside, so
+        // that highlights (a glossy texel's few near-mirror captures, tens of times the
+        // diffuse level) cannot make every diffuse observation look like a shadow.
+        let bright = y[order[(BRIGHT_LEVEL_SKIP * m as f64) as usize]];
         for (rank, &i) in order.iter().enumerate() {
-            if rank >= 3 && y[i] < params.shadow_fraction * brightest {
+            if rank >= 3 && y[i] < params.shadow_fraction * bright {
                 sc.w[i] = 0.0;
             }
         }
