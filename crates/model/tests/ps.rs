@@ -227,3 +227,41 @@ fn too_few_or_coplanar_lights_are_named() {
     assert!(e.to_string().contains("gradient 0"), "{e}");
     assert!(integrate(2, 2, &[[0.0; 2]; 4], None, 0.0, &IntegrateParams::default()).is_err());
 }
+
+/// A glossy plane (lacquered wood on the full Bonn plan): 40 light directions up to 75°, the
+/// 3 nearest the mirror direction of the view carrying a highlight 30 times the diffuse
+/// level. The robust method must not take every diffuse observation for a shadow: measured
+/// against the brightest (the rule before 2026-12-07) everything below 15 % of a highlight
+/// was dropped and the fit followed the highlights (tens of degrees off).
+#[test]
+fn highlights_far_brighter_than_the_diffuse_level_do_not_make_everything_a_shadow() {
+    let n = unit(10.0, 30.0);
+    let lights: Vec<[f64; 3]> =
+        (0..40).map(|k| unit(8.0 + 67.0 * (k as f64 / 39.0), (k as f64 * 137.5) % 360.0)).collect();
+    let view = [0.0, 0.0, 1.0];
+    // Half-vector closeness to the normal: the 3 best-aligned lights get the highlight.
+    let mut by_mirror: Vec<usize> = (0..lights.len()).collect();
+    let align = |l: &[f64; 3]| {
+        let h = [l[0] + view[0], l[1] + view[1], l[2] + view[2]];
+        dot(&h, &n) / dot(&h, &h).sqrt()
+    };
+    by_mirror.sort_by(|&a, &b| align(&lights[b]).total_cmp(&align(&lights[a])));
+    let imgs: Vec<Vec<[f32; 3]>> = lights
+        .iter()
+        .enumerate()
+        .map(|(i, l)| {
+            let diffuse = 0.5 * dot(&n, l).max(0.0);
+            let v = if by_mirror[..3].contains(&i) { diffuse + 15.0 } else { diffuse };
+            vec![[v as f32; 3]; 4]
+        })
+        .collect();
+    for method in [PsMethod::Robust, PsMethod::LeastSquares] {
+        let map = run(2, 2, &lights, &imgs, method);
+        let e = map.normal.iter().map(|m| dot(m, &n).min(1.0).acos().to_degrees());
+        let worst = e.fold(0.0, f64::max);
+        match method {
+            PsMethod::Robust => assert!(worst < 1.0, "robust: {worst} deg off"),
+            PsMethod::LeastSquares => assert!(worst > 5.0, "least squares should be pulled by the highlights: {worst}"),
+        }
+    }
+}
