@@ -126,6 +126,7 @@ fn model_ps_recovers_a_plane_and_names_what_is_missing() {
         ok(btfrig().args(["model", "ps", "--json", "--max-view-theta", "15"]).arg(&data).arg("--out").arg(&front));
     let d: serde_json::Value = serde_json::from_str(&stdout).unwrap();
     assert_eq!(d["source"]["captures"], 4, "{d}");
+    assert_eq!(d["source"]["max_view_theta_deg"], 15.0, "{d}");
     let e = fails(btfrig().args(["model", "ps", "--max-view-theta", "95"]).arg(&data).arg("--out").arg(dir.join("z")));
     assert!(e.contains("--max-view-theta 95: allowed 0 to 90"), "{e}");
 }

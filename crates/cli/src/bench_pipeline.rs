@@ -36,8 +36,8 @@ pub struct BenchPipelineArgs {
     #[arg(long, default_value_t = 4.0)]
     pub hdr_ratio: f64,
     /// Rays per photosite side where a pixel sees a marker edge (the simulated sensor's
-    /// integration of the hard edges; the renderer's default is 4: an edge along a pixel axis
-    /// then lands on quarter-pixel steps). Allowed 1..=32.
+    /// integration of the hard edges, multi-jittered; the renderer's default is 4, which
+    /// leaves a little sampling noise on each edge pixel). Allowed 1..=32.
     #[arg(long, default_value_t = 4)]
     pub marker_supersampling: u32,
     /// Run the OpenCV pipeline too (tests/markers/bench_opencv.py in the venv that

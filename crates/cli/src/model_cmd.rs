@@ -177,13 +177,15 @@ impl Observations {
             );
         }
         let layout = source.layout();
-        let mut steps = Vec::new();
+        let (mut steps, mut min_theta_deg) = (Vec::new(), f64::INFINITY);
         for s in source.steps().iter().copied().filter(|s| view.is_none_or(|v| s.view == v)) {
             let (l, v) = source.layout_pair(s);
             let a = layout.index(l as usize, v as usize);
             let (dl, dv) = layout.directions(a);
+            let theta_deg = dv.theta.to_degrees();
+            min_theta_deg = min_theta_deg.min(theta_deg);
             // A small tolerance: layout directions are stored in degrees and converted.
-            if sel.max_theta_deg.is_none_or(|t| dv.theta.to_degrees() <= t + 1e-6) {
+            if sel.max_theta_deg.is_none_or(|t| theta_deg <= t + 1e-6) {
                 steps.push((s, dl, dv, a));
             }
         }
@@ -210,15 +212,7 @@ impl Observations {
             anyhow::ensure!(
                 !steps.is_empty(),
                 "{what}: no captures of a view within {t} deg of the sample normal; the smallest view angle \
-                 in the dataset is {:.2} deg",
-                source
-                    .steps()
-                    .iter()
-                    .map(|s| {
-                        let (l, v) = source.layout_pair(*s);
-                        layout.directions(layout.index(l as usize, v as usize)).1.theta.to_degrees()
-                    })
-                    .fold(f64::INFINITY, f64::min)
+                 in the dataset is {min_theta_deg:.2} deg"
             );
         }
         let (mut lights, mut views, mut pairs) = (Vec::new(), Vec::new(), Vec::new());
@@ -312,7 +306,7 @@ pub fn ps(a: &PsArgs) -> anyhow::Result<()> {
     let desc = serde_json::json!({
         "format": "btfrig-material-maps",
         "version": 1,
-        "source": { "dataset": a.dataset.display().to_string(), "manifest_plan_hash": obs.source.manifest().plan.hash, "captures": obs.lights.len(), "view": a.view },
+        "source": { "dataset": a.dataset.display().to_string(), "manifest_plan_hash": obs.source.manifest().plan.hash, "captures": obs.lights.len(), "view": a.view, "max_view_theta_deg": a.max_view_theta },
         "method": method.name(),
         "params": params,
         "width": w, "height": h,
