@@ -19,6 +19,8 @@ use btfrig_markers::GrayImage;
 use btfrig_registration::{texel_position_error, GreyFrame, SearchRecord};
 use nalgebra::Point2;
 
+pub use btfrig_registration::BIN_MIN_MODULE_PX;
+
 use crate::registration::{sq_sums, Bench, Frame};
 
 /// Milliseconds per frame of each stage.
@@ -61,6 +63,23 @@ pub struct OursFrame {
     pub texture_data: Vec<[f32; 3]>,
     /// How the markers were searched.
     pub search: SearchRecord,
+    /// The region search's binning for this frame ([`btfrig_registration::PlateRegistrar::region_bin_for`]).
+    pub region_bin: usize,
+    /// With `region_bin` above 1: the same detection with the regions searched at full
+    /// resolution, to compare.
+    pub full_resolution_regions: Option<FullResolutionRegions>,
+}
+
+/// The detection of a frame whose regions were searched on binned pixels, repeated at full
+/// resolution in the same run.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FullResolutionRegions {
+    /// Marker detection, ms (median of the repeats).
+    pub detect_ms: f64,
+    /// Largest distance between a corner found both ways, pixels.
+    pub max_corner_shift_px: f64,
+    /// Whether both found the same markers.
+    pub same_markers: bool,
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -104,6 +123,35 @@ pub fn run_ours(b: &Bench, frame: &Frame, repeat: usize) -> anyhow::Result<OursF
         last = Some(r);
     }
     let reg = last.expect("at least one repeat");
+    let region_bin = b.registrar.region_bin_for(&nominal);
+    let full_resolution_regions = if region_bin > 1 {
+        let mut full = b.registrar.clone();
+        full.bin_large_markers = false;
+        let mut times = Vec::new();
+        let mut last = None;
+        for _ in 0..repeat.max(1) {
+            let r = full.register_grey_within(GreyFrame::Mosaic(mosaic), &nominal, Some(tolerance))?;
+            times.push(r.detect_s * 1e3);
+            last = Some(r);
+        }
+        let r = last.expect("at least one repeat");
+        let mut shift = 0.0f64;
+        for d in &reg.detections {
+            if let Some(e) = r.detections.iter().find(|e| e.id == d.id) {
+                for k in 0..4 {
+                    shift = shift.max((d.corners[k] - e.corners[k]).norm());
+                }
+            }
+        }
+        let ids = |v: &[btfrig_markers::Detection]| v.iter().map(|d| d.id).collect::<Vec<_>>();
+        Some(FullResolutionRegions {
+            detect_ms: median(times),
+            max_corner_shift_px: shift,
+            same_markers: ids(&reg.detections) == ids(&r.detections),
+        })
+    } else {
+        None
+    };
     b.registrar.remember(&reg.registration, &nominal);
     let pose = reg.registration.pose;
     let (rectify_ms, tex) = timed(repeat, || rectify_vignetted(&mosaic, cam, &pose, b.region, b.size, filter));
@@ -126,6 +174,8 @@ pub fn run_ours(b: &Bench, frame: &Frame, repeat: usize) -> anyhow::Result<OursF
         markers: reg.detected.len(),
         search: reg.search,
         texture_data: out.data,
+        region_bin,
+        full_resolution_regions,
     })
 }
 

@@ -94,6 +94,8 @@ pub fn bench(a: &BenchPipelineArgs) -> anyhow::Result<()> {
         let (mut windowed, mut fallbacks, mut searched) = (0usize, 0usize, 0.0);
         let mut exposure_s = 0.0;
         let mut hdr_result = None;
+        // Detection with every region searched at full resolution (the binned frames redone).
+        let (mut full_res_detect, mut binned_views, mut max_shift, mut same_markers) = (0.0, 0usize, 0.0f64, true);
         println!("\n== rig {label}: {w}x{h} ==");
         for (k, &view) in views.iter().enumerate() {
             let frame = b.frame(view, a.seed + k as u64).with_context(|| format!("view {view:?}"))?;
@@ -136,6 +138,22 @@ pub fn bench(a: &BenchPipelineArgs) -> anyhow::Result<()> {
                 Agg::rel(o.texture),
                 if same { "" } else { ", TEXTURE DIFFERS from the whole-frame demosaic's" }
             );
+            match o.full_resolution_regions {
+                Some(f) => {
+                    full_res_detect += f.detect_ms / n;
+                    binned_views += 1;
+                    max_shift = max_shift.max(f.max_corner_shift_px);
+                    same_markers &= f.same_markers;
+                    line += &format!(
+                        "; regions on {0}x{0} means (at full resolution: detect {1:.1} ms, corners {2:.1e} px apart{3})",
+                        o.region_bin,
+                        f.detect_ms,
+                        f.max_corner_shift_px,
+                        if f.same_markers { "" } else { ", OTHER MARKERS" }
+                    );
+                }
+                None => full_res_detect += o.stages.detect_ms / n,
+            }
             if let Some(py) = python.as_ref() {
                 let mut cmd = Command::new(py.get_program());
                 for (key, val) in py.get_envs() {
@@ -210,6 +228,20 @@ pub fn bench(a: &BenchPipelineArgs) -> anyhow::Result<()> {
             "memory pass (read every photosite, write it as f32): {floor_ms:.1} ms; btfrig total / floor = {:.2}",
             ours.total_ms() / floor_ms
         );
+        if binned_views > 0 {
+            println!(
+                "region search on binned pixels in {binned_views} of {} view(s) (every marker's modules {} px or \
+                 more): detection {:.1} ms against {full_res_detect:.1} ms with every region at full resolution \
+                 ({:.2}x faster), total / floor {:.2} at full resolution; corners at most {max_shift:.1e} px apart, \
+                 {} markers",
+                views.len(),
+                btfrig_bench::pipeline::BIN_MIN_MODULE_PX,
+                ours.detect_ms,
+                full_res_detect / ours.detect_ms,
+                (ours.total_ms() - ours.detect_ms + full_res_detect) / floor_ms,
+                if same_markers { "the same" } else { "OTHER" }
+            );
+        }
         println!(
             "before (whole-frame demosaic, green copied out, separate vignetting map; same run): demosaic {:.1}, \
              detection {:.1}, registration {:.1}, rectification {:.1}, radiometry {:.1}, total {:.1} ms = {:.2}x \

@@ -288,3 +288,52 @@ fn windows_find_what_the_whole_frame_finds_and_drop_what_they_cut() {
     assert_eq!(all.detections, whole);
     assert_eq!((all.pixels, all.cut_by_window), (W * H, 0));
 }
+
+#[test]
+fn regions_searched_on_binned_pixels_give_the_same_corners_and_still_drop_cut_and_covered_markers() {
+    // The scene of the windows test plus a partly covered marker, searched with the regions
+    // on 2 x 2 and 3 x 3 means: the corner fits read the full image, so the corners are the
+    // full-resolution search's to well under their accuracy (~0.01 px); what the regions
+    // decide (a cut region, a marker merged with a dark patch) is decided the same way.
+    let dict = Dictionary::dict_4x4_50();
+    let mut img: Vec<f32> = (0..W * H).map(|i| 0.7 + 0.3 * (i % W) as f32 / W as f32).collect();
+    draw(&mut img, &dict, 11, &quad((100.4, 120.2), 70.0, 0.3, 0.1));
+    draw(&mut img, &dict, 23, &quad((290.7, 160.1), 80.0, -0.5, 0.0));
+    draw(&mut img, &dict, 9, &quad((330.0, 60.0), 60.0, 0.05, 0.0));
+    for y in 250..270 {
+        for x in 150..380 {
+            img[y * W + x] = 0.05;
+        }
+    }
+    // Covers a corner of marker 9.
+    for y in 15..45 {
+        for x in 280..310 {
+            img[y * W + x] = 0.05;
+        }
+    }
+    add_noise(&mut img, 0.01, 77);
+    let g = GrayImage::new(W, H, &img).unwrap();
+    let full = detect(&g, &dict, &DetectParams::default()).unwrap();
+    assert_eq!(full.iter().map(|d| d.id).collect::<Vec<_>>(), vec![11, 23]);
+    for bin in [2, 3] {
+        let p = DetectParams { region_bin: bin, ..DetectParams::default() };
+        let binned = detect(&g, &dict, &p).unwrap();
+        assert_eq!(binned.iter().map(|d| d.id).collect::<Vec<_>>(), vec![11, 23], "bin {bin}");
+        for (a, b) in full.iter().zip(&binned) {
+            for k in 0..4 {
+                let d = (a.corners[k] - b.corners[k]).norm();
+                assert!(d < 1e-6, "bin {bin}, marker {} corner {k}: {d} px from the full search", a.id);
+                assert!((a.corner_sigma_px[k] - b.corner_sigma_px[k]).abs() < 1e-3);
+            }
+        }
+        let around = [Window::new(40, 60, 165, 185), Window::new(220, 90, 370, 235)];
+        let found = detect_in_windows(&g, &dict, &p, &around).unwrap();
+        assert_eq!(found.detections.iter().map(|d| d.id).collect::<Vec<_>>(), vec![11, 23], "bin {bin}");
+        let cut = detect_in_windows(&g, &dict, &p, &[Window::new(220, 90, 290, 235), Window::new(200, 240, 300, 290)])
+            .unwrap();
+        assert!(cut.detections.is_empty(), "bin {bin}: {:?}", cut.detections);
+        assert!(cut.cut_by_window >= 2, "bin {bin}: cut regions counted: {}", cut.cut_by_window);
+    }
+    let e = detect(&g, &dict, &DetectParams { region_bin: 5, ..DetectParams::default() }).unwrap_err();
+    assert!(e.to_string().contains("region_bin"), "{e}");
+}

@@ -10,6 +10,7 @@
 //! as in the whole frame (`btfrig_markers::detect_in_windows`), so the accuracy is the
 //! whole-frame detector's.
 
+use std::borrow::Cow;
 use std::time::Instant;
 
 use btfrig_core::camera::CameraModel;
@@ -17,7 +18,8 @@ use btfrig_core::config::plate::{MarkerPlacement, PlateConfig};
 use btfrig_core::pose::ScenePose;
 use btfrig_imaging::Mosaic;
 use btfrig_markers::{
-    detect, detect_in_windows, DetectError, DetectParams, Detection, Dictionary, GrayImage, Window, WindowSearch,
+    detect, detect_in_windows, DetectError, DetectParams, Detection, Dictionary, GrayImage, GreenSites, Window,
+    WindowSearch,
 };
 use nalgebra::{Isometry3, Point2, Point3, Vector3};
 
@@ -330,6 +332,13 @@ impl Drop for Grey<'_> {
     }
 }
 
+/// Smallest module, in pixels across a marker edge, for which [`PlateRegistrar`] searches
+/// regions on 2 x 2 means. Binning is safe from 6 px (3 binned px, the detector's smallest
+/// module) and moves corners by ~1e-5 px; it pays where windows are large. 16 px takes the
+/// 12 MP gonio views up to 45° (modules 22-33 px) and no 1600 x 1200 view (at most 13 px),
+/// whose results, and the shipped calibrations made from them, stay the same bit for bit.
+pub const BIN_MIN_MODULE_PX: f64 = 16.0;
+
 /// Registers frames of one rig: camera model, plate layout, detector and estimator settings.
 #[derive(Debug, Clone)]
 pub struct PlateRegistrar {
@@ -347,6 +356,10 @@ pub struct PlateRegistrar {
     /// [`SearchRecord::whole_frame_s`] says what the windows saved (default on; benches
     /// that time the search themselves turn it off).
     pub time_whole_frame: bool,
+    /// With [`MarkerSearch::Predicted`]: search the windows for dark regions on 2 x 2 means
+    /// when the nominal pose shows every marker large enough ([`Self::region_bin_for`];
+    /// default on). The corners are fitted on the full image either way.
+    pub bin_large_markers: bool,
     deviation: Deviation,
     whole_frame_cost: WholeFrameCost,
     grey_buffers: GreyBuffers,
@@ -366,6 +379,7 @@ impl PlateRegistrar {
             options,
             search: MarkerSearch::Predicted { tolerance: None },
             time_whole_frame: true,
+            bin_large_markers: true,
             deviation: Deviation::default(),
             whole_frame_cost: WholeFrameCost::default(),
             grey_buffers: GreyBuffers::default(),
@@ -478,8 +492,63 @@ impl PlateRegistrar {
         let per_marker = self.search_windows(nominal, tolerance.0.to_radians(), tolerance.1);
         let windows = merge_windows(per_marker.into_iter().map(|(_, w)| w).collect());
         grey.prepare(&windows, self.read_margin_px());
-        let found = detect_in_windows(&grey.image()?, &self.dictionary, &self.detect, &windows)?;
+        let params = self.params_for(grey, self.region_bin_for(nominal));
+        let found = detect_in_windows(&grey.image()?, &self.dictionary, &params, &windows)?;
         Ok((windows, found))
+    }
+
+    /// The detector settings for `grey` with the region search binned `bin` x `bin`. A
+    /// mosaic's green photosites are known from its pattern, so [`GreenSites::Auto`] is
+    /// replaced by them (as `btfrig_markers::detect_raw` does) instead of being recognised
+    /// from the filled-in green (the same parity, at a sixth of a 12 MP search's time).
+    fn params_for(&self, grey: &Grey, bin: usize) -> Cow<'_, DetectParams> {
+        let sites = match (grey.source, self.detect.green_sites) {
+            (GreyFrame::Mosaic(m), GreenSites::Auto) => match m.bayer {
+                None => GreenSites::All,
+                // Green sites have x + y of one parity in every Bayer layout.
+                Some(b) if b.channel_at(0, 0) == 1 => GreenSites::Even,
+                Some(_) => GreenSites::Odd,
+            },
+            (_, configured) => configured,
+        };
+        if sites == self.detect.green_sites && bin == self.detect.region_bin {
+            Cow::Borrowed(&self.detect)
+        } else {
+            Cow::Owned(DetectParams { green_sites: sites, region_bin: bin, ..self.detect.clone() })
+        }
+    }
+
+    /// The region search's binning for a frame at `nominal` ([`DetectParams::region_bin`]):
+    /// 2 when every plate marker projects with modules of at least [`BIN_MIN_MODULE_PX`]
+    /// across each of its edges ([`Self::smallest_module_px`]), else the detector's setting.
+    /// With [`Self::bin_large_markers`] off, always the detector's setting.
+    pub fn region_bin_for(&self, nominal: &ScenePose) -> usize {
+        match self.smallest_module_px(nominal) {
+            Some(m) if self.bin_large_markers && m >= BIN_MIN_MODULE_PX => 2,
+            _ => self.detect.region_bin,
+        }
+    }
+
+    /// The smallest module, in pixels across a marker edge, of the plate markers seen from
+    /// `nominal` (`None` if a marker corner does not project).
+    pub fn smallest_module_px(&self, nominal: &ScenePose) -> Option<f64> {
+        let t = sample_to_camera(nominal);
+        let modules = (self.dictionary.size + 2) as f64;
+        let mut smallest = f64::INFINITY;
+        for m in &self.markers {
+            let mut q = [Point2::origin(); 4];
+            for (k, c) in m.corners_sample_m.iter().enumerate() {
+                q[k] = self.camera.project(&(t * Point3::new(c.x, c.y, 0.0)))?;
+            }
+            for i in 0..4 {
+                // Across edge i: the other two corners' distance from its line.
+                let (a, b) = (q[i], q[(i + 1) % 4]);
+                let d = (b - a).normalize();
+                let dist = |p: Point2<f64>| (d.x * (p - a).y - d.y * (p - a).x).abs();
+                smallest = smallest.min(0.5 * (dist(q[(i + 2) % 4]) + dist(q[(i + 3) % 4])) / modules);
+            }
+        }
+        Some(smallest)
     }
 
     /// How far beyond a search window the detector reads: the threshold's local mean (half
@@ -521,7 +590,7 @@ impl PlateRegistrar {
             None if self.time_whole_frame && self.whole_frame_cost.claim() => {
                 let t = Instant::now();
                 grey.prepare_all();
-                detect(&grey.image()?, &self.dictionary, &self.detect)?;
+                detect(&grey.image()?, &self.dictionary, &self.params_for(&grey, self.detect.region_bin))?;
                 let s = t.elapsed().as_secs_f64();
                 self.whole_frame_cost.observe(s, pixels);
                 r.search.reference_s = s;
@@ -654,7 +723,7 @@ impl PlateRegistrar {
     ) -> Result<FrameRegistration, FrameError> {
         let t = Instant::now();
         grey.prepare_all();
-        let detections = detect(&grey.image()?, &self.dictionary, &self.detect)?;
+        let detections = detect(&grey.image()?, &self.dictionary, &self.params_for(grey, self.detect.region_bin))?;
         let whole_s = t.elapsed().as_secs_f64();
         search.whole_frame_s = Some(whole_s);
         let detect_s = spent.0 + whole_s;

@@ -43,7 +43,10 @@ use rand::seq::SliceRandom;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-pub use frame::{FallbackCause, FrameError, FrameRegistration, GreyFrame, MarkerSearch, PlateRegistrar, SearchRecord};
+pub use frame::{
+    FallbackCause, FrameError, FrameRegistration, GreyFrame, MarkerSearch, PlateRegistrar, SearchRecord,
+    BIN_MIN_MODULE_PX,
+};
 pub use metric::{back_project, sample_to_camera, texel_position_error, texel_position_error_with_cameras};
 pub use refine::{Matrix6, Vector6};
 

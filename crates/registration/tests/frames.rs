@@ -146,3 +146,46 @@ fn predicted_windows_register_as_the_whole_frame_does_and_fall_back_when_they_mi
         assert!(t.search.pixels > t.search.frame_pixels);
     }
 }
+
+/// The region search on 2 x 2 means: chosen per frame from the markers' predicted module size
+/// (none of the 1600 x 1200 rig's views reach `BIN_MIN_MODULE_PX`, so their results stay as
+/// they were bit for bit), and when set it registers the frame as the full-resolution search
+/// does, the corners being fitted on the full image either way.
+#[test]
+fn binned_region_search_is_chosen_by_module_size_and_registers_as_the_full_search() {
+    let (cfg, scene) = scene("lacquered-wood");
+    let cam = scene.camera().model().clone();
+    let full = PlateRegistrar::new(cam.clone(), &cfg.plate, RegisterOptions::default()).unwrap();
+    let mut binned = full.clone();
+    binned.detect.region_bin = 2;
+    let exposure = scene.exposure_for_white(0.5, 1e-4, 30.0);
+    let mut modules = Vec::new();
+    for view in [(0.0, 0.0), (45.0, 90.0), (75.0, 90.0)] {
+        let (cmd, truth) = joints(&scene, view);
+        let nominal = scene.pose(&cmd);
+        let m = full.smallest_module_px(&nominal).unwrap();
+        modules.push(m);
+        assert_eq!(full.region_bin_for(&nominal), 1, "view {view:?}: modules {m:.2} px");
+        if m < 6.0 {
+            continue; // too small to bin (3 binned px is the detector's smallest module)
+        }
+        let (raw, _) = scene.capture(&truth, 1.0, exposure, 1.0, 11, &RenderOptions::default()).unwrap();
+        let mosaic = Mosaic::of_raw(&raw).unwrap();
+        let a = full.register_grey_within(GreyFrame::Mosaic(mosaic), &nominal, Some((2.0, 0.01))).unwrap();
+        let b = binned.register_grey_within(GreyFrame::Mosaic(mosaic), &nominal, Some((2.0, 0.01))).unwrap();
+        assert_eq!(a.detected, b.detected, "view {view:?}");
+        let mut shift = 0.0f64;
+        for (p, q) in a.detections.iter().zip(&b.detections) {
+            for k in 0..4 {
+                shift = shift.max((p.corners[k] - q.corners[k]).norm());
+            }
+        }
+        assert!(shift > 0.0 && shift < 1e-3, "view {view:?}: corners moved {shift} px");
+        let d =
+            btfrig_registration::refine::difference(&a.registration.sample_to_camera, &b.registration.sample_to_camera);
+        assert!(d.norm() < 1e-6, "view {view:?}: pose differs by {d:?}");
+    }
+    // Frontal 13.3 px, 45 degrees 8.6, 75 degrees 3.1 on this rig.
+    assert!(modules[0] > 12.0 && modules[0] < btfrig_registration::BIN_MIN_MODULE_PX, "{modules:?}");
+    assert!(modules[0] > modules[1] && modules[1] > modules[2], "{modules:?}");
+}

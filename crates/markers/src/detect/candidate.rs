@@ -5,7 +5,7 @@ use nalgebra::Point2;
 
 use super::edge::{fit_edge, from_fit, intersect, EdgeFit};
 use super::edge_model::{fit_edge_model, B_MIN};
-use super::quad::{cross, initial_quad, module_across};
+use super::quad::{cross, initial_quad, module_across, pixel_centre};
 use super::{DetectParams, Detection, GrayImage, Quality};
 use crate::dictionary::Dictionary;
 
@@ -15,8 +15,9 @@ pub(super) fn candidate(
     p: &DetectParams,
     parity: Option<usize>,
     pixels: &[(u32, u32)],
+    bin: usize,
 ) -> Option<Detection> {
-    let mut q = initial_quad(pixels)?;
+    let mut q = initial_quad(pixels, bin)?;
     let sides: Vec<f64> = (0..4).map(|i| (q[(i + 1) % 4] - q[i]).norm()).collect();
     let (smin, smax) = sides.iter().fold((f64::MAX, 0.0f64), |a, &s| (a.0.min(s), a.1.max(s)));
     if smax < p.min_side_px || smin < 0.25 * p.min_side_px || smax > p.max_side_frac * img.width.min(img.height) as f64
@@ -25,11 +26,11 @@ pub(super) fn candidate(
     }
     // Every region pixel inside the quad (with a tolerance): rejects blobs that are not
     // quads and markers merged with dark neighbours.
-    let tol = 1.5 + 0.04 * smax;
+    let tol = 1.5 * bin as f64 + 0.04 * smax;
     let outside = pixels
         .iter()
         .filter(|px| {
-            let pt = Point2::new(px.0 as f64, px.1 as f64);
+            let pt = pixel_centre(px, bin);
             (0..4).any(|i| {
                 let (a, b) = (q[i], q[(i + 1) % 4]);
                 let d = (b - a).normalize();

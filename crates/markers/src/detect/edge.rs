@@ -108,8 +108,8 @@ impl<'a> EdgeBandMap<'a> {
         if !(u >= -eps && u <= (self.nt - 1) as f64 + eps && v >= -eps && v <= 2.0 + eps) {
             return to_fit(self.cam, p);
         }
-        let i = (u.floor().max(0.0) as usize).min(self.nt - 2);
-        let j = (v.floor().max(0.0) as usize).min(1);
+        let i = (u as usize).min(self.nt - 2);
+        let j = (v as usize).min(1);
         let (fu, fv) = (u - i as f64, v - j as f64);
         let n = |i: usize, j: usize| self.nodes[j * self.nt + i].coords;
         let q = n(i, j) * ((1.0 - fu) * (1.0 - fv))

@@ -51,9 +51,9 @@ pub(super) fn fit_edge_model(
     let pad = h + 1.0;
     let (xa, xb) = (a.x.min(b.x) - pad, a.x.max(b.x) + pad);
     let (ya, yb) = (a.y.min(b.y) - pad, a.y.max(b.y) + pad);
-    let x0 = xa.floor().max(0.0) as usize;
+    let x0 = xa as usize;
     let x1 = (xb.ceil().max(0.0) as usize).min(img.width - 1);
-    let y0 = ya.floor().max(0.0) as usize;
+    let y0 = ya as usize;
     let y1 = (yb.ceil().max(0.0) as usize).min(img.height - 1);
     // The cheap test below keeps pixels with `t` in this range and `s` in this one.
     let band =

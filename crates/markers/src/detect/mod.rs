@@ -210,10 +210,77 @@ fn search_window(
     parity: Option<usize>,
     win: Window,
 ) -> (Vec<Detection>, usize) {
-    let dark = threshold(image, params, win);
     let (w, h) = (image.width, image.height);
-    let (ww, wh) = (win.x1 - win.x0, win.y1 - win.y0);
     let max_side = params.max_side_frac * w.min(h) as f64;
+    let bin = params.region_bin;
+    let mut out: Vec<Detection> = Vec::new();
+    // A region in the searched image's pixels (`bin` full pixels a side), bounding box
+    // `[x0, x1] x [y0, y1]` inclusive, in the full image's pixels.
+    let mut each_region = |pixels: &[(u32, u32)], [x0, y0, x1, y1]: [usize; 4]| {
+        let (bw, bh) = ((x1 - x0 + 1) as f64, (y1 - y0 + 1) as f64);
+        if bw.max(bh) < params.min_side_px || bw.max(bh) > max_side * 1.5 || bw.min(bh) < 3.0 {
+            return;
+        }
+        let m = params.border_margin_px;
+        if x0 < m || y0 < m || x1 + m >= w || y1 + m >= h {
+            return;
+        }
+        if let Some(d) = candidate(image, dict, params, parity, pixels, bin) {
+            out.push(d);
+        }
+    };
+    let cut = if bin == 1 {
+        let dark = threshold(image, params, win);
+        dark_regions(&dark, win, (w, h), (0, 0), |pixels, b| each_region(pixels, b))
+    } else {
+        // The binned image of the window grown by the threshold's half window: every box
+        // the threshold reads inside the window (clipped where the image ends, as in full
+        // resolution), so the sub-image's sides are the binned image's only where the
+        // image's are.
+        let (bw, bh) = (w / bin, h / bin);
+        let bp =
+            DetectParams { threshold_window_px: ((params.threshold_window_px / bin) | 1).max(3), ..params.clone() };
+        let r = bp.threshold_window_px / 2;
+        let bwin = Window::new(win.x0 / bin, win.y0 / bin, win.x1.div_ceil(bin), win.y1.div_ceil(bin)).clipped(bw, bh);
+        let (sx0, sy0) = (bwin.x0.saturating_sub(r), bwin.y0.saturating_sub(r));
+        let (sx1, sy1) = ((bwin.x1 + r).min(bw), (bwin.y1 + r).min(bh));
+        let sw = sx1 - sx0;
+        let norm = 1.0 / (bin * bin) as f32;
+        let mut sub = vec![0.0f32; sw * (sy1 - sy0)];
+        for (j, row) in sub.chunks_exact_mut(sw).enumerate() {
+            for dy in 0..bin {
+                let line = &image.data[((sy0 + j) * bin + dy) * w + sx0 * bin..][..sw * bin];
+                for (o, px) in row.iter_mut().zip(line.chunks_exact(bin)) {
+                    *o += px.iter().sum::<f32>();
+                }
+            }
+            row.iter_mut().for_each(|v| *v *= norm);
+        }
+        let Ok(sub_image) = GrayImage::new(sw, sy1 - sy0, &sub) else { return (out, 0) };
+        let swin = Window::new(bwin.x0 - sx0, bwin.y0 - sy0, bwin.x1 - sx0, bwin.y1 - sy0);
+        if swin.area() == 0 {
+            return (out, 0);
+        }
+        let dark = threshold(&sub_image, &bp, swin);
+        dark_regions(&dark, swin, (sw, sy1 - sy0), (sx0, sy0), |pixels, [x0, y0, x1, y1]| {
+            each_region(pixels, [x0 * bin, y0 * bin, x1 * bin + bin - 1, y1 * bin + bin - 1])
+        })
+    };
+    (out, cut)
+}
+
+/// Step 2: the 8-connected regions of `dark` (the mask of `win` in an image of `size`), each
+/// given to `each` as its pixels (image coordinates plus `origin`) and bounding box (the same
+/// coordinates, inclusive). Returns the number of regions dropped for reaching a side of
+/// `win` that is not the image's: they may continue outside.
+fn dark_regions(
+    dark: &[bool],
+    win: Window,
+    (w, h): (usize, usize),
+    origin: (usize, usize),
+    mut each: impl FnMut(&[(u32, u32)], [usize; 4]),
+) -> usize {
+    let (ww, wh) = (win.x1 - win.x0, win.y1 - win.y0);
     // Dark pixels not yet visited, in the window framed by one row and column of zeros: the
     // flood fill's neighbours then need no bounds test, and a pixel's position travels with
     // it on the stack (no division of an index per pixel).
@@ -225,9 +292,9 @@ fn search_window(
             *o = u8::from(d);
         }
     }
+    let (ox, oy) = (win.x0 + origin.0, win.y0 + origin.1);
     let mut stack: Vec<(u32, u32)> = Vec::new();
     let mut pixels: Vec<(u32, u32)> = Vec::new();
-    let mut out: Vec<Detection> = Vec::new();
     let mut cut = 0;
     for (sy, sx) in (0..wh).flat_map(|y| (0..ww).map(move |x| (y, x))) {
         if open[(sy + 1) * pw + sx + 1] == 0 {
@@ -240,7 +307,7 @@ fn search_window(
         let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
         while let Some((x, y)) = stack.pop() {
             let (x, y) = (x as usize, y as usize);
-            pixels.push(((x + win.x0) as u32, (y + win.y0) as u32));
+            pixels.push(((x + ox) as u32, (y + oy) as u32));
             x0 = x0.min(x);
             x1 = x1.max(x);
             y0 = y0.min(y);
@@ -265,20 +332,9 @@ fn search_window(
             cut += 1;
             continue;
         }
-        let (x0, x1, y0, y1) = (x0 + win.x0, x1 + win.x0, y0 + win.y0, y1 + win.y0);
-        let (bw, bh) = ((x1 - x0 + 1) as f64, (y1 - y0 + 1) as f64);
-        if bw.max(bh) < params.min_side_px || bw.max(bh) > max_side * 1.5 || bw.min(bh) < 3.0 {
-            continue;
-        }
-        let m = params.border_margin_px;
-        if x0 < m || y0 < m || x1 + m >= w || y1 + m >= h {
-            continue;
-        }
-        if let Some(d) = candidate(image, dict, params, parity, &pixels) {
-            out.push(d);
-        }
+        each(&pixels, [x0 + ox, y0 + oy, x1 + ox, y1 + oy]);
     }
-    (out, cut)
+    cut
 }
 
 /// Finds the markers in a raw frame: the edges are fitted on its green photosites (on every

@@ -82,6 +82,12 @@ pub struct DetectParams {
     /// gradient) after the scanline passes. `false` keeps the scanline (profile-area) edges
     /// only (the method before; 4 to 20 times worse at 75-80 degrees, `docs/markers.md`).
     pub edge_model: bool,
+    /// Search for dark regions (threshold and flood fill) on `region_bin` x `region_bin`
+    /// means of the image: 1 searches every pixel; 2 a quarter of them, for frames whose
+    /// markers have modules of at least 3 px per bin (large markers on 12 MP frames, where
+    /// the search is a large part of the detector's time). The corner fits and the decoding
+    /// read the full image either way; the region only gives them their starting quad. 1 to 4.
+    pub region_bin: usize,
 }
 
 /// Which pixels of the grey image are genuine samples for the model-based edge fit. In the
@@ -118,6 +124,7 @@ impl Default for DetectParams {
             camera: None,
             green_sites: GreenSites::Auto,
             edge_model: true,
+            region_bin: 1,
         }
     }
 }
@@ -135,6 +142,9 @@ impl DetectParams {
         }
         if !(self.threshold_rel > 0.0 && self.threshold_rel < 1.0) {
             return bad("threshold_rel", self.threshold_rel, "between 0 and 1 (exclusive)");
+        }
+        if !(1..=4).contains(&self.region_bin) {
+            return bad("region_bin", self.region_bin as f64, "1, 2, 3 or 4");
         }
         if !(self.min_side_px >= 8.0 && self.min_side_px.is_finite()) {
             return bad("min_side_px", self.min_side_px, "at least 8");

@@ -6,12 +6,18 @@ pub(super) fn cross(a: Vector2<f64>, b: Vector2<f64>) -> f64 {
     a.x * b.y - a.y * b.x
 }
 
-/// Quad from a region's extreme pixels, in clockwise order on screen (y down).
-pub(super) fn initial_quad(pixels: &[(u32, u32)]) -> Option<[Point2<f64>; 4]> {
+/// The centre, in full-image pixels, of pixel `p` of the image binned `bin` x `bin`.
+pub(super) fn pixel_centre(p: &(u32, u32), bin: usize) -> Point2<f64> {
+    let (s, o) = (bin as f64, 0.5 * (bin as f64 - 1.0));
+    Point2::new(p.0 as f64 * s + o, p.1 as f64 * s + o)
+}
+
+/// Quad from a region's extreme pixels (of the image binned `bin` x `bin`), in full-image
+/// pixels, in clockwise order on screen (y down).
+pub(super) fn initial_quad(pixels: &[(u32, u32)], bin: usize) -> Option<[Point2<f64>; 4]> {
     let n = pixels.len() as f64;
-    let (sx, sy) = pixels.iter().fold((0.0, 0.0), |a, p| (a.0 + p.0 as f64, a.1 + p.1 as f64));
-    let c = Point2::new(sx / n, sy / n);
-    let pt = |p: &(u32, u32)| Point2::new(p.0 as f64, p.1 as f64);
+    let pt = |p: &(u32, u32)| pixel_centre(p, bin);
+    let c = Point2::from(pixels.iter().fold(Vector2::zeros(), |a, p| a + pt(p).coords) / n);
     let far = |from: Point2<f64>| {
         pixels.iter().map(pt).max_by(|a, b| (a - from).norm_squared().total_cmp(&(b - from).norm_squared()))
     };
@@ -33,11 +39,12 @@ pub(super) fn initial_quad(pixels: &[(u32, u32)]) -> Option<[Point2<f64>; 4]> {
             return None;
         }
     }
-    // Pixel centres of the dark region lie about half a pixel inside its edges.
+    // Pixel centres of the dark region lie about half a (binned) pixel inside its edges.
     let centre = Point2::from((q[0].coords + q[1].coords + q[2].coords + q[3].coords) / 4.0);
+    let out = 0.5 * bin as f64 + 0.2;
     for p in &mut q {
         let v = *p - centre;
-        *p += v.normalize() * 0.7;
+        *p += v.normalize() * out;
     }
     Some(q)
 }
