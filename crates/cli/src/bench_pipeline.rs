@@ -291,7 +291,7 @@ pub fn bench(a: &BenchPipelineArgs) -> anyhow::Result<()> {
         if let Some(r) = hdr_result {
             println!(
                 "HDR merge of a 2-frame bracket (exposures 1 : {}) on the first view: before (merge_bracket_reference) \
-                 {:.1} ms, after (merge_bracket) {:.1} ms, {:.2}x faster; largest relative difference {:.1e}, same \
+                 {:.1} ms, after (merge_bracket_into, planes reused) {:.1} ms, {:.2}x faster; largest relative difference {:.1e}, same \
                  exposures used {}, {} photosites saturated in both",
                 a.hdr_ratio,
                 r.reference_ms,

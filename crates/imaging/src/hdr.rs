@@ -185,6 +185,22 @@ pub fn merge_bracket(
     noise: &NoiseModel,
     options: &MergeOptions,
 ) -> Result<MergedFrame, HdrError> {
+    let mut out = MergedFrame { width: 0, height: 0, rate: Vec::new(), variance: Vec::new(), used: Vec::new() };
+    merge_bracket_into(frames, calibration, noise, options, &mut out)?;
+    Ok(out)
+}
+
+/// [`merge_bracket`] into the planes of `out` (resized to the frames; every photosite is
+/// written), so that a run merging frame after frame reuses them: fresh planes of a 12 MP
+/// frame are 108 MB of pages the kernel must clear on first touch, about a third of the
+/// merge's time (`docs/benchmarks.md`). On an error `out` holds no meaningful values.
+pub fn merge_bracket_into(
+    frames: &[&RawFrame],
+    calibration: &impl PhotositeCalibration,
+    noise: &NoiseModel,
+    options: &MergeOptions,
+    out: &mut MergedFrame,
+) -> Result<(), HdrError> {
     let (order, ks, limits) = prepare(frames, noise, options)?;
     let (w, h) = (order[0].width, order[0].height);
     let n = order.len();
@@ -198,9 +214,11 @@ pub fn merge_bracket(
     // V(at) of a sample: the reading's variance in e-² at rate `at` (`NoiseModel::variance_e2`).
     let var_e2 = |at: f64, scale: f64, dark_e: f64, j: usize| (at * scale + dark_e).max(0.0) + rn2 + quant[j];
 
-    let mut rate = vec![0.0f32; w * h];
-    let mut variance = vec![0.0f32; w * h];
-    let mut used = vec![0u8; w * h];
+    (out.width, out.height) = (w, h);
+    out.rate.resize(w * h, 0.0);
+    out.variance.resize(w * h, 0.0);
+    out.used.resize(w * h, 0);
+    let MergedFrame { rate, variance, used, .. } = out;
     if n == 2 {
         // The usual bracket, without branches (see `merge_pair_row`).
         let c = PairConstants {
@@ -224,7 +242,7 @@ pub fn merge_bracket(
             })
             .collect();
         rows.into_iter().collect::<Result<Vec<()>, HdrError>>()?;
-        return Ok(MergedFrame { width: w, height: h, rate, variance, used });
+        return Ok(());
     }
     let rows: Vec<Result<(), HdrError>> = rate
         .par_chunks_mut(w.max(1))
@@ -342,7 +360,7 @@ pub fn merge_bracket(
         })
         .collect();
     rows.into_iter().collect::<Result<Vec<()>, HdrError>>()?;
-    Ok(MergedFrame { width: w, height: h, rate, variance, used })
+    Ok(())
 }
 
 /// Per-frame constants of a two-frame merge (frame 0 the shorter signal scale).

@@ -236,3 +236,38 @@ fn glossy_highlight_is_bracketed_and_merged_to_truth_off_specular_takes_one_expo
         assert!(p95 < 0.025, "{p95}");
     }
 }
+
+/// `merge_bracket_into` writes every photosite of the planes it is given: merging into planes
+/// left over from other brackets (a larger frame, a 3-frame bracket with saturated
+/// photosites, the same size) gives exactly what a fresh merge gives.
+#[test]
+fn merging_into_used_planes_equals_a_fresh_merge() {
+    use btfrig_imaging::hdr::merge_bracket_into;
+    let s = SensorModel::from_config(&Default::default()).unwrap();
+    let ramp = |w: usize, h: usize, top: f32| {
+        let mut img = RadianceImage::filled(w, h, [0.0; 3]);
+        for y in 0..h {
+            for x in 0..w {
+                let v = top * (x + w * y) as f32 / (w * h) as f32;
+                img.data[y * w + x] = [v, 0.7 * v, 1.3 * v];
+            }
+        }
+        img
+    };
+    let bracket = |img: &RadianceImage, times: &[f64], seed: u64| -> Vec<RawFrame> {
+        times.iter().enumerate().map(|(i, &t)| s.capture(img, t, 1.0, seed + i as u64).unwrap()).collect()
+    };
+    // Up to 30x the rate that saturates the short exposure: some photosites clip everywhere.
+    let big = bracket(&ramp(96, 80, 3e8), &[0.002, 0.008, 0.032], 7);
+    let small = bracket(&ramp(64, 48, 2e7), &[0.004, 0.016], 21);
+    let other = bracket(&ramp(64, 48, 5e6), &[0.001, 0.004], 40);
+    let dim = bracket(&ramp(96, 80, 1e6), &[0.002, 0.008, 0.032], 60);
+    assert!(merge(&s, &big).saturated_everywhere() > 0, "the big bracket clips somewhere");
+    let mut planes = merge(&s, &dim);
+    assert_eq!(planes.saturated_everywhere(), 0);
+    for frames in [&big, &small, &other, &small, &big] {
+        let refs: Vec<&RawFrame> = frames.iter().collect();
+        merge_bracket_into(&refs, &nominal(&s), &noise(&s), &MergeOptions::default(), &mut planes).unwrap();
+        assert_eq!(planes, merge(&s, frames));
+    }
+}

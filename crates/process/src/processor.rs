@@ -35,6 +35,9 @@ pub struct Processor {
     pub(crate) sink: Option<Arc<dyn TextureSink>>,
     /// The truth behind the frames (simulated rigs only), for the error figures.
     pub(crate) truth: Option<Arc<dyn TruthProbe>>,
+    /// HDR merge planes kept between brackets (one per bracket merged at once): fresh
+    /// frame-sized planes cost a page fault per 4 KiB on every frame.
+    pub(crate) merge_planes: Mutex<Vec<btfrig_imaging::hdr::MergedFrame>>,
 }
 
 impl Processor {
@@ -88,6 +91,7 @@ impl Processor {
             hdr: None,
             sink: None,
             truth: None,
+            merge_planes: Mutex::new(Vec::new()),
         })
     }
 

@@ -240,33 +240,45 @@ impl Processor {
     /// gain, above 1 where the base saturated); also returns the photosites saturated in
     /// every exposure.
     fn merged_values(&self, step: StepId, frames: &[&RawFrame]) -> Result<(Vec<f32>, u64), PipelineError> {
-        use btfrig_imaging::hdr::{merge_bracket, MergeOptions, NoiseModel, NominalCalibration};
+        use btfrig_imaging::hdr::{merge_bracket_into, MergeOptions, MergedFrame, NoiseModel, NominalCalibration};
         let base = frames[0];
         let sensor = &self.model.sensor;
         let noise = NoiseModel { electrons_per_dn: sensor.electrons_per_dn, read_noise_e: sensor.read_noise_e };
         let opts = MergeOptions::default();
         let hdr_err = |source| PipelineError::Hdr { step, source };
-        let merged = match &self.model.dark_flat {
-            Some(cal) => {
-                let mc = cal
-                    .merge_calibration(base.meta.f_number)
-                    .map_err(|source| PipelineError::DarkFlat { step, source })?;
-                let mut m = merge_bracket(frames, &mc, &noise, &opts).map_err(hdr_err)?;
-                mc.replace_defects(&mut m.rate, base.meta.bayer.is_some());
-                m
-            }
+        // Planes from the pool (they go back whatever happens below).
+        let mut merged = self.merge_planes.lock().expect("merge planes").pop().unwrap_or_else(|| MergedFrame {
+            width: 0,
+            height: 0,
+            rate: Vec::new(),
+            variance: Vec::new(),
+            used: Vec::new(),
+        });
+        let done = match &self.model.dark_flat {
+            Some(cal) => cal
+                .merge_calibration(base.meta.f_number)
+                .map_err(|source| PipelineError::DarkFlat { step, source })
+                .and_then(|mc| {
+                    merge_bracket_into(frames, &mc, &noise, &opts, &mut merged).map_err(hdr_err)?;
+                    mc.replace_defects(&mut merged.rate, base.meta.bayer.is_some());
+                    Ok(())
+                }),
             None => {
                 let nominal = NominalCalibration {
                     dark_current_e_per_s: sensor.dark_current_e_per_s,
                     electrons_per_dn: sensor.electrons_per_dn,
                 };
-                merge_bracket(frames, &nominal, &noise, &opts).map_err(hdr_err)?
+                merge_bracket_into(frames, &nominal, &noise, &opts, &mut merged).map_err(hdr_err)
             }
         };
-        let range = (f64::from(base.meta.white_level) - f64::from(base.meta.black_level)).max(1.0);
-        let scale = base.meta.exposure_s * sensor.dn_per_electron(base.meta.gain.max(1.0)) / range;
-        let values: Vec<f32> = merged.rate.iter().map(|&r| (f64::from(r) * scale) as f32).collect();
-        Ok((values, merged.saturated_everywhere() as u64))
+        let out = done.map(|()| {
+            let range = (f64::from(base.meta.white_level) - f64::from(base.meta.black_level)).max(1.0);
+            let scale = base.meta.exposure_s * sensor.dn_per_electron(base.meta.gain.max(1.0)) / range;
+            let values: Vec<f32> = merged.rate.iter().map(|&r| (f64::from(r) * scale) as f32).collect();
+            (values, merged.saturated_everywhere() as u64)
+        });
+        self.merge_planes.lock().expect("merge planes").push(merged);
+        out
     }
 
     /// Registers `image` (its demosaiced green channel, computed only where the markers are
