@@ -145,8 +145,9 @@ impl Default for MergeOptions {
     }
 }
 
-/// A merged bracket: signal rate per photosite (the Bayer mosaic is kept).
-#[derive(Debug, Clone, PartialEq)]
+/// A merged bracket: signal rate per photosite (the Bayer mosaic is kept). The default is
+/// empty (planes for [`merge_bracket_into`] to fill).
+#[derive(Debug, Clone, Default, PartialEq)]
 pub struct MergedFrame {
     /// Width in photosites.
     pub width: usize,
@@ -185,15 +186,15 @@ pub fn merge_bracket(
     noise: &NoiseModel,
     options: &MergeOptions,
 ) -> Result<MergedFrame, HdrError> {
-    let mut out = MergedFrame { width: 0, height: 0, rate: Vec::new(), variance: Vec::new(), used: Vec::new() };
+    let mut out = MergedFrame::default();
     merge_bracket_into(frames, calibration, noise, options, &mut out)?;
     Ok(out)
 }
 
 /// [`merge_bracket`] into the planes of `out` (resized to the frames; every photosite is
 /// written), so that a run merging frame after frame reuses them: fresh planes of a 12 MP
-/// frame are 108 MB of pages the kernel must clear on first touch, about a third of the
-/// merge's time (`docs/benchmarks.md`). On an error `out` holds no meaningful values.
+/// frame are 108 MB of pages the kernel must clear on first touch, about 20 ms of a 70-75 ms
+/// merge (`docs/benchmarks.md`). On an error `out` holds no meaningful values.
 pub fn merge_bracket_into(
     frames: &[&RawFrame],
     calibration: &impl PhotositeCalibration,

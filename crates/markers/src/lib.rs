@@ -31,7 +31,7 @@ pub mod detect;
 pub mod dictionary;
 
 pub use detect::{
-    detect, detect_in_windows, detect_raw, DetectError, DetectParams, Detection, GrayImage, GreenSites, Quality,
-    Window, WindowSearch,
+    detect, detect_in_windows, detect_raw, module_across, DetectError, DetectParams, Detection, GrayImage, GreenSites,
+    Quality, Window, WindowSearch,
 };
 pub use dictionary::{Dictionary, DictionaryError};

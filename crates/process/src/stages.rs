@@ -240,20 +240,14 @@ impl Processor {
     /// gain, above 1 where the base saturated); also returns the photosites saturated in
     /// every exposure.
     fn merged_values(&self, step: StepId, frames: &[&RawFrame]) -> Result<(Vec<f32>, u64), PipelineError> {
-        use btfrig_imaging::hdr::{merge_bracket_into, MergeOptions, MergedFrame, NoiseModel, NominalCalibration};
+        use btfrig_imaging::hdr::{merge_bracket_into, MergeOptions, NoiseModel, NominalCalibration};
         let base = frames[0];
         let sensor = &self.model.sensor;
         let noise = NoiseModel { electrons_per_dn: sensor.electrons_per_dn, read_noise_e: sensor.read_noise_e };
         let opts = MergeOptions::default();
         let hdr_err = |source| PipelineError::Hdr { step, source };
         // Planes from the pool (they go back whatever happens below).
-        let mut merged = self.merge_planes.lock().expect("merge planes").pop().unwrap_or_else(|| MergedFrame {
-            width: 0,
-            height: 0,
-            rate: Vec::new(),
-            variance: Vec::new(),
-            used: Vec::new(),
-        });
+        let mut merged = self.merge_planes.lock().expect("merge planes").pop().unwrap_or_default();
         let done = match &self.model.dark_flat {
             Some(cal) => cal
                 .merge_calibration(base.meta.f_number)

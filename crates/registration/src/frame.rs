@@ -18,8 +18,8 @@ use btfrig_core::config::plate::{MarkerPlacement, PlateConfig};
 use btfrig_core::pose::ScenePose;
 use btfrig_imaging::Mosaic;
 use btfrig_markers::{
-    detect, detect_in_windows, DetectError, DetectParams, Detection, Dictionary, GrayImage, GreenSites, Window,
-    WindowSearch,
+    detect, detect_in_windows, module_across, DetectError, DetectParams, Detection, Dictionary, GrayImage, GreenSites,
+    Window, WindowSearch,
 };
 use nalgebra::{Isometry3, Point2, Point3, Vector3};
 
@@ -500,7 +500,8 @@ impl PlateRegistrar {
     /// The detector settings for `grey` with the region search binned `bin` x `bin`. A
     /// mosaic's green photosites are known from its pattern, so [`GreenSites::Auto`] is
     /// replaced by them (as `btfrig_markers::detect_raw` does) instead of being recognised
-    /// from the filled-in green (the same parity, at a sixth of a 12 MP search's time).
+    /// from the filled-in green (the same parity; recognising it was a sixth of a 12 MP
+    /// search's time).
     fn params_for(&self, grey: &Grey, bin: usize) -> Cow<'_, DetectParams> {
         let sites = match (grey.source, self.detect.green_sites) {
             (GreyFrame::Mosaic(m), GreenSites::Auto) => match m.bayer {
@@ -541,11 +542,7 @@ impl PlateRegistrar {
                 q[k] = self.camera.project(&(t * Point3::new(c.x, c.y, 0.0)))?;
             }
             for i in 0..4 {
-                // Across edge i: the other two corners' distance from its line.
-                let (a, b) = (q[i], q[(i + 1) % 4]);
-                let d = (b - a).normalize();
-                let dist = |p: Point2<f64>| (d.x * (p - a).y - d.y * (p - a).x).abs();
-                smallest = smallest.min(0.5 * (dist(q[(i + 2) % 4]) + dist(q[(i + 3) % 4])) / modules);
+                smallest = smallest.min(module_across(&q, i, modules));
             }
         }
         Some(smallest)

@@ -12,6 +12,7 @@ mod threshold;
 
 pub use image::GrayImage;
 pub use params::{DetectError, DetectParams, GreenSites};
+pub use quad::module_across;
 
 use nalgebra::Point2;
 

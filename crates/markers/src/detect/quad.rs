@@ -52,7 +52,7 @@ pub(super) fn initial_quad(pixels: &[(u32, u32)], bin: usize) -> Option<[Point2<
 /// Module size across edge `i` of quad `q` (corner `i` to `i + 1`): the distance of the two
 /// other corners from the edge's line over the module count. (Not the adjacent sides'
 /// length: a sheared, foreshortened quad is much thinner across an edge than its sides.)
-pub(super) fn module_across(q: &[Point2<f64>; 4], i: usize, modules: f64) -> f64 {
+pub fn module_across(q: &[Point2<f64>; 4], i: usize, modules: f64) -> f64 {
     let (a, b) = (q[i], q[(i + 1) % 4]);
     let d = (b - a).normalize();
     let dist = |p: Point2<f64>| cross(d, p - a).abs();
