@@ -247,3 +247,59 @@ fn marker_cut_by_the_border_of_a_rendered_frame_is_rejected() {
     println!("cropped frame: cut markers {cut:?} rejected; {} found, mean error {:.4} px", dets.len(), e.mean);
     assert_eq!(dets.len(), 12 - cut.len());
 }
+
+#[test]
+fn the_module_grid_fit_halves_the_corner_error_across_foreshortened_markers() {
+    // At 75-80 degrees the modules are 2.5-4 px across the markers' long sides. The error
+    // that matters there is across the long sides (the foreshortened direction: a texel is
+    // a quarter to a sixth of its frontal size in pixels). The grid fit uses every boundary
+    // between a dark and a light module; the edge model alone sees the border's one or two
+    // rows of dark samples. Both renderings: 4 x 4 rays per edge pixel (the renderer's
+    // default: sampling noise) and 16 x 16 (the detectors' own error).
+    let dict = Dictionary::dict_4x4_50();
+    for ss in [4, 16] {
+        let s = Setup::new("lacquered-wood", ss);
+        let cam = s.cam().clone();
+        let grid = DetectParams { camera: Some(cam.clone()), ..DetectParams::default() };
+        assert!(grid.module_grid_below_px > 3.8, "the default covers modules of 3.8 px (75 degrees)");
+        let edges_only = DetectParams { module_grid_below_px: 0.0, ..grid.clone() };
+        // Sums of squared errors across and along the long sides, grid and edges only.
+        let (mut across, mut along) = ([0.0; 2], [0.0; 2]);
+        let mut corners = 0.0;
+        for (view, seed) in [((75.0, 90.0), 51), ((75.0, 330.0), 52), ((80.0, 90.0), 53), ((80.0, 330.0), 54)] {
+            let joints = s.joints(LIGHT, view);
+            let img = s.shoot(&joints, seed);
+            let g = GrayImage::new(cam.width, cam.height, &img).unwrap();
+            let truth = s.truth(&joints);
+            for (k, params) in [&grid, &edges_only].into_iter().enumerate() {
+                let dets = detect(&g, &dict, params).unwrap();
+                let e = compare(&format!("{view:?} {ss}x{ss} rays"), &dets, &truth, &cam);
+                let how = if k == 0 { "grid" } else { "edges only" };
+                println!("{view:?}, {ss}x{ss} rays, {how}: corner error mean {:.4} max {:.4} px", e.mean, e.max);
+                for d in &dets {
+                    let (_, tc) = truth.iter().find(|(id, _)| *id == d.id).unwrap();
+                    let long =
+                        if (tc[1] - tc[0]).norm() > (tc[2] - tc[1]).norm() { tc[1] - tc[0] } else { tc[2] - tc[1] };
+                    let u = long.normalize();
+                    for (found, t) in d.corners.iter().zip(tc) {
+                        let e = found - t;
+                        along[k] += e.dot(&u).powi(2);
+                        across[k] += (e.x * u.y - e.y * u.x).powi(2);
+                        corners += if k == 0 { 1.0 } else { 0.0 };
+                    }
+                }
+            }
+        }
+        let rms = |s: f64| (s / corners).sqrt();
+        println!(
+            "{ss}x{ss} rays, {corners} corners at 75-80 degrees: RMS across the long sides {:.4} px with the grid, \
+             {:.4} px edges only; along {:.4} / {:.4} px",
+            rms(across[0]),
+            rms(across[1]),
+            rms(along[0]),
+            rms(along[1])
+        );
+        assert!(rms(across[0]) < 0.55 * rms(across[1]), "{ss}x{ss}: across {} vs {}", rms(across[0]), rms(across[1]));
+        assert!(rms(along[0]) < rms(along[1]), "{ss}x{ss}: along {} vs {}", rms(along[0]), rms(along[1]));
+    }
+}

@@ -5,6 +5,7 @@ use nalgebra::Point2;
 
 use super::edge::{fit_edge, from_fit, intersect, EdgeFit};
 use super::edge_model::{fit_edge_model, B_MIN};
+use super::grid::fit_grid;
 use super::quad::{cross, initial_quad, module_across, pixel_centre};
 use super::{DetectParams, Detection, GrayImage, Quality};
 use crate::dictionary::Dictionary;
@@ -75,6 +76,8 @@ pub(super) fn candidate(
     if edge_rms.iter().any(|&r| r > p.max_edge_rms_px) {
         return None;
     }
+    // The marker's blur, when the edge model ran on all four edges.
+    let mut marker_blur = None;
     if p.edge_model {
         // If an edge's model fit fails, the scanline corners stay.
         'model: {
@@ -100,8 +103,12 @@ pub(super) fn candidate(
                 .iter()
                 .filter(|f| f.blur_var.is_finite() && f.blur_var > 0.0)
                 .fold((0.0, 0.0), |acc, f| (acc.0 + 1.0 / f.blur_var, acc.1 + f.blur / f.blur_var));
+            let blur = if sw > 0.0 {
+                (swb / sw).max(B_MIN)
+            } else {
+                (mf.iter().map(|f| f.blur).sum::<f64>() / 4.0).max(B_MIN)
+            };
             if sw > 0.0 {
-                let blur = (swb / sw).max(B_MIN);
                 for i in 0..4 {
                     if mf[i].blur_var.sqrt() > 0.3 || mf[i].off_var.sqrt() > 0.05 {
                         let (a, b) = (q[i], q[(i + 1) % 4]);
@@ -128,6 +135,7 @@ pub(super) fn candidate(
             }
             q = nq;
             cov = ncov;
+            marker_blur = Some(blur);
         }
     }
     let dark = fits.iter().map(|f| f.dark).sum::<f64>() / 4.0;
@@ -195,6 +203,23 @@ pub(super) fn candidate(
     }
     if edge_rms.iter().any(|&r| r > 0.5 * p.max_edge_rms_px) {
         flags |= Quality::ROUGH_EDGE;
+    }
+    // Narrow modules: the whole grid (the decoded bits, exact when nothing was corrected).
+    let narrowest = (0..4).map(|i| module_across(&q, i, modules)).fold(f64::INFINITY, f64::min);
+    if let (Some(blur), 0) = (marker_blur, ham) {
+        if narrowest < p.module_grid_below_px {
+            // The border is black whatever it read as (`max_border_errors`).
+            let lit: Vec<bool> = (0..n * n)
+                .map(|i| white[i] && !(i / n == 0 || i % n == 0 || i / n == n - 1 || i % n == n - 1))
+                .collect();
+            if let Some(g) = fit_grid(img, parity, cam, q, &lit, n, (dark, light), blur) {
+                if (0..4).all(|j| (g.corners[j] - q[j]).norm() < 0.5) {
+                    let f2 = p.corner_sigma_floor_px * p.corner_sigma_floor_px;
+                    q = g.corners;
+                    cov = g.cov.map(|c| [[c[0][0] + f2, c[0][1]], [c[1][0], c[1][1] + f2]]);
+                }
+            }
+        }
     }
     let idx = |j: usize| (k + j) % 4;
     let sigma = |c: &[[f64; 2]; 2]| (0.5 * (c[0][0] + c[1][1])).sqrt();

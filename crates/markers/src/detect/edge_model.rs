@@ -214,7 +214,7 @@ pub(super) fn fit_edge_model(
 /// `c` (each at least 0.02): a pixel's footprint across an edge (two widths) blurred by a
 /// box of width `c`. From the density of a sum of uniforms, `sum_S (-1)^|S| (x + A/2 -
 /// sum_S a_i)_+^2 / (2 abc)` over the subsets `S`.
-fn uniform3_cdf(x: f64, a: f64, b: f64, c: f64) -> (f64, f64, f64) {
+pub(super) fn uniform3_cdf(x: f64, a: f64, b: f64, c: f64) -> (f64, f64, f64) {
     let c = c.max(0.02);
     let half = 0.5 * (a + b + c);
     if x <= -half {

@@ -5,6 +5,7 @@ mod candidate;
 mod edge;
 mod edge_model;
 mod green;
+mod grid;
 mod image;
 mod params;
 mod quad;

@@ -88,6 +88,13 @@ pub struct DetectParams {
     /// the search is a large part of the detector's time). The corner fits and the decoding
     /// read the full image either way; the region only gives them their starting quad. 1 to 4.
     pub region_bin: usize,
+    /// Markers whose modules are narrower than this across some side (pixels) get their
+    /// corners from a fit of the whole module grid (every boundary between a dark and a
+    /// light module, from the decoded bits) after the edge model: the border alone gives
+    /// the edge model only one or two rows of dark samples there (grazing views). Needs
+    /// `edge_model`; markers whose code needed a correction keep the edge model's corners.
+    /// 0 turns it off.
+    pub module_grid_below_px: f64,
 }
 
 /// Which pixels of the grey image are genuine samples for the model-based edge fit. In the
@@ -125,6 +132,7 @@ impl Default for DetectParams {
             green_sites: GreenSites::Auto,
             edge_model: true,
             region_bin: 1,
+            module_grid_below_px: 4.0,
         }
     }
 }
@@ -157,6 +165,9 @@ impl DetectParams {
         }
         if !(self.max_edge_rms_px > 0.0 && self.max_edge_rms_px.is_finite()) {
             return bad("max_edge_rms_px", self.max_edge_rms_px, "positive");
+        }
+        if !(self.module_grid_below_px >= 0.0 && self.module_grid_below_px.is_finite()) {
+            return bad("module_grid_below_px", self.module_grid_below_px, "finite, at least 0");
         }
         if !(self.corner_sigma_floor_px >= 0.0 && self.corner_sigma_floor_px.is_finite()) {
             return bad("corner_sigma_floor_px", self.corner_sigma_floor_px, "finite, at least 0");
