@@ -65,6 +65,44 @@ pub fn dlt(src: &[Point2<f64>], dst: &[Point2<f64>]) -> Option<Matrix3<f64>> {
     h.iter().all(|v| v.is_finite()).then_some(h)
 }
 
+/// The homography from the square `[0, side]²` (corners `(0, 0), (side, 0), (side, side),
+/// (0, side)`) onto the quad `q` (the same order), in closed form (Heckbert's projective
+/// mapping of the unit square): what [`dlt`] gives for these four points, without its SVD,
+/// for callers that need it many times per quad (the marker detector's grid fit). `None`
+/// for a degenerate quad (three corners on a line).
+pub fn square_to_quad(side: f64, q: &[Point2<f64>; 4]) -> Option<Matrix3<f64>> {
+    let [p0, p1, p2, p3] = *q;
+    let (sx, sy) = (p0.x - p1.x + p2.x - p3.x, p0.y - p1.y + p2.y - p3.y);
+    let (dx1, dx2, dy1, dy2) = (p1.x - p2.x, p3.x - p2.x, p1.y - p2.y, p3.y - p2.y);
+    let den = dx1 * dy2 - dx2 * dy1;
+    // Degenerate when three corners lie on a line: some turn of the quad is flat.
+    let scale2 = q.iter().map(|p| (p - p0).norm_squared()).fold(0.0, f64::max);
+    let flat = (0..4).any(|k| {
+        let (a, b, c) = (q[k], q[(k + 1) % 4], q[(k + 2) % 4]);
+        let (u, v) = (b - a, c - b);
+        (u.x * v.y - u.y * v.x).abs() <= 1e-12 * scale2
+    });
+    if flat || !(den.abs() > 1e-12 * scale2) {
+        return None;
+    }
+    let g = (sx * dy2 - dx2 * sy) / den;
+    let h = (dx1 * sy - sx * dy1) / den;
+    let unit = Matrix3::new(
+        p1.x - p0.x + g * p1.x,
+        p3.x - p0.x + h * p3.x,
+        p0.x,
+        p1.y - p0.y + g * p1.y,
+        p3.y - p0.y + h * p3.y,
+        p0.y,
+        g,
+        h,
+        1.0,
+    );
+    let s = 1.0 / side;
+    let m = unit * Matrix3::new(s, 0.0, 0.0, 0.0, s, 0.0, 0.0, 0.0, 1.0);
+    m.iter().all(|v| v.is_finite()).then_some(m)
+}
+
 /// The rigid plane-to-camera transform `[r1 r2 t] ~ H` of a plane homography in normalised
 /// camera coordinates (intrinsics already removed), with the plane in front of the camera.
 /// The rotation is the nearest orthonormal matrix (SVD) to `[r1 r2 r1 x r2]`. Zhang's
@@ -151,6 +189,27 @@ mod tests {
         assert!((map(&est, &mid).unwrap() - map(&h, &(mid / 60.0)).unwrap()).norm() < 1e-9);
         // Three points do not determine it.
         assert!(dlt(&src[..3], &dst[..3]).is_none());
+    }
+
+    #[test]
+    fn the_closed_form_square_to_quad_is_the_dlt_of_the_four_corners() {
+        let h = truth();
+        let side = 6.0;
+        let src = [(0.0, 0.0), (side, 0.0), (side, side), (0.0, side)].map(|(x, y)| Point2::new(x, y));
+        // A perspective quad and a parallelogram (affine: the projective row is zero).
+        let persp: [Point2<f64>; 4] = std::array::from_fn(|k| map(&h, &(src[k] / 60.0)).unwrap());
+        let para = [(10.0, 20.0), (70.0, 25.0), (75.0, 95.0), (15.0, 90.0)].map(|(x, y)| Point2::new(x, y));
+        for q in [persp, para] {
+            let closed = square_to_quad(side, &q).unwrap();
+            let reference = dlt(&src, &q).unwrap();
+            for p in [Point2::new(0.0, 0.0), Point2::new(6.0, 6.0), Point2::new(2.5, 3.5), Point2::new(-1.0, 7.0)] {
+                let (a, b) = (map(&closed, &p).unwrap(), map(&reference, &p).unwrap());
+                assert!((a - b).norm() < 1e-9, "{p}: {a} vs {b}");
+            }
+        }
+        // Three corners on a line: no homography.
+        let flat = [(0.0, 0.0), (1.0, 0.0), (2.0, 0.0), (0.0, 1.0)].map(|(x, y)| Point2::new(x, y));
+        assert!(square_to_quad(side, &flat).is_none());
     }
 
     #[test]

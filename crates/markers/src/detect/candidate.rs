@@ -5,7 +5,7 @@ use nalgebra::Point2;
 
 use super::edge::{fit_edge, from_fit, intersect, EdgeFit};
 use super::edge_model::{fit_edge_model, B_MIN};
-use super::grid::fit_grid;
+use super::grid::{fit_grid, GridStart};
 use super::quad::{cross, initial_quad, module_across, pixel_centre};
 use super::{DetectParams, Detection, GrayImage, Quality};
 use crate::dictionary::Dictionary;
@@ -212,7 +212,8 @@ pub(super) fn candidate(
             let lit: Vec<bool> = (0..n * n)
                 .map(|i| white[i] && !(i / n == 0 || i % n == 0 || i / n == n - 1 || i % n == n - 1))
                 .collect();
-            if let Some(g) = fit_grid(img, parity, cam, q, &lit, n, (dark, light), blur) {
+            let start = GridStart { corners: q, light: &lit, modules: n, levels: (dark, light), blur };
+            if let Some(g) = fit_grid(img, parity, cam, &start) {
                 if (0..4).all(|j| (g.corners[j] - q[j]).norm() < 0.5) {
                     let f2 = p.corner_sigma_floor_px * p.corner_sigma_floor_px;
                     q = g.corners;

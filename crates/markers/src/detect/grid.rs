@@ -9,7 +9,7 @@
 //! the edge length of the border alone.
 
 use btfrig_core::camera::CameraModel;
-use btfrig_core::homography::{dlt, map};
+use btfrig_core::homography::{map, square_to_quad};
 use nalgebra::{Matrix3, Point2, SMatrix, SVector, Vector2};
 
 use super::edge::{from_fit, to_fit};
@@ -86,8 +86,7 @@ struct Line {
 /// rows `y = 0..=m` first, then columns `x = 0..=m`.
 fn grid_lines(qf: &[Point2<f64>; 4], m: usize) -> Option<Vec<Line>> {
     let mf = m as f64;
-    let square = [(0.0, 0.0), (mf, 0.0), (mf, mf), (0.0, mf)].map(|(x, y)| Point2::new(x, y));
-    let h = dlt(&square, qf)?;
+    let h = square_to_quad(mf, qf)?;
     let mut lines = Vec::with_capacity(2 * (m + 1));
     for across in [false, true] {
         for k in 0..=m {
@@ -120,33 +119,43 @@ pub(super) struct GridFit {
     pub(super) cov: [[[f64; 2]; 2]; 4],
 }
 
-/// Fits the corners `q` (image pixels, module square corner `k` at `q[k]`) of a marker with
-/// `m x m` modules (border included) whose module `(row r, column c)` is light when
-/// `light[r * m + c]`, to the pixels of the marker and one module around it (of parity
-/// `parity` when given): each pixel is either one module's level or a blurred step across one
-/// boundary between a dark and a light module (the edge model's pixel footprint and the
-/// marker's `blur`); pixels that two boundaries reach are left out. Starts from `levels`
-/// (dark, light). `None` when the fit fails or has too few boundary pixels.
+/// What the grid fit starts from: a decoded marker of `modules x modules` modules (border
+/// included) with corners `corners` (image pixels, module square corner `k` at `corners[k]`),
+/// module `(row r, column c)` light when `light[r * modules + c]`, its (dark, light) levels
+/// and its blur (the edge model's).
+pub(super) struct GridStart<'a> {
+    pub(super) corners: [Point2<f64>; 4],
+    pub(super) light: &'a [bool],
+    pub(super) modules: usize,
+    pub(super) levels: (f64, f64),
+    pub(super) blur: f64,
+}
+
+/// Derivatives of one line's `(n, c)` in the 8 corner coordinates.
+type LineDerivs = [(Vector2<f64>, f64); 8];
+
+/// Fits the corners of the marker `start` to the pixels of the marker and a few pixels
+/// around it (of parity `parity` when given): each pixel is either one module's level or a
+/// blurred step across one boundary between a dark and a light module (the edge model's
+/// pixel footprint and the marker's blur); pixels that two boundaries reach are left out.
+/// `None` when the fit fails or has too few boundary pixels.
 pub(super) fn fit_grid(
     img: &GrayImage,
     parity: Option<usize>,
     cam: Option<&CameraModel>,
-    q: [Point2<f64>; 4],
-    light: &[bool],
-    m: usize,
-    levels: (f64, f64),
-    blur: f64,
+    start: &GridStart,
 ) -> Option<GridFit> {
+    let GridStart { corners: q, light, modules: m, levels, blur } = *start;
     let mut qf = [Point2::origin(); 4];
     for k in 0..4 {
         qf[k] = to_fit(cam, q[k])?;
     }
     let lines = grid_lines(&qf, m)?;
     let mf = m as f64;
-    let square = [(0.0, 0.0), (mf, 0.0), (mf, mf), (0.0, mf)].map(|(x, y)| Point2::new(x, y));
-    let to_module: Matrix3<f64> = dlt(&qf, &square)?;
+    let to_module: Matrix3<f64> = square_to_quad(mf, &qf)?.try_inverse()?;
     // The marker and one module around it, in pixels.
-    let grow = q.iter().enumerate().map(|(k, &a)| (q[(k + 1) % 4] - a).norm()).fold(0.0f64, f64::max) / mf + 2.0;
+    // (Beyond the border, a few pixels of the quiet zone give its level and the outer steps.)
+    let grow = 4.0;
     let (mut xa, mut ya, mut xb, mut yb) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
     for p in &q {
         xa = xa.min(p.x - grow);
@@ -186,15 +195,16 @@ pub(super) fn fit_grid(
             // The boundaries of this pixel's cell that reach it: at most one row line and one
             // column line (modules narrower than two reaches are left out).
             let lines_near = |first: usize, own: i64| -> Option<Option<i64>> {
-                let near: Vec<i64> = [own, own + 1]
-                    .into_iter()
-                    .filter(|&k| (0..=m as i64).contains(&k) && near(first + k as usize))
-                    .collect();
-                match near.len() {
-                    0 => Some(None),
-                    1 => Some(Some(near[0])),
-                    _ => None,
+                let mut found = None;
+                for k in [own, own + 1] {
+                    if (0..=m as i64).contains(&k) && near(first + k as usize) {
+                        if found.is_some() {
+                            return None;
+                        }
+                        found = Some(k);
+                    }
                 }
+                Some(found)
             };
             let (Some(row), Some(col)) = (lines_near(0, cy), lines_near(m + 1, cx)) else { continue };
             let step = |line: usize, before: bool, after: bool| {
@@ -235,7 +245,7 @@ pub(super) fn fit_grid(
 
     // Line parameters and their derivatives in the 8 corner coordinates (central differences:
     // the lines are smooth functions of the corners).
-    let derivs = |qf: &[Point2<f64>; 4]| -> Option<(Vec<Line>, Vec<[(Vector2<f64>, f64); 8]>)> {
+    let derivs = |qf: &[Point2<f64>; 4]| -> Option<(Vec<Line>, Vec<LineDerivs>)> {
         let base = grid_lines(qf, m)?;
         let mut d = vec![[(Vector2::zeros(), 0.0); 8]; base.len()];
         const H: f64 = 1e-3;
@@ -251,53 +261,55 @@ pub(super) fn fit_grid(
         }
         Some((base, d))
     };
-    let eval = |th: &Vct,
-                lines: &[Line],
-                with_jac: bool,
-                jtj: &mut Mat,
-                jtr: &mut Vct,
-                d: Option<&[[(Vector2<f64>, f64); 8]]>|
-     -> f64 {
-        let (dark, lite, gx, gy) = (th[8], th[9], th[10], th[11]);
-        let mut sse = 0.0;
-        for &(pf, v, kind) in &samples {
-            let (ux, uy) = (pf.x - centre.x, pf.y - centre.y);
-            let sh = 1.0 + gx * ux + gy * uy;
-            let mut j = Vct::zeros();
-            let v0 = match kind {
-                Kind::Level { light } => {
-                    let lv = if light { lite } else { dark };
-                    j[if light { 9 } else { 8 }] = sh;
-                    lv
-                }
-                Kind::Step { line, sign } => {
-                    let l = &lines[line];
-                    let s = l.n.dot(&pf.coords) - l.c;
-                    let (cdf, pdf, _) = uniform3_cdf(sign * s, l.n.x.abs().max(0.02), l.n.y.abs().max(0.02), blur);
-                    if with_jac {
-                        let dl = &d.expect("derivatives with the Jacobian")[line];
-                        let g = (lite - dark) * pdf * sign * sh;
-                        for (k, &(dn, dc)) in dl.iter().enumerate() {
-                            j[k] = g * (dn.dot(&pf.coords) - dc);
-                        }
-                        j[8] = (1.0 - cdf) * sh;
-                        j[9] = cdf * sh;
+    let eval =
+        |th: &Vct, lines: &[Line], with_jac: bool, jtj: &mut Mat, jtr: &mut Vct, d: Option<&[LineDerivs]>| -> f64 {
+            let (dark, lite, gx, gy) = (th[8], th[9], th[10], th[11]);
+            let mut sse = 0.0;
+            for &(pf, v, kind) in &samples {
+                let (ux, uy) = (pf.x - centre.x, pf.y - centre.y);
+                let sh = 1.0 + gx * ux + gy * uy;
+                let mut j = Vct::zeros();
+                let v0 = match kind {
+                    Kind::Level { light } => {
+                        let lv = if light { lite } else { dark };
+                        j[if light { 9 } else { 8 }] = sh;
+                        lv
                     }
-                    dark + (lite - dark) * cdf
+                    Kind::Step { line, sign } => {
+                        let l = &lines[line];
+                        let s = l.n.dot(&pf.coords) - l.c;
+                        let (cdf, pdf, _) = uniform3_cdf(sign * s, l.n.x.abs().max(0.02), l.n.y.abs().max(0.02), blur);
+                        if with_jac {
+                            let dl = &d.expect("derivatives with the Jacobian")[line];
+                            let g = (lite - dark) * pdf * sign * sh;
+                            for (k, &(dn, dc)) in dl.iter().enumerate() {
+                                j[k] = g * (dn.dot(&pf.coords) - dc);
+                            }
+                            j[8] = (1.0 - cdf) * sh;
+                            j[9] = cdf * sh;
+                        }
+                        dark + (lite - dark) * cdf
+                    }
+                };
+                let f = v0 * sh;
+                let r = v - f;
+                sse += r * r;
+                if with_jac {
+                    j[10] = v0 * ux;
+                    j[11] = v0 * uy;
+                    // Upper triangle only (mirrored by the caller); a level sample has 3 non-zeros.
+                    for a in 0..P {
+                        if j[a] != 0.0 {
+                            for b in a..P {
+                                jtj[(a, b)] += j[a] * j[b];
+                            }
+                        }
+                    }
+                    *jtr += j * r;
                 }
-            };
-            let f = v0 * sh;
-            let r = v - f;
-            sse += r * r;
-            if with_jac {
-                j[10] = v0 * ux;
-                j[11] = v0 * uy;
-                *jtj += j * j.transpose();
-                *jtr += j * r;
             }
-        }
-        sse
-    };
+            sse
+        };
     let pack =
         |qf: &[Point2<f64>; 4], rest: [f64; 4]| Vct::from_fn(|i, _| if i < 8 { qf[i / 2][i % 2] } else { rest[i - 8] });
     let unpack = |th: &Vct| std::array::from_fn::<Point2<f64>, 4, _>(|k| Point2::new(th[2 * k], th[2 * k + 1]));
@@ -305,6 +317,7 @@ pub(super) fn fit_grid(
     let (mut cur_lines, mut cur_d) = derivs(&qf)?;
     let (mut jtj, mut jtr) = (Mat::zeros(), Vct::zeros());
     let mut cur = eval(&th, &cur_lines, true, &mut jtj, &mut jtr, Some(&cur_d));
+    jtj.fill_lower_triangle_with_upper_triangle();
     let mut lambda = 1e-3;
     for _ in 0..ITERATIONS {
         let mut improved = false;
@@ -333,6 +346,7 @@ pub(super) fn fit_grid(
                 jtj = Mat::zeros();
                 jtr = Vct::zeros();
                 cur = eval(&th, &cur_lines, true, &mut jtj, &mut jtr, Some(&cur_d));
+                jtj.fill_lower_triangle_with_upper_triangle();
                 improved = !small;
                 break;
             }
