@@ -3,7 +3,7 @@
 //! without the renderer; images without markers; a marker cut by the image border.
 
 use btfrig_markers::{detect, detect_in_windows, DetectParams, Dictionary, GrayImage, Window};
-use nalgebra::{Matrix3, Point2, Vector3};
+use nalgebra::{Matrix3, Point2, Vector2, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
@@ -336,4 +336,59 @@ fn regions_searched_on_binned_pixels_give_the_same_corners_and_still_drop_cut_an
     }
     let e = detect(&g, &dict, &DetectParams { region_bin: 5, ..DetectParams::default() }).unwrap_err();
     assert!(e.to_string().contains("region_bin"), "{e}");
+}
+
+#[test]
+fn a_thin_marker_gets_its_corners_from_the_module_grid_unless_a_bit_was_corrected() {
+    // A marker foreshortened 6 times (90 x 15 px, modules 2.5 px across its long sides) along
+    // the pixel diagonal, as at 80 degrees: the module grid fit applies (modules under
+    // `module_grid_below_px`). It needs the true bits: with a corrected bit the edge model's
+    // corners stay, exactly.
+    let dict = Dictionary::dict_4x4_50();
+    let (c, a) = (Point2::new(200.2, 150.4), 45f64.to_radians());
+    let (u, v) = (Vector2::new(a.cos(), a.sin()) * 90.0, Vector2::new(-a.sin(), a.cos()) * 15.0);
+    let q = [c - u / 2.0 - v / 2.0, c + u / 2.0 - v / 2.0, c + u / 2.0 + v / 2.0, c - u / 2.0 + v / 2.0];
+    let grid = DetectParams::default();
+    assert_eq!(grid.module_grid_below_px, 4.0);
+    let edges_only = DetectParams { module_grid_below_px: 0.0, ..grid.clone() };
+    // Error across the long sides (what a foreshortened texel is sensitive to), worst corner.
+    let across = |d: &btfrig_markers::Detection| -> f64 {
+        let n = v.normalize();
+        d.corners.iter().zip(&q).map(|(f, t)| (f - t).dot(&n).abs()).fold(0.0, f64::max)
+    };
+    let (mut worst_grid, mut worst_edges) = (0.0f64, 0.0f64);
+    for seed in 0..4 {
+        let id = 11 + seed as usize;
+        let mut img = vec![1.0f32; W * H];
+        draw(&mut img, &dict, id, &q);
+        add_noise(&mut img, 0.01, 300 + seed);
+        let g = GrayImage::new(W, H, &img).unwrap();
+        let (dg, de) = (detect(&g, &dict, &grid).unwrap(), detect(&g, &dict, &edges_only).unwrap());
+        assert_eq!((dg.len(), de.len()), (1, 1), "seed {seed}: {dg:?} / {de:?}");
+        assert_eq!((dg[0].id as usize, dg[0].hamming), (id, 0));
+        assert_ne!(dg[0].corners, de[0].corners, "seed {seed}: the grid fit did not run");
+        worst_grid = worst_grid.max(across(&dg[0]));
+        worst_edges = worst_edges.max(across(&de[0]));
+        // Below the marker's modules the setting changes nothing.
+        let off = DetectParams { module_grid_below_px: 2.0, ..grid.clone() };
+        assert_eq!(detect(&g, &dict, &off).unwrap(), de, "seed {seed}: modules of 2.5 px are not under 2 px");
+    }
+    println!("thin marker, worst error across the long sides: {worst_grid:.4} px grid, {worst_edges:.4} px edges only");
+    assert!(worst_grid < 0.015 && worst_grid < worst_edges, "grid: {worst_grid} px, edges only {worst_edges} px");
+    // A corrected bit: the same corners as the edge model alone.
+    let mut code = dict.codes[5];
+    code ^= 1 << 6;
+    let one = Dictionary { name: "one".into(), size: 4, codes: vec![code] };
+    let mut img = vec![1.0f32; W * H];
+    draw(&mut img, &one, 0, &q);
+    add_noise(&mut img, 0.01, 310);
+    let g = GrayImage::new(W, H, &img).unwrap();
+    let (dg, de) = (detect(&g, &dict, &grid).unwrap(), detect(&g, &dict, &edges_only).unwrap());
+    assert_eq!(dg.len(), 1, "{dg:?}");
+    assert_eq!((dg[0].id, dg[0].hamming), (5, 1));
+    assert_eq!(dg, de, "a marker with a corrected bit must keep the edge model's corners");
+    // The setting is checked.
+    let bad = DetectParams { module_grid_below_px: -1.0, ..grid };
+    let e = detect(&g, &dict, &bad).unwrap_err().to_string();
+    assert!(e.contains("module_grid_below_px"), "{e}");
 }
