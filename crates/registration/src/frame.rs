@@ -549,8 +549,9 @@ impl PlateRegistrar {
     }
 
     /// How far beyond a search window the detector reads: the threshold's local mean (half
-    /// its window), and at least the edge fits' bands and profiles around a marker inside
-    /// the window (at most 4 + 2 px beyond its outline), with 2 px to spare.
+    /// its window), and at least the edge fits' bands and profiles and the module grid fit
+    /// around a marker inside the window (at most 4 + 2 px beyond its outline), with 2 px to
+    /// spare.
     fn read_margin_px(&self) -> usize {
         (self.detect.threshold_window_px / 2).max(8) + 2
     }

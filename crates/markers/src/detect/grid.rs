@@ -153,8 +153,9 @@ pub(super) fn fit_grid(
     let lines = grid_lines(&qf, m)?;
     let mf = m as f64;
     let to_module: Matrix3<f64> = square_to_quad(mf, &qf)?.try_inverse()?;
-    // The marker and one module around it, in pixels.
-    // (Beyond the border, a few pixels of the quiet zone give its level and the outer steps.)
+    // The marker's bounding box grown by 4 px: beyond the border, a few pixels of the quiet
+    // zone give its level and the outer steps (a whole module would be 14 px along the long
+    // sides at 80 degrees, for nothing more).
     let grow = 4.0;
     let (mut xa, mut ya, mut xb, mut yb) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
     for p in &q {
