@@ -163,8 +163,8 @@ pub(super) fn candidate(
             white[r * n + c] = s / 9.0 > thr;
         }
     }
-    let border_errors =
-        (0..n * n).filter(|&i| white[i] && (i / n == 0 || i % n == 0 || i / n == n - 1 || i % n == n - 1)).count();
+    let on_border = |i: usize| i / n == 0 || i % n == 0 || i / n == n - 1 || i % n == n - 1;
+    let border_errors = (0..n * n).filter(|&i| white[i] && on_border(i)).count();
     if border_errors as u32 > p.max_border_errors {
         return None;
     }
@@ -209,9 +209,7 @@ pub(super) fn candidate(
     if let (Some(blur), 0) = (marker_blur, ham) {
         if narrowest < p.module_grid_below_px {
             // The border is black whatever it read as (`max_border_errors`).
-            let lit: Vec<bool> = (0..n * n)
-                .map(|i| white[i] && !(i / n == 0 || i % n == 0 || i / n == n - 1 || i % n == n - 1))
-                .collect();
+            let lit: Vec<bool> = (0..n * n).map(|i| white[i] && !on_border(i)).collect();
             let start = GridStart { corners: q, light: &lit, modules: n, levels: (dark, light), blur };
             if let Some(g) = fit_grid(img, parity, cam, &start) {
                 if (0..4).all(|j| (g.corners[j] - q[j]).norm() < 0.5) {

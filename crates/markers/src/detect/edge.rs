@@ -46,7 +46,9 @@ pub(super) fn from_fit(cam: Option<&CameraModel>, p: Point2<f64>) -> Option<Poin
 /// The fitting frame's coordinates ([`to_fit`]) of the image points in a band along one
 /// edge, interpolated bilinearly from exact ones on a grid in the edge's own coordinates
 /// (`t` along `a -> b`, `s` along its normal): nodes at most [`EdgeBandMap::MAX_STEP_PX`]
-/// apart along the edge and three across the band. Undistortion is a Newton iteration per
+/// apart along the edge and across a wide band, at least three across (a band along an edge
+/// is at most 10 px wide: three). With the axes as `dir` and `nrm` it maps any rectangle of
+/// the image (the module grid fit's patch around a marker). Undistortion is a Newton iteration per
 /// point and was most of a windowed marker search at 12 MP when done for every band pixel
 /// (`docs/benchmarks.md`); the lens moves a point smoothly (at most ~2e-5 px per px² of
 /// curvature on the simulated rigs), so the interpolation is within ~2e-4 px of the exact
@@ -61,6 +63,7 @@ pub(super) struct EdgeBandMap<'a> {
     nt: usize,
     s0: f64,
     ds: f64,
+    ns: usize,
     /// Exact fitting-frame points, `s` index major: `nodes[j * nt + i]` at `(t0 + i dt, s0 + j ds)`.
     nodes: Vec<Point2<f64>>,
 }
@@ -80,14 +83,26 @@ impl<'a> EdgeBandMap<'a> {
         (t_lo, t_hi): (f64, f64),
         (s_lo, s_hi): (f64, f64),
     ) -> Option<Self> {
-        let mut map =
-            EdgeBandMap { cam, origin: a, dir, nrm, t0: t_lo, dt: 1.0, nt: 0, s0: s_lo, ds: 1.0, nodes: Vec::new() };
+        let mut map = EdgeBandMap {
+            cam,
+            origin: a,
+            dir,
+            nrm,
+            t0: t_lo,
+            dt: 1.0,
+            nt: 0,
+            s0: s_lo,
+            ds: 1.0,
+            ns: 0,
+            nodes: Vec::new(),
+        };
         let Some(c) = cam else { return Some(map) };
         map.nt = (((t_hi - t_lo) / Self::MAX_STEP_PX).ceil() as usize).max(1) + 1;
         map.dt = ((t_hi - t_lo) / (map.nt - 1) as f64).max(1e-9);
-        map.ds = ((s_hi - s_lo) / 2.0).max(1e-9);
-        map.nodes.reserve(3 * map.nt);
-        for j in 0..3 {
+        map.ns = (((s_hi - s_lo) / Self::MAX_STEP_PX).ceil() as usize + 1).max(3);
+        map.ds = ((s_hi - s_lo) / (map.ns - 1) as f64).max(1e-9);
+        map.nodes.reserve(map.ns * map.nt);
+        for j in 0..map.ns {
             for i in 0..map.nt {
                 let p = a + dir * (t_lo + i as f64 * map.dt) + nrm * (s_lo + j as f64 * map.ds);
                 map.nodes.push(to_fit(Some(c), p)?);
@@ -105,11 +120,11 @@ impl<'a> EdgeBandMap<'a> {
         let u = (self.dir.dot(&d) - self.t0) / self.dt;
         let v = (self.nrm.dot(&d) - self.s0) / self.ds;
         let eps = 1e-9;
-        if !(u >= -eps && u <= (self.nt - 1) as f64 + eps && v >= -eps && v <= 2.0 + eps) {
+        if !(u >= -eps && u <= (self.nt - 1) as f64 + eps && v >= -eps && v <= (self.ns - 1) as f64 + eps) {
             return to_fit(self.cam, p);
         }
         let i = (u as usize).min(self.nt - 2);
-        let j = (v as usize).min(1);
+        let j = (v as usize).min(self.ns - 2);
         let (fu, fv) = (u - i as f64, v - j as f64);
         let n = |i: usize, j: usize| self.nodes[j * self.nt + i].coords;
         let q = n(i, j) * ((1.0 - fu) * (1.0 - fv))

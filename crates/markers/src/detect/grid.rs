@@ -12,7 +12,7 @@ use btfrig_core::camera::CameraModel;
 use btfrig_core::homography::{map, square_to_quad};
 use nalgebra::{Matrix3, Point2, SMatrix, SVector, Vector2};
 
-use super::edge::{from_fit, to_fit};
+use super::edge::{from_fit, to_fit, EdgeBandMap};
 use super::edge_model::uniform3_cdf;
 use super::GrayImage;
 
@@ -22,57 +22,13 @@ const P: usize = 12;
 type Mat = SMatrix<f64, P, P>;
 type Vct = SVector<f64, P>;
 
-/// Gauss-Newton iterations at most (from the edge model's corners it converges in 2 to 4).
+/// Levenberg-Marquardt iterations at most (from the edge model's corners it converges in 4 to 7
+/// on the 75-80 degree frames).
 const ITERATIONS: usize = 15;
 
 /// Extra reach (px) beyond a pixel's footprint and the blur within which a boundary counts as
 /// touching the pixel: the corners move by less than this during the fit.
 const REACH_MARGIN_PX: f64 = 0.25;
-
-/// The fitting frame ([`to_fit`]) over a rectangle of pixels, bilinear between exact nodes at
-/// most 8 px apart (as `EdgeBandMap` along an edge; within ~2e-4 px on the simulated lenses).
-struct PatchMap<'a> {
-    cam: Option<&'a CameraModel>,
-    x0: f64,
-    y0: f64,
-    step: f64,
-    nx: usize,
-    nodes: Vec<Point2<f64>>,
-}
-
-impl<'a> PatchMap<'a> {
-    fn new(cam: Option<&'a CameraModel>, (x0, y0): (f64, f64), (x1, y1): (f64, f64)) -> Option<Self> {
-        let step = 8.0;
-        let nx = ((x1 - x0) / step).ceil() as usize + 2;
-        let ny = ((y1 - y0) / step).ceil() as usize + 2;
-        let mut nodes = Vec::new();
-        if cam.is_some() {
-            nodes.reserve(nx * ny);
-            for j in 0..ny {
-                for i in 0..nx {
-                    nodes.push(to_fit(cam, Point2::new(x0 + i as f64 * step, y0 + j as f64 * step))?);
-                }
-            }
-        }
-        Some(PatchMap { cam, x0, y0, step, nx, nodes })
-    }
-
-    fn to_fit(&self, p: Point2<f64>) -> Point2<f64> {
-        if self.cam.is_none() {
-            return p;
-        }
-        let (u, v) = ((p.x - self.x0) / self.step, (p.y - self.y0) / self.step);
-        let (i, j) = (u as usize, v as usize);
-        let (fu, fv) = (u - i as f64, v - j as f64);
-        let n = |i: usize, j: usize| self.nodes[j * self.nx + i].coords;
-        Point2::from(
-            n(i, j) * ((1.0 - fu) * (1.0 - fv))
-                + n(i + 1, j) * (fu * (1.0 - fv))
-                + n(i, j + 1) * ((1.0 - fu) * fv)
-                + n(i + 1, j + 1) * (fu * fv),
-        )
-    }
-}
 
 /// A line `n . p = c` (unit `n`) of the grid in the fitting frame, `n` pointing towards
 /// increasing module coordinate.
@@ -166,7 +122,10 @@ pub(super) fn fit_grid(
     }
     let (x0, y0) = (xa.max(0.0) as usize, ya.max(0.0) as usize);
     let (x1, y1) = ((xb.max(0.0) as usize).min(img.width - 1), (yb.max(0.0) as usize).min(img.height - 1));
-    let patch = PatchMap::new(cam, (x0 as f64, y0 as f64), (x1 as f64, y1 as f64))?;
+    // The fitting frame over the patch, bilinear between exact nodes at most 8 px apart.
+    let (xf, yf) = ((x1 - x0) as f64, (y1 - y0) as f64);
+    let patch =
+        EdgeBandMap::new(cam, Point2::new(x0 as f64, y0 as f64), Vector2::x(), Vector2::y(), (0.0, xf), (0.0, yf))?;
     let cell = |r: i64, c: i64| {
         if r < 0 || c < 0 || r >= m as i64 || c >= m as i64 {
             true // the quiet zone around the marker
@@ -183,7 +142,7 @@ pub(super) fn fit_grid(
             if parity.is_some_and(|p| (x + y) % 2 != p) {
                 continue;
             }
-            let pf = patch.to_fit(Point2::new(x as f64, y as f64));
+            let Some(pf) = patch.to_fit(Point2::new(x as f64, y as f64)) else { continue };
             let Some(mm) = map(&to_module, &pf) else { continue };
             if !(mm.x > -1.0 && mm.x < mf + 1.0 && mm.y > -1.0 && mm.y < mf + 1.0) {
                 continue;
@@ -262,63 +221,68 @@ pub(super) fn fit_grid(
         }
         Some((base, d))
     };
-    let eval =
-        |th: &Vct, lines: &[Line], with_jac: bool, jtj: &mut Mat, jtr: &mut Vct, d: Option<&[LineDerivs]>| -> f64 {
-            let (dark, lite, gx, gy) = (th[8], th[9], th[10], th[11]);
-            let mut sse = 0.0;
-            for &(pf, v, kind) in &samples {
-                let (ux, uy) = (pf.x - centre.x, pf.y - centre.y);
-                let sh = 1.0 + gx * ux + gy * uy;
-                let mut j = Vct::zeros();
-                let v0 = match kind {
-                    Kind::Level { light } => {
-                        let lv = if light { lite } else { dark };
-                        j[if light { 9 } else { 8 }] = sh;
-                        lv
-                    }
-                    Kind::Step { line, sign } => {
-                        let l = &lines[line];
-                        let s = l.n.dot(&pf.coords) - l.c;
-                        let (cdf, pdf, _) = uniform3_cdf(sign * s, l.n.x.abs().max(0.02), l.n.y.abs().max(0.02), blur);
-                        if with_jac {
-                            let dl = &d.expect("derivatives with the Jacobian")[line];
-                            let g = (lite - dark) * pdf * sign * sh;
-                            for (k, &(dn, dc)) in dl.iter().enumerate() {
-                                j[k] = g * (dn.dot(&pf.coords) - dc);
-                            }
-                            j[8] = (1.0 - cdf) * sh;
-                            j[9] = cdf * sh;
-                        }
-                        dark + (lite - dark) * cdf
-                    }
-                };
-                let f = v0 * sh;
-                let r = v - f;
-                sse += r * r;
-                if with_jac {
-                    j[10] = v0 * ux;
-                    j[11] = v0 * uy;
-                    // Upper triangle only (mirrored by the caller); a level sample has 3 non-zeros.
-                    for a in 0..P {
-                        if j[a] != 0.0 {
-                            for b in a..P {
-                                jtj[(a, b)] += j[a] * j[b];
-                            }
-                        }
-                    }
-                    *jtr += j * r;
-                }
-            }
-            sse
-        };
-    let pack =
-        |qf: &[Point2<f64>; 4], rest: [f64; 4]| Vct::from_fn(|i, _| if i < 8 { qf[i / 2][i % 2] } else { rest[i - 8] });
     let unpack = |th: &Vct| std::array::from_fn::<Point2<f64>, 4, _>(|k| Point2::new(th[2 * k], th[2 * k + 1]));
-    let mut th = pack(&qf, [levels.0, levels.1, 0.0, 0.0]);
-    let (mut cur_lines, mut cur_d) = derivs(&qf)?;
-    let (mut jtj, mut jtr) = (Mat::zeros(), Vct::zeros());
-    let mut cur = eval(&th, &cur_lines, true, &mut jtj, &mut jtr, Some(&cur_d));
-    jtj.fill_lower_triangle_with_upper_triangle();
+    // The sum of squared residuals at `th` (corners already in `lines`); with `normal`, the
+    // lines' derivatives and the normal equations to accumulate (upper triangle only).
+    let eval = |th: &Vct, lines: &[Line], mut normal: Option<(&[LineDerivs], &mut Mat, &mut Vct)>| -> f64 {
+        let (dark, lite, gx, gy) = (th[8], th[9], th[10], th[11]);
+        let mut sse = 0.0;
+        for &(pf, v, kind) in &samples {
+            let (ux, uy) = (pf.x - centre.x, pf.y - centre.y);
+            let sh = 1.0 + gx * ux + gy * uy;
+            let mut j = Vct::zeros();
+            let v0 = match kind {
+                Kind::Level { light } => {
+                    j[if light { 9 } else { 8 }] = sh;
+                    if light {
+                        lite
+                    } else {
+                        dark
+                    }
+                }
+                Kind::Step { line, sign } => {
+                    let l = &lines[line];
+                    let s = l.n.dot(&pf.coords) - l.c;
+                    let (cdf, pdf, _) = uniform3_cdf(sign * s, l.n.x.abs().max(0.02), l.n.y.abs().max(0.02), blur);
+                    if let Some((d, _, _)) = &normal {
+                        let g = (lite - dark) * pdf * sign * sh;
+                        for (k, &(dn, dc)) in d[line].iter().enumerate() {
+                            j[k] = g * (dn.dot(&pf.coords) - dc);
+                        }
+                        j[8] = (1.0 - cdf) * sh;
+                        j[9] = cdf * sh;
+                    }
+                    dark + (lite - dark) * cdf
+                }
+            };
+            let r = v - v0 * sh;
+            sse += r * r;
+            if let Some((_, jtj, jtr)) = &mut normal {
+                j[10] = v0 * ux;
+                j[11] = v0 * uy;
+                // A level sample has 3 non-zero derivatives of 12.
+                for a in 0..P {
+                    if j[a] != 0.0 {
+                        for b in a..P {
+                            jtj[(a, b)] += j[a] * j[b];
+                        }
+                    }
+                }
+                **jtr += j * r;
+            }
+        }
+        sse
+    };
+    // The residual sum and the normal equations at `th`.
+    let normal_equations = |th: &Vct| -> Option<(f64, Mat, Vct)> {
+        let (lines, d) = derivs(&unpack(th))?;
+        let (mut jtj, mut jtr) = (Mat::zeros(), Vct::zeros());
+        let sse = eval(th, &lines, Some((&d, &mut jtj, &mut jtr)));
+        jtj.fill_lower_triangle_with_upper_triangle();
+        Some((sse, jtj, jtr))
+    };
+    let mut th = Vct::from_fn(|i, _| if i < 8 { qf[i / 2][i % 2] } else { [levels.0, levels.1, 0.0, 0.0][i - 8] });
+    let (mut cur, mut jtj, mut jtr) = normal_equations(&th)?;
     let mut lambda = 1e-3;
     for _ in 0..ITERATIONS {
         let mut improved = false;
@@ -338,16 +302,11 @@ pub(super) fn fit_grid(
                 lambda *= 10.0;
                 continue;
             };
-            let new = eval(&cand, &cl, false, &mut Mat::zeros(), &mut Vct::zeros(), None);
-            if new <= cur && cand[9] > cand[8] {
+            if eval(&cand, &cl, None) <= cur && cand[9] > cand[8] {
                 let small = (0..8).all(|i| step[i].abs() < 1e-5);
                 th = cand;
                 lambda = (lambda * 0.3).max(1e-9);
-                (cur_lines, cur_d) = derivs(&cq)?;
-                jtj = Mat::zeros();
-                jtr = Vct::zeros();
-                cur = eval(&th, &cur_lines, true, &mut jtj, &mut jtr, Some(&cur_d));
-                jtj.fill_lower_triangle_with_upper_triangle();
+                (cur, jtj, jtr) = normal_equations(&th)?;
                 improved = !small;
                 break;
             }
